@@ -1,0 +1,3 @@
+from rjfit.cli import main
+
+main(prog_name="rjfit")

@@ -1,0 +1,1 @@
+"""Data sets, EXR / PNG loaders, observations and masks."""

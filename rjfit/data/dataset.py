@@ -1,0 +1,203 @@
+"""Data sets on disk: the rjfit layout (rendered or measured) and its loader.
+
+Layout (``dataset.json`` documents itself; see ``docs/dataset-format.md``)::
+
+    DATASET/dataset.json             description: camera, lights, meshes, units, seed, versions
+    DATASET/images/light_NNN.exr     one linear float32 RGB image per light
+    DATASET/geometry.exr             P.X P.Y P.Z  N.X N.Y N.Z  V.X V.Y V.Z  mask (pixel centres)
+    DATASET/visibility.exr           one channel per light: 1 where a shadow ray reaches it
+    DATASET/truth_labels.exr         synthetic only: material index per pixel, -1 off the object
+    DATASET/meshes/part_NNN.ply      the scene's meshes, one per material part
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rjfit.data.exr import read_exr
+from rjfit.data.lights import Light, geometry_terms
+from rjfit.data.observations import Observations, observations_from_stack, valid_observation_mask
+
+__all__ = ["Dataset", "load_dataset", "write_json_atomic", "DATASET_FORMAT", "CHANNELS"]
+
+DATASET_FORMAT = "rjfit-dataset/1"
+CHANNELS = ("mean", "R", "G", "B", "luminance")
+
+
+def write_json_atomic(path, payload) -> None:
+    """Write JSON so that readers see the old file or the new one, never half of one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    temporary.write_text(json.dumps(payload, indent=1, sort_keys=False, default=_json_default))
+    os.replace(temporary, path)
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """An image stack with its geometry, lights and (for synthetic data) ground truth.
+
+    Attributes
+    ----------
+    path : Path
+    meta : dict
+        The contents of ``dataset.json``.
+    images : ndarray, shape (L, H, W, C)
+        Linear radiance per light; C = 3 (R, G, B).
+    normals, view_dirs : ndarray, shape (H, W, 3)
+    positions : ndarray, shape (H, W, 3) or None
+        Needed for point lights (distance); None for directional-light data.
+    visibility : ndarray of bool, shape (L, H, W) or None
+    object_mask : ndarray of bool, shape (H, W)
+    lights : list of Light
+    truth_labels : ndarray of int, shape (H, W) or None
+        Material index per pixel, -1 off the object.
+    truth_params : list of dict or None
+        ``{I0, kd, gamma, sigma2}`` per material index.
+    saturation : float or None
+        Values at or above it are clipped measurements and never enter the likelihood.
+    """
+
+    path: Path
+    meta: dict
+    images: np.ndarray
+    normals: np.ndarray
+    view_dirs: np.ndarray
+    positions: np.ndarray | None
+    visibility: np.ndarray | None
+    object_mask: np.ndarray
+    lights: list
+    truth_labels: np.ndarray | None = None
+    truth_params: list | None = None
+    saturation: float | None = None
+
+    @property
+    def n_lights(self) -> int:
+        return len(self.lights)
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        return tuple(self.object_mask.shape)
+
+    @property
+    def reference_intensity(self) -> float:
+        return float(self.meta.get("reference_intensity", 1.0))
+
+    def channel_values(self, channel: str = "mean") -> np.ndarray:
+        """The (L, H, W) stack of one colour channel, the channel mean or the luminance.
+
+        ``luminance`` is CIE Y of linear RGB with the sRGB / ITU-R BT.709 primaries
+        (colour-science's ``RGB_luminance``).
+        """
+        if channel not in CHANNELS:
+            raise ValueError(f"channel must be one of {CHANNELS}, got {channel!r}")
+        if channel == "mean":
+            return self.images.mean(axis=-1)
+        if channel == "luminance":
+            import colour
+
+            space = colour.RGB_COLOURSPACES["sRGB"]
+            return colour.RGB_luminance(self.images, space.primaries, space.whitepoint)
+        return self.images[..., "RGB".index(channel)]
+
+    def geometry(self):
+        """Per light ``<l.n>``, ``<h.n>`` and relative irradiance, each (L, H, W)."""
+        positions = self.positions if self.positions is not None else np.zeros_like(self.normals)
+        terms = [geometry_terms(positions, self.normals, self.view_dirs, light, self.reference_intensity)
+                 for light in self.lights]
+        return tuple(np.stack(stack) for stack in zip(*terms))
+
+    def valid_mask(self, channel: str = "mean", dark: float | None = None) -> np.ndarray:
+        """Valid observations (L, H, W): on the object, lit, not shadowed, not saturated."""
+        cos_ln, _, _ = self.geometry()
+        valid = valid_observation_mask(self.channel_values(channel), cos_ln, self.visibility, self.object_mask,
+                                       dark=dark)
+        if self.saturation is not None:
+            # A pixel is saturated when any of its channels is clipped.
+            valid &= ~(self.images >= self.saturation).any(axis=-1)
+        return valid
+
+    def observations(self, channel: str = "mean", dark: float | None = None) -> Observations:
+        """The valid observations of one channel (see :meth:`valid_mask`)."""
+        cos_ln, cos_hn, irradiance = self.geometry()
+        valid = self.valid_mask(channel, dark)
+        return observations_from_stack(self.channel_values(channel), cos_ln, cos_hn, irradiance, valid,
+                                       self.object_mask)
+
+
+def _require(condition, message):
+    if not condition:
+        raise ValueError(message)
+
+
+def load_dataset(path) -> Dataset:
+    """Load a data set in the rjfit layout (see the module docstring).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the folder, ``dataset.json`` or a file it names is missing.
+    ValueError
+        If a file holds NaN/Inf, sizes disagree, or lights and images do not pair up.
+    """
+    path = Path(path)
+    description_path = path / "dataset.json"
+    if not description_path.is_file():
+        from rjfit.data.diligent import is_diligent_folder, load_diligent
+
+        if is_diligent_folder(path):
+            return load_diligent(path)
+        raise FileNotFoundError(f"{path}: not a data set (no dataset.json, and not a DiLiGenT-style folder)")
+    meta = json.loads(description_path.read_text())
+    _require(meta.get("format") == DATASET_FORMAT,
+             f"{description_path}: format is {meta.get('format')!r}, expected {DATASET_FORMAT!r}")
+    lights = [Light.from_json(entry) for entry in meta["lights"]]
+    image_files = meta["images"]
+    _require(len(image_files) == len(lights),
+             f"{description_path}: {len(lights)} lights but {len(image_files)} images; every light needs "
+             f"exactly one image")
+    height, width = meta["resolution"]
+    images = []
+    for name in image_files:
+        channels = read_exr(path / name)
+        _require(all(c in channels for c in "RGB"), f"{path / name}: needs channels R, G, B, has {sorted(channels)}")
+        image = np.stack([channels[c] for c in "RGB"], axis=-1)
+        _require(image.shape[:2] == (height, width),
+                 f"{path / name}: image is {image.shape[1]} x {image.shape[0]}, the data set says "
+                 f"{width} x {height}")
+        bad = ~np.isfinite(image)
+        _require(not bad.any(), f"{path / name}: {int(bad.any(axis=-1).sum())} pixels are NaN or Inf")
+        images.append(image)
+    geometry = read_exr(path / meta["geometry"])
+    for channel_name, channel in geometry.items():
+        _require(channel.shape == (height, width),
+                 f"{path / meta['geometry']}: channel {channel_name} is {channel.shape}, expected {(height, width)}")
+    stack3 = lambda prefix: np.stack([geometry[f"{prefix}.{axis}"] for axis in "XYZ"], axis=-1).astype(np.float64)
+    object_mask = geometry["mask"] > 0.5
+    visibility = None
+    if meta.get("visibility"):
+        visibility_channels = read_exr(path / meta["visibility"])
+        visibility = np.stack([visibility_channels[f"light_{i:03d}"] > 0.5 for i in range(len(lights))])
+    truth_labels = truth_params = None
+    if meta.get("truth_labels"):
+        truth_labels = np.rint(read_exr(path / meta["truth_labels"])["label"]).astype(np.int32)
+        truth_params = [{key: float(material[key]) for key in ("I0", "kd", "gamma", "sigma2")}
+                        for material in meta["materials"]]
+    return Dataset(path=path, meta=meta, images=np.stack(images).astype(np.float64), normals=stack3("N"),
+                   view_dirs=stack3("V"), positions=stack3("P"), visibility=visibility, object_mask=object_mask,
+                   lights=lights, truth_labels=truth_labels, truth_params=truth_params,
+                   saturation=meta.get("saturation"))

@@ -1,0 +1,93 @@
+"""Lights of a data set and the per-pixel geometry terms they induce."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Light", "geometry_terms"]
+
+
+@dataclass(frozen=True)
+class Light:
+    """One light of a stack.
+
+    ``kind`` is ``"point"`` (``position`` in scene units, ``intensity`` as Mitsuba's point
+    emitter takes it: radiance ``I / r^2`` at the surface) or ``"directional"``
+    (``direction`` points *towards* the light, ``intensity`` is the irradiance).
+    """
+
+    kind: str
+    intensity: float
+    position: tuple[float, float, float] | None = None
+    direction: tuple[float, float, float] | None = None
+
+    def __post_init__(self):
+        if self.kind not in ("point", "directional"):
+            raise ValueError(f"light kind must be 'point' or 'directional', got {self.kind!r}")
+        if self.kind == "point" and self.position is None:
+            raise ValueError("a point light needs a position")
+        if self.kind == "directional":
+            if self.direction is None:
+                raise ValueError("a directional light needs a direction (towards the light)")
+            norm = float(np.linalg.norm(self.direction))
+            if not np.isfinite(norm) or norm == 0.0:
+                raise ValueError(f"directional light direction {self.direction} has no length")
+        if not np.isfinite(self.intensity) or self.intensity <= 0:
+            raise ValueError(f"light intensity must be positive and finite, got {self.intensity}")
+
+    def to_json(self) -> dict:
+        out = {"kind": self.kind, "intensity": float(self.intensity)}
+        if self.position is not None:
+            out["position"] = [float(c) for c in self.position]
+        if self.direction is not None:
+            out["direction"] = [float(c) for c in self.direction]
+        return out
+
+    @classmethod
+    def from_json(cls, entry: dict) -> "Light":
+        return cls(
+            kind=entry["kind"],
+            intensity=float(entry["intensity"]),
+            position=tuple(entry["position"]) if entry.get("position") is not None else None,
+            direction=tuple(entry["direction"]) if entry.get("direction") is not None else None,
+        )
+
+
+def _normalise(vectors):
+    norm = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    return vectors / np.where(norm > 0, norm, 1.0)
+
+
+def geometry_terms(positions, normals, view_dirs, light, reference_intensity=1.0):
+    """Per-pixel ``<l.n>``, ``<h.n>`` and relative irradiance for one light.
+
+    Parameters
+    ----------
+    positions, normals, view_dirs : ndarray, shape (..., 3)
+        Surface points, unit shading normals and unit directions towards the camera.
+    light : Light
+    reference_intensity : float
+        The intensity that the fitted ``I0`` is relative to: the irradiance factor is
+        ``light.intensity / reference_intensity / r^2``.
+
+    Returns
+    -------
+    cos_ln, cos_hn, irradiance : ndarray, shape (...)
+    """
+    positions = np.asarray(positions, dtype=float)
+    normals = np.asarray(normals, dtype=float)
+    view_dirs = np.asarray(view_dirs, dtype=float)
+    relative = light.intensity / reference_intensity
+    if light.kind == "point":
+        to_light = np.asarray(light.position, dtype=float) - positions
+        dist2 = np.sum(to_light * to_light, axis=-1)
+        light_dirs = to_light / np.sqrt(np.where(dist2 > 0, dist2, 1.0))[..., None]
+        irradiance = relative / np.where(dist2 > 0, dist2, np.inf)
+    else:
+        light_dirs = np.broadcast_to(_normalise(np.asarray(light.direction, dtype=float)), positions.shape)
+        irradiance = np.full(positions.shape[:-1], relative)
+    half = _normalise(light_dirs + view_dirs)
+    cos_ln = np.sum(light_dirs * normals, axis=-1)
+    cos_hn = np.sum(half * normals, axis=-1)
+    return cos_ln, cos_hn, irradiance

@@ -1,0 +1,139 @@
+"""Observations: per pixel and light, y, <l.n>, <h.n>, irradiance, and which are valid.
+
+Only valid observations are stored (flat arrays over observations), so memory grows with
+the number of valid observations rather than with pixels x lights.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Observations", "valid_observation_mask", "observations_from_stack", "valid_images_per_pixel"]
+
+
+@dataclass(frozen=True)
+class Observations:
+    """The valid observations of one image stack (paper, eq. 1: one y per pixel and light).
+
+    Attributes
+    ----------
+    image_shape : (int, int)
+        ``(height, width)`` of the images.
+    n_lights : int
+    pixel : ndarray of int64, shape (N,)
+        Flat pixel index ``row * width + col`` of each observation.
+    light : ndarray of int32, shape (N,)
+        Light (image) index of each observation.
+    y, cos_ln, cos_hn, irradiance : ndarray of float64, shape (N,)
+        Measured value, geometry terms and relative irradiance (intensity / r^2).
+    object_mask : ndarray of bool, shape (H, W)
+    """
+
+    image_shape: tuple[int, int]
+    n_lights: int
+    pixel: np.ndarray
+    light: np.ndarray
+    y: np.ndarray
+    cos_ln: np.ndarray
+    cos_hn: np.ndarray
+    irradiance: np.ndarray
+    object_mask: np.ndarray
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.y.shape[0])
+
+    @property
+    def row(self) -> np.ndarray:
+        return self.pixel // self.image_shape[1]
+
+    @property
+    def col(self) -> np.ndarray:
+        return self.pixel % self.image_shape[1]
+
+    @property
+    def valid_count(self) -> np.ndarray:
+        """The paper's "valid images per pixel" map (its Fig. 8), shape (H, W)."""
+        height, width = self.image_shape
+        return np.bincount(self.pixel, minlength=height * width).reshape(height, width)
+
+    def subset(self, keep: np.ndarray) -> "Observations":
+        """The observations selected by a boolean or index array over observations."""
+        return Observations(
+            image_shape=self.image_shape, n_lights=self.n_lights, pixel=self.pixel[keep],
+            light=self.light[keep], y=self.y[keep], cos_ln=self.cos_ln[keep],
+            cos_hn=self.cos_hn[keep], irradiance=self.irradiance[keep], object_mask=self.object_mask,
+        )
+
+
+def valid_observation_mask(images, cos_ln, visible, object_mask, *, saturation=None, dark=None,
+                           min_cos=1e-3):
+    """Which observations may enter the likelihood.
+
+    An observation (light ``l``, pixel ``p``) is valid when the pixel lies in the object
+    mask, the surface faces the light (``<l.n> > min_cos``), the light is not occluded
+    (``visible``), the value is finite, below ``saturation`` (a saturated value is a bound,
+    not a measurement) and, if given, above ``dark``.
+
+    Parameters
+    ----------
+    images, cos_ln : ndarray, shape (L, H, W)
+    visible : ndarray of bool, shape (L, H, W) or None (no cast shadows known)
+    object_mask : ndarray of bool, shape (H, W)
+    saturation, dark : float or None
+
+    Returns
+    -------
+    ndarray of bool, shape (L, H, W)
+    """
+    images = np.asarray(images)
+    valid = np.broadcast_to(np.asarray(object_mask, dtype=bool), images.shape).copy()
+    valid &= np.asarray(cos_ln) > min_cos
+    valid &= np.isfinite(images)
+    if visible is not None:
+        valid &= np.asarray(visible, dtype=bool)
+    if saturation is not None:
+        valid &= images < saturation
+    if dark is not None:
+        valid &= images > dark
+    return valid
+
+
+def valid_images_per_pixel(valid):
+    """Count of valid images per pixel (paper, Fig. 8) from an (L, H, W) validity mask."""
+    return np.asarray(valid, dtype=bool).sum(axis=0)
+
+
+def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_mask) -> Observations:
+    """Gather the valid entries of dense (L, H, W) arrays into :class:`Observations`.
+
+    Raises
+    ------
+    ValueError
+        If the arrays disagree in shape or no observation is valid.
+    """
+    images = np.asarray(images, dtype=float)
+    if images.ndim != 3:
+        raise ValueError(f"images must have shape (lights, height, width), got {images.shape}")
+    for name, array in (("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance), ("valid", valid)):
+        if np.shape(array) != images.shape:
+            raise ValueError(f"{name} has shape {np.shape(array)}, images have {images.shape}")
+    if np.shape(object_mask) != images.shape[1:]:
+        raise ValueError(f"object mask has shape {np.shape(object_mask)}, images are {images.shape[1:]}")
+    valid = np.asarray(valid, dtype=bool)
+    if not valid.any():
+        raise ValueError("no valid observation: check the object mask, the lights and the saturation level")
+    light_index, rows, cols = np.nonzero(valid)
+    width = images.shape[2]
+    return Observations(
+        image_shape=(int(images.shape[1]), int(width)),
+        n_lights=int(images.shape[0]),
+        pixel=(rows.astype(np.int64) * width + cols),
+        light=light_index.astype(np.int32),
+        y=images[valid],
+        cos_ln=np.asarray(cos_ln, dtype=float)[valid],
+        cos_hn=np.asarray(cos_hn, dtype=float)[valid],
+        irradiance=np.asarray(irradiance, dtype=float)[valid],
+        object_mask=np.asarray(object_mask, dtype=bool),
+    )

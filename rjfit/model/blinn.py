@@ -1,0 +1,64 @@
+"""Closed form of the paper's reflectance model (Lenoch et al. 2016, eq. 1-3).
+
+    mu = I0 * E * ( kd/pi + (1 - kd) * N(g) * <h.n>^g ) * <l.n>
+
+``E`` is the relative irradiance factor of an observation: the light's relative
+intensity divided by r^2 for a point light, the relative intensity alone for a
+directional light. ``N(g)`` is the energy normalisation of the Blinn-Phong lobe
+given by Giesen (2009), "Derivation of Phong and Blinn-Phong BRDF normalization
+factors".
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["blinn_normalisation", "brdf", "radiance", "log_cos_power"]
+
+
+def blinn_normalisation(gamma):
+    """Giesen's normalisation factor ``(g+2)(g+4) / (8 pi (2^(-g/2) + g))``.
+
+    With it, the lobe ``N(g) <h.n>^g <l.n>`` integrates to (nearly exactly) one over the
+    hemisphere of light directions for normal incidence of the viewer.
+    """
+    gamma = np.asarray(gamma, dtype=float)
+    return (gamma + 2.0) * (gamma + 4.0) / (8.0 * np.pi * (np.exp2(-gamma / 2.0) + gamma))
+
+
+def log_cos_power(cos_hn, gamma):
+    """``<h.n>^g`` computed as ``exp(g log <h.n>)``, zero where ``<h.n> <= 0``.
+
+    ``<h.n>`` of a valid observation is positive (both <l.n> and <v.n> are), so the clip
+    only guards invalid inputs against NaN.
+    """
+    cos_hn = np.asarray(cos_hn, dtype=float)
+    positive = cos_hn > 0.0
+    log_cos = np.log(np.where(positive, cos_hn, 1.0))
+    return np.where(positive, np.exp(gamma * log_cos), 0.0)
+
+
+def brdf(kd, gamma, cos_hn):
+    """The BRDF value ``kd/pi + (1 - kd) N(g) <h.n>^g`` (per steradian)."""
+    return kd / np.pi + (1.0 - kd) * blinn_normalisation(gamma) * log_cos_power(cos_hn, gamma)
+
+
+def radiance(I0, kd, gamma, cos_ln, cos_hn, irradiance):
+    """Closed-form radiance ``mu`` of eq. 2 for arrays of observations.
+
+    Parameters
+    ----------
+    I0, kd, gamma : float or array_like
+        Intensity scale, diffuse fraction (``ks = 1 - kd``) and Blinn exponent;
+        broadcast against the observation arrays (e.g. per-observation region values).
+    cos_ln, cos_hn : array_like
+        ``<l.n>`` and ``<h.n>`` per observation; ``<l.n> <= 0`` gives zero radiance.
+    irradiance : array_like
+        Relative light intensity times ``1/r^2`` (1/r^2 = 1 for directional lights).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``mu`` with the broadcast shape of the inputs.
+    """
+    cos_ln = np.asarray(cos_ln, dtype=float)
+    return I0 * np.asarray(irradiance, dtype=float) * brdf(kd, gamma, cos_hn) * np.maximum(cos_ln, 0.0)

@@ -1,0 +1,205 @@
+"""Mitsuba scenes from rjfit scene definitions, and per-pixel tracing at pixel centres.
+
+Every image rjfit renders is traced along exactly one camera ray per pixel, through the
+pixel's centre, with Mitsuba's own integrator (``integrator.sample``); the geometry of the
+data set (positions, shading normals, shadow-ray visibility) comes from the same rays. The
+film's pixel-footprint average is avoided on purpose: it averages radiance over a footprint
+while the geometry is one point, which costs the cross-check ~1e-4 (see the design notes).
+Several samples per pixel (``spp``) repeat the same ray, so they only average the random
+part of path tracing (indirect light), never the geometry.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rjfit.data.lights import Light
+
+__all__ = ["activate", "camera_dict", "light_dict", "material_dict", "build_scene", "trace_pixels", "path_trace",
+           "shadow_visibility", "DEFAULT_VARIANT"]
+
+DEFAULT_VARIANT = "llvm_ad_rgb"
+
+
+def activate(variant: str = DEFAULT_VARIANT):
+    """Set the Mitsuba variant, register rjfit's BSDF for it and return the ``mitsuba`` module.
+
+    Raises
+    ------
+    ValueError
+        If the variant is not available in the installed Mitsuba.
+    """
+    import mitsuba as mi
+
+    if variant not in mi.variants():
+        raise ValueError(f"Mitsuba variant {variant!r} is not available; installed: {mi.variants()}")
+    mi.set_variant(variant)
+    from rjfit.render.plugin import register
+
+    register()
+    return mi
+
+
+def camera_dict(camera: dict, resolution) -> dict:
+    """The Mitsuba sensor of a scene definition's ``camera`` entry (perspective or orthographic)."""
+    import mitsuba as mi
+
+    height, width = int(resolution[0]), int(resolution[1])
+    to_world = mi.ScalarTransform4f().look_at(origin=camera["origin"], target=camera["target"], up=camera["up"])
+    sensor = {"to_world": to_world, "film": {"type": "hdrfilm", "width": width, "height": height,
+                                             "rfilter": {"type": "box"}, "pixel_format": "rgb"}}
+    if camera["kind"] == "perspective":
+        sensor.update(type="perspective", fov=float(camera["fov"]), fov_axis="x")
+    elif camera["kind"] == "orthographic":
+        half_width = float(camera["half_width"])
+        sensor.update(type="orthographic",
+                      to_world=to_world @ mi.ScalarTransform4f().scale([half_width, half_width, 1.0]))
+    else:
+        raise ValueError(f"camera kind must be 'perspective' or 'orthographic', got {camera['kind']!r}")
+    return sensor
+
+
+def light_dict(light: Light, value_format: str = "rgb") -> dict:
+    """The Mitsuba emitter of a light.
+
+    ``value_format="rgb"`` passes the intensity as an RGB triple, which Mitsuba takes
+    exactly. ``"spectrum"`` passes it as an equal-energy spectrum, which an RGB variant
+    turns into (1.205, 0.948, 0.909) x I: kept only so tests can show that the cross-check
+    catches that mistake.
+    """
+    if value_format == "rgb":
+        value = {"type": "rgb", "value": [light.intensity] * 3}
+    elif value_format == "spectrum":
+        value = {"type": "spectrum", "value": light.intensity}
+    else:
+        raise ValueError(f"value_format must be 'rgb' or 'spectrum', got {value_format!r}")
+    if light.kind == "point":
+        return {"type": "point", "position": list(light.position), "intensity": value}
+    direction = -np.asarray(light.direction, dtype=float)       # Mitsuba: direction of travel
+    return {"type": "directional", "direction": direction.tolist(), "irradiance": value}
+
+
+def material_dict(material: dict, reference_intensity: float) -> dict:
+    """The plugin BSDF of a material ``{I0, kd, gamma}``: scale = I0 / reference intensity."""
+    from rjfit.render.plugin import PLUGIN_NAME
+
+    return {"type": PLUGIN_NAME, "kd": float(material["kd"]), "gamma": float(material["gamma"]),
+            "scale": float(material["I0"]) / float(reference_intensity)}
+
+
+def build_scene(camera: dict, resolution, mesh_parts, materials, lights=(), *, reference_intensity=1.0,
+                max_depth=8, light_format="rgb", bsdf_override=None, extra=None):
+    """Load a Mitsuba scene.
+
+    Parameters
+    ----------
+    camera : dict
+        The scene definition's camera entry.
+    resolution : (height, width)
+    mesh_parts : list of (ply_path, material_index)
+    materials : list of dict
+        ``{I0, kd, gamma}`` per material index.
+    lights : sequence of Light
+    max_depth : int
+        Path length of the ``path`` integrator (2 = direct light only).
+    bsdf_override : callable or None
+        ``material_index -> Mitsuba BSDF dict`` replacing the plugin (used to hide effects).
+    extra : dict or None
+        More scene entries (e.g. an ``envmap`` or ``constant`` emitter).
+    """
+    import mitsuba as mi
+
+    scene = {"type": "scene", "integrator": {"type": "path", "max_depth": int(max_depth)},
+             "sensor": camera_dict(camera, resolution)}
+    for part_index, (ply_path, material_index) in enumerate(mesh_parts):
+        bsdf = (bsdf_override(material_index) if bsdf_override is not None
+                else material_dict(materials[material_index], reference_intensity))
+        scene[f"part_{part_index:03d}"] = {"type": "ply", "filename": str(ply_path), "bsdf": bsdf}
+    for light_index, light in enumerate(lights):
+        scene[f"light_{light_index:03d}"] = light_dict(light, light_format)
+    scene.update(extra or {})
+    return mi.load_dict(scene)
+
+
+def _pixel_centre_rays(scene):
+    import drjit as dr
+    import mitsuba as mi
+
+    sensor = scene.sensors()[0]
+    width, height = sensor.film().size()
+    index = dr.arange(mi.UInt32, width * height)
+    film_position = mi.Point2f((mi.Float(index % width) + 0.5) / width, (mi.Float(index // width) + 0.5) / height)
+    rays, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), film_position, mi.Point2f(0.5, 0.5))
+    return rays, (int(height), int(width))
+
+
+def trace_pixels(scene, mesh_material_indices):
+    """Geometry at the pixel centres: positions, shading normals, view directions, labels.
+
+    Returns
+    -------
+    dict of ndarray
+        ``positions``, ``normals``, ``view_dirs`` (H, W, 3), ``hit`` (H, W) bool and
+        ``material`` (H, W) int (-1 where no surface is hit), from the ``mesh_parts`` order.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    rays, (height, width) = _pixel_centre_rays(scene)
+    interaction = scene.ray_intersect(rays)
+    hit = np.array(interaction.is_valid(), dtype=bool)
+    material = np.full(height * width, -1, dtype=np.int32)
+    shapes = scene.shapes()
+    part_ids = [shape.id() for shape in shapes]
+    for shape, shape_id in zip(shapes, part_ids):
+        on_shape = np.array(interaction.shape == mi.ShapePtr(shape), dtype=bool) & hit
+        material[on_shape] = mesh_material_indices[int(shape_id.split("_")[1])]
+
+    def image(vectors):
+        return np.array(vectors, dtype=np.float64).T.reshape(height, width, 3)
+
+    positions = image(interaction.p)
+    normals = image(interaction.sh_frame.n)
+    view_dirs = -image(rays.d)
+    zero = ~hit.reshape(height, width)
+    positions[zero] = normals[zero] = 0.0
+    return {"positions": positions, "normals": normals, "view_dirs": view_dirs, "hit": hit.reshape(height, width),
+            "material": material.reshape(height, width), "_interaction": interaction}
+
+
+def shadow_visibility(scene, interaction, light: Light, shape):
+    """Whether each pixel's surface point sees ``light`` (shadow ray, Mitsuba's ``ray_test``)."""
+    import mitsuba as mi
+
+    if light.kind == "point":
+        rays = interaction.spawn_ray_to(mi.Point3f(*light.position))
+    else:
+        direction = np.asarray(light.direction, dtype=float)
+        rays = interaction.spawn_ray(mi.Vector3f(*(direction / np.linalg.norm(direction))))
+    occluded = scene.ray_test(rays, interaction.is_valid())
+    return (~np.array(occluded, dtype=bool) & np.array(interaction.is_valid(), dtype=bool)).reshape(shape)
+
+
+def path_trace(scene, spp: int = 1, seed: int = 0):
+    """Radiance along the pixel-centre rays with the scene's integrator, averaged over ``spp``.
+
+    Returns
+    -------
+    ndarray, shape (H, W, C)
+        C = 3 in RGB variants, 1 in mono variants.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    rays, (height, width) = _pixel_centre_rays(scene)
+    integrator = scene.integrator()
+    total = None
+    for sample_index in range(int(spp)):
+        sampler = mi.load_dict({"type": "independent"})
+        # One seed per (user seed, sample index): every pass draws fresh indirect paths.
+        sampler.seed(int(seed) * 1_000_003 + sample_index, height * width)
+        radiance, _, _ = integrator.sample(scene, sampler, rays, None, True)
+        values = np.array(radiance, dtype=np.float64)
+        values = values.reshape(-1, height * width).T if values.ndim > 1 else values[:, None]
+        total = values if total is None else total + values
+        dr.eval()
+    return (total / int(spp)).reshape(height, width, -1)

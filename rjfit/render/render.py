@@ -1,0 +1,186 @@
+"""``rjfit render``: a scene definition -> a data set on disk (see rjfit.data.dataset)."""
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rjfit.data.dataset import DATASET_FORMAT, write_json_atomic
+from rjfit.data.exr import write_exr
+from rjfit.data.lights import Light
+from rjfit.render.meshes import build_parts
+
+__all__ = ["SCENES_DIR", "load_scene_definition", "available_scenes", "render_dataset", "write_mesh_parts",
+           "scene_from_dataset_meta"]
+
+SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
+
+
+def available_scenes() -> list[str]:
+    """Names of the built-in scene definitions in ``scenes/``."""
+    return sorted(p.stem for p in SCENES_DIR.glob("*.json"))
+
+
+def load_scene_definition(scene) -> dict:
+    """A scene definition from a built-in name, a JSON path, or a dict (copied).
+
+    Raises
+    ------
+    FileNotFoundError
+        If neither a built-in scene nor a file of that name exists.
+    """
+    if isinstance(scene, dict):
+        return json.loads(json.dumps(scene))
+    candidate = Path(scene)
+    if not candidate.is_file():
+        candidate = SCENES_DIR / f"{scene}.json"
+    if not candidate.is_file():
+        raise FileNotFoundError(f"scene {scene!r}: no such file and no built-in scene of that name "
+                                f"(built-in: {', '.join(available_scenes())})")
+    return json.loads(candidate.read_text())
+
+
+def write_mesh_parts(geometry: dict, mesh_dir: Path) -> list[dict]:
+    """Generate the scene's meshes and write one PLY (with vertex normals) per part."""
+    mesh_dir.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for index, (mesh, material_index) in enumerate(build_parts(geometry)):
+        file_name = f"part_{index:03d}.ply"
+        mesh.export(mesh_dir / file_name, file_type="ply", vertex_normal=True)
+        entries.append({"file": f"meshes/{file_name}", "material": int(material_index),
+                        "faces": int(len(mesh.faces))})
+    return entries
+
+
+def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, lights=None, max_depth=None,
+                            light_format="rgb", bsdf_override=None, extra=None):
+    """Rebuild the Mitsuba scene a data set was rendered from (the active variant is used)."""
+    from rjfit.render.mitsuba_scene import build_scene
+
+    parts = [(Path(dataset_dir) / entry["file"], entry["material"]) for entry in meta["meshes"]]
+    return build_scene(meta["camera"], meta["resolution"], parts,
+                       materials if materials is not None else meta["materials"],
+                       lights if lights is not None else [Light.from_json(e) for e in meta["lights"]],
+                       reference_intensity=meta["reference_intensity"],
+                       max_depth=max_depth if max_depth is not None else meta.get("max_depth", 8),
+                       light_format=light_format, bsdf_override=bsdf_override, extra=extra)
+
+
+def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, noise_variance=None,
+                   variant="llvm_ad_rgb", progress=False, bsdf_override=None, extra=None, light_format="rgb",
+                   post_process=None, hidden_effects=()):
+    """Render a scene definition into a data set folder (written atomically, as a whole).
+
+    Each light is rendered alone (a scene with that one emitter): the path integrator picks
+    one emitter per sample, so lights switched off in a shared scene would add variance.
+
+    Parameters
+    ----------
+    scene : str, Path or dict
+        Built-in scene name, scene JSON file, or a definition.
+    out_dir : path
+        The data set folder; replaced if it exists.
+    resolution : int or (int, int), optional
+        Overrides the definition's ``[height, width]``.
+    seed : int, optional
+        Seeds path tracing and the noise (default: the definition's seed).
+    spp : int, optional
+        Samples per pixel (same ray each time; only indirect light is random).
+    noise_variance : float, optional
+        Variance of the Gaussian noise added to every pixel (achromatic: the same draw in
+        R, G, B, so each channel and their mean have exactly this variance).
+    variant : str
+        Mitsuba variant (an LLVM one; scalar variants are for benchmarks only).
+    bsdf_override, extra, light_format, post_process, hidden_effects
+        For data sets with a hidden effect: replace the plugin by other BSDFs, add scene
+        entries (e.g. an environment emitter), pass light values as spectra, or transform
+        the noisy images (``post_process(images) -> images``); recorded in the JSON.
+
+    Returns
+    -------
+    Path
+        The data set folder.
+    """
+    from rjfit import __version__
+    from rjfit.render.mitsuba_scene import activate, path_trace, shadow_visibility, trace_pixels
+
+    started = time.perf_counter()
+    definition = load_scene_definition(scene)
+    if resolution is not None:
+        definition["resolution"] = [int(resolution), int(resolution)] if np.isscalar(resolution) else list(resolution)
+    seed = int(definition.get("seed", 0) if seed is None else seed)
+    spp = int(definition.get("spp", 1) if spp is None else spp)
+    noise_variance = float(definition.get("noise_variance", 0.0) if noise_variance is None else noise_variance)
+    if noise_variance < 0:
+        raise ValueError(f"noise variance must be >= 0, got {noise_variance}")
+    mi = activate(variant)
+    import drjit as dr
+
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        meshes = write_mesh_parts(definition["geometry"], staging / "meshes")
+        lights = [Light.from_json(entry) for entry in definition["lights"]]
+        materials = [dict(m, sigma2=noise_variance) for m in definition["materials"]]
+        meta = {
+            "format": DATASET_FORMAT, "name": definition["name"], "kind": "synthetic",
+            "description": definition.get("description", ""), "units": definition.get("units", ""),
+            "resolution": definition["resolution"], "camera": definition["camera"],
+            "lights": [light.to_json() for light in lights],
+            "reference_intensity": float(definition.get("reference_intensity", 1.0)),
+            "materials": materials, "meshes": meshes, "geometry_definition": definition["geometry"],
+            "noise_variance": noise_variance, "seed": seed, "spp": spp,
+            "max_depth": int(definition.get("max_depth", 8)), "variant": variant,
+            "sampling": "one camera ray through each pixel centre; spp repeats it",
+            "noise": "achromatic Gaussian, the same draw in R, G, B",
+            "images": [f"images/light_{i:03d}.exr" for i in range(len(lights))],
+            "geometry": "geometry.exr", "visibility": "visibility.exr", "truth_labels": "truth_labels.exr",
+            "hidden_effects": list(hidden_effects),
+            "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__, "rjfit": __version__},
+        }
+        scene_args = dict(light_format=light_format, bsdf_override=bsdf_override, extra=extra)
+        geometry_scene = scene_from_dataset_meta(meta, staging, lights=[], **scene_args)
+        traced = trace_pixels(geometry_scene, [entry["material"] for entry in meshes])
+        height, width = traced["hit"].shape
+        write_exr(staging / "geometry.exr", {
+            **{f"P.{a}": traced["positions"][..., i] for i, a in enumerate("XYZ")},
+            **{f"N.{a}": traced["normals"][..., i] for i, a in enumerate("XYZ")},
+            **{f"V.{a}": traced["view_dirs"][..., i] for i, a in enumerate("XYZ")},
+            "mask": traced["hit"]})
+        write_exr(staging / "truth_labels.exr", {"label": traced["material"]})
+        write_exr(staging / "visibility.exr", {
+            f"light_{i:03d}": shadow_visibility(geometry_scene, traced["_interaction"], light, (height, width))
+            for i, light in enumerate(lights)})
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EED]))
+        images = []
+        iterator = range(len(lights))
+        if progress:
+            from tqdm import tqdm
+
+            iterator = tqdm(iterator, desc=f"render {definition['name']}", unit="light")
+        for light_index in iterator:
+            light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], **scene_args)
+            radiance = path_trace(light_scene, spp=spp, seed=seed + light_index)
+            if radiance.shape[-1] == 1:
+                radiance = np.repeat(radiance, 3, axis=-1)
+            noise = rng.normal(0.0, np.sqrt(noise_variance), size=(height, width, 1)) if noise_variance else 0.0
+            images.append(radiance + noise)
+        images = np.stack(images)
+        if post_process is not None:
+            images = post_process(images)
+        for light_index, image in enumerate(images):
+            write_exr(staging / meta["images"][light_index], {c: image[..., i] for i, c in enumerate("RGB")})
+        meta["render_seconds"] = round(time.perf_counter() - started, 3)
+        write_json_atomic(staging / "dataset.json", meta)
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        staging.rename(out_dir)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging)
+    return out_dir

@@ -1,0 +1,241 @@
+"""The cross-check gate: the closed form (eq. 2) against Mitsuba's path tracer.
+
+For every light, the data set's scene is path-traced with rjfit's plugin (the ``path``
+integrator, several bounces) along the data set's own camera rays (one per pixel centre),
+and the closed form is evaluated from the geometry of the same rays: position, shading
+normal, view direction and shadow-ray visibility. On a convex object with point or
+directional lights both must agree to float rounding; what the closed form does not explain
+(interreflection on concave objects, a wrong light unit, a wrong lobe) shows up as error.
+
+Definitions used in ``validation.json``:
+
+- an observation is compared where the pixel hits the object and the path-traced radiance
+  exceeds ``1e-6`` times the image's maximum (black pixels have no relative error);
+- ``rel_err = |L_path - L_closed| / L_path`` per compared observation;
+- ``unexplained_fraction = sum(L_path - L_closed) / sum(L_path)`` over compared observations,
+  and its per-pixel map (summed over lights): the share of radiance the closed form misses.
+
+The gate passes when ``median_rel_err <= 1e-4`` and ``p99_rel_err <= 1e-3``.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rjfit.data.dataset import write_json_atomic
+from rjfit.data.exr import write_exr
+from rjfit.data.lights import Light, geometry_terms
+from rjfit.model.blinn import radiance
+
+__all__ = ["closed_form_radiance", "validate_dataset", "require_validated", "dataset_fingerprint",
+           "MEDIAN_TOLERANCE", "P99_TOLERANCE", "ValidationRequiredError"]
+
+MEDIAN_TOLERANCE = 1e-4
+P99_TOLERANCE = 1e-3
+_DARK_FRACTION = 1e-6
+
+
+class ValidationRequiredError(RuntimeError):
+    """The data set's forward model has not passed the cross-check gate."""
+
+
+def closed_form_radiance(positions, normals, view_dirs, light, material, reference_intensity):
+    """Eq. 2 at surface points for one light and per-pixel material parameters.
+
+    ``material`` maps ``I0``, ``kd``, ``gamma`` to arrays of the image shape (or floats).
+    This is the default forward model that :func:`validate_dataset` checks; a replacement
+    with the same signature can be passed to it (the tests pass deliberately wrong ones).
+    """
+    cos_ln, cos_hn, irradiance = geometry_terms(positions, normals, view_dirs, light, reference_intensity)
+    return radiance(material["I0"], material["kd"], material["gamma"], cos_ln, cos_hn, irradiance)
+
+
+def dataset_fingerprint(dataset_dir) -> str:
+    """SHA-256 over ``dataset.json`` and every image the data set lists."""
+    dataset_dir = Path(dataset_dir)
+    meta = json.loads((dataset_dir / "dataset.json").read_text())
+    digest = hashlib.sha256((dataset_dir / "dataset.json").read_bytes())
+    for name in meta.get("images", []):
+        digest.update((dataset_dir / name).read_bytes())
+    return digest.hexdigest()
+
+
+def _material_maps(material_index_map, materials):
+    maps = {}
+    for key in ("I0", "kd", "gamma"):
+        table = np.array([float(m[key]) for m in materials] + [0.0])
+        maps[key] = table[material_index_map]          # index -1 picks the trailing 0
+    return maps
+
+
+def _save_png(path, image, title, cmap="magma", vmin=None, vmax=None):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axis = plt.subplots(figsize=(4.6, 4))
+    shown = axis.imshow(image, cmap=cmap, vmin=vmin, vmax=vmax)
+    axis.set_title(title, fontsize=9)
+    axis.axis("off")
+    figure.colorbar(shown, ax=axis, fraction=0.046)
+    figure.tight_layout()
+    temporary = Path(path).with_name(f".{Path(path).name}.tmp.png")
+    figure.savefig(temporary, dpi=110)
+    plt.close(figure)
+    temporary.replace(path)
+
+
+def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_radiance, materials=None,
+                     max_depth=8, spp=4, seed=0, variant="llvm_ad_rgb", light_format="rgb", progress=False):
+    """Path-trace a data set's scene and compare it with the closed form; write the gate's verdict.
+
+    Parameters
+    ----------
+    dataset_dir : path
+        A data set rendered by rjfit (``dataset.json`` with camera, meshes and lights).
+    out_dir : path, optional
+        Where ``validation.json`` and the error maps go (default: ``dataset_dir/validation``).
+    forward_model : callable
+        ``(positions, normals, view_dirs, light, material_maps, reference_intensity) -> radiance``.
+    materials : list of dict, optional
+        ``{I0, kd, gamma}`` per material index (default: the data set's own materials).
+    max_depth : int
+        Path length for the path tracer (8: up to 7 bounces of indirect light).
+    spp : int
+        Path-traced samples per pixel, all along the pixel-centre ray (averages indirect light).
+    light_format : str
+        How light values reach Mitsuba (``"spectrum"`` reproduces a known unit mistake).
+
+    Returns
+    -------
+    dict
+        The contents of ``validation.json``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the data set has no scene description.
+    ValueError
+        If the data set has no meshes (a measured set without a mesh cannot be path-traced).
+    """
+    from rjfit.render.mitsuba_scene import activate, path_trace, shadow_visibility, trace_pixels
+    from rjfit.render.render import scene_from_dataset_meta
+
+    started = time.perf_counter()
+    dataset_dir = Path(dataset_dir)
+    out_dir = Path(out_dir) if out_dir is not None else dataset_dir / "validation"
+    description = dataset_dir / "dataset.json"
+    if not description.is_file():
+        raise FileNotFoundError(f"{description}: missing; validation needs the scene a data set was made from")
+    meta = json.loads(description.read_text())
+    if not meta.get("meshes"):
+        raise ValueError(f"{description}: no meshes; the cross-check path-traces the object's mesh")
+    materials = materials if materials is not None else meta["materials"]
+    lights = [Light.from_json(entry) for entry in meta["lights"]]
+    activate(variant)
+    geometry_scene = scene_from_dataset_meta(meta, dataset_dir, materials=materials, lights=[], max_depth=max_depth)
+    traced = trace_pixels(geometry_scene, [entry["material"] for entry in meta["meshes"]])
+    hit = traced["hit"]
+    shape = hit.shape
+    material_maps = _material_maps(traced["material"], materials)
+    path_stack, closed_stack = [], []
+    iterator = list(enumerate(lights))
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="validate", unit="light")
+    for light_index, light in iterator:
+        scene = scene_from_dataset_meta(meta, dataset_dir, materials=materials, lights=[light],
+                                        max_depth=max_depth, light_format=light_format)
+        path_radiance = path_trace(scene, spp=spp, seed=seed * 7919 + light_index).mean(axis=-1)
+        visible = shadow_visibility(geometry_scene, traced["_interaction"], light, shape)
+        closed = forward_model(traced["positions"], traced["normals"], traced["view_dirs"], light, material_maps,
+                               float(meta["reference_intensity"]))
+        path_stack.append(np.where(hit, path_radiance, 0.0))
+        closed_stack.append(np.where(hit & visible, closed, 0.0))
+    path_stack, closed_stack = np.stack(path_stack), np.stack(closed_stack)
+    image_max = path_stack.reshape(len(lights), -1).max(axis=1)[:, None, None]
+    compared = hit[None] & (path_stack > _DARK_FRACTION * np.maximum(image_max, 1e-30))
+    rel_err = np.abs(path_stack - closed_stack) / np.where(compared, path_stack, 1.0)
+    errors = rel_err[compared]
+    if errors.size == 0:
+        raise ValueError(f"{dataset_dir}: no lit object pixel to compare; check the lights and the camera")
+    missing = path_stack - closed_stack
+    unexplained_map = np.where(hit, (missing * compared).sum(0) / np.maximum((path_stack * compared).sum(0), 1e-30), 0)
+    result = {
+        "dataset": str(dataset_dir),
+        "dataset_sha256": dataset_fingerprint(dataset_dir),
+        "passed": bool(np.median(errors) <= MEDIAN_TOLERANCE and np.quantile(errors, 0.99) <= P99_TOLERANCE),
+        "median_rel_err": float(np.median(errors)),
+        "p99_rel_err": float(np.quantile(errors, 0.99)),
+        "max_rel_err": float(errors.max()),
+        "observations_compared": int(errors.size),
+        "pixels_compared": int(compared.any(axis=0).sum()),
+        "unexplained_fraction": float((missing * compared).sum() / (path_stack * compared).sum()),
+        "per_light_median_rel_err": [float(np.median(rel_err[i][compared[i]])) if compared[i].any() else None
+                                     for i in range(len(lights))],
+        "thresholds": {"median_rel_err": MEDIAN_TOLERANCE, "p99_rel_err": P99_TOLERANCE},
+        "settings": {"integrator": "path", "max_depth": max_depth, "spp": spp, "seed": seed, "variant": variant,
+                     "rays": "one per pixel centre, shared by the path tracer and the closed form"},
+        "maps": {"error_exr": "validation_maps.exr", "relative_error_png": "relative_error.png",
+                 "unexplained_png": "unexplained_fraction.png"},
+        "seconds": round(time.perf_counter() - started, 3),
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    max_rel_map = np.where(compared.any(0), np.where(compared, rel_err, 0).max(0), 0)
+    write_exr(out_dir / "validation_maps.exr", {
+        "max_rel_err": max_rel_map, "unexplained_fraction": unexplained_map,
+        **{f"rel_err_{i:03d}": np.where(compared[i], rel_err[i], 0) for i in range(len(lights))}})
+    _save_png(out_dir / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
+              f"log10 max relative error over lights\nmedian {result['median_rel_err']:.2e}, "
+              f"p99 {result['p99_rel_err']:.2e}", vmin=-9, vmax=0)
+    _save_png(out_dir / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
+              f"radiance the closed form does not explain\n(total {result['unexplained_fraction']:.2%})",
+              cmap="viridis")
+    write_json_atomic(out_dir / "validation.json", result)
+    return result
+
+
+def require_validated(dataset_dir, validation_path=None, *, allow_unvalidated=False):
+    """Refuse a data set whose forward model has not passed the gate.
+
+    Looks for ``validation.json`` (default ``dataset_dir/validation/validation.json``),
+    checks ``passed`` and that it belongs to this data set's current files.
+
+    Returns
+    -------
+    dict or None
+        The validation result, or None when overridden and none exists.
+
+    Raises
+    ------
+    ValidationRequiredError
+        When no passing validation of this data set exists and ``allow_unvalidated`` is False.
+    """
+    dataset_dir = Path(dataset_dir)
+    validation_path = Path(validation_path) if validation_path else dataset_dir / "validation" / "validation.json"
+    override = " (or pass --allow-unvalidated to fit anyway, at your own risk)"
+    if not validation_path.is_file():
+        if allow_unvalidated:
+            return None
+        raise ValidationRequiredError(
+            f"{dataset_dir}: its forward model has not been cross-checked; run `rjfit validate {dataset_dir}` "
+            f"first{override}")
+    result = json.loads(validation_path.read_text())
+    problem = None
+    if not result.get("passed"):
+        problem = (f"failed the cross-check (median rel. err. {result.get('median_rel_err'):.3g}, "
+                   f"p99 {result.get('p99_rel_err'):.3g}, unexplained fraction "
+                   f"{result.get('unexplained_fraction'):.3g}); see {validation_path}")
+    elif (dataset_dir / "dataset.json").is_file() and result.get("dataset_sha256") != dataset_fingerprint(dataset_dir):
+        problem = f"changed since {validation_path} was written; validate it again"
+    if problem is None:
+        return result
+    if allow_unvalidated:
+        return result
+    raise ValidationRequiredError(f"{dataset_dir}: {problem}{override}")

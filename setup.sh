@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# One-time set-up on a fresh Debian 12 machine: system libraries, then a virtual
+# environment at .venv with rjfit and its test dependencies. Safe to run again.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+# Mitsuba's LLVM variants crash with Debian 12's default LLVM 15 ("Cannot select ...
+# fminimum"); drjit picks up libllvm19 by itself once it is installed.
+if ! dpkg -s libllvm19 >/dev/null 2>&1; then
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get install -y -q libllvm19 || { $SUDO apt-get update -q && $SUDO apt-get install -y -q libllvm19; }
+fi
+
+PYTHON="${PYTHON:-python3}"
+if [ ! -x .venv/bin/python ]; then
+  "$PYTHON" -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -e ".[test]"
+echo "rjfit set up in $(pwd)/.venv"
