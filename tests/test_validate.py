@@ -1,0 +1,82 @@
+"""The cross-check gate: passes the right forward model, catches wrong ones."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from rjfit.data.lights import geometry_terms
+from rjfit.model.blinn import log_cos_power
+from rjfit.validate import (ValidationRequiredError, closed_form_radiance, require_validated, validate_dataset)
+
+
+def test_paper_sphere_passes_with_the_issue_tolerances(paper_sphere_small, tmp_path):
+    result = validate_dataset(paper_sphere_small, tmp_path / "v", spp=1)
+    assert result["passed"]
+    assert result["median_rel_err"] <= 1e-4 and result["p99_rel_err"] <= 1e-3
+    assert abs(result["unexplained_fraction"]) < 1e-5
+    assert result["pixels_compared"] > 1000
+    for name in ("validation.json", "validation_maps.exr", "relative_error.png", "unexplained_fraction.png"):
+        assert (tmp_path / "v" / name).is_file()
+    assert json.loads((tmp_path / "v" / "validation.json").read_text())["passed"] is True
+
+
+def _without_normalisation(positions, normals, view_dirs, light, material, reference):
+    cos_ln, cos_hn, irradiance = geometry_terms(positions, normals, view_dirs, light, reference)
+    lobe = material["kd"] / np.pi + (1 - material["kd"]) * log_cos_power(cos_hn, material["gamma"])
+    return material["I0"] * irradiance * lobe * np.maximum(cos_ln, 0)
+
+
+def _half_vector_from_wrong_directions(positions, normals, view_dirs, light, material, reference):
+    # A classic slip: h from the light direction and the *normal* instead of the view.
+    return closed_form_radiance(positions, normals, normals, light, material, reference)
+
+
+@pytest.mark.parametrize("wrong_model", [_without_normalisation, _half_vector_from_wrong_directions])
+def test_gate_catches_wrong_closed_forms(paper_sphere_small, tmp_path, wrong_model):
+    result = validate_dataset(paper_sphere_small, tmp_path / "v", forward_model=wrong_model, spp=1)
+    assert not result["passed"]
+    assert result["median_rel_err"] > 1e-2
+
+
+def test_gate_catches_a_wrongly_scaled_emitter(paper_sphere_small, tmp_path):
+    # Light values given as an equal-energy spectrum become (1.205, 0.948, 0.909) x I in RGB.
+    result = validate_dataset(paper_sphere_small, tmp_path / "v", light_format="spectrum", spp=1)
+    assert not result["passed"]
+    assert result["unexplained_fraction"] == pytest.approx(np.mean([1.205, 0.948, 0.909]) - 1, abs=0.02)
+
+
+def test_concave_object_reports_interreflection_instead_of_passing(dented_plaster_small, tmp_path):
+    result = validate_dataset(dented_plaster_small, tmp_path / "v", spp=16)
+    assert not result["passed"]
+    # Light bouncing inside dents and the groove adds radiance the direct closed form lacks.
+    assert 0.02 < result["unexplained_fraction"] < 0.5
+    from rjfit.data.exr import read_exr
+
+    unexplained = read_exr(tmp_path / "v" / "validation_maps.exr")["unexplained_fraction"]
+    assert unexplained.max() > 0.2 and np.median(unexplained) < 0.05
+
+
+def test_direct_only_path_tracing_explains_the_concave_object(dented_plaster_small, tmp_path):
+    """Negative control for the interreflection finding: with max_depth 2 (direct light
+    only) the same concave scene passes, so the gap above is interreflection."""
+    result = validate_dataset(dented_plaster_small, tmp_path / "v", spp=1, max_depth=2)
+    assert result["passed"], result
+
+
+def test_fitter_gate_refuses_unvalidated_failed_and_changed_data(paper_sphere_small, tmp_path):
+    dataset = tmp_path / "copy"
+    shutil.copytree(paper_sphere_small, dataset)
+    with pytest.raises(ValidationRequiredError, match="rjfit validate"):
+        require_validated(dataset)
+    assert require_validated(dataset, allow_unvalidated=True) is None
+    validate_dataset(dataset, spp=1, light_format="spectrum")
+    with pytest.raises(ValidationRequiredError, match="failed the cross-check"):
+        require_validated(dataset)
+    validate_dataset(dataset, spp=1)
+    assert require_validated(dataset)["passed"]
+    meta = json.loads((dataset / "dataset.json").read_text())
+    meta["lights"][0]["intensity"] *= 1.2
+    (dataset / "dataset.json").write_text(json.dumps(meta))
+    with pytest.raises(ValidationRequiredError, match="changed since"):
+        require_validated(dataset)
