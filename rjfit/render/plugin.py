@@ -31,8 +31,11 @@ Sampling: the diffuse lobe is chosen with probability ``kd`` (cosine-weighted he
 the specular lobe with ``1 - kd``: ``cos theta_h = u^(1/(g+1))`` gives the half-vector density
 ``(g+1)/(2 pi) cos^g theta_h``, ``wo`` is ``wi`` reflected about ``h``, and
 ``pdf(wo) = pdf_h / (4 <wo.h>)``. The returned pdf is the mixture of the two lobe pdfs and the
-weight is ``eval / pdf``. The choice ``kd`` matches each lobe's share of the albedo at normal
-incidence up to Giesen's near-unit lobe integral, so the weight stays close to ``scale``.
+weight is ``eval / pdf``. The choice ``kd`` is each lobe's share of the albedo at normal
+incidence (Giesen's factor makes the specular lobe's albedo exactly 1 there; it falls off at
+oblique incidence), so the weights stay near ``scale``. Samples whose reflected ``wo`` falls
+below the horizon get weight 0 (the lobe loses that energy; ``pdf`` integrates to <= 1).
+If a ``BSDFContext`` disables one component (0 diffuse, 1 glossy) the other is sampled alone.
 """
 from __future__ import annotations
 
@@ -91,8 +94,7 @@ def _make_bsdf_class(m):
     glossy_flags = BSDFFlags.GlossyReflection | BSDFFlags.FrontSide
 
     def _to_float(props, name, default):
-        value = props.get(name, default) if name in props else default
-        return float(value)
+        return float(props.get(name, default))
 
     class RjfitBlinnBSDF(m.BSDF):
         """Lambert + Giesen-normalised Blinn-Phong (see the module docstring)."""
