@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.data.checks import check_lights_face_object, check_mask, check_unit_normals
+from rjfit.data.errors import DatasetError
 from rjfit.data.exr import read_exr
 from rjfit.data.lights import Light, geometry_terms
 from rjfit.data.observations import Observations, observations_from_stack, valid_observation_mask
@@ -70,6 +72,10 @@ class Dataset:
         ``{I0, kd, gamma, sigma2}`` per material index.
     saturation : float or None
         Values at or above it are clipped measurements and never enter the likelihood.
+    saturated : ndarray of bool, shape (L, H, W) or None
+        Observations known to be clipped (any channel), never entering the likelihood; used
+        where one threshold on the stored images does not apply (measured images divided by
+        per-channel light intensities).
     """
 
     path: Path
@@ -84,6 +90,7 @@ class Dataset:
     truth_labels: np.ndarray | None = None
     truth_params: list | None = None
     saturation: float | None = None
+    saturated: np.ndarray | None = None
 
     @property
     def n_lights(self) -> int:
@@ -129,6 +136,8 @@ class Dataset:
         if self.saturation is not None:
             # A pixel is saturated when any of its channels is clipped.
             valid &= ~(self.images >= self.saturation).any(axis=-1)
+        if self.saturated is not None:
+            valid &= ~self.saturated
         return valid
 
     def observations(self, channel: str = "mean", dark: float | None = None) -> Observations:
@@ -141,10 +150,10 @@ class Dataset:
 
 def _require(condition, message):
     if not condition:
-        raise ValueError(message)
+        raise DatasetError(message)
 
 
-def load_dataset(path) -> Dataset:
+def load_dataset(path, **options) -> Dataset:
     """Load a data set in the rjfit layout (see the module docstring).
 
     Raises
@@ -160,8 +169,9 @@ def load_dataset(path) -> Dataset:
         from rjfit.data.diligent import is_diligent_folder, load_diligent
 
         if is_diligent_folder(path):
-            return load_diligent(path)
+            return load_diligent(path, **options)
         raise FileNotFoundError(f"{path}: not a data set (no dataset.json, and not a DiLiGenT-style folder)")
+    _require(not options, f"{path}: options {sorted(options)} apply to photometric-stereo folders only")
     meta = json.loads(description_path.read_text())
     _require(meta.get("format") == DATASET_FORMAT,
              f"{description_path}: format is {meta.get('format')!r}, expected {DATASET_FORMAT!r}")
@@ -197,7 +207,14 @@ def load_dataset(path) -> Dataset:
         truth_labels = np.rint(read_exr(path / meta["truth_labels"])["label"]).astype(np.int32)
         truth_params = [{key: float(material[key]) for key in ("I0", "kd", "gamma", "sigma2")}
                         for material in meta["materials"]]
-    return Dataset(path=path, meta=meta, images=np.stack(images).astype(np.float64), normals=stack3("N"),
-                   view_dirs=stack3("V"), positions=stack3("P"), visibility=visibility, object_mask=object_mask,
-                   lights=lights, truth_labels=truth_labels, truth_params=truth_params,
-                   saturation=meta.get("saturation"))
+    dataset = Dataset(path=path, meta=meta, images=np.stack(images).astype(np.float64), normals=stack3("N"),
+                      view_dirs=stack3("V"), positions=stack3("P"), visibility=visibility, object_mask=object_mask,
+                      lights=lights, truth_labels=truth_labels, truth_params=truth_params,
+                      saturation=meta.get("saturation"))
+    geometry_file = path / meta["geometry"]
+    check_mask(object_mask, f"{geometry_file} (channel mask)")
+    check_unit_normals(dataset.normals, object_mask, f"{geometry_file} (channels N.X N.Y N.Z)")
+    check_lights_face_object(lights, dataset.normals, dataset.positions, dataset.view_dirs, object_mask,
+                             lambda i: str(description_path) if i is None else f"{description_path} lights[{i}] "
+                             f"({lights[i].kind}, {lights[i].position or lights[i].direction})")
+    return dataset

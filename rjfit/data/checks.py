@@ -1,0 +1,96 @@
+"""Checks shared by the data set loaders: each raises :class:`DatasetError` naming the source.
+
+These are the checks that hold for every layout (rjfit's own and photometric-stereo
+folders): a non-empty object mask, finite unit normals on the object, and lights that
+illuminate at least part of the object.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rjfit.data.errors import DatasetError
+from rjfit.data.lights import geometry_terms
+
+__all__ = ["NORMAL_TOLERANCE", "check_finite", "check_mask", "check_unit_normals", "check_lights_face_object"]
+
+NORMAL_TOLERANCE = 1e-3
+"""Largest allowed ``| |n| - 1 |`` of a normal inside the object mask."""
+
+
+def _first_pixel(bad):
+    rows, cols = np.nonzero(bad)
+    return int(rows[0]), int(cols[0])
+
+
+def check_finite(array, source, what="pixels") -> None:
+    """Raise if ``array`` (H, W[, C]) holds NaN or Inf; ``source`` names the file."""
+    array = np.asarray(array)
+    if not np.issubdtype(array.dtype, np.floating):
+        return
+    bad = ~np.isfinite(array)
+    if bad.ndim == 3:
+        bad = bad.any(axis=-1)
+    if bad.any():
+        row, col = _first_pixel(bad) if bad.ndim == 2 else (None, None)
+        where = f" (first at row {row}, column {col})" if row is not None else ""
+        raise DatasetError(f"{source}: {int(bad.sum())} {what} are NaN or Inf{where}")
+
+
+def check_mask(mask, source) -> None:
+    """Raise if the object mask selects no pixel."""
+    if not np.asarray(mask, dtype=bool).any():
+        raise DatasetError(f"{source}: the object mask selects no pixel (every value is background), so "
+                           f"there is nothing to fit")
+
+
+def check_unit_normals(normals, mask, source, tolerance=NORMAL_TOLERANCE) -> None:
+    """Raise if a normal inside ``mask`` is not finite or not of unit length (within ``tolerance``)."""
+    inside = np.asarray(normals, dtype=float)[mask]
+    finite = np.isfinite(inside).all(axis=-1)
+    if not finite.all():
+        bad = np.zeros(mask.shape, dtype=bool)
+        bad[mask] = ~finite
+        row, col = _first_pixel(bad)
+        raise DatasetError(f"{source}: {int((~finite).sum())} normals inside the object mask are NaN or Inf "
+                           f"(first at row {row}, column {col})")
+    length = np.linalg.norm(inside, axis=-1)
+    off = np.abs(length - 1.0) > tolerance
+    if off.any():
+        bad = np.zeros(mask.shape, dtype=bool)
+        bad[mask] = off
+        row, col = _first_pixel(bad)
+        zero = int((length[off] == 0).sum())
+        hint = f"; {zero} of them are zero (does the mask match the normal map?)" if zero else ""
+        raise DatasetError(
+            f"{source}: {int(off.sum())} of {inside.shape[0]} normals inside the object mask are not unit length "
+            f"(|n| from {length[off].min():.4g} to {length[off].max():.4g}, first at row {row}, column {col}; "
+            f"allowed | |n| - 1 | <= {tolerance:g}){hint}")
+
+
+def check_lights_face_object(lights, normals, positions, view_dirs, mask, describe) -> None:
+    """Raise if a light is behind the object: ``<l.n> <= 0`` at every pixel of the mask.
+
+    Such a light illuminates nothing; every one, or all of them, being behind is the mark
+    of a flipped axis (z points towards the camera) or a typo in a light's direction.
+    ``describe(i)`` names light ``i`` and where it was read from.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    n = np.asarray(normals, dtype=float)[mask]
+    v = np.asarray(view_dirs, dtype=float)[mask]
+    p = np.zeros_like(n) if positions is None else np.asarray(positions, dtype=float)[mask]
+    behind = []
+    for index, light in enumerate(lights):
+        cos_ln, _, _ = geometry_terms(p, n, v, light)
+        if not (cos_ln > 0).any():
+            behind.append(index)
+    if not behind:
+        return
+    if len(behind) == len(lights):
+        raise DatasetError(
+            f"{describe(None)}: all {len(lights)} lights are behind the object (<l.n> <= 0 at every one of the "
+            f"{int(mask.sum())} mask pixels); directions point towards the light and z points towards the "
+            f"camera: is the z axis (or the direction sign) flipped?")
+    names = "; ".join(describe(i) for i in behind[:5]) + ("; ..." if len(behind) > 5 else "")
+    raise DatasetError(
+        f"{len(behind)} of {len(lights)} lights are behind the object (<l.n> <= 0 at every one of the "
+        f"{int(mask.sum())} mask pixels), so their images hold no usable observation: {names}")

@@ -1,0 +1,442 @@
+"""Photometric-stereo folders: the DiLiGenT layout, and generic folders laid out like it.
+
+Layout (DiLiGenT: Shi et al., "A Benchmark Dataset and Evaluation for Non-Lambertian and
+Uncalibrated Photometric Stereo", CVPR 2016)::
+
+    FOLDER/filenames.txt          image file names, one per line; line i is the image of light i
+    FOLDER/light_directions.txt   one unit vector "x y z" per line, *towards* the (distant) light
+    FOLDER/light_intensities.txt  one RGB triple "r g b" (or one value) per line: relative intensities
+    FOLDER/mask.png               object mask, non-zero on the object (8- or 16-bit, grey or RGB)
+    FOLDER/Normal_gt.mat          normal map (H, W, 3), MATLAB variable ``Normal_gt``; or one of
+                                  ``NORMAL_MAP_NAMES`` (.npy / .mat / .exr), or ``normals=`` given
+    FOLDER/001.png ...            the images: 16-bit linear PNG or TIFF (read whole with OpenCV),
+                                  float EXR or TIFF, or sRGB-encoded 8/16-bit with ``encoded="sRGB"``
+
+Conventions (DiLiGenT's): an orthographic camera looking along -z, so the view direction is
+v = (0, 0, 1) at every pixel; x to the right, y up, z towards the camera, for normals and light
+directions alike; image rows run top to bottom (row index grows as y falls).
+
+Units of the loaded images: for integer images, raw sensor counts divided by the light's
+intensity in that channel (``raw / intensity[l, c]``); for sRGB-encoded images, the decoded linear
+value in [0, 1] divided by the intensity; for float images, the stored value divided by the
+intensity. Every light is then a ``Light(kind="directional", intensity=1.0)``: its intensity has
+been divided out of its image.
+
+Saturation: an observation (pixel, light) is saturated when any channel's raw value is at or
+above the threshold (default: the largest code of the file's integer type, 65535 for 16 bits;
+none for float images). Dividing by per-channel intensities makes the threshold differ per light
+and channel in the stored units, so the loader stores the flags, ``Dataset.saturated`` (L, H, W),
+which ``Dataset.valid_mask`` excludes.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rjfit.data.checks import check_finite, check_lights_face_object, check_mask, check_unit_normals
+from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.data.lights import Light
+
+__all__ = ["is_diligent_folder", "load_diligent", "crop_to_mask", "LAYOUT_FILES", "NORMAL_MAP_NAMES", "ENCODINGS"]
+
+FILENAMES = "filenames.txt"
+DIRECTIONS = "light_directions.txt"
+INTENSITIES = "light_intensities.txt"
+MASK = "mask.png"
+LAYOUT_FILES = (FILENAMES, DIRECTIONS, INTENSITIES, MASK)
+NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "normal")
+                         for ext in ("mat", "npy", "exr"))
+ENCODINGS = ("sRGB",)
+_MAT_VARIABLES = ("Normal_gt", "normals", "normal", "N")
+
+
+def is_diligent_folder(path) -> bool:
+    """Whether ``path`` is a folder laid out as a photometric-stereo (DiLiGenT-style) stack.
+
+    True when the folder holds ``filenames.txt`` or ``light_directions.txt``: such a folder is
+    meant to be one, and :func:`load_diligent` then names whichever other file is missing.
+    """
+    path = Path(path)
+    return path.is_dir() and ((path / FILENAMES).is_file() or (path / DIRECTIONS).is_file())
+
+
+# -- text files ---------------------------------------------------------------------------------
+
+def _require_file(path: Path, role: str) -> Path:
+    if not path.is_file():
+        raise DatasetFileNotFoundError(f"{path}: no such file (the {role} of a photometric-stereo folder)")
+    return path
+
+
+def _numbered_lines(path: Path):
+    """``(line_number, text)`` of the non-blank lines of a text file (1-based line numbers)."""
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError as error:
+        raise DatasetError(f"{path}: not a text file ({error})") from error
+    return [(number, line.strip()) for number, line in enumerate(text.splitlines(), start=1) if line.strip()]
+
+
+def _read_vectors(path: Path, widths, what):
+    """Rows of numbers, one per non-blank line, each of one of ``widths`` lengths."""
+    rows, numbers = [], []
+    for number, line in _numbered_lines(path):
+        try:
+            values = [float(token) for token in line.replace(",", " ").split()]
+        except ValueError:
+            raise DatasetError(f"{path} line {number}: expected numbers, got {line!r}") from None
+        if len(values) not in widths:
+            expected = " or ".join(str(w) for w in widths)
+            raise DatasetError(f"{path} line {number}: expected {expected} numbers ({what}), got {len(values)}: "
+                               f"{line!r}")
+        if not np.all(np.isfinite(values)):
+            raise DatasetError(f"{path} line {number}: {what} is NaN or Inf: {line!r}")
+        rows.append(values)
+        numbers.append(number)
+    if not rows:
+        raise DatasetError(f"{path}: the file is empty (no {what})")
+    return rows, numbers
+
+
+# -- images and maps ----------------------------------------------------------------------------
+
+def _size(array) -> str:
+    return f"{array.shape[1]} x {array.shape[0]} (width x height)"
+
+
+def _read_raw_image(path: Path) -> np.ndarray:
+    """The image as stored: (H, W, 3) in R, G, B order, integer or float."""
+    if path.suffix.lower() == ".exr":
+        from rjfit.data.exr import read_exr
+
+        channels = read_exr(path)
+        if all(c in channels for c in "RGB"):
+            return np.stack([channels[c] for c in "RGB"], axis=-1)
+        if "Y" in channels:
+            return np.repeat(channels["Y"][..., None], 3, axis=-1)
+        raise DatasetError(f"{path}: needs channels R, G, B (or Y), has {sorted(channels)}")
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise DatasetError(f"{path}: not a readable image (OpenCV could not decode it)")
+    if image.ndim == 2:
+        return np.repeat(image[..., None], 3, axis=-1)
+    if image.shape[-1] != 3:
+        raise DatasetError(f"{path}: has {image.shape[-1]} channels, expected 3 (RGB) or 1 (grey)")
+    return image[..., ::-1]  # OpenCV reads BGR
+
+
+def _check_depth(raw: np.ndarray, path: Path, encoded, reference) -> None:
+    """Refuse 8-bit data where a linear 16-bit stack is expected, and mixed kinds of images."""
+    kind = raw.dtype
+    floating = np.issubdtype(kind, np.floating)
+    if not floating and kind not in (np.uint8, np.uint16):
+        raise DatasetError(f"{path}: pixels are {kind}; expected 16-bit (or, with encoded='sRGB', 8-bit) "
+                           f"unsigned integers, or float")
+    if floating and encoded is not None:
+        raise DatasetError(f"{path}: float image, but encoded={encoded!r} was given; only integer images "
+                           f"are decoded")
+    if kind == np.uint8 and encoded is None:
+        raise DatasetError(
+            f"{path}: 8-bit image, but linear data must have 16 bits per channel (the DiLiGenT layout stores "
+            f"16-bit PNGs); the file may have been re-saved by a tool that drops the low byte (Pillow, "
+            f"imageio's default plugin). Use the original 16-bit file, or pass encoded='sRGB' if it is an "
+            f"sRGB-encoded 8-bit image")
+    if kind == np.uint16 and encoded is None and raw.any() and not (raw & 0xFF).any():
+        raise DatasetError(f"{path}: 16-bit file holding 8-bit data (every value is a multiple of 256, the low "
+                           f"byte is always 0); it was probably converted from an 8-bit image. Use the original "
+                           f"16-bit file")
+    if reference is not None and kind != reference[0]:
+        raise DatasetError(f"{path}: pixels are {kind}, but {reference[1].name} holds {reference[0]}; every image "
+                           f"of a stack must have one type (one unit)")
+
+
+def _read_mask(path: Path) -> np.ndarray:
+    import cv2
+
+    mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if mask is None:
+        raise DatasetError(f"{path}: not a readable image (OpenCV could not decode it)")
+    if np.issubdtype(mask.dtype, np.floating):
+        check_finite(mask, path)
+        selected = mask > 0.5
+    else:
+        selected = mask > np.iinfo(mask.dtype).max // 2
+    return selected.any(axis=-1) if selected.ndim == 3 else selected
+
+
+def _find_normal_map(folder: Path, normals) -> Path:
+    if normals is not None:
+        candidate = Path(normals)
+        candidate = candidate if candidate.is_absolute() else folder / candidate
+        return _require_file(candidate, "normal map")
+    for name in NORMAL_MAP_NAMES:
+        if (folder / name).is_file():
+            return folder / name
+    raise DatasetFileNotFoundError(f"{folder}: no normal map (looked for {', '.join(NORMAL_MAP_NAMES)}); pass "
+                                   f"normals=FILE to name one")
+
+
+def _read_normal_map(path: Path) -> np.ndarray:
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            normals = np.load(path, allow_pickle=False)
+        except Exception as error:
+            raise DatasetError(f"{path}: not a readable .npy file ({error})") from error
+    elif suffix == ".mat":
+        import scipy.io
+
+        try:
+            contents = scipy.io.loadmat(str(path))
+        except NotImplementedError as error:  # MATLAB v7.3 files are HDF5
+            raise DatasetError(f"{path}: MATLAB v7.3 (HDF5) file, which scipy cannot read; save it with "
+                               f"-v7, or as .npy") from error
+        except Exception as error:
+            raise DatasetError(f"{path}: not a readable MATLAB file ({error})") from error
+        variables = {k: v for k, v in contents.items() if not k.startswith("__")}
+        named = [k for k in _MAT_VARIABLES if k in variables]
+        maps = [k for k, v in variables.items() if np.ndim(v) == 3 and np.shape(v)[-1] == 3]
+        if named:
+            normals = variables[named[0]]
+        elif len(maps) == 1:
+            normals = variables[maps[0]]
+        else:
+            raise DatasetError(f"{path}: cannot tell which variable holds the normals (expected one of "
+                               f"{', '.join(_MAT_VARIABLES)}; has {sorted(variables)})")
+    elif suffix == ".exr":
+        from rjfit.data.exr import read_exr
+
+        channels = read_exr(path)
+        for names in (("N.X", "N.Y", "N.Z"), ("X", "Y", "Z"), ("R", "G", "B")):
+            if all(name in channels for name in names):
+                normals = np.stack([channels[name] for name in names], axis=-1)
+                break
+        else:
+            raise DatasetError(f"{path}: needs channels N.X N.Y N.Z (or X Y Z, or R G B), has {sorted(channels)}")
+    else:
+        raise DatasetError(f"{path}: unsupported normal map format {suffix!r} (use .npy, .mat or .exr; a PNG "
+                           f"picture of normals is quantised and not unit length)")
+    normals = np.asarray(normals)
+    if normals.ndim != 3 or normals.shape[-1] != 3 or not np.issubdtype(normals.dtype, np.number):
+        raise DatasetError(f"{path}: normal map must be a numeric (height, width, 3) array, got shape "
+                           f"{normals.shape}, type {normals.dtype}")
+    return normals.astype(np.float64)
+
+
+# -- the loader ---------------------------------------------------------------------------------
+
+def load_diligent(path, *, saturation=None, encoded=None, normals=None, crop=False):
+    """Load a photometric-stereo folder (DiLiGenT layout; see the module docstring) as a Dataset.
+
+    Parameters
+    ----------
+    path : path-like
+        The folder.
+    saturation : float or None
+        Raw value (in the file's own code values, before decoding or dividing by the light's
+        intensity) at or above which a channel counts as clipped; an observation is saturated when
+        any of its channels is. None: the integer type's maximum (65535 for 16-bit, 255 for 8-bit),
+        and no threshold for float images.
+    encoded : None or "sRGB"
+        None: the images are linear (16-bit integer or float). ``"sRGB"``: integer images are
+        sRGB-encoded and are decoded with ``colour.cctf_decoding(value / max_code, "sRGB")``.
+    normals : path-like or None
+        The normal map, relative to the folder; None looks for ``NORMAL_MAP_NAMES``.
+    crop : bool or int
+        False: keep the whole frame. True or a margin in pixels (True means 2): crop every array
+        to the mask's bounding box plus the margin (see :func:`crop_to_mask`); the DiLiGenT ball
+        then shrinks from 612 x 512 to 146 x 146 pixels and per-pixel work ~15 times.
+
+    Returns
+    -------
+    Dataset
+        ``images`` float32 (L, H, W, 3) in the units of the module docstring; directional lights of
+        intensity 1; ``view_dirs`` (0, 0, 1); ``positions`` and ``visibility`` None; ``saturated``
+        (L, H, W) flags.
+
+    Raises
+    ------
+    DatasetFileNotFoundError
+        A layout file, the normal map or an image (a light without an image) is missing.
+    DatasetError
+        Any other problem: the message names the file (and line) and what is wrong.
+    """
+    from rjfit.data.dataset import Dataset
+
+    folder = Path(path)
+    if not folder.is_dir():
+        raise DatasetFileNotFoundError(f"{folder}: no such folder")
+    if encoded is not None and encoded not in ENCODINGS:
+        raise DatasetError(f"{folder}: encoded must be None (linear data) or one of {ENCODINGS}, got {encoded!r}")
+
+    names_file = _require_file(folder / FILENAMES, "list of images")
+    directions_file = _require_file(folder / DIRECTIONS, "light directions")
+    intensities_file = _require_file(folder / INTENSITIES, "light intensities")
+    mask_file = _require_file(folder / MASK, "object mask")
+    normals_file = _find_normal_map(folder, normals)
+
+    # Lights and images must pair up one to one.
+    listed = _numbered_lines(names_file)
+    if not listed:
+        raise DatasetError(f"{names_file}: the file is empty (no images listed)")
+    seen = {}
+    for number, name in listed:
+        if name in seen:
+            raise DatasetError(f"{names_file} line {number}: {name} is listed twice (also on line {seen[name]}); "
+                               f"each light needs its own image")
+        seen[name] = number
+    directions, direction_lines = _read_vectors(directions_file, (3,), "a light direction x y z")
+    intensities, intensity_lines = _read_vectors(intensities_file, (1, 3), "a light intensity (r g b)")
+    for other, rows, lines in ((directions_file, directions, direction_lines),
+                               (intensities_file, intensities, intensity_lines)):
+        if len(rows) < len(listed):
+            number, name = listed[len(rows)]
+            raise DatasetError(f"{names_file} lists {len(listed)} images but {other} has {len(rows)} lights: "
+                               f"image {name} (line {number}) and any after it have no light")
+        if len(rows) > len(listed):
+            raise DatasetError(f"{other} has {len(rows)} lights but {names_file} lists {len(listed)} images: "
+                               f"the light on line {lines[len(listed)]} and any after it have no image")
+    image_files = [folder / name for _, name in listed]
+    for index, (number, name) in enumerate(listed):
+        if not image_files[index].is_file():
+            raise DatasetFileNotFoundError(
+                f"{image_files[index]}: no such file; {names_file} line {number} names it as the image of light "
+                f"{index + 1} (a light without an image)")
+
+    directions = np.asarray(directions, dtype=np.float64)
+    lengths = np.linalg.norm(directions, axis=1)
+    if (lengths == 0).any():
+        index = int(np.argmax(lengths == 0))
+        raise DatasetError(f"{directions_file} line {direction_lines[index]}: light direction (0, 0, 0) has no "
+                           f"length")
+    directions /= lengths[:, None]
+    intensities = np.asarray([row * 3 if len(row) == 1 else row for row in intensities], dtype=np.float64)
+    if (intensities <= 0).any():
+        index = int(np.argmax((intensities <= 0).any(axis=1)))
+        raise DatasetError(f"{intensities_file} line {intensity_lines[index]}: light intensities must be positive, "
+                           f"got {intensities[index].tolist()}")
+
+    # Mask and normals.
+    mask = _read_mask(mask_file)
+    check_mask(mask, mask_file)
+    normal_map = _read_normal_map(normals_file)
+    if normal_map.shape[:2] != mask.shape:
+        raise DatasetError(f"{normals_file}: normal map is {_size(normal_map)}, but {mask_file.name} is "
+                           f"{_size(mask)}; the mask, the normal map and every image must have one size")
+    check_unit_normals(normal_map, mask, normals_file)
+    normal_map = np.where(mask[..., None], normal_map, 0.0)
+    view_dirs = np.broadcast_to(np.array([0.0, 0.0, 1.0]), normal_map.shape).copy()
+    lights = [Light(kind="directional", intensity=1.0, direction=tuple(float(c) for c in d)) for d in directions]
+
+    def describe(index):
+        if index is None:
+            return str(directions_file)
+        d = directions[index]
+        return (f"{directions_file} line {direction_lines[index]} (light {index + 1}, image {listed[index][1]}, "
+                f"direction {d[0]:.4g} {d[1]:.4g} {d[2]:.4g})")
+
+    check_lights_face_object(lights, normal_map, None, view_dirs, mask, describe)
+
+    # Images: read whole, check, convert to linear, divide by the light's intensity.
+    height, width = mask.shape
+    images = np.empty((len(lights), height, width, 3), dtype=np.float32)
+    saturated = np.zeros((len(lights), height, width), dtype=bool)
+    reference = None
+    threshold_used = saturation
+    for index, image_file in enumerate(image_files):
+        raw = _read_raw_image(image_file)
+        if raw.shape[:2] != (height, width):
+            raise DatasetError(f"{image_file}: image is {_size(raw)}, but {mask_file.name} is {_size(mask)}; the "
+                               f"mask, the normal map and every image must have one size")
+        _check_depth(raw, image_file, encoded, reference)
+        reference = reference or (raw.dtype, image_file)
+        check_finite(raw, image_file)
+        integer = np.issubdtype(raw.dtype, np.integer)
+        threshold = saturation if saturation is not None else (np.iinfo(raw.dtype).max if integer else None)
+        if threshold is not None:
+            saturated[index] = (raw >= threshold).any(axis=-1)
+            threshold_used = threshold
+        if integer and encoded == "sRGB":
+            import colour
+
+            linear = colour.cctf_decoding(raw / float(np.iinfo(raw.dtype).max), "sRGB")
+        else:
+            linear = raw
+        images[index] = linear / intensities[index]
+
+    if encoded == "sRGB":
+        units = "sRGB-decoded linear value in [0, 1] / light intensity (per channel)"
+    elif np.issubdtype(reference[0], np.integer):
+        units = "raw sensor counts / light intensity (per channel)"
+    else:
+        units = "stored float value / light intensity (per channel)"
+    readme = folder / "README.md"
+    meta = {
+        "name": folder.resolve().name,
+        "kind": "measured",
+        "layout": "diligent",
+        "source": "photometric-stereo folder, DiLiGenT layout (Shi et al., CVPR 2016)",
+        "description": _first_heading(readme),
+        "path": str(folder),
+        "camera": {"type": "orthographic", "view_direction": [0.0, 0.0, 1.0],
+                   "axes": "x right, y up, z towards the camera; image rows top to bottom"},
+        "resolution": [height, width],
+        "units": units,
+        "pixel_type": str(reference[0]),
+        "encoded": encoded,
+        "images": [name for _, name in listed],
+        "normal_map": normals_file.name,
+        "mask": mask_file.name,
+        "mask_pixels": int(mask.sum()),
+        "lights": [light.to_json() for light in lights],
+        "light_intensities_rgb": intensities.tolist(),
+        "saturation": {"raw_threshold": None if threshold_used is None else float(threshold_used),
+                       "rule": "an observation is saturated when any channel's raw value >= raw_threshold",
+                       "saturated_observations_in_mask": int(saturated[:, mask].sum())},
+        "reference_intensity": 1.0,
+    }
+    dataset = Dataset(path=folder, meta=meta, images=images, normals=normal_map, view_dirs=view_dirs,
+                      positions=None, visibility=None, object_mask=mask, lights=lights, saturation=None,
+                      saturated=saturated)
+    if crop is not False and crop is not None:
+        dataset = crop_to_mask(dataset, margin=2 if crop is True else int(crop))
+    return dataset
+
+
+def crop_to_mask(dataset, margin=2):
+    """The data set cut to its object mask's bounding box plus ``margin`` pixels (clipped to the frame).
+
+    Every per-pixel array is sliced alike; ``meta["crop"]`` records ``row0``, ``col0`` (the crop's
+    top-left pixel in the full frame) and ``full_resolution``; ``meta["resolution"]`` becomes the
+    cropped size. Pixel (r, c) of the crop is pixel (r + row0, c + col0) of the files.
+    """
+    import dataclasses
+
+    mask = dataset.object_mask
+    rows, cols = np.nonzero(mask)
+    height, width = mask.shape
+    r0, r1 = max(int(rows.min()) - margin, 0), min(int(rows.max()) + 1 + margin, height)
+    c0, c1 = max(int(cols.min()) - margin, 0), min(int(cols.max()) + 1 + margin, width)
+    window = (slice(r0, r1), slice(c0, c1))
+    per_light = (slice(None),) + window
+    cut = lambda array, index: None if array is None else np.ascontiguousarray(array[index])
+    meta = dict(dataset.meta)
+    meta["crop"] = {"row0": r0, "col0": c0, "full_resolution": [height, width]}
+    meta["resolution"] = [r1 - r0, c1 - c0]
+    return dataclasses.replace(
+        dataset, meta=meta, images=cut(dataset.images, per_light), normals=cut(dataset.normals, window),
+        view_dirs=cut(dataset.view_dirs, window), positions=cut(dataset.positions, window),
+        visibility=cut(dataset.visibility, per_light), object_mask=cut(dataset.object_mask, window),
+        truth_labels=cut(dataset.truth_labels, window), saturated=cut(dataset.saturated, per_light))
+
+
+def _first_heading(readme: Path):
+    if not readme.is_file():
+        return None
+    for line in readme.read_text(errors="replace").splitlines():
+        if line.strip():
+            return line.strip().lstrip("#").strip()
+    return None

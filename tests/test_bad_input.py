@@ -1,0 +1,319 @@
+"""Bad input gets a clear error naming the file and the problem, never a silent wrong fit.
+
+Each case starts from a tiny valid folder written here (a DiLiGenT-style photometric-stereo
+folder of 16-bit PNGs, or rjfit's own layout), breaks one thing, and checks the message.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rjfit.data.dataset import DATASET_FORMAT, load_dataset
+from rjfit.data.diligent import load_diligent
+from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.data.exr import write_exr
+from rjfit.data.mesh import load_mesh
+
+HEIGHT, WIDTH = 8, 10
+DIRECTIONS = np.array([[0.0, 0.0, 1.0], [0.3, 0.3, 0.9], [-0.3, 0.2, 0.93], [0.2, -0.4, 0.89]])
+DIRECTIONS /= np.linalg.norm(DIRECTIONS, axis=1, keepdims=True)
+INTENSITIES = np.array([[1.0, 1.2, 1.5], [0.8, 1.0, 1.1], [1.3, 1.4, 2.0], [1.1, 0.9, 1.0]])
+
+
+def sphere_geometry():
+    """A disc mask and the unit normals of a sphere cap (x right, y up, z to the camera)."""
+    rows, cols = np.mgrid[0:HEIGHT, 0:WIDTH]
+    x, y = (cols - 4.5) / 4.5, -(rows - 3.5) / 4.5
+    mask = x * x + y * y < 0.8
+    normals = np.zeros((HEIGHT, WIDTH, 3))
+    normals[..., 0], normals[..., 1] = x, y
+    normals[..., 2] = np.sqrt(np.clip(1 - x * x - y * y, 0, None))
+    normals[~mask] = 0.0
+    return mask, normals
+
+
+MASK_PIXELS = int(sphere_geometry()[0].sum())
+
+
+def shading(mask, normals, seed=0):
+    """Raw 16-bit RGB images (L, H, W, 3): Lambertian shading times intensity, plus noise."""
+    rng = np.random.default_rng(seed)
+    cos = np.clip(np.einsum("hwc,lc->lhw", normals, DIRECTIONS), 0, None) * mask
+    raw = 20000.0 * cos[..., None] * INTENSITIES[:, None, None, :] + rng.integers(100, 300, cos.shape + (3,))
+    return np.clip(raw, 0, 65535).astype(np.uint16)
+
+
+def write_png(path, rgb):
+    import cv2
+
+    assert cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1]))
+
+
+def write_lines(path, rows):
+    Path(path).write_text("".join(" ".join(f"{v:.6g}" for v in row) + "\n" for row in rows))
+
+
+def make_ps_folder(folder, *, images="png", normals_name="Normal_gt.mat"):
+    """A valid DiLiGenT-style folder of four lights; returns it."""
+    import scipy.io
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    mask, normals = sphere_geometry()
+    raw = shading(mask, normals)
+    raw[0, 3, 4] = 65535  # one saturated observation
+    names = [f"{i + 1:03d}.{images}" for i in range(len(DIRECTIONS))]
+    for name, image in zip(names, raw):
+        if images == "png":
+            write_png(folder / name, image)
+        else:
+            write_exr(folder / name, {c: image[..., i].astype(np.float32) for i, c in enumerate("RGB")})
+    (folder / "filenames.txt").write_text("".join(name + "\n" for name in names))
+    write_lines(folder / "light_directions.txt", DIRECTIONS)
+    write_lines(folder / "light_intensities.txt", INTENSITIES)
+    write_png(folder / "mask.png", np.repeat((mask * 255).astype(np.uint8)[..., None], 3, axis=-1))
+    if normals_name.endswith(".mat"):
+        scipy.io.savemat(folder / normals_name, {"Normal_gt": normals})
+    else:
+        np.save(folder / normals_name, normals)
+    return folder
+
+
+def make_rjfit_folder(folder, *, lights=None):
+    """A valid rjfit-layout data set (dataset.json, EXR images, geometry.exr) of point lights."""
+    folder = Path(folder)
+    mask, normals = sphere_geometry()
+    lights = lights or [{"kind": "point", "intensity": 10.0, "position": [0.0, 0.0, 5.0]},
+                        {"kind": "point", "intensity": 10.0, "position": [2.0, 1.0, 4.0]}]
+    images = []
+    for index in range(len(lights)):
+        name = f"images/light_{index:03d}.exr"
+        write_exr(folder / name, {c: np.full((HEIGHT, WIDTH), 0.5, np.float32) for c in "RGB"})
+        images.append(name)
+    channels = {f"{p}.{a}": normals[..., i] for p in "PN" for i, a in enumerate("XYZ")}
+    channels.update({"V.X": np.zeros((HEIGHT, WIDTH)), "V.Y": np.zeros((HEIGHT, WIDTH)),
+                     "V.Z": np.ones((HEIGHT, WIDTH)), "mask": mask.astype(np.float32)})
+    write_exr(folder / "geometry.exr", channels)
+    (folder / "dataset.json").write_text(json.dumps({
+        "format": DATASET_FORMAT, "lights": lights, "images": images, "resolution": [HEIGHT, WIDTH],
+        "geometry": "geometry.exr"}))
+    return folder
+
+
+def raises(error, *parts):
+    """``pytest.raises`` whose message must contain each of ``parts`` (literal text), in order."""
+    return pytest.raises(error, match=".*".join(re.escape(str(part)) for part in parts))
+
+
+# -- the unbroken folders load: every failure below is due to the one thing broken -----------------
+
+def test_valid_folders_load(tmp_path):
+    dataset = load_dataset(make_ps_folder(tmp_path / "ps"))
+    mask, normals = sphere_geometry()
+    assert dataset.n_lights == 4 and dataset.image_shape == (HEIGHT, WIDTH)
+    np.testing.assert_array_equal(dataset.object_mask, mask)
+    assert dataset.saturated.sum() == 1 and dataset.saturated[0, 3, 4]
+    assert not dataset.valid_mask()[0, 3, 4]
+    raw = shading(mask, normals)
+    np.testing.assert_allclose(dataset.images[1], raw[1] / INTENSITIES[1], rtol=1e-6)
+    assert dataset.observations().n_obs == int(dataset.valid_mask().sum()) > 0
+    generic = load_dataset(make_ps_folder(tmp_path / "generic", images="exr", normals_name="normals.npy"))
+    np.testing.assert_allclose(generic.images[1:], dataset.images[1:], rtol=1e-6)
+    assert generic.meta["saturation"]["raw_threshold"] is None  # float images: no default threshold
+    assert load_dataset(make_rjfit_folder(tmp_path / "rjfit")).n_lights == 2
+
+
+def test_srgb_encoded_eight_bit_is_decoded(tmp_path):
+    import colour
+
+    folder = make_ps_folder(tmp_path)
+    codes = np.random.default_rng(1).integers(0, 255, (4, HEIGHT, WIDTH, 3)).astype(np.uint8)
+    codes[2, 0, 0] = 255
+    for index, image in enumerate(codes):
+        write_png(folder / f"{index + 1:03d}.png", image)
+    dataset = load_diligent(folder, encoded="sRGB")
+    expected = colour.cctf_decoding(codes / 255.0, "sRGB") / INTENSITIES[:, None, None, :]
+    np.testing.assert_allclose(dataset.images, expected, rtol=1e-6, atol=1e-7)
+    assert dataset.saturated[2, 0, 0] and dataset.meta["encoded"] == "sRGB"
+    with raises(DatasetError, "encoded must be None (linear data) or one of ('sRGB',), got 'gamma'"):
+        load_diligent(folder, encoded="gamma")
+
+
+# -- bad input ------------------------------------------------------------------------------------
+
+def test_mismatched_image_size(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    write_png(folder / "002.png", np.full((HEIGHT + 1, WIDTH, 3), 1000, np.uint16))
+    with raises(DatasetError, folder / "002.png", "image is 10 x 9 (width x height), but mask.png is 10 x 8"):
+        load_dataset(folder)
+
+
+def test_nan_pixels(tmp_path):
+    folder = make_ps_folder(tmp_path, images="exr")
+    image = np.ones((HEIGHT, WIDTH), np.float32)
+    image[2, 5] = np.nan
+    write_exr(folder / "003.exr", {"R": image, "G": image, "B": np.where(image > 0, np.inf, 0).astype(np.float32)})
+    with raises(DatasetError, folder / "003.exr", "80 pixels are NaN or Inf (first at row 0, column 0)"):
+        load_dataset(folder)
+
+
+def test_nan_normals_and_directions(tmp_path):
+    folder = make_ps_folder(tmp_path, normals_name="normals.npy")
+    _, normals = sphere_geometry()
+    normals[4, 5] = np.nan
+    np.save(folder / "normals.npy", normals)
+    with raises(DatasetError, folder / "normals.npy", "1 normals inside the object mask are NaN or Inf",
+                "row 4, column 5"):
+        load_dataset(folder)
+    directions = (folder / "light_directions.txt").read_text().splitlines()
+    directions[2] = "nan 0 1"
+    (folder / "light_directions.txt").write_text("\n".join(directions) + "\n")
+    with raises(DatasetError, folder / "light_directions.txt", "line 3: a light direction x y z is NaN or Inf"):
+        load_dataset(folder)
+
+
+def test_nan_pixels_in_rjfit_layout(tmp_path):
+    folder = make_rjfit_folder(tmp_path)
+    write_exr(folder / "images/light_001.exr", {c: np.full((HEIGHT, WIDTH), np.nan, np.float32) for c in "RGB"})
+    with raises(DatasetError, folder / "images/light_001.exr", "80 pixels are NaN or Inf"):
+        load_dataset(folder)
+
+
+def test_light_without_image(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    (folder / "003.png").unlink()
+    with raises(DatasetFileNotFoundError, folder / "003.png", "no such file",
+                "filenames.txt line 3 names it as the image of light 3 (a light without an image)"):
+        load_dataset(folder)
+    folder = make_ps_folder(tmp_path / "extra_light")
+    with open(folder / "light_directions.txt", "a") as file:
+        file.write("0.1 0.1 0.99\n")
+    with raises(DatasetError, folder / "light_directions.txt", "has 5 lights but",
+                folder / "filenames.txt", "lists 4 images: the light on line 5 and any after it have no image"):
+        load_dataset(folder)
+
+
+def test_image_without_light(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    write_png(folder / "005.png", np.full((HEIGHT, WIDTH, 3), 1000, np.uint16))
+    with open(folder / "filenames.txt", "a") as file:
+        file.write("005.png\n")
+    with raises(DatasetError, folder / "filenames.txt", "lists 5 images but", folder / "light_directions.txt",
+                "has 4 lights: image 005.png (line 5) and any after it have no light"):
+        load_dataset(folder)
+
+
+def test_image_listed_twice(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    (folder / "filenames.txt").write_text("001.png\n002.png\n001.png\n004.png\n")
+    with raises(DatasetError, folder / "filenames.txt", "line 3: 001.png is listed twice (also on line 1)"):
+        load_dataset(folder)
+
+
+def test_eight_bit_where_sixteen_promised(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    write_png(folder / "002.png", np.full((HEIGHT, WIDTH, 3), 100, np.uint8))
+    with raises(DatasetError, folder / "002.png", "8-bit image, but linear data must have 16 bits per channel"):
+        load_dataset(folder)
+    # 8-bit data widened to 16 bits (low byte always 0) is refused too.
+    write_png(folder / "002.png", (np.full((HEIGHT, WIDTH, 3), 100, np.uint16) << 8))
+    with raises(DatasetError, folder / "002.png", "16-bit file holding 8-bit data (every value is a multiple of 256"):
+        load_dataset(folder)
+
+
+def test_normals_not_unit_length(tmp_path):
+    import scipy.io
+
+    folder = make_ps_folder(tmp_path)
+    _, normals = sphere_geometry()
+    normals[3, 5] *= 0.5
+    scipy.io.savemat(folder / "Normal_gt.mat", {"Normal_gt": normals})
+    with raises(DatasetError, folder / "Normal_gt.mat",
+                f"1 of {MASK_PIXELS} normals inside the object mask are not unit length",
+                "first at row 3, column 5"):
+        load_dataset(folder)
+
+
+def test_normals_not_unit_length_in_rjfit_layout(tmp_path):
+    folder = make_rjfit_folder(tmp_path)
+    mask, normals = sphere_geometry()
+    channels = {f"{p}.{a}": normals[..., i] * 2 for p in "PN" for i, a in enumerate("XYZ")}
+    channels.update({"V.X": np.zeros((HEIGHT, WIDTH)), "V.Y": np.zeros((HEIGHT, WIDTH)),
+                     "V.Z": np.ones((HEIGHT, WIDTH)), "mask": mask.astype(np.float32)})
+    write_exr(folder / "geometry.exr", channels)
+    with raises(DatasetError, folder / "geometry.exr",
+                f"(channels N.X N.Y N.Z): {MASK_PIXELS} of {MASK_PIXELS} normals inside the object mask are not "
+                "unit length"):
+        load_dataset(folder)
+
+
+def test_mask_selects_nothing(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    write_png(folder / "mask.png", np.zeros((HEIGHT, WIDTH, 3), np.uint8))
+    with raises(DatasetError, folder / "mask.png", "the object mask selects no pixel"):
+        load_dataset(folder)
+    folder = make_rjfit_folder(tmp_path / "rjfit")
+    channels = {name: np.zeros((HEIGHT, WIDTH)) for name in
+                ("P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z", "V.X", "V.Y", "V.Z", "mask")}
+    write_exr(folder / "geometry.exr", channels)
+    with raises(DatasetError, folder / "geometry.exr", "(channel mask): the object mask selects no pixel"):
+        load_dataset(folder)
+
+
+def test_lights_behind_the_object(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    write_lines(folder / "light_directions.txt", DIRECTIONS * [1, 1, -1])
+    with raises(DatasetError, folder / "light_directions.txt", "all 4 lights are behind the object "
+                f"(<l.n> <= 0 at every one of the {MASK_PIXELS} mask pixels)",
+                "z points towards the camera: is the z axis (or the direction sign) flipped?"):
+        load_dataset(folder)
+    write_lines(folder / "light_directions.txt", np.vstack([DIRECTIONS[:1], [[0.1, 0.2, -0.97]], DIRECTIONS[2:]]))
+    with raises(DatasetError, "1 of 4 lights are behind the object", folder / "light_directions.txt",
+                "line 2 (light 2, image 002.png, direction"):
+        load_dataset(folder)
+    folder = make_rjfit_folder(tmp_path / "rjfit", lights=[
+        {"kind": "point", "intensity": 1.0, "position": [0.0, 0.0, -5.0]},
+        {"kind": "directional", "intensity": 1.0, "direction": [0.0, 0.0, -1.0]}])
+    with raises(DatasetError, folder / "dataset.json", "all 2 lights are behind the object"):
+        load_dataset(folder)
+
+
+def test_missing_layout_files(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    (folder / "mask.png").unlink()
+    with raises(DatasetFileNotFoundError, folder / "mask.png", "no such file (the object mask"):
+        load_dataset(folder)
+    folder = make_ps_folder(tmp_path / "no_normals")
+    (folder / "Normal_gt.mat").unlink()
+    with raises(DatasetFileNotFoundError, folder, "no normal map (looked for Normal_gt.mat"):
+        load_dataset(folder)
+    with raises(FileNotFoundError, tmp_path / "nothing", "not a data set"):
+        load_dataset(tmp_path / "nothing")
+
+
+def test_bad_light_file_lines(tmp_path):
+    folder = make_ps_folder(tmp_path)
+    (folder / "light_intensities.txt").write_text("1 1 1\n1 1\n1 1 1\n1 1 1\n")
+    with raises(DatasetError, folder / "light_intensities.txt", "line 2: expected 1 or 3 numbers"):
+        load_dataset(folder)
+    (folder / "light_intensities.txt").write_text("1 1 1\n1 1 1\n1 0 1\n1 1 1\n")
+    with raises(DatasetError, folder / "light_intensities.txt", "line 3: light intensities must be positive"):
+        load_dataset(folder)
+
+
+def test_mesh_without_faces(tmp_path):
+    import trimesh
+
+    path = tmp_path / "points.ply"
+    trimesh.PointCloud(np.random.default_rng(0).random((20, 3))).export(path)
+    with raises(DatasetError, path, "the mesh has no faces (20 vertices, 0 triangles)"):
+        load_mesh(path)
+    with raises(DatasetFileNotFoundError, tmp_path / "missing.obj", "no such mesh file"):
+        load_mesh(tmp_path / "missing.obj")
+    good = tmp_path / "box.ply"
+    trimesh.creation.box().export(good)
+    assert len(load_mesh(good).faces) == 12
