@@ -22,7 +22,7 @@ from rjfit.data.checks import check_lights_face_object, check_mask, check_unit_n
 from rjfit.data.errors import DatasetError
 from rjfit.data.exr import read_exr
 from rjfit.data.lights import Light, geometry_terms
-from rjfit.data.observations import Observations, observations_from_stack, valid_observation_mask
+from rjfit.data.observations import Observations, valid_observation_mask
 
 __all__ = ["Dataset", "load_dataset", "write_json_atomic", "DATASET_FORMAT", "CHANNELS"]
 
@@ -112,14 +112,7 @@ class Dataset:
         """
         if channel not in CHANNELS:
             raise ValueError(f"channel must be one of {CHANNELS}, got {channel!r}")
-        if channel == "mean":
-            return self.images.mean(axis=-1)
-        if channel == "luminance":
-            import colour
-
-            space = colour.RGB_COLOURSPACES["sRGB"]
-            return colour.RGB_luminance(self.images, space.primaries, space.whitepoint)
-        return self.images[..., "RGB".index(channel)]
+        return self._channel_of(self.images, channel)
 
     def geometry(self):
         """Per light ``<l.n>``, ``<h.n>`` and relative irradiance, each (L, H, W)."""
@@ -128,24 +121,71 @@ class Dataset:
                  for light in self.lights]
         return tuple(np.stack(stack) for stack in zip(*terms))
 
+    def _channel_of(self, image: np.ndarray, channel: str) -> np.ndarray:
+        """One light's values (..., 3) -> (...) for ``channel`` (see :meth:`channel_values`)."""
+        if channel == "mean":
+            return image.mean(axis=-1)
+        if channel == "luminance":
+            import colour
+
+            space = colour.RGB_COLOURSPACES["sRGB"]
+            return colour.RGB_luminance(image, space.primaries, space.whitepoint)
+        return image[..., "RGB".index(channel)]
+
+    def _object_pixel_lights(self, channel: str, dark: float | None):
+        """Per light, on object pixels only: (light index, valid, y, cos_ln, cos_hn, irradiance).
+
+        Streams one light at a time and never forms full-frame (L, H, W) geometry, so memory
+        grows with the object's pixels, not with the frame.
+        """
+        if channel not in CHANNELS:
+            raise ValueError(f"channel must be one of {CHANNELS}, got {channel!r}")
+        rows, cols = np.nonzero(self.object_mask)
+        normals, view_dirs = self.normals[rows, cols], self.view_dirs[rows, cols]
+        positions = self.positions[rows, cols] if self.positions is not None else np.zeros_like(normals)
+        for index, light in enumerate(self.lights):
+            cos_ln, cos_hn, irradiance = geometry_terms(positions, normals, view_dirs, light, self.reference_intensity)
+            pixels = self.images[index][rows, cols]
+            y = self._channel_of(pixels, channel)
+            visible = self.visibility[index][rows, cols] if self.visibility is not None else None
+            valid = valid_observation_mask(y[None], cos_ln[None], None if visible is None else visible[None],
+                                           np.ones((1, y.size), bool), dark=dark)[0]
+            if self.saturation is not None:
+                # A pixel is saturated when any of its channels is clipped.
+                valid &= ~(pixels >= self.saturation).any(axis=-1)
+            if self.saturated is not None:
+                valid &= ~self.saturated[index][rows, cols]
+            yield index, valid, y, cos_ln, cos_hn, irradiance
+
     def valid_mask(self, channel: str = "mean", dark: float | None = None) -> np.ndarray:
         """Valid observations (L, H, W): on the object, lit, not shadowed, not saturated."""
-        cos_ln, _, _ = self.geometry()
-        valid = valid_observation_mask(self.channel_values(channel), cos_ln, self.visibility, self.object_mask,
-                                       dark=dark)
-        if self.saturation is not None:
-            # A pixel is saturated when any of its channels is clipped.
-            valid &= ~(self.images >= self.saturation).any(axis=-1)
-        if self.saturated is not None:
-            valid &= ~self.saturated
+        valid = np.zeros((self.n_lights,) + self.image_shape, dtype=bool)
+        rows, cols = np.nonzero(self.object_mask)
+        for index, valid_on_object, *_ in self._object_pixel_lights(channel, dark):
+            valid[index, rows, cols] = valid_on_object
         return valid
 
     def observations(self, channel: str = "mean", dark: float | None = None) -> Observations:
-        """The valid observations of one channel (see :meth:`valid_mask`)."""
-        cos_ln, cos_hn, irradiance = self.geometry()
-        valid = self.valid_mask(channel, dark)
-        return observations_from_stack(self.channel_values(channel), cos_ln, cos_hn, irradiance, valid,
-                                       self.object_mask)
+        """The valid observations of one channel (see :meth:`valid_mask`).
+
+        Raises
+        ------
+        DatasetError
+            If no observation is valid.
+        """
+        rows, cols = np.nonzero(self.object_mask)
+        flat_pixel = rows.astype(np.int64) * self.image_shape[1] + cols
+        parts = {"pixel": [], "light": [], "y": [], "cos_ln": [], "cos_hn": [], "irradiance": []}
+        for index, valid, y, cos_ln, cos_hn, irradiance in self._object_pixel_lights(channel, dark):
+            parts["pixel"].append(flat_pixel[valid])
+            parts["light"].append(np.full(int(valid.sum()), index, dtype=np.int32))
+            for name, values in (("y", y), ("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance)):
+                parts[name].append(np.asarray(values, dtype=np.float64)[valid])
+        gathered = {name: np.concatenate(chunks) for name, chunks in parts.items()}
+        _require(gathered["y"].size > 0, f"{self.path}: no valid observation (check the object mask, the lights and "
+                                         f"the saturation level)")
+        return Observations(image_shape=self.image_shape, n_lights=self.n_lights, object_mask=self.object_mask,
+                            **gathered)
 
 
 def _require(condition, message):
