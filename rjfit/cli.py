@@ -92,5 +92,41 @@ def run(ctx, scene, out_dir, resolution, seed):
     ctx.invoke(validate, dataset=dataset_dir, out_dir=None, spp=4, max_depth=8, seed=seed, variant="llvm_ad_rgb")
 
 
+
+@main.command()
+@click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for comparison.json, comparison.md and segmentations.png (created).")
+@click.option("--fit", "fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="A folder written by `rjfit fit` (summary.json, map_labels.exr): score rjfit's MAP "
+                   "segmentation too. Without it rjfit's row is left out.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every baseline's randomness.")
+@click.option("--channel", default="mean", show_default=True,
+              type=click.Choice(["mean", "R", "G", "B", "luminance"]), help="Colour channel of the grey values.")
+def compare(dataset, out_dir, fit_dir, seed, channel):
+    """Compare segmentations of DATASET (which needs ground truth) side by side: k-means
+    (k = 4..8), a multichannel k-means, a Gaussian mixture with pixel positions (k = 4..8),
+    normalized cuts on one image (k = 5..6, background included) and, with --fit, rjfit's
+    MAP segmentation. Scores pixel accuracy, adjusted Rand index and boundary F1 (2 px)
+    after Hungarian matching, and the runtime of each method."""
+    from rjfit.baselines.compare import compare_dataset
+
+    click.echo(f"comparing segmentations of {dataset}")
+    rows = compare_dataset(dataset, out_dir, fit_dir=fit_dir, seed=seed, channel=channel, progress=click.echo)
+    click.echo("best k per method (by pixel accuracy):")
+    click.echo(f"  {'method':<22} {'k':>2} {'acc':>6} {'ARI':>6} {'bF1':>6} {'seconds':>8}")
+    best = {}
+    for row in rows:
+        if row["method"] not in best or row["pixel_accuracy"] > best[row["method"]]["pixel_accuracy"]:
+            best[row["method"]] = row
+    for row in best.values():
+        seconds = "n/a" if row["seconds"] is None else f"{row['seconds']:.2f}"
+        click.echo(f"  {row['method']:<22} {row['k']:>2} {row['pixel_accuracy']:6.3f} {row['ari']:6.3f} "
+                   f"{row['boundary_f1']:6.3f} {seconds:>8}")
+    if fit_dir is None:
+        click.echo("  (rjfit MAP left out: no --fit FIT_DIR)")
+    click.echo(f"  table: {Path(out_dir) / 'comparison.md'}  figure: {Path(out_dir) / 'segmentations.png'}")
+
+
 if __name__ == "__main__":
     main()
