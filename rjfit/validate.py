@@ -55,13 +55,49 @@ def closed_form_radiance(positions, normals, view_dirs, light, material, referen
 
 
 def dataset_fingerprint(dataset_dir) -> str:
-    """SHA-256 over ``dataset.json`` and every image the data set lists."""
+    """SHA-256 over what a fit reads: ``dataset.json`` and its images, or, for a measured
+    folder without one, every file in it (names and bytes, in sorted order)."""
     dataset_dir = Path(dataset_dir)
-    meta = json.loads((dataset_dir / "dataset.json").read_text())
-    digest = hashlib.sha256((dataset_dir / "dataset.json").read_bytes())
-    for name in meta.get("images", []):
-        digest.update((dataset_dir / name).read_bytes())
+    digest = hashlib.sha256()
+    if (dataset_dir / "dataset.json").is_file():
+        meta = json.loads((dataset_dir / "dataset.json").read_text())
+        files = [dataset_dir / "dataset.json"] + [dataset_dir / name for name in meta.get("images", [])]
+    else:
+        files = sorted(p for p in dataset_dir.iterdir() if p.is_file())
+    for file in files:
+        digest.update(file.name.encode())
+        digest.update(file.read_bytes())
     return digest.hexdigest()
+
+
+#: Materials the gate renders a data set with when it has no truth (measured data): both lobes.
+PROBE_MATERIALS = [{"name": "probe", "I0": 1.0, "kd": 0.5, "gamma": 10.0}]
+
+
+def _facet_mesh(normals, object_mask, size=0.1):
+    """A small square facet (``size`` pixels wide) per object pixel, centred on the pixel
+    centre in the plane z = 0 of an orthographic frame (x right, y up), tilted to the pixel's
+    normal; the pixel-centre ray hits each facet at its centre."""
+    import trimesh
+
+    height, width = object_mask.shape
+    rows, cols = np.nonzero(object_mask)
+    centres = np.stack([cols + 0.5 - width / 2.0, height / 2.0 - rows - 0.5, np.zeros(rows.size)], axis=-1)
+    n = normals[rows, cols]
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(n, t1)
+    half = size / 2.0
+    corners = np.stack([centres + half * (a * t1 + b * t2) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))], axis=1)
+    base = 4 * np.arange(rows.size)[:, None]
+    faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]])
+    # Orient every triangle so that its geometric normal agrees with the pixel normal.
+    vertices = corners.reshape(-1, 3)
+    geometric = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
+    flip = np.sum(geometric * n[np.tile(np.arange(rows.size), 2)], axis=1) < 0
+    faces[flip] = faces[flip][:, ::-1]
+    return trimesh.Trimesh(vertices=vertices, faces=faces, vertex_normals=np.repeat(n, 4, axis=0), process=False)
 
 
 def _material_maps(material_index_map, materials):
@@ -97,7 +133,8 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     Parameters
     ----------
     dataset_dir : path
-        A data set rendered by rjfit (``dataset.json`` with camera, meshes and lights).
+        A data set: rendered by rjfit (its meshes are path-traced) or a measured normal-map
+        folder (path-traced as one facet per pixel with the pixel's normal).
     out_dir : path, optional
         Where ``validation.json`` and the error maps go (default: ``dataset_dir/validation``).
     forward_model : callable
@@ -118,31 +155,53 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
 
     Raises
     ------
-    FileNotFoundError
-        If the data set has no scene description.
-    ValueError
-        If the data set has no meshes (a measured set without a mesh cannot be path-traced).
+    FileNotFoundError, ValueError
+        If the data set cannot be loaded (see :func:`rjfit.data.dataset.load_dataset`).
     """
-    from rjfit.render.mitsuba_scene import activate, path_trace, shadow_visibility, trace_pixels
+    from rjfit.data.dataset import load_dataset
+    from rjfit.render.mitsuba_scene import activate, build_scene, path_trace, shadow_visibility, trace_pixels
     from rjfit.render.render import scene_from_dataset_meta
 
     started = time.perf_counter()
     dataset_dir = Path(dataset_dir)
     out_dir = Path(out_dir) if out_dir is not None else dataset_dir / "validation"
-    description = dataset_dir / "dataset.json"
-    if not description.is_file():
-        raise FileNotFoundError(f"{description}: missing; validation needs the scene a data set was made from")
-    meta = json.loads(description.read_text())
-    if not meta.get("meshes"):
-        raise ValueError(f"{description}: no meshes; the cross-check path-traces the object's mesh")
-    materials = materials if materials is not None else meta["materials"]
-    lights = [Light.from_json(entry) for entry in meta["lights"]]
+    dataset = load_dataset(dataset_dir)
+    meta = dataset.meta
+    lights = dataset.lights
+    reference = dataset.reference_intensity
+    out_dir.mkdir(parents=True, exist_ok=True)
     activate(variant)
-    geometry_scene = scene_from_dataset_meta(meta, dataset_dir, materials=materials, lights=[], max_depth=max_depth)
-    traced = trace_pixels(geometry_scene, [entry["material"] for entry in meta["meshes"]])
-    hit = traced["hit"]
+    if meta.get("meshes"):
+        materials = materials if materials is not None else meta["materials"]
+        part_materials = [entry["material"] for entry in meta["meshes"]]
+
+        def make_scene(scene_lights, depth, value_format="rgb"):
+            return scene_from_dataset_meta(meta, dataset_dir, materials=materials, lights=scene_lights,
+                                           max_depth=depth, light_format=value_format)
+        geometry_source = "the data set's meshes"
+    else:
+        # A normal-map data set has no mesh: each object pixel becomes a small facet with the
+        # pixel's normal, seen by an orthographic camera, so Mitsuba checks the conventions
+        # (axes, light directions and units, the view direction) the loader assumed.
+        materials = materials if materials is not None else PROBE_MATERIALS[:1]
+        facet_path = out_dir / "facets.ply"
+        _facet_mesh(dataset.normals, dataset.object_mask).export(facet_path, file_type="ply", vertex_normal=True)
+        part_materials = [0]
+        height, width = dataset.image_shape
+        camera = {"kind": "orthographic", "origin": [0.0, 0.0, 10.0], "target": [0.0, 0.0, 0.0], "up": [0, 1, 0],
+                  "half_width": width / 2.0}
+
+        def make_scene(scene_lights, depth, value_format="rgb"):
+            return build_scene(camera, (height, width), [(facet_path, 0)], materials, scene_lights,
+                               reference_intensity=reference, max_depth=depth, light_format=value_format)
+        geometry_source = "one facet per pixel from the normal map"
+    geometry_scene = make_scene([], max_depth)
+    traced = trace_pixels(geometry_scene, part_materials)
+    hit = traced["hit"] & dataset.object_mask
     shape = hit.shape
-    material_maps = _material_maps(traced["material"], materials)
+    normal_angle = np.degrees(np.arccos(np.clip(np.sum(traced["normals"] * dataset.normals, axis=-1), -1, 1)))
+    material_maps = _material_maps(np.where(hit, traced["material"], -1), materials)
+    positions = dataset.positions if dataset.positions is not None else np.zeros_like(dataset.normals)
     path_stack, closed_stack = [], []
     iterator = list(enumerate(lights))
     if progress:
@@ -150,12 +209,11 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
 
         iterator = tqdm(iterator, desc="validate", unit="light")
     for light_index, light in iterator:
-        scene = scene_from_dataset_meta(meta, dataset_dir, materials=materials, lights=[light],
-                                        max_depth=max_depth, light_format=light_format)
+        scene = make_scene([light], max_depth, light_format)
         path_radiance = path_trace(scene, spp=spp, seed=seed * 7919 + light_index).mean(axis=-1)
         visible = shadow_visibility(geometry_scene, traced["_interaction"], light, shape)
-        closed = forward_model(traced["positions"], traced["normals"], traced["view_dirs"], light, material_maps,
-                               float(meta["reference_intensity"]))
+        # The closed form sees the data set's own geometry, as the fitter will.
+        closed = forward_model(positions, dataset.normals, dataset.view_dirs, light, material_maps, reference)
         path_stack.append(np.where(hit, path_radiance, 0.0))
         closed_stack.append(np.where(hit & visible, closed, 0.0))
     path_stack, closed_stack = np.stack(path_stack), np.stack(closed_stack)
@@ -179,6 +237,8 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
         "unexplained_fraction": float((missing * compared).sum() / (path_stack * compared).sum()),
         "per_light_median_rel_err": [float(np.median(rel_err[i][compared[i]])) if compared[i].any() else None
                                      for i in range(len(lights))],
+        "geometry": geometry_source,
+        "max_normal_angle_deg": float(normal_angle[hit].max()) if hit.any() else None,
         "thresholds": {"median_rel_err": MEDIAN_TOLERANCE, "p99_rel_err": P99_TOLERANCE},
         "settings": {"integrator": "path", "max_depth": max_depth, "spp": spp, "seed": seed, "variant": variant,
                      "rays": "one per pixel centre, shared by the path tracer and the closed form"},
@@ -232,7 +292,7 @@ def require_validated(dataset_dir, validation_path=None, *, allow_unvalidated=Fa
         problem = (f"failed the cross-check (median rel. err. {result.get('median_rel_err'):.3g}, "
                    f"p99 {result.get('p99_rel_err'):.3g}, unexplained fraction "
                    f"{result.get('unexplained_fraction'):.3g}); see {validation_path}")
-    elif (dataset_dir / "dataset.json").is_file() and result.get("dataset_sha256") != dataset_fingerprint(dataset_dir):
+    elif result.get("dataset_sha256") != dataset_fingerprint(dataset_dir):
         problem = f"changed since {validation_path} was written; validate it again"
     if problem is None:
         return result

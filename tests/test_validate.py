@@ -80,3 +80,27 @@ def test_fitter_gate_refuses_unvalidated_failed_and_changed_data(paper_sphere_sm
     (dataset / "dataset.json").write_text(json.dumps(meta))
     with pytest.raises(ValidationRequiredError, match="changed since"):
         require_validated(dataset)
+
+
+def test_normal_map_data_is_checked_with_one_facet_per_pixel(tmp_path):
+    """A measured photometric-stereo folder has no mesh: the gate path-traces one facet per
+    pixel with the pixel's normal under the folder's directional lights (orthographic
+    camera, v = (0, 0, 1)). The right conventions pass; a closed form that takes the light
+    direction as the direction of travel (a sign slip) fails."""
+    from test_bad_input import make_ps_folder
+
+    folder = make_ps_folder(tmp_path / "ps")
+    result = validate_dataset(folder, tmp_path / "v", spp=1)
+    assert result["passed"], result
+    assert result["geometry"] == "one facet per pixel from the normal map"
+    assert result["max_normal_angle_deg"] < 0.05
+
+    def travel_direction(positions, normals, view_dirs, light, material, reference):
+        from rjfit.data.lights import Light
+
+        flipped = Light(kind="directional", intensity=light.intensity, direction=tuple(-np.asarray(light.direction)))
+        return closed_form_radiance(positions, normals, view_dirs, flipped, material, reference)
+
+    assert not validate_dataset(folder, tmp_path / "w", spp=1, forward_model=travel_direction)["passed"]
+    # The gate's record lives outside a read-only data folder and the fitter finds it there.
+    assert require_validated(folder, tmp_path / "v" / "validation.json")["passed"]

@@ -155,7 +155,10 @@ def trace_pixels(scene, mesh_material_indices):
         material[on_shape] = mesh_material_indices[int(shape_id.split("_")[1])]
 
     def image(vectors):
-        return np.array(vectors, dtype=np.float64).T.reshape(height, width, 3)
+        # A value the same for every lane (an orthographic camera's direction) comes back
+        # with width 1: broadcast it to the image.
+        values = np.array(vectors, dtype=np.float64).reshape(3, -1)
+        return np.broadcast_to(values.T, (height * width, 3)).reshape(height, width, 3).copy()
 
     positions = image(interaction.p)
     normals = image(interaction.sh_frame.n)
@@ -171,10 +174,10 @@ def shadow_visibility(scene, interaction, light: Light, shape):
     import mitsuba as mi
 
     if light.kind == "point":
-        rays = interaction.spawn_ray_to(mi.Point3f(*light.position))
+        rays = interaction.spawn_ray_to(mi.Point3f(*[float(c) for c in light.position]))
     else:
         direction = np.asarray(light.direction, dtype=float)
-        rays = interaction.spawn_ray(mi.Vector3f(*(direction / np.linalg.norm(direction))))
+        rays = interaction.spawn_ray(mi.Vector3f(*[float(c) for c in direction / np.linalg.norm(direction)]))
     occluded = scene.ray_test(rays, interaction.is_valid())
     return (~np.array(occluded, dtype=bool) & np.array(interaction.is_valid(), dtype=bool)).reshape(shape)
 
