@@ -128,5 +128,77 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
     click.echo(f"  table: {Path(out_dir) / 'comparison.md'}  figure: {Path(out_dir) / 'segmentations.png'}")
 
 
+@main.command()
+@click.argument("datasets", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Fit folder; with several data sets, one sub-folder per data set.")
+@click.option("--chains", "n_chains", type=int, default=4, show_default=True, help="Chains from dispersed starts.")
+@click.option("--iterations", type=int, default=4000, show_default=True, help="Iterations per chain.")
+@click.option("--burn-in", type=float, default=None,
+              help="Discarded fraction (default: 0.5 for synthetic data, 0.2 for measured, as in the paper).")
+@click.option("--max-u", type=int, default=3, show_default=True, help="Most u change-point vectors.")
+@click.option("--max-v", type=int, default=3, show_default=True, help="Most v change-point vectors.")
+@click.option("--sampler", type=click.Choice(["adaptive", "paper"]), default="adaptive", show_default=True,
+              help="Within-model moves: adaptive blocks (default) or the paper's component-wise MH.")
+@click.option("--prior", type=click.Choice(["default", "paper-synthetic", "paper-real"]), default="default",
+              show_default=True, help="Prior preset (paper: Table 1 synthetic, Table 3 real).")
+@click.option("--split-map", type=click.Choice(["mean", "paper"]), default="mean", show_default=True,
+              help="Split/merge map of birth and death moves; 'paper' is eq. 10 (its Jacobian included).")
+@click.option("--channel", type=click.Choice(["mean", "R", "G", "B", "luminance"]), default="mean",
+              show_default=True, help="Colour channel fitted (luminance: CIE Y, sRGB primaries).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
+@click.option("--validation", "validation_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="validation.json of the data set (default: DATASET/validation/validation.json).")
+@click.option("--allow-unvalidated", is_flag=True,
+              help="Fit even if the forward model has not passed the cross-check gate (not recommended).")
+@click.option("--scheduler", default=None,
+              help="Run chains on Dask: 'local' for a local cluster, or a scheduler address (tcp://host:8786).")
+@click.option("--workers", type=int, default=2, show_default=True, help="Workers of a local Dask cluster.")
+def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler, prior, split_map, channel, seed,
+        validation_path, allow_unvalidated, scheduler, workers):
+    """Segment DATASET(S) and sample the region BRDF posteriors (RJMCMC).
+
+    Refuses a data set whose forward model has not passed `rjfit validate` unless
+    --allow-unvalidated is given. Writes summary.json, map_labels.exr, chains.nc and the
+    paper's figures."""
+    from rjfit.fit_dataset import fit_datasets
+
+    summaries = fit_datasets(datasets, out_dir, n_chains=n_chains, iterations=iterations, burn_in=burn_in,
+                             max_u=max_u, max_v=max_v, sampler=sampler, prior=prior, split_map=split_map,
+                             channel=channel, seed=seed, validation_path=validation_path,
+                             allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers,
+                             echo=click.echo)
+    for folder, summary in summaries:
+        map_model = summary["map_model"]
+        click.echo(f"fit of {summary['dataset']} -> {folder}")
+        click.echo(f"  MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
+                   f"{len(summary['regions'])} regions; R-hat max {summary['rhat_max']:.4f}, "
+                   f"ESS min {summary['ess_min']:.0f}; {summary['seconds']:.1f} s")
+        if "label_accuracy" in summary:
+            click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
+
+
+@main.command()
+@click.argument("fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="HTML file to write (default: FIT_DIR/report.html).")
+def report(fit_dir, out_path):
+    """Build one self-contained HTML report of a fit: figures, the paper's parameter table,
+    validation, diagnosis and comparison results where present."""
+    from rjfit.report import build_report
+
+    click.echo(f"report: {build_report(fit_dir, out_path)}")
+
+
+def _register_diagnose():
+    # The criticism workflow keeps its command beside its code (rjfit/diagnose/cli.py).
+    from rjfit.diagnose.cli import diagnose_command
+
+    main.add_command(diagnose_command, "diagnose")
+
+
+_register_diagnose()
+
+
 if __name__ == "__main__":
     main()

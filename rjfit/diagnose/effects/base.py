@@ -1,0 +1,140 @@
+"""The effect protocol: one candidate missing effect = parameters with priors, features from
+the geometry / Mitsuba, an extension of eq. 2, a residual signature and a Mitsuba-side change.
+
+Stages (the order :func:`rjfit.diagnose.model.predict` applies them in)::
+
+    lobe      specular-lobe factor      spec *= factor            (Fresnel, masking)
+    direct    direct-light factor       direct *= factor          (cast shadows)
+    indirect  added light-dependent     mu = direct + indirect    (interreflection)
+    light     per-light factor          mu *= s_l                 (light calibration)
+    ambient   added light-independent   mu += ambient             (ambient / stray light)
+    camera    response curve            y = C(mu)                 (camera response)
+
+with ``mu = I0 E (kd/pi + (1 - kd) N(g) <h.n>^g spec) <l.n>`` in between (eq. 2). At the
+effect's null value (``Param.null``) every factor is 1 and every added term 0: the plain
+model is nested in each extension.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Param", "Effect", "MitsubaChange", "STAGES", "merge_changes"]
+
+STAGES = ("lobe", "direct", "indirect", "light", "ambient", "camera")
+
+
+@dataclass(frozen=True)
+class Param:
+    """One scalar parameter of an effect: its prior (with the transform) and two values:
+    ``init`` where a refit starts, ``null`` where the effect vanishes (None: only as a limit)."""
+
+    name: str
+    prior: object
+    init: float
+    null: float | None = None
+
+
+@dataclass
+class MitsubaChange:
+    """The Mitsuba side of an effect (or of several, merged).
+
+    bsdf_params : extra parameters of the plugin variant ``rjfit_blinn_ext`` (f0, mask_w)
+    extra       : extra scene entries (e.g. a ``constant`` emitter)
+    max_depth   : the path integrator's path length (None: the gate's default, direct only)
+    light_scales: per-light factors on the emitter intensities
+    post_process: images (L, H, W) -> images, applied to the path-traced stack
+    shadows     : whether occlusion stays in (Mitsuba always traces it; False marks effects
+                  whose closed form must then include visibility)
+    stochastic  : the change makes the path tracer's answer Monte Carlo noisy (the gate
+                  then tests agreement statistically, see ``rjfit.diagnose.mitsuba_ext.gate``)
+    """
+
+    bsdf_params: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+    max_depth: int | None = None
+    light_scales: np.ndarray | None = None
+    post_process: object = None
+    stochastic: bool = False
+    notes: list = field(default_factory=list)
+
+
+def merge_changes(changes) -> MitsubaChange:
+    merged = MitsubaChange()
+    for change in changes:
+        merged.bsdf_params.update(change.bsdf_params)
+        merged.extra.update(change.extra)
+        if change.max_depth is not None:
+            merged.max_depth = max(merged.max_depth or 0, change.max_depth)
+        if change.light_scales is not None:
+            merged.light_scales = (np.asarray(change.light_scales) if merged.light_scales is None
+                                   else merged.light_scales * np.asarray(change.light_scales))
+        if change.post_process is not None:
+            previous = merged.post_process
+            merged.post_process = change.post_process if previous is None else (
+                lambda images, a=previous, b=change.post_process: b(a(images)))
+        merged.stochastic |= change.stochastic
+        merged.notes += change.notes
+    return merged
+
+
+class Effect:
+    """Base class of the candidate effects (each module under ``effects/`` defines one)."""
+
+    name: str = ""
+    kind: str = ""            # the issue's category (e.g. "camera response")
+    stage: str = ""
+    description: str = ""
+    needs_mitsuba: bool = False
+
+    # -- parameters --------------------------------------------------------------------
+    def params(self, ctx) -> list:
+        raise NotImplementedError
+
+    def param_names(self, ctx) -> list:
+        return [p.name for p in self.params(ctx)]
+
+    def available(self, ctx) -> tuple[bool, str]:
+        """Whether the effect can be tried on this context, and why not."""
+        if self.needs_mitsuba and not ctx.has_mesh:
+            return False, "needs the scene's mesh for Mitsuba features; the data set has none"
+        return True, ""
+
+    # -- features and the extension ----------------------------------------------------
+    def prepare(self, ctx):
+        """Per-observation features (computed once per context; cached by the caller)."""
+        return None
+
+    def apply(self, terms: dict, theta: np.ndarray, features, ctx) -> None:
+        """Extend the model in ``terms`` (in place) at constrained parameters ``theta``."""
+        raise NotImplementedError
+
+    # -- signature ---------------------------------------------------------------------
+    def signature(self, ctx, residuals, sigma2, template_columns):
+        """What the residuals look like if this effect is missing, and how much they do.
+
+        ``template_columns`` (N, k) are the derivatives of the predicted values with
+        respect to the effect's unconstrained parameters at their ``init`` values, taken
+        at the current fit (computed from the effect's features: geometry and Mitsuba).
+        The score is the share of the standardised residuals' sum of squares that a least
+        squares combination of the columns explains (0..1); the map is that combination per
+        pixel (mean over lights), in units of the noise standard deviation.
+        """
+        columns = np.asarray(template_columns, dtype=float)
+        r = np.asarray(residuals, dtype=float) / np.sqrt(sigma2)
+        finite = np.all(np.isfinite(columns), axis=1)
+        if not finite.any() or not np.any(columns[finite]):
+            return 0.0, ctx.per_pixel_mean(np.zeros_like(r))
+        coef, *_ = np.linalg.lstsq(columns[finite], r[finite], rcond=None)
+        fitted = np.zeros_like(r)
+        fitted[finite] = columns[finite] @ coef
+        score = float(np.sum(fitted ** 2) / max(np.sum(r ** 2), 1e-300))
+        return score, ctx.per_pixel_mean(fitted)
+
+    # -- Mitsuba side ------------------------------------------------------------------
+    def mitsuba_change(self, theta, ctx) -> MitsubaChange:
+        raise NotImplementedError
+
+    def __repr__(self):
+        return f"<effect {self.name}>"

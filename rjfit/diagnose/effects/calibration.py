@@ -1,0 +1,61 @@
+"""Light intensity miscalibration: one unknown scale per light (image).
+
+    mu_l *= s_l,   log s = H z,   z ~ N(0, 0.2^2 I_{L-1})
+
+H (L x L-1) is an orthonormal basis of the vectors that sum to zero (Helmert), so the
+geometric mean of the scales is fixed to 1: an overall scale is not identifiable apart from
+the regions' I0. The prior is the iid log-normal N(0, 0.2^2) on log s conditioned on that
+constraint (0.2: a 20 % error is one prior standard deviation). Mitsuba side: the emitters'
+intensities times s_l.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
+from rjfit.diagnose.priors import Normal
+
+PRIOR_SCALE = 0.2
+
+
+def helmert_basis(n):
+    """(n, n-1) orthonormal columns, each orthogonal to the ones vector."""
+    basis = np.zeros((n, n - 1))
+    for j in range(1, n):
+        basis[:j, j - 1] = 1.0
+        basis[j, j - 1] = -j
+        basis[:, j - 1] /= np.sqrt(j * (j + 1))
+    return basis
+
+
+def light_scales(theta, n_lights):
+    return np.exp(helmert_basis(n_lights) @ np.asarray(theta, dtype=float))
+
+
+class LightCalibration(Effect):
+    name = "light_calibration"
+    kind = "light intensity miscalibration"
+    stage = "light"
+    description = "per-light intensity scales, log-normal prior (sd 0.2), geometric mean fixed to 1"
+
+    def params(self, ctx):
+        return [Param(f"h{j}", Normal(loc=0.0, scale=PRIOR_SCALE), init=0.0, null=0.0)
+                for j in range(1, ctx.n_lights)]
+
+    def available(self, ctx):
+        if ctx.n_lights < 2:
+            return False, "one light: a per-light scale is the regions' I0"
+        return True, ""
+
+    def prepare(self, ctx):
+        return helmert_basis(ctx.n_lights)
+
+    def apply(self, terms, theta, features, ctx):
+        scales = np.exp(features @ np.asarray(theta, dtype=float))
+        terms["mu"] = terms["mu"] * scales[ctx.light]
+
+    def scales(self, theta, ctx):
+        return light_scales(theta, ctx.n_lights)
+
+    def mitsuba_change(self, theta, ctx):
+        return MitsubaChange(light_scales=light_scales(theta, ctx.n_lights))

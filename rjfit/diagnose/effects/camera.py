@@ -1,0 +1,71 @@
+"""A nonlinear camera response: the stored values are not linear in radiance.
+
+Two candidate curves (both of the kind "camera response"), applied last:
+
+``camera_gamma``: y = W (mu / W)^(1/k), W = the largest valid value (fixed: with a pure power
+    law W only rescales I0, so it is not a free parameter); k = 1 is linear.
+``camera_srgb``:  y = W sRGB(mu / W) with the IEC 61966-2-1 curve and a free white level W
+    (relative to the largest valid value); as W grows the curve tends to its linear toe, so the
+    plain model is the limit W -> infinity (I0 absorbs the toe's slope 12.92).
+
+Mitsuba side: the same curve as a post-process of the path-traced images.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
+from rjfit.diagnose.priors import LogNormal
+
+
+def srgb_encode(x):
+    """IEC 61966-2-1 sRGB encoding, extended linearly below 0 (as colour-science does)."""
+    x = np.asarray(x, dtype=float)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1.0 / 2.4) - 0.055)
+
+
+class CameraGamma(Effect):
+    name = "camera_gamma"
+    kind = "camera response"
+    stage = "camera"
+    description = "power-law response y = W (mu/W)^(1/k) with W the data's white level"
+
+    def params(self, ctx):
+        return [Param("k", LogNormal(loc=0.0, scale=1.0), init=1.2, null=1.0)]
+
+    def prepare(self, ctx):
+        return ctx.white_level
+
+    def curve(self, mu, theta, white):
+        return white * np.power(np.maximum(mu, 0.0) / white, 1.0 / theta[0])
+
+    def apply(self, terms, theta, features, ctx):
+        terms["mu"] = self.curve(terms["mu"], theta, features)
+
+    def mitsuba_change(self, theta, ctx):
+        white = ctx.white_level
+        return MitsubaChange(post_process=lambda images: self.curve(images, theta, white))
+
+
+class CameraSRGB(Effect):
+    name = "camera_srgb"
+    kind = "camera response"
+    stage = "camera"
+    description = "sRGB-encoded values y = W sRGB(mu/W) with a free white level W"
+
+    def params(self, ctx):
+        return [Param("white_rel", LogNormal(loc=0.0, scale=1.0), init=1.0, null=None)]
+
+    def prepare(self, ctx):
+        return ctx.white_level
+
+    def curve(self, mu, theta, white_level):
+        white = theta[0] * white_level
+        return white * srgb_encode(mu / white)
+
+    def apply(self, terms, theta, features, ctx):
+        terms["mu"] = self.curve(terms["mu"], theta, features)
+
+    def mitsuba_change(self, theta, ctx):
+        white = ctx.white_level
+        return MitsubaChange(post_process=lambda images: self.curve(images, theta, white))

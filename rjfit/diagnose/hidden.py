@@ -1,0 +1,187 @@
+"""Data sets with one (or two) effects hidden in them, rendered with Mitsuba.
+
+Where Mitsuba has a built-in for the effect, the data set uses it (not rjfit's extended
+closed form), so a test that names the effect cannot pass by construction:
+
+ambient            paper_sphere + a built-in ``constant`` environment emitter (radiance 3 =
+                   0.03 x reference intensity), its image path-traced once at 4096 spp and added
+                   to every light's image (at 16 spp per image the emitter's Monte Carlo noise,
+                   variance ~4, drowned everything else).
+camera_response    paper_sphere rendered noise-free, encoded with colour-science's sRGB curve
+                   (``colour.cctf_encoding(x, function='sRGB')``) at a white level 1.05 x the
+                   brightest value, then read noise (variance 0.1) added to the stored values.
+light_calibration  paper_sphere with light 3 emitting 20 % more in Mitsuba than the data set's
+                   JSON (what the fitter reads) says.
+interreflection    dented_plaster (concave), path integrator max_depth 8, 16 spp, visibility
+                   kept (cast shadows are in the valid mask).
+cast_shadows       dented_plaster, direct light only (max_depth 2), its shadow-ray visibility
+                   dropped from the data set (so shadowed observations look valid).
+fresnel            a sphere with back lights (angles 105-130 degrees from the view, where
+                   <h.v> is small) and front lights, its material Mitsuba's built-in
+                   ``roughplastic`` (Beckmann, alpha = sqrt(2/(gamma+2)), the Beckmann lobe
+                   closest to Blinn-Phong of exponent gamma; a dielectric coating of IOR 1.5,
+                   i.e. F0 = 0.04, over a diffuse base). Its lobe is a microfacet lobe (with
+                   Smith masking and the coating's transmission on the diffuse part), not
+                   exactly Blinn: the test asks the workflow to name the dominant missing effect.
+fresnel_plugin     the same scene with ``rjfit_blinn_ext`` (F0 = 0.04): only Fresnel is missing.
+masking            the back-lit sphere with ``rjfit_blinn_ext`` (mask_w = 1, Smith-Beckmann G).
+ambient+light_calibration  both at once on paper_sphere.
+clean              paper_sphere as is.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from rjfit.data.dataset import write_json_atomic
+
+__all__ = ["HIDDEN", "render_hidden", "backlit_sphere_definition"]
+
+AMBIENT_RELATIVE = 0.03
+CALIBRATED_LIGHT = 3
+CALIBRATION_ERROR = 1.2
+SRGB_WHITE = 1.05
+FRESNEL_F0 = 0.04
+AMBIENT_SPP = 4096
+
+
+def backlit_sphere_definition():
+    """paper_sphere's sphere and materials with 5 of its front lights and 5 back lights."""
+    from rjfit.render.render import load_scene_definition
+
+    scene = load_scene_definition("paper_sphere")
+    scene["name"] = "backlit_sphere"
+    front = scene["lights"][::2]
+    back = []
+    for alpha, phi in ((105, 20), (112, 95), (120, 170), (125, 250), (130, 320)):
+        a, p = math.radians(alpha), math.radians(phi)
+        back.append({"kind": "point", "intensity": 100.0,
+                     "position": [round(2.2 * math.sin(a) * math.cos(p), 4), round(2.2 * math.sin(a) * math.sin(p), 4),
+                                  round(2.2 * math.cos(a), 4)]})
+    scene["lights"] = front + back
+    return scene
+
+
+def _roughplastic(materials, reference_intensity):
+    def override(index):
+        m = materials[index]
+        scale = m["I0"] / reference_intensity
+        return {"type": "roughplastic", "distribution": "beckmann", "alpha": math.sqrt(2.0 / (m["gamma"] + 2.0)),
+                "int_ior": 1.5, "ext_ior": 1.0,
+                "diffuse_reflectance": {"type": "rgb", "value": [scale * m["kd"]] * 3},
+                "specular_reflectance": {"type": "rgb", "value": [1.0] * 3}}
+    return override
+
+
+def _ext_plugin(materials, reference_intensity, **params):
+    from rjfit.diagnose.mitsuba_ext import EXT_PLUGIN_NAME, register_ext
+    from rjfit.render.mitsuba_scene import activate
+
+    activate()
+    register_ext()
+
+    def override(index):
+        m = materials[index]
+        return {"type": EXT_PLUGIN_NAME, "kd": m["kd"], "gamma": m["gamma"], "scale": m["I0"] / reference_intensity,
+                **params}
+    return override
+
+
+def _ambient_image(scene, resolution, radiance, spp=AMBIENT_SPP):
+    """What a built-in ``constant`` environment emitter adds to every image: rendered once by
+    Mitsuba (the scene with the environment and no other light, pixel-centre rays, ``spp``
+    samples in one wavefront) and added to each light's image; light transport is linear,
+    so this is the image of the scene with both emitters, with far less Monte Carlo noise
+    than rendering the environment again with every light."""
+    import tempfile
+
+    from rjfit.diagnose.mitsuba_ext import trace_centre_rays
+    from rjfit.render.mitsuba_scene import activate
+    from rjfit.render.render import render_dataset, scene_from_dataset_meta
+
+    activate()
+    with tempfile.TemporaryDirectory() as scratch:
+        geometry = render_dataset(dict(scene, lights=scene["lights"][:1]), Path(scratch) / "g", resolution=resolution,
+                                  noise_variance=0.0)
+        meta = json.loads((geometry / "dataset.json").read_text())
+        env = {"ambient": {"type": "constant", "radiance": {"type": "rgb", "value": [radiance] * 3}}}
+        mitsuba_scene = scene_from_dataset_meta(meta, geometry, lights=[], max_depth=8, extra=env)
+        image = trace_centre_rays(mitsuba_scene, spp=spp, seed=77)
+        mask = __import__("rjfit.data.exr", fromlist=["read_exr"]).read_exr(geometry / "geometry.exr")["mask"] > 0.5
+    return np.where(mask, image, 0.0)
+
+
+def _edit_meta(path, edit):
+    meta = json.loads((Path(path) / "dataset.json").read_text())
+    edit(meta)
+    write_json_atomic(Path(path) / "dataset.json", meta)
+
+
+def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1):
+    """Render the hidden-effect data set ``kind`` (see the module docstring) into ``out_dir``."""
+    from rjfit.render.render import load_scene_definition, render_dataset
+
+    out_dir = Path(out_dir)
+    kinds = set(kind.split("+"))
+    unknown = kinds - set(HIDDEN)
+    if unknown:
+        raise ValueError(f"unknown hidden effect(s) {sorted(unknown)}; known: {HIDDEN}")
+    options = dict(resolution=resolution, seed=seed, noise_variance=noise_variance, hidden_effects=sorted(kinds))
+    if kinds <= {"ambient", "light_calibration", "clean", "camera_response"}:
+        scene = load_scene_definition("paper_sphere")
+        extra = None
+        ambient_image = None
+        if "ambient" in kinds:
+            ambient_image = _ambient_image(scene, resolution, AMBIENT_RELATIVE * scene["reference_intensity"])
+        nominal = json.loads(json.dumps(scene["lights"]))
+        if "light_calibration" in kinds:
+            scene["lights"][CALIBRATED_LIGHT]["intensity"] *= CALIBRATION_ERROR
+        post = None
+        if ambient_image is not None:
+            def post(images):
+                return images + ambient_image[None, :, :, None]
+        if "camera_response" in kinds:
+            rng = np.random.default_rng(np.random.SeedSequence([scene.get("seed", 0) if seed is None else seed, 0xC0]))
+            options["noise_variance"] = 0.0
+
+            def post(images):
+                import colour
+
+                white = SRGB_WHITE * float(images.max())
+                encoded = white * np.asarray(colour.cctf_encoding(np.clip(images / white, 0.0, None), function="sRGB"))
+                return encoded + rng.normal(0.0, math.sqrt(noise_variance), size=images.shape[:3] + (1,))
+        path = render_dataset(scene, out_dir, extra=extra, post_process=post, **options)
+        if "light_calibration" in kinds:
+            _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={
+                "light": CALIBRATED_LIGHT, "true_factor": CALIBRATION_ERROR}))
+        if "camera_response" in kinds:
+            _edit_meta(path, lambda meta: meta.update(noise_variance=noise_variance, hidden_response={
+                "curve": "sRGB (colour.cctf_encoding)", "white_level_factor": SRGB_WHITE, "noise": "after encoding"}))
+        return path
+    if kinds == {"interreflection"}:
+        return render_dataset("dented_plaster", out_dir, spp=16, **options)
+    if kinds == {"cast_shadows"}:
+        scene = load_scene_definition("dented_plaster")
+        scene["max_depth"] = 2
+        path = render_dataset(scene, out_dir, spp=1, **options)
+        (Path(path) / "visibility.exr").unlink()
+        _edit_meta(path, lambda meta: meta.update(visibility=None))
+        return path
+    if kinds & {"fresnel", "fresnel_plugin", "masking"} and len(kinds) == 1:
+        scene = backlit_sphere_definition()
+        materials, reference = scene["materials"], scene["reference_intensity"]
+        if kinds == {"fresnel"}:
+            override = _roughplastic(materials, reference)
+        elif kinds == {"fresnel_plugin"}:
+            override = _ext_plugin(materials, reference, f0=FRESNEL_F0)
+        else:
+            override = _ext_plugin(materials, reference, mask_w=1.0)
+        return render_dataset(scene, out_dir, bsdf_override=override, **options)
+    raise ValueError(f"no builder for the combination {sorted(kinds)}")
+
+
+HIDDEN = ("clean", "ambient", "camera_response", "light_calibration", "interreflection", "cast_shadows", "fresnel",
+          "fresnel_plugin", "masking")

@@ -1,0 +1,99 @@
+"""Priors of the criticism refits: stated on the constrained value, with the bijection to an
+unconstrained coordinate and its log-Jacobian.
+
+Every prior here is Gaussian in its unconstrained coordinate ``z`` (log-normal for positive
+values, logit-normal for values in (0, 1), normal for real values). So the density of ``z`` is
+
+    log p_z(z) = log p_theta(theta(z)) + log |d theta / d z|    (= a normal log-density in z),
+
+which is what the refit's posterior and its Laplace evidence use: the MAP and the Hessian are
+taken in ``z``, where the posterior is closest to Gaussian, and the Jacobian term makes the
+evidence the same number it would be in the constrained coordinates (evidence does not depend
+on the parametrisation). ``tests/test_diagnose_units.py`` checks the identity above.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Prior", "LogNormal", "LogitNormal", "Normal"]
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A prior on one scalar parameter, Gaussian N(loc, scale^2) in the unconstrained coordinate."""
+
+    loc: float
+    scale: float
+
+    # -- the bijection ---------------------------------------------------------------------
+    def to_constrained(self, z):
+        raise NotImplementedError
+
+    def to_unconstrained(self, theta):
+        raise NotImplementedError
+
+    def log_abs_det_jacobian(self, z):
+        """``log |d theta / d z|`` at ``z``."""
+        raise NotImplementedError
+
+    def log_prob(self, theta):
+        """Log density of the constrained value ``theta`` (per unit of theta)."""
+        z = self.to_unconstrained(theta)
+        return self.log_prob_unconstrained(z) - self.log_abs_det_jacobian(z)
+
+    def log_prob_unconstrained(self, z):
+        """Log density of ``z``: ``log_prob(theta(z)) + log|d theta/d z|``, a normal density."""
+        z = np.asarray(z, dtype=float)
+        return -0.5 * ((z - self.loc) / self.scale) ** 2 - math.log(self.scale) - 0.5 * _LOG_2PI
+
+    def describe(self) -> str:
+        return f"{type(self).__name__}(loc={self.loc:.4g}, scale={self.scale:.4g}) on the unconstrained value"
+
+
+@dataclass(frozen=True)
+class LogNormal(Prior):
+    """theta > 0, log theta ~ N(loc, scale^2)."""
+
+    def to_constrained(self, z):
+        return np.exp(z)
+
+    def to_unconstrained(self, theta):
+        return np.log(theta)
+
+    def log_abs_det_jacobian(self, z):
+        return np.asarray(z, dtype=float)
+
+
+@dataclass(frozen=True)
+class LogitNormal(Prior):
+    """theta in (0, 1), logit theta ~ N(loc, scale^2)."""
+
+    def to_constrained(self, z):
+        return 1.0 / (1.0 + np.exp(-np.asarray(z, dtype=float)))
+
+    def to_unconstrained(self, theta):
+        theta = np.asarray(theta, dtype=float)
+        return np.log(theta) - np.log1p(-theta)
+
+    def log_abs_det_jacobian(self, z):
+        z = np.asarray(z, dtype=float)
+        return -np.logaddexp(0.0, z) - np.logaddexp(0.0, -z)
+
+
+@dataclass(frozen=True)
+class Normal(Prior):
+    """theta real, theta ~ N(loc, scale^2) (identity transform)."""
+
+    def to_constrained(self, z):
+        return np.asarray(z, dtype=float)
+
+    def to_unconstrained(self, theta):
+        return np.asarray(theta, dtype=float)
+
+    def log_abs_det_jacobian(self, z):
+        return np.zeros_like(np.asarray(z, dtype=float))

@@ -1,0 +1,419 @@
+"""Refit on a fixed segmentation: MAP, Laplace approximation, evidence, draws, PSIS-LOO.
+
+Parameters (all unconstrained, see ``priors``): per region log I0, logit kd, log gamma,
+log sigma^2, then each effect's parameters. The negative log posterior in those coordinates
+
+    f(z) = - sum_i log N(y_i | m_i(z), sigma^2_r(i)) - sum_j log p_zj(z_j)
+
+(``p_z`` includes the transforms' log-Jacobians) is minimised by alternating a Levenberg-Marquardt
+least-squares solve for the mean parameters (scipy ``least_squares``; the Gaussian priors are
+extra residual rows, so the objective is exactly f at fixed sigma^2) with the closed-form
+update of each region's log sigma^2, then one Newton correction with a finite-difference
+Hessian. The Laplace approximation at the MAP z* with that Hessian H gives
+
+    log Z = -f(z*) + d/2 log 2 pi - 1/2 log det H,
+
+the marginal likelihood whose differences are log Bayes factors (they penalise extra
+parameters through the Occam factor of their prior and posterior widths), and posterior
+draws z ~ N(z*, H^-1) (seeded). PSIS-LOO (ArviZ) on the pointwise log-likelihood of those
+draws is the second opinion; its Pareto k-hat says where the draws are a poor proposal.
+Region priors (shared by every model of a context, so they cancel in Bayes factors):
+log I0 ~ N(log I0_init, 2^2) (empirical centre: the initial linear fit's median I0),
+logit kd ~ N(0, 2^2), log gamma ~ N(log 10, 1.5^2), log sigma^2 ~ N(log s2_init, 2^2).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rjfit.diagnose.model import order_effects, predict
+from rjfit.diagnose.priors import LogitNormal, LogNormal
+from rjfit.model.blinn import blinn_normalisation, log_cos_power
+
+__all__ = ["FitResult", "refit", "initial_region_params", "region_priors"]
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def initial_region_params(ctx):
+    """Per region (I0, kd, gamma, sigma2) from linear least squares on a gamma grid."""
+    out = np.zeros((ctx.n_regions, 4))
+    for r in range(ctx.n_regions):
+        sel = ctx.region == r
+        y = ctx.y[sel]
+        base = ctx.irradiance[sel] * np.maximum(ctx.cos_ln[sel], 0.0)
+        best = None
+        for gamma in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0):
+            design = np.stack([base / np.pi, base * blinn_normalisation(gamma) * log_cos_power(ctx.cos_hn[sel], gamma)], 1)
+            coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+            coef = np.maximum(coef, 1e-3 * max(abs(coef).max(), 1e-9))
+            ss = float(np.sum((y - design @ coef) ** 2))
+            if best is None or ss < best[0]:
+                best = (ss, coef, gamma)
+        ss, (a_d, a_s), gamma = best
+        I0 = a_d + a_s
+        out[r] = (I0, np.clip(a_d / I0, 0.02, 0.98), gamma, max(ss / max(sel.sum(), 1), 1e-8))
+    return out
+
+
+def region_priors(init):
+    I0_centre = float(np.median(init[:, 0]))
+    s2_centre = float(np.median(init[:, 3]))
+    return [LogNormal(math.log(I0_centre), 2.0), LogitNormal(0.0, 2.0), LogNormal(math.log(10.0), 1.5),
+            LogNormal(math.log(s2_centre), 2.0)]
+
+
+@dataclass
+class FitResult:
+    effects: tuple
+    names: list
+    priors: list
+    z: np.ndarray
+    hessian: np.ndarray
+    log_evidence: float
+    log_lik: float
+    log_prior: float
+    draws: np.ndarray                # (S, P) unconstrained
+    n_regions: int
+    seconds: float
+    hessian_kind: str = "finite differences"
+    notes: list = field(default_factory=list)
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def effect_names(self):
+        return [e.name for e in self.effects]
+
+    @property
+    def n_params(self):
+        return int(self.z.size)
+
+    def constrained(self, z=None):
+        z = self.z if z is None else z
+        return np.array([p.to_constrained(v) for p, v in zip(self.priors, z)], dtype=float)
+
+    def region_params(self, z=None):
+        """(R, 4) constrained I0, kd, gamma, sigma2."""
+        return self.constrained(z)[: 4 * self.n_regions].reshape(self.n_regions, 4)
+
+    def effect_thetas(self, z=None):
+        values = self.constrained(z)[4 * self.n_regions:]
+        out, start = [], 0
+        for size in self._cache["sizes"]:
+            out.append(values[start:start + size])
+            start += size
+        return out
+
+    def posterior_sd(self):
+        """Posterior standard deviation of each constrained parameter (from the draws)."""
+        return np.array([self.constrained(d) for d in self.draws]).std(axis=0)
+
+    def summary(self):
+        values = self.constrained()
+        sd = self.posterior_sd()
+        return {name: {"map": float(v), "sd": float(s)} for name, v, s in zip(self.names, values, sd)}
+
+
+class _Problem:
+    """The objective of one model (a set of effects) on one context."""
+
+    def __init__(self, ctx, effects, priors_region):
+        self.ctx = ctx
+        self.effects = order_effects(effects)
+        self.features = []
+        params = []
+        for effect in self.effects:
+            self.features.append(effect.prepare(ctx))
+            params.append(effect.params(ctx))
+        self.effect_params = params
+        self.sizes = [len(p) for p in params]
+        R = ctx.n_regions
+        self.names = [f"{n}[{r}]" for r in range(R) for n in ("I0", "kd", "gamma", "sigma2")]
+        self.priors = [priors_region[k] for r in range(R) for k in range(4)]
+        for effect, plist in zip(self.effects, params):
+            self.names += [f"{effect.name}.{p.name}" for p in plist]
+            self.priors += [p.prior for p in plist]
+        self.P = len(self.priors)
+        self.sigma_index = np.array([4 * r + 3 for r in range(R)])
+        self.mean_index = np.array([i for i in range(self.P) if i not in set(self.sigma_index)])
+        self.loc = np.array([p.loc for p in self.priors])
+        self.scale = np.array([p.scale for p in self.priors])
+        self.log_norm = float(-np.sum(np.log(self.scale)) - 0.5 * self.P * _LOG_2PI)
+
+    def split(self, z):
+        theta = np.array([p.to_constrained(v) for p, v in zip(self.priors, z)], dtype=float)
+        R = self.ctx.n_regions
+        region = theta[: 4 * R].reshape(R, 4)
+        thetas, start = [], 4 * R
+        for size in self.sizes:
+            thetas.append(theta[start:start + size])
+            start += size
+        return region, thetas
+
+    def mean(self, z):
+        region, thetas = self.split(z)
+        return predict(self.ctx, self.effects, region, thetas, self.features), region
+
+    def log_lik_pointwise(self, z):
+        mu, region = self.mean(z)
+        s2 = region[self.ctx.region, 3]
+        return -0.5 * (_LOG_2PI + np.log(s2) + (self.ctx.y - mu) ** 2 / s2)
+
+    def log_prior(self, z):
+        return float(-0.5 * np.sum(((z - self.loc) / self.scale) ** 2) + self.log_norm)
+
+    def f(self, z):
+        value = -float(np.sum(self.log_lik_pointwise(z))) - self.log_prior(z)
+        return value if np.isfinite(value) else 1e300
+
+    def mean_residuals(self, zm, z_full):
+        z = z_full.copy()
+        z[self.mean_index] = zm
+        mu, region = self.mean(z)
+        r = (self.ctx.y - mu) / np.sqrt(region[self.ctx.region, 3])
+        prior = (zm - self.loc[self.mean_index]) / self.scale[self.mean_index]
+        out = np.concatenate([r, prior])
+        return np.where(np.isfinite(out), out, 1e10)
+
+    def update_sigma(self, z):
+        mu, _ = self.mean(z)
+        resid2 = (self.ctx.y - mu) ** 2
+        for r, index in enumerate(self.sigma_index):
+            sel = self.ctx.region == r
+            n, ss = float(sel.sum()), float(resid2[sel].sum())
+            m, v = self.loc[index], self.scale[index] ** 2
+            s = math.log(max(ss / max(n, 1.0), 1e-12))
+            for _ in range(20):   # Newton on n/2 s + ss/2 e^-s + (s - m)^2 / 2v
+                grad = 0.5 * n - 0.5 * ss * math.exp(-s) + (s - m) / v
+                hess = 0.5 * ss * math.exp(-s) + 1.0 / v
+                step = grad / hess
+                s -= step
+                if abs(step) < 1e-10:
+                    break
+            z[index] = s
+        return z
+
+
+def _fd_hessian(f, z, steps):
+    P = z.size
+    f0 = f(z)
+    H = np.zeros((P, P))
+    fp = np.empty(P)
+    fm = np.empty(P)
+    for i in range(P):
+        e = np.zeros(P)
+        e[i] = steps[i]
+        fp[i], fm[i] = f(z + e), f(z - e)
+        H[i, i] = (fp[i] - 2 * f0 + fm[i]) / steps[i] ** 2
+    for i in range(P):
+        for j in range(i + 1, P):
+            ei = np.zeros(P)
+            ej = np.zeros(P)
+            ei[i] = steps[i]
+            ej[j] = steps[j]
+            value = (f(z + ei + ej) - f(z + ei - ej) - f(z - ei + ej) + f(z - ei - ej)) / (4 * steps[i] * steps[j])
+            H[i, j] = H[j, i] = value
+    gradient = (fp - fm) / (2 * steps)
+    return H, gradient, f0
+
+
+def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=1e-3) -> FitResult:
+    """Fit region parameters and effect parameters on ``ctx``'s fixed segmentation.
+
+    Parameters
+    ----------
+    effects : sequence of Effect
+    start : FitResult, optional
+        Warm start: region parameters and shared effects' parameters from a previous fit;
+        new effects start at their ``init`` values.
+    n_draws : int
+        Posterior draws from the Laplace approximation (seeded by ``seed``).
+    """
+    from scipy.optimize import least_squares
+
+    started = time.perf_counter()
+    if "region_priors" not in ctx.features:
+        init = initial_region_params(ctx)
+        ctx.features["region_init"] = init
+        ctx.features["region_priors"] = region_priors(init)
+    problem = _Problem(ctx, effects, ctx.features["region_priors"])
+    z = np.zeros(problem.P)
+    R = ctx.n_regions
+    region0 = ctx.features["region_init"] if start is None else start.region_params()
+    for r in range(R):
+        for k in range(4):
+            z[4 * r + k] = problem.priors[4 * r + k].to_unconstrained(region0[r, k])
+    offset = 4 * R
+    previous = {}
+    if start is not None:
+        for effect, theta in zip(start.effects, start.effect_thetas()):
+            previous[effect.name] = theta
+    for effect, plist in zip(problem.effects, problem.effect_params):
+        for j, p in enumerate(plist):
+            value = previous[effect.name][j] if effect.name in previous else p.init
+            z[offset + j] = p.prior.to_unconstrained(value)
+        offset += len(plist)
+    z = problem.update_sigma(z)
+    f_old = problem.f(z)
+    notes = []
+    for _ in range(max_outer):
+        solution = least_squares(problem.mean_residuals, z[problem.mean_index], args=(z,), method="lm",
+                                 x_scale="jac", max_nfev=100 * (problem.mean_index.size + 1), xtol=1e-10,
+                                 ftol=1e-10, gtol=1e-10)
+        z[problem.mean_index] = solution.x
+        z = problem.update_sigma(z)
+        f_new = problem.f(z)
+        if abs(f_old - f_new) < tol:
+            f_old = f_new
+            break
+        f_old = f_new
+    # Step sizes for the Hessian from the Gauss-Newton curvature of the last solve.
+    J = solution.jac
+    gn = J.T @ J
+    sd = np.empty(problem.P)
+    sd[problem.mean_index] = 1.0 / np.sqrt(np.maximum(np.diag(gn), 1e-12))
+    for r, index in enumerate(problem.sigma_index):
+        sd[index] = math.sqrt(2.0 / max(float((ctx.region == r).sum()), 1.0))
+    steps = np.minimum(0.05 * sd, 0.05)
+    H, g, f0 = _fd_hessian(problem.f, z, steps)
+    hessian_kind = "finite differences"
+    for _ in range(2):   # Newton corrections while they help
+        try:
+            step = np.linalg.solve(H, g)
+        except np.linalg.LinAlgError:
+            break
+        if not np.all(np.isfinite(step)) or float(g @ step) < 1e-6:
+            break
+        candidate = z - step
+        if problem.f(candidate) < f0:
+            z = candidate
+            H, g, f0 = _fd_hessian(problem.f, z, steps)
+        else:
+            break
+    eigenvalues = np.linalg.eigvalsh(0.5 * (H + H.T))
+    if eigenvalues.min() <= 0:
+        notes.append("finite-difference Hessian not positive definite; Gauss-Newton curvature used")
+        hessian_kind = "Gauss-Newton"
+        Hgn = np.zeros((problem.P, problem.P))
+        mi = problem.mean_index
+        Hgn[np.ix_(mi, mi)] = gn
+        for r, index in enumerate(problem.sigma_index):
+            Hgn[index, index] = 0.5 * float((ctx.region == r).sum()) + 1.0 / problem.scale[index] ** 2
+        H = Hgn
+    H = 0.5 * (H + H.T)
+    sign, logdet = np.linalg.slogdet(H)
+    log_lik = float(np.sum(problem.log_lik_pointwise(z)))
+    log_prior = problem.log_prior(z)
+    log_evidence = log_lik + log_prior + 0.5 * problem.P * _LOG_2PI - 0.5 * logdet
+    rng = np.random.default_rng(seed)
+    cov = np.linalg.inv(H)
+    chol = np.linalg.cholesky(0.5 * (cov + cov.T))
+    draws = z + rng.standard_normal((n_draws, problem.P)) @ chol.T
+    result = FitResult(effects=problem.effects, names=problem.names, priors=problem.priors, z=z, hessian=H,
+                       log_evidence=float(log_evidence), log_lik=log_lik, log_prior=log_prior, draws=draws,
+                       n_regions=R, seconds=round(time.perf_counter() - started, 3), hessian_kind=hessian_kind,
+                       notes=notes)
+    result._cache["sizes"] = problem.sizes
+    result._cache["problem"] = problem
+    return result
+
+
+def predictions(fit: FitResult, draws=True):
+    """Predicted means: at the MAP, or (S, N) over the draws."""
+    problem = fit._cache["problem"]
+    if not draws:
+        return problem.mean(fit.z)[0]
+    return np.stack([problem.mean(d)[0] for d in fit.draws])
+
+
+def posterior_mean_prediction(fit: FitResult):
+    """E[mu] over the posterior draws (the fitted value the gap's residuals are taken from)."""
+    key = "mean_prediction"
+    if key not in fit._cache:
+        fit._cache[key] = predictions(fit).mean(axis=0)
+    return fit._cache[key]
+
+
+def pointwise_log_lik(fit: FitResult):
+    """(S, N) log-likelihood of every observation under every draw."""
+    key = "pointwise"
+    if key not in fit._cache:
+        problem = fit._cache["problem"]
+        fit._cache[key] = np.stack([problem.log_lik_pointwise(d) for d in fit.draws])
+    return fit._cache[key]
+
+
+def psis_loo(fit: FitResult):
+    """ArviZ PSIS-LOO on the Laplace draws: (elpd_loo, se, pointwise elpd, max k-hat)."""
+    import warnings
+
+    import arviz as az
+
+    key = "loo"
+    if key not in fit._cache:
+        ll = pointwise_log_lik(fit)
+        idata = az.from_dict(posterior={"z0": fit.draws[None, :, 0]}, log_likelihood={"y": ll[None]})
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            loo = az.loo(idata, pointwise=True)
+        fit._cache[key] = (float(loo.elpd_loo), float(loo.se), np.asarray(loo.loo_i),
+                           float(np.nanmax(np.asarray(loo.pareto_k))))
+    return fit._cache[key]
+
+
+def evidence_by_importance_sampling(fit: FitResult, n_draws=2000, seed=0, inflate=1.2):
+    """Check of the Laplace evidence: importance sampling from the Laplace Gaussian (covariance
+    inflated by ``inflate^2`` for heavier coverage), log Z = log mean p(y, z) / q(z).
+
+    Returns ``(log_Z_is, its Monte Carlo standard error in log units, effective sample size)``.
+    Agreement with ``fit.log_evidence`` to a fraction of a nat says the Laplace approximation
+    is adequate for Bayes factors of this model.
+    """
+    problem = fit._cache["problem"]
+    rng = np.random.default_rng(seed)
+    cov = np.linalg.inv(fit.hessian) * inflate ** 2
+    chol = np.linalg.cholesky(0.5 * (cov + cov.T))
+    eps = rng.standard_normal((n_draws, fit.z.size))
+    z = fit.z + eps @ chol.T
+    log_q = (-0.5 * np.sum(eps ** 2, axis=1) - np.sum(np.log(np.diag(chol))) - 0.5 * fit.z.size * _LOG_2PI)
+    log_joint = np.array([-problem.f(zz) for zz in z])
+    log_w = log_joint - log_q
+    top = log_w.max()
+    w = np.exp(log_w - top)
+    log_z = float(top + np.log(w.mean()))
+    ess = float(w.sum() ** 2 / np.sum(w ** 2))
+    se = float(w.std() / (w.mean() * math.sqrt(n_draws)))
+    return log_z, se, ess
+
+
+def template_columns(fit: FitResult, ctx, effect, eps=1e-4):
+    """d predicted / d z_effect at the effect's init values, at the fit's parameters (N, k)."""
+    augmented = refit_problem_with(fit, ctx, effect)
+    problem, z = augmented
+    base = problem.mean(z)[0]
+    start = 4 * ctx.n_regions + sum(problem.sizes[:problem.effects.index(effect)])
+    columns = []
+    for j in range(len(effect.params(ctx))):
+        zz = z.copy()
+        zz[start + j] += eps
+        columns.append((problem.mean(zz)[0] - base) / eps)
+    return np.stack(columns, axis=1)
+
+
+def refit_problem_with(fit: FitResult, ctx, effect):
+    """The objective of ``fit``'s model plus ``effect``, at fit's parameters and effect's init."""
+    problem = _Problem(ctx, tuple(fit.effects) + (effect,), ctx.features["region_priors"])
+    z = np.zeros(problem.P)
+    R = ctx.n_regions
+    z[: 4 * R] = fit.z[: 4 * R]
+    previous = dict(zip([e.name for e in fit.effects], fit.effect_thetas()))
+    offset = 4 * R
+    for eff, plist in zip(problem.effects, problem.effect_params):
+        for j, p in enumerate(plist):
+            value = previous[eff.name][j] if eff.name in previous else p.init
+            z[offset + j] = p.prior.to_unconstrained(value)
+        offset += len(plist)
+    return problem, z

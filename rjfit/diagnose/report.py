@@ -1,0 +1,171 @@
+"""Figures and the Markdown report of a diagnosis."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure", "markdown"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(figure, path):
+    plt = _plt()
+    path = Path(path)
+    temporary = path.with_name(f".{path.name}.tmp.png")
+    figure.savefig(temporary, dpi=100)
+    plt.close(figure)
+    temporary.replace(path)
+    return path.name
+
+
+def residual_pair_figure(path, before, after, title_before, title_after, label="mean standardised residual"):
+    plt = _plt()
+    limit = float(np.nanpercentile(np.abs(np.concatenate([before[np.isfinite(before)], after[np.isfinite(after)]])), 99))
+    limit = max(limit, 1e-6)
+    figure, axes = plt.subplots(1, 2, figsize=(8.4, 3.8))
+    for axis, image, title in zip(axes, (before, after), (title_before, title_after)):
+        shown = axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        axis.set_title(title, fontsize=9)
+        axis.axis("off")
+    figure.colorbar(shown, ax=axes, fraction=0.046, label=label)
+    return save_figure(figure, path)
+
+
+def per_light_figure(path, before, after, title):
+    plt = _plt()
+    lights = np.arange(len(before))
+    figure, axis = plt.subplots(figsize=(6.4, 3.2))
+    b = np.array([np.nan if v is None else v for v in before], dtype=float)
+    a = np.array([np.nan if v is None else v for v in after], dtype=float)
+    axis.bar(lights - 0.2, b, 0.4, label="before")
+    axis.bar(lights + 0.2, a, 0.4, label="after")
+    axis.set_xlabel("light")
+    axis.set_ylabel("gap")
+    axis.set_title(title, fontsize=9)
+    axis.legend(fontsize=8)
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+def posterior_figure(path, panels):
+    """``panels``: list of (name, before draws or None, after draws)."""
+    plt = _plt()
+    n = max(len(panels), 1)
+    cols = min(n, 4)
+    rows = int(np.ceil(n / cols))
+    figure, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 2.4 * rows), squeeze=False)
+    for axis in axes.ravel()[n:]:
+        axis.axis("off")
+    for axis, (name, before, after) in zip(axes.ravel(), panels):
+        if before is not None:
+            axis.hist(before, bins=25, alpha=0.6, density=True, label="before")
+        axis.hist(after, bins=25, alpha=0.6, density=True, label="after")
+        axis.set_title(name, fontsize=8)
+        axis.tick_params(labelsize=7)
+    axes.ravel()[0].legend(fontsize=7)
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None):
+    plt = _plt()
+    figure, axis = plt.subplots(figsize=(4.4, 3.8))
+    shown = axis.imshow(image, cmap=cmap, vmin=vmin, vmax=vmax)
+    axis.set_title(title, fontsize=9)
+    axis.axis("off")
+    figure.colorbar(shown, ax=axis, fraction=0.046)
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+def signature_figure(path, residual, panels, title):
+    """The mean standardised residual map next to candidate signature maps (same colours)."""
+    plt = _plt()
+    finite = residual[np.isfinite(residual)]
+    limit = max(float(np.percentile(np.abs(finite), 99)) if finite.size else 1.0, 1e-6)
+    figure, axes = plt.subplots(1, len(panels) + 1, figsize=(2.3 * (len(panels) + 1), 2.8), squeeze=False)
+    for axis, (label, image) in zip(axes[0], [("residual", residual)] + list(panels)):
+        axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        axis.set_title(label, fontsize=7)
+        axis.axis("off")
+    figure.suptitle(title, fontsize=8)
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+def _fmt(value, spec=".3g"):
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return format(value, spec)
+    return str(value)
+
+
+def markdown(result: dict) -> str:
+    lines = [f"# Diagnosis of `{result['dataset']}`", ""]
+    named = result["named_effects"]
+    lines.append(f"**Named effects:** {', '.join(named) if named else 'none: no missing effect was found'}")
+    lines += ["", f"Gap: {result['gap_definition']}", "",
+              f"Decision rule: {result['decision_rule']}", "",
+              f"Plain model gap: {_fmt(result['gap_plain'])}; final gap: {_fmt(result['gap_final'])} "
+              f"(noise variance estimate {_fmt(result['noise_variance_estimate'])}).", ""]
+    if result.get("skipped"):
+        lines += ["Candidates not tried on this data set:", ""]
+        lines += [f"- `{name}`: {why}" for name, why in result["skipped"].items()]
+        lines.append("")
+    lines += ["## Steps", "", "| step | effect | log BF | dLOO (SE) | gap before | gap after |", "|---|---|---|---|---|---|"]
+    for i, step in enumerate(result["steps"]):
+        ev = step["evidence"]
+        lines.append(f"| {i + 1} | {step['effect']} | {_fmt(ev['log_bayes_factor'], '.1f')} | "
+                     f"{_fmt(ev.get('delta_elpd_loo'), '.1f')} ({_fmt(ev.get('delta_elpd_loo_se'), '.1f')}) | "
+                     f"{_fmt(step['gap_before'])} | {_fmt(step['gap_after'])} |")
+    if not result["steps"]:
+        lines.append("| - | none decisive | | | | |")
+    for i, step in enumerate(result["steps"]):
+        lines += ["", f"### Step {i + 1}: {step['effect']}", ""]
+        figs = step.get("figures", {})
+        for key in ("residuals", "per_light", "posteriors"):
+            if key in figs:
+                lines.append(f"![{key}]({figs[key]})")
+        moved = step.get("moved_parameters", [])
+        if moved:
+            lines += ["", "Parameters that moved (more than 2 posterior sd):", ""]
+            lines += [f"- {m['name']}: {_fmt(m['before'])} -> {_fmt(m['after'])} (sd {_fmt(m['sd_after'])})" for m in moved]
+    lines += ["", "## Candidates per step", "",
+              "| step | effect | log BF | dLOO | SE | max k-hat | signature | decisive |", "|---|---|---|---|---|---|---|---|"]
+    for row in result["candidates"]:
+        lines.append(f"| {row['step'] + 1} | {row['effect']} | {_fmt(row.get('log_bayes_factor'), '.1f')} | "
+                     f"{_fmt(row.get('delta_elpd_loo'), '.1f')} | {_fmt(row.get('delta_elpd_loo_se'), '.1f')} | "
+                     f"{_fmt(row.get('max_khat'), '.2f')} | {_fmt(row.get('signature_score'), '.2f')} | "
+                     f"{'yes' if row.get('decisive') else row.get('error', 'no')} |")
+    if result.get("signature_figures"):
+        lines += ["", "## Signatures", "",
+                  "Each candidate's signature: the derivative of the predictions with respect to its parameters "
+                  "(from geometry and Mitsuba features), fitted to the standardised residuals by least squares; "
+                  "score = share of the residual sum of squares it explains.", ""]
+        lines += [f"![signatures]({name})" for name in result["signature_figures"]]
+    sim = result.get("simulation")
+    if sim:
+        lines += ["", "## Posterior predictive simulation with Mitsuba", ""]
+        for label in ("plain", "final"):
+            if label in sim:
+                s = sim[label]
+                lines.append(f"- {label} model: Mitsuba gap {_fmt(s['gap'])}, {s['n_draws']} draws, fraction of pixels "
+                             f"with PPC p < 0.01: {_fmt(s['ppc_fraction_below_0.01'])}")
+        for key, fig in sim.get("figures", {}).items():
+            lines.append(f"\n![{key}]({fig})")
+    lines += ["", "## Where the disagreement concentrates (closed form, before -> after)", ""]
+    lines.append("| region | gap plain | gap final |")
+    lines.append("|---|---|---|")
+    for k, (a, b) in enumerate(zip(result["per_region_gap"]["plain"], result["per_region_gap"]["final"])):
+        lines.append(f"| {k} | {_fmt(a)} | {_fmt(b)} |")
+    return "\n".join(lines) + "\n"
