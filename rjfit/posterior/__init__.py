@@ -1,0 +1,1 @@
+"""Posterior summaries, ArviZ export and figures of RJMCMC fits."""

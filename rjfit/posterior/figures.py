@@ -1,0 +1,152 @@
+"""The paper's figures as PNG (matplotlib, Agg backend).
+
+- ``model_histogram.png``: posterior over model numbers (paper Fig. 2/5);
+- ``traces.png``: parameter traces of the MAP model's regions, burn-in marked (Fig. 3/6);
+- ``changepoints.png``: change-point modes with 95 % bands and 2-D histograms (Fig. 7);
+- ``reflectance.png``: fitted radiance, observed radiance and absolute error maps, averaged
+  over lights (Fig. 1b, 4b/c).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from rjfit.model.blinn import radiance
+from rjfit.sampler.priors import PARAM_NAMES
+
+__all__ = ["write_all", "model_histogram", "traces", "changepoints", "reflectance"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path):
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
+    fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    os.replace(tmp, path)
+    _plt().close(fig)
+    return str(path)
+
+
+def model_histogram(records, burn_in, max_v, path):
+    plt = _plt()
+    m = np.concatenate([r.n_u[burn_in:].astype(int) * (max_v + 1) + r.n_v[burn_in:] + 1 for r in records])
+    values, counts = np.unique(m, return_counts=True)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.bar(values, counts / counts.sum(), color="tab:blue")
+    ax.set_xlabel("model number m = n_u (max_v + 1) + n_v + 1")
+    ax.set_ylabel("posterior probability")
+    ax.set_xticks(values)
+    ax.set_title("Posterior over models")
+    return _save(fig, path)
+
+
+def traces(records, burn_in, model, path):
+    plt = _plt()
+    R = (model[0] + 1) * (model[1] + 1)
+    fig, axes = plt.subplots(R, 4, figsize=(14, 1.8 * R + 0.5), squeeze=False, sharex=True)
+    for r in range(R):
+        for k, name in enumerate(PARAM_NAMES):
+            ax = axes[r, k]
+            for c, rec in enumerate(records):
+                in_model = (rec.n_u == model[0]) & (rec.n_v == model[1])
+                y = np.where(in_model, rec.theta[:, r, k], np.nan)
+                ax.plot(y, lw=0.4, alpha=0.8, label=f"chain {c}")
+            ax.axvline(burn_in, color="k", ls="--", lw=0.8)
+            ax.set_ylabel(f"region {r}\n{name}", fontsize=8)
+            ax.tick_params(labelsize=7)
+    axes[-1, 0].set_xlabel("iteration (dashed: end of burn-in)")
+    fig.suptitle(f"Traces of the MAP model {model}")
+    return _save(fig, path)
+
+
+def changepoints(records, burn_in, model, image_shape, path):
+    plt = _plt()
+    n_u, n_v = model
+    height, width = image_shape
+    us, vs = [], []
+    for rec in records:
+        keep = [s for s in np.flatnonzero(rec.cp_iteration >= burn_in)
+                if rec.n_u[rec.cp_iteration[s]] == n_u and rec.n_v[rec.cp_iteration[s]] == n_v]
+        if keep:
+            us.append(rec.cp_u[keep][:, :, :n_u])
+            vs.append(rec.cp_v[keep][:, :, :n_v])
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    ax = axes[0]
+    ax.set_xlim(-1, width + 1)
+    ax.set_ylim(height + 1, -1)
+    ax.set_title("change-point modes and 95 % bands")
+    if us:
+        U, V = np.concatenate(us), np.concatenate(vs)
+        rows, cols = np.arange(height), np.arange(width)
+        for k in range(n_u):
+            med, lo, hi = (np.quantile(U[:, :, k], q, axis=0) for q in (0.5, 0.025, 0.975))
+            ax.plot(med, rows + 0.5, color="tab:red", lw=1)
+            ax.fill_betweenx(rows + 0.5, lo, hi, color="tab:red", alpha=0.3)
+        for k in range(n_v):
+            med, lo, hi = (np.quantile(V[:, :, k], q, axis=0) for q in (0.5, 0.025, 0.975))
+            ax.plot(cols + 0.5, med, color="tab:blue", lw=1)
+            ax.fill_between(cols + 0.5, lo, hi, color="tab:blue", alpha=0.3)
+        if n_u:
+            axes[1].hist2d(U.reshape(len(U), -1, n_u).transpose(0, 2, 1).ravel(),
+                           np.broadcast_to(rows + 0.5, U.transpose(0, 2, 1).shape).ravel(),
+                           bins=[min(width + 2, 200), min(height, 200)], range=[[-1, width + 1], [0, height]], cmap="magma")
+        if n_v:
+            axes[2].hist2d(np.broadcast_to(cols + 0.5, V.transpose(0, 2, 1).shape).ravel(),
+                           V.transpose(0, 2, 1).ravel(),
+                           bins=[min(width, 200), min(height + 2, 200)], range=[[0, width], [-1, height + 1]], cmap="magma")
+    axes[1].set_title("u change points: 2-D histogram (position, row)")
+    axes[1].invert_yaxis()
+    axes[2].set_title("v change points: 2-D histogram (column, position)")
+    axes[2].invert_yaxis()
+    return _save(fig, path)
+
+
+def reflectance(problem, labels, draws, path, truth_labels=None):
+    """Fitted vs observed radiance (posterior-mean parameters, MAP labels), mean over lights."""
+    plt = _plt()
+    pooled = np.concatenate([d for d in draws if len(d)], axis=0)
+    theta = pooled.mean(axis=0)
+    obs = problem.observations
+    pix_labels = np.asarray(labels).ravel()[obs.pixel]
+    pix_labels = np.clip(pix_labels, 0, theta.shape[0] - 1)
+    mu = radiance(theta[pix_labels, 0], theta[pix_labels, 1], theta[pix_labels, 2], obs.cos_ln, obs.cos_hn, obs.irradiance)
+    n_pix = problem.height * problem.width
+    count = np.bincount(obs.pixel, minlength=n_pix).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fitted = (np.bincount(obs.pixel, weights=mu, minlength=n_pix) / count).reshape(problem.image_shape)
+        observed = (np.bincount(obs.pixel, weights=obs.y, minlength=n_pix) / count).reshape(problem.image_shape)
+        abs_err = (np.bincount(obs.pixel, weights=np.abs(obs.y - mu), minlength=n_pix) / count).reshape(problem.image_shape)
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
+    for ax, img, title in zip(axes[:3], (fitted, observed, abs_err),
+                              ("fitted radiance (mean over lights)", "observed radiance", "absolute error |y - mu|")):
+        im = ax.imshow(img, cmap="viridis")
+        ax.set_title(title, fontsize=9)
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    im = axes[3].imshow(np.where(np.asarray(labels) >= 0, labels, np.nan), cmap="tab10")
+    axes[3].set_title("MAP labels", fontsize=9)
+    return _save(fig, path)
+
+
+def write_all(folder, *, records, burn_in, model, labels, problem, draws, truth_labels=None, truth_params=None,
+              max_v=3) -> dict:
+    """Write every figure into ``folder``; returns name -> path."""
+    folder = Path(folder)
+    return {
+        "model_histogram": model_histogram(records, burn_in, max_v, folder / "model_histogram.png"),
+        "traces": traces(records, burn_in, model, folder / "traces.png"),
+        "changepoints": changepoints(records, burn_in, model, problem.image_shape, folder / "changepoints.png"),
+        "reflectance": reflectance(problem, labels, draws, folder / "reflectance.png", truth_labels),
+    }
+
+

@@ -1,0 +1,175 @@
+"""Posterior summaries of RJMCMC chains: model posterior, MAP model, regions, labels, diagnostics.
+
+All functions take the chains' :class:`~rjfit.sampler.runner.ChainRecord` list and the
+burn-in as a number of iterations; only post-burn-in draws enter a summary.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from rjfit.sampler.changepoints import pixel_region_labels
+from rjfit.sampler.priors import PARAM_NAMES
+
+__all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
+           "map_labels", "label_accuracy", "exact_truth_probability", "object_region_count_probability", "to_inference_data", "model_key"]
+
+
+def model_key(n_u: int, n_v: int) -> str:
+    return f"({int(n_u)},{int(n_v)})"
+
+
+def model_posterior(records, burn_in: int) -> dict:
+    """Posterior probability of every visited model ``"(n_u,n_v)"`` (pooled over chains)."""
+    pairs = np.concatenate([np.stack([r.n_u[burn_in:], r.n_v[burn_in:]], axis=1) for r in records])
+    if pairs.size == 0:
+        raise ValueError("no draws after burn-in: lower burn_in or run more iterations")
+    models, counts = np.unique(pairs, axis=0, return_counts=True)
+    order = np.argsort(-counts, kind="stable")
+    total = counts.sum()
+    return {model_key(*models[i]): float(counts[i] / total) for i in order}
+
+
+def map_model(records, burn_in: int) -> tuple[int, int]:
+    """The most frequent model after burn-in as (n_u, n_v)."""
+    key = next(iter(model_posterior(records, burn_in)))
+    n_u, n_v = key.strip("()").split(",")
+    return int(n_u), int(n_v)
+
+
+def map_model_draws(records, burn_in: int, model) -> list:
+    """Per chain, the post-burn-in parameter draws (T_c, R, 4) that are in ``model``."""
+    n_u, n_v = model
+    R = (n_u + 1) * (n_v + 1)
+    out = []
+    for r in records:
+        keep = (r.n_u[burn_in:] == n_u) & (r.n_v[burn_in:] == n_v)
+        out.append(r.theta[burn_in:][keep][:, :R])
+    return out
+
+
+def diagnostics(draws_per_chain) -> dict:
+    """ArviZ split R-hat and bulk/tail ESS of the MAP model's parameters.
+
+    Chains are truncated to the shortest chain's number of MAP-model draws (ArviZ needs equal
+    lengths); a chain with fewer than 4 such draws is left out.
+    """
+    import arviz as az
+
+    usable = [d for d in draws_per_chain if len(d) >= 4]
+    if not usable:
+        return {"rhat_max": float("nan"), "ess_bulk_min": float("nan"), "ess_tail_min": float("nan"),
+                "ess_bulk_median": float("nan"), "chains_used": 0, "draws_per_chain": 0}
+    length = min(len(d) for d in usable)
+    stacked = np.stack([d[:length] for d in usable])            # (chain, draw, region, param)
+    data = az.convert_to_dataset({"theta": stacked}, dims={"theta": ["region", "parameter"]})
+    rhat = az.rhat(data)["theta"].values if len(usable) > 1 else np.full(stacked.shape[2:], np.nan)
+    ess_bulk = az.ess(data, method="bulk")["theta"].values
+    ess_tail = az.ess(data, method="tail")["theta"].values
+    return {"rhat_max": float(np.nanmax(rhat)) if np.any(np.isfinite(rhat)) else float("nan"),
+            "ess_bulk_min": float(np.min(ess_bulk)), "ess_tail_min": float(np.min(ess_tail)),
+            "ess_bulk_median": float(np.median(ess_bulk)), "rhat": rhat.tolist(), "ess_bulk": ess_bulk.tolist(),
+            "chains_used": len(usable), "draws_per_chain": int(length)}
+
+
+def region_summaries(draws_per_chain, labels=None) -> list:
+    """Per region: pixel count (from ``labels``) and mean, sd, 2.5 % and 97.5 % quantiles of each parameter."""
+    pooled = np.concatenate([d for d in draws_per_chain if len(d)], axis=0)
+    out = []
+    for r in range(pooled.shape[1]):
+        entry = {"region": r}
+        if labels is not None:
+            entry["pixels"] = int(np.sum(labels == r))
+        for k, name in enumerate(PARAM_NAMES):
+            x = pooled[:, r, k]
+            entry[name] = {"mean": float(np.mean(x)), "sd": float(np.std(x, ddof=1)) if len(x) > 1 else 0.0,
+                           "q2.5": float(np.quantile(x, 0.025)), "q97.5": float(np.quantile(x, 0.975))}
+        out.append(entry)
+    return out
+
+
+def map_labels(records, burn_in: int, model, image_shape, object_mask=None) -> np.ndarray:
+    """Per-pixel posterior mode of the region label over the MAP model's change-point snapshots.
+
+    Off-object pixels get -1 when ``object_mask`` is given.
+    """
+    n_u, n_v = model
+    R = (n_u + 1) * (n_v + 1)
+    counts = np.zeros((R,) + tuple(image_shape), np.int64)
+    for rec in records:
+        for s in np.flatnonzero(rec.cp_iteration >= burn_in):
+            t = rec.cp_iteration[s]
+            if rec.n_u[t] != n_u or rec.n_v[t] != n_v:
+                continue
+            labels = pixel_region_labels(rec.cp_u[s, :, :n_u].astype(float), rec.cp_v[s, :, :n_v].astype(float),
+                                         image_shape)
+            np.add.at(counts, (labels, *np.indices(image_shape)), 1)
+    if counts.sum() == 0:
+        raise ValueError("no change-point snapshot of the MAP model after burn-in: lower cp_thin")
+    labels = np.argmax(counts, axis=0)
+    if object_mask is not None:
+        labels = np.where(object_mask, labels, -1)
+    return labels
+
+
+def label_accuracy(labels, truth_labels) -> dict:
+    """Fraction of object pixels whose label matches the truth after optimal one-to-one matching.
+
+    Object pixels are those with ``truth_labels >= 0``. Matching is the Hungarian assignment
+    (``scipy.optimize.linear_sum_assignment``) on the confusion matrix.
+    """
+    truth = np.asarray(truth_labels)
+    mask = truth >= 0
+    est, tru = np.asarray(labels)[mask], truth[mask]
+    if est.size == 0:
+        raise ValueError("truth labels mark no object pixel (all < 0)")
+    est_ids, est_idx = np.unique(est, return_inverse=True)
+    tru_ids, tru_idx = np.unique(tru, return_inverse=True)
+    confusion = np.zeros((len(est_ids), len(tru_ids)), np.int64)
+    np.add.at(confusion, (est_idx, tru_idx), 1)
+    rows, cols = linear_sum_assignment(-confusion)
+    return {"accuracy": float(confusion[rows, cols].sum() / est.size),
+            "matching": {int(est_ids[r]): int(tru_ids[c]) for r, c in zip(rows, cols)}}
+
+
+def exact_truth_probability(records, burn_in: int) -> float | None:
+    """Posterior probability that object pixels fall into exactly the true regions (None without truth)."""
+    flags = np.concatenate([r.exact_truth[burn_in:] for r in records])
+    if flags.size == 0 or np.any(flags < 0):
+        return None
+    return float(np.mean(flags))
+
+
+def object_region_count_probability(records, burn_in: int, n_regions: int) -> float:
+    """Posterior probability that the observed object pixels fall into exactly ``n_regions`` non-empty regions."""
+    counts = np.concatenate([r.object_regions[burn_in:] for r in records])
+    return float(np.mean(counts == n_regions))
+
+
+def to_inference_data(records, burn_in: int, max_v: int):
+    """ArviZ InferenceData of the full chains (warm-up included as ``warmup_posterior``).
+
+    ``posterior.theta`` has dims (chain, draw, region, parameter), NaN where a region does
+    not exist in the draw's model; ``n_u``, ``n_v``, ``model_number`` and ``log_lik`` are
+    per draw.
+    """
+    import arviz as az
+
+    T = min(len(r.n_u) for r in records)
+
+    def stack(name):
+        return np.stack([getattr(r, name)[:T] for r in records])
+
+    n_u, n_v = stack("n_u").astype(np.int64), stack("n_v").astype(np.int64)
+    data = {"theta": stack("theta"), "n_u": n_u, "n_v": n_v,
+            "model_number": n_u * (max_v + 1) + n_v + 1, "log_lik": stack("log_lik"), "log_post": stack("log_post")}
+    posterior = {k: v[:, burn_in:] for k, v in data.items()}
+    warmup = {k: v[:, :burn_in] for k, v in data.items()}
+    r_max = data["theta"].shape[2]
+    coords = {"region": np.arange(r_max), "parameter": list(PARAM_NAMES)}
+    dims = {"theta": ["region", "parameter"]}
+    stats = {"exact_truth": stack("exact_truth")[:, burn_in:], "object_regions": stack("object_regions")[:, burn_in:]}
+    return az.from_dict(posterior=posterior, warmup_posterior=warmup, sample_stats=stats, coords=coords, dims=dims,
+                        save_warmup=True)
+
+

@@ -1,0 +1,116 @@
+"""Two-dimensional change points (paper, sec. 3.3) and the regions they induce.
+
+A u change point is a vector of ``H`` column positions, one per image row; a v change point
+is a vector of ``W`` row positions, one per column. Positions are continuous with prior
+U(-1, W+1) (resp. U(-1, H+1)) per element. Pixel ``(r, c)`` has its centre at
+``(r + 0.5, c + 0.5)``; an element ``x`` of row ``r`` is *left of* the pixel when
+``x < c + 0.5`` (and a v element ``y`` of column ``c`` is *above* it when ``y < r + 0.5``).
+The region of a pixel is ``(iu, iv)`` = (number of u elements left of it in its row,
+number of v elements above it in its column), indexed ``iu * (n_v + 1) + iv``
+(the paper's indicator matrix, eq. 9).
+
+Crossing vectors. The region of a pixel depends only on those counts, never on which
+vector an element belongs to, so the change points of one row form a multiset. The
+sampler stores each row's (column's) elements sorted: vector k is the k-th order
+statistic of every row. Vectors therefore never cross; an element move that passes a
+neighbour just reorders the row. The prior of the sorted representation is the density of
+order statistics of iid uniforms, ``n! / (W + 2)^n`` per row (:func:`log_prior_changepoints`).
+
+Change-point priors. ``'paper'``: every element iid U(-1, size + 1) (sorted: order
+statistics, :func:`log_prior_changepoints`); rows are independent, so a vector is free to
+zig-zag and an extra vector can follow the noise row by row, or hide in the off-object part
+of each row, at little prior cost. ``'smooth'`` (rjfit's default): the first element of
+vector k is U(-1, size + 1) and each further element is the previous one plus N(0, s^2),
+``log f = sum_k [-log(size + 2) + sum_r log N(x_{r,k} - x_{r-1,k}; 0, s^2)]`` restricted to
+[-1, size + 1] (vector k = rank k). This density is left unnormalised over the sorted,
+truncated set: the model prior over (n_u, n_v) is then the uniform one times those
+normalisers, a proper prior all the same (finite for every model), and the sampler needs
+only ratios. Boundaries of real regions are continuous curves, so this prior puts its mass
+where they are, and extra vectors pay for their freedom.
+
+Model numbers. Models are named ``(n_u, n_v)``; the paper's model number is reported as
+``m = n_u * (max_v + 1) + n_v + 1`` (1-based, n_v fastest). This convention is ours: the
+paper's exact numbering could not be read in the session that wrote this module.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import gammaln
+
+__all__ = ["model_number", "model_from_number", "obs_region_labels", "pixel_region_labels",
+           "log_prior_changepoints", "log_prior_cp_state", "smooth_line_terms", "n_regions"]
+
+
+def n_regions(n_u: int, n_v: int) -> int:
+    return (n_u + 1) * (n_v + 1)
+
+
+def model_number(n_u: int, n_v: int, max_v: int) -> int:
+    """The model number ``m = n_u (max_v + 1) + n_v + 1`` (see module docstring)."""
+    return int(n_u) * (int(max_v) + 1) + int(n_v) + 1
+
+
+def model_from_number(m: int, max_v: int) -> tuple[int, int]:
+    return divmod(int(m) - 1, int(max_v) + 1)
+
+
+def obs_region_labels(u, v, row, col, n_v=None):
+    """Region index of observations at pixels ``(row, col)`` given sorted change points.
+
+    Parameters
+    ----------
+    u : ndarray (H, n_u)
+    v : ndarray (W, n_v)
+    row, col : int arrays (N,)
+    """
+    n_v = v.shape[1] if n_v is None else n_v
+    iu = np.zeros(len(row), dtype=np.int64)
+    for k in range(u.shape[1]):
+        iu += u[row, k] < col + 0.5
+    iv = np.zeros(len(row), dtype=np.int64)
+    for k in range(v.shape[1]):
+        iv += v[col, k] < row + 0.5
+    return iu * (n_v + 1) + iv
+
+
+def pixel_region_labels(u, v, image_shape):
+    """Region index of every pixel, shape (H, W)."""
+    height, width = image_shape
+    rows, cols = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+    return obs_region_labels(u, v, rows.ravel(), cols.ravel()).reshape(height, width)
+
+
+def log_prior_changepoints(n_u: int, n_v: int, image_shape) -> float:
+    """Log density of sorted change points: per row ``log n_u! - n_u log(W + 2)``, same for v."""
+    height, width = image_shape
+    return float(height * (gammaln(n_u + 1) - n_u * np.log(width + 2.0))
+                 + width * (gammaln(n_v + 1) - n_v * np.log(height + 2.0)))
+
+
+def _log_normal(d, sd):
+    return -0.5 * (d / sd) ** 2 - np.log(sd) - 0.5 * np.log(2 * np.pi)
+
+
+def smooth_line_terms(rows, above, below, sd):
+    """Smooth-prior terms touching given lines: sum over ranks of log N to the line above and below.
+
+    ``rows``, ``above``, ``below``: (n_lines, n) sorted elements of the lines and their
+    neighbours (NaN rows where a neighbour does not exist).
+    """
+    out = np.zeros(rows.shape[0])
+    for nb in (above, below):
+        have = np.isfinite(nb[:, 0]) if nb.shape[1] else np.zeros(rows.shape[0], bool)
+        out += np.where(have, np.sum(_log_normal(rows - np.nan_to_num(nb), sd), axis=1), 0.0)
+    return out
+
+
+def log_prior_cp_state(u, v, image_shape, cp_prior: str = "paper", sd: float = 2.0) -> float:
+    """Log prior density of sorted change points ``u`` (H, n_u), ``v`` (W, n_v)."""
+    height, width = image_shape
+    if cp_prior == "paper":
+        return log_prior_changepoints(u.shape[1], v.shape[1], image_shape)
+    total = 0.0
+    for cps, size in ((u, width), (v, height)):
+        if cps.shape[1]:
+            total += -cps.shape[1] * np.log(size + 2.0) + float(np.sum(_log_normal(np.diff(cps, axis=0), sd)))
+    return total

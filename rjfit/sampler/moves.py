@@ -1,0 +1,878 @@
+"""Moves of the RJMCMC kernel, one small unit each.
+
+Within-model moves act on one region of a mutable working copy (:class:`Work`) that the
+kernel turns into a new immutable state at the end of a step. Each returns whether it
+accepted. Change-point sweeps move one element of every row (column) at once: given the
+parameters and the other axis, the target factorises over rows (a u element only changes
+pixels of its row), so the rows' independent MH decisions together form a valid move.
+Birth/death proposals (:func:`propose_birth`, :func:`propose_death`) return
+``(proposal, log acceptance ratio)`` with the split map's Jacobian computed by the map's
+own unit (:func:`split_phi` / :func:`merge_phi`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import log_ndtr
+
+from rjfit.sampler.changepoints import log_prior_cp_state, obs_region_labels, smooth_line_terms
+from rjfit.sampler.likelihood import (LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, ab_from_theta,
+                                      log_likelihood_from_stats, region_stats)
+from rjfit.sampler.priors import from_phi, to_phi
+
+__all__ = ["Work", "update_region_adaptive", "update_region_paper", "sweep_changepoints",
+           "split_phi", "merge_phi", "propose_birth", "propose_death", "log_posterior"]
+
+
+@dataclass
+class Work:
+    """Mutable working copy of a state during one step (never shared across steps)."""
+
+    u: np.ndarray
+    v: np.ndarray
+    theta: np.ndarray
+    stats: np.ndarray
+    log_lik: np.ndarray
+    labels: np.ndarray
+    labels_owned: bool = False
+    region_index: dict | None = None  # region -> observation indices, valid for ``labels``
+
+    def obs_of_region(self, r: int) -> np.ndarray:
+        return self.region_data(r)[0]
+
+    def region_data(self, r: int, problem=None):
+        """(indices, y, A, C, log <h.n>) of region r's observations, gathered once per labelling."""
+        if self.region_index is None:
+            self.region_index = {}
+        data = self.region_index.get(r)
+        if data is None:
+            idx = np.flatnonzero(self.labels == r)
+            data = (idx, None) if problem is None else (idx, (problem.y[idx], problem.A[idx], problem.C[idx],
+                                                              problem.log_cos_hn[idx]))
+            self.region_index[r] = data
+        elif data[1] is None and problem is not None:
+            idx = data[0]
+            data = (idx, (problem.y[idx], problem.A[idx], problem.C[idx], problem.log_cos_hn[idx]))
+            self.region_index[r] = data
+        return data
+
+
+# ----------------------------------------------------------------------------- within model
+
+def _b_sums_region(work, problem, r, gamma):
+    """(SyB, SAB, SBB) of region r at exponent gamma: the only O(n_r) work of a gamma move."""
+    _, (y, A, C, log_cos) = work.region_data(r, problem)
+    B = np.exp(gamma * log_cos)
+    B *= C
+    # np.dot on 1-D arrays; the runner limits BLAS to one thread (threads only add overhead here).
+    return np.array([np.dot(y, B), np.dot(A, B), np.dot(B, B)])
+
+
+def _norm(g: float) -> float:
+    """Scalar Giesen normalisation (as :func:`rjfit.model.blinn.blinn_normalisation`)."""
+    return (g + 2.0) * (g + 4.0) / (8.0 * math.pi * (2.0 ** (-g / 2.0) + g))
+
+
+def _ll(stats_r, I0, kd, g, s2) -> float:
+    """Scalar log-likelihood of one region from its statistics (fast path of log_likelihood_from_stats)."""
+    n, syy, sya, saa, syb, sab, sbb = stats_r
+    a = I0 * kd
+    b = I0 * (1.0 - kd) * _norm(g)
+    ssr = syy - 2.0 * a * sya - 2.0 * b * syb + a * a * saa + 2.0 * a * b * sab + b * b * sbb
+    return -0.5 * n * (LOG_2PI + math.log(s2)) - 0.5 * ssr / s2
+
+
+def _ab_conditional(stats_r, s2):
+    """Gaussian of (a, b) given gamma and sigma^2 under a flat prior: (ma, mb, la, lc, lb, det, s2) or None.
+
+    (la, lc, lb) is the lower Cholesky factor of the covariance ``s2 * P^-1``.
+    """
+    _, _, sya, saa, syb, sab, sbb = stats_r.tolist() if hasattr(stats_r, "tolist") else stats_r
+    s2 = float(s2)
+    det = saa * sbb - sab * sab
+    # Python floats: a near-singular system overflows to inf quietly and is caught below
+    if not (saa > 0 and sbb > 0 and det > 1e-10 * saa * sbb):
+        return None
+    ma = (sbb * sya - sab * syb) / det
+    mb = (saa * syb - sab * sya) / det
+    caa, cab, cbb = s2 * sbb / det, -s2 * sab / det, s2 * saa / det
+    if not (math.isfinite(caa) and math.isfinite(cbb) and math.isfinite(ma) and math.isfinite(mb)) or caa <= 0:
+        return None
+    la = math.sqrt(caa)
+    lc = cab / la
+    lb2 = cbb - lc * lc
+    if not (math.isfinite(lb2) and lb2 > 0):
+        return None
+    lb = math.sqrt(lb2)
+    return ma, mb, la, lc, lb, saa, sab, sbb, det, s2
+
+
+def _draw_ab(cond, rng):
+    ma, mb, la, lc, lb = cond[:5]
+    z1, z2 = rng.normal(size=2)
+    return ma + la * z1, mb + lc * z1 + lb * z2
+
+
+def _log_q_ab(a, b, cond):
+    ma, mb, _, _, _, saa, sab, sbb, det, s2 = cond
+    da, db = a - ma, b - mb
+    # log N((a,b); m, s2 P^-1) with |cov| = s2^2 / det(P)
+    return -LOG_2PI - math.log(s2) + 0.5 * math.log(det) - 0.5 * (saa * da * da + 2 * sab * da * db + sbb * db * db) / s2
+
+
+def _log_target_ab(prior, I0, kd, g, s2, log_lik_r):
+    """Log target in coordinates (a, b, log gamma, sigma^2): p(theta) / (I0 N(g)) * g * L."""
+    return log_lik_r + prior.logpdf_scalar(I0, kd, g, s2) - math.log(I0) - math.log(_norm(g)) + math.log(g)
+
+
+def _set_region(work, r, theta_r, stats_r=None, log_lik_r=None):
+    work.theta[r] = theta_r
+    if stats_r is not None:
+        work.stats[r] = stats_r
+    work.log_lik[r] = _ll(work.stats[r], *theta_r) if log_lik_r is None else log_lik_r
+
+
+def _move_ab(work, r, rng, prior):
+    I0, kd, g, s2 = work.theta[r]
+    cond = _ab_conditional(work.stats[r], s2)
+    if cond is None:
+        return None
+    a, b = _draw_ab(cond, rng)
+    log_u = math.log(rng.random())
+    if a <= 0 or b <= 0:
+        return False
+    I0_new = a + b / _norm(g)
+    kd_new = a / I0_new
+    log_alpha = (prior.logpdf_scalar(I0_new, kd_new, g, s2) - math.log(I0_new)
+                 - prior.logpdf_scalar(I0, kd, g, s2) + math.log(I0))
+    if log_u < log_alpha:
+        _set_region(work, r, (I0_new, kd_new, g, s2))
+        return True
+    return False
+
+
+def _move_sigma2(work, r, rng, prior):
+    I0, kd, g, s2 = work.theta[r]
+    stats_r = work.stats[r]
+    n = stats_r[STAT_N]
+    if n < 3:
+        return None
+    ssr = -2.0 * s2 * (_ll(stats_r, I0, kd, g, s2) + 0.5 * n * (LOG_2PI + math.log(s2)))
+    if not ssr > 0:
+        return None
+    # Independence proposal proportional to the likelihood in sigma^2: InvGamma(n/2 - 1, ssr/2).
+    s2_new = 0.5 * ssr / rng.gamma(0.5 * n - 1.0)
+    log_alpha = prior.params[3].logpdf_scalar(s2_new) - prior.params[3].logpdf_scalar(s2)
+    if math.log(rng.random()) < log_alpha:
+        _set_region(work, r, (I0, kd, g, s2_new))
+        return True
+    return False
+
+
+def _move_gamma_ab(work, r, rng, prior, problem, step):
+    """Random walk on log gamma with (a, b) redrawn from their conditional given the new gamma."""
+    I0, kd, g, s2 = work.theta[r]
+    stats_r = work.stats[r]
+    cond_old = _ab_conditional(stats_r, s2)
+    if cond_old is None:
+        return None
+    g_new = g * math.exp(step * rng.normal())
+    stats_new = stats_r.copy()
+    stats_new[[STAT_YB, STAT_AB, STAT_BB]] = _b_sums_region(work, problem, r, g_new)
+    cond_new = _ab_conditional(stats_new, s2)
+    if cond_new is None:
+        return False
+    a_new, b_new = _draw_ab(cond_new, rng)
+    log_u = math.log(rng.random())
+    if a_new <= 0 or b_new <= 0:
+        return False
+    I0_new = a_new + b_new / _norm(g_new)
+    kd_new = a_new / I0_new
+    ll_new = _ll(stats_new, I0_new, kd_new, g_new, s2)
+    a_old, b_old = I0 * kd, I0 * (1.0 - kd) * _norm(g)
+    log_alpha = (_log_target_ab(prior, I0_new, kd_new, g_new, s2, ll_new)
+                 - _log_target_ab(prior, I0, kd, g, s2, work.log_lik[r])
+                 + _log_q_ab(a_old, b_old, cond_old) - _log_q_ab(a_new, b_new, cond_new))
+    if log_u < log_alpha:
+        _set_region(work, r, (I0_new, kd_new, g_new, s2), stats_new, ll_new)
+        return True
+    return False
+
+
+def _move_phi_rw(work, r, rng, prior, problem, step):
+    """Component-wise random walk in phi space (small or degenerate regions)."""
+    accepted = 0
+    I0, kd, g, s2 = work.theta[r]
+    phi = [math.log(I0), math.log(kd) - math.log1p(-kd), math.log(g), math.log(s2)]
+    log_prior = prior.logpdf_phi_scalar(phi)
+    for k in range(4):
+        phi_new = list(phi)
+        phi_new[k] += step * rng.normal()
+        log_u = math.log(rng.random())
+        kd_new = 1.0 / (1.0 + math.exp(-phi_new[1]))
+        new = (math.exp(phi_new[0]), kd_new, math.exp(phi_new[2]), math.exp(phi_new[3]))
+        if not 0.0 < kd_new < 1.0:
+            continue
+        stats_new = work.stats[r]
+        if k == 2:
+            stats_new = stats_new.copy()
+            stats_new[[STAT_YB, STAT_AB, STAT_BB]] = _b_sums_region(work, problem, r, new[2])
+        ll_new = _ll(stats_new, *new)
+        log_prior_new = prior.logpdf_phi_scalar(phi_new)
+        if log_u < ll_new + log_prior_new - work.log_lik[r] - log_prior:
+            _set_region(work, r, new, stats_new if k == 2 else None, ll_new)
+            phi, log_prior = phi_new, log_prior_new
+            accepted += 1
+    return accepted
+
+
+def update_region_adaptive(work, r, rng, prior, problem, config, g_step, info):
+    """The default within-model update of region ``r``; returns the gamma moves' acceptances."""
+    n = work.stats[r, STAT_N]
+    g_acc = []
+    if n < config.min_obs_conditional:
+        info.count("phi_rw", _move_phi_rw(work, r, rng, prior, problem, config.fallback_step), 4)
+        return g_acc
+    for _ in range(config.g_moves):
+        result = _move_gamma_ab(work, r, rng, prior, problem, g_step / np.sqrt(n))
+        if result is None:
+            info.count("phi_rw", _move_phi_rw(work, r, rng, prior, problem, config.fallback_step), 4)
+            return g_acc
+        g_acc.append(result)
+        info.count("gamma_ab", result)
+    result = _move_ab(work, r, rng, prior)
+    if result is not None:
+        info.count("ab", result)
+    result = _move_sigma2(work, r, rng, prior)
+    if result is not None:
+        info.count("sigma2", result)
+    if n < config.small_region_obs:
+        # Small regions: the conditional proposals ignore the prior, which then matters;
+        # a cheap phi-space random walk on top keeps them mixing (chosen by n only: valid).
+        info.count("phi_rw", _move_phi_rw(work, r, rng, prior, problem, config.fallback_step), 4)
+    return g_acc
+
+
+def _full_pass_log_lik(work, problem, theta):
+    """Total log-likelihood by one pass over every observation (the paper's way)."""
+    t = theta[work.labels]
+    a, b = ab_from_theta(t)
+    mu = a * problem.A + b * problem.C * np.exp(t[:, 2] * problem.log_cos_hn)
+    resid = problem.y - mu
+    return float(np.sum(-0.5 * (LOG_2PI + np.log(t[:, 3])) - 0.5 * resid * resid / t[:, 3]))
+
+
+def update_region_paper(work, r, rng, prior, problem, info, full_recompute=False):
+    """The paper's component-wise normal random-walk MH in natural space."""
+    for k in range(4):
+        theta = work.theta[r]
+        new = theta.copy()
+        new[k] += prior.proposal_sd[k] * rng.normal()
+        log_u = math.log(rng.random())
+        lp_new = prior.logpdf_scalar(*new)
+        if not math.isfinite(lp_new) or new[k] <= 0 or (k == 1 and new[k] >= 1):
+            info.count(f"rw_{k}", False)
+            continue
+        stats_new = work.stats[r]
+        if k == 2:
+            stats_new = stats_new.copy()
+            stats_new[[STAT_YB, STAT_AB, STAT_BB]] = _b_sums_region(work, problem, r, new[2])
+        ll_new = _ll(stats_new, *new)
+        if full_recompute:
+            # the paper's cost model: one full likelihood pass per proposal (same value)
+            all_theta = work.theta.copy()
+            all_theta[r] = new
+            ll_new = _full_pass_log_lik(work, problem, all_theta) - (float(np.sum(work.log_lik)) - work.log_lik[r])
+        log_alpha = ll_new + lp_new - work.log_lik[r] - prior.logpdf_scalar(*theta)
+        accept = log_u < log_alpha
+        if accept:
+            _set_region(work, r, new, stats_new if k == 2 else None, ll_new)
+        info.count(f"rw_{k}", accept)
+
+
+# ----------------------------------------------------------------------------- change points
+
+def _concat_ranges(starts, ends):
+    lengths = ends - starts
+    total = int(lengths.sum())
+    seg = np.repeat(np.arange(len(starts)), lengths)
+    offsets = np.cumsum(lengths) - lengths
+    idx = np.arange(total) - np.repeat(offsets, lengths) + np.repeat(starts, lengths)
+    return idx, seg
+
+
+def _per_obs_terms(problem, idx, theta_obs):
+    """mu-related per-observation pieces: B and the Gaussian log density."""
+    a, b = ab_from_theta(theta_obs)
+    B = problem.C[idx] * np.exp(theta_obs[:, 2] * problem.log_cos_hn[idx])
+    resid = problem.y[idx] - a * problem.A[idx] - b * B
+    s2 = theta_obs[:, 3]
+    return B, -0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2
+
+
+def _log_normal_pdf(x, mean, sd):
+    return -0.5 * ((x - mean) / sd) ** 2 - np.log(sd) - 0.5 * LOG_2PI
+
+
+def _element_log_q(x_to, x_from, neighbour_values, size, config):
+    """Log density of proposing element position ``x_to`` from ``x_from``.
+
+    Mixture of a uniform redraw over [-1, size + 1], a normal random walk, and a normal
+    around the same-rank element of a neighbouring row (column), chosen uniformly among
+    the existing neighbours (``neighbour_values``: (n, 2) with NaN for a missing one).
+    """
+    p_unif, p_nb = config.cp_uniform_prob, config.cp_neighbour_prob
+    p_rw = 1.0 - p_unif - p_nb
+    comp = [np.full(x_to.shape, np.log(p_unif) - np.log(size + 2.0)) if p_unif > 0 else np.full(x_to.shape, -np.inf),
+            np.log(p_rw) + _log_normal_pdf(x_to, x_from, config.cp_step) if p_rw > 0 else np.full(x_to.shape, -np.inf)]
+    if p_nb > 0:
+        have = np.isfinite(neighbour_values)
+        n_have = have.sum(axis=1)
+        dens = np.where(have, np.exp(_log_normal_pdf(x_to[:, None], np.nan_to_num(neighbour_values),
+                                                        config.cp_neighbour_sd)), 0.0).sum(axis=1)
+        with np.errstate(divide="ignore"):
+            comp.append(np.where(n_have > 0, np.log(p_nb) + np.log(dens / np.maximum(n_have, 1)), -np.inf))
+    return np.logaddexp.reduce(np.stack(comp), axis=0)
+
+
+def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int = 0):
+    """Move one element of every other row (axis 'u') or column (axis 'v') at once.
+
+    Rows of one ``parity`` move together while the other rows stay fixed, so the
+    neighbour-guided proposal (around the same-rank element of row r - 1 or r + 1) has a
+    well-defined reverse density. A proposal outside [-1, size + 1] has zero prior density
+    and is rejected.
+    """
+    height, width = problem.image_shape
+    cps = work.u if axis == "u" else work.v
+    n_all, n_cp = cps.shape
+    if n_cp == 0:
+        return
+    size = width if axis == "u" else height       # positions run along this size
+    lines = np.arange(parity, n_all, 2)
+    n_lines = len(lines)
+    if n_lines == 0:
+        return
+    k = rng.integers(n_cp, size=n_lines)
+    x_old = cps[lines, k]
+    kind = rng.random(n_lines)
+    z = rng.normal(size=n_lines)
+    up = np.where(lines > 0, lines - 1, -1)
+    down = np.where(lines < n_all - 1, lines + 1, -1)
+
+    def neighbours(rank):
+        vals = np.full((n_lines, 2), np.nan)
+        vals[up >= 0, 0] = cps[up[up >= 0], rank[up >= 0]]
+        vals[down >= 0, 1] = cps[down[down >= 0], rank[down >= 0]]
+        return vals
+
+    nb_old = neighbours(k)
+    pick = np.where(rng.random(n_lines) < 0.5, 0, 1)
+    pick = np.where(np.isnan(nb_old[np.arange(n_lines), pick]), 1 - pick, pick)
+    centre = nb_old[np.arange(n_lines), pick]
+    is_unif = kind < config.cp_uniform_prob
+    is_nb = (~is_unif) & (kind < config.cp_uniform_prob + config.cp_neighbour_prob) & np.isfinite(centre)
+    x_new = np.where(is_unif, rng.uniform(-1.0, size + 1.0, n_lines),
+                     np.where(is_nb, np.nan_to_num(centre) + config.cp_neighbour_sd * z, x_old + config.cp_step * z))
+    inside = (x_new >= -1.0) & (x_new <= size + 1.0)
+    x_new = np.where(inside, x_new, x_old)
+    # rank of the moved element among its row after the move (reverse move picks that rank)
+    k_new = (cps[lines] < x_new[:, None]).sum(axis=1) - (x_old < x_new)
+    log_q_ratio = (_element_log_q(x_old, x_new, neighbours(k_new), size, config)
+                   - _element_log_q(x_new, x_old, nb_old, size, config))
+    if config.cp_prior == "smooth":
+        old_rows = cps[lines]
+        new_rows = old_rows.copy()
+        new_rows[np.arange(n_lines), k] = x_new
+        new_rows.sort(axis=1)
+        above = np.where((up >= 0)[:, None], cps[np.maximum(up, 0)], np.nan)
+        below = np.where((down >= 0)[:, None], cps[np.maximum(down, 0)], np.nan)
+        sd = config.cp_smooth_sd
+        log_q_ratio = log_q_ratio + (smooth_line_terms(new_rows, above, below, sd)
+                                     - smooth_line_terms(old_rows, above, below, sd))
+    lo = np.clip(np.floor(np.minimum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
+    hi = np.clip(np.floor(np.maximum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
+    step_label = (work.v.shape[1] + 1) if axis == "u" else 1
+    delta = np.where(x_new > x_old, -step_label, step_label)
+    if axis == "u":
+        starts, ends = problem.pixel_start[lines * width + lo], problem.pixel_start[lines * width + hi]
+        idx_range, seg = _concat_ranges(starts, ends)
+        idx = idx_range
+    else:
+        starts, ends = problem.colmajor_start[lines * height + lo], problem.colmajor_start[lines * height + hi]
+        idx_range, seg = _concat_ranges(starts, ends)
+        idx = problem.colmajor_order[idx_range]
+    log_u = np.log(rng.random(n_lines))
+    if idx.size == 0:
+        accept = inside & (log_u < log_q_ratio)
+    else:
+        old = work.labels[idx]
+        new = old + delta[seg]
+        B_old, ll_old = _per_obs_terms(problem, idx, work.theta[old])
+        B_new, ll_new = _per_obs_terms(problem, idx, work.theta[new])
+        d_ll = np.bincount(seg, weights=ll_new - ll_old, minlength=n_lines)
+        accept = inside & (log_u < d_ll + log_q_ratio)
+    info.count(f"cp_{axis}", accept, n_lines)
+    if not np.any(accept):
+        return
+    new_cps = cps.copy()
+    new_cps[lines[accept], k[accept]] = x_new[accept]
+    new_cps.sort(axis=1)
+    if axis == "u":
+        work.u = new_cps
+    else:
+        work.v = new_cps
+    if idx.size == 0:
+        return
+    take = accept[seg]
+    if not np.any(take):
+        return
+    idx_t, old_t, new_t = idx[take], old[take], new[take]
+    if not work.labels_owned:
+        work.labels = work.labels.copy()
+        work.labels_owned = True
+    work.labels[idx_t] = new_t
+    work.region_index = None
+    R = work.theta.shape[0]
+    y, A = problem.y[idx_t], problem.A[idx_t]
+    common = (None, problem.yy[idx_t], problem.yA[idx_t], problem.AA[idx_t])
+    for col, weights in enumerate(common):
+        work.stats[:, col] += (np.bincount(new_t, weights=weights, minlength=R)
+                               - np.bincount(old_t, weights=weights, minlength=R))
+    Bo, Bn = B_old[take], B_new[take]
+    for col, (wo, wn) in zip((STAT_YB, STAT_AB, STAT_BB), ((y * Bo, y * Bn), (A * Bo, A * Bn), (Bo * Bo, Bn * Bn))):
+        work.stats[:, col] += np.bincount(new_t, weights=wn, minlength=R) - np.bincount(old_t, weights=wo, minlength=R)
+    work.log_lik = log_likelihood_from_stats(work.stats, work.theta)
+
+
+# ----------------------------------------------------------------------------- birth / death
+
+def split_phi(phi, w, split_map: str):
+    """Split a region's phi (.., 4) with auxiliary w into (phi_a, phi_b); returns also log|det J|.
+
+    'mean': phi_a = phi - w, phi_b = phi + w, |det| = 2 per component.
+    'paper': phi_a = phi - w, phi_b = phi + 2 w, |det| = 3 per component (the size of the
+    determinant the design notes give for the paper's eq. 10).
+    """
+    n_components = np.size(phi)
+    if split_map == "mean":
+        return phi - w, phi + w, n_components * np.log(2.0)
+    return phi - w, phi + 2.0 * w, n_components * np.log(3.0)
+
+
+def merge_phi(phi_a, phi_b, split_map: str):
+    """Inverse of :func:`split_phi`: (phi, w, log|det J| of the split)."""
+    n_components = np.size(phi_a)
+    if split_map == "mean":
+        return 0.5 * (phi_a + phi_b), 0.5 * (phi_b - phi_a), n_components * np.log(2.0)
+    w = (phi_b - phi_a) / 3.0
+    return phi_a + w, w, n_components * np.log(3.0)
+
+
+def birth_probability(n: int, n_max: int) -> float:
+    if n_max == 0:
+        return 0.0
+    return 1.0 if n == 0 else (0.0 if n >= n_max else 0.5)
+
+
+def log_posterior(problem, prior, u, v, theta, log_lik, config=None) -> float:
+    """Log joint density (up to the constant model prior): likelihood, phi-space prior, change points."""
+    cp_prior, sd = ("paper", 1.0) if config is None else (config.cp_prior, config.cp_smooth_sd)
+    return float(np.sum(log_lik) + np.sum(prior.logpdf_phi(to_phi(theta)))
+                 + log_prior_cp_state(u, v, problem.image_shape, cp_prior, sd))
+
+
+def _build(problem, u, v, theta):
+    labels = obs_region_labels(u, v, problem.row, problem.col)
+    stats = region_stats(problem, labels, theta[:, 2], theta.shape[0])
+    return labels, stats, log_likelihood_from_stats(stats, theta)
+
+
+def _gaps(cps, j, size):
+    lower = cps[:, j - 1] if j > 0 else np.full(cps.shape[0], -1.0)
+    upper = cps[:, j] if j < cps.shape[1] else np.full(cps.shape[0], size + 1.0)
+    return lower, upper
+
+
+def _log_normal(w, scale):
+    return float(np.sum(-0.5 * (w / scale) ** 2 - np.log(scale) - 0.5 * LOG_2PI))
+
+
+# --- the new vector's elements ------------------------------------------------------------
+
+def _vector_log_q(x, lower, upper, size, config) -> float:
+    """Log density of proposing the elements ``x`` of a new vector inside the gaps (lower, upper).
+
+    Mixture: with probability ``birth_straight_prob`` a near-straight vector
+    (``x0 ~ U(-1, size+1)``, ``x_r = x0 + tau z_r``; the density integrates x0 out in closed
+    form), otherwise a draw from the change-point prior's own shape: for the 'smooth' prior
+    its random walk, for the 'paper' prior each element uniform in its gap. Elements outside
+    their gap: -inf (the proposal is rejected).
+    """
+    if not np.all((x > lower) & (x < upper)):
+        return -np.inf
+    if config.cp_prior == "smooth":
+        # the prior's own random walk (x0 uniform, steps N(0, s^2)) replaces the uniform component
+        sd = config.cp_smooth_sd
+        log_unif = float(-math.log(size + 2.0) + np.sum(-0.5 * (np.diff(x) / sd) ** 2 - math.log(sd) - 0.5 * LOG_2PI))
+    else:
+        log_unif = -float(np.sum(np.log(upper - lower)))
+    p_s = config.birth_straight_prob
+    if p_s <= 0:
+        return log_unif
+    tau, H = config.birth_straight_sd, x.size
+    xbar = float(np.mean(x))
+    hi, lo = (size + 1.0 - xbar) * math.sqrt(H) / tau, (-1.0 - xbar) * math.sqrt(H) / tau
+    log_mass = log_ndtr(hi) + math.log1p(-math.exp(min(0.0, log_ndtr(lo) - log_ndtr(hi))))
+    log_s = (-0.5 * (H - 1) * math.log(2 * math.pi * tau * tau) - 0.5 * math.log(H)
+             - float(np.sum((x - xbar) ** 2)) / (2 * tau * tau) + log_mass - math.log(size + 2.0))
+    if p_s >= 1:
+        return log_s
+    return float(np.logaddexp(math.log(p_s) + log_s, math.log1p(-p_s) + log_unif))
+
+
+def _draw_vector(rng, lower, upper, size, config):
+    if rng.random() < config.birth_straight_prob:
+        x0 = rng.uniform(-1.0, size + 1.0)
+        return x0 + config.birth_straight_sd * rng.normal(size=lower.size)
+    if config.cp_prior == "smooth":
+        x0 = rng.uniform(-1.0, size + 1.0)
+        steps = config.cp_smooth_sd * rng.normal(size=lower.size - 1)
+        return x0 + np.concatenate([[0.0], np.cumsum(steps)])
+    return lower + (upper - lower) * rng.random(lower.size)
+
+
+# --- region parameters: independent conditional proposals ------------------------------
+
+def _region_arrays(problem, labels, r):
+    idx = np.flatnonzero(labels == r)
+    return problem.y[idx], problem.A[idx], problem.C[idx], problem.log_cos_hn[idx]
+
+
+def _stats_at(data, g):
+    y, A, C, L = data
+    B = C * np.exp(g * L)
+    return np.array([y.size, np.dot(y, y), np.dot(y, A), np.dot(A, A), np.dot(y, B), np.dot(A, B), np.dot(B, B)])
+
+
+def _ssr_min(stats_r):
+    """Least-squares residual of (a, b) at fixed gamma, and the Gaussian pieces, or None."""
+    cond = _ab_conditional(stats_r, 1.0)
+    if cond is None:
+        return None
+    ma, mb = cond[0], cond[1]
+    ssr = stats_r[STAT_YY] - ma * stats_r[STAT_YA] - mb * stats_r[STAT_YB]
+    return (ssr, cond[8]) if ssr > 0 else None
+
+
+def _sigma2_prior_as_invgamma(prior):
+    """(shape, scale) of an inverse gamma standing in for sigma^2's prior in proposals."""
+    p = prior.params[3]
+    if p.kind == "invgamma":
+        return p.a, p.b
+    if p.kind == "lognormal":       # match mean and variance of 1 / sigma^2 (lognormal(-a, b))
+        mean = math.exp(-p.a + 0.5 * p.b ** 2)
+        shape = 1.0 / math.expm1(p.b ** 2)
+        return shape, shape / mean
+    return 0.0, 0.0
+
+
+def _laplace_log_gamma(data, prior):
+    """Deterministic Laplace fit (mean, sd) of log gamma's approximate marginal.
+
+    ``h(l) = -(n/2 - 1 + a0) log(SSR_min(l)/2 + b0) - log det P(l) / 2 + log p_gamma(e^l) + l``
+    with (a0, b0) the inverse gamma standing in for sigma^2's prior: (a, b) and sigma^2
+    integrated out under flat priors for (a, b). A function of the region's data only.
+    """
+    n = data[0].size
+    a0, b0 = _sigma2_prior_as_invgamma(prior)
+    g_prior = prior.params[2]
+
+    def h(ell):
+        res = _ssr_min(_stats_at(data, math.exp(ell)))
+        if res is None:
+            return -np.inf
+        return (-(0.5 * n - 1.0 + a0) * math.log(0.5 * res[0] + b0) - 0.5 * math.log(res[1])
+                + g_prior.logpdf_scalar(math.exp(ell)) + ell)
+
+    grid = np.linspace(math.log(0.2), math.log(500.0), 9)
+    values = [h(e) for e in grid]
+    best = int(np.argmax(values))
+    centre, delta, h0 = grid[best], grid[1] - grid[0], values[best]
+    if not np.isfinite(h0):
+        return None
+    curvature = -1.0
+    for _ in range(3):
+        hm, hp = h(centre - delta), h(centre + delta)
+        curvature = (hp - 2 * h0 + hm) / (delta * delta)
+        if not (np.isfinite(hm) and np.isfinite(hp)) or curvature >= 0:
+            break
+        shift = float(np.clip(-0.5 * (hp - hm) / delta / curvature, -delta, delta))
+        centre += shift
+        h0 = h(centre)
+        delta /= 3.0
+    sd = 1.0 / math.sqrt(-curvature) if np.isfinite(curvature) and curvature < 0 else 2.0
+    return centre, min(max(sd, 1e-4), 2.0)
+
+
+def _prior_in_q_coords(prior, theta, conditional):
+    """Log prior density of a region's parameters in the coordinates its proposal uses.
+
+    The likelihood is not included: the jump ratio takes it from the full recompute.
+    """
+    I0, kd, g, s2 = theta
+    if conditional:      # coordinates (a, b, log gamma, sigma^2)
+        return prior.logpdf_scalar(I0, kd, g, s2) - math.log(I0) - math.log(_norm(g)) + math.log(g)
+    return prior.logpdf_scalar(I0, kd, g, s2)   # natural coordinates
+
+
+def _region_proposal(data, config, prior):
+    """What proposes a region's parameters: ('conditional', laplace) or ('prior', None)."""
+    if data[0].size < config.min_obs_conditional:
+        return ("prior", None)
+    lap = _laplace_log_gamma(data, prior)
+    return ("prior", None) if lap is None else ("conditional", lap)
+
+
+def _draw_region(rng, data, proposal, prior, config):
+    """Draw a region's parameters; returns (theta, log q) or None if invalid."""
+    kind, lap = proposal
+    if kind == "prior":
+        theta = prior.sample(rng)
+        I0, kd, g, s2 = (float(t) for t in theta)
+        return (I0, kd, g, s2), prior.logpdf_scalar(I0, kd, g, s2)
+    mean, sd = lap
+    sd *= config.birth_gamma_inflation
+    ell = mean + sd * rng.normal()
+    g = math.exp(ell)
+    stats_r = _stats_at(data, g)
+    res = _ssr_min(stats_r)
+    if res is None:
+        return None
+    shape, scale = _sigma2_proposal(stats_r, res, prior)
+    s2 = scale / rng.gamma(shape)
+    cond = _ab_conditional(stats_r, s2)
+    if cond is None:
+        return None
+    a, b = _draw_ab(cond, rng)
+    if a <= 0 or b <= 0:
+        return None
+    I0 = a + b / _norm(g)
+    theta = (I0, a / I0, g, s2)
+    return theta, _log_q_region(theta, stats_r, proposal, prior, config)
+
+
+def _sigma2_proposal(stats_r, res, prior):
+    """Inverse gamma of sigma^2 given gamma ((a, b) integrated out), prior folded in approximately."""
+    a0, b0 = _sigma2_prior_as_invgamma(prior)
+    return 0.5 * stats_r[STAT_N] - 1.0 + a0, 0.5 * res[0] + b0
+
+
+def _log_q_region(theta, stats_r, proposal, prior, config):
+    kind, lap = proposal
+    I0, kd, g, s2 = theta
+    if kind == "prior":
+        return prior.logpdf_scalar(I0, kd, g, s2)
+    mean, sd = lap
+    sd *= config.birth_gamma_inflation
+    res = _ssr_min(stats_r)
+    cond = _ab_conditional(stats_r, s2)
+    if res is None or cond is None:
+        return -np.inf
+    shape, scale = _sigma2_proposal(stats_r, res, prior)
+    log_ig = shape * math.log(scale) - math.lgamma(shape) - (shape + 1.0) * math.log(s2) - scale / s2
+    a, b = I0 * kd, I0 * (1.0 - kd) * _norm(g)
+    return (-0.5 * ((math.log(g) - mean) / sd) ** 2 - math.log(sd) - 0.5 * LOG_2PI + log_ig + _log_q_ab(a, b, cond))
+
+
+def _regions_term(problem, prior, config, labels, theta, regions, draw_rng=None):
+    """Sum over ``regions`` of (log prior in q-coordinates - log q); draws new parameters if ``draw_rng``.
+
+    Returns (theta, total) where theta has the drawn parameters filled in (or None if a draw
+    was invalid).
+    """
+    total = 0.0
+    theta = theta.copy()
+    for r in regions:
+        data = _region_arrays(problem, labels, r)
+        proposal = _region_proposal(data, config, prior)
+        if draw_rng is not None:
+            drawn = _draw_region(draw_rng, data, proposal, prior, config)
+            if drawn is None:
+                return None, -np.inf
+            theta[r], log_q = drawn
+        else:
+            log_q = _log_q_region(tuple(theta[r]), _stats_at(data, theta[r, 2]), proposal, prior, config)
+        total += _prior_in_q_coords(prior, tuple(theta[r]), proposal[0] == "conditional") - log_q
+    return theta, total
+
+
+# --- birth and death ----------------------------------------------------------------------
+
+def _axis_info(work, problem, config, axis):
+    height, width = problem.image_shape
+    if axis == "u":
+        return work.u, width, work.u.shape[1], config.max_u
+    return work.v, height, work.v.shape[1], config.max_v
+
+
+def _grid(theta, n_u, n_v, axis):
+    grid = theta.reshape(n_u + 1, n_v + 1, -1)
+    return grid.transpose(1, 0, 2) if axis == "v" else grid
+
+
+def _ungrid(grid, axis):
+    grid = grid.transpose(1, 0, 2) if axis == "v" else grid
+    return grid.reshape(-1, grid.shape[-1])
+
+
+def _region_ids(n_u, n_v, axis, columns):
+    """Region indices of grid columns ``columns`` (along ``axis``) in model (n_u, n_v)."""
+    ids = np.arange((n_u + 1) * (n_v + 1)).reshape(n_u + 1, n_v + 1)
+    ids = ids.T if axis == "v" else ids
+    return np.concatenate([ids[c] for c in columns])
+
+
+def _jump_ratio(problem, prior, config, small, big, axis, j, x, gaps_bounds, size, n, n_max, theta_term):
+    """Log acceptance ratio of the birth small -> big (vector x inserted at rank j)."""
+    lower, upper = gaps_bounds
+    log_q_vec = _vector_log_q(x, lower, upper, size, config)
+    (u_s, v_s, ll_s), (u_b, v_b, ll_b) = small, big
+    return (ll_b - ll_s
+            + log_prior_cp_state(u_b, v_b, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
+            - log_prior_cp_state(u_s, v_s, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
+            + math.log(1.0 - birth_probability(n + 1, n_max)) - math.log(birth_probability(n, n_max))
+            - log_q_vec + theta_term)
+
+
+def propose_birth(work, rng, problem, prior, config, axis: str):
+    """Birth of a u (v) vector, splitting every region it cuts.
+
+    Returns ``(u, v, theta, labels, stats, log_lik, log_ratio)`` of the proposal
+    (``log_ratio`` = -inf for an invalid proposal). The rank ``j`` of the new vector is
+    uniform over the n + 1 gaps and the death picks one of the n + 1 vectors, so these
+    choices cancel.
+    """
+    cps, size, n, n_max = _axis_info(work, problem, config, axis)
+    n_u, n_v = work.u.shape[1], work.v.shape[1]
+    j = int(rng.integers(n + 1))
+    lower, upper = _gaps(cps, j, size)
+    x = _draw_vector(rng, lower, upper, size, config)
+    new_cps = np.insert(cps, j, x, axis=1)
+    u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
+    nb_u, nb_v = u_new.shape[1], v_new.shape[1]
+    grid = _grid(work.theta, n_u, n_v, axis)
+    if config.split_map == "conditional":
+        theta_new = _ungrid(np.concatenate([grid[:j], grid[j:j + 1], grid[j:]], axis=0), axis)
+    else:
+        w = rng.normal(0.0, config.split_scale, grid[j].shape)
+        phi_a, phi_b, log_jac = split_phi(to_phi(grid[j]), w, config.split_map)
+        theta_new = _ungrid(np.concatenate([grid[:j], from_phi(phi_a)[None], from_phi(phi_b)[None], grid[j + 1:]],
+                                           axis=0), axis)
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    if not np.isfinite(_vector_log_q(x, lower, upper, size, config)):
+        return u_new, v_new, theta_new, labels, None, None, -np.inf
+    if config.split_map == "conditional":
+        old_ids = _region_ids(n_u, n_v, axis, [j])
+        new_ids = _region_ids(nb_u, nb_v, axis, [j, j + 1])
+        theta_new, term_new = _regions_term(problem, prior, config, labels, theta_new, new_ids, draw_rng=rng)
+        if theta_new is None:
+            return u_new, v_new, None, labels, None, None, -np.inf
+        _, term_old = _regions_term(problem, prior, config, work.labels, work.theta, old_ids)
+        theta_term = term_new - term_old
+    else:
+        theta_term = (float(np.sum(prior.logpdf_phi(to_phi(theta_new))) - np.sum(prior.logpdf_phi(to_phi(work.theta))))
+                      - _log_normal(w, config.split_scale) + (0.0 if config.drop_jacobian else log_jac))
+    stats = region_stats(problem, labels, theta_new[:, 2], theta_new.shape[0])
+    log_lik = log_likelihood_from_stats(stats, theta_new)
+    log_ratio = _jump_ratio(problem, prior, config, (work.u, work.v, float(np.sum(work.log_lik))),
+                            (u_new, v_new, float(np.sum(log_lik))), axis, j, x, (lower, upper), size, n, n_max,
+                            theta_term)
+    return u_new, v_new, theta_new, labels, stats, log_lik, float(log_ratio)
+
+
+def propose_death(work, rng, problem, prior, config, axis: str):
+    """Death of a u (v) vector, merging the regions on its two sides (reverse of the birth)."""
+    cps, size, n, n_max = _axis_info(work, problem, config, axis)
+    n_u, n_v = work.u.shape[1], work.v.shape[1]
+    k = int(rng.integers(n))
+    x = cps[:, k]
+    new_cps = np.delete(cps, k, axis=1)
+    lower, upper = _gaps(new_cps, k, size)     # the gap the reverse birth draws in
+    u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
+    ns_u, ns_v = u_new.shape[1], v_new.shape[1]
+    grid = _grid(work.theta, n_u, n_v, axis)
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    if config.split_map == "conditional":
+        theta_new = _ungrid(np.concatenate([grid[:k + 1], grid[k + 2:]], axis=0), axis)
+        new_ids = _region_ids(ns_u, ns_v, axis, [k])
+        old_ids = _region_ids(n_u, n_v, axis, [k, k + 1])
+        theta_new, term_new = _regions_term(problem, prior, config, labels, theta_new, new_ids, draw_rng=rng)
+        if theta_new is None:
+            return u_new, v_new, None, labels, None, None, -np.inf
+        _, term_old = _regions_term(problem, prior, config, work.labels, work.theta, old_ids)
+        theta_term = term_old - term_new          # as seen by the reverse birth
+    else:
+        phi, w, log_jac = merge_phi(to_phi(grid[k]), to_phi(grid[k + 1]), config.split_map)
+        theta_new = _ungrid(np.concatenate([grid[:k], from_phi(phi)[None], grid[k + 2:]], axis=0), axis)
+        theta_term = (float(np.sum(prior.logpdf_phi(to_phi(work.theta))) - np.sum(prior.logpdf_phi(to_phi(theta_new))))
+                      - _log_normal(w, config.split_scale) + (0.0 if config.drop_jacobian else log_jac))
+    stats = region_stats(problem, labels, theta_new[:, 2], theta_new.shape[0])
+    log_lik = log_likelihood_from_stats(stats, theta_new)
+    birth_ratio = _jump_ratio(problem, prior, config, (u_new, v_new, float(np.sum(log_lik))),
+                              (work.u, work.v, float(np.sum(work.log_lik))), axis, k, x, (lower, upper), size,
+                              n - 1, n_max, theta_term)
+    return u_new, v_new, theta_new, labels, stats, log_lik, float(-birth_ratio)
+
+
+def propose_block_shift(work, rng, problem, prior, config, axis: str):
+    """Shift a contiguous block of one vector's elements by a common delta, redrawing the regions it changes.
+
+    The block (first line uniform, length uniform in 1..``block_max``) and the shift
+    ``delta ~ N(0, block_shift_sd^2)`` are chosen independently of the state, and a shift
+    that would reorder a row's elements or leave [-1, size + 1] is rejected, so the reverse
+    move (same block, -delta) has the same density. The parameters of every region whose
+    pixel set changes are redrawn from the conditional proposals used by birth/death, and
+    the reverse move's density of the current parameters enters the ratio. This lets a
+    stretch of a boundary that settled on the wrong side of an object move back together
+    with the parameters that had adapted to it (a trap for element-by-element moves).
+
+    Returns ``(u, v, theta, labels, stats, log_lik, log_ratio)``.
+    """
+    cps, size, n, _ = _axis_info(work, problem, config, axis)
+    n_lines = cps.shape[0]
+    k = int(rng.integers(n))
+    start = int(rng.integers(n_lines))
+    length = int(rng.integers(1, config.block_max + 1))
+    stop = min(n_lines, start + length)
+    delta = config.block_shift_sd * rng.normal()
+    new_cps = cps.copy()
+    new_cps[start:stop, k] += delta
+    block = new_cps[start:stop]
+    u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
+    invalid = (np.any(block[:, k] < -1.0) or np.any(block[:, k] > size + 1.0)
+               or np.any(np.diff(block, axis=1) <= 0))
+    if invalid:
+        return u_new, v_new, None, None, None, None, -np.inf
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    changed = labels != work.labels
+    if not np.any(changed):
+        log_lik = work.log_lik
+        theta_new, theta_term = work.theta, 0.0
+        stats = work.stats
+    else:
+        affected = np.union1d(np.unique(labels[changed]), np.unique(work.labels[changed]))
+        theta_new, term_new = _regions_term(problem, prior, config, labels, work.theta, affected, draw_rng=rng)
+        if theta_new is None:
+            return u_new, v_new, None, labels, None, None, -np.inf
+        _, term_old = _regions_term(problem, prior, config, work.labels, work.theta, affected)
+        theta_term = term_new - term_old
+        stats = region_stats(problem, labels, theta_new[:, 2], theta_new.shape[0])
+        log_lik = log_likelihood_from_stats(stats, theta_new)
+    log_ratio = (float(np.sum(log_lik)) - float(np.sum(work.log_lik))
+                 + log_prior_cp_state(u_new, v_new, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
+                 - log_prior_cp_state(work.u, work.v, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
+                 + theta_term)
+    return u_new, v_new, theta_new, labels, stats, log_lik, float(log_ratio)

@@ -1,0 +1,241 @@
+"""Running chains: recording, checkpoint/resume, several chains in parallel processes.
+
+Every random draw of a chain comes from one ``numpy.random.Generator`` seeded from
+``SeedSequence(seed).spawn(n_chains)[chain]``; the generator's bit-generator state is saved
+in each checkpoint, so a chain resumed from its last checkpoint draws exactly the numbers
+an uninterrupted run would have drawn and yields identical samples.
+
+Checkpoints are pickles written atomically (temporary file in the same folder, then
+``os.replace``): a chain killed mid-write (even by SIGKILL) leaves the previous checkpoint
+intact.
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+
+import numpy as np
+
+from rjfit.sampler.changepoints import n_regions
+from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.likelihood import Problem
+from rjfit.sampler.state import ChainState, SamplerConfig
+
+__all__ = ["ChainSpec", "ChainRecord", "run_chain", "run_chains", "chain_rngs", "atomic_write_bytes"]
+
+CHECKPOINT_VERSION = 1
+
+
+@dataclass
+class ChainSpec:
+    """Everything a worker process needs to run (or resume) one chain (picklable)."""
+
+    problem: Problem
+    prior: object
+    config: SamplerConfig
+    seed: int
+    chain: int
+    n_chains: int
+    iterations: int
+    checkpoint_path: str | None = None
+    checkpoint_every: int = 1000
+    cp_thin: int = 10
+    truth_labels: np.ndarray | None = None
+    start: dict | None = None          # keyword arguments of initial_state (model, changepoints, theta)
+    progress: bool = False
+    stop_after: int | None = None      # testing: return after this many iterations (simulates a crash)
+
+
+@dataclass
+class ChainRecord:
+    """The trace of one chain (per iteration unless noted)."""
+
+    n_u: np.ndarray                 # (T,) int
+    n_v: np.ndarray                 # (T,) int
+    theta: np.ndarray               # (T, R_max, 4), NaN beyond the current model's regions
+    log_lik: np.ndarray             # (T,)
+    log_post: np.ndarray            # (T,)
+    exact_truth: np.ndarray         # (T,) int8: 1 if object pixels fall into exactly the true regions, -1 unknown
+    object_regions: np.ndarray      # (T,) int16: number of regions holding object pixels (with observations)
+    cp_iteration: np.ndarray        # (S,) iteration of each change-point snapshot
+    cp_u: np.ndarray                # (S, H, max_u), NaN padded
+    cp_v: np.ndarray                # (S, W, max_v), NaN padded
+    accepted: dict
+    proposed: dict
+    seconds: float
+    iterations_done: int
+
+    def truncated(self, t: int) -> "ChainRecord":
+        keep = self.cp_iteration < t
+        return ChainRecord(self.n_u[:t], self.n_v[:t], self.theta[:t], self.log_lik[:t], self.log_post[:t],
+                           self.exact_truth[:t], self.object_regions[:t], self.cp_iteration[keep], self.cp_u[keep], self.cp_v[keep],
+                           dict(self.accepted), dict(self.proposed), self.seconds, min(t, self.iterations_done))
+
+
+def chain_rngs(seed: int, n_chains: int):
+    """One independent generator per chain from a user seed."""
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(n_chains)]
+
+
+def atomic_write_bytes(path: str, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (temporary file + fsync + os.replace)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(path))
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class _Recorder:
+    def __init__(self, spec: ChainSpec):
+        problem, config, T = spec.problem, spec.config, spec.iterations
+        self.r_max = n_regions(config.max_u, config.max_v)
+        self.n_u = np.zeros(T, np.int16)
+        self.n_v = np.zeros(T, np.int16)
+        self.theta = np.full((T, self.r_max, 4), np.nan)
+        self.log_lik = np.zeros(T)
+        self.log_post = np.zeros(T)
+        self.exact_truth = np.full(T, -1, np.int8)
+        self.object_regions = np.zeros(T, np.int16)
+        n_snap = (T + spec.cp_thin - 1) // spec.cp_thin
+        self.cp_iteration = np.arange(0, T, spec.cp_thin)[:n_snap]
+        self.cp_u = np.full((n_snap, problem.height, config.max_u), np.nan, np.float32)
+        self.cp_v = np.full((n_snap, problem.width, config.max_v), np.nan, np.float32)
+        self.accepted, self.proposed = {}, {}
+        self.seconds = 0.0
+        self.cp_thin = spec.cp_thin
+        self._exact_memo = (None, -1)
+        self._truth_setup(spec)
+
+    def _truth_setup(self, spec):
+        problem = spec.problem
+        counts = np.diff(problem.pixel_start)
+        self.pixel_first_obs = problem.pixel_start[np.flatnonzero(counts > 0)]
+        self.first_obs = None
+        if spec.truth_labels is None:
+            return
+        truth = np.asarray(spec.truth_labels).ravel()
+        pixels = np.flatnonzero((counts > 0) & (truth >= 0))
+        self.first_obs = problem.pixel_start[pixels]
+        self.truth_of_first = truth[pixels]
+        self.n_truth = int(self.truth_of_first.max()) + 1 if pixels.size else 0
+
+    def exact(self, labels) -> tuple[int, int]:
+        """(exact-truth flag or -1, number of regions holding observed object pixels), memoised per labelling."""
+        if self._exact_memo[0] is labels:
+            return self._exact_memo[1]
+        n_object = int(np.count_nonzero(np.bincount(labels[self.pixel_first_obs])))
+        flag = -1
+        if self.first_obs is not None:
+            lab = labels[self.first_obs]
+            pairs = np.unique(lab * max(self.n_truth, 1) + self.truth_of_first)
+            flag = int(len(pairs) == len(np.unique(lab)) == len(np.unique(self.truth_of_first)))
+        self._exact_memo = (labels, (flag, n_object))
+        return flag, n_object
+
+    def record(self, t: int, state: ChainState, log_post: float):
+        self.n_u[t], self.n_v[t] = state.n_u, state.n_v
+        self.theta[t, :state.n_regions] = state.theta
+        self.log_lik[t] = state.total_log_lik
+        self.log_post[t] = log_post
+        self.exact_truth[t], self.object_regions[t] = self.exact(state.labels)
+        if t % self.cp_thin == 0:
+            s = t // self.cp_thin
+            self.cp_u[s, :, :state.n_u] = state.u
+            self.cp_v[s, :, :state.n_v] = state.v
+
+    def result(self, done: int) -> ChainRecord:
+        rec = ChainRecord(self.n_u, self.n_v, self.theta, self.log_lik, self.log_post, self.exact_truth,
+                          self.object_regions, self.cp_iteration, self.cp_u, self.cp_v, self.accepted, self.proposed, self.seconds, done)
+        return rec.truncated(done)
+
+
+def _load_checkpoint(path):
+    with open(path, "rb") as handle:
+        payload = pickle.load(handle)
+    if payload.get("version") != CHECKPOINT_VERSION:
+        raise ValueError(f"checkpoint {path} has version {payload.get('version')}, expected {CHECKPOINT_VERSION}: "
+                         "delete it to start the chain afresh")
+    return payload
+
+
+def run_chain(spec: ChainSpec) -> ChainRecord:
+    """Run (or resume from ``spec.checkpoint_path``) one chain and return its record.
+
+    Spawn-safe entry point of the worker processes.
+    """
+    from threadpoolctl import threadpool_limits
+
+    from rjfit.sampler.moves import log_posterior
+
+    problem, prior, config = spec.problem, spec.prior, spec.config
+    with threadpool_limits(1):   # BLAS threads only add overhead to these small dot products
+        rng = chain_rngs(spec.seed, spec.n_chains)[spec.chain]
+        recorder = _Recorder(spec)
+        start_t = 0
+        if spec.checkpoint_path and os.path.exists(spec.checkpoint_path):
+            payload = _load_checkpoint(spec.checkpoint_path)
+            state = payload["state"]
+            rng.bit_generator.state = payload["rng_state"]
+            recorder = payload["recorder"]
+            start_t = payload["t"]
+        else:
+            state = initial_state(problem, prior, config, rng, **(spec.start or {}))
+        bar = None
+        if spec.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=spec.iterations, initial=start_t, position=spec.chain, desc=f"chain {spec.chain}",
+                       leave=False, mininterval=1.0)
+        t0 = time.perf_counter()
+        seconds_before = recorder.seconds
+        t = start_t
+        for t in range(start_t, spec.iterations):
+            state, info = step(state, rng, problem, prior, config)
+            for key, value in info.accepted.items():
+                recorder.accepted[key] = recorder.accepted.get(key, 0) + value
+                recorder.proposed[key] = recorder.proposed.get(key, 0) + info.proposed[key]
+            recorder.record(t, state, log_posterior(problem, prior, state.u, state.v, state.theta, state.log_lik, config))
+            if bar is not None:
+                bar.update(1)
+            done = t + 1
+            if spec.checkpoint_path and spec.checkpoint_every and done % spec.checkpoint_every == 0 \
+                    and done < spec.iterations:
+                recorder.seconds = seconds_before + time.perf_counter() - t0
+                payload = {"version": CHECKPOINT_VERSION, "state": state, "rng_state": rng.bit_generator.state,
+                           "recorder": recorder, "t": done}
+                atomic_write_bytes(spec.checkpoint_path, pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL))
+            if spec.stop_after is not None and done >= spec.stop_after:
+                break
+        else:
+            done = spec.iterations if spec.iterations > start_t else start_t
+        if bar is not None:
+            bar.close()
+        recorder.seconds = seconds_before + time.perf_counter() - t0
+        return recorder.result(done)
+
+
+def run_chains(specs, *, processes: int | None = None):
+    """Run chains in parallel worker processes (spawn context); returns their records in order.
+
+    ``processes=1`` (or a single chain) runs in this process.
+    """
+    specs = list(specs)
+    if processes is None:
+        processes = min(len(specs), os.cpu_count() or 1)
+    if processes <= 1 or len(specs) == 1:
+        return [run_chain(spec) for spec in specs]
+    with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn")) as pool:
+        return list(pool.map(run_chain, specs))

@@ -1,0 +1,62 @@
+"""End to end: fit() on a small synthetic stack writes every result and finds the four regions."""
+import json
+
+import numpy as np
+import pytest
+
+from rjfit.data.synthetic import sphere_stack
+from rjfit.fit import fit
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fit")
+    obs, labels, truth = sphere_stack(24, n_lights=8, seed=4)
+    # two chains in two spawned worker processes, started in model (1, 1) with straight change
+    # points near the centre lines (a run this short cannot be expected to escape a trap such
+    # as a vector that leaves the object in half of its rows)
+    start = [{"changepoints": (np.full(24, 10.7), np.full(24, 13.4))},
+             {"changepoints": (np.full(24, 13.6), np.full(24, 10.2))}]
+    summary = fit(obs, out, truth_labels=labels, truth_params=truth, seed=7, n_chains=2, iterations=600,
+                  burn_in=0.5, max_u=2, max_v=2, processes=2, progress=False, start=start, checkpoint_every=200)
+    return out, summary, labels
+
+
+def test_fit_writes_summary_labels_chains_and_figures(fitted):
+    out, summary, labels = fitted
+    on_disk = json.loads((out / "summary.json").read_text())
+    for key in ("model_posterior", "map_model", "regions", "rhat_max", "ess_min", "iterations", "seconds",
+                "label_accuracy", "four_region_probability", "exact_truth_probability"):
+        assert key in on_disk, key
+    assert on_disk["map_model"] == {"n_u": 1, "n_v": 1, "m": 5}
+    assert abs(sum(on_disk["model_posterior"].values()) - 1.0) < 1e-9
+    region = on_disk["regions"][0]
+    assert {"pixels", "I0", "kd", "gamma", "sigma2"} <= set(region)
+    assert {"mean", "sd", "q2.5", "q97.5"} <= set(region["kd"])
+    from rjfit.data.exr import read_exr
+
+    exr = read_exr(out / "labels.exr")["labels"]
+    assert exr.shape == labels.shape and exr.dtype == np.float32
+    import arviz as az
+
+    idata = az.from_netcdf(out / "chains.nc")
+    assert idata.posterior["theta"].dims == ("chain", "draw", "region", "parameter")
+    assert idata.posterior["theta"].shape[:2] == (2, 300)
+    for name in ("model_histogram", "traces", "changepoints", "reflectance"):
+        assert (out / "figures" / f"{name}.png").stat().st_size > 1000
+
+
+def test_fit_recovers_the_truth_on_a_small_sphere(fitted):
+    _, summary, _ = fitted
+    assert summary["label_accuracy"] > 0.97
+    truth = [(0.5, 5.0), (0.9, 10.0), (0.6, 5.0), (0.4, 1.0)]
+    for region, (kd, gamma) in zip(summary["regions"], truth):
+        assert abs(region["kd"]["mean"] - kd) < 5 * region["kd"]["sd"] + 0.02
+
+
+def test_fit_rejects_bad_arguments(tmp_path):
+    obs, _, _ = sphere_stack(8, n_lights=3, seed=1)
+    with pytest.raises(ValueError, match="burn_in"):
+        fit(obs, tmp_path, burn_in=1.5, progress=False)
+    with pytest.raises(ValueError, match="prior"):
+        fit(obs, tmp_path, prior="flat", progress=False)

@@ -1,0 +1,117 @@
+"""Sampler bookkeeping: incremental statistics vs the full-recompute oracle, change points, priors."""
+import numpy as np
+import pytest
+from scipy import integrate
+from threadpoolctl import threadpool_limits
+
+from rjfit.data.synthetic import sphere_stack
+from rjfit.sampler.changepoints import (log_prior_changepoints, model_from_number, model_number,
+                                        obs_region_labels, pixel_region_labels)
+from rjfit.sampler.kernel import initial_state, make_state, step
+from rjfit.sampler.likelihood import Problem, oracle_log_likelihood, region_stats
+from rjfit.sampler.priors import ParamPrior, Prior, make_prior
+from rjfit.sampler.state import SamplerConfig
+
+
+@pytest.fixture(scope="module")
+def small():
+    obs, labels, truth = sphere_stack(20, n_lights=6, seed=3)
+    problem = Problem.from_observations(obs)
+    prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
+    return problem, prior, labels, truth
+
+
+@pytest.mark.parametrize("sampler", ["adaptive", "paper"])
+def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(small, sampler):
+    problem, prior, _, _ = small
+    # refresh_every=0: no periodic recompute, so drift of the incremental updates would show.
+    config = SamplerConfig(max_u=2, max_v=2, sampler=sampler, burn_in=100, jump_prob=0.7, cp_uniform_prob=0.3,
+                           refresh_every=0, split_scale=0.5)
+    rng = np.random.default_rng(11)
+    state = initial_state(problem, prior, config, rng, model=(1, 1))
+    models = set()
+    with threadpool_limits(1):
+        for t in range(600):
+            state, info = step(state, rng, problem, prior, config)
+            if t % 25 == 12:
+                # Force a birth or death (accepted whatever its ratio) so that the incremental
+                # bookkeeping is exercised across changes of dimension.
+                state = _forced_jump(state, rng, problem, prior, config)
+            models.add((state.n_u, state.n_v))
+            if t % 50 == 49:
+                labels = obs_region_labels(state.u, state.v, problem.row, problem.col)
+                np.testing.assert_array_equal(state.labels, labels)
+                oracle = oracle_log_likelihood(problem, state.labels, state.theta)
+                assert state.total_log_lik == pytest.approx(oracle, rel=1e-10, abs=1e-7)
+                fresh = region_stats(problem, state.labels, state.theta[:, 2], state.n_regions)
+                np.testing.assert_allclose(state.stats, fresh, rtol=1e-9, atol=1e-8)
+    assert len(models) >= 3, "the sequence should visit several models"
+
+
+def _forced_jump(state, rng, problem, prior, config):
+    from rjfit.sampler.moves import Work, birth_probability, propose_birth, propose_death
+    from rjfit.sampler.state import ChainState
+
+    for _ in range(100):      # retry until the proposal is a valid state
+        axis = "u" if rng.random() < 0.5 else "v"
+        n = state.n_u if axis == "u" else state.n_v
+        birth = rng.random() < birth_probability(n, config.max_u if axis == "u" else config.max_v)
+        work = Work(u=state.u, v=state.v, theta=state.theta.copy(), stats=state.stats.copy(),
+                    log_lik=state.log_lik.copy(), labels=state.labels)
+        u, v, theta, labels, stats, log_lik, log_ratio = (propose_birth if birth else propose_death)(
+            work, rng, problem, prior, config, axis)
+        if np.isfinite(log_ratio):
+            break
+    return ChainState(u=u, v=v, theta=theta, stats=stats, log_lik=log_lik, labels=labels,
+                      log_g_scale=state.log_g_scale, iteration=state.iteration)
+
+
+def test_region_of_pixel_counts_change_points_left_and_above():
+    u = np.array([[0.9], [2.2]])       # H = 2 rows, one u vector
+    v = np.array([[0.4], [-1.0], [1.7]])  # W = 3 columns, one v vector
+    labels = pixel_region_labels(u, v, (2, 3))
+    # row 0: u at 0.9 -> pixels 1,2 (centres 1.5, 2.5) right of it; row 1: u at 2.2 -> pixel 2 only.
+    # column 0: v at 0.4 -> both rows (centres 0.5, 1.5) below; column 1: v at -1 -> both below;
+    # column 2: v at 1.7 -> neither.
+    iu = np.array([[0, 1, 1], [0, 0, 1]])
+    iv = np.array([[1, 1, 0], [1, 1, 0]])
+    np.testing.assert_array_equal(labels, iu * 2 + iv)
+
+
+def test_model_number_round_trip_and_changepoint_prior():
+    for n_u in range(4):
+        for n_v in range(3):
+            assert model_from_number(model_number(n_u, n_v, 2), 2) == (n_u, n_v)
+    assert model_number(1, 1, 5) == 8
+    # order-statistics density of 2 uniforms on [-1, W+1] per row: 2 / (W+2)^2
+    assert log_prior_changepoints(2, 0, (3, 5)) == pytest.approx(3 * (np.log(2) - 2 * np.log(7)))
+
+
+@pytest.mark.parametrize("param,slot", [(ParamPrior("lognormal", 1.0, 0.7), 0), (ParamPrior("uniform", 0.0, 1.0), 1),
+                                        (ParamPrior("beta", 2.0, 3.0), 1), (ParamPrior("invgamma", 3.0, 2.0), 3),
+                                        (ParamPrior("uniform", 0.5, 40.0), 2)])
+def test_phi_density_includes_the_transform_jacobian(param, slot):
+    """Each phi component's density must integrate to one (it would not without the Jacobian)."""
+    params = [ParamPrior("lognormal", 0.0, 1.0), ParamPrior("uniform", 0.0, 1.0), ParamPrior("lognormal", 0.0, 1.0),
+              ParamPrior("lognormal", 0.0, 1.0)]
+    params[slot] = param
+    prior = Prior(params=tuple(params))
+
+    def density(x):
+        phi = np.zeros(4)
+        phi[slot] = x
+        return np.exp(prior.logpdf_phi_components(phi)[slot])
+
+    total, _ = integrate.quad(density, -30, 30, limit=400, points=[-5, 0, 5])
+    assert total == pytest.approx(1.0, rel=1e-6)
+
+
+def test_make_state_rejects_wrong_region_count(small):
+    problem = small[0]
+    with pytest.raises(ValueError, match="regions"):
+        make_state(problem, np.zeros((problem.height, 1)), np.zeros((problem.width, 0)), np.ones((3, 4)) * 0.5)
+
+
+def test_config_rejects_unknown_sampler():
+    with pytest.raises(ValueError, match="sampler"):
+        SamplerConfig(sampler="nuts")

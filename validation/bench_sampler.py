@@ -1,0 +1,120 @@
+"""Benchmark of the within-model samplers in effective samples per second (issue 3, item 5).
+
+Segmentation fixed at the true four quadrant regions; one chain per sampler, run one after
+the other in this process (BLAS limited to one thread). Prints, side by side, for rjfit's
+default sampler and the paper-style component-wise random-walk MH (with the incremental
+likelihood, and with a full likelihood pass per proposal as the paper did):
+iterations per second, minimum and median ArviZ bulk ESS per second of the 16 parameters,
+per second of sampling (after burn-in) and per second of the whole run (burn-in counted).
+
+Data: the pure-numpy synthetic sphere (``rjfit.data.synthetic.sphere_stack``: Table 2 truth,
+10 asymmetric point lights, noise variance 0.1), or a rendered data set (``--dataset DIR``,
+read with ``rjfit.data.dataset.load_dataset``; the fixed change points are then the image's
+centre lines, which is where ``paper_sphere`` puts its quadrant boundaries).
+
+    .venv/bin/python validation/bench_sampler.py --size 128 --iterations 4000
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+
+def _observations(args):
+    if args.dataset:
+        from rjfit.data.dataset import load_dataset
+
+        dataset = load_dataset(args.dataset)
+        return dataset.observations(), dataset.truth_params
+    from rjfit.data.synthetic import sphere_stack
+
+    obs, _, truth = sphere_stack(args.size, n_lights=args.lights, seed=args.seed)
+    return obs, truth
+
+
+def run_one(problem, prior, config, iterations, seed, start_theta):
+    from rjfit.sampler.kernel import initial_state, step
+
+    rng = np.random.default_rng(seed)
+    height, width = problem.image_shape
+    state = initial_state(problem, prior, config, rng,
+                          changepoints=(np.full(height, width / 2.0), np.full(width, height / 2.0)), theta=start_theta)
+    draws = np.empty((iterations, state.n_regions, 4))
+    burn = config.burn_in
+    t0 = time.perf_counter()
+    t_burn = t0
+    for t in range(iterations):
+        state, _ = step(state, rng, problem, prior, config)
+        draws[t] = state.theta
+        if t + 1 == burn:
+            t_burn = time.perf_counter()
+    t1 = time.perf_counter()
+    return draws, t1 - t0, t1 - t_burn
+
+
+def ess_figures(draws, burn):
+    import arviz as az
+
+    post = draws[burn:]
+    ess = np.array([[float(az.ess(post[:, r, k][None], method="bulk")) for k in range(4)] for r in range(post.shape[1])])
+    return ess
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=int, default=128)
+    parser.add_argument("--lights", type=int, default=10)
+    parser.add_argument("--iterations", type=int, default=4000, help="iterations of the default sampler")
+    parser.add_argument("--paper-iterations", type=int, default=4000)
+    parser.add_argument("--full-iterations", type=int, default=400,
+                        help="iterations of the paper-style sampler with a full likelihood pass per proposal")
+    parser.add_argument("--burn-in", type=float, default=0.5)
+    parser.add_argument("--dataset", default=None)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+
+    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.priors import make_prior
+    from rjfit.sampler.state import SamplerConfig
+
+    obs, truth = _observations(args)
+    problem = Problem.from_observations(obs)
+    prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
+    # a dispersed common start: the prior's I0 centre, kd 0.5, gamma 10, sigma^2 = var(y) / 10
+    start = np.tile([np.exp(prior.params[0].a), 0.5, 10.0, 0.1 * np.var(problem.y)], (4, 1))
+    print(f"{problem.n_obs} valid observations, image {problem.image_shape}, 4 fixed regions")
+    rows = []
+    runs = [("default (adaptive)", dict(sampler="adaptive"), args.iterations),
+            ("paper-style MH, incremental", dict(sampler="paper"), args.paper_iterations),
+            ("paper-style MH, full pass", dict(sampler="paper", full_recompute=True), args.full_iterations)]
+    with threadpool_limits(1):
+        for name, options, iterations in runs:
+            if iterations <= 0:
+                continue
+            burn = int(args.burn_in * iterations)
+            config = SamplerConfig(max_u=1, max_v=1, update_changepoints=False, jumps=False, burn_in=burn, **options)
+            draws, total_s, sampling_s = run_one(problem, prior, config, iterations, args.seed, start)
+            ess = ess_figures(draws, burn)
+            means = draws[burn:].mean(axis=0)
+            rows.append((name, iterations, iterations / total_s, ess.min(), np.median(ess), sampling_s, total_s, means))
+    header = (f"{'sampler':30s} {'iters':>6s} {'it/s':>8s} {'minESS/s':>9s} {'medESS/s':>9s} "
+              f"{'minESS/s(+burn)':>15s} {'medESS/s(+burn)':>15s} {'min ESS':>8s}")
+    print(header)
+    for name, iterations, rate, ess_min, ess_med, sampling_s, total_s, _ in rows:
+        print(f"{name:30s} {iterations:6d} {rate:8.1f} {ess_min / sampling_s:9.2f} {ess_med / sampling_s:9.2f} "
+              f"{ess_min / total_s:15.2f} {ess_med / total_s:15.2f} {ess_min:8.1f}")
+    if len(rows) >= 2:
+        base = rows[0][3] / rows[0][5]
+        for other in rows[1:]:
+            print(f"min ESS/s ratio default / {other[0]}: {base / max(other[3] / other[5], 1e-12):.1f}x")
+    if truth:
+        print("posterior means of the default sampler vs truth (I0, kd, gamma, sigma2):")
+        for r, t in enumerate(truth):
+            print(f"  region {r}: {np.round(rows[0][7][r], 4)}  truth {[t['I0'], t['kd'], t['gamma'], t['sigma2']]}")
+
+
+if __name__ == "__main__":
+    main()
