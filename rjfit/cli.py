@@ -17,7 +17,25 @@ def _echo_json(payload: dict, keys) -> None:
             click.echo(f"  {key:<24} {value:.4g}" if isinstance(value, float) else f"  {key:<24} {value}")
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Group(click.Group):
+    """Turns the errors rjfit raises for bad input into one clear line (no traceback);
+    set RJFIT_DEBUG=1 to see the traceback."""
+
+    def invoke(self, ctx):
+        import os
+
+        from rjfit.data.errors import DatasetError
+        from rjfit.validate import ValidationRequiredError
+
+        try:
+            return super().invoke(ctx)
+        except (ValidationRequiredError, DatasetError, FileNotFoundError, ValueError) as error:
+            if os.environ.get("RJFIT_DEBUG"):
+                raise
+            raise click.ClickException(str(error)) from error
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="rjfit")
 def main():
     """Segment a surface into regions of equal reflectance and sample each region's BRDF
@@ -79,18 +97,45 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Run folder (default: runs/SCENE).")
 @click.option("--resolution", type=int, default=None, help="Square image size (default: the scene's).")
+@click.option("--iterations", type=int, default=4000, show_default=True, help="Iterations per chain.")
+@click.option("--chains", "n_chains", type=int, default=4, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.pass_context
-def run(ctx, scene, out_dir, resolution, seed):
+def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed):
     """The main job, end to end on SCENE (default: the paper's synthetic sphere):
-    render, validate, then the later steps as they exist."""
+    render -> validate -> fit -> compare -> diagnose -> report."""
+    import time
+
+    started = time.perf_counter()
     name = Path(scene).stem
     out_dir = out_dir or Path("runs") / name
-    dataset_dir = out_dir / "dataset"
+    dataset_dir, fit_dir = out_dir / "dataset", out_dir / "fit"
+    click.echo(f"== 1/6 render {scene}")
     ctx.invoke(render, scene=scene, out_dir=dataset_dir, resolution=resolution, seed=None, spp=None,
                noise_variance=None, variant="llvm_ad_rgb")
-    ctx.invoke(validate, dataset=dataset_dir, out_dir=None, spp=4, max_depth=8, seed=seed, variant="llvm_ad_rgb")
+    click.echo("== 2/6 validate (closed form vs Mitsuba path tracer)")
+    from rjfit.validate import validate_dataset
 
+    validation = validate_dataset(dataset_dir, spp=4, seed=seed, progress=True)
+    click.echo(f"  {'PASSED' if validation['passed'] else 'FAILED'}: median rel. err. {validation['median_rel_err']:.3g}, "
+               f"p99 {validation['p99_rel_err']:.3g}, unexplained fraction {validation['unexplained_fraction']:.3g}")
+    click.echo("== 3/6 fit (RJMCMC)")
+    ctx.invoke(fit, datasets=(dataset_dir,), out_dir=fit_dir, n_chains=n_chains, iterations=iterations, burn_in=None,
+               max_u=3, max_v=3, sampler="adaptive", prior="default", split_map="conditional", cp_prior="smooth",
+               drop_jacobian=False, channel="mean", seed=seed,
+               validation_path=None, allow_unvalidated=not validation["passed"], scheduler=None, workers=2)
+    truth = (dataset_dir / "truth_labels.exr").is_file()
+    if truth:
+        click.echo("== 4/6 compare with baselines")
+        ctx.invoke(compare, dataset=dataset_dir, out_dir=fit_dir / "comparison", fit_dir=fit_dir, seed=seed,
+                   channel="mean")
+    click.echo("== 5/6 diagnose (model criticism)")
+    ctx.invoke(main.get_command(ctx, "diagnose"), fit_dir=fit_dir, out_dir=fit_dir / "diagnosis")
+    click.echo("== 6/6 report")
+    from rjfit.report import build_report
+
+    report_path = build_report(fit_dir)
+    click.echo(f"done in {time.perf_counter() - started:.0f} s. Open the report: {report_path.resolve()}")
 
 
 @main.command()
@@ -142,8 +187,14 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
               help="Within-model moves: adaptive blocks (default) or the paper's component-wise MH.")
 @click.option("--prior", type=click.Choice(["default", "paper-synthetic", "paper-real"]), default="default",
               show_default=True, help="Prior preset (paper: Table 1 synthetic, Table 3 real).")
-@click.option("--split-map", type=click.Choice(["mean", "paper"]), default="mean", show_default=True,
-              help="Split/merge map of birth and death moves; 'paper' is eq. 10 (its Jacobian included).")
+@click.option("--split-map", type=click.Choice(["conditional", "mean", "paper"]), default="conditional",
+              show_default=True,
+              help="Parameters of regions born by a split: drawn from a data-driven proposal (conditional), "
+                   "or a bijective map: mean (|det| 2) or the paper's eq. 10 (|det| 3), Jacobian included.")
+@click.option("--cp-prior", type=click.Choice(["smooth", "paper"]), default="smooth", show_default=True,
+              help="Change-point prior: random walk along the vector (smooth) or independent uniform per row.")
+@click.option("--drop-jacobian", is_flag=True,
+              help="Reproduce the paper's acceptance ratio without the split/merge Jacobian (wrong; for study).")
 @click.option("--channel", type=click.Choice(["mean", "R", "G", "B", "luminance"]), default="mean",
               show_default=True, help="Colour channel fitted (luminance: CIE Y, sRGB primaries).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
@@ -154,8 +205,8 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
 @click.option("--scheduler", default=None,
               help="Run chains on Dask: 'local' for a local cluster, or a scheduler address (tcp://host:8786).")
 @click.option("--workers", type=int, default=2, show_default=True, help="Workers of a local Dask cluster.")
-def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler, prior, split_map, channel, seed,
-        validation_path, allow_unvalidated, scheduler, workers):
+def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler, prior, split_map, cp_prior,
+        drop_jacobian, channel, seed, validation_path, allow_unvalidated, scheduler, workers):
     """Segment DATASET(S) and sample the region BRDF posteriors (RJMCMC).
 
     Refuses a data set whose forward model has not passed `rjfit validate` unless
@@ -165,9 +216,8 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
 
     summaries = fit_datasets(datasets, out_dir, n_chains=n_chains, iterations=iterations, burn_in=burn_in,
                              max_u=max_u, max_v=max_v, sampler=sampler, prior=prior, split_map=split_map,
-                             channel=channel, seed=seed, validation_path=validation_path,
-                             allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers,
-                             echo=click.echo)
+                             cp_prior=cp_prior, drop_jacobian=drop_jacobian, channel=channel, seed=seed, validation_path=validation_path,
+                             allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers)
     for folder, summary in summaries:
         map_model = summary["map_model"]
         click.echo(f"fit of {summary['dataset']} -> {folder}")

@@ -1,0 +1,110 @@
+"""Fit data sets from disk: the cross-check gate, observations, the RJMCMC fit, batches.
+
+``rjfit fit DATASET [DATASET ...]`` calls :func:`fit_datasets`. One data set runs its
+chains in parallel (worker processes, or Dask workers with ``scheduler``); several data
+sets are independent fits, run one per Dask task when a scheduler is given.
+"""
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+from rjfit.data.dataset import load_dataset, write_json_atomic
+
+__all__ = ["fit_dataset", "fit_datasets"]
+
+
+def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validation_path=None,
+                allow_unvalidated=False, scheduler=None, n_workers=2, client=None, **fit_options) -> dict:
+    """Fit one data set after checking that its forward model passed the gate.
+
+    Parameters
+    ----------
+    dataset_dir, out_dir : path
+    channel : str
+        Colour channel fitted (see :meth:`rjfit.data.dataset.Dataset.channel_values`).
+    burn_in : float, optional
+        Default 0.5 for synthetic data and 0.2 for measured data (the paper's choices).
+    validation_path : path, optional
+        The gate's ``validation.json`` (default ``dataset_dir/validation/validation.json``).
+    allow_unvalidated : bool
+        Fit even without a passing validation; the summary records it.
+    scheduler, n_workers, client
+        Run the chains as Dask tasks (``scheduler='local'`` starts a local cluster).
+    **fit_options
+        Passed to :func:`rjfit.fit.fit` (n_chains, iterations, seed, max_u, max_v, ...).
+
+    Returns
+    -------
+    dict
+        The summary, also written to ``out_dir/summary.json``.
+
+    Raises
+    ------
+    rjfit.validate.ValidationRequiredError
+        If the data set has not passed the gate and ``allow_unvalidated`` is False.
+    """
+    from rjfit.fit import fit
+    from rjfit.validate import require_validated
+
+    dataset_dir = Path(dataset_dir)
+    validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
+    dataset = load_dataset(dataset_dir)
+    if burn_in is None:
+        burn_in = 0.2 if dataset.meta.get("kind") == "measured" else 0.5
+    chain_runner = None
+    if scheduler is not None or client is not None:
+        from rjfit.distributed import dask_map
+        from rjfit.sampler.runner import run_chain
+
+        address = None if scheduler in (None, "local") else scheduler
+        chain_runner = functools.partial(dask_map, run_chain, scheduler=address, n_workers=n_workers, client=client,
+                                         key_prefix="rjfit-chain")
+    summary = fit(dataset.observations(channel), out_dir, truth_labels=dataset.truth_labels,
+                  truth_params=dataset.truth_params, burn_in=burn_in, chain_runner=chain_runner, **fit_options)
+    summary["dataset"] = str(dataset_dir.resolve())
+    summary["channel"] = channel
+    summary["validation"] = ({key: validation.get(key) for key in ("passed", "median_rel_err", "p99_rel_err",
+                                                                    "unexplained_fraction")}
+                             if validation else {"passed": None, "note": "fitted without validation (overridden)"})
+    write_json_atomic(Path(out_dir) / "summary.json", summary)
+    return summary
+
+
+def _fit_one(arguments):
+    dataset_dir, out_dir, options = arguments
+    return fit_dataset(dataset_dir, out_dir, **options)
+
+
+def fit_datasets(dataset_dirs, out_dir, *, scheduler=None, n_workers=2, **options):
+    """Fit several data sets: ``out_dir`` itself for one, ``out_dir/<name>`` for each of several.
+
+    With a scheduler and several data sets, each fit is one Dask task (its chains run in
+    that worker, one after another); results equal the serial ones for the same seed.
+
+    Returns
+    -------
+    list of (Path, dict)
+        Each fit folder with its summary.
+    """
+    dataset_dirs = [Path(d) for d in dataset_dirs]
+    out_dir = Path(out_dir)
+    if len(dataset_dirs) == 1:
+        folders = [out_dir]
+    else:
+        names = [d.resolve().name for d in dataset_dirs]
+        if len(set(names)) != len(names):
+            raise ValueError(f"data sets share folder names {names}; fit them into separate --out folders")
+        folders = [out_dir / name for name in names]
+    if len(dataset_dirs) == 1:
+        return [(folders[0], fit_dataset(dataset_dirs[0], folders[0], scheduler=scheduler, n_workers=n_workers,
+                                         **options))]
+    if scheduler is None:
+        return [(folder, fit_dataset(d, folder, **options)) for d, folder in zip(dataset_dirs, folders)]
+    from rjfit.distributed import dask_map
+
+    address = None if scheduler == "local" else scheduler
+    batch_options = dict(options, processes=1, progress=False)
+    summaries = dask_map(_fit_one, [(d, f, batch_options) for d, f in zip(dataset_dirs, folders)], scheduler=address,
+                         n_workers=n_workers, key_prefix="rjfit-fit")
+    return list(zip(folders, summaries))

@@ -1,0 +1,164 @@
+"""``rjfit report``: one self-contained HTML page per fit (figures embedded, no network)."""
+from __future__ import annotations
+
+import base64
+import html
+import json
+import os
+from pathlib import Path
+
+__all__ = ["build_report"]
+
+_PARAMETERS = ("I0", "kd", "gamma", "sigma2")
+_LABELS = {"I0": "I<sub>0</sub>", "kd": "k<sub>d</sub>", "gamma": "&gamma;", "sigma2": "&sigma;<sup>2</sup>"}
+
+_STYLE = """
+body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
+h1{font-size:1.6em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #bbb;padding:.25em .6em;text-align:right}
+th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
+figure{display:inline-block;margin:.4em;vertical-align:top}figure img{max-width:520px;border:1px solid #ddd}
+figcaption{font-size:.85em;color:#555}.pass{color:#070;font-weight:bold}.fail{color:#b00;font-weight:bold}
+code{background:#f4f4f4;padding:0 .2em}
+"""
+
+
+def _load_json(path: Path):
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _embed(path: Path, caption: str) -> str:
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return (f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def _fmt(value, digits=4):
+    if value is None:
+        return "&ndash;"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return html.escape(str(value))
+
+
+def _region_table(summary: dict) -> str:
+    """The paper's Table 2 / 4 layout: one row per region, mean &plusmn; sd and 95 % interval."""
+    regions = summary.get("regions") or []
+    # label_matching maps a fitted region to the true label it was matched to (Hungarian).
+    truth = {}
+    if summary.get("truth_params") and summary.get("label_matching"):
+        truth = {str(region): summary["truth_params"][int(label)]
+                 for region, label in summary["label_matching"].items() if label is not None and int(label) >= 0}
+    head = "".join(f"<th>{_LABELS[p]}</th>" for p in _PARAMETERS)
+    rows = []
+    for index, region in enumerate(regions):
+        name = region.get("name", f"region {region.get('region', index)}")
+        cells = []
+        for parameter in _PARAMETERS:
+            stats = region.get(parameter, {})
+            if not isinstance(stats, dict) or "mean" not in stats:
+                cells.append("<td>&ndash;</td>")
+                continue
+            text = f"{stats['mean']:.4g} &plusmn; {stats.get('sd', float('nan')):.2g}"
+            low, high = stats.get("q2.5"), stats.get("q97.5")
+            if low is not None and high is not None:
+                text += f"<br><small>[{low:.4g}, {high:.4g}]</small>"
+            true_value = (truth.get(str(index)) or {}).get(parameter) if truth else None
+            if true_value is not None:
+                text += f"<br><small>truth {true_value:.4g}</small>"
+            cells.append(f"<td>{text}</td>")
+        rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small></td>"
+                    + "".join(cells) + "</tr>")
+    return f"<table><tr><th>region</th>{head}</tr>{''.join(rows)}</table>"
+
+
+def _key_values(payload: dict, keys) -> str:
+    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{_fmt(payload.get(k))}</td></tr>" for k in keys if k in payload)
+    return f"<table>{rows}</table>"
+
+
+def build_report(fit_dir, out_path=None) -> Path:
+    """Write ``report.html`` for a fit folder and return its path.
+
+    Reads ``summary.json`` and every PNG in the fit folder, and, where present, the data
+    set's ``validation/validation.json`` and the ``diagnosis`` and ``comparison`` results
+    (``FIT_DIR/diagnosis/diagnosis.json``, ``FIT_DIR/comparison/comparison.json``).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``fit_dir`` has no ``summary.json``.
+    """
+    fit_dir = Path(fit_dir)
+    summary = _load_json(fit_dir / "summary.json")
+    if summary is None:
+        raise FileNotFoundError(f"{fit_dir}: no summary.json; run `rjfit fit DATASET --out {fit_dir}` first")
+    out_path = Path(out_path) if out_path else fit_dir / "report.html"
+    dataset_dir = Path(summary["dataset"]) if summary.get("dataset") else None
+    parts = [f"<h1>rjfit report: {html.escape(dataset_dir.name if dataset_dir else fit_dir.name)}</h1>",
+             f"<p>Fit folder <code>{html.escape(str(fit_dir.resolve()))}</code>; data set "
+             f"<code>{html.escape(str(dataset_dir))}</code>.</p>"]
+
+    validation = _load_json(dataset_dir / "validation" / "validation.json") if dataset_dir else None
+    parts.append("<h2>Forward-model cross-check</h2>")
+    if validation:
+        verdict = '<span class="pass">passed</span>' if validation.get("passed") else '<span class="fail">failed</span>'
+        parts.append(f"<p>Closed form vs Mitsuba path tracer: {verdict}.</p>")
+        parts.append(_key_values(validation, ["median_rel_err", "p99_rel_err", "max_rel_err", "pixels_compared",
+                                              "unexplained_fraction"]))
+        for name, caption in (("relative_error.png", "relative error"), ("unexplained_fraction.png",
+                                                                        "unexplained fraction")):
+            if (dataset_dir / "validation" / name).is_file():
+                parts.append(_embed(dataset_dir / "validation" / name, caption))
+    else:
+        parts.append("<p>No validation found for this data set.</p>")
+
+    parts.append("<h2>Segmentation and model posterior</h2>")
+    map_model = summary.get("map_model", {})
+    parts.append(_key_values({**{f"map_model.{k}": v for k, v in map_model.items()}, **summary},
+                             ["map_model.n_u", "map_model.n_v", "map_model.m", "four_region_probability",
+                              "exact_truth_probability", "label_accuracy",
+                              "rhat_max", "ess_min", "iterations", "seconds"]))
+    model_posterior = summary.get("model_posterior") or {}
+    if model_posterior:
+        rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{v:.4f}</td></tr>"
+                       for k, v in sorted(model_posterior.items(), key=lambda kv: -kv[1])[:12])
+        parts.append(f"<table><tr><th>model (n_u, n_v)</th><th>posterior</th></tr>{rows}</table>")
+    parts.append("<h2>Region parameters</h2>" + _region_table(summary))
+
+    parts.append("<h2>Figures</h2>")
+    for png in sorted(fit_dir.glob("*.png")) + sorted((fit_dir / "figures").glob("*.png")):
+        parts.append(_embed(png, png.stem.replace("_", " ")))
+
+    for sub, title, keys in (("diagnosis", "Model criticism", ["named_effects"]),
+                             ("comparison", "Baselines", [])):
+        payload = _load_json(fit_dir / sub / f"{sub}.json")
+        if payload is None:
+            continue
+        parts.append(f"<h2>{title}</h2>")
+        markdown = fit_dir / sub / f"{sub}.md"
+        if sub == "diagnosis":
+            named = payload.get("named_effects") or []
+            parts.append(f"<p>Named effects: {html.escape(', '.join(named) if named else 'none')}.</p>")
+            rows = "".join(f"<tr><td>{html.escape(str(s.get('effect')))}</td><td>{_fmt(s.get('evidence'))}</td>"
+                           f"<td>{_fmt(s.get('gap_before'))}</td><td>{_fmt(s.get('gap_after'))}</td></tr>"
+                           for s in payload.get("steps", []))
+            if rows:
+                parts.append("<table><tr><th>effect</th><th>evidence</th><th>gap before</th><th>gap after</th></tr>"
+                             f"{rows}</table>")
+        elif isinstance(payload, list) or "methods" in payload:
+            entries = payload if isinstance(payload, list) else payload["methods"]
+            header = sorted({k for e in entries for k in e if not isinstance(e[k], (dict, list))})
+            rows = "".join("<tr>" + "".join(f"<td>{_fmt(e.get(k))}</td>" for k in header) + "</tr>" for e in entries)
+            parts.append("<table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in header) + f"</tr>{rows}</table>")
+        elif markdown.is_file():
+            parts.append(f"<pre>{html.escape(markdown.read_text())}</pre>")
+        for png in sorted((fit_dir / sub).glob("*.png")):
+            parts.append(_embed(png, f"{sub}: {png.stem.replace('_', ' ')}"))
+
+    document = (f"<!doctype html><html><head><meta charset='utf-8'><title>rjfit report</title>"
+                f"<style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>")
+    temporary = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
+    temporary.write_text(document)
+    os.replace(temporary, out_path)
+    return out_path
