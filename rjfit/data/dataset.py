@@ -59,7 +59,7 @@ class Dataset:
     meta : dict
         The contents of ``dataset.json``.
     images : ndarray, shape (L, H, W, C)
-        Linear radiance per light; C = 3 (R, G, B).
+        Linear radiance per light; C = 3 (R, G, B); float32 as stored (observations are float64).
     normals, view_dirs : ndarray, shape (H, W, 3)
     positions : ndarray, shape (H, W, 3) or None
         Needed for point lights (distance); None for directional-light data.
@@ -247,7 +247,7 @@ def load_dataset(path, **options) -> Dataset:
         truth_labels = np.rint(read_exr(path / meta["truth_labels"])["label"]).astype(np.int32)
         truth_params = [{key: float(material[key]) for key in ("I0", "kd", "gamma", "sigma2")}
                         for material in meta["materials"]]
-    dataset = Dataset(path=path, meta=meta, images=np.stack(images).astype(np.float64), normals=stack3("N"),
+    dataset = Dataset(path=path, meta=meta, images=np.stack(images), normals=stack3("N"),
                       view_dirs=stack3("V"), positions=stack3("P"), visibility=visibility, object_mask=object_mask,
                       lights=lights, truth_labels=truth_labels, truth_params=truth_params,
                       saturation=meta.get("saturation"))

@@ -1,0 +1,92 @@
+"""Scale: memory and time from 256 to 2048 pixels square (paper_sphere-like, 18 lights).
+
+For each size, in a fresh subprocess (so peak resident memory is that size's own):
+render the ``scanner_sphere`` scene, validate it (the cross-check gate), load it, build the
+observations and run the sampler (one chain, change points sampled) for ``--iterations``
+iterations; time per 1,000 iterations is scaled from those. Printed side by side, with the
+cost per valid observation and its ratio to the smallest size (linear scaling gives 1).
+
+    .venv/bin/python validation/bench_scale.py [--sizes 256 512 1024 2048] [--iterations 200]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def one_size(size: int, iterations: int, folder: Path) -> dict:
+    import numpy as np
+
+    from rjfit.data.dataset import load_dataset
+    from rjfit.render.render import render_dataset
+    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.priors import make_prior
+    from rjfit.sampler.runner import ChainSpec, run_chain
+    from rjfit.sampler.state import SamplerConfig
+    from rjfit.validate import validate_dataset
+
+    timings = {}
+    started = time.perf_counter()
+    dataset_dir = render_dataset("scanner_sphere", folder / f"scanner_{size}", resolution=size)
+    timings["render_s"] = time.perf_counter() - started
+    started = time.perf_counter()
+    validation = validate_dataset(dataset_dir, spp=1)
+    timings["validate_s"] = time.perf_counter() - started
+    started = time.perf_counter()
+    dataset = load_dataset(dataset_dir)
+    observations = dataset.observations()
+    problem = Problem.from_observations(observations)
+    timings["load_s"] = time.perf_counter() - started
+    del dataset
+    prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
+    config = SamplerConfig(max_u=3, max_v=3, burn_in=iterations // 2)
+    spec = ChainSpec(problem=problem, prior=prior, config=config, seed=0, chain=0, n_chains=1, iterations=iterations,
+                     cp_thin=10)
+    started = time.perf_counter()
+    record = run_chain(spec)
+    seconds = time.perf_counter() - started
+    return {"size": size, "valid_observations": int(observations.n_obs), "lights": int(observations.n_lights),
+            "validation_passed": bool(validation["passed"]), "median_rel_err": validation["median_rel_err"],
+            "iterations": iterations, "chain_s": seconds, "per_1000_iterations_s": seconds / iterations * 1000,
+            "final_model": [int(record.n_u[-1]), int(record.n_v[-1])],
+            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2, **timings}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[256, 512, 1024, 2048])
+    parser.add_argument("--iterations", type=int, default=200)
+    parser.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--folder", default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one is not None:
+        print(json.dumps(one_size(args.one, args.iterations, Path(args.folder))))
+        return
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        for size in args.sizes:
+            output = subprocess.run([sys.executable, __file__, "--one", str(size), "--iterations", str(args.iterations),
+                                     "--folder", folder], check=True, capture_output=True, text=True).stdout
+            rows.append(json.loads(output.strip().splitlines()[-1]))
+            print(f"  {size}: done", file=sys.stderr, flush=True)
+    base = rows[0]["per_1000_iterations_s"] / rows[0]["valid_observations"]
+    print(f"scanner_sphere, {rows[0]['lights']} lights; sampler: 1 chain, change points sampled, "
+          f"{args.iterations} iterations timed")
+    print(f"{'size':>6} {'valid obs':>11} {'peak RSS GB':>12} {'s/1000 it':>10} {'render s':>9} {'validate s':>11} "
+          f"{'load s':>7} {'gate':>5} {'cost/obs vs smallest':>21}")
+    for row in rows:
+        ratio = row["per_1000_iterations_s"] / row["valid_observations"] / base
+        print(f"{row['size']:>6} {row['valid_observations']:>11,} {row['peak_rss_gb']:>12.2f} "
+              f"{row['per_1000_iterations_s']:>10.1f} {row['render_s']:>9.1f} {row['validate_s']:>11.1f} "
+              f"{row['load_s']:>7.1f} {'pass' if row['validation_passed'] else 'FAIL':>5} {ratio:>21.2f}")
+    print("goal: 2048 x 2048 with 18 lights within 24 GB; cost per valid observation not growing with size (ratio <= ~1)")
+
+
+if __name__ == "__main__":
+    main()
