@@ -1,0 +1,62 @@
+"""The command line: every command documented, the gate enforced, the main job end to end."""
+import json
+import subprocess
+import sys
+
+from click.testing import CliRunner
+
+from rjfit.cli import main
+
+COMMANDS = ("render", "validate", "fit", "diagnose", "compare", "report", "run")
+
+
+def test_every_command_has_help():
+    runner = CliRunner()
+    listing = runner.invoke(main, ["--help"])
+    assert listing.exit_code == 0
+    for command in COMMANDS:
+        assert command in listing.output
+        result = runner.invoke(main, [command, "--help"])
+        assert result.exit_code == 0 and "--help" in result.output, command
+    assert "--seed" in runner.invoke(main, ["fit", "--help"]).output
+
+
+def test_python_dash_m_works():
+    result = subprocess.run([sys.executable, "-m", "rjfit", "--help"], capture_output=True, text=True, check=False)
+    assert result.returncode == 0 and "validate" in result.stdout
+
+
+def test_fit_refuses_an_unvalidated_data_set_with_one_clear_line(paper_sphere_small, tmp_path):
+    import shutil
+
+    dataset = tmp_path / "copy"
+    shutil.copytree(paper_sphere_small, dataset)
+    shutil.rmtree(dataset / "validation", ignore_errors=True)
+    result = CliRunner().invoke(main, ["fit", str(dataset), "--out", str(tmp_path / "fit")])
+    assert result.exit_code == 1
+    assert "has not been cross-checked" in result.output and "--allow-unvalidated" in result.output
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "fit" / "summary.json").exists()
+
+
+def test_bad_input_is_one_line_naming_the_file(tmp_path):
+    folder = tmp_path / "broken"
+    folder.mkdir()
+    (folder / "filenames.txt").write_text("001.png\n")
+    result = CliRunner().invoke(main, ["validate", str(folder)])
+    assert result.exit_code == 1 and str(folder) in result.output and "Traceback" not in result.output
+
+
+def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
+    result = CliRunner().invoke(main, ["run", "--out", str(tmp_path / "run"), "--resolution", "32",
+                                       "--iterations", "200", "--chains", "2"])
+    assert result.exit_code == 0, result.output
+    report = tmp_path / "run" / "fit" / "report.html"
+    assert str(report.resolve()) in result.output
+    html = report.read_text()
+    assert html.count("data:image/png;base64,") >= 5 and "passed" in html
+    summary = json.loads((tmp_path / "run" / "fit" / "summary.json").read_text())
+    assert summary["validation"]["passed"] is True
+    for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
+                     "fit/labels.exr", "dataset/validation/validation.json"):
+        assert (tmp_path / "run" / produced).is_file(), produced
