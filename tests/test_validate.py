@@ -43,7 +43,9 @@ def test_gate_catches_a_wrongly_scaled_emitter(paper_sphere_small, tmp_path):
     # Light values given as an equal-energy spectrum become (1.205, 0.948, 0.909) x I in RGB.
     result = validate_dataset(paper_sphere_small, tmp_path / "v", light_format="spectrum", spp=1)
     assert not result["passed"]
-    assert result["unexplained_fraction"] == pytest.approx(np.mean([1.205, 0.948, 0.909]) - 1, abs=0.02)
+    assert result["unexplained_fraction"] == pytest.approx(np.mean([1.205, 0.948, 0.909]) - 1, abs=0.005)
+    # Red is ~20 % off: the per-channel comparison sees it in every observation.
+    assert result["median_rel_err"] == pytest.approx(0.205, abs=0.02)
 
 
 def test_concave_object_reports_interreflection_instead_of_passing(dented_plaster_small, tmp_path):
