@@ -54,7 +54,8 @@ def main():
 @click.option("--seed", type=int, default=None, help="Seed of path tracing and noise (default: the scene's).")
 @click.option("--spp", type=int, default=None, help="Samples per pixel, all along the pixel-centre ray.")
 @click.option("--noise-variance", type=float, default=None, help="Gaussian noise variance (default: the scene's).")
-@click.option("--variant", default="llvm_ad_rgb", show_default=True, help="Mitsuba variant.")
+@click.option("--variant", default="auto", show_default=True,
+              help="Mitsuba variant; auto: cuda_ad_rgb when a GPU answers, else llvm_ad_rgb.")
 def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
     """Render SCENE (a built-in name such as paper_sphere, or a scene JSON file) into a
     data set: one linear EXR per light, geometry, visibility, truth and dataset.json."""
@@ -63,7 +64,7 @@ def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
     path = render_dataset(scene, out_dir, resolution=resolution, seed=seed, spp=spp, noise_variance=noise_variance,
                           variant=variant, progress=True)
     meta = json.loads((path / "dataset.json").read_text())
-    click.echo(f"wrote {path}: {len(meta['images'])} images, {meta['resolution'][1]} x {meta['resolution'][0]}, "
+    click.echo(f"wrote {path} ({meta['variant']}): {len(meta['images'])} images, {meta['resolution'][1]} x {meta['resolution'][0]}, "
                f"{meta['render_seconds']:.1f} s")
 
 
@@ -74,7 +75,8 @@ def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
 @click.option("--spp", type=int, default=4, show_default=True, help="Path-traced samples per pixel.")
 @click.option("--max-depth", type=int, default=8, show_default=True, help="Path length of the path tracer.")
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--variant", default="llvm_ad_rgb", show_default=True, help="Mitsuba variant.")
+@click.option("--variant", default="auto", show_default=True,
+              help="Mitsuba variant; auto: cuda_ad_rgb when a GPU answers, else llvm_ad_rgb.")
 def validate(dataset, out_dir, spp, max_depth, seed, variant):
     """Cross-check the closed form against Mitsuba's path tracer on DATASET.
 
@@ -83,7 +85,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
 
     result = validate_dataset(dataset, out_dir, spp=spp, max_depth=max_depth, seed=seed, variant=variant,
                               progress=True)
-    click.echo(f"validation of {dataset}: {'PASSED' if result['passed'] else 'FAILED'}")
+    click.echo(f"validation of {dataset} ({result['settings']['variant']}): {'PASSED' if result['passed'] else 'FAILED'}")
     _echo_json(result, ["median_rel_err", "p99_rel_err", "max_rel_err", "pixels_compared", "unexplained_fraction",
                         "seconds"])
     out = Path(out_dir) if out_dir else Path(dataset) / "validation"
@@ -112,7 +114,7 @@ def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed):
     dataset_dir, fit_dir = out_dir / "dataset", out_dir / "fit"
     click.echo(f"== 1/6 render {scene}")
     ctx.invoke(render, scene=scene, out_dir=dataset_dir, resolution=resolution, seed=None, spp=None,
-               noise_variance=None, variant="llvm_ad_rgb")
+               noise_variance=None, variant="auto")
     click.echo("== 2/6 validate (closed form vs Mitsuba path tracer)")
     from rjfit.validate import validate_dataset
 

@@ -128,7 +128,7 @@ def _save_png(path, image, title, cmap="magma", vmin=None, vmax=None):
 
 
 def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_radiance, materials=None,
-                     max_depth=8, spp=4, seed=0, variant="llvm_ad_rgb", light_format="rgb", progress=False):
+                     max_depth=8, spp=4, seed=0, variant="auto", light_format="rgb", progress=False):
     """Path-trace a data set's scene and compare it with the closed form; write the gate's verdict.
 
     Parameters
@@ -171,7 +171,7 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     lights = dataset.lights
     reference = dataset.reference_intensity
     out_dir.mkdir(parents=True, exist_ok=True)
-    activate(variant)
+    mi_module = activate(variant)
     if meta.get("meshes"):
         materials = materials if materials is not None else meta["materials"]
         part_materials = [entry["material"] for entry in meta["meshes"]]
@@ -248,7 +248,7 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
         "geometry": geometry_source,
         "max_normal_angle_deg": float(normal_angle[hit].max()) if hit.any() else None,
         "thresholds": {"median_rel_err": MEDIAN_TOLERANCE, "p99_rel_err": P99_TOLERANCE},
-        "settings": {"integrator": "path", "max_depth": max_depth, "spp": spp, "seed": seed, "variant": variant,
+        "settings": {"integrator": "path", "max_depth": max_depth, "spp": spp, "seed": seed, "variant": mi_module.variant(),
                      "rays": "one per pixel centre, shared by the path tracer and the closed form"},
         "maps": {"error_exr": "validation_maps.exr", "relative_error_png": "relative_error.png",
                  "unexplained_png": "unexplained_fraction.png"},

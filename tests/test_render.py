@@ -85,3 +85,19 @@ def test_concave_object_has_cast_shadows_and_two_materials(dented_plaster_small)
 def test_unknown_scene_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="no built-in scene"):
         render_dataset("no_such_scene", tmp_path / "x")
+
+
+def test_auto_variant_falls_back_to_llvm_without_a_gpu_and_records_what_ran(paper_sphere_small):
+    """CI has no GPU: "auto" must pick llvm_ad_rgb there (cuda_ad_rgb where a GPU answers)
+    and the data set must say which variant rendered it."""
+    import subprocess
+    import sys
+
+    from rjfit.render.mitsuba_scene import resolve_variant
+
+    probe = subprocess.run([sys.executable, "-c", "import drjit as dr; print(bool(dr.has_backend(dr.JitBackend.CUDA)))"],
+                           capture_output=True, text=True)
+    expected = "cuda_ad_rgb" if probe.stdout.strip() == "True" else "llvm_ad_rgb"
+    assert resolve_variant("auto") == expected
+    assert resolve_variant("llvm_ad_mono") == "llvm_ad_mono"
+    assert json.loads((paper_sphere_small / "dataset.json").read_text())["variant"] == expected

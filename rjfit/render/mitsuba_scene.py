@@ -14,14 +14,37 @@ import numpy as np
 
 from rjfit.data.lights import Light
 
-__all__ = ["activate", "camera_dict", "light_dict", "material_dict", "build_scene", "trace_pixels", "path_trace",
+__all__ = ["activate", "resolve_variant", "camera_dict", "light_dict", "material_dict", "build_scene", "trace_pixels", "path_trace",
            "shadow_visibility", "DEFAULT_VARIANT"]
 
 DEFAULT_VARIANT = "llvm_ad_rgb"
 
 
+def resolve_variant(variant: str = "auto") -> str:
+    """The Mitsuba variant to use: ``"auto"`` picks ``cuda_ad_rgb`` when a CUDA GPU and driver
+    answer, else ``llvm_ad_rgb``; any other name is returned as it is.
+
+    A CUDA variant is listed by every Mitsuba wheel, GPU or not; only initialising it tells.
+    """
+    import mitsuba as mi
+
+    if variant != "auto":
+        return variant
+    if "cuda_ad_rgb" in mi.variants():
+        try:
+            mi.set_variant("cuda_ad_rgb")
+            import drjit as dr
+
+            dr.eval(mi.Float(1.0) + 1.0)      # fails here without a GPU or driver
+            return "cuda_ad_rgb"
+        except (ImportError, RuntimeError):
+            pass
+    return DEFAULT_VARIANT
+
+
 def activate(variant: str = DEFAULT_VARIANT):
-    """Set the Mitsuba variant, register rjfit's BSDF for it and return the ``mitsuba`` module.
+    """Set the Mitsuba variant (``"auto"``: see :func:`resolve_variant`), register rjfit's
+    BSDF for it and return the ``mitsuba`` module; ``mi.variant()`` then says which ran.
 
     Raises
     ------
@@ -30,6 +53,7 @@ def activate(variant: str = DEFAULT_VARIANT):
     """
     import mitsuba as mi
 
+    variant = resolve_variant(variant)
     if variant not in mi.variants():
         raise ValueError(f"Mitsuba variant {variant!r} is not available; installed: {mi.variants()}")
     mi.set_variant(variant)

@@ -71,7 +71,7 @@ def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, li
 
 
 def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, noise_variance=None,
-                   variant="llvm_ad_rgb", progress=False, bsdf_override=None, extra=None, light_format="rgb",
+                   variant="auto", progress=False, bsdf_override=None, extra=None, light_format="rgb",
                    post_process=None, hidden_effects=()):
     """Render a scene definition into a data set folder (written atomically, as a whole).
 
@@ -94,7 +94,8 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
         Variance of the Gaussian noise added to every pixel (achromatic: the same draw in
         R, G, B, so each channel and their mean have exactly this variance).
     variant : str
-        Mitsuba variant (an LLVM one; scalar variants are for benchmarks only).
+        Mitsuba variant; "auto" takes cuda_ad_rgb where a GPU answers, else llvm_ad_rgb
+        (scalar variants are for benchmarks only). The one that ran is recorded.
     bsdf_override, extra, light_format, post_process, hidden_effects
         For data sets with a hidden effect: replace the plugin by other BSDFs, add scene
         entries (e.g. an environment emitter), pass light values as spectra, or transform
@@ -135,7 +136,7 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
             "reference_intensity": float(definition.get("reference_intensity", 1.0)),
             "materials": materials, "meshes": meshes, "geometry_definition": definition["geometry"],
             "noise_variance": noise_variance, "seed": seed, "spp": spp,
-            "max_depth": int(definition.get("max_depth", 8)), "variant": variant,
+            "max_depth": int(definition.get("max_depth", 8)), "variant": mi.variant(),
             "sampling": "one camera ray through each pixel centre; spp repeats it",
             "noise": "achromatic Gaussian, the same draw in R, G, B",
             "images": [f"images/light_{i:03d}.exr" for i in range(len(lights))],
