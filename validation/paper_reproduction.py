@@ -29,11 +29,13 @@ def main(argv=None):
     parser.add_argument("--chains", type=int, default=4)
     parser.add_argument("--burn-in", type=float, default=0.5)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--processes", type=int, default=None, help="worker processes (1: chains one after another)")
     parser.add_argument("--max-u", type=int, default=3)
     parser.add_argument("--max-v", type=int, default=3)
     parser.add_argument("--start-model", default="1,1",
-                        help="starting model of every chain ('random' for a random one in {0,1}x{0,1}); "
-                             "change points start straight at dispersed positions either way")
+                        help="starting model of every chain ('random' for a random one in {0,1}x{0,1}, "
+                             "'dispersed' for (0,0), (0,1), (1,0), (1,1) in turn); change points start "
+                             "straight at dispersed positions either way")
     args = parser.parse_args(argv)
 
     from rjfit.fit import fit
@@ -48,12 +50,15 @@ def main(argv=None):
 
         obs, labels, truth = sphere_stack(args.size, n_lights=10, seed=args.seed)
     start = None
-    if args.start_model != "random":
+    if args.start_model == "dispersed":
+        models = [(0, 0), (0, 1), (1, 0), (1, 1)]
+        start = [{"model": models[c % 4]} for c in range(args.chains)]
+    elif args.start_model != "random":
         model = tuple(int(x) for x in args.start_model.split(","))
         start = [{"model": model} for _ in range(args.chains)]
     summary = fit(obs, args.out, truth_labels=labels, truth_params=truth, seed=args.seed, n_chains=args.chains,
                   iterations=args.iterations, burn_in=args.burn_in, max_u=args.max_u, max_v=args.max_v,
-                  start=start, progress=True)
+                  start=start, progress=True, processes=args.processes)
     print(json.dumps({k: summary.get(k) for k in ("map_model", "model_posterior", "four_region_probability",
                                                   "exact_truth_probability", "label_accuracy", "rhat_max",
                                                   "ess_bulk_min", "ess_tail_min", "seconds", "chain_seconds")},
