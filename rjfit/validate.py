@@ -173,7 +173,7 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     out_dir.mkdir(parents=True, exist_ok=True)
     mi_module = activate(variant)
     if meta.get("meshes"):
-        materials = materials if materials is not None else meta["materials"]
+        materials = materials if materials is not None else meta.get("materials", PROBE_MATERIALS[:1])
         part_materials = [entry["material"] for entry in meta["meshes"]]
 
         def make_scene(scene_lights, depth, value_format="rgb"):

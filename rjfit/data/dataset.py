@@ -207,6 +207,10 @@ def load_dataset(path, **options) -> Dataset:
     description_path = path / "dataset.json"
     if not description_path.is_file():
         from rjfit.data.diligent import is_diligent_folder, load_diligent
+        from rjfit.data.mesh_stack import is_mesh_stack_folder, load_mesh_stack
+
+        if is_mesh_stack_folder(path):
+            return load_mesh_stack(path, **options)
 
         if is_diligent_folder(path):
             return load_diligent(path, **options)
