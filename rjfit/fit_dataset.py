@@ -60,8 +60,10 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
         address = None if scheduler in (None, "local") else scheduler
         chain_runner = functools.partial(dask_map, run_chain, scheduler=address, n_workers=n_workers, client=client,
                                          key_prefix="rjfit-chain")
-    summary = fit(dataset.observations(channel), out_dir, truth_labels=dataset.truth_labels,
+    observations = dataset.observations(channel)
+    summary = fit(observations, out_dir, truth_labels=dataset.truth_labels,
                   truth_params=dataset.truth_params, burn_in=burn_in, chain_runner=chain_runner, **fit_options)
+    summary["maps"] = write_parameter_maps(observations, summary, Path(out_dir))
     summary["dataset"] = str(dataset_dir.resolve())
     summary["channel"] = channel
     summary["validation"] = ({key: validation.get(key) for key in ("passed", "median_rel_err", "p99_rel_err",
@@ -69,6 +71,37 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
                              if validation else {"passed": None, "note": "fitted without validation (overridden)"})
     write_json_atomic(Path(out_dir) / "summary.json", summary)
     return summary
+
+
+def write_parameter_maps(observations, summary, out_dir: Path) -> str:
+    """Per-pixel maps of the MAP segmentation as one EXR: each region's posterior mean and sd
+    of I0, kd, gamma, sigma^2, the label, the valid-images count (paper, Fig. 8) and the RMS
+    over lights of the standardised residual ``(y - mu) / sigma`` at the posterior means."""
+    import numpy as np
+
+    from rjfit.data.exr import read_exr, write_exr
+    from rjfit.model.blinn import radiance
+
+    labels = np.rint(np.nan_to_num(read_exr(out_dir / "labels.exr")["labels"], nan=-1)).astype(int)
+    names = ("I0", "kd", "gamma", "sigma2")
+    table = np.full((max(len(summary["regions"]), int(labels.max()) + 1) + 1, 8), np.nan)
+    for index, region in enumerate(summary["regions"]):
+        row = int(region.get("region", index))
+        table[row] = [region[name][stat] for name in names for stat in ("mean", "sd")]
+    region_of_pixel = np.where(labels >= 0, labels, table.shape[0] - 1)      # last row stays NaN
+    channels = {f"{name}{suffix}": table[region_of_pixel, 2 * k + j]
+                for k, name in enumerate(names) for j, suffix in enumerate(("", "_sd"))}
+    obs_params = table[region_of_pixel.ravel()[observations.pixel]]
+    mu = radiance(obs_params[:, 0], obs_params[:, 2], obs_params[:, 4], observations.cos_ln, observations.cos_hn,
+                  observations.irradiance)
+    standardised = (observations.y - mu) / np.sqrt(obs_params[:, 6])
+    size = labels.size
+    count = np.bincount(observations.pixel, minlength=size)
+    sum_squares = np.bincount(observations.pixel, weights=np.nan_to_num(standardised) ** 2, minlength=size)
+    rms = np.where(count > 0, np.sqrt(sum_squares / np.maximum(count, 1)), np.nan)
+    channels.update(label=labels, valid_images=count.reshape(labels.shape), residual_rms=rms.reshape(labels.shape))
+    write_exr(out_dir / "maps.exr", channels)
+    return "maps.exr"
 
 
 def _fit_one(arguments):

@@ -58,5 +58,5 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     summary = json.loads((tmp_path / "run" / "fit" / "summary.json").read_text())
     assert summary["validation"]["passed"] is True
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
-                     "fit/labels.exr", "dataset/validation/validation.json"):
+                     "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):
         assert (tmp_path / "run" / produced).is_file(), produced
