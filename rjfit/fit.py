@@ -25,35 +25,21 @@ pixel; pixels at the silhouette with few valid lights make it small even for a g
 """
 from __future__ import annotations
 
-import json
 import os
 import time
 from pathlib import Path
 
 import numpy as np
 
+from rjfit.data.dataset import write_json_atomic
 from rjfit.posterior import summary as post
 from rjfit.sampler.changepoints import model_number
 from rjfit.sampler.likelihood import Problem
 from rjfit.sampler.priors import PRESETS, make_prior
-from rjfit.sampler.runner import ChainSpec, atomic_write_bytes, run_chains
+from rjfit.sampler.runner import ChainSpec, run_chains
 from rjfit.sampler.state import SamplerConfig
 
-__all__ = ["fit", "write_json_atomic"]
-
-
-def write_json_atomic(path, payload) -> None:
-    atomic_write_bytes(str(path), (json.dumps(payload, indent=2, default=_json_default) + "\n").encode())
-
-
-def _json_default(value):
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value)}")
+__all__ = ["fit"]
 
 
 def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: int = 0, n_chains: int = 4,
