@@ -29,8 +29,9 @@ import numpy as np
 
 from rjfit.data.dataset import write_json_atomic
 from rjfit.data.exr import write_exr
-from rjfit.data.lights import Light, geometry_terms
+from rjfit.data.lights import geometry_terms
 from rjfit.model.blinn import radiance
+from rjfit.plotting import map_figure
 
 __all__ = ["closed_form_radiance", "validate_dataset", "require_validated", "dataset_fingerprint",
            "MEDIAN_TOLERANCE", "P99_TOLERANCE", "ValidationRequiredError"]
@@ -107,24 +108,6 @@ def _material_maps(material_index_map, materials):
         table = np.array([float(m[key]) for m in materials] + [0.0])
         maps[key] = table[material_index_map]          # index -1 picks the trailing 0
     return maps
-
-
-def _save_png(path, image, title, cmap="magma", vmin=None, vmax=None):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figure, axis = plt.subplots(figsize=(4.6, 4))
-    shown = axis.imshow(image, cmap=cmap, vmin=vmin, vmax=vmax)
-    axis.set_title(title, fontsize=9)
-    axis.axis("off")
-    figure.colorbar(shown, ax=axis, fraction=0.046)
-    figure.tight_layout()
-    temporary = Path(path).with_name(f".{Path(path).name}.tmp.png")
-    figure.savefig(temporary, dpi=110)
-    plt.close(figure)
-    temporary.replace(path)
 
 
 def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_radiance, materials=None,
@@ -259,10 +242,10 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     write_exr(out_dir / "validation_maps.exr", {
         "max_rel_err": max_rel_map, "unexplained_fraction": unexplained_map,
         **{f"rel_err_{i:03d}": np.where(compared[i], rel_err[i], 0) for i in range(len(lights))}})
-    _save_png(out_dir / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
+    map_figure(out_dir / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
               f"log10 max relative error over lights\nmedian {result['median_rel_err']:.2e}, "
-              f"p99 {result['p99_rel_err']:.2e}", vmin=-9, vmax=0)
-    _save_png(out_dir / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
+              f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0)
+    map_figure(out_dir / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
               f"radiance the closed form does not explain\n(total {result['unexplained_fraction']:.2%})",
               cmap="viridis")
     write_json_atomic(out_dir / "validation.json", result)

@@ -1,30 +1,22 @@
 """Figures and the Markdown report of a diagnosis."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
+
+from rjfit.plotting import map_figure as _map_figure
+from rjfit.plotting import pyplot
+from rjfit.plotting import save_figure as _save_figure
 
 __all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure", "markdown"]
 
 
 def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot()
 
 
 def save_figure(figure, path):
-    plt = _plt()
-    path = Path(path)
-    temporary = path.with_name(f".{path.name}.tmp.png")
-    figure.savefig(temporary, dpi=100)
-    plt.close(figure)
-    temporary.replace(path)
-    return path.name
+    return _save_figure(figure, path).name
 
 
 def residual_pair_figure(path, before, after, title_before, title_after, label="mean standardised residual"):
@@ -77,14 +69,7 @@ def posterior_figure(path, panels):
 
 
 def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None):
-    plt = _plt()
-    figure, axis = plt.subplots(figsize=(4.4, 3.8))
-    shown = axis.imshow(image, cmap=cmap, vmin=vmin, vmax=vmax)
-    axis.set_title(title, fontsize=9)
-    axis.axis("off")
-    figure.colorbar(shown, ax=axis, fraction=0.046)
-    figure.tight_layout()
-    return save_figure(figure, path)
+    return _map_figure(path, image, title, cmap=cmap, vmin=vmin, vmax=vmax).name
 
 
 def signature_figure(path, residual, panels, title):

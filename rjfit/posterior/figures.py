@@ -8,34 +8,23 @@
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from rjfit.model.blinn import radiance
+from rjfit.plotting import pyplot, save_figure
 from rjfit.sampler.priors import PARAM_NAMES
 
 __all__ = ["write_all", "model_histogram", "traces", "changepoints", "reflectance"]
 
 
 def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot()
 
 
 def _save(fig, path):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    os.replace(tmp, path)
-    _plt().close(fig)
-    return str(path)
+    return str(save_figure(fig, path, dpi=110, tight=True))
 
 
 def model_histogram(records, burn_in, max_v, path):
