@@ -59,8 +59,9 @@ def main(argv=None):
     summary = fit(obs, args.out, truth_labels=labels, truth_params=truth, seed=args.seed, n_chains=args.chains,
                   iterations=args.iterations, burn_in=args.burn_in, max_u=args.max_u, max_v=args.max_v,
                   start=start, progress=True, processes=args.processes)
-    print(json.dumps({k: summary.get(k) for k in ("map_model", "model_posterior", "four_region_probability",
-                                                  "exact_truth_probability", "label_accuracy", "rhat_max",
+    print(json.dumps({k: summary.get(k) for k in ("map_model", "model_posterior", "true_regions_probability",
+                                                  "chain_true_regions_probability", "chain_model_posterior",
+                                                  "four_region_probability", "exact_truth_probability", "label_accuracy", "rhat_max",
                                                   "ess_bulk_min", "ess_tail_min", "seconds", "chain_seconds")},
                      indent=1))
     matching = summary.get("label_matching", {})

@@ -5,7 +5,8 @@ posterior invariant, so their composition does too:
 
 1. within-model moves for every region (``config.sampler``);
 2. sweeps of u change-point elements (one element per row; even rows, then odd rows) and
-   likewise of v elements; with probability ``config.block_prob`` a block shift;
+   likewise of v elements; with probability ``config.block_prob`` a block shift; with
+   probability ``config.vector_prob`` a redraw of one whole vector;
 3. with probability ``config.jump_prob``, one birth or death of a change-point vector.
 
 During the first ``config.burn_in`` iterations the gamma random-walk width adapts
@@ -19,7 +20,8 @@ import numpy as np
 from rjfit.sampler.changepoints import n_regions, obs_region_labels
 from rjfit.sampler.likelihood import Problem, log_likelihood_from_stats, region_stats
 from rjfit.sampler.moves import (Work, birth_probability, log_posterior, propose_birth, propose_block_shift,
-                                 propose_death, sweep_changepoints, update_region_adaptive, update_region_paper)
+                                 propose_death, propose_vector_redraw, sweep_changepoints, update_region_adaptive,
+                                 update_region_paper)
 from rjfit.sampler.state import ChainState, SamplerConfig, StepInfo
 
 __all__ = ["make_state", "refresh", "step", "initial_state", "log_posterior_of"]
@@ -143,6 +145,19 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
             info.count(f"block_{axis}", accept)
             if accept:
                 work = Work(u=u, v=v, theta=theta.copy(), stats=stats.copy(), log_lik=np.array(log_lik, float),
+                            labels=labels, labels_owned=True)
+
+    # 2c. redraw of one whole vector from (an approximation of) its conditional
+    if config.update_changepoints and config.vector_prob > 0 and rng.random() < config.vector_prob:
+        axis = "u" if rng.random() < 0.5 else "v"
+        if (work.u if axis == "u" else work.v).shape[1] > 0:
+            cps, labels, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, axis)
+            accept = labels is not None and np.log(rng.random()) < log_ratio
+            info.count(f"vector_{axis}", accept)
+            if accept:
+                stats = region_stats(problem, labels, work.theta[:, 2], work.theta.shape[0])
+                u, v = (cps, work.v) if axis == "u" else (work.u, cps)
+                work = Work(u=u, v=v, theta=work.theta, stats=stats, log_lik=log_likelihood_from_stats(stats, work.theta),
                             labels=labels, labels_owned=True)
 
     # 3. birth / death of one change-point vector

@@ -22,7 +22,7 @@ from rjfit.sampler.likelihood import (LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA
                                       log_likelihood_from_stats, region_stats)
 from rjfit.sampler.priors import from_phi, to_phi
 
-__all__ = ["Work", "update_region_adaptive", "update_region_paper", "sweep_changepoints",
+__all__ = ["Work", "update_region_adaptive", "update_region_paper", "sweep_changepoints", "propose_vector_redraw",
            "split_phi", "merge_phi", "propose_birth", "propose_death", "log_posterior"]
 
 
@@ -876,3 +876,208 @@ def propose_block_shift(work, rng, problem, prior, config, axis: str):
                  - log_prior_cp_state(work.u, work.v, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
                  + theta_term)
     return u_new, v_new, theta_new, labels, stats, log_lik, float(log_ratio)
+
+
+# ----------------------------------------------------------------------------- whole-vector redraw
+
+def _vector_cells(lower, upper, size):
+    """Width (L, size + 1) of each likelihood cell of an element inside its gap (lower, upper).
+
+    An element ``x`` is left of the pixel with along-line index ``t`` when ``x < t + 0.5``, so
+    the likelihood depends on x only through its cell ``j``: [j - 0.5, j + 0.5), widened to
+    [-1, 0.5) for j = 0 and [size - 0.5, size + 1] for j = size.
+    """
+    j = np.arange(size + 1, dtype=float)
+    cell_lo = np.maximum(j - 0.5, -1.0)
+    cell_lo[0] = -1.0
+    cell_hi = j + 0.5
+    cell_hi[-1] = size + 1.0
+    lo = np.maximum(cell_lo[None, :], lower[:, None])
+    hi = np.minimum(cell_hi[None, :], upper[:, None])
+    return np.maximum(hi - lo, 0.0), lo
+
+
+def _cell_of(x, size):
+    return np.clip(np.floor(np.asarray(x) + 0.5).astype(np.int64), 0, size)
+
+
+def _forward_filter(log_emit, log_kernel):
+    """Forward pass of the chain of cells along the lines: normalised log alphas (L, S + 1), or None.
+
+    ``log_kernel`` (2 S + 1,) holds the log weights of cell steps -S..S between neighbouring
+    lines, or is None for independent lines. The sums run in linear space as an FFT
+    convolution; round-off there only perturbs the proposal, whose density the move
+    computes from the same alphas both ways, so it stays exact.
+    """
+    from scipy.signal import fftconvolve
+
+    n_cells = log_emit.shape[1]
+    kernel = None if log_kernel is None else np.exp(log_kernel)
+    alpha = np.empty_like(log_emit)
+    previous = None
+    for r in range(log_emit.shape[0]):
+        a = log_emit[r].copy()
+        if previous is not None and kernel is not None:
+            reach = fftconvolve(previous, kernel)[n_cells - 1: 2 * n_cells - 1]
+            a += np.log(np.maximum(reach, 1e-300))
+        top = np.max(a)
+        if not np.isfinite(top):
+            return None
+        linear = np.exp(a - top)
+        total = linear.sum()
+        alpha[r] = a - top - np.log(total)
+        previous = linear / total
+    return alpha
+
+
+def _backward_logits(alpha, r, cell_next, log_kernel):
+    """Log weights of line r's cells given line r + 1's cell."""
+    if log_kernel is None:
+        return alpha[r]
+    n_cells = alpha.shape[1]
+    return alpha[r] + log_kernel[n_cells - 1 - cell_next: 2 * n_cells - 1 - cell_next]
+
+
+def _path_log_prob(alpha, cells, log_kernel):
+    """Log probability that backward sampling from ``alpha`` draws the cell path ``cells``."""
+    total = float(alpha[-1, cells[-1]])            # alpha rows are normalised
+    for r in range(alpha.shape[0] - 2, -1, -1):
+        logits = _backward_logits(alpha, r, cells[r + 1], log_kernel)
+        if not np.isfinite(logits[cells[r]]):
+            return -np.inf
+        top = np.max(logits)
+        total += float(logits[cells[r]] - top - np.log(np.sum(np.exp(logits - top))))
+    return total
+
+
+def _draw_index(logits, rng):
+    weights = np.cumsum(np.exp(logits - np.max(logits)))
+    return min(int(np.searchsorted(weights, rng.random() * weights[-1], side="right")), logits.size - 1)
+
+
+def _backward_sample(alpha, log_kernel, rng):
+    cells = np.empty(alpha.shape[0], np.int64)
+    cells[-1] = _draw_index(alpha[-1], rng)
+    for r in range(alpha.shape[0] - 2, -1, -1):
+        cells[r] = _draw_index(_backward_logits(alpha, r, cells[r + 1], log_kernel), rng)
+    return cells
+
+
+def _within_cell_log_density(x, x_next, lo, hi, sd):
+    """Log density of positions x (L,) inside their cells [lo, hi) of the backward draw.
+
+    Line L - 1 is uniform in its cell; line r < L - 1 follows the prior's step, a normal
+    around the next line's position x_next truncated to the cell (uniform where the cell
+    holds less than 1e-12 of that normal's mass, or without a step model, ``sd`` None).
+    """
+    out = -np.log(hi - lo)
+    if sd is None:
+        return out
+    a, b = (lo[:-1] - x_next) / sd, (hi[:-1] - x_next) / sd
+    mass = _normal_mass(a, b)
+    normal = mass > 1e-12
+    with np.errstate(divide="ignore"):
+        log_trunc = -0.5 * ((x[:-1] - x_next) / sd) ** 2 - math.log(sd) - 0.5 * LOG_2PI - np.log(mass)
+    out[:-1] = np.where(normal, log_trunc, out[:-1])
+    return out
+
+
+def _normal_mass(a, b):
+    """P(a < Z < b) for a standard normal, accurate in both tails."""
+    from scipy.special import ndtr
+
+    upper = a > 0                       # both in the upper tail: use the mirrored lower tail
+    return np.where(upper, ndtr(-a) - ndtr(-b), ndtr(b) - ndtr(a))
+
+
+def _draw_within_cells(lo, hi, sd, rng):
+    """Positions inside the cells [lo, hi), drawn from line L - 1 backwards (see :func:`_within_cell_log_density`)."""
+    from scipy.special import ndtr, ndtri
+
+    n_lines = lo.size
+    x = np.empty(n_lines)
+    x[-1] = lo[-1] + (hi[-1] - lo[-1]) * rng.random()
+    for r in range(n_lines - 2, -1, -1):
+        u = rng.random()
+        if sd is not None:
+            a, b = (lo[r] - x[r + 1]) / sd, (hi[r] - x[r + 1]) / sd
+            if float(_normal_mass(np.array(a), np.array(b))) > 1e-12:
+                if a > 0:        # mirrored, so the inverse CDF works away from 1
+                    z = -ndtri(ndtr(-a) - u * (ndtr(-a) - ndtr(-b)))
+                else:
+                    z = ndtri(ndtr(a) + u * (ndtr(b) - ndtr(a)))
+                x[r] = min(max(x[r + 1] + sd * z, lo[r]), np.nextafter(hi[r], lo[r]))
+                continue
+        x[r] = lo[r] + (hi[r] - lo[r]) * u
+    return x
+
+
+def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
+    """Redraw every element of one change-point vector at once (forward filtering, backward sampling).
+
+    Given the parameters and the other vectors, the likelihood of vector k depends on each
+    element only through its cell (see :func:`_vector_cells`), and the 'smooth' prior
+    couples neighbouring lines by a Gaussian step, so the conditional of the cell path is
+    close to a hidden Markov chain along the lines. The proposal draws the path from that
+    chain (steps between cells weighted by N(0, s^2 + 1/12)), then the positions inside
+    the cells and gaps, each line's from the prior's step around the next line's position
+    (:func:`_draw_within_cells`), so every element keeps its rank. It is an independence
+    proposal from an approximation of the exact conditional; the acceptance ratio uses the
+    exact continuous prior and the proposal's density of both the new and the current
+    vector, so the move is exact (for the 'paper' prior the chain is exact and every
+    proposal is accepted). One move can carry a whole vector across the image: what
+    element-wise steps and block shifts cannot do when two vectors compensate each other's
+    errors.
+
+    Returns ``(cps, labels, log_ratio)``; ``labels`` is None for an invalid proposal.
+    """
+    height, width = problem.image_shape
+    cps = work.u if axis == "u" else work.v
+    n_lines, n = cps.shape
+    size = width if axis == "u" else height
+    line, along = (problem.row, problem.col) if axis == "u" else (problem.col, problem.row)
+    k = int(rng.integers(n))
+    lower, upper = _gaps(np.delete(cps, k, axis=1), k, size)
+    step_label = (work.v.shape[1] + 1) if axis == "u" else 1
+    x_old = cps[:, k]
+    base = work.labels - step_label * (x_old[line] < along + 0.5)
+    # per-pixel log-likelihood with the element right of the pixel (base) or left of it (base + step)
+    key = line * size + along
+    per_pixel = []
+    for labels_case in (base, base + step_label):
+        _, ll = _per_obs_terms(problem, np.arange(problem.n_obs), work.theta[labels_case])
+        per_pixel.append(np.bincount(key, weights=ll, minlength=n_lines * size).reshape(n_lines, size))
+    zero = np.zeros((n_lines, 1))
+    right_of = np.concatenate([zero, np.cumsum(per_pixel[0], axis=1)], axis=1)    # pixels t < j: element right
+    left_of = np.concatenate([zero, np.cumsum(per_pixel[1], axis=1)], axis=1)
+    log_lik_cell = right_of + (left_of[:, -1:] - left_of)                           # (L, S + 1)
+    widths, cell_lo = _vector_cells(lower, upper, size)
+    with np.errstate(divide="ignore"):
+        log_emit = log_lik_cell + np.log(widths)
+    log_kernel, sd = None, None
+    if config.cp_prior == "smooth":
+        sd = config.cp_smooth_sd
+        offsets = np.arange(-size, size + 1)
+        log_kernel = -0.5 * offsets ** 2 / (sd ** 2 + 1.0 / 12.0)
+    alpha = _forward_filter(log_emit, log_kernel)
+    if alpha is None:
+        return cps, None, -np.inf
+    rows = np.arange(n_lines)
+    cells_new = _backward_sample(alpha, log_kernel, rng)
+    lo_new, hi_new = cell_lo[rows, cells_new], cell_lo[rows, cells_new] + widths[rows, cells_new]
+    x_new = _draw_within_cells(lo_new, hi_new, sd, rng)
+    cells_old = _cell_of(x_old, size)
+    lo_old, hi_old = cell_lo[rows, cells_old], cell_lo[rows, cells_old] + widths[rows, cells_old]
+    log_q_new = _path_log_prob(alpha, cells_new, log_kernel) + float(np.sum(
+        _within_cell_log_density(x_new, x_new[1:], lo_new, hi_new, sd)))
+    log_q_old = _path_log_prob(alpha, cells_old, log_kernel) + float(np.sum(
+        _within_cell_log_density(x_old, x_old[1:], lo_old, hi_old, sd)))
+    new_cps = cps.copy()
+    new_cps[:, k] = x_new
+    u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
+    log_ratio = (float(np.sum(log_lik_cell[rows, cells_new]) - np.sum(log_lik_cell[rows, cells_old]))
+                 + log_prior_cp_state(u_new, v_new, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
+                 - log_prior_cp_state(work.u, work.v, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
+                 + log_q_old - log_q_new)
+    labels = base + step_label * (x_new[line] < along + 0.5)
+    return new_cps, labels, float(log_ratio)

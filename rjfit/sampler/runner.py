@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from multiprocessing import get_context
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from rjfit.sampler.changepoints import n_regions
 from rjfit.sampler.kernel import initial_state, step
@@ -28,7 +29,8 @@ from rjfit.sampler.state import ChainState, SamplerConfig
 
 __all__ = ["ChainSpec", "ChainRecord", "run_chain", "run_chains", "chain_rngs", "atomic_write_bytes"]
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
+TRUE_REGIONS_AGREEMENT = 0.99
 
 
 @dataclass
@@ -61,6 +63,7 @@ class ChainRecord:
     log_lik: np.ndarray             # (T,)
     log_post: np.ndarray            # (T,)
     exact_truth: np.ndarray         # (T,) int8: 1 if object pixels fall into exactly the true regions, -1 unknown
+    true_regions: np.ndarray        # (T,) int8: 1 if one region per true region, agreeing on >= 99 % of pixels; -1 unknown
     object_regions: np.ndarray      # (T,) int16: number of regions holding object pixels (with observations)
     cp_iteration: np.ndarray        # (S,) iteration of each change-point snapshot
     cp_u: np.ndarray                # (S, H, max_u), NaN padded
@@ -73,8 +76,8 @@ class ChainRecord:
     def truncated(self, t: int) -> "ChainRecord":
         keep = self.cp_iteration < t
         return ChainRecord(self.n_u[:t], self.n_v[:t], self.theta[:t], self.log_lik[:t], self.log_post[:t],
-                           self.exact_truth[:t], self.object_regions[:t], self.cp_iteration[keep], self.cp_u[keep], self.cp_v[keep],
-                           dict(self.accepted), dict(self.proposed), self.seconds, min(t, self.iterations_done))
+                           self.exact_truth[:t], self.true_regions[:t], self.object_regions[:t], self.cp_iteration[keep],
+                           self.cp_u[keep], self.cp_v[keep], dict(self.accepted), dict(self.proposed), self.seconds, min(t, self.iterations_done))
 
 
 def chain_rngs(seed: int, n_chains: int):
@@ -109,6 +112,7 @@ class _Recorder:
         self.log_lik = np.zeros(T)
         self.log_post = np.zeros(T)
         self.exact_truth = np.full(T, -1, np.int8)
+        self.true_regions = np.full(T, -1, np.int8)
         self.object_regions = np.zeros(T, np.int16)
         n_snap = (T + spec.cp_thin - 1) // spec.cp_thin
         self.cp_iteration = np.arange(0, T, spec.cp_thin)[:n_snap]
@@ -133,32 +137,48 @@ class _Recorder:
         self.truth_of_first = truth[pixels]
         self.n_truth = int(self.truth_of_first.max()) + 1 if pixels.size else 0
 
-    def exact(self, labels) -> tuple[int, int]:
-        """(exact-truth flag or -1, number of regions holding observed object pixels), memoised per labelling."""
+    def exact(self, labels) -> tuple[int, int, int]:
+        """(exact-truth flag, true-regions flag, number of regions holding observed object pixels).
+
+        The flags are -1 without truth labels. Exact: the partition of the observed object
+        pixels equals the true one. True regions: one region per true region, and the
+        optimal one-to-one matching agrees on at least ``TRUE_REGIONS_AGREEMENT`` of the
+        observed object pixels (pixels whose few valid observations cannot tell the
+        regions apart, at grazing angles, are then not required to be decided). Memoised
+        per labelling.
+        """
         if self._exact_memo[0] is labels:
             return self._exact_memo[1]
         n_object = int(np.count_nonzero(np.bincount(labels[self.pixel_first_obs])))
-        flag = -1
+        exact, true_regions = -1, -1
         if self.first_obs is not None:
             lab = labels[self.first_obs]
-            pairs = np.unique(lab * max(self.n_truth, 1) + self.truth_of_first)
-            flag = int(len(pairs) == len(np.unique(lab)) == len(np.unique(self.truth_of_first)))
-        self._exact_memo = (labels, (flag, n_object))
-        return flag, n_object
+            n_lab = int(lab.max()) + 1
+            confusion = np.bincount(lab * max(self.n_truth, 1) + self.truth_of_first,
+                                    minlength=n_lab * max(self.n_truth, 1)).reshape(n_lab, -1)
+            held = confusion[confusion.sum(axis=1) > 0]
+            exact = int(held.shape[0] == self.n_truth and np.all(np.count_nonzero(held, axis=1) == 1)
+                        and np.all(np.count_nonzero(held, axis=0) == 1))
+            true_regions = 0
+            if held.shape[0] == self.n_truth:
+                rows, cols = linear_sum_assignment(-held)
+                true_regions = int(held[rows, cols].sum() >= TRUE_REGIONS_AGREEMENT * lab.size)
+        self._exact_memo = (labels, (exact, true_regions, n_object))
+        return exact, true_regions, n_object
 
     def record(self, t: int, state: ChainState, log_post: float):
         self.n_u[t], self.n_v[t] = state.n_u, state.n_v
         self.theta[t, :state.n_regions] = state.theta
         self.log_lik[t] = state.total_log_lik
         self.log_post[t] = log_post
-        self.exact_truth[t], self.object_regions[t] = self.exact(state.labels)
+        self.exact_truth[t], self.true_regions[t], self.object_regions[t] = self.exact(state.labels)
         if t % self.cp_thin == 0:
             s = t // self.cp_thin
             self.cp_u[s, :, :state.n_u] = state.u
             self.cp_v[s, :, :state.n_v] = state.v
 
     def result(self, done: int) -> ChainRecord:
-        rec = ChainRecord(self.n_u, self.n_v, self.theta, self.log_lik, self.log_post, self.exact_truth,
+        rec = ChainRecord(self.n_u, self.n_v, self.theta, self.log_lik, self.log_post, self.exact_truth, self.true_regions,
                           self.object_regions, self.cp_iteration, self.cp_u, self.cp_v, self.accepted, self.proposed, self.seconds, done)
         return rec.truncated(done)
 

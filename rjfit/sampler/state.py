@@ -140,6 +140,10 @@ class SamplerConfig:
         Probability per iteration of a block shift (a run of up to ``block_max`` elements of
         one vector moved by a common N(0, block_shift_sd^2) pixels, with the changed regions'
         parameters redrawn; see :func:`rjfit.sampler.moves.propose_block_shift`).
+    vector_prob : float
+        Probability per iteration of redrawing one whole change-point vector from an
+        approximation of its conditional (forward filtering, backward sampling along the
+        lines; :func:`rjfit.sampler.moves.propose_vector_redraw`).
     refresh_every : int
         Recompute the cached statistics from scratch every so many iterations (bounds
         floating-point drift of the incremental updates).
@@ -174,6 +178,7 @@ class SamplerConfig:
     block_max: int = 128
     block_shift_sd: float = 20.0
     full_recompute: bool = False
+    vector_prob: float = 0.3
 
     def __post_init__(self):
         if self.sampler not in ("adaptive", "paper"):
@@ -184,6 +189,8 @@ class SamplerConfig:
             raise ValueError(f"split_map must be 'conditional', 'mean' or 'paper', got {self.split_map!r}")
         if self.max_u < 0 or self.max_v < 0:
             raise ValueError(f"max_u and max_v must be >= 0, got {self.max_u}, {self.max_v}")
+        if not 0.0 <= self.vector_prob <= 1.0:
+            raise ValueError(f"vector_prob must lie in [0, 1], got {self.vector_prob}")
         if not 0.0 <= self.jump_prob <= 1.0:
             raise ValueError(f"jump_prob must lie in [0, 1], got {self.jump_prob}")
         if self.split_scale <= 0 or self.cp_step <= 0 or self.cp_neighbour_sd <= 0:
