@@ -140,7 +140,7 @@ class _Recorder:
         n_object = int(np.count_nonzero(np.bincount(labels[self.pixel_first_obs])))
         flag = -1
         if self.first_obs is not None:
-            lab = labels[self.first_obs]
+            lab = labels[self.first_obs].astype(np.int64)    # labels are int8: no overflow below
             pairs = np.unique(lab * max(self.n_truth, 1) + self.truth_of_first)
             flag = int(len(pairs) == len(np.unique(lab)) == len(np.unique(self.truth_of_first)))
         self._exact_memo = (labels, (flag, n_object))
