@@ -96,7 +96,8 @@ class Problem:
             raise ValueError("observations with <l.n> <= 0 are not valid: filter them with valid_observation_mask")
         height, width = obs.image_shape
         n_obs, n_pix = obs.n_obs, height * width
-        obs_dtype, pix_dtype = index_dtype(n_obs), index_dtype(n_pix)
+        # int32 unless an image or stack outgrows it (never int8/int16: offsets are summed)
+        obs_dtype, pix_dtype = (np.int32 if n < np.iinfo(np.int32).max else np.int64 for n in (n_obs, n_pix))
         order = np.argsort(obs.pixel, kind="stable").astype(obs_dtype)
         pixel = np.asarray(obs.pixel)[order].astype(pix_dtype)
         # float32 storage: the inputs (float32 EXR, 16-bit PNG, float32 geometry) carry no more.
@@ -124,13 +125,19 @@ def b_terms(C, log_cos_hn, gamma):
     return B
 
 
-def stat_terms(problem: Problem, idx, gamma_per_obs):
-    """The seven per-observation terms (N, 7), float64, of observations ``idx`` at exponents ``gamma_per_obs``."""
+def _stat_columns(problem: Problem, idx, gamma_per_obs):
+    """The six weighted per-observation terms (Syy .. SBB) of observations ``idx``, float64."""
     y = problem.y[idx].astype(np.float64)
     C = problem.C[idx].astype(np.float64)
-    A = C / np.pi
     B = b_terms(C, problem.log_cos_hn[idx], gamma_per_obs)
-    return np.stack([np.ones_like(y), y * y, y * A, A * A, y * B, A * B, B * B], axis=1)
+    A = np.divide(C, np.pi, out=C)
+    return y * y, y * A, A * A, y * B, A * B, B * B
+
+
+def stat_terms(problem: Problem, idx, gamma_per_obs):
+    """The seven per-observation terms (N, 7), float64, of observations ``idx`` at exponents ``gamma_per_obs``."""
+    columns = _stat_columns(problem, idx, gamma_per_obs)
+    return np.stack([np.ones_like(columns[0]), *columns], axis=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,9 +198,9 @@ def region_stats(problem: Problem, labels, gammas, n_regions: int):
     for start in range(0, problem.n_obs, CHUNK):
         chunk = slice(start, start + CHUNK)
         lab = labels[chunk].astype(np.intp)
-        terms = stat_terms(problem, chunk, gammas[lab])
-        for k in range(7):
-            out[:, k] += np.bincount(lab, weights=terms[:, k], minlength=n_regions)[:n_regions]
+        out[:, STAT_N] += np.bincount(lab, minlength=n_regions)[:n_regions]
+        for k, weights in enumerate(_stat_columns(problem, chunk, gammas[lab]), start=STAT_YY):
+            out[:, k] += np.bincount(lab, weights=weights, minlength=n_regions)[:n_regions]
     return out
 
 
