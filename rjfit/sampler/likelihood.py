@@ -16,6 +16,7 @@ change of g needs the region's observations again (the B sums).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -142,29 +143,31 @@ def stat_terms(problem: Problem, idx, gamma_per_obs):
 
 @dataclass(frozen=True, eq=False)
 class RegionData:
-    """One region's observations, gathered (float32), with their gamma-free float64 sums.
+    """One region's observations, gathered (float32), with float64 sums at any gamma.
 
-    ``fixed`` holds ``(n, Syy, SyA, SAA)``; :meth:`stats_at` adds the three B sums of a
-    gamma, streaming in chunks so every product and sum is float64 without a float64 copy
-    of the region.
+    :meth:`b_sums` streams in chunks so every product and sum is float64 without a float64
+    copy of the region; the gamma-free sums ``(n, Syy, SyA, SAA)`` (:attr:`fixed`) are
+    computed on first use only, since the within-model moves never need them.
     """
 
     idx: np.ndarray
     y: np.ndarray
     C: np.ndarray
     log_cos_hn: np.ndarray
-    fixed: np.ndarray
 
     @classmethod
     def gather(cls, problem: Problem, idx) -> "RegionData":
-        y, C, log_cos_hn = problem.y[idx], problem.C[idx], problem.log_cos_hn[idx]
+        return cls(idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx])
+
+    @cached_property
+    def fixed(self) -> np.ndarray:
+        """``(n, Syy, SyA, SAA)`` in float64."""
         yy = yc = cc = 0.0
-        for start in range(0, y.size, CHUNK):
-            y64 = y[start:start + CHUNK].astype(np.float64)
-            c64 = C[start:start + CHUNK].astype(np.float64)
+        for start in range(0, self.y.size, CHUNK):
+            y64 = self.y[start:start + CHUNK].astype(np.float64)
+            c64 = self.C[start:start + CHUNK].astype(np.float64)
             yy, yc, cc = yy + np.dot(y64, y64), yc + np.dot(y64, c64), cc + np.dot(c64, c64)
-        fixed = np.array([y.size, yy, yc / np.pi, cc / np.pi ** 2])
-        return cls(idx=idx, y=y, C=C, log_cos_hn=log_cos_hn, fixed=fixed)
+        return np.array([self.y.size, yy, yc / np.pi, cc / np.pi ** 2])
 
     @property
     def n(self) -> int:
