@@ -43,7 +43,8 @@ def one_size(size: int, iterations: int, folder: Path) -> dict:
     observations = dataset.observations()
     problem = Problem.from_observations(observations)
     timings["load_s"] = time.perf_counter() - started
-    del dataset
+    n_obs, n_lights = int(observations.n_obs), int(observations.n_lights)
+    del dataset, observations       # the sampler needs only the Problem's compact arrays
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     config = SamplerConfig(max_u=3, max_v=3, burn_in=iterations // 2)
     spec = ChainSpec(problem=problem, prior=prior, config=config, seed=0, chain=0, n_chains=1, iterations=iterations,
@@ -51,7 +52,7 @@ def one_size(size: int, iterations: int, folder: Path) -> dict:
     started = time.perf_counter()
     record = run_chain(spec)
     seconds = time.perf_counter() - started
-    return {"size": size, "valid_observations": int(observations.n_obs), "lights": int(observations.n_lights),
+    return {"size": size, "valid_observations": n_obs, "lights": n_lights,
             "validation_passed": bool(validation["passed"]), "median_rel_err": validation["median_rel_err"],
             "iterations": iterations, "chain_s": seconds, "per_1000_iterations_s": seconds / iterations * 1000,
             "final_model": [int(record.n_u[-1]), int(record.n_v[-1])],

@@ -106,16 +106,19 @@ def reflectance(problem, labels, draws, path, truth_labels=None):
     plt = _plt()
     pooled = np.concatenate([d for d in draws if len(d)], axis=0)
     theta = pooled.mean(axis=0)
-    obs = problem.observations
-    pix_labels = np.asarray(labels).ravel()[obs.pixel]
+    pixel = problem.pixel
+    pix_labels = np.asarray(labels).ravel()[pixel]
     pix_labels = np.clip(pix_labels, 0, theta.shape[0] - 1)
-    mu = radiance(theta[pix_labels, 0], theta[pix_labels, 1], theta[pix_labels, 2], obs.cos_ln, obs.cos_hn, obs.irradiance)
+    # the Problem's compact arrays: C = E <l.n> (irradiance 1), <h.n> = exp(log <h.n>)
+    mu = radiance(theta[pix_labels, 0], theta[pix_labels, 1], theta[pix_labels, 2], problem.C,
+                  np.exp(problem.log_cos_hn.astype(np.float64)), 1.0)
+    y = problem.y.astype(np.float64)
     n_pix = problem.height * problem.width
-    count = np.bincount(obs.pixel, minlength=n_pix).astype(float)
+    count = np.bincount(pixel, minlength=n_pix).astype(float)
     with np.errstate(invalid="ignore", divide="ignore"):
-        fitted = (np.bincount(obs.pixel, weights=mu, minlength=n_pix) / count).reshape(problem.image_shape)
-        observed = (np.bincount(obs.pixel, weights=obs.y, minlength=n_pix) / count).reshape(problem.image_shape)
-        abs_err = (np.bincount(obs.pixel, weights=np.abs(obs.y - mu), minlength=n_pix) / count).reshape(problem.image_shape)
+        fitted = (np.bincount(pixel, weights=mu, minlength=n_pix) / count).reshape(problem.image_shape)
+        observed = (np.bincount(pixel, weights=y, minlength=n_pix) / count).reshape(problem.image_shape)
+        abs_err = (np.bincount(pixel, weights=np.abs(y - mu), minlength=n_pix) / count).reshape(problem.image_shape)
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
     for ax, img, title in zip(axes[:3], (fitted, observed, abs_err),
                               ("fitted radiance (mean over lights)", "observed radiance", "absolute error |y - mu|")):

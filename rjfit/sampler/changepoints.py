@@ -37,6 +37,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammaln
 
+from rjfit.sampler.likelihood import index_dtype
+
 __all__ = ["model_number", "model_from_number", "obs_region_labels", "pixel_region_labels",
            "log_prior_changepoints", "log_prior_cp_state", "smooth_line_terms", "n_regions"]
 
@@ -54,8 +56,25 @@ def model_from_number(m: int, max_v: int) -> tuple[int, int]:
     return divmod(int(m) - 1, int(max_v) + 1)
 
 
+def _counts_before(cps, n_pos, dtype):
+    """(n_lines, n_pos): per line and position p, the number of elements ``x < p + 0.5``.
+
+    ``x < p + 0.5`` for an integer p is ``p >= floor(x - 0.5) + 1`` (the first position
+    past the element), the convention the change-point sweeps use.
+    """
+    n_lines = cps.shape[0]
+    first = np.clip(np.floor(cps - 0.5) + 1, 0, n_pos).astype(np.intp)
+    marks = np.zeros((n_lines, n_pos + 1), dtype)
+    np.add.at(marks, (np.repeat(np.arange(n_lines), cps.shape[1]), first.ravel()), 1)
+    return np.cumsum(marks, axis=1, dtype=dtype)[:, :n_pos]
+
+
 def obs_region_labels(u, v, row, col, n_v=None):
     """Region index of observations at pixels ``(row, col)`` given sorted change points.
+
+    The region of every pixel is found on the (H, W) grid first, then gathered per
+    observation: one pass over the observations, whatever the number of change points.
+    Labels have the smallest integer type that holds the model's regions (int8 up to 127).
 
     Parameters
     ----------
@@ -64,13 +83,12 @@ def obs_region_labels(u, v, row, col, n_v=None):
     row, col : int arrays (N,)
     """
     n_v = v.shape[1] if n_v is None else n_v
-    iu = np.zeros(len(row), dtype=np.int64)
-    for k in range(u.shape[1]):
-        iu += u[row, k] < col + 0.5
-    iv = np.zeros(len(row), dtype=np.int64)
-    for k in range(v.shape[1]):
-        iv += v[col, k] < row + 0.5
-    return iu * (n_v + 1) + iv
+    height, width = u.shape[0], v.shape[0]
+    dtype = index_dtype(n_regions(u.shape[1], n_v) - 1)
+    grid = _counts_before(u, width, dtype)
+    grid *= n_v + 1
+    grid += _counts_before(v, height, dtype).T
+    return grid[row, col]
 
 
 def pixel_region_labels(u, v, image_shape):

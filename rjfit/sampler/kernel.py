@@ -97,7 +97,7 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, model=
             i0_centre = np.exp(prior.params[0].a) if prior.params[0].kind == "lognormal" else 1.0
             theta = np.stack([i0_centre * np.exp(rng.normal(0.0, 0.3, R)), rng.uniform(0.2, 0.8, R),
                               np.exp(rng.uniform(np.log(2.0), np.log(30.0), R)),
-                              np.full(R, 0.1 * np.var(problem.y) + 1e-12)], axis=1)
+                              np.full(R, 0.1 * np.var(problem.y, dtype=np.float64) + 1e-12)], axis=1)
     return make_state(problem, u, v, theta)
 
 

@@ -16,6 +16,7 @@ change of g needs the region's observations again (the B sums).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -23,10 +24,24 @@ from rjfit.data.observations import Observations
 from rjfit.model.blinn import blinn_normalisation, radiance
 
 __all__ = ["Problem", "STAT_N", "region_stats", "stat_terms", "log_likelihood_from_stats",
-           "oracle_log_likelihood", "ab_from_theta", "theta_from_ab"]
+           "oracle_log_likelihood", "ab_from_theta", "theta_from_ab", "b_terms", "index_dtype", "RegionData",
+           "CHUNK"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
 LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+# Observations are processed in chunks of this many: the float64 temporaries of a chunk stay
+# in cache, and memory does not grow with the image (2048 x 2048 x 18 lights is 28M rows).
+CHUNK = 1 << 17
+
+
+def index_dtype(n_max: int):
+    """The smallest signed integer type holding 0..n_max (compact index arrays)."""
+    for dtype in (np.int8, np.int16, np.int32):
+        if n_max <= np.iinfo(dtype).max:
+            return dtype
+    return np.int64
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,24 +51,26 @@ class Problem:
     Built with :meth:`from_observations`. Arrays are flat over observations sorted by flat
     pixel index (row-major), so the observations of a run of pixels in one row are one
     contiguous slice; ``colmajor_order`` gives the same for a run of pixels in one column.
+
+    Storage is compact (about 25 bytes per observation): ``y``, ``C`` = E <l.n> and
+    ``log_cos_hn`` are float32, which loses nothing the data had (images are float32 EXR
+    or 16-bit PNG, geometry float32 EXR); ``A`` = C / pi is not stored but derived where
+    needed; index arrays use the smallest integer type that holds them. Every sum over
+    observations is accumulated in float64 (see :func:`region_stats`): SSR is a difference
+    of sums about 1e5 times larger than itself, so float32 accumulation would lose it.
     """
 
     image_shape: tuple
-    y: np.ndarray
-    A: np.ndarray
-    C: np.ndarray
-    log_cos_hn: np.ndarray
-    yy: np.ndarray
-    yA: np.ndarray
-    AA: np.ndarray
-    row: np.ndarray
+    y: np.ndarray                  # float32
+    C: np.ndarray                  # float32, E <l.n>
+    log_cos_hn: np.ndarray         # float32
+    row: np.ndarray                # int16 (int32 for images over 32767 pixels)
     col: np.ndarray
-    pixel: np.ndarray
+    pixel: np.ndarray              # int32
     pixel_start: np.ndarray        # (H*W + 1,) first observation of each row-major pixel
     colmajor_order: np.ndarray     # observation indices sorted by (col, row)
     colmajor_start: np.ndarray     # (W*H + 1,) offsets into colmajor_order per c*H + r
     object_mask: np.ndarray
-    observations: Observations
 
     @property
     def n_obs(self) -> int:
@@ -67,6 +84,11 @@ class Problem:
     def width(self) -> int:
         return int(self.image_shape[1])
 
+    @property
+    def A(self) -> np.ndarray:
+        """``E <l.n> / pi`` per observation (float64, computed on each call: not stored)."""
+        return np.divide(self.C, np.pi, dtype=np.float64)
+
     @classmethod
     def from_observations(cls, obs: Observations) -> "Problem":
         if obs.n_obs == 0:
@@ -74,43 +96,114 @@ class Problem:
         if np.any(obs.cos_ln <= 0):
             raise ValueError("observations with <l.n> <= 0 are not valid: filter them with valid_observation_mask")
         height, width = obs.image_shape
-        order = np.argsort(obs.pixel, kind="stable")
-        pixel = np.asarray(obs.pixel)[order].astype(np.int64)
-        y = np.asarray(obs.y, float)[order]
-        cos_ln = np.asarray(obs.cos_ln, float)[order]
-        cos_hn = np.asarray(obs.cos_hn, float)[order]
-        irradiance = np.asarray(obs.irradiance, float)[order]
-        C = irradiance * cos_ln
-        A = C / np.pi
+        n_obs, n_pix = obs.n_obs, height * width
+        # int32 unless an image or stack outgrows it (never int8/int16: offsets are summed)
+        obs_dtype, pix_dtype = (np.int32 if n < np.iinfo(np.int32).max else np.int64 for n in (n_obs, n_pix))
+        order = np.argsort(obs.pixel, kind="stable").astype(obs_dtype)
+        pixel = np.asarray(obs.pixel)[order].astype(pix_dtype)
+        # float32 storage: the inputs (float32 EXR, 16-bit PNG, float32 geometry) carry no more.
+        y = np.asarray(obs.y)[order].astype(np.float32)
+        C = (np.asarray(obs.irradiance, float)[order] * np.asarray(obs.cos_ln, float)[order]).astype(np.float32)
         # <h.n> of a valid observation is positive; the floor only keeps log finite.
-        log_cos_hn = np.log(np.clip(cos_hn, 1e-300, None))
-        row, col = pixel // width, pixel % width
-        pixel_start = np.searchsorted(pixel, np.arange(height * width + 1))
-        colmajor_key = col * height + row
-        colmajor_order = np.argsort(colmajor_key, kind="stable")
-        colmajor_start = np.searchsorted(colmajor_key[colmajor_order], np.arange(width * height + 1))
-        return cls(image_shape=(int(height), int(width)), y=y, A=A, C=C, log_cos_hn=log_cos_hn,
-                   yy=y * y, yA=y * A, AA=A * A, row=row, col=col, pixel=pixel, pixel_start=pixel_start,
-                   colmajor_order=colmajor_order, colmajor_start=colmajor_start,
-                   object_mask=np.asarray(obs.object_mask, bool), observations=obs)
+        log_cos_hn = np.log(np.clip(np.asarray(obs.cos_hn, float)[order], 1e-300, None)).astype(np.float32)
+        del order
+        line_dtype = np.int16 if max(height, width) <= np.iinfo(np.int16).max else np.int32
+        row, col = (pixel // width).astype(line_dtype), (pixel % width).astype(line_dtype)
+        pixel_start = np.searchsorted(pixel, np.arange(n_pix + 1)).astype(obs_dtype)
+        colmajor_key = col.astype(pix_dtype) * height + row
+        colmajor_order = np.argsort(colmajor_key, kind="stable").astype(obs_dtype)
+        colmajor_start = np.searchsorted(colmajor_key[colmajor_order], np.arange(n_pix + 1)).astype(obs_dtype)
+        return cls(image_shape=(int(height), int(width)), y=y, C=C, log_cos_hn=log_cos_hn, row=row, col=col,
+                   pixel=pixel, pixel_start=pixel_start, colmajor_order=colmajor_order,
+                   colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool))
+
+
+def b_terms(C, log_cos_hn, gamma):
+    """``B = C <h.n>^gamma`` in float64 from float32 (or float64) inputs."""
+    B = np.multiply(log_cos_hn, gamma, dtype=np.float64)
+    np.exp(B, out=B)
+    B *= C
+    return B
+
+
+def _stat_columns(problem: Problem, idx, gamma_per_obs):
+    """The six weighted per-observation terms (Syy .. SBB) of observations ``idx``, float64."""
+    y = problem.y[idx].astype(np.float64)
+    C = problem.C[idx].astype(np.float64)
+    B = b_terms(C, problem.log_cos_hn[idx], gamma_per_obs)
+    A = np.divide(C, np.pi, out=C)
+    return y * y, y * A, A * A, y * B, A * B, B * B
 
 
 def stat_terms(problem: Problem, idx, gamma_per_obs):
-    """The seven per-observation terms (N, 7) of observations ``idx`` at exponents ``gamma_per_obs``."""
-    B = problem.C[idx] * np.exp(gamma_per_obs * problem.log_cos_hn[idx])
-    y, A = problem.y[idx], problem.A[idx]
-    return np.stack([np.ones_like(y), problem.yy[idx], problem.yA[idx], problem.AA[idx], y * B, A * B, B * B], axis=1)
+    """The seven per-observation terms (N, 7), float64, of observations ``idx`` at exponents ``gamma_per_obs``."""
+    columns = _stat_columns(problem, idx, gamma_per_obs)
+    return np.stack([np.ones_like(columns[0]), *columns], axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class RegionData:
+    """One region's observations, gathered (float32), with float64 sums at any gamma.
+
+    :meth:`b_sums` streams in chunks so every product and sum is float64 without a float64
+    copy of the region; the gamma-free sums ``(n, Syy, SyA, SAA)`` (:attr:`fixed`) are
+    computed on first use only, since the within-model moves never need them.
+    """
+
+    idx: np.ndarray
+    y: np.ndarray
+    C: np.ndarray
+    log_cos_hn: np.ndarray
+
+    @classmethod
+    def gather(cls, problem: Problem, idx) -> "RegionData":
+        return cls(idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx])
+
+    @cached_property
+    def fixed(self) -> np.ndarray:
+        """``(n, Syy, SyA, SAA)`` in float64."""
+        yy = yc = cc = 0.0
+        for start in range(0, self.y.size, CHUNK):
+            y64 = self.y[start:start + CHUNK].astype(np.float64)
+            c64 = self.C[start:start + CHUNK].astype(np.float64)
+            yy, yc, cc = yy + np.dot(y64, y64), yc + np.dot(y64, c64), cc + np.dot(c64, c64)
+        return np.array([self.y.size, yy, yc / np.pi, cc / np.pi ** 2])
+
+    @property
+    def n(self) -> int:
+        return int(self.y.size)
+
+    def b_sums(self, gamma: float) -> np.ndarray:
+        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64)."""
+        yb = cb = bb = 0.0
+        for start in range(0, self.y.size, CHUNK):
+            c64 = self.C[start:start + CHUNK].astype(np.float64)
+            B = b_terms(c64, self.log_cos_hn[start:start + CHUNK], gamma)
+            yb += np.dot(self.y[start:start + CHUNK].astype(np.float64), B)
+            cb += np.dot(c64, B)
+            bb += np.dot(B, B)
+        return np.array([yb, cb / np.pi, bb])
+
+    def stats_at(self, gamma: float) -> np.ndarray:
+        """The seven sufficient statistics at exponent ``gamma``."""
+        return np.concatenate([self.fixed, self.b_sums(gamma)])
 
 
 def region_stats(problem: Problem, labels, gammas, n_regions: int):
-    """Sufficient statistics (R, 7) of every region from scratch (O(N))."""
+    """Sufficient statistics (R, 7) of every region from scratch (O(N), float64 sums).
+
+    Streams over chunks of :data:`CHUNK` observations, each upcast to float64 before any
+    product, so memory beyond the stored arrays stays a few MB.
+    """
     labels = np.asarray(labels)
-    gamma_per_obs = np.asarray(gammas, float)[labels]
-    B = problem.C * np.exp(gamma_per_obs * problem.log_cos_hn)
-    columns = (None, problem.yy, problem.yA, problem.AA, problem.y * B, problem.A * B, B * B)
-    out = np.empty((n_regions, 7))
-    for k, weights in enumerate(columns):
-        out[:, k] = np.bincount(labels, weights=weights, minlength=n_regions)[:n_regions]
+    gammas = np.asarray(gammas, float)
+    out = np.zeros((n_regions, 7))
+    for start in range(0, problem.n_obs, CHUNK):
+        chunk = slice(start, start + CHUNK)
+        lab = labels[chunk].astype(np.intp)
+        out[:, STAT_N] += np.bincount(lab, minlength=n_regions)[:n_regions]
+        for k, weights in enumerate(_stat_columns(problem, chunk, gammas[lab]), start=STAT_YY):
+            out[:, k] += np.bincount(lab, weights=weights, minlength=n_regions)[:n_regions]
     return out
 
 
@@ -143,11 +236,15 @@ def log_likelihood_from_stats(stats, theta):
 
 
 def oracle_log_likelihood(problem: Problem, labels, theta) -> float:
-    """Eq. 1-2 evaluated directly per observation (the plain full recompute)."""
+    """Eq. 1-2 evaluated directly per observation (the plain full recompute), in float64.
+
+    Reads the Problem's own float32 arrays, the same data the sufficient statistics see:
+    ``radiance`` with ``<l.n> E`` as one factor (``C``) and ``<h.n> = exp(log_cos_hn)``.
+    """
     theta = np.asarray(theta, float)[np.asarray(labels)]
-    obs = problem.observations
-    order = np.argsort(obs.pixel, kind="stable")
-    mu = radiance(theta[:, 0], theta[:, 1], theta[:, 2], obs.cos_ln[order], obs.cos_hn[order], obs.irradiance[order])
+    C = problem.C.astype(np.float64)
+    cos_hn = np.exp(problem.log_cos_hn.astype(np.float64))
+    mu = radiance(theta[:, 0], theta[:, 1], theta[:, 2], C, cos_hn, 1.0)
     s2 = theta[:, 3]
-    resid = obs.y[order] - mu
+    resid = problem.y.astype(np.float64) - mu
     return float(np.sum(-0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2))

@@ -18,8 +18,8 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from rjfit.sampler.changepoints import log_prior_cp_state, obs_region_labels, smooth_line_terms
-from rjfit.sampler.likelihood import (LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, ab_from_theta,
-                                      log_likelihood_from_stats, region_stats)
+from rjfit.sampler.likelihood import (LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
+                                      ab_from_theta, b_terms, log_likelihood_from_stats, region_stats)
 from rjfit.sampler.priors import from_phi, to_phi
 
 __all__ = ["Work", "update_region_adaptive", "update_region_paper", "sweep_changepoints", "propose_vector_redraw",
@@ -43,18 +43,17 @@ class Work:
         return self.region_data(r)[0]
 
     def region_data(self, r: int, problem=None):
-        """(indices, y, A, C, log <h.n>) of region r's observations, gathered once per labelling."""
+        """(indices, :class:`RegionData` or None without ``problem``) of region r, gathered once per labelling."""
         if self.region_index is None:
             self.region_index = {}
         data = self.region_index.get(r)
         if data is None:
             idx = np.flatnonzero(self.labels == r)
-            data = (idx, None) if problem is None else (idx, (problem.y[idx], problem.A[idx], problem.C[idx],
-                                                              problem.log_cos_hn[idx]))
+            data = (idx, None) if problem is None else (idx, RegionData.gather(problem, idx))
             self.region_index[r] = data
         elif data[1] is None and problem is not None:
             idx = data[0]
-            data = (idx, (problem.y[idx], problem.A[idx], problem.C[idx], problem.log_cos_hn[idx]))
+            data = (idx, RegionData.gather(problem, idx))
             self.region_index[r] = data
         return data
 
@@ -63,11 +62,8 @@ class Work:
 
 def _b_sums_region(work, problem, r, gamma):
     """(SyB, SAB, SBB) of region r at exponent gamma: the only O(n_r) work of a gamma move."""
-    _, (y, A, C, log_cos) = work.region_data(r, problem)
-    B = np.exp(gamma * log_cos)
-    B *= C
     # np.dot on 1-D arrays; the runner limits BLAS to one thread (threads only add overhead here).
-    return np.array([np.dot(y, B), np.dot(A, B), np.dot(B, B)])
+    return work.region_data(r, problem)[1].b_sums(gamma)
 
 
 def _norm(g: float) -> float:
@@ -259,7 +255,7 @@ def _full_pass_log_lik(work, problem, theta):
     """Total log-likelihood by one pass over every observation (the paper's way)."""
     t = theta[work.labels]
     a, b = ab_from_theta(t)
-    mu = a * problem.A + b * problem.C * np.exp(t[:, 2] * problem.log_cos_hn)
+    mu = a * problem.A + b * b_terms(problem.C, problem.log_cos_hn, t[:, 2])
     resid = problem.y - mu
     return float(np.sum(-0.5 * (LOG_2PI + np.log(t[:, 3])) - 0.5 * resid * resid / t[:, 3]))
 
@@ -306,8 +302,9 @@ def _concat_ranges(starts, ends):
 def _per_obs_terms(problem, idx, theta_obs):
     """mu-related per-observation pieces: B and the Gaussian log density."""
     a, b = ab_from_theta(theta_obs)
-    B = problem.C[idx] * np.exp(theta_obs[:, 2] * problem.log_cos_hn[idx])
-    resid = problem.y[idx] - a * problem.A[idx] - b * B
+    C = problem.C[idx].astype(np.float64)      # float32 storage, float64 arithmetic
+    B = b_terms(C, problem.log_cos_hn[idx], theta_obs[:, 2])
+    resid = problem.y[idx] - (a / math.pi) * C - b * B
     s2 = theta_obs[:, 3]
     return B, -0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2
 
@@ -436,8 +433,8 @@ def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int 
     work.labels[idx_t] = new_t
     work.region_index = None
     R = work.theta.shape[0]
-    y, A = problem.y[idx_t], problem.A[idx_t]
-    common = (None, problem.yy[idx_t], problem.yA[idx_t], problem.AA[idx_t])
+    y, A = problem.y[idx_t].astype(np.float64), problem.C[idx_t].astype(np.float64) / math.pi
+    common = (None, y * y, y * A, A * A)
     for col, weights in enumerate(common):
         work.stats[:, col] += (np.bincount(new_t, weights=weights, minlength=R)
                                - np.bincount(old_t, weights=weights, minlength=R))
@@ -547,14 +544,11 @@ def _draw_vector(rng, lower, upper, size, config):
 # --- region parameters: independent conditional proposals ------------------------------
 
 def _region_arrays(problem, labels, r):
-    idx = np.flatnonzero(labels == r)
-    return problem.y[idx], problem.A[idx], problem.C[idx], problem.log_cos_hn[idx]
+    return RegionData.gather(problem, np.flatnonzero(labels == r))
 
 
 def _stats_at(data, g):
-    y, A, C, L = data
-    B = C * np.exp(g * L)
-    return np.array([y.size, np.dot(y, y), np.dot(y, A), np.dot(A, A), np.dot(y, B), np.dot(A, B), np.dot(B, B)])
+    return data.stats_at(g)
 
 
 def _ssr_min(stats_r):
@@ -586,7 +580,7 @@ def _laplace_log_gamma(data, prior):
     with (a0, b0) the inverse gamma standing in for sigma^2's prior: (a, b) and sigma^2
     integrated out under flat priors for (a, b). A function of the region's data only.
     """
-    n = data[0].size
+    n = data.n
     a0, b0 = _sigma2_prior_as_invgamma(prior)
     g_prior = prior.params[2]
 
@@ -630,7 +624,7 @@ def _prior_in_q_coords(prior, theta, conditional):
 
 def _region_proposal(data, config, prior):
     """What proposes a region's parameters: ('conditional', laplace) or ('prior', None)."""
-    if data[0].size < config.min_obs_conditional:
+    if data.n < config.min_obs_conditional:
         return ("prior", None)
     lap = _laplace_log_gamma(data, prior)
     return ("prior", None) if lap is None else ("conditional", lap)

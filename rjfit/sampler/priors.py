@@ -204,7 +204,7 @@ def make_prior(name: str = "default", *, y=None, diffuse_scale=None) -> Prior:
         if y is not None and diffuse_scale is not None:
             ratio = np.asarray(y, float) / np.maximum(np.asarray(diffuse_scale, float), 1e-12)
             i0_ref = float(np.median(ratio[np.isfinite(ratio) & (ratio > 0)])) if np.any(ratio > 0) else 1.0
-            s2_ref = float(max(1e-3 * np.var(y), 1e-12))
+            s2_ref = float(max(1e-3 * np.var(y, dtype=np.float64), 1e-12))
         else:
             i0_ref, s2_ref = 1.0, 1e-2
         return Prior(params=(ParamPrior("lognormal", np.log(i0_ref), 1.5), ParamPrior("uniform", 0.0, 1.0),

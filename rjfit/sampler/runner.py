@@ -152,7 +152,7 @@ class _Recorder:
         n_object = int(np.count_nonzero(np.bincount(labels[self.pixel_first_obs])))
         exact, true_regions = -1, -1
         if self.first_obs is not None:
-            lab = labels[self.first_obs]
+            lab = labels[self.first_obs].astype(np.int64)    # labels are int8: no overflow below
             n_lab = int(lab.max()) + 1
             confusion = np.bincount(lab * max(self.n_truth, 1) + self.truth_of_first,
                                     minlength=n_lab * max(self.n_truth, 1)).reshape(n_lab, -1)
