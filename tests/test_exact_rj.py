@@ -285,3 +285,72 @@ def test_parameter_marginals_match_quadrature_ks(setup, pixels):
         draws = theta[::thin, k]
         p_value = stats.kstest(draws, cdfs[k]).pvalue
         assert p_value > LEVEL, (k, p_value, len(draws))
+
+
+def exact_posterior_u_only(quad, max_u=2):
+    """Exact posterior over n_u in 0..max_u (no v vectors) and, for n_u = 2, the cell pair of row 0.
+
+    'paper' prior: per row the sorted elements are order statistics of iid U(-1, 3), so a
+    pair of cells a < b has mass 2 I_a I_b and a = b has I_a^2 (I: interval probabilities).
+    """
+    reps = (np.array([-1.0, 1.0, 2.0]), np.array([-0.9, 1.1, 2.1]))
+    joint = {}
+    for n_u in range(max_u + 1):
+        per_row = [()] if n_u == 0 else ([(a,) for a in range(3)] if n_u == 1 else
+                                         [(a, b) for a in range(3) for b in range(a, 3)])
+        for cells in np.ndindex(*(len(per_row),) * (2 if n_u else 0)):
+            rows = [per_row[c] for c in cells] if n_u else [(), ()]
+            u = np.array([[reps[i][a] for i, a in enumerate(row)] for row in rows]).reshape(2, n_u)
+            labels = pixel_region_labels(u, np.zeros((2, 0)), (2, 2)).ravel()
+            log_w = 0.0
+            for row in rows:
+                if len(row) == 1:
+                    log_w += np.log(INTERVALS[row[0]])
+                elif len(row) == 2:
+                    a, b = row
+                    log_w += np.log(INTERVALS[a] ** 2 if a == b else 2 * INTERVALS[a] * INTERVALS[b])
+            log_w += sum(quad.log_evidence(np.flatnonzero(labels == r)) for r in range(n_u + 1))
+            key = (n_u, rows[0] if n_u == 2 else ())
+            joint[key] = np.logaddexp(joint.get(key, -np.inf), log_w)
+    keys = sorted(joint)
+    log_w = np.array([joint[k] for k in keys])
+    return dict(zip(keys, np.exp(log_w - np.logaddexp.reduce(log_w))))
+
+
+@pytest.mark.parametrize("free_jump_prob", [1.0, 0.5])
+def test_free_rank_birth_death_match_exact_posterior(setup, free_jump_prob):
+    """Up to two u vectors, so the free pair's elements really take either rank in each row.
+
+    ``free_jump_prob`` 1: births and deaths only by the free pair; 0.5: mixed with the
+    rank-keeping pair (each pair is reversible on its own).
+    """
+    obs, prior, problem, quad = setup
+    exact = exact_posterior_u_only(quad)
+    config = SamplerConfig(max_u=2, max_v=0, jump_prob=1.0, free_jump_prob=free_jump_prob, cp_step=1.0,
+                           cp_uniform_prob=0.3, burn_in=0, cp_prior="paper")
+    rng = np.random.default_rng(7)
+    state = initial_state(problem, prior, config, rng, model=(0, 0))
+    iterations = 12000
+    n_u = np.zeros(iterations, int)
+    pair = np.full(iterations, -1)
+    pairs = [(a, b) for a in range(3) for b in range(a, 3)]
+    with threadpool_limits(1):
+        for t in range(iterations):
+            state, _ = step(state, rng, problem, prior, config)
+            n_u[t] = state.n_u
+            if state.n_u == 2:
+                cells = tuple(int(np.searchsorted([0.5, 1.5], x, side="right")) for x in state.u[0])
+                pair[t] = pairs.index(cells)
+    burn = iterations // 10
+    n_u, pair = n_u[burn:], pair[burn:]
+    p_model = np.array([sum(p for k, p in exact.items() if k[0] == m) for m in range(3)])
+    p_val_model, freq, n_eff = ess_scaled_chi2([0, 1, 2], n_u, p_model)
+    p_pair = np.array([exact[(2, c)] for c in pairs])
+    p_pair /= p_pair.sum()
+    p_val_pair, freq_pair, _ = ess_scaled_chi2(list(range(len(pairs))), pair[n_u == 2], p_pair)
+    details = {"freq": freq, "exact": p_model, "n_eff": n_eff, "p_model": p_val_model, "freq_pair": freq_pair,
+               "exact_pair": p_pair, "p_pair": p_val_pair}
+    print(details)
+    assert min(p_model) > 0.02, "the exact posterior should spread over the models for the test to bite"
+    assert p_val_model > LEVEL, details
+    assert p_val_pair > LEVEL, details

@@ -7,7 +7,10 @@ posterior invariant, so their composition does too:
 2. sweeps of u change-point elements (one element per row; even rows, then odd rows) and
    likewise of v elements; with probability ``config.block_prob`` a block shift; with
    probability ``config.vector_prob`` a redraw of one whole vector;
-3. with probability ``config.jump_prob``, one birth or death of a change-point vector.
+3. with probability ``config.jump_prob``, one birth or death of a change-point vector: with
+   probability ``config.free_jump_prob`` the pair whose vector may sit at any rank of each
+   line (every region redrawn), otherwise the pair that keeps ranks (the regions the
+   vector cuts redrawn or split).
 
 During the first ``config.burn_in`` iterations the gamma random-walk width adapts
 (Robbins-Monro on its log towards ``config.target_accept``); afterwards it is frozen, so
@@ -19,8 +22,8 @@ import numpy as np
 
 from rjfit.sampler.changepoints import n_regions, obs_region_labels
 from rjfit.sampler.likelihood import Problem, log_likelihood_from_stats, region_stats
-from rjfit.sampler.moves import (Work, birth_probability, log_posterior, propose_birth, propose_block_shift,
-                                 propose_death, propose_vector_redraw, sweep_changepoints, update_region_adaptive,
+from rjfit.sampler.moves import (Work, birth_probability, log_posterior, propose_birth, propose_birth_free,
+                                 propose_block_shift, propose_death, propose_death_free, propose_vector_redraw, sweep_changepoints, update_region_adaptive,
                                  update_region_paper)
 from rjfit.sampler.state import ChainState, SamplerConfig, StepInfo
 
@@ -165,11 +168,13 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
         axis = "u" if rng.random() < 0.5 else "v"
         n, n_max = (work.u.shape[1], config.max_u) if axis == "u" else (work.v.shape[1], config.max_v)
         if n_max > 0:
+            free = rng.random() < config.free_jump_prob
             birth = rng.random() < birth_probability(n, n_max)
-            propose = propose_birth if birth else propose_death
+            propose = ((propose_birth_free if birth else propose_death_free) if free
+                       else (propose_birth if birth else propose_death))
             u, v, theta, labels, stats, log_lik, log_ratio = propose(work, rng, problem, prior, config, axis)
             accept = np.log(rng.random()) < log_ratio
-            kind = f"{'birth' if birth else 'death'}_{axis}"
+            kind = f"{'birth' if birth else 'death'}{'_free' if free else ''}_{axis}"
             info.count(kind, accept)
             info.jump = kind
             if accept:

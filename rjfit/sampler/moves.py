@@ -17,12 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import log_ndtr
 
-from rjfit.sampler.changepoints import log_prior_cp_state, obs_region_labels, smooth_line_terms
-from rjfit.sampler.likelihood import (LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
+from rjfit.sampler.changepoints import log_prior_cp_state, n_regions, obs_region_labels, smooth_line_terms
+from rjfit.sampler.likelihood import (CHUNK, LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
                                       ab_from_theta, b_terms, log_likelihood_from_stats, region_stats)
 from rjfit.sampler.priors import from_phi, to_phi
 
 __all__ = ["Work", "update_region_adaptive", "update_region_paper", "sweep_changepoints", "propose_vector_redraw",
+           "propose_birth_free", "propose_death_free",
            "split_phi", "merge_phi", "propose_birth", "propose_death", "log_posterior"]
 
 
@@ -924,23 +925,25 @@ def _forward_filter(log_emit, log_kernel):
     return alpha
 
 
-def _backward_logits(alpha, r, cell_next, log_kernel):
-    """Log weights of line r's cells given line r + 1's cell."""
-    if log_kernel is None:
-        return alpha[r]
-    n_cells = alpha.shape[1]
-    return alpha[r] + log_kernel[n_cells - 1 - cell_next: 2 * n_cells - 1 - cell_next]
+def _cell_step_logits(log_kernel):
+    """Backward logits of the cell chain: line r's cells given line r + 1's cell."""
+    def logits(alpha, r, cell_next):
+        if log_kernel is None:
+            return alpha[r]
+        n_cells = alpha.shape[1]
+        return alpha[r] + log_kernel[n_cells - 1 - cell_next: 2 * n_cells - 1 - cell_next]
+    return logits
 
 
-def _path_log_prob(alpha, cells, log_kernel):
-    """Log probability that backward sampling from ``alpha`` draws the cell path ``cells``."""
-    total = float(alpha[-1, cells[-1]])            # alpha rows are normalised
+def _path_log_prob(alpha, path, logits_given_next):
+    """Log probability that backward sampling from ``alpha`` draws ``path``."""
+    total = float(alpha[-1, path[-1]])            # alpha rows are normalised
     for r in range(alpha.shape[0] - 2, -1, -1):
-        logits = _backward_logits(alpha, r, cells[r + 1], log_kernel)
-        if not np.isfinite(logits[cells[r]]):
+        logits = logits_given_next(alpha, r, path[r + 1])
+        if not np.isfinite(logits[path[r]]):
             return -np.inf
         top = np.max(logits)
-        total += float(logits[cells[r]] - top - np.log(np.sum(np.exp(logits - top))))
+        total += float(logits[path[r]] - top - np.log(np.sum(np.exp(logits - top))))
     return total
 
 
@@ -949,12 +952,13 @@ def _draw_index(logits, rng):
     return min(int(np.searchsorted(weights, rng.random() * weights[-1], side="right")), logits.size - 1)
 
 
-def _backward_sample(alpha, log_kernel, rng):
-    cells = np.empty(alpha.shape[0], np.int64)
-    cells[-1] = _draw_index(alpha[-1], rng)
+def _backward_sample(alpha, logits_given_next, rng):
+    """A path drawn from the chain whose normalised forward log alphas are ``alpha``, last line first."""
+    path = np.empty(alpha.shape[0], np.int64)
+    path[-1] = _draw_index(alpha[-1], rng)
     for r in range(alpha.shape[0] - 2, -1, -1):
-        cells[r] = _draw_index(_backward_logits(alpha, r, cells[r + 1], log_kernel), rng)
-    return cells
+        path[r] = _draw_index(logits_given_next(alpha, r, path[r + 1]), rng)
+    return path
 
 
 def _within_cell_log_density(x, x_next, lo, hi, sd):
@@ -1029,18 +1033,16 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     cps = work.u if axis == "u" else work.v
     n_lines, n = cps.shape
     size = width if axis == "u" else height
-    line, along = (problem.row, problem.col) if axis == "u" else (problem.col, problem.row)
+    line, along = _line_coords(problem, axis)
     k = int(rng.integers(n))
     lower, upper = _gaps(np.delete(cps, k, axis=1), k, size)
     step_label = (work.v.shape[1] + 1) if axis == "u" else 1
     x_old = cps[:, k]
-    base = work.labels - step_label * (x_old[line] < along + 0.5)
+    base = work.labels.astype(np.int64) - step_label * (x_old[line] < along + 0.5)
     # per-pixel log-likelihood with the element right of the pixel (base) or left of it (base + step)
     key = line * size + along
-    per_pixel = []
-    for labels_case in (base, base + step_label):
-        _, ll = _per_obs_terms(problem, np.arange(problem.n_obs), work.theta[labels_case])
-        per_pixel.append(np.bincount(key, weights=ll, minlength=n_lines * size).reshape(n_lines, size))
+    per_pixel = [_binned_log_lik(problem, labels_case, work.theta, key, n_lines * size).reshape(n_lines, size)
+                 for labels_case in (base, base + step_label)]
     zero = np.zeros((n_lines, 1))
     right_of = np.concatenate([zero, np.cumsum(per_pixel[0], axis=1)], axis=1)    # pixels t < j: element right
     left_of = np.concatenate([zero, np.cumsum(per_pixel[1], axis=1)], axis=1)
@@ -1057,14 +1059,15 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     if alpha is None:
         return cps, None, -np.inf
     rows = np.arange(n_lines)
-    cells_new = _backward_sample(alpha, log_kernel, rng)
+    step_logits = _cell_step_logits(log_kernel)
+    cells_new = _backward_sample(alpha, step_logits, rng)
     lo_new, hi_new = cell_lo[rows, cells_new], cell_lo[rows, cells_new] + widths[rows, cells_new]
     x_new = _draw_within_cells(lo_new, hi_new, sd, rng)
     cells_old = _cell_of(x_old, size)
     lo_old, hi_old = cell_lo[rows, cells_old], cell_lo[rows, cells_old] + widths[rows, cells_old]
-    log_q_new = _path_log_prob(alpha, cells_new, log_kernel) + float(np.sum(
+    log_q_new = _path_log_prob(alpha, cells_new, step_logits) + float(np.sum(
         _within_cell_log_density(x_new, x_new[1:], lo_new, hi_new, sd)))
-    log_q_old = _path_log_prob(alpha, cells_old, log_kernel) + float(np.sum(
+    log_q_old = _path_log_prob(alpha, cells_old, step_logits) + float(np.sum(
         _within_cell_log_density(x_old, x_old[1:], lo_old, hi_old, sd)))
     new_cps = cps.copy()
     new_cps[:, k] = x_new
@@ -1073,5 +1076,168 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
                  + log_prior_cp_state(u_new, v_new, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
                  - log_prior_cp_state(work.u, work.v, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
                  + log_q_old - log_q_new)
-    labels = base + step_label * (x_new[line] < along + 0.5)
+    labels = (base + step_label * (x_new[line] < along + 0.5)).astype(work.labels.dtype)
     return new_cps, labels, float(log_ratio)
+
+
+# ----------------------------------------------------------------------------- birth / death at any rank
+
+def _line_coords(problem, axis):
+    """(line, position along the line) of every observation, int64: (row, col) for u, (col, row) for v."""
+    row, col = problem.row.astype(np.int64), problem.col.astype(np.int64)
+    return (row, col) if axis == "u" else (col, row)
+
+
+def _binned_log_lik(problem, labels, theta, key, n_bins):
+    """Gaussian log density of every observation under ``labels``, summed per ``key`` (streamed in chunks)."""
+    out = np.zeros(n_bins)
+    for start in range(0, problem.n_obs, CHUNK):
+        idx = np.arange(start, min(start + CHUNK, problem.n_obs))
+        _, ll = _per_obs_terms(problem, idx, theta[labels[idx]])
+        out += np.bincount(key[idx], weights=ll, minlength=n_bins)
+    return out
+
+
+def _removal_log_emit(problem, labels, theta, n, n_v, axis):
+    """(L, n): how well each line's observations fit when its element of rank k is removed.
+
+    Removing element k of a line merges the line's columns k and k + 1 (regions along the
+    axis). The score is the log-likelihood change of the better of the two ways to merge
+    with the current parameters: column k + 1's pixels given column k's parameters, or
+    column k's given column k + 1's. Only a proposal ingredient: any function of the state
+    keeps the move exact.
+    """
+    line, _ = _line_coords(problem, axis)
+    n_lines = problem.height if axis == "u" else problem.width
+    labels = labels.astype(np.int64)
+    step = (n_v + 1) if axis == "u" else 1
+    column = labels // (n_v + 1) if axis == "u" else labels % (n_v + 1)
+    key = line * (n + 1) + column
+    bins = n_lines * (n + 1)
+    current = _binned_log_lik(problem, labels, theta, key, bins).reshape(n_lines, n + 1)
+    down = _binned_log_lik(problem, np.where(column > 0, labels - step, labels), theta, key, bins).reshape(n_lines, n + 1)
+    up = _binned_log_lik(problem, np.where(column < n, labels + step, labels), theta, key, bins).reshape(n_lines, n + 1)
+    return np.maximum(down[:, 1:] - current[:, 1:], up[:, :-1] - current[:, :-1])
+
+
+def _rank_chain(log_emit):
+    """Forward alphas and backward logits of the chain of removed ranks along the lines.
+
+    A line keeps the previous line's rank with probability 1 - 1/L and switches to one of
+    the other ranks otherwise, so a removed vector may change rank where vectors meet.
+    """
+    n_lines, n = log_emit.shape
+    eps = 1.0 / n_lines if n > 1 else 0.0
+    with np.errstate(divide="ignore"):
+        log_t = np.full((n, n), np.log(eps / max(n - 1, 1)))
+        np.fill_diagonal(log_t, np.log1p(-eps))
+    alpha = np.empty_like(log_emit)
+    previous = None
+    for r in range(n_lines):
+        a = log_emit[r].copy()
+        if previous is not None:
+            a += np.logaddexp.reduce(previous[:, None] + log_t, axis=0)
+        a -= np.logaddexp.reduce(a)
+        alpha[r] = previous = a
+
+    def logits(alpha, r, rank_next):
+        return alpha[r] + log_t[:, rank_next]
+    return alpha, logits
+
+
+def _rank_path_log_prob(problem, u, v, theta, labels, axis, ranks):
+    cps = u if axis == "u" else v
+    alpha, logits = _rank_chain(_removal_log_emit(problem, labels, theta, cps.shape[1], v.shape[1], axis))
+    return _path_log_prob(alpha, ranks, logits)
+
+
+def _free_birth_ratio(problem, prior, config, small, big, axis, x, log_q_ranks, n, n_max, theta_term):
+    """Log acceptance ratio of the free birth small -> big (the element x_r inserted in line r).
+
+    ``log_q_ranks``: log probability that the reverse death draws the inserted elements' ranks.
+    """
+    (u_s, v_s, ll_s), (u_b, v_b, ll_b) = small, big
+    size = problem.width if axis == "u" else problem.height
+    bounds = np.full(x.size, -1.0), np.full(x.size, size + 1.0)
+    return (ll_b - ll_s
+            + log_prior_cp_state(u_b, v_b, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
+            - log_prior_cp_state(u_s, v_s, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
+            + math.log(1.0 - birth_probability(n + 1, n_max)) - math.log(birth_probability(n, n_max))
+            + log_q_ranks - _vector_log_q(x, *bounds, size, config) + theta_term)
+
+
+def _redraw_all(problem, prior, config, labels_new, n_new, labels_old, theta_old, rng):
+    """Fresh conditional parameters for every region of the new model; (theta, log term new - old)."""
+    theta_new, term_new = _regions_term(problem, prior, config, labels_new, np.ones((n_new, 4)), range(n_new),
+                                        draw_rng=rng)
+    if theta_new is None:
+        return None, -np.inf
+    _, term_old = _regions_term(problem, prior, config, labels_old, theta_old, range(theta_old.shape[0]))
+    return theta_new, term_new - term_old
+
+
+def propose_birth_free(work, rng, problem, prior, config, axis: str):
+    """Birth of a vector whose elements may fall at any rank of their lines; every region redrawn.
+
+    The new vector is drawn over the whole [-1, size + 1] of each line (the birth
+    proposal's straight or prior-shaped vectors, unconstrained by gaps) and inserted into
+    each line's sorted elements, so it may cross existing vectors. All region parameters
+    of the new model are drawn from their conditional proposals (:func:`_draw_region`)
+    and the reverse death's density of the current parameters enters the ratio (Jacobian
+    1). The reverse move is :func:`propose_death_free`, which removes from each line the
+    element of a rank drawn by a chain along the lines; the probability that it draws
+    the inserted elements' ranks enters the ratio.
+
+    Returns ``(u, v, theta, labels, stats, log_lik, log_ratio)``.
+    """
+    cps, size, n, n_max = _axis_info(work, problem, config, axis)
+    n_lines = cps.shape[0]
+    x = _draw_vector(rng, np.full(n_lines, -1.0), np.full(n_lines, size + 1.0), size, config)
+    ranks = np.sum(cps < x[:, None], axis=1)
+    new_cps = np.sort(np.concatenate([cps, x[:, None]], axis=1), axis=1)
+    u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
+    if np.any(x < -1.0) or np.any(x > size + 1.0):
+        return u_new, v_new, None, None, None, None, -np.inf
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    theta_new, theta_term = _redraw_all(problem, prior, config, labels, n_regions(u_new.shape[1], v_new.shape[1]),
+                                        work.labels, work.theta, rng)
+    if theta_new is None:
+        return u_new, v_new, None, labels, None, None, -np.inf
+    stats = region_stats(problem, labels, theta_new[:, 2], theta_new.shape[0])
+    log_lik = log_likelihood_from_stats(stats, theta_new)
+    log_q_ranks = _rank_path_log_prob(problem, u_new, v_new, theta_new, labels, axis, ranks)
+    log_ratio = _free_birth_ratio(problem, prior, config, (work.u, work.v, float(np.sum(work.log_lik))),
+                                  (u_new, v_new, float(np.sum(log_lik))), axis, x, log_q_ranks, n, n_max, theta_term)
+    return u_new, v_new, theta_new, labels, stats, log_lik, float(log_ratio)
+
+
+def propose_death_free(work, rng, problem, prior, config, axis: str):
+    """Death that removes from each line the element of a rank drawn along the lines (reverse of the free birth).
+
+    The removed ranks follow a chain along the lines (:func:`_rank_chain`) that favours
+    removing, in each line, the element whose removal costs the least likelihood, and
+    switches rank rarely. This is what undoes two vectors that each hold half of one true
+    boundary and an unneeded half elsewhere: no single vector's death can remove both
+    unneeded halves, this move can.
+    """
+    cps, size, n, n_max = _axis_info(work, problem, config, axis)
+    n_lines = cps.shape[0]
+    alpha, logits = _rank_chain(_removal_log_emit(problem, work.labels, work.theta, n, work.v.shape[1], axis))
+    ranks = _backward_sample(alpha, logits, rng)
+    rows = np.arange(n_lines)
+    x = cps[rows, ranks]
+    keep = np.ones(cps.shape, bool)
+    keep[rows, ranks] = False
+    new_cps = cps[keep].reshape(n_lines, n - 1)
+    u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    theta_new, term = _redraw_all(problem, prior, config, labels, n_regions(u_new.shape[1], v_new.shape[1]),
+                                  work.labels, work.theta, rng)
+    if theta_new is None:
+        return u_new, v_new, None, labels, None, None, -np.inf
+    stats = region_stats(problem, labels, theta_new[:, 2], theta_new.shape[0])
+    log_lik = log_likelihood_from_stats(stats, theta_new)
+    birth_ratio = _free_birth_ratio(problem, prior, config, (u_new, v_new, float(np.sum(log_lik))),
+                                    (work.u, work.v, float(np.sum(work.log_lik))), axis, x,
+                                    _path_log_prob(alpha, ranks, logits), n - 1, n_max, -term)
+    return u_new, v_new, theta_new, labels, stats, log_lik, float(-birth_ratio)

@@ -140,6 +140,10 @@ class SamplerConfig:
         Probability per iteration of a block shift (a run of up to ``block_max`` elements of
         one vector moved by a common N(0, block_shift_sd^2) pixels, with the changed regions'
         parameters redrawn; see :func:`rjfit.sampler.moves.propose_block_shift`).
+    free_jump_prob : float
+        Probability that a birth/death attempt uses the pair whose vector may take any rank
+        in each line (:func:`rjfit.sampler.moves.propose_birth_free`,
+        :func:`~rjfit.sampler.moves.propose_death_free`) instead of the rank-keeping pair.
     vector_prob : float
         Probability per iteration of redrawing one whole change-point vector from an
         approximation of its conditional (forward filtering, backward sampling along the
@@ -179,6 +183,7 @@ class SamplerConfig:
     block_shift_sd: float = 20.0
     full_recompute: bool = False
     vector_prob: float = 0.3
+    free_jump_prob: float = 0.5
 
     def __post_init__(self):
         if self.sampler not in ("adaptive", "paper"):
@@ -189,6 +194,8 @@ class SamplerConfig:
             raise ValueError(f"split_map must be 'conditional', 'mean' or 'paper', got {self.split_map!r}")
         if self.max_u < 0 or self.max_v < 0:
             raise ValueError(f"max_u and max_v must be >= 0, got {self.max_u}, {self.max_v}")
+        if not 0.0 <= self.free_jump_prob <= 1.0:
+            raise ValueError(f"free_jump_prob must lie in [0, 1], got {self.free_jump_prob}")
         if not 0.0 <= self.vector_prob <= 1.0:
             raise ValueError(f"vector_prob must lie in [0, 1], got {self.vector_prob}")
         if not 0.0 <= self.jump_prob <= 1.0:
