@@ -199,6 +199,10 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
               help="Reproduce the paper's acceptance ratio without the split/merge Jacobian (wrong; for study).")
 @click.option("--channel", type=click.Choice(["mean", "R", "G", "B", "luminance"]), default="mean",
               show_default=True, help="Colour channel fitted (luminance: CIE Y, sRGB primaries).")
+@click.option("--likelihood-power", type=click.FloatRange(0.0, 1.0, min_open=True), default=1.0, show_default=True,
+              help="zeta of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each observation "
+                   "counts as zeta observations. Below 1 for measured data that the BRDF model cannot fit exactly, "
+                   "so the misfit does not split a uniform material into regions; 1 is the plain posterior.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
 @click.option("--validation", "validation_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="validation.json of the data set (default: DATASET/validation/validation.json).")
@@ -208,7 +212,7 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
               help="Run chains on Dask: 'local' for a local cluster, or a scheduler address (tcp://host:8786).")
 @click.option("--workers", type=int, default=2, show_default=True, help="Workers of a local Dask cluster.")
 def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler, prior, split_map, cp_prior,
-        drop_jacobian, channel, seed, validation_path, allow_unvalidated, scheduler, workers):
+        drop_jacobian, channel, likelihood_power, seed, validation_path, allow_unvalidated, scheduler, workers):
     """Segment DATASET(S) and sample the region BRDF posteriors (RJMCMC).
 
     Refuses a data set whose forward model has not passed `rjfit validate` unless
@@ -218,7 +222,8 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
 
     summaries = fit_datasets(datasets, out_dir, n_chains=n_chains, iterations=iterations, burn_in=burn_in,
                              max_u=max_u, max_v=max_v, sampler=sampler, prior=prior, split_map=split_map,
-                             cp_prior=cp_prior, drop_jacobian=drop_jacobian, channel=channel, seed=seed, validation_path=validation_path,
+                             cp_prior=cp_prior, drop_jacobian=drop_jacobian, channel=channel,
+                             likelihood_power=likelihood_power, seed=seed, validation_path=validation_path,
                              allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers)
     for folder, summary in summaries:
         map_model = summary["map_model"]

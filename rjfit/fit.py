@@ -49,7 +49,7 @@ __all__ = ["fit"]
 def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: int = 0, n_chains: int = 4,
         iterations: int = 20000, burn_in: float = 0.5, max_u: int = 3, max_v: int = 3, sampler: str = "adaptive",
         prior: str = "default", split_map: str = "conditional", cp_prior: str = "smooth",
-        drop_jacobian: bool = False, jump_prob: float = 0.2,
+        drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float = 1.0,
         cp_thin: int = 10, checkpoint_every: int = 2000, processes: int | None = None, start=None,
         fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
@@ -73,6 +73,10 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         Maximum numbers of u and v change-point vectors.
     sampler : {'adaptive', 'paper'}
     prior : {'default', 'paper-synthetic', 'paper-real'}
+    likelihood_power : float
+        zeta in (0, 1]: the coarsened posterior (likelihood ** zeta; Miller and Dunson, JASA
+        2019) for a model known to miss part of measured data; see
+        :class:`rjfit.sampler.likelihood.Problem`. 1 (default): the plain posterior.
     split_map, cp_prior, drop_jacobian, jump_prob : see :class:`rjfit.sampler.state.SamplerConfig`
         (``cp_prior='paper'`` and ``split_map='paper'`` with ``drop_jacobian=True`` give the
         paper's own choices).
@@ -103,7 +107,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    problem = Problem.from_observations(observations)
+    problem = Problem.from_observations(observations, likelihood_power=likelihood_power)
     prior_obj = make_prior(prior, y=problem.y, diffuse_scale=problem.A)
     burn = int(round(burn_in * iterations))
     fixed = fixed_segmentation is not None
@@ -141,6 +145,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "n_observations": problem.n_obs,
         "sampler": sampler, "prior": prior_obj.to_json(), "max_u": max_u, "max_v": max_v,
         "split_map": split_map, "cp_prior": cp_prior, "drop_jacobian": drop_jacobian,
+        "likelihood_power": likelihood_power,
         "acceptance": {k: sum(r.accepted.get(k, 0) for r in records) / max(1, sum(r.proposed.get(k, 0) for r in records))
                        for k in sorted({k for r in records for k in r.proposed})},
         "chain_seconds": [r.seconds for r in records],

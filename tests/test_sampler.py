@@ -21,9 +21,11 @@ def small():
     return problem, prior, labels, truth
 
 
-@pytest.mark.parametrize("sampler", ["adaptive", "paper"])
-def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(small, sampler):
+@pytest.mark.parametrize("sampler,likelihood_power", [("adaptive", 1.0), ("paper", 1.0), ("adaptive", 0.3)])
+def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(small, sampler, likelihood_power):
     problem, prior, _, _ = small
+    if likelihood_power != 1.0:
+        problem = Problem.from_observations(sphere_stack(20, n_lights=6, seed=3)[0], likelihood_power=likelihood_power)
     # refresh_every=0: no periodic recompute, so drift of the incremental updates would show.
     config = SamplerConfig(max_u=2, max_v=2, sampler=sampler, burn_in=100, jump_prob=0.7, cp_uniform_prob=0.3,
                            refresh_every=0, split_scale=0.5)
@@ -49,17 +51,20 @@ def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(sm
 
 
 def _forced_jump(state, rng, problem, prior, config):
-    from rjfit.sampler.moves import Work, birth_probability, propose_birth, propose_death
+    from rjfit.sampler.moves import (Work, birth_probability, propose_birth, propose_birth_free, propose_death,
+                                     propose_death_free)
     from rjfit.sampler.state import ChainState
 
     for _ in range(100):      # retry until the proposal is a valid state
         axis = "u" if rng.random() < 0.5 else "v"
         n = state.n_u if axis == "u" else state.n_v
         birth = rng.random() < birth_probability(n, config.max_u if axis == "u" else config.max_v)
+        free = rng.random() < 0.5
         work = Work(u=state.u, v=state.v, theta=state.theta.copy(), stats=state.stats.copy(),
                     log_lik=state.log_lik.copy(), labels=state.labels)
-        u, v, theta, labels, stats, log_lik, log_ratio = (propose_birth if birth else propose_death)(
-            work, rng, problem, prior, config, axis)
+        propose = (propose_birth_free if birth else propose_death_free) if free else (propose_birth if birth
+                                                                                       else propose_death)
+        u, v, theta, labels, stats, log_lik, log_ratio = propose(work, rng, problem, prior, config, axis)
         if np.isfinite(log_ratio):
             break
     return ChainState(u=u, v=v, theta=theta, stats=stats, log_lik=log_lik, labels=labels,

@@ -7,6 +7,7 @@ iterations; time per 1,000 iterations is scaled from those. Printed side by side
 cost per valid observation and its ratio to the smallest size (linear scaling gives 1).
 
     .venv/bin/python validation/bench_scale.py [--sizes 256 512 1024 2048] [--iterations 200]
+    .venv/bin/python validation/bench_scale.py --render-only --variant cuda_ad_rgb   # GPU rendering figures
 """
 from __future__ import annotations
 
@@ -20,24 +21,39 @@ import time
 from pathlib import Path
 
 
-def one_size(size: int, iterations: int, folder: Path) -> dict:
-    import numpy as np
+def render_and_validate(size: int, folder: Path, variant: str):
+    """Render scanner_sphere at ``size`` and run the gate; (dataset folder, validation, timings)."""
+    import json as json_module
 
-    from rjfit.data.dataset import load_dataset
     from rjfit.render.render import render_dataset
-    from rjfit.sampler.likelihood import Problem
-    from rjfit.sampler.priors import make_prior
-    from rjfit.sampler.runner import ChainSpec, run_chain
-    from rjfit.sampler.state import SamplerConfig
     from rjfit.validate import validate_dataset
 
     timings = {}
     started = time.perf_counter()
-    dataset_dir = render_dataset("scanner_sphere", folder / f"scanner_{size}", resolution=size)
+    dataset_dir = render_dataset("scanner_sphere", folder / f"scanner_{size}", resolution=size, variant=variant)
     timings["render_s"] = time.perf_counter() - started
     started = time.perf_counter()
-    validation = validate_dataset(dataset_dir, spp=1)
+    validation = validate_dataset(dataset_dir, spp=1, variant=variant)
     timings["validate_s"] = time.perf_counter() - started
+    timings["variant"] = json_module.loads((dataset_dir / "dataset.json").read_text())["variant"]
+    return dataset_dir, validation, timings
+
+
+def render_only(size: int, folder: Path, variant: str) -> dict:
+    _, validation, timings = render_and_validate(size, folder, variant)
+    return {"size": size, "validation_passed": bool(validation["passed"]),
+            "median_rel_err": validation["median_rel_err"],
+            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2, **timings}
+
+
+def one_size(size: int, iterations: int, folder: Path, variant: str = "auto") -> dict:
+    from rjfit.data.dataset import load_dataset
+    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.priors import make_prior
+    from rjfit.sampler.runner import ChainSpec, run_chain
+    from rjfit.sampler.state import SamplerConfig
+
+    dataset_dir, validation, timings = render_and_validate(size, folder, variant)
     started = time.perf_counter()
     dataset = load_dataset(dataset_dir)
     observations = dataset.observations()
@@ -63,19 +79,33 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[256, 512, 1024, 2048])
     parser.add_argument("--iterations", type=int, default=200)
+    parser.add_argument("--variant", default="auto",
+                        help="Mitsuba variant of rendering and validation (auto: cuda_ad_rgb where a GPU answers)")
+    parser.add_argument("--render-only", action="store_true",
+                        help="only render and validate (e.g. to compare a GPU variant with the CPU one)")
     parser.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
     parser.add_argument("--folder", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one is not None:
-        print(json.dumps(one_size(args.one, args.iterations, Path(args.folder))))
+        row = (render_only(args.one, Path(args.folder), args.variant) if args.render_only
+               else one_size(args.one, args.iterations, Path(args.folder), args.variant))
+        print(json.dumps(row))
         return
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         for size in args.sizes:
-            output = subprocess.run([sys.executable, __file__, "--one", str(size), "--iterations", str(args.iterations),
-                                     "--folder", folder], check=True, capture_output=True, text=True).stdout
+            command = [sys.executable, __file__, "--one", str(size), "--iterations", str(args.iterations),
+                       "--folder", folder, "--variant", args.variant] + (["--render-only"] if args.render_only else [])
+            output = subprocess.run(command, check=True, capture_output=True, text=True).stdout
             rows.append(json.loads(output.strip().splitlines()[-1]))
             print(f"  {size}: done", file=sys.stderr, flush=True)
+    if args.render_only:
+        print(f"scanner_sphere, render and validate (gate at 1 spp) per size")
+        print(f"{'size':>6} {'variant':>12} {'render s':>9} {'validate s':>11} {'peak RSS GB':>12} {'gate':>5}")
+        for row in rows:
+            print(f"{row['size']:>6} {row['variant']:>12} {row['render_s']:>9.1f} {row['validate_s']:>11.1f} "
+                  f"{row['peak_rss_gb']:>12.2f} {'pass' if row['validation_passed'] else 'FAIL':>5}")
+        return
     base = rows[0]["per_1000_iterations_s"] / rows[0]["valid_observations"]
     print(f"scanner_sphere, {rows[0]['lights']} lights; sampler: 1 chain, change points sampled, "
           f"{args.iterations} iterations timed")

@@ -58,6 +58,16 @@ class Problem:
     needed; index arrays use the smallest integer type that holds them. Every sum over
     observations is accumulated in float64 (see :func:`region_stats`): SSR is a difference
     of sums about 1e5 times larger than itself, so float32 accumulation would lose it.
+
+    ``likelihood_power`` (zeta, 0 < zeta <= 1) raises the likelihood to that power, the
+    coarsened posterior of Miller and Dunson ("Robust Bayesian inference via coarsening",
+    JASA 2019): each observation counts as zeta observations. For a model known to miss
+    part of the data (a measured surface whose BRDF is not exactly Lambert + Blinn-Phong),
+    with hundreds of thousands of observations, the plain posterior splits a uniform
+    material into regions that absorb the misfit; coarsening asks only for agreement up
+    to a discrepancy of about 1 / (zeta n) per observation. Every sufficient statistic
+    (the count included) and every per-observation log density is scaled by zeta, so all
+    moves, conditionals and the oracle see the same tempered likelihood.
     """
 
     image_shape: tuple
@@ -71,6 +81,7 @@ class Problem:
     colmajor_order: np.ndarray     # observation indices sorted by (col, row)
     colmajor_start: np.ndarray     # (W*H + 1,) offsets into colmajor_order per c*H + r
     object_mask: np.ndarray
+    likelihood_power: float = 1.0  # zeta of the coarsened posterior; 1: the plain likelihood
 
     @property
     def n_obs(self) -> int:
@@ -90,7 +101,9 @@ class Problem:
         return np.divide(self.C, np.pi, dtype=np.float64)
 
     @classmethod
-    def from_observations(cls, obs: Observations) -> "Problem":
+    def from_observations(cls, obs: Observations, likelihood_power: float = 1.0) -> "Problem":
+        if not 0.0 < likelihood_power <= 1.0:
+            raise ValueError(f"likelihood_power must lie in (0, 1], got {likelihood_power}")
         if obs.n_obs == 0:
             raise ValueError("no valid observation: nothing to fit (check the object mask and validity thresholds)")
         if np.any(obs.cos_ln <= 0):
@@ -115,7 +128,8 @@ class Problem:
         colmajor_start = np.searchsorted(colmajor_key[colmajor_order], np.arange(n_pix + 1)).astype(obs_dtype)
         return cls(image_shape=(int(height), int(width)), y=y, C=C, log_cos_hn=log_cos_hn, row=row, col=col,
                    pixel=pixel, pixel_start=pixel_start, colmajor_order=colmajor_order,
-                   colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool))
+                   colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool),
+                   likelihood_power=float(likelihood_power))
 
 
 def b_terms(C, log_cos_hn, gamma):
@@ -138,7 +152,7 @@ def _stat_columns(problem: Problem, idx, gamma_per_obs):
 def stat_terms(problem: Problem, idx, gamma_per_obs):
     """The seven per-observation terms (N, 7), float64, of observations ``idx`` at exponents ``gamma_per_obs``."""
     columns = _stat_columns(problem, idx, gamma_per_obs)
-    return np.stack([np.ones_like(columns[0]), *columns], axis=1)
+    return problem.likelihood_power * np.stack([np.ones_like(columns[0]), *columns], axis=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,10 +168,12 @@ class RegionData:
     y: np.ndarray
     C: np.ndarray
     log_cos_hn: np.ndarray
+    weight: float = 1.0            # the Problem's likelihood power: every sum is scaled by it
 
     @classmethod
     def gather(cls, problem: Problem, idx) -> "RegionData":
-        return cls(idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx])
+        return cls(idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx],
+                   weight=problem.likelihood_power)
 
     @cached_property
     def fixed(self) -> np.ndarray:
@@ -167,7 +183,7 @@ class RegionData:
             y64 = self.y[start:start + CHUNK].astype(np.float64)
             c64 = self.C[start:start + CHUNK].astype(np.float64)
             yy, yc, cc = yy + np.dot(y64, y64), yc + np.dot(y64, c64), cc + np.dot(c64, c64)
-        return np.array([self.y.size, yy, yc / np.pi, cc / np.pi ** 2])
+        return self.weight * np.array([self.y.size, yy, yc / np.pi, cc / np.pi ** 2])
 
     @property
     def n(self) -> int:
@@ -182,7 +198,7 @@ class RegionData:
             yb += np.dot(self.y[start:start + CHUNK].astype(np.float64), B)
             cb += np.dot(c64, B)
             bb += np.dot(B, B)
-        return np.array([yb, cb / np.pi, bb])
+        return self.weight * np.array([yb, cb / np.pi, bb])
 
     def stats_at(self, gamma: float) -> np.ndarray:
         """The seven sufficient statistics at exponent ``gamma``."""
@@ -204,7 +220,7 @@ def region_stats(problem: Problem, labels, gammas, n_regions: int):
         out[:, STAT_N] += np.bincount(lab, minlength=n_regions)[:n_regions]
         for k, weights in enumerate(_stat_columns(problem, chunk, gammas[lab]), start=STAT_YY):
             out[:, k] += np.bincount(lab, weights=weights, minlength=n_regions)[:n_regions]
-    return out
+    return out * problem.likelihood_power
 
 
 def ab_from_theta(theta):
@@ -247,4 +263,4 @@ def oracle_log_likelihood(problem: Problem, labels, theta) -> float:
     mu = radiance(theta[:, 0], theta[:, 1], theta[:, 2], C, cos_hn, 1.0)
     s2 = theta[:, 3]
     resid = problem.y.astype(np.float64) - mu
-    return float(np.sum(-0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2))
+    return problem.likelihood_power * float(np.sum(-0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2))

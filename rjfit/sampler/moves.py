@@ -258,7 +258,7 @@ def _full_pass_log_lik(work, problem, theta):
     a, b = ab_from_theta(t)
     mu = a * problem.A + b * b_terms(problem.C, problem.log_cos_hn, t[:, 2])
     resid = problem.y - mu
-    return float(np.sum(-0.5 * (LOG_2PI + np.log(t[:, 3])) - 0.5 * resid * resid / t[:, 3]))
+    return problem.likelihood_power * float(np.sum(-0.5 * (LOG_2PI + np.log(t[:, 3])) - 0.5 * resid * resid / t[:, 3]))
 
 
 def update_region_paper(work, r, rng, prior, problem, info, full_recompute=False):
@@ -307,7 +307,7 @@ def _per_obs_terms(problem, idx, theta_obs):
     B = b_terms(C, problem.log_cos_hn[idx], theta_obs[:, 2])
     resid = problem.y[idx] - (a / math.pi) * C - b * B
     s2 = theta_obs[:, 3]
-    return B, -0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2
+    return B, problem.likelihood_power * (-0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2)
 
 
 def _log_normal_pdf(x, mean, sd):
@@ -435,13 +435,15 @@ def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int 
     work.region_index = None
     R = work.theta.shape[0]
     y, A = problem.y[idx_t].astype(np.float64), problem.C[idx_t].astype(np.float64) / math.pi
+    zeta = problem.likelihood_power
     common = (None, y * y, y * A, A * A)
     for col, weights in enumerate(common):
-        work.stats[:, col] += (np.bincount(new_t, weights=weights, minlength=R)
-                               - np.bincount(old_t, weights=weights, minlength=R))
+        work.stats[:, col] += zeta * (np.bincount(new_t, weights=weights, minlength=R)
+                                      - np.bincount(old_t, weights=weights, minlength=R))
     Bo, Bn = B_old[take], B_new[take]
     for col, (wo, wn) in zip((STAT_YB, STAT_AB, STAT_BB), ((y * Bo, y * Bn), (A * Bo, A * Bn), (Bo * Bo, Bn * Bn))):
-        work.stats[:, col] += np.bincount(new_t, weights=wn, minlength=R) - np.bincount(old_t, weights=wo, minlength=R)
+        work.stats[:, col] += zeta * (np.bincount(new_t, weights=wn, minlength=R)
+                                      - np.bincount(old_t, weights=wo, minlength=R))
     work.log_lik = log_likelihood_from_stats(work.stats, work.theta)
 
 
@@ -581,7 +583,7 @@ def _laplace_log_gamma(data, prior):
     with (a0, b0) the inverse gamma standing in for sigma^2's prior: (a, b) and sigma^2
     integrated out under flat priors for (a, b). A function of the region's data only.
     """
-    n = data.n
+    n = data.n * data.weight       # observations count zeta each under a coarsened likelihood
     a0, b0 = _sigma2_prior_as_invgamma(prior)
     g_prior = prior.params[2]
 
@@ -624,8 +626,12 @@ def _prior_in_q_coords(prior, theta, conditional):
 
 
 def _region_proposal(data, config, prior):
-    """What proposes a region's parameters: ('conditional', laplace) or ('prior', None)."""
-    if data.n < config.min_obs_conditional:
+    """What proposes a region's parameters: ('conditional', laplace) or ('prior', None).
+
+    The count is the effective one (observations times the likelihood power), as in the
+    within-model moves: the conditional proposals need a well-posed sigma^2 shape.
+    """
+    if data.n * data.weight < config.min_obs_conditional:
         return ("prior", None)
     lap = _laplace_log_gamma(data, prior)
     return ("prior", None) if lap is None else ("conditional", lap)
