@@ -49,7 +49,7 @@ __all__ = ["fit"]
 def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: int = 0, n_chains: int = 4,
         iterations: int = 20000, burn_in: float = 0.5, max_u: int = 3, max_v: int = 3, sampler: str = "adaptive",
         prior: str = "default", split_map: str = "conditional", cp_prior: str = "smooth",
-        drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float = 1.0,
+        drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float = 1.0, anneal: float = 0.5,
         cp_thin: int = 10, checkpoint_every: int = 2000, processes: int | None = None, start=None,
         fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
@@ -73,6 +73,10 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         Maximum numbers of u and v change-point vectors.
     sampler : {'adaptive', 'paper'}
     prior : {'default', 'paper-synthetic', 'paper-real'}
+    anneal : float
+        Fraction of the burn-in run as a tempered warm-up (likelihood power rising
+        geometrically from 1e-3 of its value to all of it; see
+        :func:`rjfit.sampler.kernel.anneal_power`); 0 for none. Only burn-in is tempered.
     likelihood_power : float
         zeta in (0, 1]: the coarsened posterior (likelihood ** zeta; Miller and Dunson, JASA
         2019) for a model known to miss part of measured data; see
@@ -113,6 +117,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     fixed = fixed_segmentation is not None
     config = SamplerConfig(max_u=max_u, max_v=max_v, sampler=sampler, split_map=split_map, cp_prior=cp_prior,
                            drop_jacobian=drop_jacobian, burn_in=burn, jump_prob=jump_prob,
+                           anneal=int(round(anneal * burn)),
                            update_changepoints=not fixed, jumps=not fixed)
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
@@ -145,7 +150,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "n_observations": problem.n_obs,
         "sampler": sampler, "prior": prior_obj.to_json(), "max_u": max_u, "max_v": max_v,
         "split_map": split_map, "cp_prior": cp_prior, "drop_jacobian": drop_jacobian,
-        "likelihood_power": likelihood_power,
+        "likelihood_power": likelihood_power, "anneal_iterations": int(round(anneal * burn)),
         "acceptance": {k: sum(r.accepted.get(k, 0) for r in records) / max(1, sum(r.proposed.get(k, 0) for r in records))
                        for k in sorted({k for r in records for k in r.proposed})},
         "chain_seconds": [r.seconds for r in records],

@@ -18,6 +18,8 @@ the post-burn-in chain is a plain Metropolis-Hastings chain.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from rjfit.sampler.changepoints import n_regions, obs_region_labels
@@ -34,6 +36,7 @@ LOG_G_SCALE_BOUNDS = (np.log(0.2), np.log(50.0))
 # One-entry memo of region -> observation indices for the labels array last seen. Keyed by
 # identity (``is``), so it can never serve indices of another labelling.
 _REGION_INDEX_MEMO: dict = {"labels": None, "index": None}
+_TEMPERED_MEMO: dict = {}
 
 
 def make_state(problem: Problem, u, v, theta, *, log_g_scale: float = 0.0, iteration: int = 0) -> ChainState:
@@ -104,19 +107,54 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, model=
     return make_state(problem, u, v, theta)
 
 
-def _region_index(labels):
-    if _REGION_INDEX_MEMO["labels"] is labels:
+def _region_index(labels, power):
+    # the gathered region data carry the likelihood power: a new power needs new data
+    if _REGION_INDEX_MEMO["labels"] is labels and _REGION_INDEX_MEMO.get("power") == power:
         return _REGION_INDEX_MEMO["index"]
     index = {}
-    _REGION_INDEX_MEMO["labels"], _REGION_INDEX_MEMO["index"] = labels, index
+    _REGION_INDEX_MEMO["labels"], _REGION_INDEX_MEMO["index"], _REGION_INDEX_MEMO["power"] = labels, index, power
     return index
 
 
+def anneal_power(config: SamplerConfig, iteration: int) -> float:
+    """The factor on the likelihood power at ``iteration``: geometric from ``anneal_start`` to 1, then 1.
+
+    A tempered warm-up (simulated annealing of the burn-in): at a small power the
+    posterior is nearly the prior, so chains from dispersed starts drop unsupported
+    vectors and carry boundaries freely; as the power grows they settle into the modes
+    the data support. Only burn-in iterations are annealed (``anneal`` <= ``burn_in``), so
+    the kept draws come from the plain kernel.
+    """
+    if iteration < 0 or iteration >= config.anneal:
+        return 1.0
+    return float(config.anneal_start ** (1.0 - iteration / config.anneal))
+
+
+def _tempered(problem: Problem, factor: float) -> Problem:
+    if factor == 1.0:
+        return problem
+    memo = _TEMPERED_MEMO
+    if memo.get("problem") is not problem or memo.get("factor") != factor:
+        memo.update(problem=problem, factor=factor,
+                    tempered=replace(problem, likelihood_power=problem.likelihood_power * factor))
+    return memo["tempered"]
+
+
 def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, config: SamplerConfig):
-    """One iteration of the kernel; returns ``(new_state, StepInfo)``. ``state`` is not modified."""
+    """One iteration of the kernel; returns ``(new_state, StepInfo)``. ``state`` is not modified.
+
+    During an annealed warm-up (``config.anneal``) the step runs on the problem with its
+    likelihood power times :func:`anneal_power`; the state's statistics are linear in that
+    power, so they are rescaled, not recomputed, when it changes.
+    """
     info = StepInfo()
-    work = Work(u=state.u, v=state.v, theta=state.theta.copy(), stats=state.stats.copy(),
-                log_lik=state.log_lik.copy(), labels=state.labels, region_index=_region_index(state.labels))
+    factor = anneal_power(config, state.iteration)
+    previous = anneal_power(config, state.iteration - 1) if state.iteration > 0 else 1.0
+    stats = state.stats if factor == previous else state.stats * (factor / previous)
+    problem = _tempered(problem, factor)
+    log_lik = state.log_lik if factor == previous else log_likelihood_from_stats(stats, state.theta)
+    work = Work(u=state.u, v=state.v, theta=state.theta.copy(), stats=stats.copy(), log_lik=np.array(log_lik, float),
+                labels=state.labels, region_index=_region_index(state.labels, problem.likelihood_power))
 
     # 1. within-model moves
     g_acc = []

@@ -140,6 +140,12 @@ class SamplerConfig:
         Probability per iteration of a block shift (a run of up to ``block_max`` elements of
         one vector moved by a common N(0, block_shift_sd^2) pixels, with the changed regions'
         parameters redrawn; see :func:`rjfit.sampler.moves.propose_block_shift`).
+    anneal : int
+        Iterations of tempered warm-up at the start of the burn-in (0: none): the
+        likelihood power is multiplied by ``anneal_start ** (1 - t / anneal)`` at iteration
+        t (:func:`rjfit.sampler.kernel.anneal_power`). Must not exceed ``burn_in``.
+    anneal_start : float
+        Factor on the likelihood power at the first iteration of the warm-up.
     free_jump_prob : float
         Probability that a birth/death attempt uses the pair whose vector may take any rank
         in each line (:func:`rjfit.sampler.moves.propose_birth_free`,
@@ -184,6 +190,8 @@ class SamplerConfig:
     full_recompute: bool = False
     vector_prob: float = 0.3
     free_jump_prob: float = 0.5
+    anneal: int = 0
+    anneal_start: float = 1e-3
 
     def __post_init__(self):
         if self.sampler not in ("adaptive", "paper"):
@@ -194,6 +202,11 @@ class SamplerConfig:
             raise ValueError(f"split_map must be 'conditional', 'mean' or 'paper', got {self.split_map!r}")
         if self.max_u < 0 or self.max_v < 0:
             raise ValueError(f"max_u and max_v must be >= 0, got {self.max_u}, {self.max_v}")
+        if self.anneal < 0 or self.anneal > max(self.burn_in, 0):
+            raise ValueError(f"anneal ({self.anneal}) must lie in [0, burn_in = {self.burn_in}]: "
+                             "only burn-in iterations may be tempered")
+        if not 0.0 < self.anneal_start <= 1.0:
+            raise ValueError(f"anneal_start must lie in (0, 1], got {self.anneal_start}")
         if not 0.0 <= self.free_jump_prob <= 1.0:
             raise ValueError(f"free_jump_prob must lie in [0, 1], got {self.free_jump_prob}")
         if not 0.0 <= self.vector_prob <= 1.0:
