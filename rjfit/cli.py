@@ -17,6 +17,18 @@ def _echo_json(payload: dict, keys) -> None:
             click.echo(f"  {key:<24} {value:.4g}" if isinstance(value, float) else f"  {key:<24} {value}")
 
 
+def _likelihood_power(text: str):
+    if text == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is neither 'auto' nor a number", param_hint="--likelihood-power") from None
+    if not 0.0 < value <= 1.0:
+        raise click.BadParameter(f"{value} is not in (0, 1]", param_hint="--likelihood-power")
+    return value
+
+
 class _Group(click.Group):
     """Turns the errors rjfit raises for bad input into one clear line (no traceback);
     set RJFIT_DEBUG=1 to see the traceback."""
@@ -199,10 +211,12 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
               help="Reproduce the paper's acceptance ratio without the split/merge Jacobian (wrong; for study).")
 @click.option("--channel", type=click.Choice(["mean", "R", "G", "B", "luminance"]), default="mean",
               show_default=True, help="Colour channel fitted (luminance: CIE Y, sRGB primaries).")
-@click.option("--likelihood-power", type=click.FloatRange(0.0, 1.0, min_open=True), default=1.0, show_default=True,
-              help="zeta of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each observation "
-                   "counts as zeta observations. Below 1 for measured data that the BRDF model cannot fit exactly, "
-                   "so the misfit does not split a uniform material into regions; 1 is the plain posterior.")
+@click.option("--likelihood-power", default="1", show_default=True,
+              help="zeta in (0, 1] of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each "
+                   "observation counts as zeta observations, so a BRDF misfit shared by neighbouring pixels of "
+                   "measured data does not split a uniform material into regions. 'auto': zeta = ((1-rho)/(1+rho))^2 "
+                   "from the lag-1 spatial correlation rho of per-pixel-fit residuals (about 1 for white noise). "
+                   "1: the plain posterior.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
 @click.option("--validation", "validation_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="validation.json of the data set (default: DATASET/validation/validation.json).")
@@ -223,7 +237,8 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
     summaries = fit_datasets(datasets, out_dir, n_chains=n_chains, iterations=iterations, burn_in=burn_in,
                              max_u=max_u, max_v=max_v, sampler=sampler, prior=prior, split_map=split_map,
                              cp_prior=cp_prior, drop_jacobian=drop_jacobian, channel=channel,
-                             likelihood_power=likelihood_power, seed=seed, validation_path=validation_path,
+                             likelihood_power=_likelihood_power(likelihood_power), seed=seed,
+                             validation_path=validation_path,
                              allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers)
     for folder, summary in summaries:
         map_model = summary["map_model"]

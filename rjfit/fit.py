@@ -49,7 +49,7 @@ __all__ = ["fit"]
 def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: int = 0, n_chains: int = 4,
         iterations: int = 20000, burn_in: float = 0.5, max_u: int = 3, max_v: int = 3, sampler: str = "adaptive",
         prior: str = "default", split_map: str = "conditional", cp_prior: str = "smooth",
-        drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float = 1.0, anneal: float = 0.5,
+        drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float | str = 1.0, anneal: float = 0.5,
         cp_thin: int = 10, checkpoint_every: int = 2000, processes: int | None = None, start=None,
         fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
@@ -77,10 +77,12 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         Fraction of the burn-in run as a tempered warm-up (likelihood power rising
         geometrically from 1e-3 of its value to all of it; see
         :func:`rjfit.sampler.kernel.anneal_power`); 0 for none. Only burn-in is tempered.
-    likelihood_power : float
+    likelihood_power : float or 'auto'
         zeta in (0, 1]: the coarsened posterior (likelihood ** zeta; Miller and Dunson, JASA
         2019) for a model known to miss part of measured data; see
         :class:`rjfit.sampler.likelihood.Problem`. 1 (default): the plain posterior.
+        'auto': the effective fraction of independent observations, from the spatial
+        correlation of per-pixel-fit residuals (:func:`rjfit.coarsen.suggest_likelihood_power`).
     split_map, cp_prior, drop_jacobian, jump_prob : see :class:`rjfit.sampler.state.SamplerConfig`
         (``cp_prior='paper'`` and ``split_map='paper'`` with ``drop_jacobian=True`` give the
         paper's own choices).
@@ -111,7 +113,13 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    problem = Problem.from_observations(observations, likelihood_power=likelihood_power)
+    power_suggestion = None
+    if likelihood_power == "auto":
+        from rjfit.coarsen import suggest_likelihood_power
+
+        power_suggestion = suggest_likelihood_power(observations)
+        likelihood_power = power_suggestion["likelihood_power"]
+    problem = Problem.from_observations(observations, likelihood_power=float(likelihood_power))
     prior_obj = make_prior(prior, y=problem.y, diffuse_scale=problem.A)
     burn = int(round(burn_in * iterations))
     fixed = fixed_segmentation is not None
@@ -150,7 +158,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "n_observations": problem.n_obs,
         "sampler": sampler, "prior": prior_obj.to_json(), "max_u": max_u, "max_v": max_v,
         "split_map": split_map, "cp_prior": cp_prior, "drop_jacobian": drop_jacobian,
-        "likelihood_power": likelihood_power, "anneal_iterations": int(round(anneal * burn)),
+        "likelihood_power": float(likelihood_power), "likelihood_power_suggestion": power_suggestion,
+        "anneal_iterations": int(round(anneal * burn)),
         "acceptance": {k: sum(r.accepted.get(k, 0) for r in records) / max(1, sum(r.proposed.get(k, 0) for r in records))
                        for k in sorted({k for r in records for k in r.proposed})},
         "chain_seconds": [r.seconds for r in records],

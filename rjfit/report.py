@@ -117,6 +117,7 @@ def build_report(fit_dir, out_path=None) -> Path:
     map_model = summary.get("map_model", {})
     parts.append(_key_values({**{f"map_model.{k}": v for k, v in map_model.items()}, **summary},
                              ["map_model.n_u", "map_model.n_v", "map_model.m", "true_regions_probability", "four_region_probability",
+                              "likelihood_power",
                               "exact_truth_probability", "label_accuracy",
                               "rhat_max", "ess_min", "iterations", "seconds"]))
     model_posterior = summary.get("model_posterior") or {}
