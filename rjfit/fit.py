@@ -126,6 +126,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     config = SamplerConfig(max_u=max_u, max_v=max_v, sampler=sampler, split_map=split_map, cp_prior=cp_prior,
                            drop_jacobian=drop_jacobian, burn_in=burn, jump_prob=jump_prob,
                            anneal=int(round(anneal * burn)),
+                           # reproducing the paper's omission: every jump must use its map
+                           free_jump_prob=0.0 if drop_jacobian else SamplerConfig.free_jump_prob,
                            update_changepoints=not fixed, jumps=not fixed)
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
