@@ -1172,14 +1172,21 @@ def _free_birth_ratio(problem, prior, config, small, big, axis, x, log_q_ranks, 
             + log_q_ranks - _vector_log_q(x, *bounds, size, config) + theta_term)
 
 
-def _redraw_all(problem, prior, config, labels_new, n_new, labels_old, theta_old, rng):
-    """Fresh conditional parameters for every region of the new model; (theta, log term new - old)."""
-    theta_new, term_new = _regions_term(problem, prior, config, labels_new, np.ones((n_new, 4)), range(n_new),
+def _redraw_all(problem, prior, config, u_new, v_new, work, rng):
+    """The new change points' labels, fresh conditional parameters for every region, and their statistics.
+
+    Returns ``(labels, theta, log term new - old, stats, log_lik)``; theta is None when a
+    draw was invalid.
+    """
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    n_new = n_regions(u_new.shape[1], v_new.shape[1])
+    theta_new, term_new = _regions_term(problem, prior, config, labels, np.ones((n_new, 4)), range(n_new),
                                         draw_rng=rng)
     if theta_new is None:
-        return None, -np.inf
-    _, term_old = _regions_term(problem, prior, config, labels_old, theta_old, range(theta_old.shape[0]))
-    return theta_new, term_new - term_old
+        return labels, None, -np.inf, None, None
+    _, term_old = _regions_term(problem, prior, config, work.labels, work.theta, range(work.theta.shape[0]))
+    stats = region_stats(problem, labels, theta_new[:, 2], n_new)
+    return labels, theta_new, term_new - term_old, stats, log_likelihood_from_stats(stats, theta_new)
 
 
 def propose_birth_free(work, rng, problem, prior, config, axis: str):
@@ -1204,13 +1211,9 @@ def propose_birth_free(work, rng, problem, prior, config, axis: str):
     u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
     if np.any(x < -1.0) or np.any(x > size + 1.0):
         return u_new, v_new, None, None, None, None, -np.inf
-    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
-    theta_new, theta_term = _redraw_all(problem, prior, config, labels, n_regions(u_new.shape[1], v_new.shape[1]),
-                                        work.labels, work.theta, rng)
+    labels, theta_new, theta_term, stats, log_lik = _redraw_all(problem, prior, config, u_new, v_new, work, rng)
     if theta_new is None:
         return u_new, v_new, None, labels, None, None, -np.inf
-    stats = region_stats(problem, labels, theta_new[:, 2], theta_new.shape[0])
-    log_lik = log_likelihood_from_stats(stats, theta_new)
     log_q_ranks = _rank_path_log_prob(problem, u_new, v_new, theta_new, labels, axis, ranks)
     log_ratio = _free_birth_ratio(problem, prior, config, (work.u, work.v, float(np.sum(work.log_lik))),
                                   (u_new, v_new, float(np.sum(log_lik))), axis, x, log_q_ranks, n, n_max, theta_term)
@@ -1236,13 +1239,9 @@ def propose_death_free(work, rng, problem, prior, config, axis: str):
     keep[rows, ranks] = False
     new_cps = cps[keep].reshape(n_lines, n - 1)
     u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
-    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
-    theta_new, term = _redraw_all(problem, prior, config, labels, n_regions(u_new.shape[1], v_new.shape[1]),
-                                  work.labels, work.theta, rng)
+    labels, theta_new, term, stats, log_lik = _redraw_all(problem, prior, config, u_new, v_new, work, rng)
     if theta_new is None:
         return u_new, v_new, None, labels, None, None, -np.inf
-    stats = region_stats(problem, labels, theta_new[:, 2], theta_new.shape[0])
-    log_lik = log_likelihood_from_stats(stats, theta_new)
     birth_ratio = _free_birth_ratio(problem, prior, config, (u_new, v_new, float(np.sum(log_lik))),
                                     (work.u, work.v, float(np.sum(work.log_lik))), axis, x,
                                     _path_log_prob(alpha, ranks, logits), n - 1, n_max, -term)
