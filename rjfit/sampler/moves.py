@@ -1039,16 +1039,18 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     cps = work.u if axis == "u" else work.v
     n_lines, n = cps.shape
     size = width if axis == "u" else height
-    line, along = _line_coords(problem, axis)
     k = int(rng.integers(n))
     lower, upper = _gaps(np.delete(cps, k, axis=1), k, size)
     step_label = (work.v.shape[1] + 1) if axis == "u" else 1
     x_old = cps[:, k]
-    base = work.labels.astype(np.int64) - step_label * (x_old[line] < along + 0.5)
     # per-pixel log-likelihood with the element right of the pixel (base) or left of it (base + step)
-    key = line * size + along
-    per_pixel = [_binned_log_lik(problem, labels_case, work.theta, key, n_lines * size).reshape(n_lines, size)
-                 for labels_case in (base, base + step_label)]
+    per_pixel = [np.zeros(n_lines * size), np.zeros(n_lines * size)]
+    for idx, line, along, key in _line_chunks(problem, axis):
+        base = work.labels[idx].astype(np.int64) - step_label * (x_old[line] < along + 0.5)
+        for case, labels_case in enumerate((base, base + step_label)):
+            _, ll = _per_obs_terms(problem, idx, work.theta[labels_case])
+            per_pixel[case][key[0]: key[-1] + 1] += np.bincount(key - key[0], weights=ll)
+    per_pixel = [p.reshape(n_lines, size) for p in per_pixel]
     zero = np.zeros((n_lines, 1))
     right_of = np.concatenate([zero, np.cumsum(per_pixel[0], axis=1)], axis=1)    # pixels t < j: element right
     left_of = np.concatenate([zero, np.cumsum(per_pixel[1], axis=1)], axis=1)
@@ -1082,26 +1084,32 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
                  + log_prior_cp_state(u_new, v_new, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
                  - log_prior_cp_state(work.u, work.v, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
                  + log_q_old - log_q_new)
-    labels = (base + step_label * (x_new[line] < along + 0.5)).astype(work.labels.dtype)
+    labels = np.empty_like(work.labels)
+    for idx, line, along, _ in _line_chunks(problem, axis):
+        labels[idx] = work.labels[idx] + step_label * ((x_new[line] < along + 0.5).astype(np.int64)
+                                                       - (x_old[line] < along + 0.5))
     return new_cps, labels, float(log_ratio)
 
 
 # ----------------------------------------------------------------------------- birth / death at any rank
 
-def _line_coords(problem, axis):
-    """(line, position along the line) of every observation, int64: (row, col) for u, (col, row) for v."""
-    row, col = problem.row.astype(np.int64), problem.col.astype(np.int64)
-    return (row, col) if axis == "u" else (col, row)
+def _line_chunks(problem, axis):
+    """Observations in chunks, in line order: ``(idx, line, along, key)`` per chunk, int64.
 
-
-def _binned_log_lik(problem, labels, theta, key, n_bins):
-    """Gaussian log density of every observation under ``labels``, summed per ``key`` (streamed in chunks)."""
-    out = np.zeros(n_bins)
+    ``line`` is the observation's row (u) or column (v), ``along`` its position along the
+    line, ``key = line * size + along``, non-decreasing within and across chunks (rows come
+    sorted; columns through ``colmajor_order``), so per-pixel sums go into one contiguous
+    slice per chunk. Chunks keep every temporary a few MB at any image size.
+    """
+    size = problem.width if axis == "u" else problem.height
     for start in range(0, problem.n_obs, CHUNK):
-        idx = np.arange(start, min(start + CHUNK, problem.n_obs))
-        _, ll = _per_obs_terms(problem, idx, theta[labels[idx]])
-        out += np.bincount(key[idx], weights=ll, minlength=n_bins)
-    return out
+        if axis == "u":
+            idx = np.arange(start, min(start + CHUNK, problem.n_obs))
+            line, along = problem.row[idx].astype(np.int64), problem.col[idx].astype(np.int64)
+        else:
+            idx = problem.colmajor_order[start:start + CHUNK].astype(np.int64)
+            line, along = problem.col[idx].astype(np.int64), problem.row[idx].astype(np.int64)
+        yield idx, line, along, line * size + along
 
 
 def _removal_log_emit(problem, labels, theta, n, n_v, axis):
@@ -1113,16 +1121,19 @@ def _removal_log_emit(problem, labels, theta, n, n_v, axis):
     column k's given column k + 1's. Only a proposal ingredient: any function of the state
     keeps the move exact.
     """
-    line, _ = _line_coords(problem, axis)
     n_lines = problem.height if axis == "u" else problem.width
-    labels = labels.astype(np.int64)
     step = (n_v + 1) if axis == "u" else 1
-    column = labels // (n_v + 1) if axis == "u" else labels % (n_v + 1)
-    key = line * (n + 1) + column
     bins = n_lines * (n + 1)
-    current = _binned_log_lik(problem, labels, theta, key, bins).reshape(n_lines, n + 1)
-    down = _binned_log_lik(problem, np.where(column > 0, labels - step, labels), theta, key, bins).reshape(n_lines, n + 1)
-    up = _binned_log_lik(problem, np.where(column < n, labels + step, labels), theta, key, bins).reshape(n_lines, n + 1)
+    sums = np.zeros((3, bins))            # current labels, column's pixels moved down, moved up
+    for idx, line, _, _ in _line_chunks(problem, axis):
+        lab = labels[idx].astype(np.int64)
+        column = lab // (n_v + 1) if axis == "u" else lab % (n_v + 1)
+        key = line * (n + 1) + column
+        cases = (lab, np.where(column > 0, lab - step, lab), np.where(column < n, lab + step, lab))
+        for case, labels_case in enumerate(cases):
+            _, ll = _per_obs_terms(problem, idx, theta[labels_case])
+            sums[case] += np.bincount(key, weights=ll, minlength=bins)
+    current, down, up = (x.reshape(n_lines, n + 1) for x in sums)
     return np.maximum(down[:, 1:] - current[:, 1:], up[:, :-1] - current[:, :-1])
 
 
