@@ -120,3 +120,22 @@ def test_make_state_rejects_wrong_region_count(small):
 def test_config_rejects_unknown_sampler():
     with pytest.raises(ValueError, match="sampler"):
         SamplerConfig(sampler="nuts")
+
+
+def test_annealed_warm_up_tempers_then_hands_over_the_plain_likelihood(small):
+    """During the warm-up the cached statistics are the tempered ones; after it, the plain ones (oracle)."""
+    from rjfit.sampler.kernel import anneal_power
+
+    problem, prior, _, _ = small
+    config = SamplerConfig(max_u=2, max_v=2, burn_in=40, anneal=30, jump_prob=0.5, refresh_every=0)
+    rng = np.random.default_rng(5)
+    state = initial_state(problem, prior, config, rng, model=(1, 1))
+    assert anneal_power(config, 0) == pytest.approx(1e-3) and anneal_power(config, 30) == 1.0
+    with threadpool_limits(1):
+        for t in range(45):
+            state, _ = step(state, rng, problem, prior, config)
+            power = anneal_power(config, t)
+            fresh = region_stats(problem, state.labels, state.theta[:, 2], state.n_regions)
+            np.testing.assert_allclose(state.stats, power * fresh, rtol=1e-9, atol=1e-8 * power)
+    assert state.total_log_lik == pytest.approx(oracle_log_likelihood(problem, state.labels, state.theta),
+                                                rel=1e-10, abs=1e-7)

@@ -25,8 +25,8 @@ import numpy as np
 from rjfit.sampler.changepoints import n_regions, obs_region_labels
 from rjfit.sampler.likelihood import Problem, log_likelihood_from_stats, region_stats
 from rjfit.sampler.moves import (Work, birth_probability, log_posterior, propose_birth, propose_birth_free,
-                                 propose_block_shift, propose_death, propose_death_free, propose_vector_redraw, sweep_changepoints, update_region_adaptive,
-                                 update_region_paper)
+                                 propose_block_shift, propose_death, propose_death_free, propose_vector_redraw,
+                                 sweep_changepoints, update_region_adaptive, update_region_paper)
 from rjfit.sampler.state import ChainState, SamplerConfig, StepInfo
 
 __all__ = ["make_state", "refresh", "step", "initial_state", "log_posterior_of"]
