@@ -48,7 +48,8 @@ def run_one(problem, prior, config, iterations, seed, start_theta):
     t_burn = t0
     for t in range(iterations):
         state, _ = step(state, rng, problem, prior, config)
-        draws[t] = state.theta
+        # segmentation sampled: parameters are kept in the start's model only (NaN elsewhere)
+        draws[t] = state.theta if state.n_regions == draws.shape[1] else np.nan
         if t + 1 == burn:
             t_burn = time.perf_counter()
     t1 = time.perf_counter()
@@ -59,6 +60,7 @@ def ess_figures(draws, burn):
     import arviz as az
 
     post = draws[burn:]
+    post = post[np.all(np.isfinite(post), axis=(1, 2))]      # iterations in the start's model
     ess = np.array([[float(az.ess(post[:, r, k][None], method="bulk")) for k in range(4)] for r in range(post.shape[1])])
     return ess
 
@@ -69,6 +71,9 @@ def main(argv=None):
     parser.add_argument("--lights", type=int, default=10)
     parser.add_argument("--iterations", type=int, default=4000, help="iterations of the default sampler")
     parser.add_argument("--paper-iterations", type=int, default=4000)
+    parser.add_argument("--segmentation-iterations", type=int, default=2000,
+                        help="iterations of the default kernel with change points, births and deaths sampled "
+                             "(started in the true model; ESS over its iterations in that model)")
     parser.add_argument("--full-iterations", type=int, default=400,
                         help="iterations of the paper-style sampler with a full likelihood pass per proposal")
     parser.add_argument("--burn-in", type=float, default=0.5)
@@ -87,15 +92,17 @@ def main(argv=None):
     start = np.tile([np.exp(prior.params[0].a), 0.5, 10.0, 0.1 * np.var(problem.y)], (4, 1))
     print(f"{problem.n_obs} valid observations, image {problem.image_shape}, 4 fixed regions")
     rows = []
-    runs = [("default (adaptive)", dict(sampler="adaptive"), args.iterations),
-            ("paper-style MH, incremental", dict(sampler="paper"), args.paper_iterations),
-            ("paper-style MH, full pass", dict(sampler="paper", full_recompute=True), args.full_iterations)]
+    fixed = dict(max_u=1, max_v=1, update_changepoints=False, jumps=False)
+    runs = [("default (adaptive)", dict(sampler="adaptive", **fixed), args.iterations),
+            ("default, segmentation sampled", dict(sampler="adaptive", max_u=3, max_v=3), args.segmentation_iterations),
+            ("paper-style MH, incremental", dict(sampler="paper", **fixed), args.paper_iterations),
+            ("paper-style MH, full pass", dict(sampler="paper", full_recompute=True, **fixed), args.full_iterations)]
     with threadpool_limits(1):
         for name, options, iterations in runs:
             if iterations <= 0:
                 continue
             burn = int(args.burn_in * iterations)
-            config = SamplerConfig(max_u=1, max_v=1, update_changepoints=False, jumps=False, burn_in=burn, **options)
+            config = SamplerConfig(burn_in=burn, **options)
             draws, total_s, sampling_s = run_one(problem, prior, config, iterations, args.seed, start)
             ess = ess_figures(draws, burn)
             means = draws[burn:].mean(axis=0)

@@ -22,9 +22,10 @@ import numpy as np
 
 from rjfit.data.observations import Observations
 from rjfit.model.blinn import blinn_normalisation, radiance
+from rjfit.sampler import jit
 
 __all__ = ["Problem", "STAT_N", "region_stats", "stat_terms", "log_likelihood_from_stats",
-           "oracle_log_likelihood", "ab_from_theta", "theta_from_ab", "b_terms", "index_dtype", "RegionData",
+           "oracle_log_likelihood", "region_stats_numpy", "ab_from_theta", "theta_from_ab", "b_terms", "index_dtype", "RegionData",
            "CHUNK"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
@@ -190,15 +191,8 @@ class RegionData:
         return int(self.y.size)
 
     def b_sums(self, gamma: float) -> np.ndarray:
-        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64)."""
-        yb = cb = bb = 0.0
-        for start in range(0, self.y.size, CHUNK):
-            c64 = self.C[start:start + CHUNK].astype(np.float64)
-            B = b_terms(c64, self.log_cos_hn[start:start + CHUNK], gamma)
-            yb += np.dot(self.y[start:start + CHUNK].astype(np.float64), B)
-            cb += np.dot(c64, B)
-            bb += np.dot(B, B)
-        return self.weight * np.array([yb, cb / np.pi, bb])
+        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; NumPy exp, one compiled pass for the sums)."""
+        return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, float(gamma))
 
     def stats_at(self, gamma: float) -> np.ndarray:
         """The seven sufficient statistics at exponent ``gamma``."""
@@ -206,11 +200,19 @@ class RegionData:
 
 
 def region_stats(problem: Problem, labels, gammas, n_regions: int):
-    """Sufficient statistics (R, 7) of every region from scratch (O(N), float64 sums).
+    """Sufficient statistics (R, 7) of every region from scratch (O(N), float64 sums, one compiled pass)."""
+    labels = np.asarray(labels)
+    gammas = np.ascontiguousarray(gammas, dtype=float)
+    if labels.shape != problem.y.shape:
+        raise ValueError(f"labels has shape {labels.shape}, the problem has {problem.n_obs} observations")
+    if labels.size and (int(labels.min()) < 0 or int(labels.max()) >= n_regions or gammas.size < n_regions):
+        raise ValueError(f"labels must lie in [0, {n_regions}) with a gamma per region")
+    return problem.likelihood_power * jit.region_stats_labels(problem.y, problem.C, problem.log_cos_hn, labels,
+                                                              gammas, int(n_regions))
 
-    Streams over chunks of :data:`CHUNK` observations, each upcast to float64 before any
-    product, so memory beyond the stored arrays stays a few MB.
-    """
+
+def region_stats_numpy(problem: Problem, labels, gammas, n_regions: int):
+    """:func:`region_stats` in plain NumPy (chunked bincounts): the test oracle of the compiled pass."""
     labels = np.asarray(labels)
     gammas = np.asarray(gammas, float)
     out = np.zeros((n_regions, 7))

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import log_ndtr
 
+from rjfit.sampler import jit
 from rjfit.sampler.changepoints import log_prior_cp_state, n_regions, obs_region_labels, smooth_line_terms
 from rjfit.sampler.likelihood import (CHUNK, LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
                                       ab_from_theta, b_terms, log_likelihood_from_stats, region_stats)
@@ -393,25 +394,15 @@ def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int 
     lo = np.clip(np.floor(np.minimum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
     hi = np.clip(np.floor(np.maximum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
     step_label = (work.v.shape[1] + 1) if axis == "u" else 1
-    delta = np.where(x_new > x_old, -step_label, step_label)
-    if axis == "u":
-        starts, ends = problem.pixel_start[lines * width + lo], problem.pixel_start[lines * width + hi]
-        idx_range, seg = _concat_ranges(starts, ends)
-        idx = idx_range
-    else:
-        starts, ends = problem.colmajor_start[lines * height + lo], problem.colmajor_start[lines * height + hi]
-        idx_range, seg = _concat_ranges(starts, ends)
-        idx = problem.colmajor_order[idx_range]
+    delta = np.where(x_new > x_old, -step_label, step_label).astype(np.int64)
+    offsets = problem.pixel_start if axis == "u" else problem.colmajor_start
+    starts, ends = offsets[lines * size + lo], offsets[lines * size + hi]
+    use_order = axis == "v"          # rows are stored row-major; columns go through colmajor_order
     log_u = np.log(rng.random(n_lines))
-    if idx.size == 0:
-        accept = inside & (log_u < log_q_ratio)
-    else:
-        old = work.labels[idx]
-        new = old + delta[seg]
-        B_old, ll_old = _per_obs_terms(problem, idx, work.theta[old])
-        B_new, ll_new = _per_obs_terms(problem, idx, work.theta[new])
-        d_ll = np.bincount(seg, weights=ll_new - ll_old, minlength=n_lines)
-        accept = inside & (log_u < d_ll + log_q_ratio)
+    d_ll = problem.likelihood_power * jit.obs_log_density_delta(
+        problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order, starts, ends, work.labels,
+        delta, work.theta)
+    accept = inside & (log_u < d_ll + log_q_ratio)
     info.count(f"cp_{axis}", accept, n_lines)
     if not np.any(accept):
         return
@@ -422,28 +413,16 @@ def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int 
         work.u = new_cps
     else:
         work.v = new_cps
-    if idx.size == 0:
+    moved = accept & (ends > starts)
+    if not np.any(moved):
         return
-    take = accept[seg]
-    if not np.any(take):
-        return
-    idx_t, old_t, new_t = idx[take], old[take], new[take]
     if not work.labels_owned:
         work.labels = work.labels.copy()
         work.labels_owned = True
-    work.labels[idx_t] = new_t
+    jit.shift_stats(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order, starts[moved],
+                    ends[moved], work.labels, delta[moved], np.ascontiguousarray(work.theta[:, 2]), work.stats,
+                    problem.likelihood_power)
     work.region_index = None
-    R = work.theta.shape[0]
-    y, A = problem.y[idx_t].astype(np.float64), problem.C[idx_t].astype(np.float64) / math.pi
-    zeta = problem.likelihood_power
-    common = (None, y * y, y * A, A * A)
-    for col, weights in enumerate(common):
-        work.stats[:, col] += zeta * (np.bincount(new_t, weights=weights, minlength=R)
-                                      - np.bincount(old_t, weights=weights, minlength=R))
-    Bo, Bn = B_old[take], B_new[take]
-    for col, (wo, wn) in zip((STAT_YB, STAT_AB, STAT_BB), ((y * Bo, y * Bn), (A * Bo, A * Bn), (Bo * Bo, Bn * Bn))):
-        work.stats[:, col] += zeta * (np.bincount(new_t, weights=wn, minlength=R)
-                                      - np.bincount(old_t, weights=wo, minlength=R))
     work.log_lik = log_likelihood_from_stats(work.stats, work.theta)
 
 
@@ -906,29 +885,20 @@ def _forward_filter(log_emit, log_kernel):
     """Forward pass of the chain of cells along the lines: normalised log alphas (L, S + 1), or None.
 
     ``log_kernel`` (2 S + 1,) holds the log weights of cell steps -S..S between neighbouring
-    lines, or is None for independent lines. The sums run in linear space as an FFT
-    convolution; round-off there only perturbs the proposal, whose density the move
-    computes from the same alphas both ways, so it stays exact.
+    lines, or is None for independent lines. The sums run in linear space (compiled:
+    :func:`rjfit.sampler.jit.forward_filter`) over the steps whose weight is at least 1e-30
+    of the largest; round-off and that cut only perturb the proposal, whose density the
+    move computes from the same alphas both ways, so it stays exact.
     """
-    from scipy.signal import fftconvolve
-
-    n_cells = log_emit.shape[1]
-    kernel = None if log_kernel is None else np.exp(log_kernel)
-    alpha = np.empty_like(log_emit)
-    previous = None
-    for r in range(log_emit.shape[0]):
-        a = log_emit[r].copy()
-        if previous is not None and kernel is not None:
-            reach = fftconvolve(previous, kernel)[n_cells - 1: 2 * n_cells - 1]
-            a += np.log(np.maximum(reach, 1e-300))
-        top = np.max(a)
-        if not np.isfinite(top):
-            return None
-        linear = np.exp(a - top)
-        total = linear.sum()
-        alpha[r] = a - top - np.log(total)
-        previous = linear / total
-    return alpha
+    if log_kernel is None:
+        kernel, reach = np.zeros(0), 0
+    else:
+        centre = log_kernel.size // 2
+        keep = np.flatnonzero(log_kernel - log_kernel.max() >= math.log(1e-30))
+        reach = int(max(abs(keep[0] - centre), abs(keep[-1] - centre)))
+        kernel = np.exp(log_kernel[centre - reach: centre + reach + 1] - log_kernel.max())
+    alpha, ok = jit.forward_filter(np.ascontiguousarray(log_emit, dtype=float), kernel, reach)
+    return alpha if ok else None
 
 
 def _cell_step_logits(log_kernel):
@@ -1045,12 +1015,10 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     x_old = cps[:, k]
     # per-pixel log-likelihood with the element right of the pixel (base) or left of it (base + step)
     per_pixel = [np.zeros(n_lines * size), np.zeros(n_lines * size)]
-    for idx, line, along, key in _line_chunks(problem, axis):
-        base = work.labels[idx].astype(np.int64) - step_label * (x_old[line] < along + 0.5)
-        for case, labels_case in enumerate((base, base + step_label)):
-            _, ll = _per_obs_terms(problem, idx, work.theta[labels_case])
-            per_pixel[case][key[0]: key[-1] + 1] += np.bincount(key - key[0], weights=ll)
-    per_pixel = [p.reshape(n_lines, size) for p in per_pixel]
+    line_of, along_of = (problem.row, problem.col) if axis == "u" else (problem.col, problem.row)
+    jit.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, line_of, along_of, work.labels,
+                            np.ascontiguousarray(x_old), step_label, work.theta, size, per_pixel[0], per_pixel[1])
+    per_pixel = [problem.likelihood_power * p.reshape(n_lines, size) for p in per_pixel]
     zero = np.zeros((n_lines, 1))
     right_of = np.concatenate([zero, np.cumsum(per_pixel[0], axis=1)], axis=1)    # pixels t < j: element right
     left_of = np.concatenate([zero, np.cumsum(per_pixel[1], axis=1)], axis=1)
@@ -1067,15 +1035,16 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     if alpha is None:
         return cps, None, -np.inf
     rows = np.arange(n_lines)
-    step_logits = _cell_step_logits(log_kernel)
-    cells_new = _backward_sample(alpha, step_logits, rng)
+    # compiled twins of _backward_sample / _path_log_prob with _cell_step_logits' steps
+    log_steps = np.zeros(0) if log_kernel is None else log_kernel
+    cells_new = jit.cell_backward_sample(alpha, log_steps, rng.random(n_lines))
     lo_new, hi_new = cell_lo[rows, cells_new], cell_lo[rows, cells_new] + widths[rows, cells_new]
     x_new = _draw_within_cells(lo_new, hi_new, sd, rng)
     cells_old = _cell_of(x_old, size)
     lo_old, hi_old = cell_lo[rows, cells_old], cell_lo[rows, cells_old] + widths[rows, cells_old]
-    log_q_new = _path_log_prob(alpha, cells_new, step_logits) + float(np.sum(
+    log_q_new = jit.cell_path_log_prob(alpha, cells_new, log_steps) + float(np.sum(
         _within_cell_log_density(x_new, x_new[1:], lo_new, hi_new, sd)))
-    log_q_old = _path_log_prob(alpha, cells_old, step_logits) + float(np.sum(
+    log_q_old = jit.cell_path_log_prob(alpha, cells_old, log_steps) + float(np.sum(
         _within_cell_log_density(x_old, x_old[1:], lo_old, hi_old, sd)))
     new_cps = cps.copy()
     new_cps[:, k] = x_new
@@ -1123,16 +1092,10 @@ def _removal_log_emit(problem, labels, theta, n, n_v, axis):
     """
     n_lines = problem.height if axis == "u" else problem.width
     step = (n_v + 1) if axis == "u" else 1
-    bins = n_lines * (n + 1)
-    sums = np.zeros((3, bins))            # current labels, column's pixels moved down, moved up
-    for idx, line, _, _ in _line_chunks(problem, axis):
-        lab = labels[idx].astype(np.int64)
-        column = lab // (n_v + 1) if axis == "u" else lab % (n_v + 1)
-        key = line * (n + 1) + column
-        cases = (lab, np.where(column > 0, lab - step, lab), np.where(column < n, lab + step, lab))
-        for case, labels_case in enumerate(cases):
-            _, ll = _per_obs_terms(problem, idx, theta[labels_case])
-            sums[case] += np.bincount(key, weights=ll, minlength=bins)
+    sums = np.zeros((3, n_lines * (n + 1)))   # current labels, column's pixels moved down, moved up
+    jit.removal_sums(problem.y, problem.C, problem.log_cos_hn, problem.row if axis == "u" else problem.col, labels,
+                     np.ascontiguousarray(theta, dtype=float), n, n_v, step, axis == "u", sums)
+    sums *= problem.likelihood_power
     current, down, up = (x.reshape(n_lines, n + 1) for x in sums)
     return np.maximum(down[:, 1:] - current[:, 1:], up[:, :-1] - current[:, :-1])
 

@@ -1,0 +1,153 @@
+"""The compiled loops (rjfit.sampler.jit) against plain NumPy references of the same quantities."""
+import math
+
+import numpy as np
+import pytest
+from scipy.signal import fftconvolve
+from scipy.stats import chi2
+
+from rjfit.data.synthetic import sphere_stack
+from rjfit.sampler import jit
+from rjfit.sampler.likelihood import LOG_2PI, Problem, RegionData, ab_from_theta, b_terms, region_stats, region_stats_numpy
+from rjfit.sampler.moves import _cell_step_logits, _path_log_prob
+
+
+@pytest.fixture(scope="module")
+def problem():
+    obs, _, _ = sphere_stack(40, n_lights=6, seed=3)
+    return Problem.from_observations(obs, likelihood_power=0.6)
+
+
+def _labels(problem, rng, n_regions):
+    return rng.integers(0, n_regions, problem.n_obs).astype(np.int8)
+
+
+def _log_density(problem, idx, theta_obs):
+    a, b = ab_from_theta(theta_obs)
+    C = problem.C[idx].astype(float)
+    mu = a / math.pi * C + b * b_terms(C, problem.log_cos_hn[idx], theta_obs[:, 2])
+    s2 = theta_obs[:, 3]
+    return -0.5 * (LOG_2PI + np.log(s2)) - 0.5 * (problem.y[idx] - mu) ** 2 / s2
+
+
+THETA = np.array([[100.0, 0.5, 5.0, 0.1], [90.0, 0.9, 10.0, 0.2], [110.0, 0.6, 2.0, 0.15], [95.0, 0.4, 1.0, 0.1],
+                  [100.0, 0.3, 30.0, 0.3], [80.0, 0.7, 7.0, 0.05]])
+
+
+def test_region_stats_equal_numpy_reference(problem):
+    labels = _labels(problem, np.random.default_rng(0), 6)
+    fast = region_stats(problem, labels, THETA[:, 2], 6)
+    reference = region_stats_numpy(problem, labels, THETA[:, 2], 6)
+    np.testing.assert_allclose(fast, reference, rtol=1e-12)
+
+
+def test_region_stats_reject_labels_outside_the_regions(problem):
+    labels = np.full(problem.n_obs, 6, np.int8)
+    with pytest.raises(ValueError, match="labels must lie"):
+        region_stats(problem, labels, THETA[:, 2], 6)
+
+
+def test_b_sums_equal_numpy_reference(problem):
+    idx = np.arange(0, problem.n_obs, 3)
+    data = RegionData.gather(problem, idx)
+    for gamma in (0.3, 5.0, 80.0):
+        B = b_terms(problem.C[idx].astype(float), problem.log_cos_hn[idx], gamma)
+        y, A = problem.y[idx].astype(float), problem.C[idx].astype(float) / math.pi
+        reference = 0.6 * np.array([math.fsum(y * B), math.fsum(A * B), math.fsum(B * B)])
+        # a chunk smaller than the region exercises the chunked path too
+        small_chunks = 0.6 * jit.b_sums(data.y, data.C, data.log_cos_hn, gamma, chunk=1000)
+        np.testing.assert_allclose(data.b_sums(gamma), reference, rtol=1e-12)
+        np.testing.assert_allclose(small_chunks, reference, rtol=1e-12)
+
+
+@pytest.mark.parametrize("axis", ["u", "v"])
+def test_element_move_delta_and_shift_equal_reference(problem, axis):
+    rng = np.random.default_rng(1)
+    height, width = problem.image_shape
+    size = width if axis == "u" else height
+    labels = (rng.integers(1, 5, problem.n_obs)).astype(np.int8)
+    lines = np.arange(0, width if axis == "v" else height, 3)
+    lo = rng.integers(0, size // 2, lines.size)
+    hi = lo + rng.integers(0, size // 2, lines.size)
+    delta = np.where(rng.random(lines.size) < 0.5, -1, 1).astype(np.int64)
+    offsets = problem.pixel_start if axis == "u" else problem.colmajor_start
+    starts, ends = offsets[lines * size + lo], offsets[lines * size + hi]
+    use_order = axis == "v"
+    d_ll = jit.obs_log_density_delta(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order,
+                                     starts, ends, labels, delta, THETA)
+    for j in range(lines.size):
+        span = np.arange(starts[j], ends[j])
+        idx = problem.colmajor_order[span] if use_order else span
+        expected = np.sum(_log_density(problem, idx, THETA[labels[idx] + delta[j]])
+                          - _log_density(problem, idx, THETA[labels[idx]]))
+        assert d_ll[j] == pytest.approx(expected, rel=1e-10, abs=1e-9)
+    stats = region_stats(problem, labels, THETA[:, 2], 6)
+    moved = labels.copy()
+    jit.shift_stats(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order, starts, ends, moved,
+                    delta, THETA[:, 2].copy(), stats, problem.likelihood_power)
+    expected_labels = labels.copy()
+    for j in range(lines.size):
+        span = np.arange(starts[j], ends[j])
+        idx = problem.colmajor_order[span] if use_order else span
+        expected_labels[idx] += delta[j]
+    np.testing.assert_array_equal(moved, expected_labels)
+    np.testing.assert_allclose(stats, region_stats_numpy(problem, expected_labels, THETA[:, 2], 6),
+                               rtol=1e-9, atol=1e-9)
+
+
+def _forward_filter_fft(log_emit, log_kernel):
+    """The FFT forward filter this module replaced (reference)."""
+    n_cells = log_emit.shape[1]
+    kernel = np.exp(log_kernel)
+    alpha = np.empty_like(log_emit)
+    previous = None
+    for r in range(log_emit.shape[0]):
+        a = log_emit[r].copy()
+        if previous is not None:
+            a += np.log(np.maximum(fftconvolve(previous, kernel)[n_cells - 1: 2 * n_cells - 1], 1e-300))
+        top = np.max(a)
+        linear = np.exp(a - top)
+        alpha[r] = a - top - np.log(linear.sum())
+        previous = linear / linear.sum()
+    return alpha
+
+
+def test_forward_filter_equals_fft_reference():
+    rng = np.random.default_rng(2)
+    size = 30
+    log_emit = rng.normal(0.0, 3.0, (12, size + 1))
+    offsets = np.arange(-size, size + 1)
+    log_kernel = -0.5 * offsets ** 2 / (2.0 ** 2 + 1.0 / 12.0)
+    alpha, ok = jit.forward_filter(log_emit, np.exp(log_kernel), size)
+    assert ok
+    np.testing.assert_allclose(alpha, _forward_filter_fft(log_emit, log_kernel), atol=1e-9)
+    independent, ok = jit.forward_filter(log_emit, np.zeros(0), 0)
+    np.testing.assert_allclose(independent, log_emit - np.logaddexp.reduce(log_emit, axis=1, keepdims=True), atol=1e-12)
+
+
+def test_backward_sampler_draws_paths_with_the_probability_it_reports():
+    """Chi-square of path frequencies against exp(cell_path_log_prob) on a 3-line, 4-cell chain (level 0.001)."""
+    rng = np.random.default_rng(3)
+    n_lines, n_cells = 3, 4
+    log_emit = rng.normal(0.0, 1.0, (n_lines, n_cells))
+    offsets = np.arange(-(n_cells - 1), n_cells)
+    log_kernel = -0.5 * offsets ** 2 / 1.5
+    alpha, _ = jit.forward_filter(log_emit, np.exp(log_kernel), n_cells - 1)
+    paths = [np.array(p) for p in np.ndindex(*(n_cells,) * n_lines)]
+    probs = np.exp([jit.cell_path_log_prob(alpha, p, log_kernel) for p in paths])
+    assert probs.sum() == pytest.approx(1.0, abs=1e-12)
+    python_logits = _cell_step_logits(log_kernel)
+    for p in paths[::7]:
+        assert jit.cell_path_log_prob(alpha, p, log_kernel) == pytest.approx(_path_log_prob(alpha, p, python_logits),
+                                                                             abs=1e-12)
+    n_draws = 20000
+    counts = np.zeros(len(paths))
+    for _ in range(n_draws):
+        path = jit.cell_backward_sample(alpha, log_kernel, rng.random(n_lines))
+        counts[np.ravel_multi_index(tuple(path), (n_cells,) * n_lines)] += 1
+    expected = n_draws * probs
+    keep = expected >= 5                     # paths expected fewer than 5 times are pooled into one bin
+    observed = np.append(counts[keep], counts[~keep].sum())
+    expected = np.append(expected[keep], expected[~keep].sum())
+    statistic = np.sum((observed - expected) ** 2 / np.maximum(expected, 1e-300))
+    assert chi2.sf(statistic, observed.size - 1) > 1e-3
