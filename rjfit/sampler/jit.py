@@ -88,13 +88,28 @@ def region_stats_labels(y, C, log_cos_hn, labels, gammas, n_regions):
 
 
 @njit(cache=True, nogil=True)
-def _log_density(yv, c, lh, theta_r):
-    """Gaussian log density of one observation under region parameters ``theta_r``; also returns B."""
-    I0, kd, g, s2 = theta_r[0], theta_r[1], theta_r[2], theta_r[3]
-    norm = (g + 2.0) * (g + 4.0) / (8.0 * math.pi * (2.0 ** (-g / 2.0) + g))
-    b = c * math.exp(g * lh)
-    resid = yv - I0 * kd * INV_PI * c - I0 * (1.0 - kd) * norm * b
-    return -0.5 * (LOG_2PI + math.log(s2)) - 0.5 * resid * resid / s2, b
+def coefficients(theta):
+    """Per-region constants of the log density, (R, 5): ``a / pi, b, gamma, log-normaliser, 1 / (2 sigma^2)``.
+
+    Computed once per call of a pass, so the per-observation work is one ``exp``.
+    """
+    out = np.empty((theta.shape[0], 5))
+    for r in range(theta.shape[0]):
+        I0, kd, g, s2 = theta[r, 0], theta[r, 1], theta[r, 2], theta[r, 3]
+        norm = (g + 2.0) * (g + 4.0) / (8.0 * math.pi * (2.0 ** (-g / 2.0) + g))
+        out[r, 0] = I0 * kd * INV_PI
+        out[r, 1] = I0 * (1.0 - kd) * norm
+        out[r, 2] = g
+        out[r, 3] = -0.5 * (LOG_2PI + math.log(s2))
+        out[r, 4] = 0.5 / s2
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _log_density(yv, c, lh, coef, r):
+    """Gaussian log density of one observation in region ``r`` (``coef`` from :func:`coefficients`)."""
+    resid = yv - coef[r, 0] * c - coef[r, 1] * c * math.exp(coef[r, 2] * lh)
+    return coef[r, 3] - coef[r, 4] * resid * resid
 
 
 @njit(cache=True, nogil=True)
@@ -108,15 +123,14 @@ def obs_log_density_delta(y, C, log_cos_hn, order, use_order, starts, ends, labe
     """
     n_lines = starts.shape[0]
     out = np.zeros(n_lines)
+    coef = coefficients(theta)
     for j in range(n_lines):
         total = 0.0
         for p in range(starts[j], ends[j]):
             i = order[p] if use_order else p
             yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
             r = labels[i]
-            ll_old, _ = _log_density(yv, c, lh, theta[r])
-            ll_new, _ = _log_density(yv, c, lh, theta[r + delta[j]])
-            total += ll_new - ll_old
+            total += _log_density(yv, c, lh, coef, r + delta[j]) - _log_density(yv, c, lh, coef, r)
         out[j] = total
     return out
 
@@ -165,6 +179,7 @@ def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step
     ``left_case`` in base + step_label (flat index ``line * size + along``; both
     accumulate).
     """
+    coef = coefficients(theta)
     for i in range(y.shape[0]):
         line = line_of[i]
         along = along_of[i]
@@ -172,11 +187,9 @@ def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step
         if x_old[line] < along + 0.5:
             base -= step_label
         yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
-        ll_right, _ = _log_density(yv, c, lh, theta[base])
-        ll_left, _ = _log_density(yv, c, lh, theta[base + step_label])
         key = line * size + along
-        right_case[key] += ll_right
-        left_case[key] += ll_left
+        right_case[key] += _log_density(yv, c, lh, coef, base)
+        left_case[key] += _log_density(yv, c, lh, coef, base + step_label)
 
 
 @njit(cache=True, nogil=True)
@@ -225,22 +238,17 @@ def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u,
     axis (``label // (n_v + 1)`` for u, ``label % (n_v + 1)`` for v). See
     :func:`rjfit.sampler.moves._removal_log_emit`.
     """
+    coef = coefficients(theta)
     for i in range(y.shape[0]):
         lab = np.int64(labels[i])
         column = lab // (n_v + 1) if axis_u else lab % (n_v + 1)
         key = np.int64(line_of[i]) * (n + 1) + column
         yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
-        ll, _ = _log_density(yv, c, lh, theta[lab])
+        ll = _log_density(yv, c, lh, coef, lab)
         sums[0, key] += ll
-        if column > 0:
-            ll_down, _ = _log_density(yv, c, lh, theta[lab - step])
-        else:
-            ll_down = ll
+        ll_down = _log_density(yv, c, lh, coef, lab - step) if column > 0 else ll
         sums[1, key] += ll_down
-        if column < n:
-            ll_up, _ = _log_density(yv, c, lh, theta[lab + step])
-        else:
-            ll_up = ll
+        ll_up = _log_density(yv, c, lh, coef, lab + step) if column < n else ll
         sums[2, key] += ll_up
 
 
@@ -307,3 +315,116 @@ def cell_backward_sample(alpha, log_kernel, uniforms):
                 break
         path[r] = chosen
     return path
+
+
+@njit(cache=True, nogil=True)
+def _log_normal(x, mean, sd):
+    d = (x - mean) / sd
+    return -0.5 * d * d - math.log(sd) - 0.5 * LOG_2PI
+
+
+@njit(cache=True, nogil=True)
+def _logaddexp(a, b):
+    if a == -np.inf:
+        return b
+    if b == -np.inf:
+        return a
+    top = max(a, b)
+    return top + math.log(math.exp(a - top) + math.exp(b - top))
+
+
+@njit(cache=True, nogil=True)
+def _element_log_q(x_to, x_from, nb_up, nb_down, size, p_unif, p_nb, step, nb_sd):
+    """Log density of proposing element position ``x_to`` from ``x_from`` (NaN marks a missing neighbour).
+
+    Mixture of a uniform redraw over [-1, size + 1], a normal random walk (sd ``step``) and a
+    normal (sd ``nb_sd``) around the same-rank element of a neighbouring line, chosen
+    uniformly among the existing neighbours.
+    """
+    p_rw = 1.0 - p_unif - p_nb
+    out = -np.inf
+    if p_unif > 0:
+        out = math.log(p_unif) - math.log(size + 2.0)
+    if p_rw > 0:
+        out = _logaddexp(out, math.log(p_rw) + _log_normal(x_to, x_from, step))
+    if p_nb > 0:
+        dens, n_have = 0.0, 0
+        for nb in (nb_up, nb_down):
+            if np.isfinite(nb):
+                dens += math.exp(_log_normal(x_to, nb, nb_sd))
+                n_have += 1
+        if n_have > 0 and dens > 0:
+            out = _logaddexp(out, math.log(p_nb) + math.log(dens / n_have))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _smooth_terms(row, cps, neighbour, sd):
+    """Sum over ranks of log N(row[k] - cps[neighbour, k]; 0, sd); 0 without that neighbour."""
+    if neighbour < 0:
+        return 0.0
+    total = 0.0
+    for k in range(row.shape[0]):
+        total += _log_normal(row[k], cps[neighbour, k], sd)
+    return total
+
+
+@njit(cache=True, nogil=True)
+def sweep_proposal(cps, lines, k, kind, z, pick_up, unif, size, p_unif, p_nb, step, nb_sd, smooth_sd):
+    """Element proposals of one sweep: ``(x_new, inside, log_q_ratio)`` per moved line.
+
+    Compiled twin of the proposal half of :func:`rjfit.sampler.moves.sweep_changepoints`
+    (same random inputs, same mixture; ``smooth_sd`` <= 0 for the 'paper' prior, whose
+    terms cancel): element ``k[j]`` of line ``lines[j]`` is redrawn uniformly
+    (``kind < p_unif``), around a neighbouring line's same-rank element (``kind < p_unif +
+    p_nb``; the upper one if ``pick_up`` and it exists) or by a random walk; the ratio holds
+    the reverse and forward proposal densities and the smooth prior's terms of the line.
+    """
+    n_all, n_cp = cps.shape
+    n_lines = lines.shape[0]
+    x_new = np.empty(n_lines)
+    inside = np.empty(n_lines, np.bool_)
+    log_q_ratio = np.empty(n_lines)
+    row_old = np.empty(n_cp)
+    row_new = np.empty(n_cp)
+    for j in range(n_lines):
+        line = lines[j]
+        up = line - 1 if line > 0 else -1
+        down = line + 1 if line < n_all - 1 else -1
+        x_old = cps[line, k[j]]
+        nb_up = cps[up, k[j]] if up >= 0 else np.nan
+        nb_down = cps[down, k[j]] if down >= 0 else np.nan
+        centre = nb_up if pick_up[j] else nb_down
+        if not np.isfinite(centre):
+            centre = nb_down if pick_up[j] else nb_up
+        if kind[j] < p_unif:
+            x = unif[j]
+        elif kind[j] < p_unif + p_nb and np.isfinite(centre):
+            x = centre + nb_sd * z[j]
+        else:
+            x = x_old + step * z[j]
+        inside[j] = -1.0 <= x <= size + 1.0
+        if not inside[j]:
+            x = x_old
+        x_new[j] = x
+        # rank of the moved element after the move (the reverse move picks that rank)
+        k_new = 0
+        for m in range(n_cp):
+            if cps[line, m] < x:
+                k_new += 1
+        if x_old < x:
+            k_new -= 1
+        back_up = cps[up, k_new] if up >= 0 else np.nan
+        back_down = cps[down, k_new] if down >= 0 else np.nan
+        ratio = (_element_log_q(x_old, x, back_up, back_down, size, p_unif, p_nb, step, nb_sd)
+                 - _element_log_q(x, x_old, nb_up, nb_down, size, p_unif, p_nb, step, nb_sd))
+        if smooth_sd > 0:
+            for m in range(n_cp):
+                row_old[m] = cps[line, m]
+                row_new[m] = cps[line, m]
+            row_new[k[j]] = x
+            row_new.sort()
+            ratio += (_smooth_terms(row_new, cps, up, smooth_sd) + _smooth_terms(row_new, cps, down, smooth_sd)
+                      - _smooth_terms(row_old, cps, up, smooth_sd) - _smooth_terms(row_old, cps, down, smooth_sd))
+        log_q_ratio[j] = ratio
+    return x_new, inside, log_q_ratio

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from rjfit.sampler import jit
-from rjfit.sampler.changepoints import log_prior_cp_state, n_regions, obs_region_labels, smooth_line_terms
+from rjfit.sampler.changepoints import log_prior_cp_state, n_regions, obs_region_labels
 from rjfit.sampler.likelihood import (CHUNK, LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
                                       ab_from_theta, b_terms, log_likelihood_from_stats, region_stats)
 from rjfit.sampler.priors import from_phi, to_phi
@@ -292,50 +292,6 @@ def update_region_paper(work, r, rng, prior, problem, info, full_recompute=False
 
 # ----------------------------------------------------------------------------- change points
 
-def _concat_ranges(starts, ends):
-    lengths = ends - starts
-    total = int(lengths.sum())
-    seg = np.repeat(np.arange(len(starts)), lengths)
-    offsets = np.cumsum(lengths) - lengths
-    idx = np.arange(total) - np.repeat(offsets, lengths) + np.repeat(starts, lengths)
-    return idx, seg
-
-
-def _per_obs_terms(problem, idx, theta_obs):
-    """mu-related per-observation pieces: B and the Gaussian log density."""
-    a, b = ab_from_theta(theta_obs)
-    C = problem.C[idx].astype(np.float64)      # float32 storage, float64 arithmetic
-    B = b_terms(C, problem.log_cos_hn[idx], theta_obs[:, 2])
-    resid = problem.y[idx] - (a / math.pi) * C - b * B
-    s2 = theta_obs[:, 3]
-    return B, problem.likelihood_power * (-0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2)
-
-
-def _log_normal_pdf(x, mean, sd):
-    return -0.5 * ((x - mean) / sd) ** 2 - np.log(sd) - 0.5 * LOG_2PI
-
-
-def _element_log_q(x_to, x_from, neighbour_values, size, config):
-    """Log density of proposing element position ``x_to`` from ``x_from``.
-
-    Mixture of a uniform redraw over [-1, size + 1], a normal random walk, and a normal
-    around the same-rank element of a neighbouring row (column), chosen uniformly among
-    the existing neighbours (``neighbour_values``: (n, 2) with NaN for a missing one).
-    """
-    p_unif, p_nb = config.cp_uniform_prob, config.cp_neighbour_prob
-    p_rw = 1.0 - p_unif - p_nb
-    comp = [np.full(x_to.shape, np.log(p_unif) - np.log(size + 2.0)) if p_unif > 0 else np.full(x_to.shape, -np.inf),
-            np.log(p_rw) + _log_normal_pdf(x_to, x_from, config.cp_step) if p_rw > 0 else np.full(x_to.shape, -np.inf)]
-    if p_nb > 0:
-        have = np.isfinite(neighbour_values)
-        n_have = have.sum(axis=1)
-        dens = np.where(have, np.exp(_log_normal_pdf(x_to[:, None], np.nan_to_num(neighbour_values),
-                                                        config.cp_neighbour_sd)), 0.0).sum(axis=1)
-        with np.errstate(divide="ignore"):
-            comp.append(np.where(n_have > 0, np.log(p_nb) + np.log(dens / np.maximum(n_have, 1)), -np.inf))
-    return np.logaddexp.reduce(np.stack(comp), axis=0)
-
-
 def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int = 0):
     """Move one element of every other row (axis 'u') or column (axis 'v') at once.
 
@@ -355,42 +311,16 @@ def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int 
     if n_lines == 0:
         return
     k = rng.integers(n_cp, size=n_lines)
-    x_old = cps[lines, k]
     kind = rng.random(n_lines)
     z = rng.normal(size=n_lines)
-    up = np.where(lines > 0, lines - 1, -1)
-    down = np.where(lines < n_all - 1, lines + 1, -1)
-
-    def neighbours(rank):
-        vals = np.full((n_lines, 2), np.nan)
-        vals[up >= 0, 0] = cps[up[up >= 0], rank[up >= 0]]
-        vals[down >= 0, 1] = cps[down[down >= 0], rank[down >= 0]]
-        return vals
-
-    nb_old = neighbours(k)
-    pick = np.where(rng.random(n_lines) < 0.5, 0, 1)
-    pick = np.where(np.isnan(nb_old[np.arange(n_lines), pick]), 1 - pick, pick)
-    centre = nb_old[np.arange(n_lines), pick]
-    is_unif = kind < config.cp_uniform_prob
-    is_nb = (~is_unif) & (kind < config.cp_uniform_prob + config.cp_neighbour_prob) & np.isfinite(centre)
-    x_new = np.where(is_unif, rng.uniform(-1.0, size + 1.0, n_lines),
-                     np.where(is_nb, np.nan_to_num(centre) + config.cp_neighbour_sd * z, x_old + config.cp_step * z))
-    inside = (x_new >= -1.0) & (x_new <= size + 1.0)
-    x_new = np.where(inside, x_new, x_old)
-    # rank of the moved element among its row after the move (reverse move picks that rank)
-    k_new = (cps[lines] < x_new[:, None]).sum(axis=1) - (x_old < x_new)
-    log_q_ratio = (_element_log_q(x_old, x_new, neighbours(k_new), size, config)
-                   - _element_log_q(x_new, x_old, nb_old, size, config))
-    if config.cp_prior == "smooth":
-        old_rows = cps[lines]
-        new_rows = old_rows.copy()
-        new_rows[np.arange(n_lines), k] = x_new
-        new_rows.sort(axis=1)
-        above = np.where((up >= 0)[:, None], cps[np.maximum(up, 0)], np.nan)
-        below = np.where((down >= 0)[:, None], cps[np.maximum(down, 0)], np.nan)
-        sd = config.cp_smooth_sd
-        log_q_ratio = log_q_ratio + (smooth_line_terms(new_rows, above, below, sd)
-                                     - smooth_line_terms(old_rows, above, below, sd))
+    pick_up = rng.random(n_lines) < 0.5
+    unif = rng.uniform(-1.0, size + 1.0, n_lines)
+    # proposal and its log ratio (reverse / forward density, smooth prior's terms): compiled
+    x_old = cps[lines, k]
+    x_new, inside, log_q_ratio = jit.sweep_proposal(
+        np.ascontiguousarray(cps), lines, k, kind, z, pick_up, unif, float(size), config.cp_uniform_prob,
+        config.cp_neighbour_prob, config.cp_step, config.cp_neighbour_sd,
+        config.cp_smooth_sd if config.cp_prior == "smooth" else 0.0)
     lo = np.clip(np.floor(np.minimum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
     hi = np.clip(np.floor(np.maximum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
     step_label = (work.v.shape[1] + 1) if axis == "u" else 1
