@@ -77,6 +77,44 @@ def _key_values(payload: dict, keys) -> str:
     return f"<table>{rows}</table>"
 
 
+def _markdown_to_html(text: str) -> str:
+    """The little markdown the result writers produce: headings, pipe tables, lists, paragraphs."""
+    out, table, items = [], [], []
+
+    def flush():
+        if table:
+            cells = [[html.escape(c.strip()) for c in row.strip().strip("|").split("|")] for row in table]
+            body = [row for row in cells[1:] if not all(set(c) <= set("-: ") for c in row)]
+            out.append("<table><tr>" + "".join(f"<th>{c}</th>" for c in cells[0]) + "</tr>"
+                       + "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in body)
+                       + "</table>")
+            table.clear()
+        if items:
+            out.append("<ul>" + "".join(f"<li>{html.escape(i)}</li>" for i in items) + "</ul>")
+            items.clear()
+
+    for line in text.splitlines():
+        stripped = line.strip()
+        if stripped.startswith("|"):
+            if items:
+                flush()
+            table.append(stripped)
+            continue
+        if stripped.startswith(("- ", "* ")):
+            if table:
+                flush()
+            items.append(stripped[2:])
+            continue
+        flush()
+        if stripped.startswith("#"):
+            level = min(len(stripped) - len(stripped.lstrip("#")) + 2, 6)
+            out.append(f"<h{level}>{html.escape(stripped.lstrip('#').strip())}</h{level}>")
+        elif stripped:
+            out.append(f"<p>{html.escape(stripped)}</p>")
+    flush()
+    return "".join(out)
+
+
 def build_report(fit_dir, out_path=None) -> Path:
     """Write ``report.html`` for a fit folder and return its path.
 
@@ -153,7 +191,7 @@ def build_report(fit_dir, out_path=None) -> Path:
             rows = "".join("<tr>" + "".join(f"<td>{_fmt(e.get(k))}</td>" for k in header) + "</tr>" for e in entries)
             parts.append("<table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in header) + f"</tr>{rows}</table>")
         elif markdown.is_file():
-            parts.append(f"<pre>{html.escape(markdown.read_text())}</pre>")
+            parts.append(_markdown_to_html(markdown.read_text()))
         for png in sorted((fit_dir / sub).glob("*.png")):
             parts.append(_embed(png, f"{sub}: {png.stem.replace('_', ' ')}"))
 

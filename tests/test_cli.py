@@ -55,6 +55,8 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     assert str(report.resolve()) in result.output
     html = report.read_text()
     assert html.count("data:image/png;base64,") >= 5 and "passed" in html
+    # the baselines' markdown table is rendered as an HTML table, not shown as source
+    assert "<th>method</th>" in html and "|---" not in html
     summary = json.loads((tmp_path / "run" / "fit" / "summary.json").read_text())
     assert summary["validation"]["passed"] is True
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",

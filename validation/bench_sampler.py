@@ -1,11 +1,14 @@
-"""Benchmark of the within-model samplers in effective samples per second (issue 3, item 5).
+"""Benchmark of the samplers in effective samples per second (issue 3, item 5).
 
-Segmentation fixed at the true four quadrant regions; one chain per sampler, run one after
-the other in this process (BLAS limited to one thread). Prints, side by side, for rjfit's
-default sampler and the paper-style component-wise random-walk MH (with the incremental
-likelihood, and with a full likelihood pass per proposal as the paper did):
-iterations per second, minimum and median ArviZ bulk ESS per second of the 16 parameters,
-per second of sampling (after burn-in) and per second of the whole run (burn-in counted).
+One chain per sampler, run one after the other in this process (BLAS limited to one
+thread). Prints, side by side: rjfit's default sampler with the segmentation fixed at the
+true four quadrant regions; the same kernel with the segmentation sampled as well (change
+points moved, whole vectors redrawn, births and deaths tried; started in the true model,
+ESS over its iterations in that model); and the paper-style component-wise random-walk MH
+(segmentation fixed, with the incremental likelihood, and with a full likelihood pass per
+proposal as the paper did): iterations per second, minimum and median ArviZ bulk ESS per
+second of the 16 parameters, per second of sampling (after burn-in) and per second of the
+whole run (burn-in counted).
 
 Data: the pure-numpy synthetic sphere (``rjfit.data.synthetic.sphere_stack``: Table 2 truth,
 10 asymmetric point lights, noise variance 0.1), or a rendered data set (``--dataset DIR``,
