@@ -223,7 +223,8 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
                    "the signal: photon plus read noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: "
                    "a multiplicative error). m_i: the prediction of a separate Lambert + Blinn fit of each pixel; "
                    "ybar: the mean observed value; c = NOISE_FLOOR * ybar. Weighted least squares: the sampler is "
-                   "unchanged.")
+                   "unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
+                   "known to grow with the signal.")
 @click.option("--noise-floor", type=float, default=0.05, show_default=True,
               help="c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, "
                    "as a fraction of the mean observed value. Unused for --noise constant.")

@@ -27,6 +27,15 @@ a separate least-squares fit of every pixel (:func:`rjfit.coarsen.per_pixel_resi
 Lambert plus one Blinn lobe, exponent on a grid), clipped at 0. It needs no segmentation
 and follows every material of a multi-material surface. Pixels with fewer than 4 valid
 observations (no per-pixel fit) use ``max(y_i, 0)``.
+
+Choose a model that the noise really follows. A wrong one splits regions as a wrong BRDF
+does: on the synthetic four-quadrant sphere (homoscedastic noise, 128 px, 10 lights),
+dividing each true quadrant into an inner and an outer part gains 2,300 ('shot', floor
+0.05) to 6,400 ('relative', floor 0.05) log-likelihood units over the four true regions
+against a penalty of about 90, and 2 x 1000-iteration fits over-segment, while 'constant'
+loses 65 by such a split and finds the four regions. On the DiLiGenT ball 'relative' cuts
+the gain of the best split from 168,000 to about 4,000 to 12,000 units (zeta recomputed),
+which is still far above the penalty: it does not make one region the posterior's choice.
 """
 from __future__ import annotations
 
