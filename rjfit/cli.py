@@ -217,6 +217,17 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
                    "measured data does not split a uniform material into regions. 'auto': zeta = ((1-rho)/(1+rho))^2 "
                    "from the lag-1 spatial correlation rho of per-pixel-fit residuals (about 1 for white noise). "
                    "1: the plain posterior.")
+@click.option("--noise", type=click.Choice(["constant", "shot", "relative"]), default="constant", show_default=True,
+              help="Noise model y_i ~ N(mu_i, sigma_r^2 s_i^2), s_i known per observation: constant: s_i = 1 "
+                   "(homoscedastic per region, the paper's); shot: s_i^2 = (m_i + c) / ybar (variance grows with "
+                   "the signal: photon plus read noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: "
+                   "a multiplicative error). m_i: the prediction of a separate Lambert + Blinn fit of each pixel; "
+                   "ybar: the mean observed value; c = NOISE_FLOOR * ybar. Weighted least squares: the sampler is "
+                   "unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
+                   "known to grow with the signal.")
+@click.option("--noise-floor", type=float, default=0.05, show_default=True,
+              help="c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, "
+                   "as a fraction of the mean observed value. Unused for --noise constant.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
 @click.option("--validation", "validation_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="validation.json of the data set (default: DATASET/validation/validation.json).")
@@ -226,7 +237,8 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
               help="Run chains on Dask: 'local' for a local cluster, or a scheduler address (tcp://host:8786).")
 @click.option("--workers", type=int, default=2, show_default=True, help="Workers of a local Dask cluster.")
 def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler, prior, split_map, cp_prior,
-        drop_jacobian, channel, likelihood_power, seed, validation_path, allow_unvalidated, scheduler, workers):
+        drop_jacobian, channel, likelihood_power, noise, noise_floor, seed, validation_path, allow_unvalidated,
+        scheduler, workers):
     """Segment DATASET(S) and sample the region BRDF posteriors (RJMCMC).
 
     Refuses a data set whose forward model has not passed `rjfit validate` unless
@@ -237,12 +249,16 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
     summaries = fit_datasets(datasets, out_dir, n_chains=n_chains, iterations=iterations, burn_in=burn_in,
                              max_u=max_u, max_v=max_v, sampler=sampler, prior=prior, split_map=split_map,
                              cp_prior=cp_prior, drop_jacobian=drop_jacobian, channel=channel,
-                             likelihood_power=_likelihood_power(likelihood_power), seed=seed,
+                             likelihood_power=_likelihood_power(likelihood_power), noise=noise,
+                             noise_floor=noise_floor, seed=seed,
                              validation_path=validation_path,
                              allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers)
     for folder, summary in summaries:
         map_model = summary["map_model"]
         click.echo(f"fit of {summary['dataset']} -> {folder}")
+        if summary.get("noise", {}).get("model", "constant") != "constant":
+            click.echo(f"  noise model {summary['noise']['model']} (floor {summary['noise']['floor']:g} x mean), "
+                       f"likelihood power {summary['likelihood_power']:.4g}")
         click.echo(f"  MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
                    f"{len(summary['regions'])} regions; R-hat max {summary['rhat_max']:.4f}, "
                    f"ESS min {summary['ess_min']:.0f}; {summary['seconds']:.1f} s")

@@ -69,8 +69,16 @@ def per_pixel_residuals(observations, gammas=GAMMA_GRID):
     return np.where(np.isfinite(best_ssr[pixel]), residuals, np.nan)
 
 
-def suggest_likelihood_power(observations) -> dict:
+def suggest_likelihood_power(observations, noise_scale=None) -> dict:
     """zeta = ((1 - rho) / (1 + rho))^2 from the lag-1 correlation of per-pixel-fit residuals.
+
+    Parameters
+    ----------
+    observations : rjfit.data.observations.Observations
+    noise_scale : ndarray (N,), optional
+        Known noise scales of a heteroscedastic noise model (:mod:`rjfit.noise`): the
+        per-pixel fits are then weighted least squares and rho is measured on the
+        standardised residuals ``(y - mu) / s``, the ones the fit's likelihood sees.
 
     Returns
     -------
@@ -89,7 +97,9 @@ def suggest_likelihood_power(observations) -> dict:
     J. W. Miller and D. B. Dunson, "Robust Bayesian inference via coarsening", JASA 114
     (2019) 1113-1125.
     """
-    obs = observations
+    from rjfit.noise import weighted_observations
+
+    obs = weighted_observations(observations, noise_scale)
     height, width = obs.image_shape
     residuals = per_pixel_residuals(obs)
     dense = np.full((obs.n_lights, height, width), np.nan)

@@ -6,7 +6,7 @@ passed the cross-check gate (the gate is the caller's business).
 Outputs in ``out_dir`` (each written atomically):
 
 - ``summary.json``: model_posterior, map_model {n_u, n_v, m}, regions, rhat_max, ess_min,
-  iterations, seconds, chain_model_posterior (per chain), and with ground truth
+  iterations, seconds, noise (the noise model, its floor and scale range), chain_model_posterior (per chain), and with ground truth
   label_accuracy, true_regions_probability and exact_truth_probability;
 - ``labels.exr``: MAP labels (channel ``labels``, -1 off the object);
 - ``chains.nc``: full chains as ArviZ InferenceData (dims chain, draw, region, parameter);
@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.dataset import write_json_atomic
+from rjfit.noise import DEFAULT_FLOOR, NOISE_MODELS, describe_noise, noise_scale
 from rjfit.posterior import summary as post
 from rjfit.sampler.changepoints import model_number
 from rjfit.sampler.likelihood import Problem
@@ -49,7 +50,8 @@ __all__ = ["fit"]
 def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: int = 0, n_chains: int = 4,
         iterations: int = 20000, burn_in: float = 0.5, max_u: int = 3, max_v: int = 3, sampler: str = "adaptive",
         prior: str = "default", split_map: str = "conditional", cp_prior: str = "smooth",
-        drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float | str = 1.0, anneal: float = 0.5,
+        drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float | str = 1.0,
+        noise: str = "constant", noise_floor: float = DEFAULT_FLOOR, anneal: float = 0.5,
         cp_thin: int = 10, checkpoint_every: int = 2000, processes: int | None = None, start=None,
         fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
@@ -83,6 +85,15 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         :class:`rjfit.sampler.likelihood.Problem`. 1 (default): the plain posterior.
         'auto': the effective fraction of independent observations, from the spatial
         correlation of per-pixel-fit residuals (:func:`rjfit.coarsen.suggest_likelihood_power`).
+    noise : {'constant', 'shot', 'relative'}
+        Noise model, ``y_i ~ N(mu_i, sigma_r^2 s_i^2)`` with known scales ``s_i``
+        (:func:`rjfit.noise.noise_scale`): 'constant' (default, the paper's) ``s_i = 1``;
+        'shot' ``s_i^2 = (m_i + c) / ybar``; 'relative' ``s_i = (m_i + c) / ybar``, with
+        ``m_i`` a per-pixel fit's prediction, ``ybar`` the mean observed value and
+        ``c = noise_floor * ybar``. With 'auto' likelihood power, zeta is measured on the
+        standardised residuals.
+    noise_floor : float
+        ``c / ybar`` of the 'shot' and 'relative' models (default 0.05); unused for 'constant'.
     split_map, cp_prior, drop_jacobian, jump_prob : see :class:`rjfit.sampler.state.SamplerConfig`
         (``cp_prior='paper'`` and ``split_map='paper'`` with ``drop_jacobian=True`` give the
         paper's own choices).
@@ -110,16 +121,26 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         raise ValueError(f"need n_chains >= 1 and iterations >= 10, got {n_chains}, {iterations}")
     if prior not in PRESETS:
         raise ValueError(f"unknown prior {prior!r}: choose one of {', '.join(PRESETS)}")
+    if noise not in NOISE_MODELS:
+        raise ValueError(f"unknown noise model {noise!r}: choose one of {', '.join(NOISE_MODELS)}")
+    if likelihood_power != "auto":
+        try:
+            likelihood_power = float(likelihood_power)
+        except (TypeError, ValueError):
+            raise ValueError(f"likelihood_power must be a number in (0, 1] or 'auto', got {likelihood_power!r}") from None
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
+    scale = noise_scale(observations, noise, noise_floor)
     power_suggestion = None
     if likelihood_power == "auto":
         from rjfit.coarsen import suggest_likelihood_power
 
-        power_suggestion = suggest_likelihood_power(observations)
+        power_suggestion = suggest_likelihood_power(observations, noise_scale=scale)
         likelihood_power = power_suggestion["likelihood_power"]
-    problem = Problem.from_observations(observations, likelihood_power=float(likelihood_power))
+    problem = Problem.from_observations(observations, likelihood_power=float(likelihood_power), noise_scale=scale)
+    noise_record = describe_noise(noise, noise_floor, scale)
+    del scale
     prior_obj = make_prior(prior, y=problem.y, diffuse_scale=problem.A)
     burn = int(round(burn_in * iterations))
     fixed = fixed_segmentation is not None
@@ -161,6 +182,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "sampler": sampler, "prior": prior_obj.to_json(), "max_u": max_u, "max_v": max_v,
         "split_map": split_map, "cp_prior": cp_prior, "drop_jacobian": drop_jacobian,
         "likelihood_power": float(likelihood_power), "likelihood_power_suggestion": power_suggestion,
+        "noise": noise_record,
         "anneal_iterations": int(round(anneal * burn)),
         "acceptance": {k: sum(r.accepted.get(k, 0) for r in records) / max(1, sum(r.proposed.get(k, 0) for r in records))
                        for k in sorted({k for r in records for k in r.proposed})},

@@ -76,11 +76,13 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
 def write_parameter_maps(observations, summary, out_dir: Path) -> str:
     """Per-pixel maps of the MAP segmentation as one EXR: each region's posterior mean and sd
     of I0, kd, gamma, sigma^2, the label, the valid-images count (paper, Fig. 8) and the RMS
-    over lights of the standardised residual ``(y - mu) / sigma`` at the posterior means."""
+    over lights of the standardised residual ``(y - mu) / (sigma s)`` at the posterior means
+    (``s`` the known noise scales of the summary's noise model, 1 for 'constant')."""
     import numpy as np
 
     from rjfit.data.exr import read_exr, write_exr
     from rjfit.model.blinn import radiance
+    from rjfit.noise import noise_scale
 
     labels = np.rint(np.nan_to_num(read_exr(out_dir / "labels.exr")["labels"], nan=-1)).astype(int)
     names = ("I0", "kd", "gamma", "sigma2")
@@ -95,6 +97,9 @@ def write_parameter_maps(observations, summary, out_dir: Path) -> str:
     mu = radiance(obs_params[:, 0], obs_params[:, 2], obs_params[:, 4], observations.cos_ln, observations.cos_hn,
                   observations.irradiance)
     standardised = (observations.y - mu) / np.sqrt(obs_params[:, 6])
+    noise = summary.get("noise") or {"model": "constant"}
+    if noise["model"] != "constant":
+        standardised /= noise_scale(observations, noise["model"], noise["floor"])
     size = labels.size
     count = np.bincount(observations.pixel, minlength=size)
     sum_squares = np.bincount(observations.pixel, weights=np.nan_to_num(standardised) ** 2, minlength=size)

@@ -55,3 +55,21 @@ def test_region_sums_are_float64_accurate(offset_problem, monkeypatch, chunk):
     for r in range(4):
         data = RegionData.gather(p, np.flatnonzero(labels == r))
         np.testing.assert_allclose(data.stats_at(gammas[r]), reference[r], rtol=1e-12, atol=0)
+
+
+def test_weighted_problem_stays_compact_and_float64_accurate(offset_problem):
+    """Known noise scales: y / s and C / s stored in float32, the scales too, sums still exact in float64."""
+    obs, _, _ = sphere_stack(24, n_lights=6, seed=5)
+    obs = dataclasses.replace(obs, y=obs.y + 1.0e4)
+    scale = np.random.default_rng(1).uniform(0.5, 3.0, obs.n_obs)
+    p = Problem.from_observations(obs, noise_scale=scale)
+    for name in ("y", "C", "log_cos_hn", "noise_scale"):
+        assert getattr(p, name).dtype == np.float32, name
+    np.testing.assert_allclose(p.y.astype(np.float64) * p.noise_scale, offset_problem.y, rtol=2e-7)
+    np.testing.assert_allclose(p.C.astype(np.float64) * p.noise_scale, offset_problem.C, rtol=2e-7)
+    u, v = np.full((p.height, 1), p.width / 2.0), np.full((p.width, 1), p.height / 2.0)
+    gammas = np.array([5.0, 10.0, 5.0, 1.0])
+    labels = make_state(p, u, v, np.column_stack([np.full(4, 100.0), np.full(4, 0.5), gammas,
+                                                  np.full(4, 0.1)])).labels
+    np.testing.assert_allclose(region_stats(p, labels, gammas, 4), _reference_stats(p, labels, gammas, 4),
+                               rtol=1e-12, atol=0)

@@ -60,3 +60,19 @@ def test_fit_rejects_bad_arguments(tmp_path):
         fit(obs, tmp_path, burn_in=1.5, progress=False)
     with pytest.raises(ValueError, match="prior"):
         fit(obs, tmp_path, prior="flat", progress=False)
+
+
+def test_fit_records_the_noise_model_and_rejects_an_unknown_one(tmp_path):
+    obs, _, _ = sphere_stack(16, n_lights=6, seed=1)
+    summary = fit(obs, tmp_path / "rel", seed=1, n_chains=1, iterations=30, max_u=1, max_v=1, processes=1,
+                  progress=False, figures=False, noise="relative", noise_floor=0.1, likelihood_power="auto")
+    on_disk = json.loads((tmp_path / "rel" / "summary.json").read_text())
+    assert on_disk["noise"]["model"] == "relative" and on_disk["noise"]["floor"] == 0.1
+    assert "c = floor * ybar" in on_disk["noise"]["formula"]
+    assert 0 < on_disk["noise"]["scale_min"] <= on_disk["noise"]["scale_median"] <= on_disk["noise"]["scale_max"]
+    assert 0 < summary["likelihood_power"] <= 1
+    plain = fit(obs, tmp_path / "plain", seed=1, n_chains=1, iterations=30, max_u=1, max_v=1, processes=1,
+                progress=False, figures=False)
+    assert plain["noise"] == {"model": "constant", "formula": "var_i = sigma_r^2", "floor": None, "reference": None}
+    with pytest.raises(ValueError, match="unknown noise model"):
+        fit(obs, tmp_path / "bad", n_chains=1, iterations=30, processes=1, progress=False, noise="poisson")

@@ -110,9 +110,11 @@ def reflectance(problem, labels, draws, path, truth_labels=None):
     pix_labels = np.asarray(labels).ravel()[pixel]
     pix_labels = np.clip(pix_labels, 0, theta.shape[0] - 1)
     # the Problem's compact arrays: C = E <l.n> (irradiance 1), <h.n> = exp(log <h.n>)
-    mu = radiance(theta[pix_labels, 0], theta[pix_labels, 1], theta[pix_labels, 2], problem.C,
+    # with known noise scales the Problem stores y / s and C / s: undo the weighting for the plots
+    s = 1.0 if problem.noise_scale is None else problem.noise_scale.astype(np.float64)
+    mu = radiance(theta[pix_labels, 0], theta[pix_labels, 1], theta[pix_labels, 2], problem.C * s,
                   np.exp(problem.log_cos_hn.astype(np.float64)), 1.0)
-    y = problem.y.astype(np.float64)
+    y = problem.y.astype(np.float64) * s
     n_pix = problem.height * problem.width
     count = np.bincount(pixel, minlength=n_pix).astype(float)
     with np.errstate(invalid="ignore", divide="ignore"):

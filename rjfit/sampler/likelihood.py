@@ -69,6 +69,14 @@ class Problem:
     to a discrepancy of about 1 / (zeta n) per observation. Every sufficient statistic
     (the count included) and every per-observation log density is scaled by zeta, so all
     moves, conditionals and the oracle see the same tempered likelihood.
+
+    ``noise_scale`` (float32, or None for homoscedastic noise) holds known per-observation
+    noise scales ``s_i``: the likelihood is then ``y_i ~ N(mu_i, sigma_r^2 s_i^2)`` (see
+    :mod:`rjfit.noise`). That is weighted least squares, so ``y`` and ``C`` are stored
+    divided by ``s_i`` and every statistic and move is unchanged; the density's remaining
+    factor, the constant ``-zeta sum(log s_i)`` (:attr:`log_likelihood_constant`), is the
+    same for every segmentation and parameter value, so the sampler leaves it out of
+    ``ChainState.log_lik`` and the chain records add it.
     """
 
     image_shape: tuple
@@ -83,6 +91,17 @@ class Problem:
     colmajor_start: np.ndarray     # (W*H + 1,) offsets into colmajor_order per c*H + r
     object_mask: np.ndarray
     likelihood_power: float = 1.0  # zeta of the coarsened posterior; 1: the plain likelihood
+    noise_scale: np.ndarray | None = None   # float32 s_i (y and C are stored divided by it); None: all 1
+
+    @cached_property
+    def log_likelihood_constant(self) -> float:
+        """``-zeta * sum(log s_i)`` (0 for homoscedastic noise), from the stored float32 scales."""
+        if self.noise_scale is None:
+            return 0.0
+        total = 0.0
+        for start in range(0, self.n_obs, CHUNK):
+            total += float(np.sum(np.log(self.noise_scale[start:start + CHUNK].astype(np.float64))))
+        return -self.likelihood_power * total
 
     @property
     def n_obs(self) -> int:
@@ -102,13 +121,37 @@ class Problem:
         return np.divide(self.C, np.pi, dtype=np.float64)
 
     @classmethod
-    def from_observations(cls, obs: Observations, likelihood_power: float = 1.0) -> "Problem":
+    def from_observations(cls, obs: Observations, likelihood_power: float = 1.0, noise_scale=None) -> "Problem":
+        """Sort, compact and (optionally) weight the observations.
+
+        Parameters
+        ----------
+        obs : Observations
+        likelihood_power : float
+            zeta in (0, 1].
+        noise_scale : array_like (N,), optional
+            Known noise scales ``s_i > 0`` in the order of ``obs`` (see :mod:`rjfit.noise`);
+            None: homoscedastic noise (every ``s_i = 1``).
+
+        Raises
+        ------
+        ValueError
+            For a likelihood power outside (0, 1], no observation, ``<l.n> <= 0``, or a
+            noise scale of the wrong shape or not finite and positive.
+        """
         if not 0.0 < likelihood_power <= 1.0:
             raise ValueError(f"likelihood_power must lie in (0, 1], got {likelihood_power}")
         if obs.n_obs == 0:
             raise ValueError("no valid observation: nothing to fit (check the object mask and validity thresholds)")
         if np.any(obs.cos_ln <= 0):
             raise ValueError("observations with <l.n> <= 0 are not valid: filter them with valid_observation_mask")
+        if noise_scale is not None:
+            noise_scale = np.asarray(noise_scale, dtype=np.float64)
+            if noise_scale.shape != (obs.n_obs,):
+                raise ValueError(f"noise_scale must have one value per observation ({obs.n_obs},), "
+                                 f"got shape {noise_scale.shape}")
+            if not np.all(np.isfinite(noise_scale)) or np.any(noise_scale <= 0):
+                raise ValueError("noise_scale must be finite and positive for every observation")
         height, width = obs.image_shape
         n_obs, n_pix = obs.n_obs, height * width
         # int32 unless an image or stack outgrows it (never int8/int16: offsets are summed)
@@ -120,6 +163,16 @@ class Problem:
         C = (np.asarray(obs.irradiance, float)[order] * np.asarray(obs.cos_ln, float)[order]).astype(np.float32)
         # <h.n> of a valid observation is positive; the floor only keeps log finite.
         log_cos_hn = np.log(np.clip(np.asarray(obs.cos_hn, float)[order], 1e-300, None)).astype(np.float32)
+        scale = None
+        if noise_scale is not None:
+            # weighted least squares: y / s and C / s, with the stored float32 s (so the
+            # oracle, which multiplies back, and the constant see the same numbers)
+            scale = noise_scale[order].astype(np.float32)
+            s64 = scale.astype(np.float64)
+            y = (np.asarray(obs.y, float)[order] / s64).astype(np.float32)
+            C = (np.asarray(obs.irradiance, float)[order] * np.asarray(obs.cos_ln, float)[order] / s64
+                 ).astype(np.float32)
+            del s64
         del order
         line_dtype = np.int16 if max(height, width) <= np.iinfo(np.int16).max else np.int32
         row, col = (pixel // width).astype(line_dtype), (pixel % width).astype(line_dtype)
@@ -130,7 +183,7 @@ class Problem:
         return cls(image_shape=(int(height), int(width)), y=y, C=C, log_cos_hn=log_cos_hn, row=row, col=col,
                    pixel=pixel, pixel_start=pixel_start, colmajor_order=colmajor_order,
                    colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool),
-                   likelihood_power=float(likelihood_power))
+                   likelihood_power=float(likelihood_power), noise_scale=scale)
 
 
 def b_terms(C, log_cos_hn, gamma):
@@ -258,11 +311,20 @@ def oracle_log_likelihood(problem: Problem, labels, theta) -> float:
 
     Reads the Problem's own float32 arrays, the same data the sufficient statistics see:
     ``radiance`` with ``<l.n> E`` as one factor (``C``) and ``<h.n> = exp(log_cos_hn)``.
+    With known noise scales it undoes the weighting (``y s``, ``C s``) and evaluates the
+    heteroscedastic density ``N(y; mu, sigma^2 s^2)`` term by term, so it includes the
+    constant :attr:`Problem.log_likelihood_constant` that the sampler's statistics leave out.
     """
     theta = np.asarray(theta, float)[np.asarray(labels)]
     C = problem.C.astype(np.float64)
+    y = problem.y.astype(np.float64)
+    var = theta[:, 3].copy()
+    if problem.noise_scale is not None:
+        s = problem.noise_scale.astype(np.float64)
+        C *= s
+        y *= s
+        var *= s * s
     cos_hn = np.exp(problem.log_cos_hn.astype(np.float64))
     mu = radiance(theta[:, 0], theta[:, 1], theta[:, 2], C, cos_hn, 1.0)
-    s2 = theta[:, 3]
-    resid = problem.y.astype(np.float64) - mu
-    return problem.likelihood_power * float(np.sum(-0.5 * (LOG_2PI + np.log(s2)) - 0.5 * resid * resid / s2))
+    resid = y - mu
+    return problem.likelihood_power * float(np.sum(-0.5 * (LOG_2PI + np.log(var)) - 0.5 * resid * resid / var))

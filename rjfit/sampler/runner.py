@@ -166,11 +166,13 @@ class _Recorder:
         self._exact_memo = (labels, (exact, true_regions, n_object))
         return exact, true_regions, n_object
 
-    def record(self, t: int, state: ChainState, log_post: float):
+    def record(self, t: int, state: ChainState, log_post: float, log_lik_constant: float = 0.0):
+        """Store draw ``t``; ``log_lik_constant`` (the Problem's known-noise-scale term) is added
+        to the recorded log-likelihood and log-posterior, so they are the full densities."""
         self.n_u[t], self.n_v[t] = state.n_u, state.n_v
         self.theta[t, :state.n_regions] = state.theta
-        self.log_lik[t] = state.total_log_lik
-        self.log_post[t] = log_post
+        self.log_lik[t] = state.total_log_lik + log_lik_constant
+        self.log_post[t] = log_post + log_lik_constant
         self.exact_truth[t], self.true_regions[t], self.object_regions[t] = self.exact(state.labels)
         if t % self.cp_thin == 0:
             s = t // self.cp_thin
@@ -227,7 +229,8 @@ def run_chain(spec: ChainSpec) -> ChainRecord:
             for key, value in info.accepted.items():
                 recorder.accepted[key] = recorder.accepted.get(key, 0) + value
                 recorder.proposed[key] = recorder.proposed.get(key, 0) + info.proposed[key]
-            recorder.record(t, state, log_posterior(problem, prior, state.u, state.v, state.theta, state.log_lik, config))
+            recorder.record(t, state, log_posterior(problem, prior, state.u, state.v, state.theta, state.log_lik, config),
+                            problem.log_likelihood_constant)
             if bar is not None:
                 bar.update(1)
             done = t + 1
