@@ -18,7 +18,7 @@ def fitted(tmp_path_factory):
     # Checked with this set-up (seeds 7, 12, 20-25 at 1000 iterations; 8, 11, 13, 16 at 600):
     # label accuracy > 0.97 for all but seed 12 at 600 (0.965); MAP model (1, 1) for all but
     # seed 7, whose second chain kept a third v vector (a tie). With annealing at 600
-    # iterations, 7 of 14 seeds failed.
+    # iterations, about half of the seeds tried failed (7 of 16 runs).
     start = [{"changepoints": (np.full(24, 10.7), np.full(24, 13.4))},
              {"changepoints": (np.full(24, 13.6), np.full(24, 10.2))}]
     summary = fit(obs, out, truth_labels=labels, truth_params=truth, seed=8, n_chains=2, iterations=1000,
