@@ -1,6 +1,7 @@
 """Compiled loops (Numba) for the sampler's passes over observations.
 
-Why a JIT: ``validation/bench_sampler.py --full`` showed the kernel spending its time in
+Why a JIT: profiling the full kernel (``validation/bench_sampler.py``'s segmentation-sampled
+row, 256 x 256 chains) showed it spending its time in
 NumPy passes that each make several float64 temporaries of up to N entries (upcast,
 ``exp``, products, ``bincount``), and in Python loops over lines (the vector redraw's
 forward filter). Fused into one loop each, a pass reads the float32 arrays once and keeps
@@ -19,8 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["b_sums", "b_dots", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
-           "forward_filter", "removal_sums", "cell_path_log_prob", "cell_backward_sample", "BLOCK"]
+__all__ = ["b_sums", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
+           "forward_filter", "removal_sums", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal", "BLOCK"]
 
 BLOCK = 512
 LOG_2PI = math.log(2.0 * math.pi)
@@ -63,6 +64,19 @@ def b_sums(y, C, log_cos_hn, gamma, chunk=1 << 16):
 
 
 @njit(cache=True, nogil=True)
+def _add_terms(stats, r, sign, yv, c, a, lh, gamma):
+    """Add ``sign`` times one observation's seven sufficient-statistic terms to region ``r``."""
+    b = c * math.exp(gamma * lh)
+    stats[r, 0] += sign
+    stats[r, 1] += sign * yv * yv
+    stats[r, 2] += sign * yv * a
+    stats[r, 3] += sign * a * a
+    stats[r, 4] += sign * yv * b
+    stats[r, 5] += sign * a * b
+    stats[r, 6] += sign * b * b
+
+
+@njit(cache=True, nogil=True)
 def region_stats_labels(y, C, log_cos_hn, labels, gammas, n_regions):
     """Unscaled sufficient statistics (R, 7) of every region in one pass over all observations."""
     out = np.zeros((n_regions, 7))
@@ -71,18 +85,9 @@ def region_stats_labels(y, C, log_cos_hn, labels, gammas, n_regions):
     for start in range(0, n, BLOCK):
         part[:] = 0.0
         for i in range(start, min(start + BLOCK, n)):
-            r = labels[i]
-            yv = np.float64(y[i])
+            r = np.int64(labels[i])
             c = np.float64(C[i])
-            a = c * INV_PI
-            b = c * math.exp(gammas[r] * np.float64(log_cos_hn[i]))
-            part[r, 0] += 1.0
-            part[r, 1] += yv * yv
-            part[r, 2] += yv * a
-            part[r, 3] += a * a
-            part[r, 4] += yv * b
-            part[r, 5] += a * b
-            part[r, 6] += b * b
+            _add_terms(part, r, 1.0, np.float64(y[i]), c, c * INV_PI, np.float64(log_cos_hn[i]), gammas[r])
         out += part
     return out
 
@@ -96,6 +101,7 @@ def coefficients(theta):
     out = np.empty((theta.shape[0], 5))
     for r in range(theta.shape[0]):
         I0, kd, g, s2 = theta[r, 0], theta[r, 1], theta[r, 2], theta[r, 3]
+        # Giesen's normalisation, as rjfit.model.blinn.blinn_normalisation (not callable from Numba)
         norm = (g + 2.0) * (g + 4.0) / (8.0 * math.pi * (2.0 ** (-g / 2.0) + g))
         out[r, 0] = I0 * kd * INV_PI
         out[r, 1] = I0 * (1.0 - kd) * norm
@@ -133,18 +139,6 @@ def obs_log_density_delta(y, C, log_cos_hn, order, use_order, starts, ends, labe
             total += _log_density(yv, c, lh, coef, r + delta[j]) - _log_density(yv, c, lh, coef, r)
         out[j] = total
     return out
-
-
-@njit(cache=True, nogil=True)
-def _add_terms(stats, r, sign, yv, c, a, lh, gamma):
-    b = c * math.exp(gamma * lh)
-    stats[r, 0] += sign
-    stats[r, 1] += sign * yv * yv
-    stats[r, 2] += sign * yv * a
-    stats[r, 3] += sign * a * a
-    stats[r, 4] += sign * yv * b
-    stats[r, 5] += sign * a * b
-    stats[r, 6] += sign * b * b
 
 
 @njit(cache=True, nogil=True)
