@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["b_sums", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
+__all__ = ["b_sums", "b_sums_newton", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
            "forward_filter", "removal_sums", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal", "BLOCK"]
 
 BLOCK = 512
@@ -60,6 +60,52 @@ def b_sums(y, C, log_cos_hn, gamma, chunk=1 << 16):
         power = np.multiply(log_cos_hn[start:stop], gamma, out=buffer[:stop - start], dtype=np.float64)
         np.exp(power, out=power)
         total += b_dots(y[start:stop], C[start:stop], power)
+    return total
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def b_dots_newton(y, C, power, log_cos_hn):
+    """:func:`b_dots` plus the same three sums weighted by ``log <h.n>`` and by its square (9 values).
+
+    ``d B / d gamma = B log <h.n>``: these are the first and second gamma-derivatives of
+    ``(SyB, SAB, SBB / 2)``, for the Newton proposal of the gamma move.
+    """
+    out = np.zeros(9)
+    part = np.zeros(9)
+    n = y.shape[0]
+    for start in range(0, n, BLOCK):
+        part[:] = 0.0
+        for i in range(start, min(start + BLOCK, n)):
+            c = np.float64(C[i])
+            b = c * power[i]
+            lh = np.float64(log_cos_hn[i])
+            yb = np.float64(y[i]) * b
+            cb = c * b
+            bb = b * b
+            part[0] += yb
+            part[1] += cb
+            part[2] += bb
+            part[3] += yb * lh
+            part[4] += cb * lh
+            part[5] += bb * lh
+            part[6] += yb * lh * lh
+            part[7] += cb * lh * lh
+            part[8] += bb * lh * lh
+        out += part
+    for k in (1, 4, 7):
+        out[k] *= INV_PI
+    return out
+
+
+def b_sums_newton(y, C, log_cos_hn, gamma, chunk=1 << 16):
+    """``(SyB, SAB, SBB)`` at ``gamma`` and the same sums weighted by ``log <h.n>`` and ``log^2 <h.n>`` (9,)."""
+    total = np.zeros(9)
+    buffer = np.empty(min(chunk, y.shape[0]))
+    for start in range(0, y.shape[0], chunk):
+        stop = min(start + chunk, y.shape[0])
+        power = np.multiply(log_cos_hn[start:stop], gamma, out=buffer[:stop - start], dtype=np.float64)
+        np.exp(power, out=power)
+        total += b_dots_newton(y[start:stop], C[start:stop], power, log_cos_hn[start:stop])
     return total
 
 

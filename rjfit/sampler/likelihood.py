@@ -15,7 +15,7 @@ change of g needs the region's observations again (the B sums).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -223,6 +223,7 @@ class RegionData:
     C: np.ndarray
     log_cos_hn: np.ndarray
     weight: float = 1.0            # the Problem's likelihood power: every sum is scaled by it
+    newton_memo: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def gather(cls, problem: Problem, idx) -> "RegionData":
@@ -246,6 +247,21 @@ class RegionData:
     def b_sums(self, gamma: float) -> np.ndarray:
         """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; NumPy exp, one compiled pass for the sums)."""
         return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, float(gamma))
+
+    def b_sums_newton(self, gamma: float) -> np.ndarray:
+        """:meth:`b_sums` and their weightings by ``log <h.n>`` and its square (9,); the last two gammas asked are memoised.
+
+        A function of the region's data and ``gamma`` only, so the memo (which lets a gamma
+        move reuse the sums of the point it starts from) never changes a result.
+        """
+        gamma = float(gamma)
+        hit = self.newton_memo.get(gamma)
+        if hit is None:
+            hit = self.weight * jit.b_sums_newton(self.y, self.C, self.log_cos_hn, gamma)
+            if len(self.newton_memo) >= 2:
+                self.newton_memo.pop(next(iter(self.newton_memo)))
+            self.newton_memo[gamma] = hit
+        return hit
 
     def stats_at(self, gamma: float) -> np.ndarray:
         """The seven sufficient statistics at exponent ``gamma``."""

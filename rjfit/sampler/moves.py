@@ -19,7 +19,7 @@ from scipy.special import log_ndtr
 
 from rjfit.sampler import jit
 from rjfit.sampler.changepoints import log_prior_cp_state, n_regions, obs_region_labels
-from rjfit.sampler.likelihood import (CHUNK, LOG_2PI, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
+from rjfit.sampler.likelihood import (CHUNK, LOG_2PI, STAT_AA, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
                                       ab_from_theta, b_terms, log_likelihood_from_stats, region_stats)
 from rjfit.sampler.priors import from_phi, to_phi
 
@@ -95,6 +95,13 @@ def _ab_conditional(stats_r, s2):
         return None
     ma = (sbb * sya - sab * syb) / det
     mb = (saa * syb - sab * sya) / det
+    if ma < 0 or mb < 0:
+        # The least-squares point lies outside a, b > 0 (say, a start far from the data, or
+        # a region without a lobe): centred there, nearly every draw would be rejected and
+        # the chain could stick. Centre on the non-negative least-squares point instead
+        # (a proposal may be any function of gamma, sigma^2 and the data).
+        ma, mb = ((max(sya, 0.0) / saa, 0.0) if max(sya, 0.0) ** 2 / saa >= max(syb, 0.0) ** 2 / sbb
+                  else (0.0, max(syb, 0.0) / sbb))
     caa, cab, cbb = s2 * sbb / det, -s2 * sab / det, s2 * saa / det
     if not (math.isfinite(caa) and math.isfinite(cbb) and math.isfinite(ma) and math.isfinite(mb)) or caa <= 0:
         return None
@@ -199,6 +206,95 @@ def _move_gamma_ab(work, r, rng, prior, problem, step):
     return False
 
 
+def _newton_log_gamma(stats_r, sums, g, s2, scale):
+    """Newton proposal of log gamma at ``g``: (mean, sd), or None where the profile is not concave.
+
+    ``h(l) = -SSR_min(e^l) / (2 sigma^2)``, the log-likelihood with (a, b) at their least
+    squares values (the O(n) part of log gamma's conditional; the prior and the (a, b)
+    volume term are O(1) and left to the acceptance ratio). With ``c = S^-1 s`` the least
+    squares (a, b), ``S = [[SAA, SAB], [SAB, SBB]]``, ``s = (SyA, SyB)`` and primes the
+    derivatives in l: ``f = s.c``, ``f' = 2 c.s' - c.S'c``, ``f'' = 2 d.S^-1 d + 2 c.s'' - c.S''c``
+    with ``d = s' - S'c``, and ``h = (f - Syy) / (2 sigma^2)``. ``sums`` are
+    :meth:`RegionData.b_sums_newton` at ``g``: since ``dB/dl = g log<h.n> B``, the
+    l-derivatives of SyB, SAB and SBB are g- and g^2-weighted sums of them.
+    """
+    sya, saa = stats_r[STAT_YA], stats_r[STAT_AA]
+    syb, sab, sbb, yb1, ab1, bb1, yb2, ab2, bb2 = sums
+    det = saa * sbb - sab * sab
+    if not (saa > 0 and sbb > 0 and det > 1e-10 * saa * sbb):
+        return None
+    ca = (sbb * sya - sab * syb) / det
+    cb = (saa * syb - sab * sya) / det
+    # first derivatives (s'_a = 0, S'_aa = 0)
+    s1b = g * yb1
+    S1ab, S1bb = g * ab1, 2.0 * g * bb1
+    f1 = 2.0 * cb * s1b - (2.0 * ca * cb * S1ab + cb * cb * S1bb)
+    # second derivatives
+    s2b = g * yb1 + g * g * yb2
+    S2ab, S2bb = g * ab1 + g * g * ab2, 2.0 * g * bb1 + 4.0 * g * g * bb2
+    da = -S1ab * cb
+    db = s1b - S1ab * ca - S1bb * cb
+    d_Sinv_d = (sbb * da * da - 2.0 * sab * da * db + saa * db * db) / det
+    f2 = 2.0 * d_Sinv_d + 2.0 * cb * s2b - (2.0 * ca * cb * S2ab + cb * cb * S2bb)
+    h1, h2 = 0.5 * f1 / s2, 0.5 * f2 / s2
+    if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0):
+        return None
+    step, sd = -h1 / h2, scale / math.sqrt(-h2)
+    # far from a quadratic (small or flat regions): the random walk is the safer rule there
+    return (math.log(g) + step, sd) if abs(step) <= 5.0 and sd <= 2.0 else None
+
+
+def _log_q_log_gamma(ell_to, ell_from, newton, rw_sd):
+    mean, sd = newton if newton is not None else (ell_from, rw_sd)
+    return -0.5 * ((ell_to - mean) / sd) ** 2 - math.log(sd) - 0.5 * LOG_2PI
+
+
+def _move_gamma_newton(work, r, rng, prior, problem, scale, rw_sd):
+    """Gamma move with a Newton proposal of log gamma, (a, b) redrawn from their conditional given it.
+
+    The proposal's mean and sd come from the curvature of the profile log-likelihood at the
+    current gamma (:func:`_newton_log_gamma`), so one move crosses the posterior's width
+    and follows the kd-gamma ridge; the reverse density is the same rule at the proposed
+    gamma, so the ratio is exact. Where the profile is not concave the rule is a random
+    walk of sd ``rw_sd`` (a deterministic choice per point: still a valid proposal).
+    """
+    I0, kd, g, s2 = work.theta[r]
+    stats_r = work.stats[r]
+    cond_old = _ab_conditional(stats_r, s2)
+    if cond_old is None:
+        return None
+    data = work.region_data(r, problem)[1]
+    ell = math.log(g)
+    forward = _newton_log_gamma(stats_r, data.b_sums_newton(g), g, s2, scale)
+    ell_new = (forward[0] + forward[1] * rng.normal()) if forward is not None else ell + rw_sd * rng.normal()
+    if ell_new > 700.0:         # gamma beyond e^700: the lobe (and the target) vanish numerically
+        return False
+    g_new = math.exp(ell_new)
+    sums_new = data.b_sums_newton(g_new)
+    stats_new = stats_r.copy()
+    stats_new[[STAT_YB, STAT_AB, STAT_BB]] = sums_new[:3]
+    cond_new = _ab_conditional(stats_new, s2)
+    if cond_new is None:
+        return False
+    a_new, b_new = _draw_ab(cond_new, rng)
+    log_u = math.log(rng.random())
+    if a_new <= 0 or b_new <= 0:
+        return False
+    backward = _newton_log_gamma(stats_new, sums_new, g_new, s2, scale)
+    I0_new = a_new + b_new / _norm(g_new)
+    kd_new = a_new / I0_new
+    ll_new = _ll(stats_new, I0_new, kd_new, g_new, s2)
+    a_old, b_old = I0 * kd, I0 * (1.0 - kd) * _norm(g)
+    log_alpha = (_log_target_ab(prior, I0_new, kd_new, g_new, s2, ll_new)
+                 - _log_target_ab(prior, I0, kd, g, s2, work.log_lik[r])
+                 + _log_q_ab(a_old, b_old, cond_old) - _log_q_ab(a_new, b_new, cond_new)
+                 + _log_q_log_gamma(ell, ell_new, backward, rw_sd) - _log_q_log_gamma(ell_new, ell, forward, rw_sd))
+    if log_u < log_alpha:
+        _set_region(work, r, (I0_new, kd_new, g_new, s2), stats_new, ll_new)
+        return True
+    return False
+
+
 def _move_phi_rw(work, r, rng, prior, problem, step):
     """Component-wise random walk in phi space (small or degenerate regions)."""
     accepted = 0
@@ -233,13 +329,21 @@ def update_region_adaptive(work, r, rng, prior, problem, config, g_step, info):
     if n < config.min_obs_conditional:
         info.count("phi_rw", _move_phi_rw(work, r, rng, prior, problem, config.fallback_step), 4)
         return g_acc
-    for _ in range(config.g_moves):
-        result = _move_gamma_ab(work, r, rng, prior, problem, g_step / np.sqrt(n))
+    for k in range(config.g_moves):
+        # 'newton' alternates a random walk and a Newton move: the Newton proposal crosses
+        # the posterior in one step near the mode, but from far away (a start, a tail) its
+        # reverse density is negligible and it is rarely accepted; the random walk gets there.
+        newton = config.gamma_move == "newton" and k % 2 == 1
+        if newton:
+            result = _move_gamma_newton(work, r, rng, prior, problem, config.newton_scale, g_step / np.sqrt(n))
+        else:
+            result = _move_gamma_ab(work, r, rng, prior, problem, g_step / np.sqrt(n))
         if result is None:
             info.count("phi_rw", _move_phi_rw(work, r, rng, prior, problem, config.fallback_step), 4)
             return g_acc
-        g_acc.append(result)
-        info.count("gamma_ab", result)
+        if not newton:       # the adapted step is the random walk's
+            g_acc.append(result)
+        info.count("gamma_newton" if newton else "gamma_ab", result)
     result = _move_ab(work, r, rng, prior)
     if result is not None:
         info.count("ab", result)
@@ -468,8 +572,11 @@ def _ssr_min(stats_r):
     cond = _ab_conditional(stats_r, 1.0)
     if cond is None:
         return None
-    ma, mb = cond[0], cond[1]
-    ssr = stats_r[STAT_YY] - ma * stats_r[STAT_YA] - mb * stats_r[STAT_YB]
+    ma, mb, saa, sab, sbb = cond[0], cond[1], cond[5], cond[6], cond[7]
+    # at the unconstrained least-squares point this is Syy - ma SyA - mb SyB; written out
+    # in full because the centre may be the non-negative one
+    ssr = (stats_r[STAT_YY] - 2.0 * (ma * stats_r[STAT_YA] + mb * stats_r[STAT_YB])
+           + ma * ma * saa + 2.0 * ma * mb * sab + mb * mb * sbb)
     return (ssr, cond[8]) if ssr > 0 else None
 
 

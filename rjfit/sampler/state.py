@@ -118,6 +118,17 @@ class SamplerConfig:
         Probability that an element move proposes a normal (width ``cp_neighbour_sd``
         pixels) around the same-rank element of a neighbouring row (column): lets an element
         that strayed snap back to the boundary its neighbours found.
+    gamma_move : {'newton', 'rw'}
+        The 'adaptive' sampler's gamma moves. 'rw': random walks on log gamma whose width
+        is adapted during burn-in. 'newton' (default): every second move is instead a
+        Newton move: normal with the mean and sd of a Newton step on the profile
+        log-likelihood at the current gamma (sd times ``newton_scale``; the reverse density
+        is the same rule at the proposed gamma; a random walk where the profile is not
+        concave). Near the mode it draws gamma and kd almost independently each time; the
+        random walks carry chains in from far starts and tails, where the Newton
+        proposal's reverse density is negligible.
+    newton_scale : float
+        Factor on the Newton proposal's sd.
     g_moves : int
         Gamma moves per region and iteration.
     burn_in : int
@@ -177,6 +188,8 @@ class SamplerConfig:
     cp_uniform_prob: float = 0.05
     cp_neighbour_prob: float = 0.3
     cp_neighbour_sd: float = 0.5
+    gamma_move: str = "newton"
+    newton_scale: float = 1.0
     g_moves: int = 2
     burn_in: int = 0
     target_accept: float = 0.44
@@ -196,6 +209,10 @@ class SamplerConfig:
     def __post_init__(self):
         if self.sampler not in ("adaptive", "paper"):
             raise ValueError(f"sampler must be 'adaptive' or 'paper', got {self.sampler!r}")
+        if self.gamma_move not in ("newton", "rw"):
+            raise ValueError(f"gamma_move must be 'newton' or 'rw', got {self.gamma_move!r}")
+        if not (np.isfinite(self.newton_scale) and self.newton_scale > 0):
+            raise ValueError(f"newton_scale must be a positive number, got {self.newton_scale}")
         if self.cp_prior not in ("smooth", "paper"):
             raise ValueError(f"cp_prior must be 'smooth' or 'paper', got {self.cp_prior!r}")
         if self.split_map not in ("conditional", "mean", "paper"):
