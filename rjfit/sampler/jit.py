@@ -71,10 +71,10 @@ def b_dots_newton(y, C, power, log_cos_hn):
     ``(SyB, SAB, SBB / 2)``, for the Newton proposal of the gamma move.
     """
     out = np.zeros(9)
-    part = np.zeros(9)
     n = y.shape[0]
     for start in range(0, n, BLOCK):
-        part[:] = 0.0
+        # scalar accumulators (not an array) so the loop vectorises
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
         for i in range(start, min(start + BLOCK, n)):
             c = np.float64(C[i])
             b = c * power[i]
@@ -82,18 +82,24 @@ def b_dots_newton(y, C, power, log_cos_hn):
             yb = np.float64(y[i]) * b
             cb = c * b
             bb = b * b
-            part[0] += yb
-            part[1] += cb
-            part[2] += bb
-            part[3] += yb * lh
-            part[4] += cb * lh
-            part[5] += bb * lh
-            part[6] += yb * lh * lh
-            part[7] += cb * lh * lh
-            part[8] += bb * lh * lh
-        out += part
-    for k in (1, 4, 7):
-        out[k] *= INV_PI
+            s0 += yb
+            s1 += cb
+            s2 += bb
+            s3 += yb * lh
+            s4 += cb * lh
+            s5 += bb * lh
+            s6 += yb * lh * lh
+            s7 += cb * lh * lh
+            s8 += bb * lh * lh
+        out[0] += s0
+        out[1] += s1 * INV_PI
+        out[2] += s2
+        out[3] += s3
+        out[4] += s4 * INV_PI
+        out[5] += s5
+        out[6] += s6
+        out[7] += s7 * INV_PI
+        out[8] += s8
     return out
 
 

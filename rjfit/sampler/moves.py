@@ -206,37 +206,47 @@ def _move_gamma_ab(work, r, rng, prior, problem, step):
     return False
 
 
-def _newton_log_gamma(stats_r, sums, g, s2, scale):
-    """Newton proposal of log gamma at ``g``: (mean, sd), or None where the profile is not concave.
+def _ls_profile(sya, saa, sums, g):
+    """``f = s.S^-1 s`` (so ``SSR_min = Syy - f`` without the a, b > 0 bound), ``det S``, and their l-derivatives.
 
-    ``h(l) = -SSR_min(e^l) / (2 sigma^2)``, the log-likelihood with (a, b) at their least
-    squares values (the O(n) part of log gamma's conditional; the prior and the (a, b)
-    volume term are O(1) and left to the acceptance ratio). With ``c = S^-1 s`` the least
-    squares (a, b), ``S = [[SAA, SAB], [SAB, SBB]]``, ``s = (SyA, SyB)`` and primes the
-    derivatives in l: ``f = s.c``, ``f' = 2 c.s' - c.S'c``, ``f'' = 2 d.S^-1 d + 2 c.s'' - c.S''c``
-    with ``d = s' - S'c``, and ``h = (f - Syy) / (2 sigma^2)``. ``sums`` are
-    :meth:`RegionData.b_sums_newton` at ``g``: since ``dB/dl = g log<h.n> B``, the
-    l-derivatives of SyB, SAB and SBB are g- and g^2-weighted sums of them.
+    ``l = log gamma``; ``S = [[SAA, SAB], [SAB, SBB]]``, ``s = (SyA, SyB)``; ``sums`` are
+    :meth:`RegionData.b_sums_newton` at ``g``. Since ``dB/dl = g log<h.n> B``, the
+    l-derivatives of SyB, SAB and SBB are g- and g^2-weighted sums of them. With
+    ``c = S^-1 s`` (the least-squares a, b) and primes for d/dl: ``f' = 2 c.s' - c.S'c`` and
+    ``f'' = 2 d.S^-1 d + 2 c.s'' - c.S''c`` with ``d = s' - S'c``.
+    Returns ``(f, f', f'', det, det', det'', a, b)`` or None for a singular S.
     """
-    sya, saa = stats_r[STAT_YA], stats_r[STAT_AA]
     syb, sab, sbb, yb1, ab1, bb1, yb2, ab2, bb2 = sums
     det = saa * sbb - sab * sab
     if not (saa > 0 and sbb > 0 and det > 1e-10 * saa * sbb):
         return None
     ca = (sbb * sya - sab * syb) / det
     cb = (saa * syb - sab * sya) / det
-    # first derivatives (s'_a = 0, S'_aa = 0)
-    s1b = g * yb1
-    S1ab, S1bb = g * ab1, 2.0 * g * bb1
+    s1b, S1ab, S1bb = g * yb1, g * ab1, 2.0 * g * bb1               # s'_a = S'_aa = 0
+    s2b, S2ab, S2bb = g * yb1 + g * g * yb2, g * ab1 + g * g * ab2, 2.0 * g * bb1 + 4.0 * g * g * bb2
+    f = ca * sya + cb * syb
     f1 = 2.0 * cb * s1b - (2.0 * ca * cb * S1ab + cb * cb * S1bb)
-    # second derivatives
-    s2b = g * yb1 + g * g * yb2
-    S2ab, S2bb = g * ab1 + g * g * ab2, 2.0 * g * bb1 + 4.0 * g * g * bb2
     da = -S1ab * cb
     db = s1b - S1ab * ca - S1bb * cb
-    d_Sinv_d = (sbb * da * da - 2.0 * sab * da * db + saa * db * db) / det
-    f2 = 2.0 * d_Sinv_d + 2.0 * cb * s2b - (2.0 * ca * cb * S2ab + cb * cb * S2bb)
-    h1, h2 = 0.5 * f1 / s2, 0.5 * f2 / s2
+    f2 = (2.0 * (sbb * da * da - 2.0 * sab * da * db + saa * db * db) / det
+          + 2.0 * cb * s2b - (2.0 * ca * cb * S2ab + cb * cb * S2bb))
+    det1 = saa * S1bb - 2.0 * sab * S1ab
+    det2 = saa * S2bb - 2.0 * S1ab * S1ab - 2.0 * sab * S2ab
+    return f, f1, f2, det, det1, det2, ca, cb
+
+
+def _newton_log_gamma(stats_r, sums, g, s2, scale):
+    """Newton proposal of log gamma at ``g``: (mean, sd), or None where the profile is not concave.
+
+    ``h(l) = -SSR_min(e^l) / (2 sigma^2) = (f - Syy) / (2 sigma^2)`` (:func:`_ls_profile`):
+    the log-likelihood with (a, b) at their least-squares values, the O(n) part of log
+    gamma's conditional; the prior and the (a, b) volume term are O(1) and left to the
+    acceptance ratio.
+    """
+    profile = _ls_profile(stats_r[STAT_YA], stats_r[STAT_AA], sums, g)
+    if profile is None:
+        return None
+    h1, h2 = 0.5 * profile[1] / s2, 0.5 * profile[2] / s2
     if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0):
         return None
     step, sd = -h1 / h2, scale / math.sqrt(-h2)
@@ -592,25 +602,82 @@ def _sigma2_prior_as_invgamma(prior):
     return 0.0, 0.0
 
 
+LAPLACE_COARSE_OBS = 4096
+
+
+def _thinned(data, max_obs):
+    """Every m-th observation of a region (sums scaled by m), or the region itself if it is small."""
+    m = data.n // max_obs
+    if m < 2:
+        return data
+    return RegionData(idx=data.idx[::m], y=data.y[::m], C=data.C[::m], log_cos_hn=data.log_cos_hn[::m],
+                      weight=data.weight * data.n / len(data.y[::m]))
+
+
 def _laplace_log_gamma(data, prior):
     """Deterministic Laplace fit (mean, sd) of log gamma's approximate marginal.
 
     ``h(l) = -(n/2 - 1 + a0) log(SSR_min(l)/2 + b0) - log det P(l) / 2 + log p_gamma(e^l) + l``
     with (a0, b0) the inverse gamma standing in for sigma^2's prior: (a, b) and sigma^2
-    integrated out under flat priors for (a, b). A function of the region's data only.
+    integrated out under flat priors for (a, b). The mode is located on a coarse grid
+    evaluated on a thinning of the region (at most :data:`LAPLACE_COARSE_OBS`
+    observations), then refined by Newton steps on the whole region with the closed-form
+    derivatives of :func:`_ls_profile`: about 4 passes over the region instead of 18.
+    Where that fails (a non-concave or bounded profile) it falls back to finite
+    differences on the whole region. A function of the region's data only, as a
+    proposal's parameters must be.
     """
     n = data.n * data.weight       # observations count zeta each under a coarsened likelihood
     a0, b0 = _sigma2_prior_as_invgamma(prior)
     g_prior = prior.params[2]
+    k = 0.5 * n - 1.0 + a0
 
-    def h(ell):
-        res = _ssr_min(_stats_at(data, math.exp(ell)))
+    def h(region, ell):
+        res = _ssr_min(region.stats_at(math.exp(ell)))
         if res is None:
             return -np.inf
-        return (-(0.5 * n - 1.0 + a0) * math.log(0.5 * res[0] + b0) - 0.5 * math.log(res[1])
-                + g_prior.logpdf_scalar(math.exp(ell)) + ell)
+        return -k * math.log(0.5 * res[0] + b0) - 0.5 * math.log(res[1]) + g_prior.logpdf_scalar(math.exp(ell)) + ell
+
+    def prior_part(ell):
+        return g_prior.logpdf_scalar(math.exp(ell)) + ell
 
     grid = np.linspace(math.log(0.2), math.log(500.0), 9)
+    coarse = _thinned(data, LAPLACE_COARSE_OBS)
+    values = [h(coarse, e) for e in grid]
+    best = int(np.argmax(values))
+    if not np.isfinite(values[best]):
+        return None
+    newton = _laplace_newton(data, grid[best], k, b0, prior_part)
+    if newton is not None:
+        return newton
+    return _laplace_finite_differences(lambda ell: h(data, ell), grid)
+
+
+def _laplace_newton(data, ell, k, b0, prior_part, max_steps=8, eps=1e-3):
+    syy, sya, saa = data.fixed[1], data.fixed[2], data.fixed[3]
+    for _ in range(max_steps):
+        g = math.exp(ell)
+        profile = _ls_profile(sya, saa, data.b_sums_newton(g), g)
+        if profile is None:
+            return None
+        f, f1, f2, det, det1, det2, ca, cb = profile
+        q = 0.5 * (syy - f) + b0
+        p0, pp, pm = prior_part(ell), prior_part(ell + eps), prior_part(ell - eps)
+        h1 = k * f1 / (2.0 * q) - 0.5 * det1 / det + (pp - pm) / (2.0 * eps)
+        h2 = (k * f2 / (2.0 * q) + k * f1 * f1 / (4.0 * q * q) - 0.5 * (det2 / det - (det1 / det) ** 2)
+              + (pp - 2.0 * p0 + pm) / eps ** 2)
+        if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0 and q > 0):
+            return None
+        sd = 1.0 / math.sqrt(-h2)
+        step = float(np.clip(-h1 / h2, -0.5, 0.5))
+        ell += step
+        if abs(step) < 0.2 * sd:        # what is left after this step is O(step^2): negligible
+            # only inside a, b > 0 is this unbounded profile the one h uses
+            return (ell, min(max(sd, 1e-4), 2.0)) if ca > 0 and cb > 0 else None
+    return None
+
+
+def _laplace_finite_differences(h, grid):
     values = [h(e) for e in grid]
     best = int(np.argmax(values))
     centre, delta, h0 = grid[best], grid[1] - grid[0], values[best]
