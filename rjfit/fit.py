@@ -101,7 +101,9 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         Keep a change-point snapshot every ``cp_thin`` iterations.
     checkpoint_every : int
         Iterations between checkpoints (``out_dir/checkpoints/chain_<c>.pkl``); an existing
-        checkpoint is resumed.
+        checkpoint of the same run (same data, prior, settings, seed and sampler code) is
+        resumed, one of another run is refused with an error. They are deleted once the
+        results are written.
     start : list of dict, optional
         Per chain keyword arguments of :func:`rjfit.sampler.kernel.initial_state`.
     fixed_segmentation : (u, v), optional
@@ -224,4 +226,9 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
                                             max_v=max_v)
     summary["seconds"] = time.perf_counter() - started
     write_json_atomic(out_dir / "summary.json", summary)
+    # The results are written: the checkpoints (for resuming an interrupted run) have
+    # served, and a later run into this directory must start afresh, not resume them.
+    for spec in specs:
+        if os.path.exists(spec.checkpoint_path):
+            os.remove(spec.checkpoint_path)
     return summary

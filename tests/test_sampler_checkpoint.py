@@ -81,3 +81,21 @@ def test_seeded_runs_are_reproducible_and_chains_differ(uninterrupted):
     spec.chain = 0
     other = run_chain(spec)
     assert not np.array_equal(other.log_lik, uninterrupted.log_lik)
+
+
+def test_checkpoint_of_another_run_is_refused(tmp_path):
+    """A checkpoint left by other settings is not resumed (it would mix two chains): the error names it and why."""
+    path = str(tmp_path / "chain.pkl")
+    run_chain(_spec(path, stop_after=30))
+    other_seed = _spec(path)
+    other_seed.seed = 124
+    with pytest.raises(ValueError, match=r"chain\.pkl belongs to another run \(its chain differ"):
+        run_chain(other_seed)
+    other_config = _spec(path)
+    other_config.config = SamplerConfig(max_u=2, max_v=2, burn_in=100, jump_prob=0.3, split_scale=0.5)
+    with pytest.raises(ValueError, match="its config differ"):
+        run_chain(other_config)
+    other_data = _spec(path)
+    other_data.problem = Problem.from_observations(sphere_stack(16, n_lights=5, seed=3)[0])
+    with pytest.raises(ValueError, match="its data differ"):
+        run_chain(other_data)

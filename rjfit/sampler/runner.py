@@ -11,6 +11,7 @@ intact.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import pickle
 import tempfile
@@ -18,6 +19,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -27,9 +29,9 @@ from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.likelihood import Problem
 from rjfit.sampler.state import ChainState, SamplerConfig
 
-__all__ = ["ChainSpec", "ChainRecord", "run_chain", "run_chains", "chain_rngs", "atomic_write_bytes"]
+__all__ = ["ChainSpec", "ChainRecord", "run_chain", "run_chains", "chain_rngs", "atomic_write_bytes", "run_fingerprint"]
 
-CHECKPOINT_VERSION = 2
+CHECKPOINT_VERSION = 3
 TRUE_REGIONS_AGREEMENT = 0.99
 
 
@@ -185,12 +187,55 @@ class _Recorder:
         return rec.truncated(done)
 
 
-def _load_checkpoint(path):
+def _as_bytes(part) -> bytes:
+    # arrays by content (their repr elides the middle of a long array)
+    if isinstance(part, bytes):
+        return part
+    if isinstance(part, np.ndarray):
+        return repr((part.dtype.str, part.shape)).encode() + np.ascontiguousarray(part).tobytes()
+    if isinstance(part, dict):
+        return b"{" + b",".join(repr(key).encode() + b":" + _as_bytes(part[key]) for key in sorted(part)) + b"}"
+    if isinstance(part, (list, tuple)):
+        return b"(" + b",".join(_as_bytes(item) for item in part) + b")"
+    return repr(part).encode()
+
+
+def _digest(*parts) -> str:
+    h = hashlib.sha256()
+    for part in parts:
+        h.update(_as_bytes(part))
+    return h.hexdigest()[:16]
+
+
+def run_fingerprint(spec: ChainSpec) -> dict:
+    """What a checkpoint must share with the run that resumes it, as short digests.
+
+    The data (every array the likelihood reads), the prior, the kernel's configuration,
+    the chain's seed and place among the chains, its length and start, and the sampler's
+    code (the source of ``rjfit.sampler``): a checkpoint written by other settings, other
+    data or an older kernel would silently mix two different chains.
+    """
+    problem = spec.problem
+    sampler_dir = Path(__file__).resolve().parent
+    code = [path.read_bytes() for path in sorted(sampler_dir.glob("*.py"))]
+    data = [getattr(problem, name) for name in ("y", "C", "log_cos_hn", "pixel")]
+    return {"data": _digest(*data, problem.image_shape, float(problem.likelihood_power)),
+            "prior": _digest(spec.prior), "config": _digest(spec.config),
+            "chain": _digest(spec.seed, spec.chain, spec.n_chains, spec.iterations, spec.cp_thin, spec.start),
+            "code": _digest(*code)}
+
+
+def _load_checkpoint(path, fingerprint):
     with open(path, "rb") as handle:
         payload = pickle.load(handle)
     if payload.get("version") != CHECKPOINT_VERSION:
         raise ValueError(f"checkpoint {path} has version {payload.get('version')}, expected {CHECKPOINT_VERSION}: "
                          "delete it to start the chain afresh")
+    differ = [key for key, value in fingerprint.items() if payload.get("fingerprint", {}).get(key) != value]
+    if differ:
+        raise ValueError(f"checkpoint {path} belongs to another run (its {', '.join(differ)} differ from this "
+                         "run's): resuming it would mix two different chains. Delete it (or choose another --out) "
+                         "to start afresh, or rerun with the settings that wrote it to resume.")
     return payload
 
 
@@ -208,8 +253,9 @@ def run_chain(spec: ChainSpec) -> ChainRecord:
         rng = chain_rngs(spec.seed, spec.n_chains)[spec.chain]
         recorder = _Recorder(spec)
         start_t = 0
+        fingerprint = run_fingerprint(spec) if spec.checkpoint_path else None
         if spec.checkpoint_path and os.path.exists(spec.checkpoint_path):
-            payload = _load_checkpoint(spec.checkpoint_path)
+            payload = _load_checkpoint(spec.checkpoint_path, fingerprint)
             state = payload["state"]
             rng.bit_generator.state = payload["rng_state"]
             recorder = payload["recorder"]
@@ -237,7 +283,7 @@ def run_chain(spec: ChainSpec) -> ChainRecord:
             if spec.checkpoint_path and spec.checkpoint_every and done % spec.checkpoint_every == 0 \
                     and done < spec.iterations:
                 recorder.seconds = seconds_before + time.perf_counter() - t0
-                payload = {"version": CHECKPOINT_VERSION, "state": state, "rng_state": rng.bit_generator.state,
+                payload = {"version": CHECKPOINT_VERSION, "fingerprint": fingerprint, "state": state, "rng_state": rng.bit_generator.state,
                            "recorder": recorder, "t": done}
                 atomic_write_bytes(spec.checkpoint_path, pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL))
             if spec.stop_after is not None and done >= spec.stop_after:
