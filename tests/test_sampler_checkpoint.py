@@ -99,3 +99,15 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
     other_data.problem = Problem.from_observations(sphere_stack(16, n_lights=5, seed=3)[0])
     with pytest.raises(ValueError, match="its data differ"):
         run_chain(other_data)
+
+
+def test_run_fingerprint_depends_on_content_not_on_print_options():
+    """The digests read values (arrays by their bytes, floats exactly), not reprs that NumPy's print options change."""
+    from rjfit.sampler.runner import run_fingerprint
+
+    before = run_fingerprint(_spec("x"))
+    with np.printoptions(precision=2, legacy="1.13"):
+        assert run_fingerprint(_spec("x")) == before
+    nudged = _spec("x")
+    nudged.problem.y[7] = np.nextafter(nudged.problem.y[7], np.float32(np.inf))     # one ulp of one observation
+    assert run_fingerprint(nudged)["data"] != before["data"]

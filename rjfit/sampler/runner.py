@@ -11,6 +11,7 @@ intact.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import pickle
@@ -188,16 +189,28 @@ class _Recorder:
 
 
 def _as_bytes(part) -> bytes:
-    # arrays by content (their repr elides the middle of a long array)
+    """A value's content as bytes: arrays by their data and floats exactly, never by repr.
+
+    (An array's repr elides its middle, and NumPy's print options, which any code may
+    change, alter the repr of arrays and NumPy scalars.)
+    """
     if isinstance(part, bytes):
         return part
     if isinstance(part, np.ndarray):
         return repr((part.dtype.str, part.shape)).encode() + np.ascontiguousarray(part).tobytes()
+    if isinstance(part, np.generic):
+        part = part.item()
+    if isinstance(part, float):
+        return part.hex().encode()
+    if dataclasses.is_dataclass(part) and not isinstance(part, type):
+        return type(part).__name__.encode() + _as_bytes({f.name: getattr(part, f.name) for f in dataclasses.fields(part)})
     if isinstance(part, dict):
         return b"{" + b",".join(repr(key).encode() + b":" + _as_bytes(part[key]) for key in sorted(part)) + b"}"
     if isinstance(part, (list, tuple)):
-        return b"(" + b",".join(_as_bytes(item) for item in part) + b")"
-    return repr(part).encode()
+        return type(part).__name__.encode() + b"(" + b",".join(_as_bytes(item) for item in part) + b")"
+    if part is None or isinstance(part, (bool, int, str)):
+        return repr(part).encode()
+    raise TypeError(f"cannot fingerprint a {type(part).__name__}")
 
 
 def _digest(*parts) -> str:
