@@ -188,3 +188,15 @@ def test_backward_sampler_draws_paths_with_the_probability_it_reports():
     expected = np.append(expected[keep], expected[~keep].sum())
     statistic = np.sum((observed - expected) ** 2 / np.maximum(expected, 1e-300))
     assert chi2.sf(statistic, observed.size - 1) > 1e-3
+
+
+def test_split_by_label_equals_one_gather_per_region(problem):
+    labels = _labels(problem, np.random.default_rng(5), 6)
+    labels[labels == 4] = 3                      # an empty region too
+    for r, data in enumerate(RegionData.split(problem, labels, 6)):
+        reference = RegionData.gather(problem, np.flatnonzero(labels == r))
+        for name in ("idx", "y", "C", "log_cos_hn"):
+            np.testing.assert_array_equal(getattr(data, name), getattr(reference, name), err_msg=f"region {r} {name}")
+        assert data.weight == reference.weight
+    with pytest.raises(ValueError, match="labels must lie"):
+        RegionData.split(problem, labels, 3)

@@ -230,6 +230,18 @@ class RegionData:
         return cls(idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx],
                    weight=problem.likelihood_power)
 
+    @classmethod
+    def split(cls, problem: Problem, labels, n_regions: int) -> list:
+        """Every region's :class:`RegionData` from one pass over the labels (views of one sorted copy)."""
+        labels = np.asarray(labels)
+        if labels.shape != problem.y.shape:
+            raise ValueError(f"labels has shape {labels.shape}, the problem has {problem.n_obs} observations")
+        if labels.size and (int(labels.min()) < 0 or int(labels.max()) >= n_regions):
+            raise ValueError(f"labels must lie in [0, {n_regions})")
+        offsets, idx, y, C, lh = jit.split_by_label(labels, int(n_regions), problem.y, problem.C, problem.log_cos_hn)
+        return [cls(idx=idx[a:b], y=y[a:b], C=C[a:b], log_cos_hn=lh[a:b], weight=problem.likelihood_power)
+                for a, b in zip(offsets[:-1], offsets[1:])]
+
     @cached_property
     def fixed(self) -> np.ndarray:
         """``(n, Syy, SyA, SAA)`` in float64."""

@@ -41,23 +41,14 @@ class Work:
     labels_owned: bool = False
     region_index: dict | None = None  # region -> observation indices, valid for ``labels``
 
-    def obs_of_region(self, r: int) -> np.ndarray:
-        return self.region_data(r)[0]
-
-    def region_data(self, r: int, problem=None):
-        """(indices, :class:`RegionData` or None without ``problem``) of region r, gathered once per labelling."""
+    def region_data(self, r: int, problem):
+        """(indices, :class:`RegionData`) of region r; every region is gathered in one pass, once per labelling."""
         if self.region_index is None:
             self.region_index = {}
-        data = self.region_index.get(r)
-        if data is None:
-            idx = np.flatnonzero(self.labels == r)
-            data = (idx, None) if problem is None else (idx, RegionData.gather(problem, idx))
-            self.region_index[r] = data
-        elif data[1] is None and problem is not None:
-            idx = data[0]
-            data = (idx, RegionData.gather(problem, idx))
-            self.region_index[r] = data
-        return data
+        if not self.region_index:     # filled in place: the kernel memoises this dict per labelling
+            regions = RegionData.split(problem, self.labels, self.theta.shape[0])
+            self.region_index.update({k: (data.idx, data) for k, data in enumerate(regions)})
+        return self.region_index[r]
 
 
 # ----------------------------------------------------------------------------- within model
@@ -569,10 +560,6 @@ def _draw_vector(rng, lower, upper, size, config):
 
 # --- region parameters: independent conditional proposals ------------------------------
 
-def _region_arrays(problem, labels, r):
-    return RegionData.gather(problem, np.flatnonzero(labels == r))
-
-
 def _stats_at(data, g):
     return data.stats_at(g)
 
@@ -779,8 +766,9 @@ def _regions_term(problem, prior, config, labels, theta, regions, draw_rng=None)
     """
     total = 0.0
     theta = theta.copy()
+    split = RegionData.split(problem, labels, theta.shape[0])
     for r in regions:
-        data = _region_arrays(problem, labels, r)
+        data = split[r]
         proposal = _region_proposal(data, config, prior)
         if draw_rng is not None:
             drawn = _draw_region(draw_rng, data, proposal, prior, config)
