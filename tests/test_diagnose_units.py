@@ -84,3 +84,17 @@ def test_laplace_evidence_agrees_with_importance_sampling(tmp_path):
         log_z, se, ess = evidence_by_importance_sampling(fit, n_draws=3000)
         assert ess > 100, ess
         assert abs(log_z - fit.log_evidence) < 0.5, (log_z, fit.log_evidence, se)
+
+
+def test_hidden_ambient_is_added_before_the_camera_response():
+    """With both hidden, ambient light enters the sensor's response curve (it was once dropped)."""
+    from rjfit.diagnose.hidden import _hidden_post
+
+    rng = np.random.default_rng(0)
+    images = rng.uniform(0.0, 10.0, (2, 4, 5, 1))
+    ambient = rng.uniform(0.0, 1.0, (4, 5))
+    np.testing.assert_allclose(_hidden_post(ambient, None, images), images + ambient[None, :, :, None])
+    both = _hidden_post(ambient, (np.random.default_rng(1), 0.0), images)
+    camera_of_sum = _hidden_post(None, (np.random.default_rng(1), 0.0), images + ambient[None, :, :, None])
+    np.testing.assert_allclose(both, camera_of_sum)
+    assert not np.allclose(both, _hidden_post(None, (np.random.default_rng(1), 0.0), images))

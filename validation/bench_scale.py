@@ -100,7 +100,7 @@ def main():
             rows.append(json.loads(output.strip().splitlines()[-1]))
             print(f"  {size}: done", file=sys.stderr, flush=True)
     if args.render_only:
-        print(f"scanner_sphere, render and validate (gate at 1 spp) per size")
+        print("scanner_sphere, render and validate (gate at 1 spp) per size")
         print(f"{'size':>6} {'variant':>12} {'render s':>9} {'validate s':>11} {'peak RSS GB':>12} {'gate':>5}")
         for row in rows:
             print(f"{row['size']:>6} {row['variant']:>12} {row['render_s']:>9.1f} {row['validate_s']:>11.1f} "

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import math
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -120,6 +121,20 @@ def _edit_meta(path, edit):
     write_json_atomic(Path(path) / "dataset.json", meta)
 
 
+def _hidden_post(ambient_image, camera, images):
+    """The hidden effects applied to rendered radiance: ambient light, then an sRGB camera with noise after it."""
+    if ambient_image is not None:
+        images = images + ambient_image[None, :, :, None]
+    if camera is None:
+        return images
+    import colour
+
+    rng, noise_variance = camera
+    white = SRGB_WHITE * float(images.max())
+    encoded = white * np.asarray(colour.cctf_encoding(np.clip(images / white, 0.0, None), function="sRGB"))
+    return encoded + rng.normal(0.0, math.sqrt(noise_variance), size=images.shape[:3] + (1,))
+
+
 def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1):
     """Render the hidden-effect data set ``kind`` (see the module docstring) into ``out_dir``."""
     from rjfit.render.render import load_scene_definition, render_dataset
@@ -139,20 +154,13 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         nominal = json.loads(json.dumps(scene["lights"]))
         if "light_calibration" in kinds:
             scene["lights"][CALIBRATED_LIGHT]["intensity"] *= CALIBRATION_ERROR
-        post = None
-        if ambient_image is not None:
-            def post(images):
-                return images + ambient_image[None, :, :, None]
+        camera = None
         if "camera_response" in kinds:
             rng = np.random.default_rng(np.random.SeedSequence([scene.get("seed", 0) if seed is None else seed, 0xC0]))
             options["noise_variance"] = 0.0
-
-            def post(images):
-                import colour
-
-                white = SRGB_WHITE * float(images.max())
-                encoded = white * np.asarray(colour.cctf_encoding(np.clip(images / white, 0.0, None), function="sRGB"))
-                return encoded + rng.normal(0.0, math.sqrt(noise_variance), size=images.shape[:3] + (1,))
+            camera = (rng, noise_variance)
+        # ambient light reaches the sensor before its response curve: add it first
+        post = None if ambient_image is None and camera is None else partial(_hidden_post, ambient_image, camera)
         path = render_dataset(scene, out_dir, extra=extra, post_process=post, **options)
         if "light_calibration" in kinds:
             _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={

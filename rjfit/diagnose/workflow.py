@@ -246,7 +246,6 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
             sim_figs["ppc"] = figures.map_figure(out_dir / "ppc_p_values.png", final["ppc_p_values"],
                                                  "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1)
             for label, s in sim.items():
-                L = s["standardised"].shape[0]
                 sim_figs[f"per_image_{label}"] = _per_image_figure(out_dir / f"mitsuba_per_image_{label}.png",
                                                                    s["standardised"], f"{label}: standardised residual per image")
         result["simulation"] = {label: {k: v for k, v in s.items() if not isinstance(v, np.ndarray)}

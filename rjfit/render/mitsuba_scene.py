@@ -165,7 +165,6 @@ def trace_pixels(scene, mesh_material_indices):
         ``positions``, ``normals``, ``view_dirs`` (H, W, 3), ``hit`` (H, W) bool and
         ``material`` (H, W) int (-1 where no surface is hit), from the ``mesh_parts`` order.
     """
-    import drjit as dr
     import mitsuba as mi
 
     rays, (height, width) = _pixel_centre_rays(scene)
