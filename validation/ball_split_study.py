@@ -1,0 +1,135 @@
+"""Why the measured DiLiGenT ball splits: the evidence for a split around its highlight, per noise model.
+
+For one material the posterior should keep one region; it keeps several (README, "Known
+limitations"). This script measures the reason without a sampler: one Lambert + Blinn lobe
+fitted to the whole ball (exponent on a grid, amplitudes by non-negative least squares)
+against two, one inside a box around the highlight and one outside, each with its own
+sigma^2. The log-likelihood gain of that split, times the likelihood power zeta that
+``--likelihood-power auto`` would choose (:func:`rjfit.coarsen.suggest_likelihood_power`),
+is the evidence the sampler weighs against the penalty of the split's 4 extra parameters,
+about ``4 / 2 log(zeta n)``.
+
+Noise models:
+
+``constant``
+    One sigma^2 per region: the default, the paper's model.
+``geometric``
+    Per observation ``var_i = sigma^2 (1 + k |d mu_i / d n|^2)``: the error of a normal
+    (``Normal_gt`` against photometric-stereo normals: 1.8 deg median) moves the
+    prediction by ``|d mu / d n|`` times its angle, which is large on the narrow highlight.
+    ``d mu / d n`` is the tangential gradient of the one-region fit's prediction; the
+    noise floor and the normal-error sd (``k = sd_n^2 / s0^2``) are the maximum-likelihood
+    values on its residuals.
+
+    .venv/bin/python validation/ball_split_study.py [../shared/data/diligent-ball]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+# boxes (row0, row1, col0, col1) in the 512 x 612 frame: the best box of a search around the
+# highlight's centre (rows 245-282, cols 277-338), a larger and a smaller one, and a wide one
+BOXES = ((245, 282, 277, 338), (230, 300, 260, 360), (250, 275, 290, 330), (200, 330, 230, 400))
+GAMMAS = np.geomspace(0.1, 4000.0, 90)
+
+
+def fit_region(A, C, log_hn, y, weight, select):
+    """Best (ssr, gamma, a, b) of ``y ~ a A + b C <h.n>^gamma`` over the grid, a, b >= 0, weighted."""
+    w = weight[select]
+    yw, Aw, Cw, lh = y[select] * w, A[select] * w, C[select] * w, log_hn[select]
+    yy, ya, aa = yw @ yw, yw @ Aw, Aw @ Aw
+    best = (np.inf, np.nan, np.nan, np.nan)
+    for g in GAMMAS:
+        Bw = Cw * np.exp(g * lh)
+        yb, ab, bb = yw @ Bw, Aw @ Bw, Bw @ Bw
+        det = aa * bb - ab * ab
+        candidates = []
+        if det > 1e-12 * aa * bb:
+            a, b = (bb * ya - ab * yb) / det, (aa * yb - ab * ya) / det
+            if a >= 0 and b >= 0:
+                candidates.append((a, b))
+        candidates += [(max(ya / aa, 0.0), 0.0), (0.0, max(yb / bb, 0.0) if bb > 0 else 0.0)]
+        for a, b in candidates:
+            with np.errstate(over="ignore", invalid="ignore"):     # a vanishing lobe: b = SyB / SBB blows up
+                ssr = yy - 2 * a * ya - 2 * b * yb + a * a * aa + 2 * a * b * ab + b * b * bb
+            if np.isfinite(ssr) and ssr < best[0]:
+                best = (ssr, g, a, b)
+    return best
+
+
+def main(argv=None):
+    from scipy.optimize import minimize
+
+    from rjfit.coarsen import suggest_likelihood_power
+    from rjfit.data.dataset import load_dataset
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folder", nargs="?", default="../shared/data/diligent-ball")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    dataset = load_dataset(args.folder)
+    obs = dataset.observations()
+    width = obs.image_shape[1]
+    rows, cols = obs.pixel // width, obs.pixel % width
+    normals = dataset.normals.reshape(-1, 3)[obs.pixel].astype(float)
+    lights = np.array([light.direction for light in dataset.lights], float)
+    lights /= np.linalg.norm(lights, axis=1, keepdims=True)
+    l_dir = lights[obs.light]
+    h_dir = l_dir + np.array([0.0, 0.0, 1.0])
+    h_dir /= np.linalg.norm(h_dir, axis=1, keepdims=True)
+    y = np.asarray(obs.y, float)
+    C = np.asarray(obs.irradiance, float) * np.asarray(obs.cos_ln, float)
+    A = C / math.pi
+    cos_hn = np.clip(np.asarray(obs.cos_hn, float), 1e-300, None)
+    log_hn = np.log(cos_hn)
+    everything = np.ones(y.size, bool)
+    print(f"{args.folder}: {y.size:,} observations, {obs.object_mask.sum():,} pixels, loaded in "
+          f"{time.perf_counter() - started:.0f} s")
+
+    # one region, constant noise: the prediction and its gradient with respect to the normal
+    ssr, g, a, b = fit_region(A, C, log_hn, y, np.ones_like(y), everything)
+    mu = a * A + b * C * cos_hn ** g
+    E = np.asarray(obs.irradiance, float)
+    grad = (E * (a / math.pi + b * cos_hn ** g))[:, None] * l_dir \
+        + (b * E * np.asarray(obs.cos_ln, float) * g * cos_hn ** (g - 1))[:, None] * h_dir
+    grad -= np.sum(grad * normals, axis=1, keepdims=True) * normals       # tangential part
+    slope = np.linalg.norm(grad, axis=1)
+    resid = y - mu
+
+    def negative_log_lik(p):
+        var = np.exp(2 * p[0]) + np.exp(2 * p[1]) * slope ** 2
+        return 0.5 * np.sum(np.log(var) + resid ** 2 / var)
+
+    p = minimize(negative_log_lik, [math.log(np.std(resid)), math.log(0.02)], method="Nelder-Mead").x
+    s0, sd_n = np.exp(p)
+    print(f"one region: gamma {g:.4g}, rms {math.sqrt(ssr / y.size):.1f} ({100 * math.sqrt(ssr / y.size) / y.mean():.1f} % "
+          f"of the mean); geometric noise fit: floor {s0:.1f}, normal-error sd {math.degrees(sd_n):.2f} deg")
+
+    models = {"constant": np.ones_like(y), "geometric": 1.0 / np.sqrt(1.0 + (sd_n / s0) ** 2 * slope ** 2)}
+    print(f"\n{'noise':10s} {'zeta':>7s} {'box (rows, cols)':>26s} {'gain':>11s} {'gain x zeta':>12s} "
+          f"{'penalty':>8s} {'gamma in / out':>16s}")
+    for name, weight in models.items():
+        scaled = replace(obs, y=y * weight, irradiance=E * weight)
+        zeta = suggest_likelihood_power(scaled)["likelihood_power"]
+        penalty = 4 * 0.5 * math.log(zeta * y.size)
+        S1 = fit_region(A, C, log_hn, y, weight, everything)[0]
+        n = y.size
+        for r0, r1, c0, c1 in BOXES:
+            inside = (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
+            SB, gB = fit_region(A, C, log_hn, y, weight, inside)[:2]
+            SO, gO = fit_region(A, C, log_hn, y, weight, ~inside)[:2]
+            nB, nO = int(inside.sum()), int((~inside).sum())
+            gain = 0.5 * n * math.log(S1 / n) - 0.5 * nB * math.log(SB / nB) - 0.5 * nO * math.log(SO / nO)
+            box = f"{r0}-{r1}, {c0}-{c1}"
+            print(f"{name:10s} {zeta:7.4f} {box:>26s} {gain:11.0f} {zeta * gain:12.0f} {penalty:8.1f} "
+                  f"{gB:7.3g} / {gO:<7.3g}", flush=True)
+    print(f"\n{time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
