@@ -31,13 +31,7 @@ def test_sbc_ranks_are_uniform_for_a_fixed_segmentation():
     ranks = np.zeros((REPLICATES, 4), int)
     with threadpool_limits(1):
         for i in range(REPLICATES):
-            theta = prior.sample(rng)
-            mu = radiance(theta[0], theta[1], theta[2], base.cos_ln, base.cos_hn, base.irradiance)
-            y = mu + rng.normal(0.0, np.sqrt(theta[3]), mu.shape)
-            obs = Observations(image_shape=base.image_shape, n_lights=base.n_lights, pixel=base.pixel,
-                               light=base.light, y=y, cos_ln=base.cos_ln, cos_hn=base.cos_hn,
-                               irradiance=base.irradiance, object_mask=base.object_mask)
-            problem = Problem.from_observations(obs)
+            theta, problem = _one_region_problem(rng, prior, base)
             state = initial_state(problem, prior, config, rng, theta=prior.sample(rng)[None])
             draws = []
             for t in range(BURN + DRAWS * THIN):

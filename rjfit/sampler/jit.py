@@ -51,14 +51,19 @@ def b_dots(y, C, power):
     return yb, cb * INV_PI, bb
 
 
+def _powers(log_cos_hn, gamma, chunk):
+    """``(start, stop, <h.n>^gamma)`` per chunk, float64, from NumPy's SIMD exp (into one reused buffer)."""
+    buffer = np.empty(min(chunk, log_cos_hn.shape[0]))
+    for start in range(0, log_cos_hn.shape[0], chunk):
+        stop = min(start + chunk, log_cos_hn.shape[0])
+        power = np.multiply(log_cos_hn[start:stop], gamma, out=buffer[:stop - start], dtype=np.float64)
+        yield start, stop, np.exp(power, out=power)
+
+
 def b_sums(y, C, log_cos_hn, gamma, chunk=1 << 16):
     """``(SyB, SAB, SBB)`` (unscaled, float64) of one region's gathered arrays at exponent ``gamma``."""
     total = np.zeros(3)
-    buffer = np.empty(min(chunk, y.shape[0]))
-    for start in range(0, y.shape[0], chunk):
-        stop = min(start + chunk, y.shape[0])
-        power = np.multiply(log_cos_hn[start:stop], gamma, out=buffer[:stop - start], dtype=np.float64)
-        np.exp(power, out=power)
+    for start, stop, power in _powers(log_cos_hn, gamma, chunk):
         total += b_dots(y[start:stop], C[start:stop], power)
     return total
 
@@ -106,11 +111,7 @@ def b_dots_newton(y, C, power, log_cos_hn):
 def b_sums_newton(y, C, log_cos_hn, gamma, chunk=1 << 16):
     """``(SyB, SAB, SBB)`` at ``gamma`` and the same sums weighted by ``log <h.n>`` and ``log^2 <h.n>`` (9,)."""
     total = np.zeros(9)
-    buffer = np.empty(min(chunk, y.shape[0]))
-    for start in range(0, y.shape[0], chunk):
-        stop = min(start + chunk, y.shape[0])
-        power = np.multiply(log_cos_hn[start:stop], gamma, out=buffer[:stop - start], dtype=np.float64)
-        np.exp(power, out=power)
+    for start, stop, power in _powers(log_cos_hn, gamma, chunk):
         total += b_dots_newton(y[start:stop], C[start:stop], power, log_cos_hn[start:stop])
     return total
 

@@ -167,16 +167,13 @@ def _move_sigma2(work, r, rng, prior):
     return False
 
 
-def _move_gamma_ab(work, r, rng, prior, problem, step):
-    """Random walk on log gamma with (a, b) redrawn from their conditional given the new gamma."""
+def _accept_gamma_ab(work, r, rng, prior, cond_old, g_new, stats_new, log_q_ratio_gamma):
+    """What every gamma move shares: (a, b) redrawn from their conditional given the proposed gamma, then MH.
+
+    ``log_q_ratio_gamma`` is the log gamma proposal's ``log q(old | new) - log q(new | old)``
+    (0 for a random walk). Returns whether the move was accepted.
+    """
     I0, kd, g, s2 = work.theta[r]
-    stats_r = work.stats[r]
-    cond_old = _ab_conditional(stats_r, s2)
-    if cond_old is None:
-        return None
-    g_new = g * math.exp(step * rng.normal())
-    stats_new = stats_r.copy()
-    stats_new[[STAT_YB, STAT_AB, STAT_BB]] = _b_sums_region(work, problem, r, g_new)
     cond_new = _ab_conditional(stats_new, s2)
     if cond_new is None:
         return False
@@ -190,11 +187,24 @@ def _move_gamma_ab(work, r, rng, prior, problem, step):
     a_old, b_old = I0 * kd, I0 * (1.0 - kd) * _norm(g)
     log_alpha = (_log_target_ab(prior, I0_new, kd_new, g_new, s2, ll_new)
                  - _log_target_ab(prior, I0, kd, g, s2, work.log_lik[r])
-                 + _log_q_ab(a_old, b_old, cond_old) - _log_q_ab(a_new, b_new, cond_new))
+                 + _log_q_ab(a_old, b_old, cond_old) - _log_q_ab(a_new, b_new, cond_new) + log_q_ratio_gamma)
     if log_u < log_alpha:
         _set_region(work, r, (I0_new, kd_new, g_new, s2), stats_new, ll_new)
         return True
     return False
+
+
+def _move_gamma_ab(work, r, rng, prior, problem, step):
+    """Random walk on log gamma with (a, b) redrawn from their conditional given the new gamma."""
+    g, s2 = work.theta[r, 2], work.theta[r, 3]
+    stats_r = work.stats[r]
+    cond_old = _ab_conditional(stats_r, s2)
+    if cond_old is None:
+        return None
+    g_new = g * math.exp(step * rng.normal())
+    stats_new = stats_r.copy()
+    stats_new[[STAT_YB, STAT_AB, STAT_BB]] = _b_sums_region(work, problem, r, g_new)
+    return _accept_gamma_ab(work, r, rng, prior, cond_old, g_new, stats_new, 0.0)
 
 
 def _ls_profile(sya, saa, sums, g):
@@ -259,7 +269,7 @@ def _move_gamma_newton(work, r, rng, prior, problem, scale, rw_sd):
     gamma, so the ratio is exact. Where the profile is not concave the rule is a random
     walk of sd ``rw_sd`` (a deterministic choice per point: still a valid proposal).
     """
-    I0, kd, g, s2 = work.theta[r]
+    g, s2 = work.theta[r, 2], work.theta[r, 3]
     stats_r = work.stats[r]
     cond_old = _ab_conditional(stats_r, s2)
     if cond_old is None:
@@ -274,26 +284,9 @@ def _move_gamma_newton(work, r, rng, prior, problem, scale, rw_sd):
     sums_new = data.b_sums_newton(g_new)
     stats_new = stats_r.copy()
     stats_new[[STAT_YB, STAT_AB, STAT_BB]] = sums_new[:3]
-    cond_new = _ab_conditional(stats_new, s2)
-    if cond_new is None:
-        return False
-    a_new, b_new = _draw_ab(cond_new, rng)
-    log_u = math.log(rng.random())
-    if a_new <= 0 or b_new <= 0:
-        return False
     backward = _newton_log_gamma(stats_new, sums_new, g_new, s2, scale)
-    I0_new = a_new + b_new / _norm(g_new)
-    kd_new = a_new / I0_new
-    ll_new = _ll(stats_new, I0_new, kd_new, g_new, s2)
-    a_old, b_old = I0 * kd, I0 * (1.0 - kd) * _norm(g)
-    log_alpha = (_log_target_ab(prior, I0_new, kd_new, g_new, s2, ll_new)
-                 - _log_target_ab(prior, I0, kd, g, s2, work.log_lik[r])
-                 + _log_q_ab(a_old, b_old, cond_old) - _log_q_ab(a_new, b_new, cond_new)
-                 + _log_q_log_gamma(ell, ell_new, backward, rw_sd) - _log_q_log_gamma(ell_new, ell, forward, rw_sd))
-    if log_u < log_alpha:
-        _set_region(work, r, (I0_new, kd_new, g_new, s2), stats_new, ll_new)
-        return True
-    return False
+    log_q_ratio = _log_q_log_gamma(ell, ell_new, backward, rw_sd) - _log_q_log_gamma(ell_new, ell, forward, rw_sd)
+    return _accept_gamma_ab(work, r, rng, prior, cond_old, g_new, stats_new, log_q_ratio)
 
 
 def _move_phi_rw(work, r, rng, prior, problem, step):
