@@ -32,17 +32,22 @@ def test_sbc_ranks_are_uniform_for_a_fixed_segmentation():
     with threadpool_limits(1):
         for i in range(REPLICATES):
             theta, problem = _one_region_problem(rng, prior, base)
-            state = initial_state(problem, prior, config, rng, theta=prior.sample(rng)[None])
-            draws = []
-            for t in range(BURN + DRAWS * THIN):
-                state, _ = step(state, rng, problem, prior, config)
-                if t >= BURN and (t - BURN) % THIN == THIN - 1:
-                    draws.append(state.theta[0].copy())
-            ranks[i] = (np.array(draws) < theta).sum(axis=0)
+            ranks[i], _ = _rank_of_truth(theta, problem, prior, config, rng, BURN, DRAWS, THIN)
     for k in range(4):
         counts = np.bincount(ranks[:, k] // 4, minlength=5)
         p_value = stats.chisquare(counts).pvalue
         assert p_value > 1e-3, (k, counts, p_value)
+
+
+def _rank_of_truth(theta, problem, prior, config, rng, burn, draws, thin):
+    """Run a chain from a prior draw; the rank of ``theta`` among its thinned kept draws, and the final state."""
+    state = initial_state(problem, prior, config, rng, theta=prior.sample(rng)[None])
+    kept = []
+    for t in range(burn + draws * thin):
+        state, _ = step(state, rng, problem, prior, config)
+        if t >= burn and (t - burn) % thin == thin - 1:
+            kept.append(state.theta[0].copy())
+    return (np.array(kept) < theta).sum(axis=0), state
 
 
 def _one_region_problem(rng, prior, base):
@@ -78,13 +83,7 @@ def _newton_sbc(replicates=150, draws=19, thin=20, burn=300, seed=77):
     with threadpool_limits(1):
         for i in range(replicates):
             theta, problem = _one_region_problem(rng, prior, base)
-            state = initial_state(problem, prior, config, rng, theta=prior.sample(rng)[None])
-            kept = []
-            for t in range(burn + draws * thin):
-                state, _ = step(state, rng, problem, prior, config)
-                if t >= burn and (t - burn) % thin == thin - 1:
-                    kept.append(state.theta[0].copy())
-            ranks[i] = (np.array(kept) < theta).sum(axis=0)
+            ranks[i], state = _rank_of_truth(theta, problem, prior, config, rng, burn, draws, thin)
             g = state.theta[0, 2]
             sums = _region_sums(problem, g)
             newton_valid += _newton_log_gamma(state.stats[0], sums, g, state.theta[0, 3], 1.0) is not None
