@@ -264,6 +264,8 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
                    f"ESS min {summary['ess_min']:.0f}; {summary['seconds']:.1f} s")
         if "label_accuracy" in summary:
             click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
+        for warning in summary.get("warnings", []):
+            click.echo(f"  WARNING: {warning}", err=True)
 
 
 @main.command()

@@ -191,6 +191,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "chain_seconds": [r.seconds for r in records],
         "chain_model_posterior": [post.model_posterior([r], burn) for r in records],
     }
+    summary["warnings"] = post.convergence_warnings(diag, summary["chain_model_posterior"], n_chains)
     if truth_labels is not None:
         acc = post.label_accuracy(labels, truth_labels)
         summary["label_accuracy"] = acc["accuracy"]

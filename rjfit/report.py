@@ -152,6 +152,14 @@ def build_report(fit_dir, out_path=None) -> Path:
         parts.append("<p>No validation found for this data set.</p>")
 
     parts.append("<h2>Segmentation and model posterior</h2>")
+    warnings = summary.get("warnings") or []
+    if warnings:
+        items = "".join(f"<li>{html.escape(w)}</li>" for w in warnings)
+        parts.append(f'<div class="fail"><p>Convergence warnings: do not trust the summaries below yet.</p>'
+                     f"<ul>{items}</ul></div>")
+    elif "warnings" in summary:
+        parts.append('<p><span class="pass">Convergence checks passed</span> (split R-hat &le; 1.01, bulk and tail '
+                     "ESS &ge; 100 per chain, every chain's most frequent model the MAP model).</p>")
     map_model = summary.get("map_model", {})
     parts.append(_key_values({**{f"map_model.{k}": v for k, v in map_model.items()}, **summary},
                              ["map_model.n_u", "map_model.n_v", "map_model.m", "true_regions_probability", "four_region_probability",

@@ -68,6 +68,12 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     assert "<th>method</th>" in html and "|---" not in html
     summary = json.loads((tmp_path / "run" / "fit" / "summary.json").read_text())
     assert summary["validation"]["passed"] is True
+    # convergence warnings (a 200-iteration run may have some) reach the report verbatim
+    import html as html_module
+
+    assert all(html_module.escape(w) in html for w in summary["warnings"])
+    assert ("Convergence warnings" in html) == bool(summary["warnings"])
+    assert ("Convergence checks passed" in html) != bool(summary["warnings"])
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
                      "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):
         assert (tmp_path / "run" / produced).is_file(), produced

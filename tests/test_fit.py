@@ -31,7 +31,7 @@ def test_fit_writes_summary_labels_chains_and_figures(fitted):
     out, summary, labels = fitted
     on_disk = json.loads((out / "summary.json").read_text())
     for key in ("model_posterior", "map_model", "regions", "rhat_max", "ess_min", "iterations", "seconds",
-                "label_accuracy", "four_region_probability", "exact_truth_probability"):
+                "label_accuracy", "four_region_probability", "exact_truth_probability", "warnings"):
         assert key in on_disk, key
     assert on_disk["map_model"] == {"n_u": 1, "n_v": 1, "m": 5}
     assert abs(sum(on_disk["model_posterior"].values()) - 1.0) < 1e-9

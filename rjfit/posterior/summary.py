@@ -13,7 +13,14 @@ from rjfit.sampler.priors import PARAM_NAMES
 
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
-           "object_region_count_probability", "to_inference_data", "model_key"]
+           "object_region_count_probability", "to_inference_data", "model_key", "convergence_warnings",
+           "RHAT_MAX", "ESS_PER_CHAIN_MIN"]
+
+# Vehtari, Gelman, Simpson, Carpenter and Buerkner (2021), "Rank-normalization, folding, and
+# localization: an improved R-hat", Bayesian Analysis 16(2): trust a posterior summary when
+# split R-hat <= 1.01 and bulk and tail ESS >= 100 per chain.
+RHAT_MAX = 1.01
+ESS_PER_CHAIN_MIN = 100
 
 
 def model_key(n_u: int, n_v: int) -> str:
@@ -71,6 +78,52 @@ def diagnostics(draws_per_chain) -> dict:
             "ess_bulk_min": float(np.min(ess_bulk)), "ess_tail_min": float(np.min(ess_tail)),
             "ess_bulk_median": float(np.median(ess_bulk)), "rhat": rhat.tolist(), "ess_bulk": ess_bulk.tolist(),
             "chains_used": len(usable), "draws_per_chain": int(length)}
+
+
+def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_chains: int) -> list:
+    """Plain-language warnings where the chains do not support the fit's summaries.
+
+    Checks, in order: that there are at least two chains (R-hat needs them); that every
+    chain's most frequent model is the same (chains stuck in different models make the
+    pooled model posterior an artefact of the starts); that at least two chains visit the
+    MAP model, so that R-hat exists; split R-hat <= :data:`RHAT_MAX` and bulk and tail ESS
+    >= :data:`ESS_PER_CHAIN_MIN` per chain for the MAP model's parameters (Vehtari et al.
+    2021).
+
+    Parameters
+    ----------
+    diagnostics_result : dict
+        :func:`diagnostics` of the MAP model's draws.
+    chain_model_posteriors : list of dict
+        :func:`model_posterior` of each chain alone.
+    n_chains : int
+
+    Returns
+    -------
+    list of str
+        Empty when every check passes.
+    """
+    warnings = []
+    if n_chains < 2:
+        warnings.append("one chain only: R-hat needs at least two; run several chains from dispersed starts "
+                        "(--chains 4) before trusting the model posterior")
+    modal = [next(iter(p)) for p in chain_model_posteriors if p]
+    if len(set(modal)) > 1:
+        per_chain = ", ".join(f"chain {c}: {m} ({p[m]:.2f})" for c, (m, p) in enumerate(zip(modal, chain_model_posteriors)))
+        warnings.append(f"the chains disagree on the model ({per_chain}): the pooled model posterior reflects "
+                        "where they started, not the data; run longer (--iterations) or with more chains")
+    used = diagnostics_result.get("chains_used", 0)
+    if n_chains >= 2 and used < 2:
+        warnings.append(f"only {used} of {n_chains} chains visit the MAP model after burn-in (4 draws needed): "
+                        "R-hat of its parameters cannot be computed")
+    rhat = diagnostics_result.get("rhat_max", float("nan"))
+    if np.isfinite(rhat) and rhat > RHAT_MAX:
+        warnings.append(f"R-hat max {rhat:.4f} > {RHAT_MAX}: the chains have not mixed over the MAP model's parameters")
+    ess = min(diagnostics_result.get("ess_bulk_min", np.nan), diagnostics_result.get("ess_tail_min", np.nan))
+    if used >= 1 and np.isfinite(ess) and ess < ESS_PER_CHAIN_MIN * used:
+        warnings.append(f"ESS min {ess:.0f} < {ESS_PER_CHAIN_MIN} per chain ({ESS_PER_CHAIN_MIN * used} for {used}): "
+                        "too few effective draws for the quantiles; run longer")
+    return warnings
 
 
 def region_summaries(draws_per_chain, labels=None) -> list:
