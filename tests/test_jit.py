@@ -200,3 +200,36 @@ def test_split_by_label_equals_one_gather_per_region(problem):
         assert data.weight == reference.weight
     with pytest.raises(ValueError, match="labels must lie"):
         RegionData.split(problem, labels, 3)
+
+
+def test_normal_cdf_and_quantile_equal_scipy():
+    from scipy.special import ndtr, ndtri
+
+    # quantile over both tails and the centre; the CDF down to 1e-300 (erfc's own accuracy there)
+    p = np.concatenate([np.geomspace(1e-300, 0.5, 500), 1.0 - np.geomspace(1e-16, 0.5, 500),
+                        np.random.default_rng(0).random(500)])
+    mine = np.array([jit.ndtri(v) for v in p])
+    np.testing.assert_allclose(mine, ndtri(p), rtol=1e-12, atol=1e-15)
+    x = np.linspace(-37.0, 9.0, 2001)
+    np.testing.assert_allclose([jit.ndtr(v) for v in x], ndtr(x), rtol=1e-12)
+    assert jit.ndtri(0.0) == -np.inf and jit.ndtri(1.0) == np.inf
+
+
+@pytest.mark.parametrize("sd", [None, 0.3, 2.0])
+def test_within_cell_draw_and_density_equal_the_reference(sd):
+    from rjfit.sampler.moves import _draw_within_cells, _within_cell_log_density
+
+    rng = np.random.default_rng(11)
+    n_lines = 300
+    # cells of width 0.2-1 that wander along the lines, with jumps far beyond the step sd
+    # (the reference's uniform fallback) and cells wholly above or below the next line
+    lo = np.cumsum(rng.normal(0.0, 0.7, n_lines)) + np.where(rng.random(n_lines) < 0.05, 25.0, 0.0)
+    hi = lo + rng.uniform(0.2, 1.0, n_lines)
+    reference = _draw_within_cells(lo, hi, sd, np.random.default_rng(5))
+    step_sd = -1.0 if sd is None else sd
+    compiled = jit.within_cells_draw(lo, hi, step_sd, np.random.default_rng(5).random(n_lines)[::-1].copy())
+    np.testing.assert_allclose(compiled, reference, rtol=0, atol=1e-9)
+    assert np.all((compiled >= lo) & (compiled < hi))
+    for x in (compiled, lo + 0.5 * (hi - lo)):
+        expected = float(np.sum(_within_cell_log_density(x, x[1:], lo, hi, sd)))
+        assert abs(jit.within_cells_log_density(x, lo, hi, step_sd) - expected) < 1e-9 * max(1.0, abs(expected))

@@ -21,7 +21,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["b_sums", "b_sums_newton", "split_by_label", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
-           "forward_filter", "removal_sums", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal", "BLOCK"]
+           "forward_filter", "removal_sums", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
+           "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "BLOCK"]
 
 BLOCK = 512
 LOG_2PI = math.log(2.0 * math.pi)
@@ -505,3 +506,113 @@ def sweep_proposal(cps, lines, k, kind, z, pick_up, unif, size, p_unif, p_nb, st
                       - _smooth_terms(row_old, cps, up, smooth_sd) - _smooth_terms(row_old, cps, down, smooth_sd))
         log_q_ratio[j] = ratio
     return x_new, inside, log_q_ratio
+
+
+# ----------------------------------------------------------------------------- truncated normal steps
+
+# Acklam's rational approximation of the normal quantile (relative error < 1.2e-9), refined
+# below by one Halley step on ndtr to full double precision.
+_Q_A = (-3.969683028665376e+01, 2.209460984245205e+02, -2.759285104469687e+02, 1.383577518672690e+02,
+        -3.066479806614716e+01, 2.506628277459239e+00)
+_Q_B = (-5.447609879822406e+01, 1.615858368580409e+02, -1.556989798598866e+02, 6.680131188771972e+01,
+        -1.328068155288572e+01)
+_Q_C = (-7.784894002430293e-03, -3.223964580411365e-01, -2.400758277161838e+00, -2.549732539343734e+00,
+        4.374664141464968e+00, 2.938163982698783e+00)
+_Q_D = (7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996e+00, 3.754408661907416e+00)
+_SQRT_HALF = math.sqrt(0.5)
+_SQRT_2PI = math.sqrt(2.0 * math.pi)
+
+
+@njit(cache=True, nogil=True)
+def ndtr(x):
+    """Standard normal CDF (as :func:`scipy.special.ndtr`)."""
+    return 0.5 * math.erfc(-x * _SQRT_HALF)
+
+
+@njit(cache=True, nogil=True)
+def _ndtri_lower(p):
+    q = math.sqrt(-2.0 * math.log(p))
+    c, d = _Q_C, _Q_D
+    return ((((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5])
+            / ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1.0))
+
+
+@njit(cache=True, nogil=True)
+def ndtri(p):
+    """Standard normal quantile (as :func:`scipy.special.ndtri`): -inf at 0, inf at 1."""
+    if p <= 0.0:
+        return -np.inf
+    if p >= 1.0:
+        return np.inf
+    if p < 0.02425:
+        x = _ndtri_lower(p)
+    elif p > 1.0 - 0.02425:
+        x = -_ndtri_lower(1.0 - p)
+    else:
+        q = p - 0.5
+        r = q * q
+        a, b = _Q_A, _Q_B
+        x = ((((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q
+             / (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1.0))
+    # one Halley step on ndtr(x) = p; in the upper half through the complement, so that
+    # the step sees 1 - p's own rounding and not that of ndtr near 1
+    if x > 0.0:
+        e = 0.5 * math.erfc(x * _SQRT_HALF) - (1.0 - p)
+        u = -e * _SQRT_2PI * math.exp(0.5 * x * x)
+    else:
+        e = ndtr(x) - p
+        u = e * _SQRT_2PI * math.exp(0.5 * x * x)
+    if math.isfinite(u):
+        x = x - u / (1.0 + 0.5 * x * u)
+    return x
+
+
+@njit(cache=True, nogil=True)
+def _truncated_mass(a, b):
+    # P(a < Z < b); both ends in the upper tail: the mirrored lower tail keeps its digits
+    if a > 0.0:
+        return ndtr(-a) - ndtr(-b)
+    return ndtr(b) - ndtr(a)
+
+
+@njit(cache=True, nogil=True)
+def within_cells_draw(lo, hi, sd, uniforms):
+    """Compiled twin of :func:`rjfit.sampler.moves._draw_within_cells`; ``sd`` <= 0: no step model.
+
+    ``uniforms[r]`` is line r's uniform (the reference draws them last line first).
+    """
+    n_lines = lo.shape[0]
+    x = np.empty(n_lines)
+    last = n_lines - 1
+    x[last] = lo[last] + (hi[last] - lo[last]) * uniforms[last]
+    for r in range(n_lines - 2, -1, -1):
+        u = uniforms[r]
+        if sd > 0.0:
+            a, b = (lo[r] - x[r + 1]) / sd, (hi[r] - x[r + 1]) / sd
+            if _truncated_mass(a, b) > 1e-12:
+                if a > 0.0:      # mirrored, so the inverse CDF works away from 1
+                    z = -ndtri(ndtr(-a) - u * (ndtr(-a) - ndtr(-b)))
+                else:
+                    z = ndtri(ndtr(a) + u * (ndtr(b) - ndtr(a)))
+                x[r] = min(max(x[r + 1] + sd * z, lo[r]), np.nextafter(hi[r], lo[r]))
+                continue
+        x[r] = lo[r] + (hi[r] - lo[r]) * u
+    return x
+
+
+@njit(cache=True, nogil=True)
+def within_cells_log_density(x, lo, hi, sd):
+    """Compiled twin of :func:`rjfit.sampler.moves._within_cell_log_density` (summed; next line = x[r + 1])."""
+    n_lines = x.shape[0]
+    total = 0.0
+    for r in range(n_lines):
+        uniform = -math.log(hi[r] - lo[r])
+        if sd > 0.0 and r < n_lines - 1:
+            a, b = (lo[r] - x[r + 1]) / sd, (hi[r] - x[r + 1]) / sd
+            mass = _truncated_mass(a, b)
+            if mass > 1e-12:
+                d = (x[r] - x[r + 1]) / sd
+                total += -0.5 * d * d - math.log(sd) - 0.5 * LOG_2PI - math.log(mass)
+                continue
+        total += uniform
+    return total

@@ -1025,6 +1025,8 @@ def _backward_sample(alpha, logits_given_next, rng):
 def _within_cell_log_density(x, x_next, lo, hi, sd):
     """Log density of positions x (L,) inside their cells [lo, hi) of the backward draw.
 
+    The reference of :func:`rjfit.sampler.jit.within_cells_log_density`, which the move uses.
+
     Line L - 1 is uniform in its cell; line r < L - 1 follows the prior's step, a normal
     around the next line's position x_next truncated to the cell (uniform where the cell
     holds less than 1e-12 of that normal's mass, or without a step model, ``sd`` None).
@@ -1050,7 +1052,10 @@ def _normal_mass(a, b):
 
 
 def _draw_within_cells(lo, hi, sd, rng):
-    """Positions inside the cells [lo, hi), drawn from line L - 1 backwards (see :func:`_within_cell_log_density`)."""
+    """Positions inside the cells [lo, hi), drawn from line L - 1 backwards (see :func:`_within_cell_log_density`).
+
+    The reference of :func:`rjfit.sampler.jit.within_cells_draw`, which the move uses.
+    """
     from scipy.special import ndtr, ndtri
 
     n_lines = lo.size
@@ -1124,13 +1129,16 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     log_steps = np.zeros(0) if log_kernel is None else log_kernel
     cells_new = jit.cell_backward_sample(alpha, log_steps, rng.random(n_lines))
     lo_new, hi_new = cell_lo[rows, cells_new], cell_lo[rows, cells_new] + widths[rows, cells_new]
-    x_new = _draw_within_cells(lo_new, hi_new, sd, rng)
+    # compiled twins of _draw_within_cells / _within_cell_log_density (sd <= 0: no step
+    # model); the reference draws one uniform per line, last line first
+    step_sd = -1.0 if sd is None else float(sd)
+    x_new = jit.within_cells_draw(lo_new, hi_new, step_sd, rng.random(n_lines)[::-1].copy())
     cells_old = _cell_of(x_old, size)
     lo_old, hi_old = cell_lo[rows, cells_old], cell_lo[rows, cells_old] + widths[rows, cells_old]
-    log_q_new = jit.cell_path_log_prob(alpha, cells_new, log_steps) + float(np.sum(
-        _within_cell_log_density(x_new, x_new[1:], lo_new, hi_new, sd)))
-    log_q_old = jit.cell_path_log_prob(alpha, cells_old, log_steps) + float(np.sum(
-        _within_cell_log_density(x_old, x_old[1:], lo_old, hi_old, sd)))
+    log_q_new = (jit.cell_path_log_prob(alpha, cells_new, log_steps)
+                 + jit.within_cells_log_density(x_new, lo_new, hi_new, step_sd))
+    log_q_old = (jit.cell_path_log_prob(alpha, cells_old, log_steps)
+                 + jit.within_cells_log_density(np.ascontiguousarray(x_old), lo_old, hi_old, step_sd))
     new_cps = cps.copy()
     new_cps[:, k] = x_new
     u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
