@@ -20,6 +20,14 @@ Noise models:
     ``d mu / d n`` is the tangential gradient of the one-region fit's prediction; the
     noise floor and the normal-error sd (``k = sd_n^2 / s0^2``) are the maximum-likelihood
     values on its residuals.
+``normal error``
+    The same error without linearising (the lobe is about as narrow as the normal errors,
+    and at its peak the gradient vanishes while the spread does not): with the lobe
+    ``L exp(-g' theta^2 / 2)`` (theta the angle between h and n) and a normal error
+    ``N(0, sd_n^2)`` per tangent axis, ``var_i = s0^2 + L_i^2 (E2_i - E1_i^2)``, where
+    ``E1 = exp(-g' theta^2 / (2 (1 + g' sd_n^2))) / (1 + g' sd_n^2)`` and ``E2`` the same
+    with ``2 g'``. The fitted lobe is taken as the blurred one, so ``g' = g / (1 - g sd_n^2)``
+    and ``L = b E <l.n> (1 + g' sd_n^2)``; s0 and sd_n by maximum likelihood.
 
     .venv/bin/python validation/ball_split_study.py [../shared/data/diligent-ball]
 """
@@ -110,8 +118,25 @@ def main(argv=None):
     print(f"one region: gamma {g:.4g}, rms {math.sqrt(ssr / y.size):.1f} ({100 * math.sqrt(ssr / y.size) / y.mean():.1f} % "
           f"of the mean); geometric noise fit: floor {s0:.1f}, normal-error sd {math.degrees(sd_n):.2f} deg")
 
-    models = {"constant": np.ones_like(y), "geometric": 1.0 / np.sqrt(1.0 + (sd_n / s0) ** 2 * slope ** 2)}
-    print(f"\n{'noise':10s} {'zeta':>7s} {'box (rows, cols)':>26s} {'gain':>11s} {'gain x zeta':>12s} "
+    theta2 = np.arccos(np.minimum(cos_hn, 1.0)) ** 2
+
+    def normal_error_variance(p):
+        floor, sd = np.exp(p)
+        sharp = g / max(1.0 - g * sd * sd, 1e-3)            # the lobe before the normal errors blur it
+        spread = sharp * sd * sd
+        e1 = np.exp(-sharp * theta2 / (2.0 * (1.0 + spread))) / (1.0 + spread)
+        e2 = np.exp(-sharp * theta2 / (1.0 + 2.0 * spread)) / (1.0 + 2.0 * spread)
+        return floor ** 2 + (b * C * (1.0 + spread)) ** 2 * np.maximum(e2 - e1 * e1, 0.0)
+
+    def negative_log_lik_normal_error(p):
+        var = normal_error_variance(p)
+        return 0.5 * np.sum(np.log(var) + resid ** 2 / var)
+
+    q = minimize(negative_log_lik_normal_error, [math.log(np.std(resid)), math.log(0.02)], method="Nelder-Mead").x
+    print(f"normal-error noise fit: floor {math.exp(q[0]):.1f}, normal-error sd {math.degrees(math.exp(q[1])):.2f} deg")
+    models = {"constant": np.ones_like(y), "geometric": 1.0 / np.sqrt(1.0 + (sd_n / s0) ** 2 * slope ** 2),
+              "normal error": math.exp(q[0]) / np.sqrt(normal_error_variance(q))}
+    print(f"\n{'noise':12s} {'zeta':>7s} {'box (rows, cols)':>26s} {'gain':>11s} {'gain x zeta':>12s} "
           f"{'penalty':>8s} {'gamma in / out':>16s}")
     for name, weight in models.items():
         scaled = replace(obs, y=y * weight, irradiance=E * weight)
@@ -126,7 +151,7 @@ def main(argv=None):
             nB, nO = int(inside.sum()), int((~inside).sum())
             gain = 0.5 * n * math.log(S1 / n) - 0.5 * nB * math.log(SB / nB) - 0.5 * nO * math.log(SO / nO)
             box = f"{r0}-{r1}, {c0}-{c1}"
-            print(f"{name:10s} {zeta:7.4f} {box:>26s} {gain:11.0f} {zeta * gain:12.0f} {penalty:8.1f} "
+            print(f"{name:12s} {zeta:7.4f} {box:>26s} {gain:11.0f} {zeta * gain:12.0f} {penalty:8.1f} "
                   f"{gB:7.3g} / {gO:<7.3g}", flush=True)
     print(f"\n{time.perf_counter() - started:.0f} s")
 
