@@ -159,7 +159,7 @@ def build_report(fit_dir, out_path=None) -> Path:
                      f"<ul>{items}</ul></div>")
     elif "warnings" in summary:
         parts.append('<p><span class="pass">Convergence checks passed</span> (split R-hat &le; 1.01, bulk and tail '
-                     "ESS &ge; 100 per chain, every chain's most frequent model the MAP model).</p>")
+                     "ESS &ge; 100 per chain, the chains' model frequencies within 0.5 of each other in total variation).</p>")
     map_model = summary.get("map_model", {})
     parts.append(_key_values({**{f"map_model.{k}": v for k, v in map_model.items()}, **summary},
                              ["map_model.n_u", "map_model.n_v", "map_model.m", "true_regions_probability", "four_region_probability",

@@ -50,6 +50,14 @@ def test_chains_in_different_models_are_named():
     assert any("only 1 of 2 chains" in w for w in warnings), warnings
 
 
+def test_chains_that_each_visit_both_models_do_not_disagree():
+    # a genuinely bimodal model posterior: each chain's most frequent model is a coin flip,
+    # but their frequencies agree (total variation 0.04 << 0.5)
+    chain_models = [{"(1,1)": 0.52, "(1,2)": 0.48}, {"(1,2)": 0.50, "(1,1)": 0.50}, {"(1,1)": 0.54, "(1,2)": 0.46}]
+    diag = diagnostics(_iid_chains(np.random.default_rng(5), n_chains=3))
+    assert convergence_warnings(diag, chain_models, 3) == []
+
+
 def test_one_chain_is_flagged():
     diag = diagnostics(_iid_chains(np.random.default_rng(4), n_chains=1))
     warnings = convergence_warnings(diag, AGREE[:1], 1)

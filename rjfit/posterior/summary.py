@@ -14,13 +14,16 @@ from rjfit.sampler.priors import PARAM_NAMES
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
            "object_region_count_probability", "to_inference_data", "model_key", "convergence_warnings",
-           "RHAT_MAX", "ESS_PER_CHAIN_MIN"]
+           "RHAT_MAX", "ESS_PER_CHAIN_MIN", "TV_MAX"]
 
 # Vehtari, Gelman, Simpson, Carpenter and Buerkner (2021), "Rank-normalization, folding, and
 # localization: an improved R-hat", Bayesian Analysis 16(2): trust a posterior summary when
 # split R-hat <= 1.01 and bulk and tail ESS >= 100 per chain.
 RHAT_MAX = 1.01
 ESS_PER_CHAIN_MIN = 100
+# Chains whose model frequencies differ by more than this (total variation) have not mixed
+# over models: half their mass sits on different models.
+TV_MAX = 0.5
 
 
 def model_key(n_u: int, n_v: int) -> str:
@@ -83,9 +86,10 @@ def diagnostics(draws_per_chain) -> dict:
 def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_chains: int) -> list:
     """Plain-language warnings where the chains do not support the fit's summaries.
 
-    Checks, in order: that there are at least two chains (R-hat needs them); that every
-    chain's most frequent model is the same (chains stuck in different models make the
-    pooled model posterior an artefact of the starts); that at least two chains visit the
+    Checks, in order: that there are at least two chains (R-hat needs them); that no two
+    chains' model frequencies differ by more than :data:`TV_MAX` in total variation (chains
+    stuck in different models make the pooled model posterior an artefact of the starts);
+    that at least two chains visit the
     MAP model, so that R-hat exists; split R-hat <= :data:`RHAT_MAX` and bulk and tail ESS
     >= :data:`ESS_PER_CHAIN_MIN` per chain for the MAP model's parameters (Vehtari et al.
     2021).
@@ -107,8 +111,13 @@ def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_cha
     if n_chains < 2:
         warnings.append("one chain only: R-hat needs at least two; run several chains from dispersed starts "
                         "(--chains 4) before trusting the model posterior")
-    modal = [next(iter(p)) for p in chain_model_posteriors if p]
-    if len(set(modal)) > 1:
+    models = sorted({m for p in chain_model_posteriors for m in p})
+    masses = np.array([[p.get(m, 0.0) for m in models] for p in chain_model_posteriors])
+    # total variation between two chains' model frequencies: 1 for chains stuck in different
+    # models, near 0 for chains that each visit every model (even a 50/50 pair of them)
+    tv_max = max((0.5 * np.abs(masses[i] - masses[j]).sum() for i in range(len(masses)) for j in range(i)), default=0.0)
+    if tv_max > TV_MAX:
+        modal = [max(p, key=p.get) for p in chain_model_posteriors]
         per_chain = ", ".join(f"chain {c}: {m} ({p[m]:.2f})" for c, (m, p) in enumerate(zip(modal, chain_model_posteriors)))
         warnings.append(f"the chains disagree on the model ({per_chain}): the pooled model posterior reflects "
                         "where they started, not the data; run longer (--iterations) or with more chains")
