@@ -17,7 +17,7 @@ from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
 from rjfit.sampler.kernel import make_state
 from rjfit.sampler.likelihood import Problem
-from rjfit.sampler.moves import Work, propose_vector_redraw
+from rjfit.sampler.moves import Work, accept_vector_redraw, propose_vector_redraw
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.state import SamplerConfig
 
@@ -70,10 +70,10 @@ def run_redraws(problem, prior, theta, config, iterations, seed):
     work = Work(u=state.u, v=state.v, theta=state.theta, stats=state.stats, log_lik=state.log_lik, labels=state.labels)
     cells, log_ratios = np.zeros((iterations, 2), int), []
     for t in range(iterations):
-        cps, labels, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, "u")
+        cps, shift, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, "u")
         log_ratios.append(log_ratio)
-        if labels is not None and np.log(rng.random()) < log_ratio:
-            work = Work(u=cps, v=work.v, theta=work.theta, stats=work.stats, log_lik=work.log_lik, labels=labels)
+        if shift is not None and np.log(rng.random()) < log_ratio:
+            accept_vector_redraw(work, problem, "u", cps, shift)
         cells[t] = _cell(work.u[:, 0])
     return cells[:, 0] * 4 + cells[:, 1], np.array(log_ratios)
 
@@ -111,8 +111,13 @@ def test_vector_redraw_carries_a_misplaced_vector_to_the_boundary():
     work = Work(u=state.u, v=state.v, theta=state.theta, stats=state.stats, log_lik=state.log_lik, labels=state.labels)
     config = SamplerConfig(max_u=1, max_v=0)
     for _ in range(5):
-        cps, labels, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, "u")
-        if labels is not None and np.log(rng.random()) < log_ratio:
-            work = Work(u=cps, v=work.v, theta=work.theta, stats=work.stats, log_lik=work.log_lik, labels=labels)
+        cps, shift, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, "u")
+        if shift is not None and np.log(rng.random()) < log_ratio:
+            accept_vector_redraw(work, problem, "u", cps, shift)
     at_boundary = (work.u[:, 0] > 15.5) & (work.u[:, 0] < 16.5)
     assert np.all(at_boundary), np.round(work.u[:, 0], 2)
+    # the accepted redraws moved labels and statistics incrementally: they equal a fresh computation
+    fresh = make_state(problem, work.u, work.v, work.theta)
+    np.testing.assert_array_equal(work.labels, fresh.labels)
+    np.testing.assert_allclose(work.stats, fresh.stats, rtol=1e-10, atol=1e-9)
+    assert float(np.sum(work.log_lik)) == pytest.approx(fresh.total_log_lik, rel=1e-12)

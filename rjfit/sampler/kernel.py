@@ -24,7 +24,7 @@ import numpy as np
 
 from rjfit.sampler.changepoints import n_regions, obs_region_labels
 from rjfit.sampler.likelihood import Problem, log_likelihood_from_stats, region_stats
-from rjfit.sampler.moves import (Work, birth_probability, log_posterior, propose_birth, propose_birth_free,
+from rjfit.sampler.moves import (Work, accept_vector_redraw, birth_probability, log_posterior, propose_birth, propose_birth_free,
                                  propose_block_shift, propose_death, propose_death_free, propose_vector_redraw,
                                  sweep_changepoints, update_region_adaptive, update_region_paper)
 from rjfit.sampler.state import ChainState, SamplerConfig, StepInfo
@@ -192,14 +192,11 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
     if config.update_changepoints and config.vector_prob > 0 and rng.random() < config.vector_prob:
         axis = "u" if rng.random() < 0.5 else "v"
         if (work.u if axis == "u" else work.v).shape[1] > 0:
-            cps, labels, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, axis)
-            accept = labels is not None and np.log(rng.random()) < log_ratio
+            cps, shift, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, axis)
+            accept = shift is not None and np.log(rng.random()) < log_ratio
             info.count(f"vector_{axis}", accept)
             if accept:
-                stats = region_stats(problem, labels, work.theta[:, 2], work.theta.shape[0])
-                u, v = (cps, work.v) if axis == "u" else (work.u, cps)
-                work = Work(u=u, v=v, theta=work.theta, stats=stats, log_lik=log_likelihood_from_stats(stats, work.theta),
-                            labels=labels, labels_owned=True)
+                accept_vector_redraw(work, problem, axis, cps, shift)
 
     # 3. birth / death of one change-point vector
     if config.jumps and rng.random() < config.jump_prob:

@@ -24,6 +24,7 @@ from rjfit.sampler.likelihood import (CHUNK, LOG_2PI, STAT_AA, STAT_AB, STAT_BB,
 from rjfit.sampler.priors import from_phi, to_phi
 
 __all__ = ["Work", "update_region_adaptive", "update_region_paper", "sweep_changepoints", "propose_vector_redraw",
+           "accept_vector_redraw",
            "propose_birth_free", "propose_death_free",
            "split_phi", "merge_phi", "propose_birth", "propose_death", "log_posterior"]
 
@@ -419,16 +420,10 @@ def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int 
         np.ascontiguousarray(cps), lines, k, kind, z, pick_up, unif, float(size), config.cp_uniform_prob,
         config.cp_neighbour_prob, config.cp_step, config.cp_neighbour_sd,
         config.cp_smooth_sd if config.cp_prior == "smooth" else 0.0)
-    lo = np.clip(np.floor(np.minimum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
-    hi = np.clip(np.floor(np.maximum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
-    step_label = (work.v.shape[1] + 1) if axis == "u" else 1
-    delta = np.where(x_new > x_old, -step_label, step_label).astype(np.int64)
-    offsets = problem.pixel_start if axis == "u" else problem.colmajor_start
-    starts, ends = offsets[lines * size + lo], offsets[lines * size + hi]
-    use_order = axis == "v"          # rows are stored row-major; columns go through colmajor_order
+    starts, ends, delta = _element_shift(problem, work, axis, lines, x_old, x_new)
     log_u = np.log(rng.random(n_lines))
     d_ll = problem.likelihood_power * jit.obs_log_density_delta(
-        problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order, starts, ends, work.labels,
+        problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, axis == "v", starts, ends, work.labels,
         delta, work.theta)
     accept = inside & (log_u < d_ll + log_q_ratio)
     info.count(f"cp_{axis}", accept, n_lines)
@@ -441,13 +436,36 @@ def sweep_changepoints(work, rng, problem, config, axis: str, info, parity: int 
         work.u = new_cps
     else:
         work.v = new_cps
-    moved = accept & (ends > starts)
+    _apply_shift(work, problem, axis, starts[accept], ends[accept], delta[accept])
+
+
+def _element_shift(problem, work, axis, lines, x_old, x_new):
+    """The observations that change region when element positions move from ``x_old`` to ``x_new``.
+
+    Each of ``lines`` has one element moving within its rank: the pixels t with
+    ``min < t + 0.5 <= max`` of the two positions change side, so their label moves by the
+    vector's label step, down when the element moves right. Returns ``(starts, ends, delta)``:
+    per line the slice of its observations (row-major for 'u', ``colmajor_order`` for 'v')
+    and the label change.
+    """
+    size = problem.width if axis == "u" else problem.height
+    lo = np.clip(np.floor(np.minimum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
+    hi = np.clip(np.floor(np.maximum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
+    step_label = (work.v.shape[1] + 1) if axis == "u" else 1
+    delta = np.where(x_new > x_old, -step_label, step_label).astype(np.int64)
+    offsets = problem.pixel_start if axis == "u" else problem.colmajor_start
+    return offsets[lines * size + lo], offsets[lines * size + hi], delta
+
+
+def _apply_shift(work, problem, axis, starts, ends, delta):
+    """Relabel the observations of an :func:`_element_shift` and move their terms between regions (in place)."""
+    moved = ends > starts
     if not np.any(moved):
         return
     if not work.labels_owned:
         work.labels = work.labels.copy()
         work.labels_owned = True
-    jit.shift_stats(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order, starts[moved],
+    jit.shift_stats(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, axis == "v", starts[moved],
                     ends[moved], work.labels, delta[moved], np.ascontiguousarray(work.theta[:, 2]), work.stats,
                     problem.likelihood_power)
     work.region_index = None
@@ -1093,7 +1111,8 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     element-wise steps and block shifts cannot do when two vectors compensate each other's
     errors.
 
-    Returns ``(cps, labels, log_ratio)``; ``labels`` is None for an invalid proposal.
+    Returns ``(cps, shift, log_ratio)``; ``shift`` (the observations that change region,
+    for :func:`accept_vector_redraw`) is None for an invalid proposal.
     """
     height, width = problem.image_shape
     cps = work.u if axis == "u" else work.v
@@ -1146,11 +1165,21 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
                  + log_prior_cp_state(u_new, v_new, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
                  - log_prior_cp_state(work.u, work.v, problem.image_shape, config.cp_prior, config.cp_smooth_sd)
                  + log_q_old - log_q_new)
-    labels = np.empty_like(work.labels)
-    for idx, line, along, _ in _line_chunks(problem, axis):
-        labels[idx] = work.labels[idx] + step_label * ((x_new[line] < along + 0.5).astype(np.int64)
-                                                       - (x_old[line] < along + 0.5))
-    return new_cps, labels, float(log_ratio)
+    return new_cps, _element_shift(problem, work, axis, rows, x_old, x_new), float(log_ratio)
+
+
+def accept_vector_redraw(work, problem, axis: str, cps, shift) -> None:
+    """Make an accepted :func:`propose_vector_redraw` the current state of ``work`` (in place).
+
+    Only the observations between each line's old and new element change region: their
+    terms move between the statistics as in an element move, O(changed) instead of a pass
+    over every observation.
+    """
+    if axis == "u":
+        work.u = cps
+    else:
+        work.v = cps
+    _apply_shift(work, problem, axis, *shift)
 
 
 # ----------------------------------------------------------------------------- birth / death at any rank
