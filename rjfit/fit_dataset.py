@@ -66,8 +66,10 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
     summary["maps"] = write_parameter_maps(observations, summary, Path(out_dir))
     summary["dataset"] = str(dataset_dir.resolve())
     summary["channel"] = channel
-    summary["validation"] = ({key: validation.get(key) for key in ("passed", "median_rel_err", "p99_rel_err",
-                                                                    "unexplained_fraction")}
+    validation_file = Path(validation_path) if validation_path else dataset_dir / "validation" / "validation.json"
+    summary["validation"] = ({**{key: validation.get(key) for key in ("passed", "median_rel_err", "p99_rel_err",
+                                                                       "unexplained_fraction")},
+                              "path": str(validation_file.resolve())}
                              if validation else {"passed": None, "note": "fitted without validation (overridden)"})
     write_json_atomic(Path(out_dir) / "summary.json", summary)
     return summary

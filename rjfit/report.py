@@ -119,7 +119,7 @@ def build_report(fit_dir, out_path=None) -> Path:
     """Write ``report.html`` for a fit folder and return its path.
 
     Reads ``summary.json`` and every PNG in the fit folder, and, where present, the data
-    set's ``validation/validation.json`` and the ``diagnosis`` and ``comparison`` results
+    set's ``validation/validation.json`` (or the ``validation.json`` the fit was given) and the ``diagnosis`` and ``comparison`` results
     (``FIT_DIR/diagnosis/diagnosis.json``, ``FIT_DIR/comparison/comparison.json``).
 
     Raises
@@ -137,7 +137,13 @@ def build_report(fit_dir, out_path=None) -> Path:
              f"<p>Fit folder <code>{html.escape(str(fit_dir.resolve()))}</code>; data set "
              f"<code>{html.escape(str(dataset_dir))}</code>.</p>"]
 
-    validation = _load_json(dataset_dir / "validation" / "validation.json") if dataset_dir else None
+    # the gate's result: the data set's own, or the file the fit was given (a read-only data set)
+    validation_file = dataset_dir / "validation" / "validation.json" if dataset_dir else None
+    recorded = (summary.get("validation") or {}).get("path")
+    if recorded and not (validation_file and validation_file.is_file()):
+        validation_file = Path(recorded)
+    validation = _load_json(validation_file) if validation_file else None
+    validation_dir = validation_file.parent if validation_file else None
     parts.append("<h2>Forward-model cross-check</h2>")
     if validation:
         verdict = '<span class="pass">passed</span>' if validation.get("passed") else '<span class="fail">failed</span>'
@@ -146,8 +152,8 @@ def build_report(fit_dir, out_path=None) -> Path:
                                               "unexplained_fraction"]))
         for name, caption in (("relative_error.png", "relative error"), ("unexplained_fraction.png",
                                                                         "unexplained fraction")):
-            if (dataset_dir / "validation" / name).is_file():
-                parts.append(_embed(dataset_dir / "validation" / name, caption))
+            if (validation_dir / name).is_file():
+                parts.append(_embed(validation_dir / name, caption))
     else:
         parts.append("<p>No validation found for this data set.</p>")
 

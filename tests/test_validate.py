@@ -107,6 +107,15 @@ def test_normal_map_data_is_checked_with_one_facet_per_pixel(tmp_path):
     assert not validate_dataset(folder, tmp_path / "w", spp=1, forward_model=travel_direction)["passed"]
     # The gate's record lives outside a read-only data folder and the fitter finds it there.
     assert require_validated(folder, tmp_path / "v" / "validation.json")["passed"]
+    # ... and so does the fit's report, figures included
+    from rjfit.fit_dataset import fit_dataset
+    from rjfit.report import build_report
+
+    fit_dataset(folder, tmp_path / "fit", validation_path=tmp_path / "v" / "validation.json", n_chains=1,
+                iterations=20, processes=1, figures=False, progress=False)
+    report = build_report(tmp_path / "fit").read_text()
+    assert "No validation found" not in report and 'class="pass">passed' in report
+    assert 'alt="relative error"' in report
 
 
 def test_measured_stack_with_mesh_camera_and_point_lights(paper_sphere_small, tmp_path):
