@@ -19,7 +19,7 @@ from scipy.special import log_ndtr
 
 from rjfit.sampler import jit
 from rjfit.sampler.changepoints import log_prior_cp_state, n_regions, obs_region_labels
-from rjfit.sampler.likelihood import (CHUNK, LOG_2PI, STAT_AA, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
+from rjfit.sampler.likelihood import (LOG_2PI, STAT_AA, STAT_AB, STAT_BB, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData,
                                       ab_from_theta, b_terms, log_likelihood_from_stats, region_stats)
 from rjfit.sampler.priors import from_phi, to_phi
 
@@ -1183,25 +1183,6 @@ def accept_vector_redraw(work, problem, axis: str, cps, shift) -> None:
 
 
 # ----------------------------------------------------------------------------- birth / death at any rank
-
-def _line_chunks(problem, axis):
-    """Observations in chunks, in line order: ``(idx, line, along, key)`` per chunk, int64.
-
-    ``line`` is the observation's row (u) or column (v), ``along`` its position along the
-    line, ``key = line * size + along``, non-decreasing within and across chunks (rows come
-    sorted; columns through ``colmajor_order``), so per-pixel sums go into one contiguous
-    slice per chunk. Chunks keep every temporary a few MB at any image size.
-    """
-    size = problem.width if axis == "u" else problem.height
-    for start in range(0, problem.n_obs, CHUNK):
-        if axis == "u":
-            idx = np.arange(start, min(start + CHUNK, problem.n_obs))
-            line, along = problem.row[idx].astype(np.int64), problem.col[idx].astype(np.int64)
-        else:
-            idx = problem.colmajor_order[start:start + CHUNK].astype(np.int64)
-            line, along = problem.col[idx].astype(np.int64), problem.row[idx].astype(np.int64)
-        yield idx, line, along, line * size + along
-
 
 def _removal_log_emit(problem, labels, theta, n, n_v, axis):
     """(L, n): how well each line's observations fit when its element of rank k is removed.
