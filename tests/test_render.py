@@ -87,6 +87,26 @@ def test_unknown_scene_is_a_clear_error(tmp_path):
         render_dataset("no_such_scene", tmp_path / "x")
 
 
+def test_render_never_replaces_a_folder_that_is_not_a_data_set(tmp_path, monkeypatch):
+    """``--out`` pointed at the wrong folder (a fit, the working folder) must not delete it."""
+    from rjfit.data.errors import DatasetError
+
+    precious = tmp_path / "work" / "notes.txt"
+    precious.parent.mkdir()
+    precious.write_text("keep me")
+    with pytest.raises(DatasetError, match="not a data set .no dataset.json.*not replaced"):
+        render_dataset("paper_sphere", precious.parent, resolution=8)
+    monkeypatch.chdir(precious.parent)
+    for out in (".", ".."):
+        with pytest.raises(DatasetError, match="working folder"):
+            render_dataset("paper_sphere", out, resolution=8)
+    assert precious.read_text() == "keep me" and sorted(p.name for p in precious.parent.iterdir()) == ["notes.txt"]
+    with pytest.raises(ValueError, match="spp .* >= 1"):
+        render_dataset("paper_sphere", tmp_path / "d", resolution=8, spp=0)
+    with pytest.raises(ValueError, match="resolution must be >= 1"):
+        render_dataset("paper_sphere", tmp_path / "d", resolution=0)
+
+
 def test_auto_variant_falls_back_to_llvm_without_a_gpu_and_records_what_ran(paper_sphere_small):
     """CI has no GPU: "auto" must pick llvm_ad_rgb there (cuda_ad_rgb where a GPU answers)
     and the data set must say which variant rendered it."""

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.dataset import DATASET_FORMAT, write_json_atomic
+from rjfit.data.errors import DatasetError
 from rjfit.data.exr import write_exr
 from rjfit.data.lights import Light
 from rjfit.render.meshes import build_parts
@@ -70,6 +71,26 @@ def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, li
                        light_format=light_format, bsdf_override=bsdf_override, extra=extra)
 
 
+def check_replaceable(out_dir: Path) -> None:
+    """Refuse to replace a folder that is not a rendered data set (or empty): ``--out`` pointed
+    at the wrong folder must not delete it.
+
+    Raises
+    ------
+    DatasetError
+        If ``out_dir`` is the working folder or one of its parents, or a non-empty folder
+        without ``dataset.json``.
+    """
+    out_dir = Path(out_dir).resolve()
+    if out_dir == Path.cwd().resolve() or out_dir in Path.cwd().resolve().parents:
+        raise DatasetError(f"{out_dir}: refusing to write a data set over the working folder or one of its "
+                           f"parents; pass a new folder, e.g. --out {out_dir / 'dataset'}")
+    if out_dir.exists() and (not out_dir.is_dir() or (any(out_dir.iterdir())
+                                                      and not (out_dir / "dataset.json").is_file())):
+        raise DatasetError(f"{out_dir}: exists and is not a data set (no dataset.json), so it is not replaced; "
+                           f"pass a new or empty folder, or delete it yourself")
+
+
 def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, noise_variance=None,
                    variant="auto", progress=False, bsdf_override=None, extra=None, light_format="rgb",
                    post_process=None, hidden_effects=()):
@@ -83,7 +104,7 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
     scene : str, Path or dict
         Built-in scene name, scene JSON file, or a definition.
     out_dir : path
-        The data set folder; replaced if it exists.
+        The data set folder; replaced if it exists and is a data set (or empty).
     resolution : int or (int, int), optional
         Overrides the definition's ``[height, width]``.
     seed : int, optional
@@ -105,6 +126,13 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
     -------
     Path
         The data set folder.
+
+    Raises
+    ------
+    DatasetError
+        If ``out_dir`` exists and is neither empty nor a data set (see :func:`check_replaceable`).
+    ValueError
+        For a resolution or spp below 1, or a negative noise variance.
     """
     from rjfit import __version__
     from rjfit.render.mitsuba_scene import activate, path_trace, shadow_visibility, trace_pixels
@@ -118,10 +146,15 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
     noise_variance = float(definition.get("noise_variance", 0.0) if noise_variance is None else noise_variance)
     if noise_variance < 0:
         raise ValueError(f"noise variance must be >= 0, got {noise_variance}")
+    if spp < 1:
+        raise ValueError(f"spp (samples per pixel) must be >= 1, got {spp}")
+    if min(definition["resolution"]) < 1:
+        raise ValueError(f"resolution must be >= 1 pixel, got {definition['resolution']}")
+    out_dir = Path(out_dir).resolve()
+    check_replaceable(out_dir)
     mi = activate(variant)
     import drjit as dr
 
-    out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
