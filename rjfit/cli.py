@@ -61,10 +61,12 @@ def main():
 @main.command()
 @click.argument("scene")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Data set folder to write (replaced if it exists).")
-@click.option("--resolution", type=int, default=None, help="Square image size in pixels (default: the scene's).")
+              help="Data set folder to write (replaced if it is a data set; any other non-empty folder is refused).")
+@click.option("--resolution", type=click.IntRange(min=1), default=None,
+              help="Square image size in pixels (default: the scene's).")
 @click.option("--seed", type=int, default=None, help="Seed of path tracing and noise (default: the scene's).")
-@click.option("--spp", type=int, default=None, help="Samples per pixel, all along the pixel-centre ray.")
+@click.option("--spp", type=click.IntRange(min=1), default=None,
+              help="Samples per pixel, all along the pixel-centre ray (default: the scene's, 1 if it sets none).")
 @click.option("--noise-variance", type=float, default=None, help="Gaussian noise variance (default: the scene's).")
 @click.option("--variant", default="auto", show_default=True,
               help="Mitsuba variant; auto: cuda_ad_rgb when a GPU answers, else llvm_ad_rgb.")
@@ -84,9 +86,10 @@ def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Where validation.json and the maps go (default: DATASET/validation).")
-@click.option("--spp", type=int, default=4, show_default=True, help="Path-traced samples per pixel.")
-@click.option("--max-depth", type=int, default=8, show_default=True, help="Path length of the path tracer.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--spp", type=click.IntRange(min=1), default=4, show_default=True, help="Path-traced samples per pixel.")
+@click.option("--max-depth", type=click.IntRange(min=1), default=8, show_default=True,
+              help="Path length of the path tracer.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the path tracer's samples.")
 @click.option("--variant", default="auto", show_default=True,
               help="Mitsuba variant; auto: cuda_ad_rgb when a GPU answers, else llvm_ad_rgb.")
 def validate(dataset, out_dir, spp, max_depth, seed, variant):
@@ -110,14 +113,20 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
 @click.argument("scene", default="paper_sphere")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Run folder (default: runs/SCENE).")
-@click.option("--resolution", type=int, default=None, help="Square image size (default: the scene's).")
-@click.option("--iterations", type=int, default=4000, show_default=True, help="Iterations per chain.")
-@click.option("--chains", "n_chains", type=int, default=4, show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--resolution", type=click.IntRange(min=1), default=None, help="Square image size (default: the scene's).")
+@click.option("--iterations", type=click.IntRange(min=10), default=4000, show_default=True, help="Iterations per chain.")
+@click.option("--chains", "n_chains", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Chains from dispersed starts (run in parallel processes).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of validation, fit, baselines and diagnosis.")
+@click.option("--allow-unvalidated", is_flag=True,
+              help="Go on to fit, compare and diagnose when the cross-check fails (the criticism workflow on data "
+                   "with a hidden effect); the fit's warnings then say so.")
 @click.pass_context
-def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed):
+def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidated):
     """The main job, end to end on SCENE (default: the paper's synthetic sphere):
-    render -> validate -> fit -> compare -> diagnose -> report."""
+    render -> validate -> fit -> compare -> diagnose -> report.
+
+    Stops with status 1 after a failed cross-check, unless --allow-unvalidated."""
     import time
 
     started = time.perf_counter()
@@ -133,11 +142,15 @@ def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed):
     validation = validate_dataset(dataset_dir, spp=4, seed=seed, progress=True)
     click.echo(f"  {'PASSED' if validation['passed'] else 'FAILED'}: median rel. err. {validation['median_rel_err']:.3g}, "
                f"p99 {validation['p99_rel_err']:.3g}, unexplained fraction {validation['unexplained_fraction']:.3g}")
+    if not validation["passed"] and not allow_unvalidated:
+        raise click.ClickException(
+            f"the closed-form model does not match Mitsuba on {dataset_dir} (see {dataset_dir / 'validation'}), so a "
+            f"fit would not be trustworthy; stopped. Pass --allow-unvalidated to fit and diagnose it anyway.")
     click.echo("== 3/6 fit (RJMCMC)")
     ctx.invoke(fit, datasets=(dataset_dir,), out_dir=fit_dir, n_chains=n_chains, iterations=iterations, burn_in=None,
                max_u=3, max_v=3, sampler="adaptive", prior="default", split_map="conditional", cp_prior="smooth",
                drop_jacobian=False, channel="mean", seed=seed,
-               validation_path=None, allow_unvalidated=not validation["passed"], scheduler=None, workers=2)
+               validation_path=None, allow_unvalidated=allow_unvalidated, scheduler=None, workers=2)
     truth = (dataset_dir / "truth_labels.exr").is_file()
     if truth:
         click.echo("== 4/6 compare with baselines")
@@ -157,7 +170,7 @@ def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed):
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for comparison.json, comparison.md and segmentations.png (created).")
 @click.option("--fit", "fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
-              help="A folder written by `rjfit fit` (summary.json, map_labels.exr): score rjfit's MAP "
+              help="A folder written by `rjfit fit` of DATASET (summary.json, labels.exr): score rjfit's MAP "
                    "segmentation too. Without it rjfit's row is left out.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every baseline's randomness.")
 @click.option("--channel", default="mean", show_default=True,
@@ -191,8 +204,9 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
 @click.argument("datasets", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Fit folder; with several data sets, one sub-folder per data set.")
-@click.option("--chains", "n_chains", type=int, default=4, show_default=True, help="Chains from dispersed starts.")
-@click.option("--iterations", type=int, default=4000, show_default=True, help="Iterations per chain.")
+@click.option("--chains", "n_chains", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Chains from dispersed starts.")
+@click.option("--iterations", type=click.IntRange(min=10), default=4000, show_default=True, help="Iterations per chain.")
 @click.option("--burn-in", type=float, default=None,
               help="Discarded fraction (default: 0.5 for synthetic data, 0.2 for measured, as in the paper).")
 @click.option("--max-u", type=int, default=3, show_default=True, help="Most u change-point vectors.")
@@ -242,8 +256,9 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
     """Segment DATASET(S) and sample the region BRDF posteriors (RJMCMC).
 
     Refuses a data set whose forward model has not passed `rjfit validate` unless
-    --allow-unvalidated is given. Writes summary.json, map_labels.exr, chains.nc and the
-    paper's figures."""
+    --allow-unvalidated is given. Writes summary.json, labels.exr (MAP labels), maps.exr,
+    chains.nc, changepoints.npz and the paper's figures; an interrupted fit leaves the
+    folder's previous results untouched and resumes from its checkpoints."""
     from rjfit.fit_dataset import fit_datasets
 
     summaries = fit_datasets(datasets, out_dir, n_chains=n_chains, iterations=iterations, burn_in=burn_in,
@@ -256,9 +271,11 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
     for folder, summary in summaries:
         map_model = summary["map_model"]
         click.echo(f"fit of {summary['dataset']} -> {folder}")
-        if summary.get("noise", {}).get("model", "constant") != "constant":
-            click.echo(f"  noise model {summary['noise']['model']} (floor {summary['noise']['floor']:g} x mean), "
-                       f"likelihood power {summary['likelihood_power']:.4g}")
+        noise_model = summary.get("noise", {}).get("model", "constant")
+        if noise_model != "constant" or summary["likelihood_power"] != 1.0:
+            noise_text = (f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), "
+                          if noise_model != "constant" else "")
+            click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
         click.echo(f"  MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
                    f"{len(summary['regions'])} regions; R-hat max {summary['rhat_max']:.4f}, "
                    f"ESS min {summary['ess_min']:.0f}; {summary['seconds']:.1f} s")
@@ -272,12 +289,17 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
 @click.argument("fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="HTML file to write (default: FIT_DIR/report.html).")
-def report(fit_dir, out_path):
+@click.option("--diagnosis", "diagnosis_dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              default=None, help="Folder `rjfit diagnose --out` wrote (default: FIT_DIR/diagnosis).")
+@click.option("--comparison", "comparison_dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              default=None, help="Folder `rjfit compare --out` wrote (default: FIT_DIR/comparison).")
+def report(fit_dir, out_path, diagnosis_dir, comparison_dir):
     """Build one self-contained HTML report of a fit: figures, the paper's parameter table,
-    validation, diagnosis and comparison results where present."""
+    validation, diagnosis and comparison results where present (those made from another
+    fit are flagged as stale, not shown)."""
     from rjfit.report import build_report
 
-    click.echo(f"report: {build_report(fit_dir, out_path)}")
+    click.echo(f"report: {build_report(fit_dir, out_path, diagnosis_dir=diagnosis_dir, comparison_dir=comparison_dir)}")
 
 
 def _register_diagnose():

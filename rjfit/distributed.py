@@ -14,6 +14,8 @@ from contextlib import contextmanager
 
 __all__ = ["dask_client", "dask_map"]
 
+CONNECT_TIMEOUT_S = 10     # seconds to wait for a scheduler before saying it cannot be reached
+
 
 @contextmanager
 def dask_client(scheduler: str | None = None, *, n_workers: int = 2):
@@ -28,7 +30,11 @@ def dask_client(scheduler: str | None = None, *, n_workers: int = 2):
     from dask.distributed import Client, LocalCluster
 
     if scheduler is not None:
-        client = Client(scheduler)
+        try:
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError) as error:
+            raise ValueError(f"cannot reach the Dask scheduler at {scheduler} ({error}); start one with "
+                             f"`dask scheduler`, check the address, or use --scheduler local") from None
         try:
             yield client
         finally:

@@ -29,7 +29,12 @@ observations cannot tell two regions apart make it ~0 even for a good fit).
 """
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import json
 import os
+import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -47,13 +52,49 @@ from rjfit.sampler.state import SamplerConfig
 __all__ = ["fit"]
 
 
+RESULT_FILES = ("labels.exr", "chains.nc", "changepoints.npz", "maps.exr", "figures")
+# Results derived from a fit by later commands; those of a replaced fit no longer describe it.
+DERIVED_RESULTS = ("report.html",)
+
+
+def results_digest(summary: dict) -> str:
+    """A short digest of a fit's results (models, regions, seed, settings): it identifies the
+    fit that a diagnosis or comparison was made from, so a report can tell a stale one."""
+    keys = ("model_posterior", "map_model", "regions", "iterations", "burn_in", "n_chains", "seed", "n_observations",
+            "likelihood_power", "prior")
+    text = json.dumps({key: summary.get(key) for key in keys}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def publish_results(staging: Path, out_dir: Path) -> None:
+    """Move a finished fit's files from ``staging`` into ``out_dir``, replacing the previous fit's.
+
+    The previous ``summary.json`` goes first and the new one comes last: a folder without
+    ``summary.json`` is an incomplete fit, never a mixture of two. Previous result files
+    the new fit does not write are removed too.
+    """
+    out_dir = Path(out_dir)
+    (out_dir / "summary.json").unlink(missing_ok=True)
+    for name in RESULT_FILES + DERIVED_RESULTS:
+        old = out_dir / name
+        if old.is_dir():
+            shutil.rmtree(old)
+        else:
+            old.unlink(missing_ok=True)
+    for name in RESULT_FILES:
+        if (staging / name).exists():
+            os.replace(staging / name, out_dir / name)
+    os.replace(staging / "summary.json", out_dir / "summary.json")
+
+
 def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: int = 0, n_chains: int = 4,
         iterations: int = 20000, burn_in: float = 0.5, max_u: int = 3, max_v: int = 3, sampler: str = "adaptive",
         prior: str = "default", split_map: str = "conditional", cp_prior: str = "smooth",
         drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float | str = 1.0,
         noise: str = "constant", noise_floor: float = DEFAULT_FLOOR, anneal: float = 0.5,
         cp_thin: int = 10, checkpoint_every: int = 2000, processes: int | None = None, start=None,
-        fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None) -> dict:
+        fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None,
+        before_publish=None) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
 
     Parameters
@@ -98,7 +139,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         (``cp_prior='paper'`` and ``split_map='paper'`` with ``drop_jacobian=True`` give the
         paper's own choices).
     cp_thin : int
-        Keep a change-point snapshot every ``cp_thin`` iterations.
+        Keep a change-point snapshot every ``cp_thin`` iterations (fewer when a short run
+        would keep under 50 after burn-in).
     checkpoint_every : int
         Iterations between checkpoints (``out_dir/checkpoints/chain_<c>.pkl``); an existing
         checkpoint of the same run (same data, prior, settings, seed and sampler code) is
@@ -111,6 +153,9 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     chain_runner : callable, optional
         ``chain_runner(specs) -> records``: runs :func:`rjfit.sampler.runner.run_chain` over
         the chain specs elsewhere (e.g. on Dask); default: local worker processes.
+    before_publish : callable, optional
+        ``before_publish(summary, staging_dir)``: adds files (any of :data:`RESULT_FILES`)
+        and summary keys before the results replace the folder's previous ones.
 
     Returns
     -------
@@ -118,9 +163,10 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         The summary written to ``summary.json``.
     """
     if not 0.0 <= burn_in < 1.0:
-        raise ValueError(f"burn_in is a fraction in [0, 1), got {burn_in}")
+        raise ValueError(f"burn_in (--burn-in) is a fraction in [0, 1), got {burn_in}")
     if n_chains < 1 or iterations < 10:
-        raise ValueError(f"need n_chains >= 1 and iterations >= 10, got {n_chains}, {iterations}")
+        raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got {n_chains}, "
+                         f"{iterations}")
     if prior not in PRESETS:
         raise ValueError(f"unknown prior {prior!r}: choose one of {', '.join(PRESETS)}")
     if noise not in NOISE_MODELS:
@@ -145,6 +191,10 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     del scale
     prior_obj = make_prior(prior, y=problem.y, diffuse_scale=problem.A)
     burn = int(round(burn_in * iterations))
+    if iterations - burn < 1:
+        raise ValueError(f"burn-in {burn_in} leaves no iteration of {iterations} to keep; lower --burn-in")
+    # at least ~50 change-point snapshots after burn-in, so a short run still has its MAP labels
+    cp_thin = max(1, min(cp_thin, (iterations - burn) // 50))
     fixed = fixed_segmentation is not None
     config = SamplerConfig(max_u=max_u, max_v=max_v, sampler=sampler, split_map=split_map, cp_prior=cp_prior,
                            drop_jacobian=drop_jacobian, burn_in=burn, jump_prob=jump_prob,
@@ -207,29 +257,37 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
 
     from rjfit.data.exr import write_exr
 
-    write_exr(out_dir / "labels.exr", {"labels": labels.astype(np.float32)})
-    idata = post.to_inference_data(records, burn, max_v)
-    tmp = out_dir / f".chains.{os.getpid()}.nc"
-    idata.to_netcdf(str(tmp))
-    os.replace(tmp, out_dir / "chains.nc")
-    cp_payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records)
-                  for k in ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v")}
-    tmp = out_dir / f".changepoints.{os.getpid()}.npz"
-    with open(tmp, "wb") as handle:
-        np.savez_compressed(handle, **cp_payload)
-    os.replace(tmp, out_dir / "changepoints.npz")
-    if figures:
-        from rjfit.posterior import figures as figs
+    # Every result goes into a staging folder first and is published together (summary.json
+    # last), so an interrupted run leaves the previous results whole or none: never labels of
+    # one run beside the summary of another.
+    staging = Path(tempfile.mkdtemp(prefix=".staging.", dir=out_dir))
+    try:
+        write_exr(staging / "labels.exr", {"labels": labels.astype(np.float32)})
+        post.to_inference_data(records, burn, max_v).to_netcdf(str(staging / "chains.nc"))
+        cp_payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records)
+                      for k in ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v")}
+        with open(staging / "changepoints.npz", "wb") as handle:
+            np.savez_compressed(handle, **cp_payload)
+        if figures:
+            from rjfit.posterior import figures as figs
 
-        summary["figures"] = figs.write_all(out_dir / "figures", records=records, burn_in=burn,
-                                            model=(n_u, n_v), labels=labels, problem=problem,
-                                            draws=draws, truth_labels=truth_labels, truth_params=truth_params,
-                                            max_v=max_v)
-    summary["seconds"] = time.perf_counter() - started
-    write_json_atomic(out_dir / "summary.json", summary)
+            written = figs.write_all(staging / "figures", records=records, burn_in=burn, model=(n_u, n_v),
+                                     labels=labels, problem=problem, draws=draws, truth_labels=truth_labels,
+                                     truth_params=truth_params, max_v=max_v)
+            summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
+        summary["fit_id"] = results_digest(summary)
+        if before_publish is not None:
+            before_publish(summary, staging)
+        summary["seconds"] = time.perf_counter() - started
+        write_json_atomic(staging / "summary.json", summary)
+        publish_results(staging, out_dir)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     # The results are written: the checkpoints (for resuming an interrupted run) have
     # served, and a later run into this directory must start afresh, not resume them.
     for spec in specs:
         if os.path.exists(spec.checkpoint_path):
             os.remove(spec.checkpoint_path)
+    with contextlib.suppress(OSError):      # only when empty: a folder the user keeps files in stays
+        (out_dir / "checkpoints").rmdir()
     return summary

@@ -9,7 +9,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-from rjfit.data.dataset import load_dataset, write_json_atomic
+from rjfit.data.dataset import load_dataset
 
 __all__ = ["fit_dataset", "fit_datasets"]
 
@@ -61,18 +61,34 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
         chain_runner = functools.partial(dask_map, run_chain, scheduler=address, n_workers=n_workers, client=client,
                                          key_prefix="rjfit-chain")
     observations = dataset.observations(channel)
-    summary = fit(observations, out_dir, truth_labels=dataset.truth_labels,
-                  truth_params=dataset.truth_params, burn_in=burn_in, chain_runner=chain_runner, **fit_options)
-    summary["maps"] = write_parameter_maps(observations, summary, Path(out_dir))
-    summary["dataset"] = str(dataset_dir.resolve())
-    summary["channel"] = channel
     validation_file = Path(validation_path) if validation_path else dataset_dir / "validation" / "validation.json"
-    summary["validation"] = ({**{key: validation.get(key) for key in ("passed", "median_rel_err", "p99_rel_err",
-                                                                       "unexplained_fraction")},
-                              "path": str(validation_file.resolve())}
-                             if validation else {"passed": None, "note": "fitted without validation (overridden)"})
-    write_json_atomic(Path(out_dir) / "summary.json", summary)
-    return summary
+
+    def describe_data_set(summary, staging):
+        summary["maps"] = write_parameter_maps(observations, summary, staging)
+        summary["dataset"] = str(dataset_dir.resolve())
+        summary["channel"] = channel
+        summary["validation"] = validation_record(validation, validation_file)
+        if not summary["validation"].get("passed"):
+            summary["warnings"].insert(0, f"the forward model {summary['validation']['note']}: the fit was forced "
+                                          f"(--allow-unvalidated), so its regions and parameters are not trustworthy")
+
+    return fit(observations, out_dir, truth_labels=dataset.truth_labels, truth_params=dataset.truth_params,
+               burn_in=burn_in, chain_runner=chain_runner, before_publish=describe_data_set, **fit_options)
+
+
+def validation_record(validation, validation_file) -> dict:
+    """What a summary records of the cross-check it was fitted under (``note`` says why it did not pass)."""
+    if validation is None:
+        return {"passed": None, "note": "was not cross-checked (no validation.json)"}
+    record = {**{key: validation.get(key) for key in ("passed", "median_rel_err", "p99_rel_err", "unexplained_fraction")},
+              "path": str(Path(validation_file).resolve())}
+    if not validation.get("passed"):
+        record["note"] = (f"FAILED the cross-check (median rel. err. {validation.get('median_rel_err'):.3g}, "
+                          f"p99 {validation.get('p99_rel_err'):.3g})")
+    elif validation.get("stale"):
+        record["passed"] = None
+        record["note"] = "was cross-checked on other files (the data set changed since)"
+    return record
 
 
 def write_parameter_maps(observations, summary, out_dir: Path) -> str:
@@ -127,8 +143,13 @@ def fit_datasets(dataset_dirs, out_dir, *, scheduler=None, n_workers=2, **option
     list of (Path, dict)
         Each fit folder with its summary.
     """
+    from rjfit.validate import require_validated
+
     dataset_dirs = [Path(d) for d in dataset_dirs]
     out_dir = Path(out_dir)
+    for dataset_dir in dataset_dirs:     # every gate first: a batch must not stop at its third data set
+        require_validated(dataset_dir, options.get("validation_path"),
+                          allow_unvalidated=options.get("allow_unvalidated", False))
     if len(dataset_dirs) == 1:
         folders = [out_dir]
     else:

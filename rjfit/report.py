@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import os
 from pathlib import Path
+
+from rjfit.data.dataset import read_json
 
 __all__ = ["build_report"]
 
@@ -24,7 +25,7 @@ code{background:#f4f4f4;padding:0 .2em}
 
 
 def _load_json(path: Path):
-    return json.loads(path.read_text()) if path.is_file() else None
+    return read_json(path) if path.is_file() else None
 
 
 def _embed(path: Path, caption: str) -> str:
@@ -115,12 +116,15 @@ def _markdown_to_html(text: str) -> str:
     return "".join(out)
 
 
-def build_report(fit_dir, out_path=None) -> Path:
+def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=None) -> Path:
     """Write ``report.html`` for a fit folder and return its path.
 
     Reads ``summary.json`` and every PNG in the fit folder, and, where present, the data
     set's ``validation/validation.json`` (or the ``validation.json`` the fit was given) and the ``diagnosis`` and ``comparison`` results
-    (``FIT_DIR/diagnosis/diagnosis.json``, ``FIT_DIR/comparison/comparison.json``).
+    (``diagnosis_dir/diagnosis.json``, ``comparison_dir/comparison.json``; by default
+    ``FIT_DIR/diagnosis`` and ``FIT_DIR/comparison``). A diagnosis or comparison made from
+    another fit (its ``fit_id`` differs from the summary's) is not shown as this fit's: the
+    report says it is stale.
 
     Raises
     ------
@@ -183,13 +187,23 @@ def build_report(fit_dir, out_path=None) -> Path:
     for png in sorted(fit_dir.glob("*.png")) + sorted((fit_dir / "figures").glob("*.png")):
         parts.append(_embed(png, png.stem.replace("_", " ")))
 
-    for sub, title, keys in (("diagnosis", "Model criticism", ["named_effects"]),
-                             ("comparison", "Baselines", [])):
-        payload = _load_json(fit_dir / sub / f"{sub}.json")
+    folders = {"diagnosis": Path(diagnosis_dir) if diagnosis_dir else fit_dir / "diagnosis",
+               "comparison": Path(comparison_dir) if comparison_dir else fit_dir / "comparison"}
+    for sub, title, command in (("diagnosis", "Model criticism", "rjfit diagnose"), ("comparison", "Baselines",
+                                                                                     "rjfit compare DATASET --fit")):
+        folder = folders[sub]
+        payload = _load_json(folder / f"{sub}.json")
         if payload is None:
             continue
         parts.append(f"<h2>{title}</h2>")
-        markdown = fit_dir / sub / f"{sub}.md"
+        made_from = payload.get("fit_id") if isinstance(payload, dict) else None
+        if made_from and summary.get("fit_id") and made_from != summary["fit_id"]:
+            parts.append(f'<p class="fail">The {sub} in <code>{html.escape(str(folder.resolve()))}</code> was made '
+                         f"from another fit (fit id {html.escape(made_from)}, this one is "
+                         f"{html.escape(summary['fit_id'])}), so it is not shown; run <code>{command} "
+                         f"{html.escape(str(fit_dir))}</code> again.</p>")
+            continue
+        markdown = folder / f"{sub}.md"
         if sub == "diagnosis":
             named = payload.get("named_effects") or []
             parts.append(f"<p>Named effects: {html.escape(', '.join(named) if named else 'none')}.</p>")
@@ -206,11 +220,12 @@ def build_report(fit_dir, out_path=None) -> Path:
             parts.append("<table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in header) + f"</tr>{rows}</table>")
         elif markdown.is_file():
             parts.append(_markdown_to_html(markdown.read_text()))
-        for png in sorted((fit_dir / sub).glob("*.png")):
+        for png in sorted(folder.glob("*.png")):
             parts.append(_embed(png, f"{sub}: {png.stem.replace('_', ' ')}"))
 
     document = (f"<!doctype html><html><head><meta charset='utf-8'><title>rjfit report</title>"
                 f"<style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>")
+    out_path.parent.mkdir(parents=True, exist_ok=True)
     temporary = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
     temporary.write_text(document)
     os.replace(temporary, out_path)

@@ -21,13 +21,12 @@ The gate passes when ``median_rel_err <= 1e-4`` and ``p99_rel_err <= 1e-3``.
 from __future__ import annotations
 
 import hashlib
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import write_json_atomic
+from rjfit.data.dataset import is_dataset, read_json, write_json_atomic
 from rjfit.data.exr import write_exr
 from rjfit.data.lights import geometry_terms
 from rjfit.model.blinn import radiance
@@ -62,7 +61,7 @@ def dataset_fingerprint(dataset_dir) -> str:
     dataset_dir = Path(dataset_dir)
     digest = hashlib.sha256()
     if (dataset_dir / "dataset.json").is_file():
-        meta = json.loads((dataset_dir / "dataset.json").read_text())
+        meta = read_json(dataset_dir / "dataset.json")
         files = [dataset_dir / "dataset.json"] + [dataset_dir / name for name in meta.get("images", [])]
     else:
         files = sorted(p for p in dataset_dir.iterdir() if p.is_file())
@@ -191,7 +190,7 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     if progress:
         from tqdm import tqdm
 
-        iterator = tqdm(iterator, desc="validate", unit="light")
+        iterator = tqdm(iterator, desc="validate", unit="light", disable=None)
     for light_index, light in iterator:
         scene = make_scene([light], max_depth, light_format)
         path_colour = path_trace(scene, spp=spp, seed=seed * 7919 + light_index)
@@ -217,7 +216,7 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     missing = path_stack - closed_stack
     unexplained_map = np.where(hit, (missing * compared).sum(0) / np.maximum((path_stack * compared).sum(0), 1e-30), 0)
     result = {
-        "dataset": str(dataset_dir),
+        "dataset": str(Path(dataset_dir).resolve()),
         "dataset_sha256": dataset_fingerprint(dataset_dir),
         "passed": bool(np.median(errors) <= MEDIAN_TOLERANCE and np.quantile(errors, 0.99) <= P99_TOLERANCE),
         "median_rel_err": float(np.median(errors)),
@@ -261,7 +260,8 @@ def require_validated(dataset_dir, validation_path=None, *, allow_unvalidated=Fa
     Returns
     -------
     dict or None
-        The validation result, or None when overridden and none exists.
+        The validation result (with ``stale`` True when overridden and it passed on other
+        files), or None when overridden and none exists.
 
     Raises
     ------
@@ -269,24 +269,36 @@ def require_validated(dataset_dir, validation_path=None, *, allow_unvalidated=Fa
         When no passing validation of this data set exists and ``allow_unvalidated`` is False.
     """
     dataset_dir = Path(dataset_dir)
-    validation_path = Path(validation_path) if validation_path else dataset_dir / "validation" / "validation.json"
+    if not is_dataset(dataset_dir):
+        raise FileNotFoundError(f"{dataset_dir}: not a data set (no dataset.json, stack.json or DiLiGenT-style "
+                                f"light_directions.txt); `rjfit render` writes one")
+    if validation_path is not None and not Path(validation_path).is_file():
+        raise FileNotFoundError(f"{validation_path}: no such validation file (--validation); `rjfit validate "
+                                f"{dataset_dir} --out DIR` writes DIR/validation.json")
+    explicit = validation_path is not None
+    validation_path = Path(validation_path) if explicit else dataset_dir / "validation" / "validation.json"
     override = " (or pass --allow-unvalidated to fit anyway, at your own risk)"
     if not validation_path.is_file():
         if allow_unvalidated:
             return None
         raise ValidationRequiredError(
-            f"{dataset_dir}: its forward model has not been cross-checked; run `rjfit validate {dataset_dir}` "
-            f"first{override}")
-    result = json.loads(validation_path.read_text())
+            f"{dataset_dir}: its forward model has not been cross-checked (no {validation_path}); run `rjfit validate "
+            f"{dataset_dir}` first, or pass --validation FILE if you wrote it elsewhere with `validate --out`"
+            f"{override}")
+    result = read_json(validation_path)
     problem = None
     if not result.get("passed"):
         problem = (f"failed the cross-check (median rel. err. {result.get('median_rel_err'):.3g}, "
                    f"p99 {result.get('p99_rel_err'):.3g}, unexplained fraction "
                    f"{result.get('unexplained_fraction'):.3g}); see {validation_path}")
     elif result.get("dataset_sha256") != dataset_fingerprint(dataset_dir):
-        problem = f"changed since {validation_path} was written; validate it again"
+        validated = result.get("dataset")
+        other = (f" (it is the cross-check of {validated})"
+                 if validated and Path(validated).resolve() != dataset_dir.resolve() else "")
+        problem = f"changed since {validation_path} was written{other}; validate it again"
     if problem is None:
         return result
     if allow_unvalidated:
-        return result
+        # a passing result of other files is marked, so the fit's summary can say so
+        return dict(result, stale=bool(result.get("passed")))
     raise ValidationRequiredError(f"{dataset_dir}: {problem}{override}")

@@ -240,7 +240,7 @@ def test_compare_command_writes_its_three_outputs(sphere, tmp_path):
 
     # a "fit" that recovered the truth exactly, with the regions renamed
     renamed = np.where(sphere.truth_labels >= 0, 3 - sphere.truth_labels, -1)
-    fit = _write_fit(tmp_path / "fit", renamed, np.nan, {"seconds": 42.0})
+    fit = _write_fit(tmp_path / "fit", renamed, np.nan, {"seconds": 42.0, "dataset": str(sphere.path.resolve())})
     out = tmp_path / "cmp"
     result = CliRunner().invoke(main, ["compare", str(sphere.path), "--out", str(out), "--fit", str(fit),
                                        "--seed", "1"])
@@ -275,6 +275,22 @@ def test_read_map_labels_missing_or_wrong_size(sphere, tmp_path):
     fit = _write_fit(tmp_path / "fit", sphere.truth_labels[:-2], -1.0, {})
     with pytest.raises(ValueError, match="data set it was run on"):
         read_map_labels(fit, sphere.object_mask)
+
+
+def test_compare_refuses_a_fit_of_another_data_set_before_any_baseline_runs(sphere, tmp_path, monkeypatch):
+    from rjfit.baselines import compare
+
+    def fail(*args, **kwargs):
+        raise AssertionError("a baseline ran before the fit was checked")
+
+    monkeypatch.setattr(compare.methods, "kmeans_segmentation", fail)
+    for summary, expected in (({"dataset": str(tmp_path / "other_dataset")}, "is a fit of .*other_dataset, not of"),
+                              ({}, "unknown data set .no summary.json.")):
+        fit = _write_fit(tmp_path / f"fit{len(summary)}", sphere.truth_labels, -1.0, summary)
+        if not summary:
+            (fit / "summary.json").unlink()
+        with pytest.raises(ValueError, match=expected):
+            compare.compare_dataset(sphere.path, tmp_path / "cmp", fit_dir=fit, seed=0)
 
 
 def test_compare_without_fit_notes_missing_rjfit(sphere, tmp_path, monkeypatch):

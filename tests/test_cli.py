@@ -56,6 +56,38 @@ def test_bad_input_is_one_line_naming_the_file(tmp_path):
     assert result.exit_code == 1 and str(folder) in result.output and "Traceback" not in result.output
 
 
+def test_fit_names_what_is_wrong_before_it_runs(paper_sphere_small, tmp_path):
+    """A folder that is not a data set, a --validation file that does not exist and a
+    truncated dataset.json each give one line naming the file, before any chain runs."""
+    import shutil
+
+    runner = CliRunner()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = runner.invoke(main, ["fit", str(empty), "--out", str(tmp_path / "f1")])
+    assert result.exit_code == 1 and "not a data set" in result.output and "rjfit validate" not in result.output
+    result = runner.invoke(main, ["fit", str(paper_sphere_small), "--out", str(tmp_path / "f2"),
+                                  "--validation", str(tmp_path / "nothere.json")])
+    assert result.exit_code == 1 and "nothere.json: no such validation file" in result.output
+    broken = tmp_path / "broken"
+    shutil.copytree(paper_sphere_small, broken)
+    text = (broken / "dataset.json").read_text()
+    (broken / "dataset.json").write_text(text[: len(text) // 2])
+    result = runner.invoke(main, ["validate", str(broken)])
+    assert result.exit_code == 1 and "dataset.json: not valid JSON" in result.output
+    assert "Traceback" not in result.output
+    assert not any((tmp_path / name).exists() for name in ("f1", "f2"))
+
+
+def test_run_stops_after_a_failed_cross_check(tmp_path):
+    """The dented plaster's interreflections are missing from the closed form: the gate fails,
+    and the main job must stop there rather than fit data it cannot trust."""
+    result = CliRunner().invoke(main, ["run", "dented_plaster", "--out", str(tmp_path / "run"), "--resolution", "24",
+                                       "--iterations", "20", "--chains", "1"])
+    assert result.exit_code == 1 and "FAILED" in result.output and "--allow-unvalidated" in result.output
+    assert not (tmp_path / "run" / "fit").exists()
+
+
 def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     result = CliRunner().invoke(main, ["run", "--out", str(tmp_path / "run"), "--resolution", "32",
                                        "--iterations", "200", "--chains", "2"])
@@ -77,3 +109,17 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
                      "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):
         assert (tmp_path / "run" / produced).is_file(), produced
+    comparison = json.loads((tmp_path / "run" / "fit" / "comparison" / "comparison.json").read_text())
+    assert comparison["fit_id"] == summary["fit_id"]
+
+    # a new fit into the same folder: the old comparison no longer describes it, and the
+    # report says so instead of showing it as this fit's
+    fit_dir = tmp_path / "run" / "fit"
+    result = CliRunner().invoke(main, ["fit", str(tmp_path / "run" / "dataset"), "--out", str(fit_dir),
+                                       "--iterations", "20", "--chains", "1", "--seed", "5"])
+    assert result.exit_code == 0, result.output
+    assert not (fit_dir / "report.html").exists()
+    result = CliRunner().invoke(main, ["report", str(fit_dir)])
+    assert result.exit_code == 0, result.output
+    html = (fit_dir / "report.html").read_text()
+    assert "The comparison in" in html and "was made from another fit" in html and "<th>method</th>" not in html

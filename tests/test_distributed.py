@@ -68,3 +68,13 @@ def test_killed_worker_resumes_chain_from_checkpoint(client, serial_records, tmp
     assert 0 < records[0].iterations_done == ITERATIONS
     for serial, recovered in zip(serial_records, records):
         _assert_same(serial, recovered)
+
+
+def test_an_unreachable_scheduler_is_one_clear_error(monkeypatch):
+    from rjfit import distributed
+    from rjfit.distributed import dask_client
+
+    monkeypatch.setattr(distributed, "CONNECT_TIMEOUT_S", 1)
+    with pytest.raises(ValueError, match=r"cannot reach the Dask scheduler at tcp://127\.0\.0\.1:1 .*--scheduler local"):
+        with dask_client("tcp://127.0.0.1:1"):
+            pass

@@ -49,8 +49,12 @@ def test_fit_writes_summary_labels_chains_and_figures(fitted):
     assert idata.posterior["theta"].shape[:2] == (2, 500)
     for name in ("model_histogram", "traces", "changepoints", "reflectance"):
         assert (out / "figures" / f"{name}.png").stat().st_size > 1000
-    # checkpoints were written (every 250 of 1000 iterations) and cleared once the results were
-    assert (out / "checkpoints").is_dir() and not list((out / "checkpoints").glob("*.pkl"))
+    # checkpoints (every 250 of 1000 iterations) are cleared once the results are written,
+    # and so is their folder; the staging folder of the results is gone too
+    assert not (out / "checkpoints").exists()
+    assert not list(out.glob(".staging*"))
+    assert on_disk["figures"]["traces"] == "figures/traces.png"      # relative to the fit folder, like "maps"
+    assert len(on_disk["fit_id"]) == 16
 
 
 def test_fit_recovers_the_truth_on_a_small_sphere(fitted):
@@ -59,6 +63,30 @@ def test_fit_recovers_the_truth_on_a_small_sphere(fitted):
     truth = [(0.5, 5.0), (0.9, 10.0), (0.6, 5.0), (0.4, 1.0)]
     for region, (kd, gamma) in zip(summary["regions"], truth):
         assert abs(region["kd"]["mean"] - kd) < 5 * region["kd"]["sd"] + 0.02
+
+
+def test_an_interrupted_fit_leaves_the_previous_results_whole(tmp_path):
+    """Interrupted while it writes its results, a fit into a folder that holds an earlier fit
+    must leave that fit as it was, not one run's labels beside another run's summary."""
+    obs, _, _ = sphere_stack(12, n_lights=4, seed=2)
+    options = dict(n_chains=1, iterations=20, max_u=1, max_v=1, processes=1, progress=False)
+    first = fit(obs, tmp_path, seed=1, **options)
+    (tmp_path / "report.html").write_text("report of the first fit")
+    before = {path.relative_to(tmp_path): path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
+
+    def interrupt(summary, staging):
+        assert (staging / "labels.exr").is_file() and summary["seed"] == 2
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        fit(obs, tmp_path, seed=2, before_publish=interrupt, **options)
+    after = {path.relative_to(tmp_path): path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
+    assert after == before
+    # a finished second fit replaces every result, and drops the report of the first
+    second = fit(obs, tmp_path, seed=2, **options)
+    assert json.loads((tmp_path / "summary.json").read_text())["seed"] == 2
+    assert second["fit_id"] != first["fit_id"] and not (tmp_path / "report.html").exists()
+    assert not list(tmp_path.glob(".staging*"))
 
 
 def test_fit_rejects_bad_arguments(tmp_path):

@@ -101,6 +101,14 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
         run_chain(other_data)
 
 
+@pytest.mark.parametrize("content", [b"garbage\n", b"", b"\x80\x04N."])   # text, empty, a pickled None
+def test_an_unreadable_checkpoint_is_named_not_a_traceback(tmp_path, content):
+    path = tmp_path / "chain.pkl"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=r"checkpoint .*chain\.pkl (is unreadable|has version None).*delete it"):
+        run_chain(_spec(str(path)))
+
+
 def test_run_fingerprint_depends_on_content_not_on_print_options():
     """The digests read values (arrays by their bytes, floats exactly), not reprs that NumPy's print options change."""
     from rjfit.sampler.runner import run_fingerprint

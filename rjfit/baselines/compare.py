@@ -10,7 +10,6 @@
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -20,6 +19,7 @@ import numpy as np
 
 from rjfit.baselines import methods
 from rjfit.baselines.metrics import BOUNDARY_TOLERANCE, relabel_to_truth, segmentation_metrics
+from rjfit.data.dataset import read_json
 
 __all__ = ["compare_dataset", "read_map_labels", "format_markdown", "METHODS", "MAP_LABEL_FILES", "RUNTIME_KEYS"]
 
@@ -82,7 +82,7 @@ def read_map_labels(fit_dir, mask) -> tuple[np.ndarray, dict]:
     good = mask & np.isfinite(raw) & (raw >= 0)
     labels[good] = np.rint(raw[good]).astype(np.int64)
     summary_path = fit_dir / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    summary = read_json(summary_path) if summary_path.is_file() else {}
     return labels, summary
 
 
@@ -200,7 +200,7 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
     Raises
     ------
     ValueError
-        If the data set has no ground truth.
+        If the data set has no ground truth, or ``fit_dir`` holds a fit of another data set.
     """
     from rjfit.data.dataset import load_dataset, write_json_atomic
 
@@ -208,9 +208,15 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
     if dataset.truth_labels is None:
         raise ValueError(f"{dataset_dir}: has no truth_labels; the comparison needs a data set with ground "
                          f"truth (render one with `rjfit render SCENE --out DIR`)")
+    truth, mask = dataset.truth_labels, dataset.object_mask & (dataset.truth_labels >= 0)
+    # the fit is read and checked before any baseline runs, so a wrong --fit fails at once
+    fit_labels, fit_summary = read_map_labels(fit_dir, mask) if fit_dir is not None else (None, {})
+    fitted = fit_summary.get("dataset")
+    if fit_dir is not None and (not fitted or Path(fitted).resolve() != Path(dataset.path).resolve()):
+        raise ValueError(f"{fit_dir}: is a fit of {fitted or 'an unknown data set (no summary.json)'}, not of "
+                         f"{Path(dataset.path).resolve()}; compare a data set with its own fit")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    truth, mask = dataset.truth_labels, dataset.object_mask & (dataset.truth_labels >= 0)
     grey = dataset.channel_values(channel)
     ncut_index = methods.pick_ncut_image(dataset.valid_mask(channel))
     n_valid = int(dataset.valid_mask(channel)[ncut_index].sum())
@@ -247,7 +253,7 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
         f"adjacent segments merged by Ward's criterion until k remain; k includes the background segment.",
     ]
     if fit_dir is not None:
-        labels, summary = read_map_labels(fit_dir, mask)
+        labels, summary = fit_labels, fit_summary
         seconds, key = _runtime_from(summary)
         note = (f"runtime from summary.json['{key}']" if key else
                 f"no runtime in summary.json (looked for {', '.join(RUNTIME_KEYS)})")
@@ -261,7 +267,7 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
 
     payload = {"dataset": str(dataset.path), "resolution": list(mask.shape), "n_object_pixels": int(mask.sum()),
                "channel": channel, "seed": seed, "boundary_tolerance_px": BOUNDARY_TOLERANCE,
-               "ncut_image": ncut_index, "notes": notes, "rows": rows}
+               "ncut_image": ncut_index, "notes": notes, "rows": rows, "fit_id": fit_summary.get("fit_id")}
     write_json_atomic(out_dir / "comparison.json", payload)
     _write_text_atomic(out_dir / "comparison.md", "# Segmentation baselines\n\n" + format_markdown(rows, notes))
 

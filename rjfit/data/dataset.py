@@ -24,7 +24,7 @@ from rjfit.data.exr import read_exr
 from rjfit.data.lights import Light, geometry_terms
 from rjfit.data.observations import Observations, valid_observation_mask
 
-__all__ = ["Dataset", "load_dataset", "write_json_atomic", "DATASET_FORMAT", "CHANNELS"]
+__all__ = ["Dataset", "load_dataset", "is_dataset", "read_json", "write_json_atomic", "DATASET_FORMAT", "CHANNELS"]
 
 DATASET_FORMAT = "rjfit-dataset/1"
 CHANNELS = ("mean", "R", "G", "B", "luminance")
@@ -193,6 +193,24 @@ def _require(condition, message):
         raise DatasetError(message)
 
 
+def is_dataset(path) -> bool:
+    """Whether ``path`` is a folder :func:`load_dataset` reads (rjfit layout, mesh stack or DiLiGenT)."""
+    from rjfit.data.diligent import is_diligent_folder
+    from rjfit.data.mesh_stack import is_mesh_stack_folder
+
+    path = Path(path)
+    return (path / "dataset.json").is_file() or is_mesh_stack_folder(path) or is_diligent_folder(path)
+
+
+def read_json(path) -> dict:
+    """A JSON file's content; a file that does not parse is a :class:`DatasetError` naming it."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise DatasetError(f"{path}: not valid JSON ({error}); was it truncated or edited by hand?") from None
+
+
 def load_dataset(path, **options) -> Dataset:
     """Load a data set in the rjfit layout (see the module docstring).
 
@@ -216,7 +234,7 @@ def load_dataset(path, **options) -> Dataset:
             return load_diligent(path, **options)
         raise FileNotFoundError(f"{path}: not a data set (no dataset.json, and not a DiLiGenT-style folder)")
     _require(not options, f"{path}: options {sorted(options)} apply to photometric-stereo folders only")
-    meta = json.loads(description_path.read_text())
+    meta = read_json(description_path)
     _require(meta.get("format") == DATASET_FORMAT,
              f"{description_path}: format is {meta.get('format')!r}, expected {DATASET_FORMAT!r}")
     lights = [Light.from_json(entry) for entry in meta["lights"]]

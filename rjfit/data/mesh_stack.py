@@ -17,12 +17,11 @@ centre, exactly as for rendered data sets; the gate then path-traces the same me
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import Dataset
+from rjfit.data.dataset import Dataset, read_json
 from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.data.lights import Light
 
@@ -56,7 +55,7 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
     description = path / "stack.json"
     if not description.is_file():
         raise DatasetFileNotFoundError(f"{description}: no such file")
-    meta = json.loads(description.read_text())
+    meta = read_json(description)
     missing = [key for key in ("images", "mesh", "camera", "resolution", "lights") if key not in meta]
     if missing:
         raise DatasetError(f"{description}: missing keys {missing}")

@@ -168,7 +168,8 @@ def map_labels(records, burn_in: int, model, image_shape, object_mask=None) -> n
                                          image_shape)
             np.add.at(counts, (labels, *np.indices(image_shape)), 1)
     if counts.sum() == 0:
-        raise ValueError("no change-point snapshot of the MAP model after burn-in: lower cp_thin")
+        raise ValueError("no change-point snapshot of the MAP model after burn-in: run more iterations "
+                         "(or keep snapshots more often: cp_thin)")
     labels = np.argmax(counts, axis=0)
     if object_mask is not None:
         labels = np.where(object_mask, labels, -1)

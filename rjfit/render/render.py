@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import DATASET_FORMAT, write_json_atomic
+from rjfit.data.dataset import DATASET_FORMAT, read_json, write_json_atomic
 from rjfit.data.errors import DatasetError
 from rjfit.data.exr import write_exr
 from rjfit.data.lights import Light
@@ -42,7 +42,7 @@ def load_scene_definition(scene) -> dict:
     if not candidate.is_file():
         raise FileNotFoundError(f"scene {scene!r}: no such file and no built-in scene of that name "
                                 f"(built-in: {', '.join(available_scenes())})")
-    return json.loads(candidate.read_text())
+    return read_json(candidate)
 
 
 def write_mesh_parts(geometry: dict, mesh_dir: Path) -> list[dict]:
@@ -196,7 +196,7 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
         if progress:
             from tqdm import tqdm
 
-            iterator = tqdm(iterator, desc=f"render {definition['name']}", unit="light")
+            iterator = tqdm(iterator, desc=f"render {definition['name']}", unit="light", disable=None)
         for light_index in iterator:
             light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], **scene_args)
             radiance = path_trace(light_scene, spp=spp, seed=seed + light_index)

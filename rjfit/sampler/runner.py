@@ -240,8 +240,13 @@ def run_fingerprint(spec: ChainSpec) -> dict:
 
 def _load_checkpoint(path, fingerprint):
     with open(path, "rb") as handle:
-        payload = pickle.load(handle)
-    if payload.get("version") != CHECKPOINT_VERSION:
+        try:
+            payload = pickle.load(handle)
+        except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, ImportError) as error:
+            raise ValueError(f"checkpoint {path} is unreadable ({type(error).__name__}: {error}): it was not written "
+                             "by rjfit or was damaged; delete it to start the chain afresh") from None
+    if not isinstance(payload, dict) or payload.get("version") != CHECKPOINT_VERSION:
+        payload = payload if isinstance(payload, dict) else {}
         raise ValueError(f"checkpoint {path} has version {payload.get('version')}, expected {CHECKPOINT_VERSION}: "
                          "delete it to start the chain afresh")
     differ = [key for key, value in fingerprint.items() if payload.get("fingerprint", {}).get(key) != value]
@@ -279,7 +284,7 @@ def run_chain(spec: ChainSpec) -> ChainRecord:
         if spec.progress:
             from tqdm import tqdm
             bar = tqdm(total=spec.iterations, initial=start_t, position=spec.chain, desc=f"chain {spec.chain}",
-                       leave=False, mininterval=1.0)
+                       leave=False, mininterval=1.0, disable=None)    # None: off when stderr is a log file, not a terminal
         t0 = time.perf_counter()
         seconds_before = recorder.seconds
         t = start_t
