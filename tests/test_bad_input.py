@@ -141,6 +141,14 @@ def test_srgb_encoded_eight_bit_is_decoded(tmp_path):
     assert dataset.saturated[2, 0, 0] and dataset.meta["encoded"] == "sRGB"
     with raises(DatasetError, "encoded must be None (linear data) or one of ('sRGB',), got 'gamma'"):
         load_diligent(folder, encoded="gamma")
+    # the command line reads the folder's own declaration; an argument still wins over it
+    (folder / "rjfit.json").write_text('{"encoded": "sRGB"}')
+    np.testing.assert_array_equal(load_dataset(folder).images, dataset.images)
+    with raises(DatasetError, folder / "001.png", "8-bit image"):
+        load_diligent(folder, encoded=None)
+    (folder / "rjfit.json").write_text('{"encoding": "sRGB"}')
+    with raises(DatasetError, folder / "rjfit.json", "keys among saturation, encoded, normals, crop; unknown: encoding"):
+        load_dataset(folder)
 
 
 # -- bad input ------------------------------------------------------------------------------------
@@ -218,6 +226,8 @@ def test_eight_bit_where_sixteen_promised(tmp_path):
     folder = make_ps_folder(tmp_path)
     write_png(folder / "002.png", np.full((HEIGHT, WIDTH, 3), 100, np.uint8))
     with raises(DatasetError, folder / "002.png", "8-bit image, but linear data must have 16 bits per channel"):
+        load_dataset(folder)
+    with raises(DatasetError, "write {\"encoded\": \"sRGB\"} to rjfit.json in its folder"):
         load_dataset(folder)
     # 8-bit data widened to 16 bits (low byte always 0) is refused too.
     write_png(folder / "002.png", (np.full((HEIGHT, WIDTH, 3), 100, np.uint16) << 8))

@@ -11,6 +11,10 @@ Uncalibrated Photometric Stereo", CVPR 2016)::
                                   ``NORMAL_MAP_NAMES`` (.npy / .mat / .exr), or ``normals=`` given
     FOLDER/001.png ...            the images: 16-bit linear PNG or TIFF (read whole with OpenCV),
                                   float EXR or TIFF, or sRGB-encoded 8/16-bit with ``encoded="sRGB"``
+    FOLDER/rjfit.json             optional: how to read the folder, for the command line, e.g.
+                                  ``{"encoded": "sRGB", "saturation": 250}`` (keys: the options of
+                                  :func:`load_diligent`; an argument given to it wins). Part of
+                                  the folder, so the cross-check's fingerprint covers it.
 
 Conventions (DiLiGenT's): an orthographic camera looking along -z, so the view direction is
 v = (0, 0, 1) at every pixel; x to the right, y up, z towards the camera, for normals and light
@@ -48,6 +52,8 @@ LAYOUT_FILES = (FILENAMES, DIRECTIONS, INTENSITIES, MASK)
 NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "normal")
                          for ext in ("mat", "npy", "exr"))
 ENCODINGS = ("sRGB",)
+OPTIONS_FILE = "rjfit.json"
+_OPTIONS = ("saturation", "encoded", "normals", "crop")
 _MAT_VARIABLES = ("Normal_gt", "normals", "normal", "N")
 
 
@@ -142,8 +148,9 @@ def _check_depth(raw: np.ndarray, path: Path, encoded, reference) -> None:
         raise DatasetError(
             f"{path}: 8-bit image, but linear data must have 16 bits per channel (the DiLiGenT layout stores "
             f"16-bit PNGs); the file may have been re-saved by a tool that drops the low byte (Pillow, "
-            f"imageio's default plugin). Use the original 16-bit file, or pass encoded='sRGB' if it is an "
-            f"sRGB-encoded 8-bit image")
+            f"imageio's default plugin). Use the original 16-bit file, or, if it is an sRGB-encoded 8-bit "
+            f"image, say so: write {{\"encoded\": \"sRGB\"}} to {OPTIONS_FILE} in its folder (or pass "
+            f"encoded='sRGB' to load_dataset)")
     if kind == np.uint16 and encoded is None and raw.any() and not (raw & 0xFF).any():
         raise DatasetError(f"{path}: 16-bit file holding 8-bit data (every value is a multiple of 256, the low "
                            f"byte is always 0); it was probably converted from an 8-bit image. Use the original "
@@ -228,8 +235,35 @@ def _read_normal_map(path: Path) -> np.ndarray:
 
 # -- the loader ---------------------------------------------------------------------------------
 
-def load_diligent(path, *, saturation=None, encoded=None, normals=None, crop=False):
+def folder_options(folder) -> dict:
+    """The loader options declared in ``FOLDER/rjfit.json`` ({} without one).
+
+    Raises
+    ------
+    DatasetError
+        If the file is not a JSON object of known options.
+    """
+    from rjfit.data.dataset import read_json
+
+    path = Path(folder) / OPTIONS_FILE
+    if not path.is_file():
+        return {}
+    options = read_json(path)
+    unknown = sorted(set(options) - set(_OPTIONS)) if isinstance(options, dict) else None
+    if unknown is None or unknown:
+        raise DatasetError(f"{path}: must be a JSON object with keys among {', '.join(_OPTIONS)}"
+                           + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
+    return options
+
+
+_UNSET = object()
+
+
+def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, crop=_UNSET):
     """Load a photometric-stereo folder (DiLiGenT layout; see the module docstring) as a Dataset.
+
+    Each option not given here is read from the folder's ``rjfit.json`` if it declares it
+    (see the module docstring), else takes the default below.
 
     Parameters
     ----------
@@ -269,6 +303,10 @@ def load_diligent(path, *, saturation=None, encoded=None, normals=None, crop=Fal
     folder = Path(path)
     if not folder.is_dir():
         raise DatasetFileNotFoundError(f"{folder}: no such folder")
+    declared = {**dict.fromkeys(_OPTIONS), "crop": False, **folder_options(folder)}
+    saturation, encoded, normals, crop = (declared[name] if given is _UNSET else given for name, given in
+                                          (("saturation", saturation), ("encoded", encoded), ("normals", normals),
+                                           ("crop", crop)))
     if encoded is not None and encoded not in ENCODINGS:
         raise DatasetError(f"{folder}: encoded must be None (linear data) or one of {ENCODINGS}, got {encoded!r}")
 
