@@ -14,21 +14,61 @@ import numpy as np
 
 from rjfit.data.lights import Light
 
-__all__ = ["activate", "resolve_variant", "camera_dict", "light_dict", "material_dict", "build_scene", "trace_pixels", "path_trace",
+__all__ = ["activate", "resolve_variant", "supported_variant", "is_scalar_variant", "UnsupportedVariantError", "camera_dict", "light_dict", "material_dict", "build_scene", "trace_pixels", "path_trace",
            "shadow_visibility", "DEFAULT_VARIANT"]
 
 DEFAULT_VARIANT = "llvm_ad_rgb"
 
 
+class UnsupportedVariantError(ValueError):
+    """A Mitsuba variant rjfit cannot compare with its closed form (spectral, polarized)."""
+
+
+def supported_variant(variant: str) -> bool:
+    """Whether rjfit renders and cross-checks in ``variant``: the RGB and mono variants
+    (``scalar_rgb``, ``llvm_ad_rgb``, ``llvm_ad_mono``, ``cuda_ad_rgb``, ``cuda_ad_mono``).
+
+    Spectral variants return radiance at a few randomly sampled wavelengths (an RGB light
+    becomes an upsampled spectrum times D65), so one pixel-centre sample is not the RGB value
+    the closed form predicts; polarized variants return Stokes vectors. Either would make the
+    cross-check report a setup mismatch as a failure of the forward model.
+    """
+    return variant.endswith("_rgb") or variant.endswith("_mono")
+
+
+def _check_supported(variant: str) -> None:
+    import mitsuba as mi
+
+    if supported_variant(variant):
+        return
+    kind = "polarized" if "polarized" in variant else "spectral" if "spectral" in variant else "non-RGB"
+    usable = [v for v in mi.variants() if supported_variant(v)]
+    raise UnsupportedVariantError(
+        f"Mitsuba variant {variant!r} is not supported: it is {kind}, and rjfit renders and cross-checks "
+        f"RGB (or mono) radiance along one ray per pixel against its closed form, so a {kind} render would "
+        f"fail the gate for the set-up, not the model. Use --variant auto or one of: {', '.join(usable)}")
+
+
 def resolve_variant(variant: str = "auto") -> str:
     """The Mitsuba variant to use: ``"auto"`` picks ``cuda_ad_rgb`` when a CUDA GPU and driver
-    answer, else ``llvm_ad_rgb``; any other name is returned as it is.
+    answer, else ``llvm_ad_rgb``; any other name is returned as it is once it is known to be
+    installed and supported (see :func:`supported_variant`).
 
     A CUDA variant is listed by every Mitsuba wheel, GPU or not; only initialising it tells.
+
+    Raises
+    ------
+    UnsupportedVariantError
+        For spectral and polarized variants (a ``ValueError``).
+    ValueError
+        If the variant is not available in the installed Mitsuba.
     """
     import mitsuba as mi
 
     if variant != "auto":
+        if variant not in mi.variants():
+            raise ValueError(f"Mitsuba variant {variant!r} is not available; installed: {', '.join(mi.variants())}")
+        _check_supported(variant)
         return variant
     if "cuda_ad_rgb" in mi.variants():
         try:
@@ -49,13 +89,12 @@ def activate(variant: str = DEFAULT_VARIANT):
     Raises
     ------
     ValueError
-        If the variant is not available in the installed Mitsuba.
+        If the variant is not available in the installed Mitsuba, or is spectral or
+        polarized (:class:`UnsupportedVariantError`).
     """
     import mitsuba as mi
 
     variant = resolve_variant(variant)
-    if variant not in mi.variants():
-        raise ValueError(f"Mitsuba variant {variant!r} is not available; installed: {mi.variants()}")
     mi.set_variant(variant)
     from rjfit.render.plugin import register
 
@@ -144,16 +183,41 @@ def build_scene(camera: dict, resolution, mesh_parts, materials, lights=(), *, r
     return mi.load_dict(scene)
 
 
+def is_scalar_variant(variant: str | None = None) -> bool:
+    """Whether ``variant`` (default: the active one) is a scalar variant: one ray at a time,
+    plain Python numbers instead of Dr.Jit arrays (no ``dr.arange``, no vectorised calls)."""
+    if variant is None:
+        import mitsuba as mi
+
+        variant = mi.variant()
+    return str(variant).startswith("scalar_")
+
+
 def _pixel_centre_rays(scene):
-    import drjit as dr
+    """The camera rays through the pixel centres, row by row: one vectorised ``Ray3f`` in the
+    JIT variants, a list of scalar rays (one per pixel) in the scalar variants."""
     import mitsuba as mi
 
     sensor = scene.sensors()[0]
-    width, height = sensor.film().size()
+    width, height = (int(v) for v in sensor.film().size())
+    if is_scalar_variant():
+        rays = []
+        for row in range(height):
+            for col in range(width):
+                ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((col + 0.5) / width, (row + 0.5) / height),
+                                           mi.Point2f(0.5, 0.5))
+                rays.append(ray)
+        return rays, (height, width)
+    import drjit as dr
+
     index = dr.arange(mi.UInt32, width * height)
     film_position = mi.Point2f((mi.Float(index % width) + 0.5) / width, (mi.Float(index // width) + 0.5) / height)
     rays, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), film_position, mi.Point2f(0.5, 0.5))
-    return rays, (int(height), int(width))
+    return rays, (height, width)
+
+
+def _part_index(shape_id: str) -> int:
+    return int(shape_id.split("_")[1])
 
 
 def trace_pixels(scene, mesh_material_indices):
@@ -164,10 +228,14 @@ def trace_pixels(scene, mesh_material_indices):
     dict of ndarray
         ``positions``, ``normals``, ``view_dirs`` (H, W, 3), ``hit`` (H, W) bool and
         ``material`` (H, W) int (-1 where no surface is hit), from the ``mesh_parts`` order.
+        ``_interaction`` holds Mitsuba's surface interactions for :func:`shadow_visibility`
+        (one vectorised record, or a list of scalar ones in the scalar variants).
     """
     import mitsuba as mi
 
     rays, (height, width) = _pixel_centre_rays(scene)
+    if isinstance(rays, list):
+        return _trace_pixels_scalar(scene, rays, (height, width), mesh_material_indices)
     interaction = scene.ray_intersect(rays)
     hit = np.array(interaction.is_valid(), dtype=bool)
     material = np.full(height * width, -1, dtype=np.int32)
@@ -175,7 +243,7 @@ def trace_pixels(scene, mesh_material_indices):
     part_ids = [shape.id() for shape in shapes]
     for shape, shape_id in zip(shapes, part_ids):
         on_shape = np.array(interaction.shape == mi.ShapePtr(shape), dtype=bool) & hit
-        material[on_shape] = mesh_material_indices[int(shape_id.split("_")[1])]
+        material[on_shape] = mesh_material_indices[_part_index(shape_id)]
 
     def image(vectors):
         # A value the same for every lane (an orthographic camera's direction) comes back
@@ -192,16 +260,46 @@ def trace_pixels(scene, mesh_material_indices):
             "material": material.reshape(height, width), "_interaction": interaction}
 
 
+def _trace_pixels_scalar(scene, rays, shape, mesh_material_indices):
+    height, width = shape
+    n = height * width
+    positions, normals, view_dirs = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    hit = np.zeros(n, dtype=bool)
+    material = np.full(n, -1, dtype=np.int32)
+    interactions = []
+    for pixel, ray in enumerate(rays):
+        interaction = scene.ray_intersect(ray)
+        interactions.append(interaction)
+        view_dirs[pixel] = -np.array(ray.d, dtype=np.float64)
+        if interaction.is_valid():
+            hit[pixel] = True
+            positions[pixel] = np.array(interaction.p, dtype=np.float64)
+            normals[pixel] = np.array(interaction.sh_frame.n, dtype=np.float64)
+            material[pixel] = mesh_material_indices[_part_index(interaction.shape.id())]
+    return {"positions": positions.reshape(height, width, 3), "normals": normals.reshape(height, width, 3),
+            "view_dirs": view_dirs.reshape(height, width, 3), "hit": hit.reshape(height, width),
+            "material": material.reshape(height, width), "_interaction": interactions}
+
+
 def shadow_visibility(scene, interaction, light: Light, shape):
     """Whether each pixel's surface point sees ``light`` (shadow ray, Mitsuba's ``ray_test``)."""
     import mitsuba as mi
 
     if light.kind == "point":
-        rays = interaction.spawn_ray_to(mi.Point3f(*[float(c) for c in light.position]))
+        target = [float(c) for c in light.position]
+
+        def spawn(si):
+            return si.spawn_ray_to(mi.Point3f(*target))
     else:
         direction = np.asarray(light.direction, dtype=float)
-        rays = interaction.spawn_ray(mi.Vector3f(*[float(c) for c in direction / np.linalg.norm(direction)]))
-    occluded = scene.ray_test(rays, interaction.is_valid())
+        direction = [float(c) for c in direction / np.linalg.norm(direction)]
+
+        def spawn(si):
+            return si.spawn_ray(mi.Vector3f(*direction))
+    if isinstance(interaction, list):             # scalar variants: one interaction per pixel
+        visible = [bool(si.is_valid()) and not bool(scene.ray_test(spawn(si))) for si in interaction]
+        return np.array(visible, dtype=bool).reshape(shape)
+    occluded = scene.ray_test(spawn(interaction), interaction.is_valid())
     return (~np.array(occluded, dtype=bool) & np.array(interaction.is_valid(), dtype=bool)).reshape(shape)
 
 
@@ -213,7 +311,6 @@ def path_trace(scene, spp: int = 1, seed: int = 0):
     ndarray, shape (H, W, C)
         C = 3 in RGB variants, 1 in mono variants.
     """
-    import drjit as dr
     import mitsuba as mi
 
     rays, (height, width) = _pixel_centre_rays(scene)
@@ -222,10 +319,22 @@ def path_trace(scene, spp: int = 1, seed: int = 0):
     for sample_index in range(int(spp)):
         sampler = mi.load_dict({"type": "independent"})
         # One seed per (user seed, sample index): every pass draws fresh indirect paths.
-        sampler.seed(int(seed) * 1_000_003 + sample_index, height * width)
-        radiance, _, _ = integrator.sample(scene, sampler, rays, None, True)
-        values = np.array(radiance, dtype=np.float64)
-        values = values.reshape(-1, height * width).T if values.ndim > 1 else values[:, None]
+        pass_seed = int(seed) * 1_000_003 + sample_index
+        if isinstance(rays, list):
+            # Scalar variants: one random stream per pass, which the pixels draw from in turn.
+            sampler.seed(pass_seed % (1 << 32), 1)
+            values = []
+            for ray in rays:
+                radiance, _, _ = integrator.sample(scene, sampler, ray, None, True)
+                values.append(np.atleast_1d(np.array(radiance, dtype=np.float64)))
+            values = np.stack(values)
+        else:
+            import drjit as dr
+
+            sampler.seed(pass_seed, height * width)
+            radiance, _, _ = integrator.sample(scene, sampler, rays, None, True)
+            values = np.array(radiance, dtype=np.float64)
+            values = values.reshape(-1, height * width).T if values.ndim > 1 else values[:, None]
+            dr.eval()
         total = values if total is None else total + values
-        dr.eval()
     return (total / int(spp)).reshape(height, width, -1)
