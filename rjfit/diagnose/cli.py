@@ -10,7 +10,8 @@ import click
 @click.argument("fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for diagnosis.json, diagnosis.md and the figures.")
-@click.option("--max-steps", type=int, default=3, show_default=True, help="Most effects to add.")
+@click.option("--max-steps", type=click.IntRange(min=0), default=3, show_default=True,
+              help="Most effects to add; 0 measures the plain model's gap and tries no candidate.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--effects", default=None, help="Comma-separated candidate names (default: all).")
 @click.option("--no-simulate", is_flag=True, help="Skip the Mitsuba posterior predictive rendering.")
@@ -18,12 +19,14 @@ def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, no_simulate):
     """Criticise a fit: find where simulation and data disagree, name the missing effect
     (only when the evidence is decisive), add it, refit and show the gap shrink."""
     from rjfit.diagnose.effects import ALL_EFFECTS
+    from rjfit.diagnose.report import gap_text, named_text
     from rjfit.diagnose.workflow import diagnose_fit
 
     candidates = ALL_EFFECTS if not effects else [name.strip() for name in effects.split(",") if name.strip()]
     result = diagnose_fit(fit_dir, out_dir, candidates=candidates, seed=seed, max_steps=max_steps,
                           simulate=False if no_simulate else None, progress=True)
-    named = result["named_effects"]
-    click.echo(f"named effects: {', '.join(named) if named else 'none (no missing effect found)'}")
-    click.echo(f"gap: plain {result['gap_plain']:.4g} -> final {result['gap_final']:.4g}")
+    click.echo(f"named effects: {named_text(result)}")
+    if result["named_effects"] and result["search"]["stopped"].startswith("stopped after"):
+        click.echo(f"  {result['search']['stopped']} (raise --max-steps to search on)")
+    click.echo(f"gap: plain {gap_text(result['gap_plain'])} -> final {gap_text(result['gap_final'])}")
     click.echo(f"report: {Path(out_dir) / 'diagnosis.md'}")

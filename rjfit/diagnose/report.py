@@ -8,7 +8,8 @@ from rjfit.plotting import map_figure as _map_figure
 from rjfit.plotting import pyplot
 from rjfit.plotting import save_figure as _save_figure
 
-__all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure", "markdown"]
+__all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure", "markdown",
+           "gap_text", "candidate_line", "gap_lines", "named_text"]
 
 
 def _plt():
@@ -95,26 +96,67 @@ def _fmt(value, spec=".3g"):
     return str(value)
 
 
+def gap_text(value) -> str:
+    """How every gap is written (terminal, diagnosis.md): 4 significant digits."""
+    return "-" if value is None else format(float(value), ".4g")
+
+
+def named_text(result: dict) -> str:
+    """The named effects, or why there are none (nothing decisive, or no search at all)."""
+    named = result["named_effects"]
+    if named:
+        return ", ".join(named)
+    stopped = result.get("search", {}).get("stopped", "")
+    if stopped.startswith("search skipped"):
+        return f"none ({stopped})"
+    return f"none: no missing effect was found ({stopped})" if stopped else "none: no missing effect was found"
+
+
+def candidate_line(row: dict) -> str:
+    """One candidate's evidence at one step, as the workflow prints it while it searches."""
+    head = f"  step {row['step'] + 1} {row['effect']:18s}"
+    if "error" in row:
+        return f"{head} failed: {row['error']}"
+    text = f"{head} log BF {row['log_bayes_factor']:10.1f}  "
+    if "delta_elpd_loo" in row:
+        text += f"dLOO {row['delta_elpd_loo']:9.1f} +- {row['delta_elpd_loo_se']:6.1f}"
+    else:
+        text += f"dLOO skipped: {row['loo_skipped']}" if "loo_skipped" in row else "dLOO not computed"
+    return text + ("  decisive" if row.get("decisive") else "")
+
+
+def gap_lines(result: dict) -> list[str]:
+    """The gaps of a diagnosis, each exactly as ``diagnosis.json`` holds it (one noise estimate)."""
+    lines = [f"gaps, all with one noise estimate (variance {result['noise_variance_estimate']:.4g}, from the final "
+             f"model's residuals), as in diagnosis.json:",
+             f"  plain model: gap {gap_text(result['gap_plain'])}"]
+    for index, step in enumerate(result["steps"]):
+        lines.append(f"  step {index + 1} + {step['effect']}: gap {gap_text(step['gap_before'])} -> "
+                     f"{gap_text(step['gap_after'])}")
+    lines.append(f"  final model ({' + '.join(['plain'] + result['named_effects'])}): gap {gap_text(result['gap_final'])}")
+    return lines
+
+
 def markdown(result: dict) -> str:
     lines = [f"# Diagnosis of `{result['dataset']}`", ""]
-    named = result["named_effects"]
-    lines.append(f"**Named effects:** {', '.join(named) if named else 'none: no missing effect was found'}")
+    lines.append(f"**Named effects:** {named_text(result)}")
     lines += ["", f"Gap: {result['gap_definition']}", "",
               f"Decision rule: {result['decision_rule']}", "",
-              f"Plain model gap: {_fmt(result['gap_plain'])}; final gap: {_fmt(result['gap_final'])} "
-              f"(noise variance estimate {_fmt(result['noise_variance_estimate'])}).", ""]
+              f"Plain model gap: {gap_text(result['gap_plain'])}; final gap: {gap_text(result['gap_final'])} "
+              f"(noise variance estimate {_fmt(result['noise_variance_estimate'], '.4g')}).", ""]
     if result.get("skipped"):
         lines += ["Candidates not tried on this data set:", ""]
-        lines += [f"- `{name}`: {why}" for name, why in result["skipped"].items()]
+        lines += [f"- `{name}`: skipped, {why}" for name, why in result["skipped"].items()]
         lines.append("")
     lines += ["## Steps", "", "| step | effect | log BF | dLOO (SE) | gap before | gap after |", "|---|---|---|---|---|---|"]
     for i, step in enumerate(result["steps"]):
         ev = step["evidence"]
         lines.append(f"| {i + 1} | {step['effect']} | {_fmt(ev['log_bayes_factor'], '.1f')} | "
                      f"{_fmt(ev.get('delta_elpd_loo'), '.1f')} ({_fmt(ev.get('delta_elpd_loo_se'), '.1f')}) | "
-                     f"{_fmt(step['gap_before'])} | {_fmt(step['gap_after'])} |")
+                     f"{gap_text(step['gap_before'])} | {gap_text(step['gap_after'])} |")
     if not result["steps"]:
-        lines.append("| - | none decisive | | | | |")
+        stopped = result.get("search", {}).get("stopped", "")
+        lines.append(f"| - | {'no search' if stopped.startswith('search skipped') else 'none decisive'} | | | | |")
     for i, step in enumerate(result["steps"]):
         lines += ["", f"### Step {i + 1}: {step['effect']}", ""]
         figs = step.get("figures", {})
@@ -126,12 +168,17 @@ def markdown(result: dict) -> str:
             lines += ["", "Parameters that moved (more than 2 posterior sd):", ""]
             lines += [f"- {m['name']}: {_fmt(m['before'])} -> {_fmt(m['after'])} (sd {_fmt(m['sd_after'])})" for m in moved]
     lines += ["", "## Candidates per step", "",
-              "| step | effect | log BF | dLOO | SE | max k-hat | signature | decisive |", "|---|---|---|---|---|---|---|---|"]
+              "| step | effect | log BF | dLOO | SE | max k-hat | signature | gap with effect | decisive |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for row in result["candidates"]:
-        lines.append(f"| {row['step'] + 1} | {row['effect']} | {_fmt(row.get('log_bayes_factor'), '.1f')} | "
-                     f"{_fmt(row.get('delta_elpd_loo'), '.1f')} | {_fmt(row.get('delta_elpd_loo_se'), '.1f')} | "
+        loo = (f"{_fmt(row.get('delta_elpd_loo'), '.1f')} | {_fmt(row.get('delta_elpd_loo_se'), '.1f')}"
+               if "delta_elpd_loo" in row else (f"skipped ({row['loo_skipped']}) | -" if "loo_skipped" in row else "- | -"))
+        lines.append(f"| {row['step'] + 1} | {row['effect']} | {_fmt(row.get('log_bayes_factor'), '.1f')} | {loo} | "
                      f"{_fmt(row.get('max_khat'), '.2f')} | {_fmt(row.get('signature_score'), '.2f')} | "
-                     f"{'yes' if row.get('decisive') else row.get('error', 'no')} |")
+                     f"{gap_text(row.get('gap_with_effect'))} | "
+                     f"{'yes' if row.get('decisive') else ('failed: ' + row['error'] if 'error' in row else 'no')} |")
+    if not result["candidates"]:
+        lines.append(f"| - | {result.get('search', {}).get('stopped', 'none tried')} | | | | | | | |")
     if result.get("signature_figures"):
         lines += ["", "## Signatures", "",
                   "Each candidate's signature: the derivative of the predictions with respect to its parameters "
@@ -152,5 +199,5 @@ def markdown(result: dict) -> str:
     lines.append("| region | gap plain | gap final |")
     lines.append("|---|---|---|")
     for k, (a, b) in enumerate(zip(result["per_region_gap"]["plain"], result["per_region_gap"]["final"])):
-        lines.append(f"| {k} | {_fmt(a)} | {_fmt(b)} |")
+        lines.append(f"| {k} | {gap_text(a)} | {gap_text(b)} |")
     return "\n".join(lines) + "\n"

@@ -86,6 +86,8 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         The contents of ``diagnosis.json``.
     """
     started = time.perf_counter()
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 0:
+        raise ValueError(f"max_steps must be an integer >= 0 (0: measure the plain model's gap only), got {max_steps!r}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     say = print if progress else (lambda *a, **k: None)
@@ -93,23 +95,34 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     ctx = build_context(dataset, labels, channel=channel)
     plain = refit(ctx, (), seed=seed)
     ctx.features["fit_region_params"] = plain.region_params()
-    residuals = ctx.y - posterior_mean_prediction(plain)
-    sigma2_hat = noise_variance(ctx, residuals)
-    gap_plain = gap(residuals, sigma2_hat)
-    say(f"plain model: gap {gap_plain:.3f}, log Z {plain.log_evidence:.1f}")
+    # The noise estimate of the plain model's residuals only scores the candidates' signatures
+    # during the search; every gap reported (printed, in diagnosis.json and diagnosis.md) uses
+    # the final model's estimate, computed once the search is over (see GAP_DEFINITION).
+    sigma2_hat = noise_variance(ctx, ctx.y - posterior_mean_prediction(plain))
+    say(f"plain model: log Z {plain.log_evidence:.1f} (gaps follow at the end, with the final noise estimate)")
     skipped = {}
     usable = []
     for effect in candidates:
         ok, why = effect.available(ctx)
         (usable.append(effect) if ok else skipped.__setitem__(effect.name, why))
+    for name, why in skipped.items():
+        say(f"  {name:18s} skipped: {why}")
+    if max_steps == 0:
+        stopped = "search skipped: max_steps is 0, so no candidate effect was tried; only the plain model's gap is measured"
+    elif not usable:
+        stopped = "search skipped: no candidate effect can be tried on this data set (see the skipped candidates)"
+    else:
+        stopped = (f"stopped after {max_steps} step{'s' if max_steps > 1 else ''} (max_steps): "
+                   f"further missing effects were not searched for")
+    if max_steps == 0 or not usable:
+        say(stopped)
     current = plain
     steps, rows = [], []
     stored = {}            # residual vectors (-> gaps once the noise estimate is final), signatures
     step_residuals = []
-    for step in range(max_steps):
+    for step in range(max_steps if usable else 0):
         residuals = ctx.y - posterior_mean_prediction(current)
         step_residuals.append(residuals)
-        gap_before = gap(residuals, sigma2_hat)
         fits = {}
         step_rows = []
         present_kinds = {e.kind for e in current.effects}
@@ -124,6 +137,7 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
                 stored[("signature", step, effect.name)] = (score, signature_map)
             except Exception as error:          # a failing candidate is reported, not fatal
                 row["error"] = f"{type(error).__name__}: {error}"
+                say(f"  step {step + 1} {effect.name:18s} failed: {row['error']}")
                 step_rows.append(row)
                 continue
             fits[effect.name] = candidate
@@ -135,15 +149,19 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
             if row["log_bayes_factor"] > threshold:      # LOO only where the Bayes factor could name it
                 delta, se, khat = _loo_difference(candidate, current)
                 row.update(delta_elpd_loo=delta, delta_elpd_loo_se=se, max_khat=khat)
+            else:
+                bound = "ln 100" if math.isclose(threshold, LOG_BF_THRESHOLD) else f"{threshold:.4g}"
+                row["loo_skipped"] = f"log BF <= {bound}, cannot be decisive"
             row["decisive"] = bool(row["log_bayes_factor"] > threshold and row.get("delta_elpd_loo", -np.inf)
                                    > loo_se_factor * row.get("delta_elpd_loo_se", np.inf))
-            say(f"  step {step + 1} {effect.name:18s} log BF {row['log_bayes_factor']:10.1f}  "
-                f"dLOO {row.get('delta_elpd_loo', float('nan')):9.1f} +- {row.get('delta_elpd_loo_se', float('nan')):6.1f}"
-                f"  gap {gap(stored[('candidate', step, effect.name)], sigma2_hat):.3f}")
+            say(figures.candidate_line(row))
             step_rows.append(row)
         rows += step_rows
         decisive = [r for r in step_rows if r.get("decisive")]
         if not decisive:
+            stopped = (f"no candidate effect was decisive at step {step + 1}" if step_rows
+                       else f"no candidate effect left to try at step {step + 1}")
+            say(stopped)
             break
         best = max(decisive, key=lambda r: r["log_bayes_factor"])
         new = fits[best["effect"]]
@@ -160,9 +178,12 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
                   "effect_params": {k: v for k, v in new.summary().items() if k.startswith(best["effect"] + ".")},
                   "moved_parameters": moved, "figures": {}, "_residuals": (residuals, after_residuals),
                   "_panels": panels}
-        say(f"named {best['effect']}: gap {gap_before:.3f} -> {gap(after_residuals, sigma2_hat):.3f}")
+        say(f"named {best['effect']} at step {step + 1} (log BF {best['log_bayes_factor']:.1f})")
         steps.append(record)
         current = new
+    else:
+        if max_steps and usable:
+            say(stopped)
     # The noise estimate, final: second differences of the FINAL model's residuals (the best
     # model leaves the smoothest misfit, so its estimate is the least inflated); every gap of
     # the report uses it.
@@ -211,6 +232,7 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         "steps": steps,
         "candidates": rows,
         "skipped": skipped,
+        "search": {"max_steps": int(max_steps), "stopped": stopped},
         "gap_definition": GAP_DEFINITION,
         "decision_rule": DECISION_RULE,
         "thresholds": {"log_bayes_factor": threshold, "loo_se_factor": loo_se_factor},
@@ -254,6 +276,8 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     elif simulate:
         result["simulation_skipped"] = "no mesh: Mitsuba cannot render this data set's object"
     result["seconds"] = round(time.perf_counter() - started, 2)
+    for line in figures.gap_lines(result):
+        say(line)
     write_json_atomic(out_dir / "diagnosis.json", result)
     text = figures.markdown(result)
     temporary = out_dir / ".diagnosis.md.tmp"
