@@ -142,11 +142,25 @@ def light_dict(light: Light, value_format: str = "rgb") -> dict:
 
 
 def material_dict(material: dict, reference_intensity: float) -> dict:
-    """The plugin BSDF of a material ``{I0, kd, gamma}``: scale = I0 / reference intensity."""
-    from rjfit.render.plugin import PLUGIN_NAME
+    """The plugin BSDF of a material ``{I0, kd, gamma}``: scale = I0 / reference intensity.
 
-    return {"type": PLUGIN_NAME, "kd": float(material["kd"]), "gamma": float(material["gamma"]),
-            "scale": float(material["I0"]) / float(reference_intensity)}
+    Raises
+    ------
+    ValueError
+        If a value is out of the plugin's range (checked here: raised inside the plugin, the
+        error would reach the caller wrapped in Mitsuba's parser error, a ``RuntimeError``).
+    """
+    from rjfit.render.plugin import PLUGIN_NAME, _check
+
+    values = {"kd": float(material["kd"]), "gamma": float(material["gamma"]),
+              "scale": float(material["I0"]) / float(reference_intensity)}
+    try:
+        _check(values["kd"], values["gamma"], values["scale"])
+    except ValueError as error:
+        name = material.get("name")
+        raise ValueError(f"material {name!r}: {error} (I0 {material['I0']}, reference intensity "
+                         f"{reference_intensity})" if name else f"material {material}: {error}") from None
+    return {"type": PLUGIN_NAME, **values}
 
 
 def build_scene(camera: dict, resolution, mesh_parts, materials, lights=(), *, reference_intensity=1.0,
