@@ -28,7 +28,7 @@ Noise models:
     ``E1 = exp(-g' theta^2 / (2 (1 + g' sd_n^2))) / (1 + g' sd_n^2)`` and ``E2`` the same
     with ``2 g'``. The fitted lobe is taken as the blurred one, so ``g' = g / (1 - g sd_n^2)``
     and ``L = b E <l.n> (1 + g' sd_n^2)``; s0 and sd_n by maximum likelihood.
-``student-t NU`` (with ``--student-t NU ...``; about 3.5 min per NU)
+``student-t NU`` (with ``--student-t NU ...``; about 3 min per NU)
     A heavy-tailed likelihood: Student-t residuals with NU degrees of freedom and one scale
     per region, so a misfit confined to a few observations (the highlight's peak) costs
     their log, not their square. Each region's fit is the profile over the exponent grid
@@ -118,7 +118,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", nargs="?", default="../shared/data/diligent-ball")
     parser.add_argument("--student-t", type=float, nargs="*", default=[], metavar="NU",
-                        help="also the Student-t rows, one per degrees of freedom NU (about 3.5 min each)")
+                        help="also the Student-t rows, one per degrees of freedom NU (about 3 min each)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
     dataset = load_dataset(args.folder)

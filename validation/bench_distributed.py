@@ -21,9 +21,9 @@ from rjfit.sampler.state import SamplerConfig
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, default=64)
-    parser.add_argument("--chains", type=int, default=4)
-    parser.add_argument("--iterations", type=int, default=2000)
+    parser.add_argument("--size", type=int, default=64, help="image size of the synthetic sphere")
+    parser.add_argument("--chains", type=int, default=4, help="chains, run serially and on two Dask workers")
+    parser.add_argument("--iterations", type=int, default=2000, help="iterations per chain")
     args = parser.parse_args()
     observations, labels, _ = sphere_stack(args.size, n_lights=10, seed=0)
     problem = Problem.from_observations(observations)

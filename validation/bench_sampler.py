@@ -1,4 +1,4 @@
-"""Benchmark of the samplers in effective samples per second (issue 3, item 5).
+"""Benchmark of the samplers in effective samples per second (the sampler issue's speed goals).
 
 One chain per sampler, run one after the other in this process (BLAS limited to one
 thread). Prints, side by side: rjfit's default sampler with the segmentation fixed at the
@@ -70,18 +70,19 @@ def ess_figures(draws, burn):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, default=128)
-    parser.add_argument("--lights", type=int, default=10)
+    parser.add_argument("--size", type=int, default=128, help="image size of the pure-NumPy paper sphere")
+    parser.add_argument("--lights", type=int, default=10, help="number of lights")
     parser.add_argument("--iterations", type=int, default=4000, help="iterations of the default sampler")
-    parser.add_argument("--paper-iterations", type=int, default=4000)
+    parser.add_argument("--paper-iterations", type=int, default=4000,
+                        help="iterations of the paper-style sampler on the incremental likelihood")
     parser.add_argument("--segmentation-iterations", type=int, default=2000,
                         help="iterations of the default kernel with change points, births and deaths sampled "
                              "(started in the true model; ESS over its iterations in that model)")
     parser.add_argument("--full-iterations", type=int, default=400,
                         help="iterations of the paper-style sampler with a full likelihood pass per proposal")
-    parser.add_argument("--burn-in", type=float, default=0.5)
-    parser.add_argument("--dataset", default=None)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--burn-in", type=float, default=0.5, help="discarded fraction of each run")
+    parser.add_argument("--dataset", default=None, help="a data set folder instead of the pure-NumPy sphere")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the data and the chains")
     args = parser.parse_args(argv)
 
     from rjfit.sampler.likelihood import Problem

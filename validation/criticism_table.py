@@ -75,11 +75,11 @@ def fmt(value, spec):
 
 
 def main():
-    parser = argparse.ArgumentParser()
-    parser.add_argument("out", nargs="?", default="runs/criticism")
-    parser.add_argument("--only", default=None)
-    parser.add_argument("--no-ball", action="store_true")
-    parser.add_argument("--resolution", type=int, default=32)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out", nargs="?", default="runs/criticism", help="folder for the data sets and diagnoses")
+    parser.add_argument("--only", default=None, help=f"comma-separated hidden effects, of: {', '.join(KINDS)}")
+    parser.add_argument("--no-ball", action="store_true", help="leave out the measured DiLiGenT ball")
+    parser.add_argument("--resolution", type=int, default=32, help="image size of the rendered data sets")
     args = parser.parse_args()
     out = Path(args.out)
     kinds = args.only.split(",") if args.only else KINDS

@@ -10,7 +10,7 @@ the posterior sd is below 1 % of the value), R-hat and ESS.
 Data: ``--dataset DIR`` (a rendered ``paper_sphere``, read with
 ``rjfit.data.dataset.load_dataset``) or, by default, the pure-numpy synthetic sphere.
 
-    .venv/bin/python validation/paper_reproduction.py --out runs/paper_sphere --iterations 20000
+    .venv/bin/python validation/paper_reproduction.py --out runs/paper_reproduction --iterations 20000
 """
 from __future__ import annotations
 
@@ -22,16 +22,16 @@ import numpy as np
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True)
-    parser.add_argument("--dataset", default=None)
-    parser.add_argument("--size", type=int, default=256)
-    parser.add_argument("--iterations", type=int, default=20000)
-    parser.add_argument("--chains", type=int, default=4)
-    parser.add_argument("--burn-in", type=float, default=0.5)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", required=True, help="fit folder (e.g. runs/paper_reproduction)")
+    parser.add_argument("--dataset", default=None, help="a data set folder instead of the pure-NumPy sphere")
+    parser.add_argument("--size", type=int, default=256, help="image size of the pure-NumPy sphere")
+    parser.add_argument("--iterations", type=int, default=20000, help="iterations per chain")
+    parser.add_argument("--chains", type=int, default=4, help="chains")
+    parser.add_argument("--burn-in", type=float, default=0.5, help="discarded fraction")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the data and the chains")
     parser.add_argument("--processes", type=int, default=None, help="worker processes (1: chains one after another)")
-    parser.add_argument("--max-u", type=int, default=3)
-    parser.add_argument("--max-v", type=int, default=3)
+    parser.add_argument("--max-u", type=int, default=3, help="most u change-point vectors")
+    parser.add_argument("--max-v", type=int, default=3, help="most v change-point vectors")
     parser.add_argument("--start-model", default="1,1",
                         help="starting model of every chain ('random' for a random one in {0,1}x{0,1}, "
                              "'dispersed' for (0,0), (0,1), (1,0), (1,1) in turn); change points start "

@@ -212,7 +212,8 @@ def read_json(path) -> dict:
 
 
 def load_dataset(path, **options) -> Dataset:
-    """Load a data set in the rjfit layout (see the module docstring).
+    """Load a data set: the rjfit layout (see the module docstring), a mesh stack
+    (:mod:`rjfit.data.mesh_stack`) or a photometric-stereo folder (:mod:`rjfit.data.diligent`).
 
     Raises
     ------
