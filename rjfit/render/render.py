@@ -33,16 +33,21 @@ def load_scene_definition(scene) -> dict:
     ------
     FileNotFoundError
         If neither a built-in scene nor a file of that name exists.
+    SceneError
+        If the definition has a missing or out-of-range entry (a ``DatasetError`` naming the
+        file, the entry and its allowed values; see :mod:`rjfit.render.scene_check`).
     """
+    from rjfit.render.scene_check import check_scene_definition
+
     if isinstance(scene, dict):
-        return json.loads(json.dumps(scene))
+        return check_scene_definition(json.loads(json.dumps(scene)))
     candidate = Path(scene)
     if not candidate.is_file():
         candidate = SCENES_DIR / f"{scene}.json"
     if not candidate.is_file():
         raise FileNotFoundError(f"scene {scene!r}: no such file and no built-in scene of that name "
                                 f"(built-in: {', '.join(available_scenes())})")
-    return read_json(candidate)
+    return check_scene_definition(read_json(candidate), candidate)
 
 
 def write_mesh_parts(geometry: dict, mesh_dir: Path) -> list[dict]:
@@ -116,7 +121,8 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
         R, G, B, so each channel and their mean have exactly this variance).
     variant : str
         Mitsuba variant; "auto" takes cuda_ad_rgb where a GPU answers, else llvm_ad_rgb
-        (scalar variants are for benchmarks only). The one that ran is recorded.
+        (scalar_rgb traces one pixel at a time: slow, for checks and benchmarks; spectral and
+        polarized variants are refused). The one that ran is recorded.
     bsdf_override, extra, light_format, post_process, hidden_effects
         For data sets with a hidden effect: replace the plugin by other BSDFs, add scene
         entries (e.g. an environment emitter), pass light values as spectra, or transform
