@@ -79,6 +79,12 @@ def test_fit_names_what_is_wrong_before_it_runs(paper_sphere_small, tmp_path):
     assert not any((tmp_path / name).exists() for name in ("f1", "f2"))
 
 
+def test_diagnose_names_a_folder_that_is_not_a_fit(paper_sphere_small, tmp_path):
+    result = CliRunner().invoke(main, ["diagnose", str(paper_sphere_small)])
+    assert result.exit_code == 1 and "not a fit folder (no summary.json)" in result.output
+    assert "Traceback" not in result.output
+
+
 def test_run_stops_after_a_failed_cross_check(tmp_path):
     """The dented plaster's interreflections are missing from the closed form: the gate fails,
     and the main job must stop there rather than fit data it cannot trust."""
@@ -110,7 +116,9 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
                      "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):
         assert (tmp_path / "run" / produced).is_file(), produced
     comparison = json.loads((tmp_path / "run" / "fit" / "comparison" / "comparison.json").read_text())
-    assert comparison["fit_id"] == summary["fit_id"]
+    diagnosis = json.loads((tmp_path / "run" / "fit" / "diagnosis" / "diagnosis.json").read_text())
+    assert comparison["fit_id"] == diagnosis["fit_id"] == summary["fit_id"]
+    assert diagnosis["channel"] == summary["channel"] == "mean"
 
     # a new fit into the same folder: the old comparison no longer describes it, and the
     # report says so instead of showing it as this fit's
@@ -122,4 +130,5 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     result = CliRunner().invoke(main, ["report", str(fit_dir)])
     assert result.exit_code == 0, result.output
     html = (fit_dir / "report.html").read_text()
-    assert "The comparison in" in html and "was made from another fit" in html and "<th>method</th>" not in html
+    assert "The comparison in" in html and "The diagnosis in" in html and "<th>method</th>" not in html
+    assert html.count("was made from another fit") == 2

@@ -6,24 +6,35 @@ from pathlib import Path
 import click
 
 
+def _effect_names():
+    from rjfit.diagnose.effects import ALL_EFFECTS
+
+    return [getattr(effect, "name", effect) for effect in ALL_EFFECTS]
+
+
 @click.command("diagnose")
 @click.argument("fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for diagnosis.json, diagnosis.md and the figures.")
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for diagnosis.json, diagnosis.md and the figures (default: FIT_DIR/diagnosis, where "
+                   "`rjfit report` looks).")
 @click.option("--max-steps", type=click.IntRange(min=0), default=3, show_default=True,
               help="Most effects to add; 0 measures the plain model's gap and tries no candidate.")
-@click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--effects", default=None, help="Comma-separated candidate names (default: all).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the refits and the simulations.")
+@click.option("--effects", default=None,
+              help="Comma-separated candidate names (default: all): " + ", ".join(_effect_names()) + ".")
+@click.option("--dataset", "dataset_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="The fitted data set, if it has moved since the fit (default: the one summary.json names).")
 @click.option("--no-simulate", is_flag=True, help="Skip the Mitsuba posterior predictive rendering.")
-def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, no_simulate):
+def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulate):
     """Criticise a fit: find where simulation and data disagree, name the missing effect
     (only when the evidence is decisive), add it, refit and show the gap shrink."""
     from rjfit.diagnose.effects import ALL_EFFECTS
     from rjfit.diagnose.report import gap_text, named_text
     from rjfit.diagnose.workflow import diagnose_fit
 
+    out_dir = out_dir or fit_dir / "diagnosis"
     candidates = ALL_EFFECTS if not effects else [name.strip() for name in effects.split(",") if name.strip()]
-    result = diagnose_fit(fit_dir, out_dir, candidates=candidates, seed=seed, max_steps=max_steps,
+    result = diagnose_fit(fit_dir, out_dir, dataset=dataset_dir, candidates=candidates, seed=seed, max_steps=max_steps,
                           simulate=False if no_simulate else None, progress=True)
     click.echo(f"named effects: {named_text(result)}")
     if result["named_effects"] and result["search"]["stopped"].startswith("stopped after"):

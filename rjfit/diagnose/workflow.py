@@ -65,7 +65,7 @@ def _moved(before, after, ctx):
 
 def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_steps=3,
              threshold=LOG_BF_THRESHOLD, loo_se_factor=LOO_SE_FACTOR, simulate=None, n_sim_draws=3,
-             channel="mean", make_figures=True, progress=False):
+             channel="mean", make_figures=True, progress=False, provenance=None):
     """Run the criticism workflow on a data set with a FIXED segmentation.
 
     Parameters
@@ -79,6 +79,9 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     simulate : bool or None
         Posterior predictive rendering with Mitsuba of the plain and final models (default:
         when the data set has a mesh).
+    provenance : dict, optional
+        Entries recorded in ``diagnosis.json`` as they are (``fit_dir``, ``fit_id`` of the
+        fit diagnosed), so a report can tell a diagnosis of another fit.
 
     Returns
     -------
@@ -226,7 +229,9 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
                     [(f"{name}\nscore {score:.2f}", image) for score, name, image in maps],
                     f"step {step + 1}: residual and what each missing effect would leave (fitted signature)"))
     result = {
+        **(provenance or {}),
         "dataset": str(getattr(ctx.dataset, "path", dataset)),
+        "channel": channel,
         "signature_figures": signature_figures,
         "named_effects": [s["effect"] for s in steps],
         "steps": steps,
@@ -302,21 +307,36 @@ def _per_image_figure(path, stack, title):
     return figures.save_figure(figure, path)
 
 
-def diagnose_fit(fit_dir, out_dir, **options):
-    """``diagnose`` on a fit folder: its ``summary.json`` names the data set, ``map_labels.exr``
-    (or ``labels.exr``, as ``rjfit.fit`` writes it; channel ``labels``) holds the MAP segmentation."""
-    import json
+def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
+    """``diagnose`` on a fit folder: its ``summary.json`` names the data set (or ``dataset``
+    gives it, when the folder has moved) and the channel fitted, ``map_labels.exr`` (or
+    ``labels.exr``, as ``rjfit.fit`` writes it; channel ``labels``) holds the MAP segmentation.
 
+    Raises
+    ------
+    FileNotFoundError
+        If ``fit_dir`` is not a fit folder, or the data set it names is not there.
+    """
+    from rjfit.data.dataset import read_json
     from rjfit.data.exr import read_exr
 
     fit_dir = Path(fit_dir)
-    summary = json.loads((fit_dir / "summary.json").read_text())
-    dataset = summary.get("dataset")
-    if not dataset:
-        raise ValueError(f"{fit_dir / 'summary.json'}: no 'dataset' entry")
-    dataset = Path(dataset)
-    if not dataset.is_absolute() and not dataset.exists():
-        dataset = fit_dir / dataset
+    if not (fit_dir / "summary.json").is_file():
+        raise FileNotFoundError(f"{fit_dir}: not a fit folder (no summary.json); point diagnose at the folder "
+                                f"that `rjfit fit DATASET --out FOLDER` wrote")
+    summary = read_json(fit_dir / "summary.json")
+    if dataset is None:
+        named = summary.get("dataset")
+        if not named:
+            raise ValueError(f"{fit_dir / 'summary.json'}: no 'dataset' entry; pass the data set (--dataset DIR)")
+        dataset = Path(named)
+        if not dataset.is_absolute() and not dataset.exists():
+            dataset = fit_dir / dataset
+        if not dataset.exists():
+            raise FileNotFoundError(f"{fit_dir}: the data set this fit names, {named}, is not there (moved?); "
+                                    f"pass its new place with --dataset DIR")
+    options.setdefault("channel", summary.get("channel", "mean"))     # the channel the fit used
+    options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
     candidates = [fit_dir / name for name in ("map_labels.exr", "labels.exr")]
     found = [path for path in candidates if path.is_file()]
     if not found:
