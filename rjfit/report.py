@@ -137,7 +137,10 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
         raise FileNotFoundError(f"{fit_dir}: no summary.json; run `rjfit fit DATASET --out {fit_dir}` first")
     out_path = Path(out_path) if out_path else fit_dir / "report.html"
     dataset_dir = Path(summary["dataset"]) if summary.get("dataset") else None
-    parts = [f"<h1>rjfit report: {html.escape(dataset_dir.name if dataset_dir else fit_dir.name)}</h1>",
+    # a rendered data set's folder is often just "dataset": its description has the scene's name
+    described = _load_json(dataset_dir / "dataset.json") if dataset_dir else None
+    title = (described or {}).get("name") or (dataset_dir.name if dataset_dir else fit_dir.name)
+    parts = [f"<h1>rjfit report: {html.escape(title)}</h1>",
              f"<p>Fit folder <code>{html.escape(str(fit_dir.resolve()))}</code>; data set "
              f"<code>{html.escape(str(dataset_dir))}</code>.</p>"]
 
