@@ -260,6 +260,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     # Every result goes into a staging folder first and is published together (summary.json
     # last), so an interrupted run leaves the previous results whole or none: never labels of
     # one run beside the summary of another.
+    for leftover in out_dir.glob(".staging.*"):      # of a run killed while it wrote its results
+        shutil.rmtree(leftover, ignore_errors=True)
     staging = Path(tempfile.mkdtemp(prefix=".staging.", dir=out_dir))
     try:
         write_exr(staging / "labels.exr", {"labels": labels.astype(np.float32)})

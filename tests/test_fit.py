@@ -82,6 +82,7 @@ def test_an_interrupted_fit_leaves_the_previous_results_whole(tmp_path):
         fit(obs, tmp_path, seed=2, before_publish=interrupt, **options)
     after = {path.relative_to(tmp_path): path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
     assert after == before
+    (tmp_path / ".staging.killed" / "figures").mkdir(parents=True)     # what SIGKILL would leave
     # a finished second fit replaces every result, and drops the report of the first
     second = fit(obs, tmp_path, seed=2, **options)
     assert json.loads((tmp_path / "summary.json").read_text())["seed"] == 2
