@@ -34,7 +34,7 @@ def model_posterior(records, burn_in: int) -> dict:
     """Posterior probability of every visited model ``"(n_u,n_v)"`` (pooled over chains)."""
     pairs = np.concatenate([np.stack([r.n_u[burn_in:], r.n_v[burn_in:]], axis=1) for r in records])
     if pairs.size == 0:
-        raise ValueError("no draws after burn-in: lower burn_in or run more iterations")
+        raise ValueError("no draws after burn-in: lower the burn-in (--burn-in) or run more iterations (--iterations)")
     models, counts = np.unique(pairs, axis=0, return_counts=True)
     order = np.argsort(-counts, kind="stable")
     total = counts.sum()
