@@ -132,3 +132,36 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     html = (fit_dir / "report.html").read_text()
     assert "The comparison in" in html and "The diagnosis in" in html and "<th>method</th>" not in html
     assert html.count("was made from another fit") == 2
+
+
+def test_a_fit_killed_by_sigkill_resumes_to_the_uninterrupted_results(paper_sphere_small, tmp_path):
+    """`rjfit fit` killed (SIGKILL, the whole process group) once a checkpoint exists, then run
+    again with the same command, ends with the summary of a run never interrupted."""
+    import os
+    import shutil
+    import signal
+    import time
+
+    dataset = tmp_path / "dataset"
+    shutil.copytree(paper_sphere_small, dataset)
+    assert CliRunner().invoke(main, ["validate", str(dataset)]).exit_code == 0
+
+    def command(out):
+        return [sys.executable, "-m", "rjfit", "fit", str(dataset), "--out", str(out), "--chains", "2",
+                "--iterations", "2000", "--checkpoint-every", "50", "--seed", "4"]
+
+    subprocess.run(command(tmp_path / "whole"), check=True, capture_output=True)
+    killed = subprocess.Popen(command(tmp_path / "killed"), start_new_session=True, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    checkpoint = tmp_path / "killed" / "checkpoints" / "chain_0.pkl"
+    deadline = time.monotonic() + 300
+    while not checkpoint.exists() and killed.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    os.killpg(killed.pid, signal.SIGKILL)
+    killed.wait()
+    assert checkpoint.exists() and not (tmp_path / "killed" / "summary.json").exists(), "not killed mid-run"
+    subprocess.run(command(tmp_path / "killed"), check=True, capture_output=True)
+    whole, resumed = (json.loads((tmp_path / name / "summary.json").read_text()) for name in ("whole", "killed"))
+    timings = {"seconds", "chain_seconds"}
+    assert {key: value for key, value in resumed.items() if key not in timings} == \
+        {key: value for key, value in whole.items() if key not in timings}
