@@ -46,6 +46,14 @@ def test_fit_refuses_an_unvalidated_data_set_with_one_clear_line(paper_sphere_sm
     assert "has not been cross-checked" in result.output and "--allow-unvalidated" in result.output
     assert "Traceback" not in result.output
     assert not (tmp_path / "fit" / "summary.json").exists()
+    # forced, the fit runs, and its summary, its warnings and the command's output say so
+    result = CliRunner().invoke(main, ["fit", str(dataset), "--out", str(tmp_path / "fit"), "--allow-unvalidated",
+                                       "--iterations", "20", "--chains", "1"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((tmp_path / "fit" / "summary.json").read_text())
+    assert summary["validation"]["passed"] is None
+    assert summary["warnings"][0].startswith("the forward model was not cross-checked")
+    assert f"WARNING: {summary['warnings'][0]}" in result.output
 
 
 def test_bad_input_is_one_line_naming_the_file(tmp_path):
