@@ -25,9 +25,12 @@ import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation
 
-__all__ = ["per_pixel_residuals", "suggest_likelihood_power"]
+__all__ = ["per_pixel_residuals", "suggest_likelihood_power", "misfit_warning", "MISFIT_ZETA"]
 
 GAMMA_GRID = np.geomspace(0.5, 500.0, 16)
+# Below this suggested zeta (rho above 0.17) fewer than half of the observations count as
+# independent: the BRDF family misses a smooth part of the data, which can split one material.
+MISFIT_ZETA = 0.5
 
 
 def per_pixel_residuals(observations, gammas=GAMMA_GRID):
@@ -117,3 +120,20 @@ def suggest_likelihood_power(observations, noise_scale=None) -> dict:
     rho = max(0.0, float(np.nanmean(rhos)))
     zeta = max(((1.0 - rho) / (1.0 + rho)) ** 2, 1.0 / obs.n_obs)
     return {"rho_rows": rhos[0], "rho_cols": rhos[1], "rho": rho, "pairs": pairs, "likelihood_power": zeta}
+
+
+def misfit_warning(suggestion, likelihood_power: float) -> str | None:
+    """A warning for a fit's summary when per-pixel residuals are strongly shared by
+    neighbouring pixels (suggested zeta < :data:`MISFIT_ZETA`), else None.
+
+    Such a misfit means the BRDF family does not follow the data's reflectance; regions can
+    then absorb the misfit instead of separating materials, even in a coarsened fit (the
+    measured DiLiGenT ball: rho 0.41).
+    """
+    if suggestion is None or suggestion["likelihood_power"] >= MISFIT_ZETA:
+        return None
+    return (f"the per-pixel fits' residuals are shared by neighbouring pixels (lag-1 correlation rho "
+            f"{suggestion['rho']:.2f}, as if only {suggestion['likelihood_power']:.0%} of the observations were "
+            f"independent): the Lambert + Blinn-Phong model misses part of this data's reflectance, and regions "
+            f"may split one material to absorb the misfit (this fit's likelihood power {likelihood_power:.3g}); "
+            f"run `rjfit diagnose` before reading regions as materials")

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.dataset import write_json_atomic
+from rjfit.coarsen import misfit_warning, suggest_likelihood_power
 from rjfit.noise import DEFAULT_FLOOR, NOISE_MODELS, describe_noise, noise_scale
 from rjfit.posterior import summary as post
 from rjfit.sampler.changepoints import model_number
@@ -180,11 +181,15 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     scale = noise_scale(observations, noise, noise_floor)
-    power_suggestion = None
-    if likelihood_power == "auto":
-        from rjfit.coarsen import suggest_likelihood_power
-
+    # measured always (a fraction of a second): a misfit shared by neighbouring pixels is
+    # worth a warning whatever power the fit uses
+    try:
         power_suggestion = suggest_likelihood_power(observations, noise_scale=scale)
+    except ValueError:
+        if likelihood_power == "auto":
+            raise
+        power_suggestion = None      # too few adjacent pixels to measure it
+    if likelihood_power == "auto":
         likelihood_power = power_suggestion["likelihood_power"]
     problem = Problem.from_observations(observations, likelihood_power=float(likelihood_power), noise_scale=scale)
     noise_record = describe_noise(noise, noise_floor, scale)
@@ -242,6 +247,9 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "chain_model_posterior": [post.model_posterior([r], burn) for r in records],
     }
     summary["warnings"] = post.convergence_warnings(diag, summary["chain_model_posterior"], n_chains)
+    misfit = misfit_warning(power_suggestion, float(likelihood_power))
+    if misfit:
+        summary["warnings"].append(misfit)
     if truth_labels is not None:
         acc = post.label_accuracy(labels, truth_labels)
         summary["label_accuracy"] = acc["accuracy"]

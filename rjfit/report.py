@@ -168,8 +168,8 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
     warnings = summary.get("warnings") or []
     if warnings:
         items = "".join(f"<li>{html.escape(w)}</li>" for w in warnings)
-        parts.append(f'<div class="fail"><p>Convergence warnings: do not trust the summaries below yet.</p>'
-                     f"<ul>{items}</ul></div>")
+        parts.append(f'<div class="fail"><p>Warnings (convergence and model misfit): do not trust the summaries '
+                     f"below until they are resolved.</p><ul>{items}</ul></div>")
     elif "warnings" in summary:
         parts.append('<p><span class="pass">Convergence checks passed</span> (split R-hat &le; 1.01, bulk and tail '
                      "ESS &ge; 100 per chain, the chains' model frequencies within 0.5 of each other in total variation).</p>")

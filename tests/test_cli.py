@@ -118,7 +118,7 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     import html as html_module
 
     assert all(html_module.escape(w) in html for w in summary["warnings"])
-    assert ("Convergence warnings" in html) == bool(summary["warnings"])
+    assert ("Warnings (convergence and model misfit)" in html) == bool(summary["warnings"])
     assert ("Convergence checks passed" in html) != bool(summary["warnings"])
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
                      "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):

@@ -4,7 +4,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rjfit.coarsen import per_pixel_residuals, suggest_likelihood_power
+from rjfit.coarsen import misfit_warning, per_pixel_residuals, suggest_likelihood_power
 from rjfit.data.synthetic import sphere_stack
 
 
@@ -21,6 +21,7 @@ def test_white_noise_keeps_the_plain_likelihood(stack):
     assert suggestion["pairs"] > 20000
     assert abs(suggestion["rho"]) < 0.026
     assert suggestion["likelihood_power"] > 0.9
+    assert misfit_warning(suggestion, 1.0) is None
 
 
 def test_a_misfit_shared_by_neighbours_lowers_the_power(stack):
@@ -37,6 +38,23 @@ def test_a_misfit_shared_by_neighbours_lowers_the_power(stack):
     suggestion = suggest_likelihood_power(shaded)
     assert suggestion["rho"] > 0.5
     assert suggestion["likelihood_power"] < 0.15
+    warning = misfit_warning(suggestion, 1.0)
+    assert f"rho {suggestion['rho']:.2f}" in warning and "rjfit diagnose" in warning
+
+
+def test_a_fit_of_misfit_data_warns_that_regions_may_split_one_material(stack, tmp_path):
+    """Through fit(): the warning reaches summary.json whatever likelihood power the fit uses."""
+    from rjfit.fit import fit
+
+    height, width = stack.image_shape
+    rows, cols = np.asarray(stack.pixel) // width, np.asarray(stack.pixel) % width
+    light = np.asarray(stack.light)
+    field = 1.0 + 0.2 * np.sin(rows / 6.0 + 1.3 * light) * np.cos(cols / 7.0 - 0.7 * light)
+    options = dict(n_chains=1, iterations=20, max_u=1, max_v=1, processes=1, progress=False, figures=False)
+    misfit = fit(dataclasses.replace(stack, y=np.asarray(stack.y) * field), tmp_path / "misfit", **options)
+    assert any("may split one material" in warning for warning in misfit["warnings"])
+    clean = fit(stack, tmp_path / "clean", **options)
+    assert not any("may split one material" in warning for warning in clean["warnings"])
 
 
 def test_per_pixel_residuals_vanish_for_an_exact_model(stack):
