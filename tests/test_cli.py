@@ -168,7 +168,8 @@ def test_a_fit_killed_by_sigkill_resumes_to_the_uninterrupted_results(paper_sphe
     os.killpg(killed.pid, signal.SIGKILL)
     killed.wait()
     assert checkpoint.exists() and not (tmp_path / "killed" / "summary.json").exists(), "not killed mid-run"
-    subprocess.run(command(tmp_path / "killed"), check=True, capture_output=True)
+    rerun = subprocess.run(command(tmp_path / "killed"), check=True, capture_output=True, text=True)
+    assert "chain 0: resumed from its checkpoint at iteration" in rerun.stderr, "restarted instead of resuming"
     whole, resumed = (json.loads((tmp_path / name / "summary.json").read_text()) for name in ("whole", "killed"))
     timings = {"seconds", "chain_seconds"}
     assert {key: value for key, value in resumed.items() if key not in timings} == \

@@ -39,12 +39,33 @@ def uninterrupted():
     return run_chain(_spec())
 
 
+MARKER = 12345.678
+
+
+def _mark(path):
+    """Put a marker into the checkpoint's record of iteration 0: a resume carries it into its
+    result, a restart (which would give the same samples, the run being seeded) does not."""
+    with open(path, "rb") as handle:
+        payload = pickle.load(handle)
+    payload["recorder"].log_lik[0] = MARKER
+    with open(path, "wb") as handle:
+        pickle.dump(payload, handle)
+    return payload["t"]
+
+
+def _assert_resumed(uninterrupted, resumed):
+    assert resumed.log_lik[0] == MARKER, "the chain restarted instead of resuming its checkpoint"
+    resumed.log_lik[0] = uninterrupted.log_lik[0]
+    _assert_same(uninterrupted, resumed)
+
+
 def test_resume_after_stop_yields_identical_samples(tmp_path, uninterrupted):
     path = str(tmp_path / "chain.pkl")
     partial = run_chain(_spec(path, stop_after=137))     # "crashes" after 137 iterations
     assert partial.iterations_done == 137
+    assert _mark(path) == 125
     resumed = run_chain(_spec(path))                      # resumes from the checkpoint at 125
-    _assert_same(uninterrupted, resumed)
+    _assert_resumed(uninterrupted, resumed)
 
 
 def test_resume_after_sigkill_yields_identical_samples(tmp_path, uninterrupted):
@@ -56,22 +77,20 @@ def test_resume_after_sigkill_yields_identical_samples(tmp_path, uninterrupted):
     proc = subprocess.Popen([sys.executable, "-c", code], cwd=os.getcwd())
     try:
         deadline = time.time() + 120
+        # kill it as soon as its first checkpoint (iteration 25 of 400) is there: mid-run
         while not path.exists() and time.time() < deadline and proc.poll() is None:
-            time.sleep(0.05)
-        time.sleep(0.3)      # let it run past the first checkpoint, then kill it mid-run
-        if proc.poll() is not None:
-            pytest.skip("the chain finished before it could be killed (machine too fast for this test)")
+            time.sleep(0.005)
+        assert proc.poll() is None, "the chain ended before its first checkpoint was seen"
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == -signal.SIGKILL
-    with open(path, "rb") as handle:
-        done_at_kill = pickle.load(handle)["t"]
+    done_at_kill = _mark(path)
     assert 0 < done_at_kill < ITERATIONS
     resumed = run_chain(_spec(str(path)))
-    _assert_same(uninterrupted, resumed)
+    _assert_resumed(uninterrupted, resumed)
 
 
 def test_seeded_runs_are_reproducible_and_chains_differ(uninterrupted):

@@ -15,6 +15,7 @@ import dataclasses
 import hashlib
 import os
 import pickle
+import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -278,6 +279,9 @@ def run_chain(spec: ChainSpec) -> ChainRecord:
             rng.bit_generator.state = payload["rng_state"]
             recorder = payload["recorder"]
             start_t = payload["t"]
+            if spec.progress:     # say so: a resumed fit and a fresh one look alike otherwise
+                print(f"chain {spec.chain}: resumed from its checkpoint at iteration {start_t} of {spec.iterations}",
+                      file=sys.stderr, flush=True)
         else:
             state = initial_state(problem, prior, config, rng, **(spec.start or {}))
         bar = None
