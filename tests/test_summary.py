@@ -1,5 +1,7 @@
-"""Convergence warnings of a fit (rjfit.posterior.summary.convergence_warnings) on chains with known properties."""
+"""Summaries of a fit on inputs with known answers: convergence warnings (chains with known
+properties), the truth flags of a labelling, label accuracy after matching, region quantiles."""
 import numpy as np
+import pytest
 
 from rjfit.posterior.summary import ESS_PER_CHAIN_MIN, RHAT_MAX, convergence_warnings, diagnostics
 
@@ -62,3 +64,80 @@ def test_one_chain_is_flagged():
     diag = diagnostics(_iid_chains(np.random.default_rng(4), n_chains=1))
     warnings = convergence_warnings(diag, AGREE[:1], 1)
     assert len(warnings) == 1 and warnings[0].startswith("one chain only")
+
+
+def _recorder_on_a_small_sphere():
+    from rjfit.data.synthetic import sphere_stack
+    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.priors import make_prior
+    from rjfit.sampler.runner import ChainSpec, _Recorder
+    from rjfit.sampler.state import SamplerConfig
+
+    obs, truth, _ = sphere_stack(24, n_lights=4, seed=1)
+    problem = Problem.from_observations(obs)
+    spec = ChainSpec(problem=problem, prior=make_prior("default"), config=SamplerConfig(max_u=2, max_v=2), seed=0,
+                     chain=0, n_chains=1, iterations=10, cp_thin=1, truth_labels=truth)
+    return _Recorder(spec), problem, truth
+
+
+def test_truth_flags_of_labellings_with_known_answers():
+    """_Recorder.exact: exact partition, 'true regions' (one region per true region and
+    >= 99 % agreement after matching) and the count of regions holding object pixels."""
+    from rjfit.sampler.runner import TRUE_REGIONS_AGREEMENT
+
+    recorder, problem, truth = _recorder_on_a_small_sphere()
+    observed = np.zeros(truth.shape, bool)
+    observed[problem.row, problem.col] = True
+    object_pixels = np.argwhere(observed & (truth >= 0))
+
+    def flags(pixel_labels):
+        return recorder.exact(pixel_labels[problem.row, problem.col].astype(np.int8))
+
+    renamed = np.where(truth >= 0, (truth + 2) % 4, 0)            # the truth under other region names
+    assert flags(renamed) == (1, 1, 4)
+
+    def with_wrong(fraction):
+        labels = renamed.copy()
+        count = int(fraction * len(object_pixels))
+        for row, col in object_pixels[:count]:
+            labels[row, col] = (labels[row, col] + 1) % 4
+        return labels, count
+
+    few, count = with_wrong(0.005)                                 # 99.5 % agree: not exact, true regions
+    assert count >= 1 and flags(few) == (0, 1, 4)
+    many, _ = with_wrong(2 * (1 - TRUE_REGIONS_AGREEMENT))         # 98 % agree: neither
+    assert flags(many) == (0, 0, 4)
+    extra = renamed.copy()
+    row, col = object_pixels[0]
+    extra[row, col] = 4                                            # a fifth region with one object pixel
+    assert flags(extra) == (0, 0, 5)
+
+
+def test_label_accuracy_matches_regions_before_counting():
+    from rjfit.posterior.summary import label_accuracy
+
+    truth = np.array([[0, 0, 1, 1], [2, 2, 3, 3], [-1, -1, -1, -1]])
+    renamed = np.where(truth >= 0, 3 - truth, 7)                   # off-object labels do not count
+    result = label_accuracy(renamed, truth)
+    assert result["accuracy"] == 1.0 and result["matching"] == {3: 0, 2: 1, 1: 2, 0: 3}
+    one_wrong = renamed.copy()
+    one_wrong[0, 0] = 0
+    assert label_accuracy(one_wrong, truth)["accuracy"] == 7 / 8
+
+
+def test_region_summaries_are_the_pooled_draws_quantiles():
+    from rjfit.posterior.summary import region_summaries
+
+    rng = np.random.default_rng(3)
+    chains = [rng.normal(size=(500, 2, 4)) + np.arange(4) for _ in range(3)]
+    labels = np.array([[0, 0, 1], [1, 1, -1]])
+    summaries = region_summaries(chains, labels)
+    pooled = np.concatenate(chains)
+    assert [s["pixels"] for s in summaries] == [2, 3]
+    for r, summary in enumerate(summaries):
+        for k, name in enumerate(("I0", "kd", "gamma", "sigma2")):
+            values = pooled[:, r, k]
+            assert summary[name]["mean"] == pytest.approx(values.mean(), rel=1e-12)
+            assert summary[name]["sd"] == pytest.approx(values.std(ddof=1), rel=1e-6)
+            assert summary[name]["q2.5"] == pytest.approx(np.quantile(values, 0.025), rel=1e-12)
+            assert summary[name]["q97.5"] == pytest.approx(np.quantile(values, 0.975), rel=1e-12)
