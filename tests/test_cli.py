@@ -3,6 +3,8 @@ import json
 import subprocess
 import sys
 
+import numpy as np
+
 from click.testing import CliRunner
 
 from rjfit.cli import main
@@ -123,6 +125,16 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
                      "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):
         assert (tmp_path / "run" / produced).is_file(), produced
+    # the parameter maps hold each region's posterior means and sds where its label is
+    # (their residual map is checked against known parameters in test_fit.py)
+    from rjfit.data.exr import read_exr
+
+    maps = read_exr(tmp_path / "run" / "fit" / "maps.exr")
+    for index, region in enumerate(summary["regions"]):
+        where = maps["label"] == region.get("region", index)
+        assert where.any()
+        np.testing.assert_allclose(maps["I0"][where], region["I0"]["mean"], rtol=1e-6)
+        np.testing.assert_allclose(maps["kd_sd"][where], region["kd"]["sd"], rtol=1e-6)
     comparison = json.loads((tmp_path / "run" / "fit" / "comparison" / "comparison.json").read_text())
     diagnosis = json.loads((tmp_path / "run" / "fit" / "diagnosis" / "diagnosis.json").read_text())
     assert comparison["fit_id"] == diagnosis["fit_id"] == summary["fit_id"]

@@ -112,3 +112,31 @@ def test_fit_records_the_noise_model_and_rejects_an_unknown_one(tmp_path):
     assert plain["noise"] == {"model": "constant", "formula": "var_i = sigma_r^2", "floor": None, "reference": None}
     with pytest.raises(ValueError, match="unknown noise model"):
         fit(obs, tmp_path / "bad", n_chains=1, iterations=30, processes=1, progress=False, noise="poisson")
+
+
+def test_parameter_maps_at_the_true_parameters(tmp_path):
+    """write_parameter_maps with the truth as 'posterior means': each pixel carries its
+    region's values, and the standardised residuals are the noise itself, so the squared
+    per-pixel RMS weighted by the pixel's observation count, chi2_N / N over all N
+    observations, is 1 within its Monte Carlo error (sd sqrt(2 / N); tolerance 5 sd)."""
+    from rjfit.data.exr import read_exr, write_exr
+    from rjfit.fit_dataset import write_parameter_maps
+
+    obs, labels, truth = sphere_stack(24, n_lights=8, seed=4)
+    write_exr(tmp_path / "labels.exr", {"labels": labels.astype(np.float32)})
+    names = ("I0", "kd", "gamma", "sigma2")
+    summary = {"regions": [{"region": r, **{name: {"mean": params[name], "sd": 0.01 * (r + 1)} for name in names}}
+                           for r, params in enumerate(truth)]}
+    assert write_parameter_maps(obs, summary, tmp_path) == "maps.exr"
+    maps = read_exr(tmp_path / "maps.exr")
+    for r, params in enumerate(truth):
+        where = labels == r
+        np.testing.assert_array_equal(maps["label"][where], r)
+        for name in names:
+            np.testing.assert_allclose(maps[name][where], params[name], rtol=1e-6)
+            np.testing.assert_allclose(maps[f"{name}_sd"][where], 0.01 * (r + 1), rtol=1e-6)
+    assert np.all(np.isnan(maps["I0"][labels < 0]))
+    counts = np.bincount(obs.pixel, minlength=labels.size).reshape(labels.shape)
+    np.testing.assert_array_equal(maps["valid_images"], counts)
+    mean_square = np.nansum(maps["residual_rms"] ** 2 * counts) / counts.sum()
+    assert abs(mean_square - 1.0) < 5 * np.sqrt(2.0 / counts.sum())

@@ -69,8 +69,14 @@ def test_rendering_is_seeded_and_bitwise_reproducible(tmp_path, paper_sphere_sma
 
 def test_noise_free_render_matches_closed_form(tmp_path):
     path = render_dataset("paper_sphere", tmp_path / "clean", resolution=32, noise_variance=0.0)
-    observations, mu = _truth_mu(load_dataset(path))
-    assert np.median(np.abs(observations.y - mu) / mu) < 1e-5
+    dataset = load_dataset(path)
+    observations, mu = _truth_mu(dataset)
+    relative = np.abs(observations.y - mu) / mu
+    # per true region, at the gate's own thresholds (median 1e-4, p99 1e-3): a quadrant
+    # rendered with another material cannot hide behind a good median over all four
+    region = dataset.truth_labels.ravel()[observations.pixel]
+    for r in range(4):
+        assert np.median(relative[region == r]) < 1e-5 and np.quantile(relative[region == r], 0.99) < 1e-3, r
 
 
 def test_concave_object_has_cast_shadows_and_two_materials(dented_plaster_small):
