@@ -45,7 +45,7 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
         If the data set has not passed the gate and ``allow_unvalidated`` is False.
     """
     from rjfit.fit import fit
-    from rjfit.validate import require_validated
+    from rjfit.validate import dataset_fingerprint, require_validated
 
     dataset_dir = Path(dataset_dir)
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
@@ -66,6 +66,9 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
     def describe_data_set(summary, staging):
         summary["maps"] = write_parameter_maps(observations, summary, staging)
         summary["dataset"] = str(dataset_dir.resolve())
+        summary["dataset_sha256"] = dataset_fingerprint(dataset_dir)    # what later commands check it against
+        if dataset.meta.get("crop"):
+            summary["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
         summary["channel"] = channel
         summary["validation"] = validation_record(validation, validation_file)
         if not summary["validation"].get("passed"):

@@ -149,6 +149,13 @@ def test_srgb_encoded_eight_bit_is_decoded(tmp_path):
     (folder / "rjfit.json").write_text('{"encoding": "sRGB"}')
     with raises(DatasetError, folder / "rjfit.json", "keys among saturation, encoded, normals, crop; unknown: encoding"):
         load_dataset(folder)
+    for text, message in (('{"crop": -40}', "crop is -40; it must be true, false or a margin in pixels >= 0"),
+                          ('{"crop": "yes"}', "crop is 'yes'"), ('{"saturation": "250"}', "saturation is '250'"),
+                          ('{"normals": 5}', "normals is 5; it must be a file name"),
+                          ('{"encoded": "gamma"}', "encoded is 'gamma'")):
+        (folder / "rjfit.json").write_text(text)
+        with raises(DatasetError, folder / "rjfit.json", message):
+            load_dataset(folder)
 
 
 # -- bad input ------------------------------------------------------------------------------------

@@ -104,7 +104,7 @@ def test_run_stops_after_a_failed_cross_check(tmp_path):
     assert not (tmp_path / "run" / "fit").exists()
 
 
-def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
+def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path, paper_sphere_small):
     result = CliRunner().invoke(main, ["run", "--out", str(tmp_path / "run"), "--resolution", "32",
                                        "--iterations", "200", "--chains", "2"])
     assert result.exit_code == 0, result.output
@@ -139,6 +139,11 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path):
     diagnosis = json.loads((tmp_path / "run" / "fit" / "diagnosis" / "diagnosis.json").read_text())
     assert comparison["fit_id"] == diagnosis["fit_id"] == summary["fit_id"]
     assert diagnosis["channel"] == summary["channel"] == "mean"
+
+    # diagnose refuses data other than those fitted (the summary records their fingerprint)
+    result = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run" / "fit"), "--dataset", str(paper_sphere_small),
+                                       "--out", str(tmp_path / "other_diagnosis")])
+    assert result.exit_code == 1 and "not the data this fit was made from" in result.output
 
     # a new fit into the same folder: the old comparison no longer describes it, and the
     # report says so instead of showing it as this fit's

@@ -145,3 +145,15 @@ def test_parameter_maps_at_the_true_parameters(tmp_path):
     np.testing.assert_array_equal(maps["valid_images"], counts)
     mean_square = np.nansum(maps["residual_rms"] ** 2 * counts) / counts.sum()
     assert abs(mean_square - 1.0) < 5 * np.sqrt(2.0 / counts.sum())
+
+
+def test_summary_json_is_strict_json_even_without_rhat(tmp_path):
+    """One chain: R-hat cannot be computed (NaN in memory); the file says null, which any JSON parser reads."""
+    obs, _, _ = sphere_stack(12, n_lights=4, seed=2)
+    summary = fit(obs, tmp_path, n_chains=1, iterations=20, max_u=1, max_v=1, processes=1, progress=False,
+                  figures=False)
+    assert np.isnan(summary["rhat_max"])
+    text = (tmp_path / "summary.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    on_disk = json.loads(text, parse_constant=lambda name: pytest.fail(f"non-JSON constant {name}"))
+    assert on_disk["rhat_max"] is None

@@ -1,5 +1,6 @@
 """The cross-check gate: passes the right forward model, catches wrong ones."""
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -78,11 +79,18 @@ def test_fitter_gate_refuses_unvalidated_failed_and_changed_data(paper_sphere_sm
         require_validated(dataset)
     validate_dataset(dataset, spp=1)
     assert require_validated(dataset)["passed"]
-    meta = json.loads((dataset / "dataset.json").read_text())
+    # every file a fit reads is covered: the description, the geometry, a mesh
+    original = {name: (dataset / name).read_bytes() for name in ("dataset.json", "geometry.exr", "meshes/part_001.ply")}
+    meta = json.loads(original["dataset.json"])
     meta["lights"][0]["intensity"] *= 1.2
-    (dataset / "dataset.json").write_text(json.dumps(meta))
-    with pytest.raises(ValidationRequiredError, match="changed since"):
-        require_validated(dataset)
+    changes = {"dataset.json": json.dumps(meta).encode(), "geometry.exr": original["geometry.exr"][:-8] + bytes(8),
+               "meshes/part_001.ply": original["meshes/part_001.ply"] + b"\n"}
+    for name, changed in changes.items():
+        (dataset / name).write_bytes(changed)
+        with pytest.raises(ValidationRequiredError, match="changed since"):
+            require_validated(dataset)
+        (dataset / name).write_bytes(original[name])
+        assert require_validated(dataset)["passed"], name
 
 
 def test_normal_map_data_is_checked_with_one_facet_per_pixel(tmp_path):
@@ -144,3 +152,30 @@ def test_measured_stack_with_mesh_camera_and_point_lights(paper_sphere_small, tm
     assert stack.observations().n_obs == rendered.observations().n_obs
     result = validate_dataset(folder, tmp_path / "v", spp=1)
     assert result["passed"] and result["geometry"] == "the data set's meshes"
+    # the gate covers the mesh (and the images) the fit reads: a changed mesh voids it
+    assert require_validated(folder, tmp_path / "v" / "validation.json")["passed"]
+    (folder / "object.ply").write_bytes((folder / "object.ply").read_bytes() + b"\n")
+    with pytest.raises(ValidationRequiredError, match="changed since"):
+        require_validated(folder, tmp_path / "v" / "validation.json")
+
+
+def test_mesh_stack_description_errors_name_the_file_and_entry(tmp_path):
+    from rjfit.data.dataset import load_dataset
+    from rjfit.data.errors import DatasetError
+
+    folder = tmp_path / "stack"
+    folder.mkdir()
+    good = {"format": "rjfit-mesh-stack/1", "images": ["a.png"], "mesh": "object.ply",
+            "camera": {"kind": "perspective", "origin": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 20},
+            "resolution": [8, 8], "lights": [{"kind": "point", "position": [1, 1, 3], "intensity": 1.0}]}
+    broken = [({"format": "something-else/9"}, "format is 'something-else/9'"),
+              ({"resolution": [32]}, "resolution is [32]; it must be [height, width]"),
+              ({"camera": {k: v for k, v in good["camera"].items() if k != "fov"}}, "camera.fov is missing"),
+              ({"reference_intensity": 0}, "reference_intensity is 0; it must be a number > 0"),
+              ({"saturation": "high"}, "saturation is 'high'"),
+              ({"lights": [{"kind": "directional", "intensity": 1.0}]}, "lights[0].direction is missing"),
+              ({"lights": [{"kind": "point", "position": [1, 1, 3], "intensity": -100}]}, "lights[0].intensity is -100")]
+    for change, message in broken:
+        (folder / "stack.json").write_text(json.dumps({**good, **change}))
+        with pytest.raises(DatasetError, match=re.escape(f"{folder / 'stack.json'}: {message}")):
+            load_dataset(folder)

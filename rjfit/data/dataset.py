@@ -31,12 +31,29 @@ CHANNELS = ("mean", "R", "G", "B", "luminance")
 
 
 def write_json_atomic(path, payload) -> None:
-    """Write JSON so that readers see the old file or the new one, never half of one."""
+    """Write JSON so that readers see the old file or the new one, never half of one.
+
+    NaN and infinities (an R-hat that cannot be computed) are written as ``null``: Python
+    would write ``NaN``, which is not JSON and which other languages' parsers reject.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_text(json.dumps(payload, indent=1, sort_keys=False, default=_json_default))
+    temporary.write_text(json.dumps(_finite_or_null(payload), indent=1, sort_keys=False, default=_json_default,
+                                    allow_nan=False))
     os.replace(temporary, path)
+
+
+def _finite_or_null(value):
+    if isinstance(value, dict):
+        return {key: _finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_null(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return _finite_or_null(value.tolist())
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    return value
 
 
 def _json_default(value):

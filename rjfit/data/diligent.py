@@ -253,7 +253,20 @@ def folder_options(folder) -> dict:
     if unknown is None or unknown:
         raise DatasetError(f"{path}: must be a JSON object with keys among {', '.join(_OPTIONS)}"
                            + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
+    rules = {"saturation": (lambda v: v is None or (_is_number(v) and v > 0), "a raw value > 0, or null"),
+             "encoded": (lambda v: v is None or v in ENCODINGS, f"null (linear data) or one of {list(ENCODINGS)}"),
+             "normals": (lambda v: v is None or (isinstance(v, str) and v), "a file name, or null"),
+             "crop": (lambda v: isinstance(v, bool) or (isinstance(v, int) and v >= 0),
+                      "true, false or a margin in pixels >= 0")}
+    for key, value in options.items():
+        valid, allowed = rules[key]
+        if not valid(value):
+            raise DatasetError(f"{path}: {key} is {value!r}; it must be {allowed}")
     return options
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
 
 
 _UNSET = object()

@@ -10,6 +10,7 @@ A folder with ``stack.json``::
      "lights": [{"kind": "point", "position": [...], "intensity": 1.0}, ...],
      "reference_intensity": 1.0,
      "saturation": 65535}                        # optional: raw value at which a pixel clips
+                                                 # (default: the integer type's largest code; none for float)
 
 The per-pixel geometry (positions, shading normals, view directions, shadow-ray
 visibility) comes from tracing the mesh with Mitsuba from the camera, through each pixel
@@ -55,10 +56,9 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
     description = path / "stack.json"
     if not description.is_file():
         raise DatasetFileNotFoundError(f"{description}: no such file")
-    meta = read_json(description)
-    missing = [key for key in ("images", "mesh", "camera", "resolution", "lights") if key not in meta]
-    if missing:
-        raise DatasetError(f"{description}: missing keys {missing}")
+    from rjfit.render.scene_check import check_stack_description
+
+    meta = check_stack_description(read_json(description), description)
     lights = [Light.from_json(entry) for entry in meta["lights"]]
     if len(lights) != len(meta["images"]):
         raise DatasetError(f"{description}: {len(lights)} lights but {len(meta['images'])} images; every light "
@@ -81,6 +81,8 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
         images.append(raw)
     images = np.stack(images)
     saturation = meta.get("saturation")
+    if saturation is None and np.issubdtype(images.dtype, np.integer):
+        saturation = np.iinfo(images.dtype).max          # an integer image clips at its largest code
     saturated = (images >= saturation).any(axis=-1) if saturation is not None else None
     mi = activate(variant)
     scene = build_scene(meta["camera"], (height, width), [(path / meta["mesh"], 0)],

@@ -335,6 +335,13 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
         if not dataset.exists():
             raise FileNotFoundError(f"{fit_dir}: the data set this fit names, {named}, is not there (moved?); "
                                     f"pass its new place with --dataset DIR")
+    recorded = summary.get("dataset_sha256")
+    if recorded:
+        from rjfit.validate import dataset_fingerprint
+
+        if dataset_fingerprint(dataset) != recorded:
+            raise ValueError(f"{dataset}: not the data this fit was made from (its files differ from those "
+                             f"{fit_dir / 'summary.json'} records); give the fitted data set, or fit this one again")
     options.setdefault("channel", summary.get("channel", "mean"))     # the channel the fit used
     options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
     candidates = [fit_dir / name for name in ("map_labels.exr", "labels.exr")]

@@ -29,7 +29,7 @@ from numbers import Integral, Real
 
 from rjfit.data.errors import SceneError
 
-__all__ = ["check_scene_definition"]
+__all__ = ["check_scene_definition", "check_stack_description"]
 
 _TOP_LEVEL = {"name", "description", "units", "resolution", "camera", "geometry", "materials", "lights",
               "reference_intensity", "noise_variance", "spp", "max_depth", "seed"}
@@ -38,11 +38,12 @@ _EXAMPLE = "see scenes/paper_sphere.json for a complete scene"
 
 
 class _Checker:
-    def __init__(self, source):
+    def __init__(self, source, hint=f"fix it in the scene file ({_EXAMPLE})"):
         self.source = str(source)
+        self.hint = hint
 
     def fail(self, field, message):
-        raise SceneError(f"{self.source}: {field} {message}; fix it in the scene file ({_EXAMPLE})")
+        raise SceneError(f"{self.source}: {field} {message}; {self.hint}")
 
     def _is_number(self, value):
         return isinstance(value, Real) and not isinstance(value, bool)
@@ -262,3 +263,39 @@ def _check_lights(check, lights):
                                       f"{field}.direction")
             if math.hypot(*direction) == 0.0:
                 check.fail(f"{field}.direction", "is [0, 0, 0]; it must point towards the light")
+
+
+def check_stack_description(meta, source) -> dict:
+    """Check a mesh stack's ``stack.json`` (:mod:`rjfit.data.mesh_stack`) by the rules it
+    shares with a scene: format, resolution, camera, lights, reference intensity and the
+    optional saturation level; return it unchanged.
+
+    Raises
+    ------
+    SceneError
+        (a ``DatasetError``) naming ``source``, the entry and its allowed values.
+    """
+    from rjfit.data.mesh_stack import MESH_STACK_FORMAT
+
+    check = _Checker(source, hint="see docs/dataset-format.md, 'Measured mesh stacks'")
+    check.mapping(meta, "the description", "{format, images, mesh, camera, resolution, lights, ...}")
+    for key, what in (("format", f"its format {MESH_STACK_FORMAT!r}"), ("images", "a list of image files"),
+                      ("mesh", "a mesh file"), ("camera", "a camera {kind, origin, target, up, fov or half_width}"),
+                      ("resolution", "a resolution [height, width]"), ("lights", "a list of lights")):
+        check.require(meta, key, "", what)
+    if meta["format"] != MESH_STACK_FORMAT:
+        check.fail("format", f"is {meta['format']!r}; it must be {MESH_STACK_FORMAT!r}")
+    resolution = meta["resolution"]
+    if not (isinstance(resolution, (list, tuple)) and len(resolution) == 2):
+        check.fail("resolution", f"is {resolution!r}; it must be [height, width], two integers >= 1")
+    for index, size in enumerate(resolution):
+        check.integer(size, f"resolution[{index}]", low=1, allowed="an integer >= 1 (pixels)")
+    _check_camera(check, meta["camera"])
+    _check_lights(check, meta["lights"])
+    if "reference_intensity" in meta:
+        check.number(meta["reference_intensity"], "reference_intensity", low=0.0, low_open=True,
+                     allowed="a number > 0 (the intensity a region's I0 is relative to)")
+    if meta.get("saturation") is not None:
+        check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
+                     allowed="a raw value > 0 at which a pixel clips, or null")
+    return meta
