@@ -273,7 +273,15 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     staging = Path(tempfile.mkdtemp(prefix=".staging.", dir=out_dir))
     try:
         write_exr(staging / "labels.exr", {"labels": labels.astype(np.float32)})
-        post.to_inference_data(records, burn, max_v).to_netcdf(str(staging / "chains.nc"))
+        summary["fit_id"] = results_digest(summary)
+        idata = post.to_inference_data(records, burn, max_v)
+        idata.posterior.attrs.update({
+            "rjfit_fit_id": summary["fit_id"], "seed": seed, "burn_in_iterations": burn,
+            "regions": f"region r of a draw is cell r of its model (n_u, n_v); slots past (n_u + 1)(n_v + 1) "
+                       f"are NaN (the region dimension has room for the largest model, {max_u}, {max_v})",
+            "parameters": "I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise "
+                          "variance), in the units of the observations"})
+        idata.to_netcdf(str(staging / "chains.nc"))
         cp_payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records)
                       for k in ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v")}
         with open(staging / "changepoints.npz", "wb") as handle:
@@ -285,7 +293,6 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
                                      labels=labels, problem=problem, draws=draws, truth_labels=truth_labels,
                                      truth_params=truth_params, max_v=max_v)
             summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
-        summary["fit_id"] = results_digest(summary)
         if before_publish is not None:
             before_publish(summary, staging)
         summary["seconds"] = time.perf_counter() - started

@@ -19,6 +19,7 @@ h1{font-size:1.6em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bott
 table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #bbb;padding:.25em .6em;text-align:right}
 th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
 figure{display:inline-block;margin:.4em;vertical-align:top}figure img{max-width:520px;border:1px solid #ddd}
+figure.wide{display:block}figure.wide img{max-width:100%}
 figcaption{font-size:.85em;color:#555}.pass{color:#070;font-weight:bold}.fail{color:#b00;font-weight:bold}
 code{background:#f4f4f4;padding:0 .2em}
 """
@@ -29,8 +30,13 @@ def _load_json(path: Path):
 
 
 def _embed(path: Path, caption: str) -> str:
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return (f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+    png = path.read_bytes()
+    # a PNG's width and height are the big-endian words at bytes 16-24 (its IHDR chunk): a
+    # figure of several panels side by side gets the page's full width instead of half
+    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+    wide = ' class="wide"' if height and (width > 2 * height or width > 1000) else ""
+    data = base64.b64encode(png).decode("ascii")
+    return (f'<figure{wide}><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
@@ -79,19 +85,26 @@ def _key_values(payload: dict, keys) -> str:
 
 
 def _markdown_to_html(text: str) -> str:
-    """The little markdown the result writers produce: headings, pipe tables, lists, paragraphs."""
+    """The little markdown the result writers produce: headings, pipe tables, lists, paragraphs,
+    **bold** and `code`."""
+    import re
+
     out, table, items = [], [], []
+
+    def inline(text):
+        text = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", html.escape(text))
+        return re.sub(r"`([^`]+)`", r"<code>\1</code>", text)
 
     def flush():
         if table:
-            cells = [[html.escape(c.strip()) for c in row.strip().strip("|").split("|")] for row in table]
+            cells = [[inline(c.strip()) for c in row.strip().strip("|").split("|")] for row in table]
             body = [row for row in cells[1:] if not all(set(c) <= set("-: ") for c in row)]
             out.append("<table><tr>" + "".join(f"<th>{c}</th>" for c in cells[0]) + "</tr>"
                        + "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in body)
                        + "</table>")
             table.clear()
         if items:
-            out.append("<ul>" + "".join(f"<li>{html.escape(i)}</li>" for i in items) + "</ul>")
+            out.append("<ul>" + "".join(f"<li>{inline(i)}</li>" for i in items) + "</ul>")
             items.clear()
 
     for line in text.splitlines():
@@ -111,7 +124,7 @@ def _markdown_to_html(text: str) -> str:
             level = min(len(stripped) - len(stripped.lstrip("#")) + 2, 6)
             out.append(f"<h{level}>{html.escape(stripped.lstrip('#').strip())}</h{level}>")
         elif stripped:
-            out.append(f"<p>{html.escape(stripped)}</p>")
+            out.append(f"<p>{inline(stripped)}</p>")
     flush()
     return "".join(out)
 
@@ -185,6 +198,18 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
                        for k, v in sorted(model_posterior.items(), key=lambda kv: -kv[1])[:12])
         parts.append(f"<table><tr><th>model (n_u, n_v)</th><th>posterior</th></tr>{rows}</table>")
     parts.append("<h2>Region parameters</h2>" + _region_table(summary))
+    # what the numbers above were computed with: two fits of one data set can differ in these
+    noise = summary.get("noise") or {}
+    settings = {"channel": summary.get("channel"), "chains": summary.get("n_chains"),
+                "iterations per chain": summary.get("iterations"), "burn-in iterations": summary.get("burn_in"),
+                "seed": summary.get("seed"), "sampler": summary.get("sampler"), "split map": summary.get("split_map"),
+                "noise model": noise.get("model"), "likelihood power (zeta)": summary.get("likelihood_power"),
+                "observations": summary.get("n_observations"),
+                "crop (row0, col0 of the files)": (f"{summary['crop']['row0']}, {summary['crop']['col0']}"
+                                                   if summary.get("crop") else None),
+                "fit id": summary.get("fit_id")}
+    parts.append("<h3>Fit settings</h3>" + _key_values({k: v for k, v in settings.items() if v is not None},
+                                                       [k for k, v in settings.items() if v is not None]))
 
     parts.append("<h2>Figures</h2>")
     for png in sorted(fit_dir.glob("*.png")) + sorted((fit_dir / "figures").glob("*.png")):
@@ -197,6 +222,10 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
         folder = folders[sub]
         payload = _load_json(folder / f"{sub}.json")
         if payload is None:
+            if sub == "diagnosis":
+                parts.append(f"<h2>{title}</h2><p>Not run for this fit: <code>rjfit diagnose "
+                             f"{html.escape(str(fit_dir))}</code> finds where the model and the data disagree and "
+                             f"names the physical effect the model misses.</p>")
             continue
         parts.append(f"<h2>{title}</h2>")
         made_from = payload.get("fit_id") if isinstance(payload, dict) else None
@@ -209,13 +238,14 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
         markdown = folder / f"{sub}.md"
         if sub == "diagnosis":
             named = payload.get("named_effects") or []
-            parts.append(f"<p>Named effects: {html.escape(', '.join(named) if named else 'none')}.</p>")
-            rows = "".join(f"<tr><td>{html.escape(str(s.get('effect')))}</td><td>{_fmt(s.get('evidence'))}</td>"
-                           f"<td>{_fmt(s.get('gap_before'))}</td><td>{_fmt(s.get('gap_after'))}</td></tr>"
-                           for s in payload.get("steps", []))
-            if rows:
-                parts.append("<table><tr><th>effect</th><th>evidence</th><th>gap before</th><th>gap after</th></tr>"
-                             f"{rows}</table>")
+            if not markdown.is_file():
+                parts.append(f"<p>Named effects: {html.escape(', '.join(named) if named else 'none')}.</p>")
+            else:
+                # diagnosis.md holds the gaps, the steps, every candidate's evidence and the skipped
+                # ones; its title and image links are left out (the figures follow, embedded)
+                lines = [line for line in markdown.read_text().splitlines()
+                         if not line.startswith("# ") and not line.startswith("![")]
+                parts.append(_markdown_to_html("\n".join(lines)))
         elif isinstance(payload, list) or "methods" in payload:
             entries = payload if isinstance(payload, list) else payload["methods"]
             header = sorted({k for e in entries for k in e if not isinstance(e[k], (dict, list))})

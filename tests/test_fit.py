@@ -46,6 +46,7 @@ def test_fit_writes_summary_labels_chains_and_figures(fitted):
 
     idata = az.from_netcdf(out / "chains.nc")
     assert idata.posterior["theta"].dims == ("chain", "draw", "region", "parameter")
+    assert idata.posterior.attrs["rjfit_fit_id"] == on_disk["fit_id"]
     assert idata.posterior["theta"].shape[:2] == (2, 500)
     for name in ("model_histogram", "traces", "changepoints", "reflectance"):
         assert (out / "figures" / f"{name}.png").stat().st_size > 1000

@@ -108,15 +108,15 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
     run_chain(_spec(path, stop_after=30))
     other_seed = _spec(path)
     other_seed.seed = 124
-    with pytest.raises(ValueError, match=r"chain\.pkl belongs to another run \(its chain differ"):
+    with pytest.raises(ValueError, match=r"chain\.pkl belongs to another run \(its chain differs"):
         run_chain(other_seed)
     other_config = _spec(path)
     other_config.config = SamplerConfig(max_u=2, max_v=2, burn_in=100, jump_prob=0.3, split_scale=0.5)
-    with pytest.raises(ValueError, match="its config differ"):
+    with pytest.raises(ValueError, match="its config differs"):
         run_chain(other_config)
     other_data = _spec(path)
     other_data.problem = Problem.from_observations(sphere_stack(16, n_lights=5, seed=3)[0])
-    with pytest.raises(ValueError, match="its data differ"):
+    with pytest.raises(ValueError, match="its data differs"):
         run_chain(other_data)
 
 

@@ -121,14 +121,22 @@ def reflectance(problem, labels, draws, path, truth_labels=None):
         fitted = (np.bincount(pixel, weights=mu, minlength=n_pix) / count).reshape(problem.image_shape)
         observed = (np.bincount(pixel, weights=y, minlength=n_pix) / count).reshape(problem.image_shape)
         abs_err = (np.bincount(pixel, weights=np.abs(y - mu), minlength=n_pix) / count).reshape(problem.image_shape)
-    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
-    for ax, img, title in zip(axes[:3], (fitted, observed, abs_err),
-                              ("fitted radiance (mean over lights)", "observed radiance", "absolute error |y - mu|")):
-        im = ax.imshow(img, cmap="viridis")
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
+    # fitted and observed share one colour scale, so equal colours mean equal radiance
+    shared = dict(vmin=float(np.nanmin([np.nanmin(fitted), np.nanmin(observed)])),
+                  vmax=float(np.nanmax([np.nanmax(fitted), np.nanmax(observed)])))
+    for ax, img, title, scale in zip(axes[:3], (fitted, observed, abs_err),
+                                     ("fitted radiance (mean over lights)", "observed radiance",
+                                      "absolute error |y - mu|"), (shared, shared, {})):
+        im = ax.imshow(img, cmap="viridis", **scale)
         ax.set_title(title, fontsize=9)
-        fig.colorbar(im, ax=ax, fraction=0.046)
-    im = axes[3].imshow(np.where(np.asarray(labels) >= 0, labels, np.nan), cmap="tab10")
+        fig.colorbar(im, ax=ax, shrink=0.85)
+    shown = np.where(np.asarray(labels) >= 0, labels, np.nan)
+    im = axes[3].imshow(shown, cmap="tab10", vmin=-0.5, vmax=9.5, interpolation="nearest")
     axes[3].set_title("MAP labels", fontsize=9)
+    regions = np.unique(np.asarray(labels)[np.asarray(labels) >= 0])
+    colorbar = fig.colorbar(im, ax=axes[3], shrink=0.85, ticks=regions)
+    colorbar.set_label("region")
     return _save(fig, path)
 
 

@@ -252,8 +252,8 @@ def _load_checkpoint(path, fingerprint):
                          "delete it to start the chain afresh")
     differ = [key for key, value in fingerprint.items() if payload.get("fingerprint", {}).get(key) != value]
     if differ:
-        raise ValueError(f"checkpoint {path} belongs to another run (its {', '.join(differ)} differ from this "
-                         "run's): resuming it would mix two different chains. Delete it (or choose another --out) "
+        raise ValueError(f"checkpoint {path} belongs to another run (its {' and '.join(differ)} "
+                         f"{'differ' if len(differ) > 1 else 'differs'} from this run's): resuming it would mix two different chains. Delete it (or choose another --out) "
                          "to start afresh, or rerun with the settings that wrote it to resume.")
     return payload
 
