@@ -116,18 +116,9 @@ def check_scene_definition(definition, source="the scene definition") -> dict:
     for key in ("description", "units"):
         if key in definition and not isinstance(definition[key], str):
             check.fail(key, f"is {definition[key]!r}; it must be a string")
-    resolution = definition["resolution"]
-    if not (isinstance(resolution, (list, tuple)) and len(resolution) == 2):
-        check.fail("resolution", f"is {resolution!r}; it must be [height, width], two integers >= 1")
-    for index, size in enumerate(resolution):
-        check.integer(size, f"resolution[{index}]", low=1, allowed="an integer >= 1 (pixels)")
-    _check_camera(check, definition["camera"])
+    _check_view(check, definition)
     n_materials = _check_materials(check, definition["materials"])
     _check_geometry(check, definition["geometry"], n_materials)
-    _check_lights(check, definition["lights"])
-    if "reference_intensity" in definition:
-        check.number(definition["reference_intensity"], "reference_intensity", low=0.0, low_open=True,
-                     allowed="a number > 0 (the intensity a region's I0 is relative to)")
     if "noise_variance" in definition:
         check.number(definition["noise_variance"], "noise_variance", low=0.0, allowed="a number >= 0")
     if "spp" in definition:
@@ -138,6 +129,20 @@ def check_scene_definition(definition, source="the scene definition") -> dict:
     if "seed" in definition:
         check.integer(definition["seed"], "seed", low=0, allowed="an integer >= 0")
     return definition
+
+
+def _check_view(check, entry):
+    """What scenes and mesh stacks share: resolution, camera, lights, reference intensity."""
+    resolution = entry["resolution"]
+    if not (isinstance(resolution, (list, tuple)) and len(resolution) == 2):
+        check.fail("resolution", f"is {resolution!r}; it must be [height, width], two integers >= 1")
+    for index, size in enumerate(resolution):
+        check.integer(size, f"resolution[{index}]", low=1, allowed="an integer >= 1 (pixels)")
+    _check_camera(check, entry["camera"])
+    _check_lights(check, entry["lights"])
+    if "reference_intensity" in entry:
+        check.number(entry["reference_intensity"], "reference_intensity", low=0.0, low_open=True,
+                     allowed="a number > 0 (the intensity a region's I0 is relative to)")
 
 
 def _check_camera(check, camera):
@@ -285,16 +290,7 @@ def check_stack_description(meta, source) -> dict:
         check.require(meta, key, "", what)
     if meta["format"] != MESH_STACK_FORMAT:
         check.fail("format", f"is {meta['format']!r}; it must be {MESH_STACK_FORMAT!r}")
-    resolution = meta["resolution"]
-    if not (isinstance(resolution, (list, tuple)) and len(resolution) == 2):
-        check.fail("resolution", f"is {resolution!r}; it must be [height, width], two integers >= 1")
-    for index, size in enumerate(resolution):
-        check.integer(size, f"resolution[{index}]", low=1, allowed="an integer >= 1 (pixels)")
-    _check_camera(check, meta["camera"])
-    _check_lights(check, meta["lights"])
-    if "reference_intensity" in meta:
-        check.number(meta["reference_intensity"], "reference_intensity", low=0.0, low_open=True,
-                     allowed="a number > 0 (the intensity a region's I0 is relative to)")
+    _check_view(check, meta)
     if meta.get("saturation") is not None:
         check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
                      allowed="a raw value > 0 at which a pixel clips, or null")
