@@ -93,9 +93,13 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         raise ValueError(f"max_steps must be an integer >= 0 (0: measure the plain model's gap only), got {max_steps!r}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    say = print if progress else (lambda *a, **k: None)
+    def say(*args, **kwargs):
+        if progress:
+            print(*args, **kwargs, flush=True)      # flushed: a long search is followed as it goes
     candidates = [get_effect(c) for c in candidates]
     ctx = build_context(dataset, labels, channel=channel)
+    say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions: the plain model's refit, then one "
+        f"refit per candidate effect and step (each a few seconds to minutes, growing with the observations)")
     plain = refit(ctx, (), seed=seed)
     ctx.features["fit_region_params"] = plain.region_params()
     # The noise estimate of the plain model's residuals only scores the candidates' signatures
