@@ -63,7 +63,10 @@ def test_noise_estimate_ignores_smooth_misfit():
                   light=light, pixel=rows * W + cols, y=residuals, cos_ln=None, cos_hn=None, irradiance=None,
                   cos_vn=None, cos_hv=None, valid=valid)
     s2 = noise_variance(ctx, residuals)
+    # over 200 seeds the estimate's relative error has mean 0.002 and sd 0.032 (the smooth
+    # misfit, 7 times the noise variance, does not leak in): 0.1 is 3 sd
     assert abs(s2 / 0.09 - 1) < 0.1
+    # gap of pure noise: mean(r^2) / sigma^2 - 1 has sd sqrt(2 / 5000) = 0.02, so 0.1 is 5 sd
     assert abs(gap(rng.normal(0, 0.3, 5000), 0.09)) < 0.1
 
 
