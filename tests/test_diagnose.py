@@ -74,11 +74,15 @@ def test_hidden_effect_is_named_and_gap_shrinks(hidden, tmp_path, kind, expected
         theta = [v["map"] for v in result["steps"][0]["effect_params"].values()]
         scales = light_scales(theta, len(theta) + 1)
         ratio = scales[CALIBRATED_LIGHT] / np.exp(np.mean(np.log(np.delete(scales, CALIBRATED_LIGHT))))
+        # the log scales' posterior sd is 0.0015-0.003 (Laplace), so the ratio's is about 0.003:
+        # 0.02 allows some 6 sd (measured: 1.2001 against 1.2)
         assert abs(ratio - CALIBRATION_ERROR) < 0.02, ratio
     if kind == "ambient":                  # and its strength (relative to the reference intensity)
         from rjfit.diagnose.hidden import AMBIENT_RELATIVE
 
-        assert abs(result["steps"][0]["effect_params"]["ambient.ambient"]["map"] / AMBIENT_RELATIVE - 1) < 0.05
+        ambient = result["steps"][0]["effect_params"]["ambient.ambient"]
+        # within 4 posterior sd (Laplace; measured: 0.02985 +- 0.00011 against 0.03, z -1.3)
+        assert abs(ambient["map"] - AMBIENT_RELATIVE) < 4 * ambient["sd"], (ambient, AMBIENT_RELATIVE)
 
 
 def test_clean_data_names_nothing_via_cli(hidden, tmp_path):
