@@ -150,11 +150,16 @@ def test_weighted_fit_covers_the_truth_of_heteroscedastic_data():
     true_of_obs = truth_labels.ravel()[weighted.pixel]
     mapping = [int(np.bincount(true_of_obs[labels == r], minlength=4).argmax()) for r in range(4)]
     assert sorted(mapping) == [0, 1, 2, 3]
+    # 99.5 % central intervals: under an exact posterior all 16 cover their truth with
+    # probability about 0.995^16 = 92 % (fixed seeds; one miss would be a 1-in-12 event)
     lo, hi = np.quantile(draws, [0.0025, 0.9975], axis=0)
     for r, k in enumerate(mapping):
         inside = (lo[r] <= truth[k]) & (truth[k] <= hi[r])
         assert inside.all(), (r, k, truth[k], lo[r], hi[r])
-    # the same data without the weights: every sigma^2 interval misses the truth (what the weights fix)
+    # the same data without the weights: every sigma^2 interval misses the truth (what the weights fix).
+    # Unweighted, sigma^2 absorbs the varying variance (truth x mean(scale^2) = 1.76 to 2.17 per
+    # region) and part of the misfit: measured posterior means 1.40 to 2.36 x truth, lowest 0.25 %
+    # quantile 1.17 x truth; the closest region's mean lies about 5 posterior sd above the truth.
     _, plain_draws = _posterior(Problem.from_observations(data), seed=3, iterations=500, burn=200)
     plain_lo = np.quantile(plain_draws[:, :, 3], 0.0025, axis=0)
-    assert np.all(plain_lo > 1.1 * truth[0, 3])
+    assert np.all(plain_lo > truth[0, 3])
