@@ -188,6 +188,7 @@ def test_a_fit_killed_by_sigkill_resumes_to_the_uninterrupted_results(paper_sphe
     rerun = subprocess.run(command(tmp_path / "killed"), check=True, capture_output=True, text=True)
     assert "chain 0: resumed from its checkpoint at iteration" in rerun.stderr, "restarted instead of resuming"
     whole, resumed = (json.loads((tmp_path / name / "summary.json").read_text()) for name in ("whole", "killed"))
-    timings = {"seconds", "chain_seconds"}
+    assert whole["chain_resumed_from"][0] == [] and len(resumed["chain_resumed_from"][0]) == 1, "not recorded as resumed"
+    timings = {"seconds", "chain_seconds", "chain_resumed_from"}
     assert {key: value for key, value in resumed.items() if key not in timings} == \
         {key: value for key, value in whole.items() if key not in timings}

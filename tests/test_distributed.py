@@ -30,6 +30,7 @@ def _specs(folder=None, n_chains=2):
 
 
 def _assert_same(a, b):
+    # resumed_from differs by design (it says whether a chain resumed)
     for name in ("n_u", "n_v", "theta", "log_lik", "log_post", "cp_u", "cp_v"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
 
@@ -66,6 +67,8 @@ def test_killed_worker_resumes_chain_from_checkpoint(client, serial_records, tmp
     os.kill(pid, signal.SIGKILL)
     records = client.gather(futures)
     assert 0 < records[0].iterations_done == ITERATIONS
+    # a resume, not a restart on another worker (which, seeded, would give the same samples)
+    assert len(records[0].resumed_from) == 1 and 0 < records[0].resumed_from[0] < ITERATIONS, records[0].resumed_from
     for serial, recovered in zip(serial_records, records):
         _assert_same(serial, recovered)
 

@@ -55,6 +55,7 @@ def _mark(path):
 
 def _assert_resumed(uninterrupted, resumed):
     assert resumed.log_lik[0] == MARKER, "the chain restarted instead of resuming its checkpoint"
+    assert uninterrupted.resumed_from == () and len(resumed.resumed_from) == 1
     resumed.log_lik[0] = uninterrupted.log_lik[0]
     _assert_same(uninterrupted, resumed)
 

@@ -76,12 +76,14 @@ class ChainRecord:
     proposed: dict
     seconds: float
     iterations_done: int
+    resumed_from: tuple = ()        # iterations of the checkpoints this chain resumed from, in order
 
     def truncated(self, t: int) -> "ChainRecord":
         keep = self.cp_iteration < t
         return ChainRecord(self.n_u[:t], self.n_v[:t], self.theta[:t], self.log_lik[:t], self.log_post[:t],
                            self.exact_truth[:t], self.true_regions[:t], self.object_regions[:t], self.cp_iteration[keep],
-                           self.cp_u[keep], self.cp_v[keep], dict(self.accepted), dict(self.proposed), self.seconds, min(t, self.iterations_done))
+                           self.cp_u[keep], self.cp_v[keep], dict(self.accepted), dict(self.proposed), self.seconds, min(t, self.iterations_done),
+                           self.resumed_from)
 
 
 def chain_rngs(seed: int, n_chains: int):
@@ -124,6 +126,7 @@ class _Recorder:
         self.cp_v = np.full((n_snap, problem.width, config.max_v), np.nan, np.float32)
         self.accepted, self.proposed = {}, {}
         self.seconds = 0.0
+        self.resumed_from = ()
         self.cp_thin = spec.cp_thin
         self._exact_memo = (None, -1)
         self._truth_setup(spec)
@@ -185,7 +188,8 @@ class _Recorder:
 
     def result(self, done: int) -> ChainRecord:
         rec = ChainRecord(self.n_u, self.n_v, self.theta, self.log_lik, self.log_post, self.exact_truth, self.true_regions,
-                          self.object_regions, self.cp_iteration, self.cp_u, self.cp_v, self.accepted, self.proposed, self.seconds, done)
+                          self.object_regions, self.cp_iteration, self.cp_u, self.cp_v, self.accepted, self.proposed, self.seconds, done,
+                          tuple(getattr(self, "resumed_from", ())))
         return rec.truncated(done)
 
 
@@ -279,6 +283,8 @@ def run_chain(spec: ChainSpec) -> ChainRecord:
             rng.bit_generator.state = payload["rng_state"]
             recorder = payload["recorder"]
             start_t = payload["t"]
+            # recorded, so that a resume can be told from a restart (both give the same samples)
+            recorder.resumed_from = tuple(getattr(recorder, "resumed_from", ())) + (start_t,)
             if spec.progress:     # say so: a resumed fit and a fresh one look alike otherwise
                 print(f"chain {spec.chain}: resumed from its checkpoint at iteration {start_t} of {spec.iterations}",
                       file=sys.stderr, flush=True)
