@@ -63,6 +63,25 @@ def _moved(before, after, ctx):
     return moved, panels[:8]
 
 
+def _candidate_bar(progress, total, step):
+    if not progress or total == 0:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, desc=f"step {step + 1}", unit="refit", leave=False, disable=None)
+
+
+def _bar_say(bar, say, line):
+    """A candidate's line above the bar (the bar is redrawn below it), then one step of the bar."""
+    if bar is None or bar.disable:
+        say(line)
+    else:
+        bar.clear()
+        say(line)
+        bar.refresh()
+    if bar is not None:
+        bar.update(1)
+
+
 def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_steps=3,
              threshold=LOG_BF_THRESHOLD, loo_se_factor=LOO_SE_FACTOR, simulate=None, n_sim_draws=3,
              channel="mean", make_figures=True, progress=False, provenance=None):
@@ -133,9 +152,13 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         fits = {}
         step_rows = []
         present_kinds = {e.kind for e in current.effects}
-        for effect in usable:
-            if effect in current.effects or effect.kind in present_kinds:
-                continue
+        to_try = [e for e in usable if e not in current.effects and e.kind not in present_kinds]
+        # one refit per candidate can take minutes on a large data set: a bar (stderr, off in
+        # logs) says which candidate is being refitted and how many are left
+        bar = _candidate_bar(progress, len(to_try), step)
+        for effect in to_try:
+            if bar is not None:
+                bar.set_postfix_str(effect.name)
             row = {"step": step, "effect": effect.name, "kind": effect.kind}
             try:
                 candidate = refit(ctx, tuple(current.effects) + (effect,), start=current, seed=seed)
@@ -144,7 +167,7 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
                 stored[("signature", step, effect.name)] = (score, signature_map)
             except Exception as error:          # a failing candidate is reported, not fatal
                 row["error"] = f"{type(error).__name__}: {error}"
-                say(f"  step {step + 1} {effect.name:18s} failed: {row['error']}")
+                _bar_say(bar, say, f"  step {step + 1} {effect.name:18s} failed: {row['error']}")
                 step_rows.append(row)
                 continue
             fits[effect.name] = candidate
@@ -161,8 +184,10 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
                 row["loo_skipped"] = f"log BF <= {bound}, cannot be decisive"
             row["decisive"] = bool(row["log_bayes_factor"] > threshold and row.get("delta_elpd_loo", -np.inf)
                                    > loo_se_factor * row.get("delta_elpd_loo_se", np.inf))
-            say(figures.candidate_line(row))
+            _bar_say(bar, say, figures.candidate_line(row))
             step_rows.append(row)
+        if bar is not None:
+            bar.close()
         rows += step_rows
         decisive = [r for r in step_rows if r.get("decisive")]
         if not decisive:
