@@ -9,6 +9,10 @@ import click
 
 __all__ = ["main"]
 
+# every --seed: a non-negative integer (NumPy's SeedSequence and rjfit.render.mitsuba_scene.mitsuba_seed
+# take any size; a negative one is refused here, naming the option)
+SEED = click.IntRange(min=0)
+
 
 def _echo_json(payload: dict, keys) -> None:
     for key in keys:
@@ -64,7 +68,7 @@ def main():
               help="Data set folder to write (replaced if it is a data set; any other non-empty folder is refused).")
 @click.option("--resolution", type=click.IntRange(min=1), default=None,
               help="Square image size in pixels (default: the scene's).")
-@click.option("--seed", type=int, default=None, help="Seed of path tracing and noise (default: the scene's).")
+@click.option("--seed", type=SEED, default=None, help="Seed of path tracing and noise (default: the scene's).")
 @click.option("--spp", type=click.IntRange(min=1), default=None,
               help="Samples per pixel, all along the pixel-centre ray (default: the scene's, 1 if it sets none).")
 @click.option("--noise-variance", type=float, default=None, help="Gaussian noise variance (default: the scene's).")
@@ -89,7 +93,7 @@ def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
 @click.option("--spp", type=click.IntRange(min=1), default=4, show_default=True, help="Path-traced samples per pixel.")
 @click.option("--max-depth", type=click.IntRange(min=1), default=8, show_default=True,
               help="Path length of the path tracer.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the path tracer's samples.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the path tracer's samples.")
 @click.option("--variant", default="auto", show_default=True,
               help="Mitsuba variant; auto: cuda_ad_rgb when a GPU answers, else llvm_ad_rgb.")
 def validate(dataset, out_dir, spp, max_depth, seed, variant):
@@ -117,7 +121,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
 @click.option("--iterations", type=click.IntRange(min=10), default=4000, show_default=True, help="Iterations per chain.")
 @click.option("--chains", "n_chains", type=click.IntRange(min=1), default=4, show_default=True,
               help="Chains from dispersed starts (run in parallel processes).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of validation, fit, baselines and diagnosis.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of validation, fit, baselines and diagnosis.")
 @click.option("--allow-unvalidated", is_flag=True,
               help="Go on to fit, compare and diagnose when the cross-check fails (the criticism workflow on data "
                    "with a hidden effect); the fit's warnings then say so.")
@@ -172,7 +176,7 @@ def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed, allow_unval
 @click.option("--fit", "fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="A folder written by `rjfit fit` of DATASET (summary.json, labels.exr): score rjfit's MAP "
                    "segmentation too. Without it rjfit's row is left out.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every baseline's randomness.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of every baseline's randomness.")
 @click.option("--channel", default="mean", show_default=True,
               type=click.Choice(["mean", "R", "G", "B", "luminance"]), help="Colour channel of the grey values.")
 def compare(dataset, out_dir, fit_dir, seed, channel):
@@ -242,7 +246,7 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
 @click.option("--noise-floor", type=float, default=0.05, show_default=True,
               help="c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, "
                    "as a fraction of the mean observed value. Unused for --noise constant.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of every random draw.")
 @click.option("--validation", "validation_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="validation.json of the data set (default: DATASET/validation/validation.json).")
 @click.option("--allow-unvalidated", is_flag=True,

@@ -32,6 +32,9 @@ from rjfit.data.lights import geometry_terms
 from rjfit.model.blinn import radiance
 from rjfit.plotting import map_figure
 
+# purpose tag of the validation's path-tracing streams (see rjfit.render.render.RENDER_STREAM)
+VALIDATE_STREAM = 2
+
 __all__ = ["closed_form_radiance", "validate_dataset", "require_validated", "dataset_fingerprint", "dataset_files",
            "MEDIAN_TOLERANCE", "P99_TOLERANCE", "ValidationRequiredError"]
 
@@ -215,7 +218,7 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
         iterator = tqdm(iterator, desc="validate", unit="light", disable=None)
     for light_index, light in iterator:
         scene = make_scene([light], max_depth, light_format)
-        path_colour = path_trace(scene, spp=spp, seed=seed * 7919 + light_index)
+        path_colour = path_trace(scene, spp=spp, seed=(seed, VALIDATE_STREAM, light_index))
         path_radiance = path_colour.mean(axis=-1)
         # The materials are grey, so every channel must match the closed form on its own; the
         # worst channel's deviation is kept (a colour slip in the lights shows up here).

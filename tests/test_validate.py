@@ -179,3 +179,19 @@ def test_mesh_stack_description_errors_name_the_file_and_entry(tmp_path):
         (folder / "stack.json").write_text(json.dumps({**good, **change}))
         with pytest.raises(DatasetError, match=re.escape(f"{folder / 'stack.json'}: {message}")):
             load_dataset(folder)
+
+
+def test_any_non_negative_seed_renders_and_validates(tmp_path):
+    """Seeds used to be combined arithmetically into Mitsuba's 32-bit sampler seed, so
+    `validate --seed 1` and `render --seed 5000` crashed with a TypeError; every seed now
+    maps to its own 32-bit stream per purpose, light and pass."""
+    from rjfit.render.mitsuba_scene import mitsuba_seed
+    from rjfit.render.render import render_dataset
+
+    dataset = render_dataset("dented_plaster", tmp_path / "ds", resolution=8, spp=2, seed=2 ** 40)
+    for seed in (1, 2 ** 63):
+        assert validate_dataset(dataset, tmp_path / f"v{seed}", spp=2, seed=seed)["settings"]["seed"] == seed
+    streams = {mitsuba_seed(*keys) for keys in [(0, 1, 1), (1, 1, 0), (0, 2, 1), (1, 1, 1, 0), (2 ** 63, 1, 1)]}
+    assert len(streams) == 5 and all(0 <= s < 2 ** 32 for s in streams)
+    with pytest.raises(ValueError, match="non-negative"):
+        mitsuba_seed(-1)

@@ -19,7 +19,7 @@ def _effect_names():
                    "`rjfit report` looks).")
 @click.option("--max-steps", type=click.IntRange(min=0), default=3, show_default=True,
               help="Most effects to add; 0 measures the plain model's gap and tries no candidate.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the refits and the simulations.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed of the refits and the simulations.")
 @click.option("--effects", default=None,
               help="Comma-separated candidate names (default: all): " + ", ".join(_effect_names()) + ".")
 @click.option("--dataset", "dataset_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,

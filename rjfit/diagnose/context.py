@@ -35,6 +35,7 @@ class Context:
     cos_hv: np.ndarray
     valid: np.ndarray               # (L, H, W) which observations are in
     channel: str = "mean"
+    seed: int = 0                   # the diagnosis' seed: Monte Carlo features (indirect light) draw from it
     features: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
 
@@ -105,7 +106,7 @@ def _light_directions(dataset):
     return np.stack(out)
 
 
-def build_context(dataset, labels, *, channel="mean", valid=None) -> Context:
+def build_context(dataset, labels, *, channel="mean", valid=None, seed=0) -> Context:
     """Gather a data set's valid observations under a fixed segmentation.
 
     Parameters
@@ -146,4 +147,4 @@ def build_context(dataset, labels, *, channel="mean", valid=None) -> Context:
                    region=region_map[rows, cols].astype(np.int64), light=obs.light.astype(np.int64),
                    pixel=obs.pixel, y=obs.y, cos_ln=obs.cos_ln, cos_hn=obs.cos_hn, irradiance=obs.irradiance,
                    cos_vn=np.clip(np.sum(v * n, axis=-1), 1e-6, 1.0), cos_hv=np.clip(np.sum(h * v, axis=-1), 0.0, 1.0),
-                   valid=valid, channel=channel)
+                   valid=valid, channel=channel, seed=int(seed))

@@ -47,6 +47,7 @@ CALIBRATION_ERROR = 1.2
 SRGB_WHITE = 1.05
 FRESNEL_F0 = 0.04
 AMBIENT_SPP = 4096
+AMBIENT_STREAM = 15        # purpose tag of the ambient image's path-tracing stream (mitsuba_seed)
 
 
 def backlit_sphere_definition():
@@ -91,7 +92,7 @@ def _ext_plugin(materials, reference_intensity, **params):
     return override
 
 
-def _ambient_image(scene, resolution, radiance, spp=AMBIENT_SPP):
+def _ambient_image(scene, resolution, radiance, seed, spp=AMBIENT_SPP):
     """What a built-in ``constant`` environment emitter adds to every image: rendered once by
     Mitsuba (the scene with the environment and no other light, pixel-centre rays, ``spp``
     samples in one wavefront) and added to each light's image; light transport is linear,
@@ -110,7 +111,7 @@ def _ambient_image(scene, resolution, radiance, spp=AMBIENT_SPP):
         meta = json.loads((geometry / "dataset.json").read_text())
         env = {"ambient": {"type": "constant", "radiance": {"type": "rgb", "value": [radiance] * 3}}}
         mitsuba_scene = scene_from_dataset_meta(meta, geometry, lights=[], max_depth=8, extra=env)
-        image = trace_centre_rays(mitsuba_scene, spp=spp, seed=77)
+        image = trace_centre_rays(mitsuba_scene, spp=spp, seed=(seed, AMBIENT_STREAM))
         mask = __import__("rjfit.data.exr", fromlist=["read_exr"]).read_exr(geometry / "geometry.exr")["mask"] > 0.5
     return np.where(mask, image, 0.0)
 
@@ -150,7 +151,8 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         extra = None
         ambient_image = None
         if "ambient" in kinds:
-            ambient_image = _ambient_image(scene, resolution, AMBIENT_RELATIVE * scene["reference_intensity"])
+            ambient_image = _ambient_image(scene, resolution, AMBIENT_RELATIVE * scene["reference_intensity"],
+                                           scene.get("seed", 0) if seed is None else seed)
         nominal = json.loads(json.dumps(scene["lights"]))
         if "light_calibration" in kinds:
             scene["lights"][CALIBRATED_LIGHT]["intensity"] *= CALIBRATION_ERROR

@@ -23,6 +23,8 @@ __all__ = ["EXT_PLUGIN_NAME", "register_ext", "materials_for_parts", "render_mod
 
 EXT_PLUGIN_NAME = "rjfit_blinn_ext"
 STOCHASTIC_RATIO = 1.5
+# purpose tags of the diagnosis' path-tracing streams (rjfit.render.mitsuba_scene.mitsuba_seed)
+MODEL_STREAM, ENVIRONMENT_STREAM, INDIRECT_STREAM = 11, 12, 13
 _REGISTERED: dict = {}
 
 
@@ -104,6 +106,9 @@ def register_ext():
 def trace_centre_rays(scene, spp=1, seed=0):
     """Radiance along the pixel-centre rays, ``spp`` samples per pixel in ONE wavefront.
 
+    ``seed``: an int or a sequence of ints, the keys of the sampler's stream
+    (:func:`rjfit.render.mitsuba_scene.mitsuba_seed`).
+
     The same rays as ``rjfit.render.mitsuba_scene.path_trace`` (pixel centres, shared by the
     data set's geometry), but all samples are traced in a single kernel launch instead of one
     launch per sample: what makes hundreds of samples per pixel affordable for Monte Carlo
@@ -118,8 +123,10 @@ def trace_centre_rays(scene, spp=1, seed=0):
     index = dr.arange(mi.UInt32, n_pix * int(spp)) % n_pix
     film_position = mi.Point2f((mi.Float(index % width) + 0.5) / width, (mi.Float(index // width) + 0.5) / height)
     rays, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), film_position, mi.Point2f(0.5, 0.5))
+    from rjfit.render.mitsuba_scene import mitsuba_seed
+
     sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(int(seed) % (2 ** 31), n_pix * int(spp))
+    sampler.seed(mitsuba_seed(*np.atleast_1d(seed)), n_pix * int(spp))
     radiance, _, _ = scene.integrator().sample(scene, sampler, rays, None, True)
     values = np.array(radiance, dtype=np.float64)
     values = values.reshape(-1, n_pix * int(spp)).mean(axis=0) if values.ndim > 1 else values
@@ -195,13 +202,13 @@ def render_model(dataset, materials, change, *, spp=1, seed=0, max_depth=None, b
     light_spp = spp if depth > 2 else 1
     light_batches = batches if depth > 2 else 1
     stacks = []
-    # distinct seeds per (seed, light, batch) for up to 64 seeds, 255 lights and 256 batches
+    keys = tuple(int(k) for k in np.atleast_1d(seed))     # one stream per (seed, light, batch) and environment batch
     for index, light in enumerate(lights):
         scaled = Light(kind=light.kind, intensity=light.intensity * scales[index], position=light.position,
                        direction=light.direction)
         scene = scene_from_dataset_meta(meta, dataset.path, materials=materials, lights=[scaled], max_depth=depth,
                                         bsdf_override=override)
-        stacks.append(np.stack([trace_centre_rays(scene, spp=light_spp, seed=(seed % 64) * 65536 + 256 * index + b)
+        stacks.append(np.stack([trace_centre_rays(scene, spp=light_spp, seed=(*keys, MODEL_STREAM, index, b))
                                 for b in range(light_batches)]))
     stacks = np.stack(stacks, axis=1)          # (batches, L, H, W)
     mean = stacks.mean(axis=0)
@@ -209,7 +216,7 @@ def render_model(dataset, materials, change, *, spp=1, seed=0, max_depth=None, b
     if change.extra:
         scene = scene_from_dataset_meta(meta, dataset.path, materials=materials, lights=[], max_depth=max(depth, 2),
                                         bsdf_override=override, extra=change.extra)
-        env = np.stack([trace_centre_rays(scene, spp=spp * env_spp_factor, seed=(seed % 64) * 65536 + 255 * 256 + b)
+        env = np.stack([trace_centre_rays(scene, spp=spp * env_spp_factor, seed=(*keys, ENVIRONMENT_STREAM, b))
                         for b in range(batches)])
         mean = mean + env.mean(axis=0)[None]
         if batches > 1:
@@ -219,14 +226,17 @@ def render_model(dataset, materials, change, *, spp=1, seed=0, max_depth=None, b
     return (mean, np.sqrt(var)) if batches > 1 else mean
 
 
-def indirect_radiance(ctx, region_params, *, spp=32, max_depth=8, seed=5, batches=8):
+def indirect_radiance(ctx, region_params, *, spp=32, max_depth=8, seed=None, batches=8):
     """Mitsuba's indirect radiance of the fitted model per light: path(max_depth) - path(2).
+
+    ``seed`` defaults to the diagnosis' seed (``ctx.seed``).
 
     Returns the (L, H, W) mean; its Monte Carlo standard error (from ``batches`` independent
     batches) is kept in ``ctx.features["indirect_se"]``.
     """
     from rjfit.diagnose.effects.base import MitsubaChange
 
+    seed = (ctx.seed if seed is None else seed, INDIRECT_STREAM)
     materials = materials_for_parts(ctx, region_params)
     full, se = render_model(ctx.dataset, materials, MitsubaChange(), spp=max(spp // batches, 1), seed=seed,
                             max_depth=max_depth, batches=batches)

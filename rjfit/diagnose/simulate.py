@@ -30,6 +30,8 @@ from rjfit.diagnose.mitsuba_ext import materials_for_parts, render_model
 
 __all__ = ["simulate_fit"]
 
+SIMULATION_STREAM = 14     # purpose tag of the posterior predictive renders' streams (mitsuba_seed)
+
 
 def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, spp_stochastic=256):  # environment: 16 x that, once per draw
     """Mitsuba posterior predictive of ``fit`` on ``ctx`` (needs the data set's mesh)."""
@@ -46,7 +48,7 @@ def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, sp
         thetas = fit.effect_thetas(z)
         change = merge_changes([e.mitsuba_change(t, ctx) for e, t in zip(fit.effects, thetas)])
         stack = render_model(ctx.dataset, materials_for_parts(ctx, region), change,
-                             spp=spp_stochastic if change.stochastic else 1, seed=seed + k)
+                             spp=spp_stochastic if change.stochastic else 1, seed=(seed, SIMULATION_STREAM, k))
         sims.append(stack[at])
         sigma2s.append(region[ctx.region, 3])
     sims, sigma2s = np.stack(sims), np.stack(sigma2s)              # (S, N)

@@ -317,8 +317,33 @@ def shadow_visibility(scene, interaction, light: Light, shape):
     return (~np.array(occluded, dtype=bool) & np.array(interaction.is_valid(), dtype=bool)).reshape(shape)
 
 
-def path_trace(scene, spp: int = 1, seed: int = 0):
+def mitsuba_seed(*keys) -> int:
+    """A 32-bit seed for a Mitsuba sampler from non-negative integer keys (user seed, purpose, light, ...).
+
+    Mitsuba's samplers take an unsigned 32-bit seed. Hashing the keys through NumPy's
+    ``SeedSequence`` keeps every (seed, purpose, light, pass) on its own stream: sums such
+    as ``seed + light`` would give light 1 of seed 0 the stream of light 0 of seed 1, and
+    products overflow 32 bits.
+
+    Raises
+    ------
+    ValueError
+        If a key is negative.
+    """
+    keys = [int(k) for k in keys]
+    if any(k < 0 for k in keys):
+        raise ValueError(f"seeds must be non-negative integers, got {keys}")
+    return int(np.random.SeedSequence(keys).generate_state(1, np.uint32)[0])
+
+
+def path_trace(scene, spp: int = 1, seed=0):
     """Radiance along the pixel-centre rays with the scene's integrator, averaged over ``spp``.
+
+    Parameters
+    ----------
+    seed : int or sequence of int
+        Keys of the random streams (:func:`mitsuba_seed`): the user's seed, then what the
+        trace is for (a purpose tag, the light); pass ``k`` draws from ``(*seed, k)``.
 
     Returns
     -------
@@ -332,11 +357,11 @@ def path_trace(scene, spp: int = 1, seed: int = 0):
     total = None
     for sample_index in range(int(spp)):
         sampler = mi.load_dict({"type": "independent"})
-        # One seed per (user seed, sample index): every pass draws fresh indirect paths.
-        pass_seed = int(seed) * 1_000_003 + sample_index
+        # One stream per (seed keys, sample index): every pass draws fresh indirect paths.
+        pass_seed = mitsuba_seed(*np.atleast_1d(seed), sample_index)
         if isinstance(rays, list):
             # Scalar variants: one random stream per pass, which the pixels draw from in turn.
-            sampler.seed(pass_seed % (1 << 32), 1)
+            sampler.seed(pass_seed, 1)
             values = []
             for ray in rays:
                 radiance, _, _ = integrator.sample(scene, sampler, ray, None, True)

@@ -19,6 +19,9 @@ __all__ = ["SCENES_DIR", "load_scene_definition", "available_scenes", "render_da
            "scene_from_dataset_meta"]
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
+# purpose tag of the rendering's path-tracing streams (rjfit.render.mitsuba_scene.mitsuba_seed):
+# the validation traces the same scenes with the same user seed, and must not reuse these samples
+RENDER_STREAM = 1
 
 
 def available_scenes() -> list[str]:
@@ -205,7 +208,7 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
             iterator = tqdm(iterator, desc=f"render {definition['name']}", unit="light", disable=None)
         for light_index in iterator:
             light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], **scene_args)
-            radiance = path_trace(light_scene, spp=spp, seed=seed + light_index)
+            radiance = path_trace(light_scene, spp=spp, seed=(seed, RENDER_STREAM, light_index))
             if radiance.shape[-1] == 1:
                 radiance = np.repeat(radiance, 3, axis=-1)
             noise = rng.normal(0.0, np.sqrt(noise_variance), size=(height, width, 1)) if noise_variance else 0.0
