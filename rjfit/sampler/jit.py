@@ -270,6 +270,26 @@ def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step
         left_case[key] += _log_density(yv, c, lh, coef, base + step_label)
 
 
+@njit(cache=True, nogil=True, fastmath={"contract"})
+def _convolve_into(conv, previous, kernel, reach_max):
+    """``conv[j] = sum_d previous[j - d] kernel[d + reach_max]`` over the steps that stay on the line.
+
+    One step d at a time over whole lines, through views so that the inner loop indexes
+    from 0 (no negative-index wraparound to check) and vectorises; each cell's terms are
+    still added in increasing d.
+    """
+    n_cells = previous.shape[0]
+    for j in range(n_cells):
+        conv[j] = 0.0
+    for d in range(-reach_max, reach_max + 1):
+        w = kernel[d + reach_max]
+        lo, hi = max(0, d), min(n_cells, n_cells + d)
+        source = previous[lo - d:hi - d]
+        target = conv[lo:hi]
+        for k in range(hi - lo):
+            target[k] += source[k] * w
+
+
 @njit(cache=True, nogil=True)
 def forward_filter(log_emit, kernel, reach_max):
     """Normalised forward log alphas (L, S) of the cell chain; ``ok`` False if a line has no finite cell.
@@ -282,29 +302,31 @@ def forward_filter(log_emit, kernel, reach_max):
     n_lines, n_cells = log_emit.shape
     alpha = np.empty_like(log_emit)
     previous = np.zeros(n_cells)
-    reach = np.zeros(n_cells)
+    conv = np.empty(n_cells)
+    linear = np.zeros(n_cells)
+    coupled = kernel.shape[0] > 0
     for r in range(n_lines):
+        if r > 0 and coupled:
+            _convolve_into(conv, previous, kernel, reach_max)
+            for j in range(n_cells):
+                alpha[r, j] = log_emit[r, j] + math.log(max(conv[j], 1e-300))
+        else:
+            for j in range(n_cells):
+                alpha[r, j] = log_emit[r, j]
         top = -np.inf
         for j in range(n_cells):
-            a = log_emit[r, j]
-            if r > 0 and kernel.shape[0] > 0:
-                s = 0.0
-                for d in range(max(-reach_max, j - n_cells + 1), min(reach_max, j) + 1):
-                    s += previous[j - d] * kernel[d + reach_max]
-                a += math.log(max(s, 1e-300))
-            alpha[r, j] = a
-            if a > top:
-                top = a
+            if alpha[r, j] > top:
+                top = alpha[r, j]
         if not np.isfinite(top):
             return alpha, False
         total = 0.0
         for j in range(n_cells):
-            reach[j] = math.exp(alpha[r, j] - top)
-            total += reach[j]
+            linear[j] = math.exp(alpha[r, j] - top)
+            total += linear[j]
         log_total = math.log(total)
         for j in range(n_cells):
             alpha[r, j] = alpha[r, j] - top - log_total
-            previous[j] = reach[j] / total
+            previous[j] = linear[j] / total
     return alpha, True
 
 
@@ -331,18 +353,35 @@ def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u,
 
 
 @njit(cache=True, nogil=True)
+def _step_window(log_kernel, cell_next, n_cells):
+    """Cells [lo, hi) that line r may take given line r + 1's cell, and the kernel's centre index.
+
+    ``log_kernel`` holds the log weights of steps -K..K (length 2 K + 1, K = its reach); an
+    empty one means independent lines (every cell). Cells beyond the reach have weight 0.
+    """
+    if log_kernel.shape[0] == 0:
+        return 0, n_cells, 0
+    reach = (log_kernel.shape[0] - 1) // 2
+    return max(0, cell_next - reach), min(n_cells, cell_next + reach + 1), reach - cell_next
+
+
+@njit(cache=True, nogil=True)
 def _step_logits(alpha, r, cell_next, log_kernel, out):
+    """Backward logits of line r's cells given line r + 1's (``out``, -inf outside the window); their log-sum-exp."""
     n_cells = alpha.shape[1]
+    lo, hi, offset = _step_window(log_kernel, cell_next, n_cells)
     top = -np.inf
     for j in range(n_cells):
+        out[j] = -np.inf
+    for j in range(lo, hi):
         v = alpha[r, j]
         if log_kernel.shape[0] > 0:
-            v += log_kernel[n_cells - 1 - cell_next + j]
+            v += log_kernel[j + offset]
         out[j] = v
         if v > top:
             top = v
     total = 0.0
-    for j in range(n_cells):
+    for j in range(lo, hi):
         total += math.exp(out[j] - top)
     return top + math.log(total)
 
@@ -351,7 +390,8 @@ def _step_logits(alpha, r, cell_next, log_kernel, out):
 def cell_path_log_prob(alpha, path, log_kernel):
     """Log probability that backward sampling from ``alpha`` with step weights ``log_kernel`` draws ``path``.
 
-    ``log_kernel`` (2 S + 1,) log weights of cell steps -S..S (empty: independent lines).
+    ``log_kernel`` (2 K + 1,) log weights of cell steps -K..K (empty: independent lines);
+    a path with a step beyond K has probability 0.
     """
     n_lines, n_cells = alpha.shape
     logits = np.empty(n_cells)
@@ -366,30 +406,38 @@ def cell_path_log_prob(alpha, path, log_kernel):
 
 @njit(cache=True, nogil=True)
 def cell_backward_sample(alpha, log_kernel, uniforms):
-    """A cell path drawn backwards from ``alpha`` (last line first), one uniform per line."""
+    """A cell path drawn backwards from ``alpha`` (last line first), one uniform per line.
+
+    Line r's draw looks only at the cells within the kernel's reach of line r + 1's cell.
+    """
     n_lines, n_cells = alpha.shape
     logits = np.empty(n_cells)
+    weights = np.empty(n_cells)
     path = np.empty(n_lines, np.int64)
     for r in range(n_lines - 1, -1, -1):
         if r == n_lines - 1:
+            lo, hi = 0, n_cells
             for j in range(n_cells):
                 logits[j] = alpha[r, j]
         else:
+            lo, hi, _ = _step_window(log_kernel, path[r + 1], n_cells)
             _step_logits(alpha, r, path[r + 1], log_kernel, logits)
         top = -np.inf
-        for j in range(n_cells):
+        for j in range(lo, hi):
             if logits[j] > top:
                 top = logits[j]
         total = 0.0
-        for j in range(n_cells):
-            total += math.exp(logits[j] - top)
+        for j in range(lo, hi):
+            weights[j] = math.exp(logits[j] - top)
+            total += weights[j]
         target = uniforms[r] * total
         running = 0.0
-        chosen = n_cells - 1
-        for j in range(n_cells):
-            running += math.exp(logits[j] - top)
-            if running > target:
-                chosen = j
+        chosen = -1
+        for j in range(lo, hi):
+            if weights[j] > 0.0:
+                chosen = j      # rounding may leave running <= target: the last cell of weight > 0 then
+            running += weights[j]
+            if running > target and weights[j] > 0.0:
                 break
         path[r] = chosen
     return path

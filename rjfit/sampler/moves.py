@@ -987,30 +987,45 @@ def _cell_of(x, size):
 def _forward_filter(log_emit, log_kernel):
     """Forward pass of the chain of cells along the lines: normalised log alphas (L, S + 1), or None.
 
-    ``log_kernel`` (2 S + 1,) holds the log weights of cell steps -S..S between neighbouring
-    lines, or is None for independent lines. The sums run in linear space (compiled:
-    :func:`rjfit.sampler.jit.forward_filter`) over the steps whose weight is at least 1e-30
-    of the largest; round-off and that cut only perturb the proposal, whose density the
-    move computes from the same alphas both ways, so it stays exact.
+    ``log_kernel`` (2 K + 1,) holds the log weights of cell steps -K..K between neighbouring
+    lines (:func:`_truncated_log_kernel`: the steps whose weight is at least 1e-30 of the
+    largest), or is None for independent lines. The sums run in linear space (compiled:
+    :func:`rjfit.sampler.jit.forward_filter`); round-off and the cut only perturb the
+    proposal, whose density the move computes from the same alphas and steps both ways, so
+    it stays exact.
     """
     if log_kernel is None:
         kernel, reach = np.zeros(0), 0
     else:
-        centre = log_kernel.size // 2
-        keep = np.flatnonzero(log_kernel - log_kernel.max() >= math.log(1e-30))
-        reach = int(max(abs(keep[0] - centre), abs(keep[-1] - centre)))
-        kernel = np.exp(log_kernel[centre - reach: centre + reach + 1] - log_kernel.max())
+        reach = (log_kernel.size - 1) // 2
+        kernel = np.exp(log_kernel - log_kernel.max())
     alpha, ok = jit.forward_filter(np.ascontiguousarray(log_emit, dtype=float), kernel, reach)
     return alpha if ok else None
 
 
+def _truncated_log_kernel(log_kernel):
+    """The log step weights -K..K whose weight is at least 1e-30 of the largest (the chain's steps)."""
+    centre = log_kernel.size // 2
+    keep = np.flatnonzero(log_kernel - log_kernel.max() >= math.log(1e-30))
+    reach = int(max(abs(keep[0] - centre), abs(keep[-1] - centre)))
+    return log_kernel[centre - reach: centre + reach + 1]
+
+
 def _cell_step_logits(log_kernel):
-    """Backward logits of the cell chain: line r's cells given line r + 1's cell."""
+    """Backward logits of the cell chain: line r's cells given line r + 1's cell.
+
+    ``log_kernel`` (2 K + 1,) holds the log weights of steps -K..K; cells further than K
+    from line r + 1's cell get -inf (None: independent lines).
+    """
     def logits(alpha, r, cell_next):
         if log_kernel is None:
             return alpha[r]
-        n_cells = alpha.shape[1]
-        return alpha[r] + log_kernel[n_cells - 1 - cell_next: 2 * n_cells - 1 - cell_next]
+        reach = (log_kernel.size - 1) // 2
+        steps = np.arange(alpha.shape[1]) - cell_next
+        inside = np.abs(steps) <= reach
+        out = np.full(alpha.shape[1], -np.inf)
+        out[inside] = alpha[r, inside] + log_kernel[reach + steps[inside]]
+        return out
     return logits
 
 
@@ -1139,7 +1154,7 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     if config.cp_prior == "smooth":
         sd = config.cp_smooth_sd
         offsets = np.arange(-size, size + 1)
-        log_kernel = -0.5 * offsets ** 2 / (sd ** 2 + 1.0 / 12.0)
+        log_kernel = _truncated_log_kernel(-0.5 * offsets ** 2 / (sd ** 2 + 1.0 / 12.0))
     alpha = _forward_filter(log_emit, log_kernel)
     if alpha is None:
         return cps, None, -np.inf
