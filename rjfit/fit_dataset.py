@@ -11,7 +11,7 @@ from pathlib import Path
 
 from rjfit.data.dataset import load_dataset
 
-__all__ = ["fit_dataset", "fit_datasets"]
+__all__ = ["fit_dataset", "fit_datasets", "check_validation_file"]
 
 
 def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validation_path=None,
@@ -43,11 +43,15 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
     ------
     rjfit.validate.ValidationRequiredError
         If the data set has not passed the gate and ``allow_unvalidated`` is False.
+    DatasetError
+        If the validation file is not a validation result (e.g. a fit's ``summary.json``), or
+        the data set cannot be loaded (see :func:`rjfit.data.dataset.load_dataset`).
     """
     from rjfit.fit import fit
     from rjfit.validate import dataset_fingerprint, require_validated
 
     dataset_dir = Path(dataset_dir)
+    check_validation_file(dataset_dir, validation_path)
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
     dataset = load_dataset(dataset_dir)
     if burn_in is None:
@@ -79,6 +83,35 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
                burn_in=burn_in, chain_runner=chain_runner, before_publish=describe_data_set, **fit_options)
 
 
+def check_validation_file(dataset_dir, validation_path=None) -> None:
+    """Check the validation file a fit will read, before the gate reads it: ``validation_path``
+    (``--validation FILE``), else ``dataset_dir/validation/validation.json`` where it exists.
+
+    A file that is not a validation result (a fit's ``summary.json``, ``{"passed": false}``)
+    must be refused with a message naming it, not fail while the gate formats its numbers.
+    A missing file is left to :func:`rjfit.validate.require_validated`, which says what to run.
+
+    Raises
+    ------
+    DatasetError
+        If the file is not JSON or not a validation result written by ``rjfit validate``.
+    """
+    from rjfit.data.dataset import read_validation_result
+
+    path = Path(dataset_dir) / "validation" / "validation.json" if validation_path is None else Path(validation_path)
+    if path.is_file():
+        read_validation_result(path)
+
+
+def _measure(value) -> str:
+    """A validation measure for a message: ``n/a`` where the result has none (null, missing, NaN)."""
+    import math
+
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return f"{value:.3g}"
+    return "n/a"
+
+
 def validation_record(validation, validation_file) -> dict:
     """What a summary records of the cross-check it was fitted under (``note`` says why it did not pass)."""
     if validation is None:
@@ -86,8 +119,8 @@ def validation_record(validation, validation_file) -> dict:
     record = {**{key: validation.get(key) for key in ("passed", "median_rel_err", "p99_rel_err", "unexplained_fraction")},
               "path": str(Path(validation_file).resolve())}
     if not validation.get("passed"):
-        record["note"] = (f"FAILED the cross-check (median rel. err. {validation.get('median_rel_err'):.3g}, "
-                          f"p99 {validation.get('p99_rel_err'):.3g})")
+        record["note"] = (f"FAILED the cross-check (median rel. err. {_measure(validation.get('median_rel_err'))}, "
+                          f"p99 {_measure(validation.get('p99_rel_err'))})")
     elif validation.get("stale"):
         record["passed"] = None
         record["note"] = "was cross-checked on other files (the data set changed since)"
@@ -145,12 +178,22 @@ def fit_datasets(dataset_dirs, out_dir, *, scheduler=None, n_workers=2, **option
     -------
     list of (Path, dict)
         Each fit folder with its summary.
+
+    Raises
+    ------
+    rjfit.validate.ValidationRequiredError
+        If a data set has not passed the gate and ``allow_unvalidated`` is not set.
+    DatasetError
+        If a validation file is not a validation result, or a data set cannot be loaded.
+    ValueError
+        If several data sets share a folder name.
     """
     from rjfit.validate import require_validated
 
     dataset_dirs = [Path(d) for d in dataset_dirs]
     out_dir = Path(out_dir)
     for dataset_dir in dataset_dirs:     # every gate first: a batch must not stop at its third data set
+        check_validation_file(dataset_dir, options.get("validation_path"))
         require_validated(dataset_dir, options.get("validation_path"),
                           allow_unvalidated=options.get("allow_unvalidated", False))
     if len(dataset_dirs) == 1:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import is_dataset, read_json, write_json_atomic
+from rjfit.data.dataset import is_dataset, read_json, read_validation_result, write_json_atomic
 from rjfit.data.exr import write_exr
 from rjfit.data.lights import geometry_terms
 from rjfit.model.blinn import radiance
@@ -310,7 +310,7 @@ def require_validated(dataset_dir, validation_path=None, *, allow_unvalidated=Fa
             f"{dataset_dir}: its forward model has not been cross-checked (no {validation_path}); run `rjfit validate "
             f"{dataset_dir}` first, or pass --validation FILE if you wrote it elsewhere with `validate --out`"
             f"{override}")
-    result = read_json(validation_path)
+    result = read_validation_result(validation_path)
     problem = None
     if not result.get("passed"):
         problem = (f"failed the cross-check (median rel. err. {result.get('median_rel_err'):.3g}, "

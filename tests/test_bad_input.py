@@ -83,8 +83,12 @@ def make_ps_folder(folder, *, images="png", normals_name="Normal_gt.mat"):
     return folder
 
 
-def make_rjfit_folder(folder, *, lights=None):
-    """A valid rjfit-layout data set (dataset.json, EXR images, geometry.exr) of point lights."""
+def make_rjfit_folder(folder, *, lights=None, full=False):
+    """A valid rjfit-layout data set (dataset.json, EXR images, geometry.exr) of point lights.
+
+    ``full``: also what a rendered data set has: camera, reference intensity, two materials,
+    a mesh part per material, visibility.exr and truth_labels.exr (left half 0, right half 1).
+    """
     folder = Path(folder)
     mask, normals = sphere_geometry()
     lights = lights or [{"kind": "point", "intensity": 10.0, "position": [0.0, 0.0, 5.0]},
@@ -98,10 +102,36 @@ def make_rjfit_folder(folder, *, lights=None):
     channels.update({"V.X": np.zeros((HEIGHT, WIDTH)), "V.Y": np.zeros((HEIGHT, WIDTH)),
                      "V.Z": np.ones((HEIGHT, WIDTH)), "mask": mask.astype(np.float32)})
     write_exr(folder / "geometry.exr", channels)
-    (folder / "dataset.json").write_text(json.dumps({
-        "format": DATASET_FORMAT, "lights": lights, "images": images, "resolution": [HEIGHT, WIDTH],
-        "geometry": "geometry.exr"}))
+    meta = {"format": DATASET_FORMAT, "lights": lights, "images": images, "resolution": [HEIGHT, WIDTH],
+            "geometry": "geometry.exr"}
+    if full:
+        import trimesh
+
+        (folder / "meshes").mkdir()
+        for part in range(2):
+            trimesh.creation.box().export(folder / f"meshes/part_{part:03d}.ply")
+        write_exr(folder / "visibility.exr", {f"light_{i:03d}": np.ones((HEIGHT, WIDTH)) for i in range(len(lights))})
+        labels = np.where(mask, (np.arange(WIDTH) >= WIDTH // 2)[None, :].astype(float), -1.0)
+        write_exr(folder / "truth_labels.exr", {"label": labels})
+        meta.update({
+            "camera": {"kind": "orthographic", "origin": [0, 0, 8], "target": [0, 0, 0], "up": [0, 1, 0],
+                       "half_width": 1.2},
+            "reference_intensity": 10.0,
+            "materials": [{"name": "left", "I0": 10.0, "kd": 0.5, "gamma": 8.0, "sigma2": 0.0},
+                          {"name": "right", "I0": 5.0, "kd": 0.9, "gamma": 20.0, "sigma2": 0.0}],
+            "meshes": [{"file": f"meshes/part_{part:03d}.ply", "material": part, "faces": 12} for part in range(2)],
+            "visibility": "visibility.exr", "truth_labels": "truth_labels.exr", "max_depth": 8, "saturation": None})
+    (folder / "dataset.json").write_text(json.dumps(meta))
     return folder
+
+
+def edit_description(folder, edit):
+    """Apply ``edit(meta)`` to the folder's dataset.json (``edit`` may return a replacement)."""
+    path = Path(folder) / "dataset.json"
+    meta = json.loads(path.read_text())
+    replaced = edit(meta)
+    path.write_text(json.dumps(meta if replaced is None else replaced))
+    return path
 
 
 def raises(error, *parts):
@@ -125,6 +155,9 @@ def test_valid_folders_load(tmp_path):
     np.testing.assert_allclose(generic.images[1:], dataset.images[1:], rtol=1e-6)
     assert generic.meta["saturation"]["raw_threshold"] is None  # float images: no default threshold
     assert load_dataset(make_rjfit_folder(tmp_path / "rjfit")).n_lights == 2
+    full = load_dataset(make_rjfit_folder(tmp_path / "full", full=True))
+    assert full.visibility.all() and set(np.unique(full.truth_labels)) == {-1, 0, 1}
+    assert full.truth_params[1] == {"I0": 5.0, "kd": 0.9, "gamma": 20.0, "sigma2": 0.0}
 
 
 def test_srgb_encoded_eight_bit_is_decoded(tmp_path):
@@ -334,3 +367,229 @@ def test_mesh_without_faces(tmp_path):
     good = tmp_path / "box.ply"
     trimesh.creation.box().export(good)
     assert len(load_mesh(good).faces) == 12
+
+
+# -- dataset.json: every entry the loaders read is checked up front ---------------------------------
+
+def _drop(*keys):
+    """An edit that deletes meta[keys[0]][keys[1]]..."""
+    def edit(meta):
+        target = meta
+        for key in keys[:-1]:
+            target = target[key]
+        del target[keys[-1]]
+    return edit
+
+
+def _put(value, *keys):
+    def edit(meta):
+        target = meta
+        for key in keys[:-1]:
+            target = target[key]
+        target[keys[-1]] = value
+    return edit
+
+
+# (the edit of a valid full dataset.json, the entry and the problem the message must state)
+DESCRIPTION_CASES = {
+    "no lights": (_drop("lights"), "'lights' is missing; a data set needs a list of lights"),
+    "no resolution": (_drop("resolution"), "'resolution' is missing; a data set needs a resolution [height, width]"),
+    "no geometry": (_drop("geometry"), "'geometry' is missing"),
+    "resolution scalar": (_put(16, "resolution"), "resolution is 16; it must be [height, width]"),
+    "light without kind": (_drop("lights", 0, "kind"), "lights[0].kind is missing"),
+    "lights not a list": (_put({"kind": "point"}, "lights"),
+                          "lights is {'kind': 'point'}; it must be a non-empty list"),
+    "position of 2": (_put([1, 2], "lights", 0, "position"),
+                      "lights[0].position is [1, 2]; it must be a list of 3 finite numbers"),
+    "intensity text": (_put("bright", "lights", 1, "intensity"),
+                       "lights[1].intensity is 'bright'; it must be a number > 0"),
+    "no materials": (_drop("materials"),
+                     "'materials' is missing; a data set needs its materials {I0, kd, gamma, sigma2} when it has "
+                     "truth_labels"),
+    "material without kd": (_drop("materials", 0, "kd"), "materials[0].kd is missing"),
+    "material without sigma2": (_drop("materials", 1, "sigma2"), "materials[1].sigma2 is missing"),
+    "kd 1.5": (_put(1.5, "materials", 1, "kd"), "materials[1].kd is 1.5; it must be a number in [0, 1]"),
+    "description is a list": (lambda meta: [1, 2, 3], "a data set description is a JSON object"),
+    "reference intensity 0": (_put(0, "reference_intensity"), "reference_intensity is 0; it must be a number > 0"),
+    "no reference intensity with meshes": (_drop("reference_intensity"), "'reference_intensity' is missing"),
+    "camera without fov": (lambda meta: meta.update(camera={"kind": "perspective", "origin": [0, 0, 8],
+                                                              "target": [0, 0, 0], "up": [0, 1, 0]}),
+                           "camera.fov is missing"),
+    "no camera with meshes": (_drop("camera"), "'camera' is missing"),
+    "mesh without file": (_drop("meshes", 0, "file"), "meshes[0].file is missing"),
+    "mesh material 9": (_put(9, "meshes", 1, "material"), "meshes[1].material is 9; it must index the 2 entries of "
+                                                         "'materials', i.e. lie in [0, 1]"),
+    "meshes not a list": (_put("meshes/part_000.ply", "meshes"), "meshes is 'meshes/part_000.ply'; it must be a list"),
+    "image not a name": (_put([5, "images/light_001.exr"], "images"), "images[0] is 5; it must be an image file name"),
+    "one image for two lights": (_put(["images/light_000.exr"], "images"),
+                                 "images lists 1 files but 'lights' has 2; every light needs exactly one image"),
+    "visibility not a name": (_put(3, "visibility"), "visibility is 3; it must be a file name"),
+    "saturation negative": (_put(-1, "saturation"), "saturation is -1; it must be a value > 0 at which a pixel clips, "
+                                                    "or null"),
+    "max_depth 1": (_put(1, "max_depth"), "max_depth is 1; it must be an integer >= 2"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DESCRIPTION_CASES))
+def test_bad_dataset_description_names_the_file_and_entry(tmp_path, case):
+    from rjfit.data.errors import SceneError
+
+    edit, message = DESCRIPTION_CASES[case]
+    folder = make_rjfit_folder(tmp_path, full=True)
+    path = edit_description(folder, edit)
+    with pytest.raises(SceneError) as caught:
+        load_dataset(folder)
+    text = str(caught.value)
+    assert text.startswith(f"{path}: "), text
+    assert message in text and "docs/dataset-format.md" in text and "\n" not in text, text
+    assert isinstance(caught.value, DatasetError)
+
+
+def test_lean_description_without_meshes_or_truth_loads(tmp_path):
+    """Camera, meshes, materials and truth are optional together: a measured data set in the
+    rjfit layout has only lights, images and geometry."""
+    folder = make_rjfit_folder(tmp_path, full=True)
+    edit_description(folder, lambda meta: {key: value for key, value in meta.items()
+                                           if key not in ("camera", "meshes", "materials", "truth_labels",
+                                                          "reference_intensity")})
+    dataset = load_dataset(folder)
+    assert dataset.truth_labels is None and dataset.reference_intensity == 1.0
+    # meshes without materials: the cross-check renders them with its one probe material
+    folder = make_rjfit_folder(tmp_path / "no_materials", full=True)
+    edit_description(folder, lambda meta: {**{key: value for key, value in meta.items()
+                                              if key not in ("materials", "truth_labels")},
+                                           "meshes": [{"file": "meshes/part_000.ply", "material": 0}]})
+    assert load_dataset(folder).truth_params is None
+    edit_description(folder, _put(1, "meshes", 0, "material"))
+    with raises(DatasetError, folder / "dataset.json", "meshes[0].material is 1; without 'materials' every part "
+                "must use material 0"):
+        load_dataset(folder)
+
+
+def test_missing_mesh_file_is_named(tmp_path):
+    folder = make_rjfit_folder(tmp_path, full=True)
+    (folder / "meshes/part_001.ply").unlink()
+    with raises(DatasetFileNotFoundError, folder / "meshes/part_001.ply", "no such file",
+                folder / "dataset.json", "names it as meshes[1].file"):
+        load_dataset(folder)
+
+
+def test_unreadable_json_names_the_file(tmp_path):
+    from rjfit.data.dataset import read_json
+
+    folder = make_rjfit_folder(tmp_path)
+    (folder / "dataset.json").write_bytes(b"{\n \"x\xfb\xfe\": 1}")
+    with raises(DatasetError, folder / "dataset.json", "not a readable JSON text file", "can't decode byte 0xfb"):
+        load_dataset(folder)
+    (tmp_path / "folder.json").mkdir()
+    with raises(DatasetError, tmp_path / "folder.json", "not a readable JSON text file"):
+        read_json(tmp_path / "folder.json")
+    with pytest.raises(FileNotFoundError):
+        read_json(tmp_path / "absent.json")
+
+
+# -- the EXR files of the rjfit layout: channels, sizes, labels ----------------------------------------
+
+def _rewrite_exr(path, edit):
+    from rjfit.data.exr import read_exr
+
+    write_exr(path, edit(read_exr(path)))
+
+
+def _without(name):
+    return lambda channels: {key: value for key, value in channels.items() if key != name}
+
+
+def _shrunk(channels):
+    return {key: value[:4, :5] for key, value in channels.items()}
+
+
+@pytest.mark.parametrize("file, edit, message", [
+    ("geometry.exr", _without("mask"), "needs channels P.X P.Y P.Z N.X N.Y N.Z V.X V.Y V.Z mask (the geometry); "
+                                       "missing mask"),
+    ("geometry.exr", _without("N.X"), "needs channels P.X P.Y P.Z N.X N.Y N.Z V.X V.Y V.Z mask (the geometry); "
+                                      "missing N.X (the file has N.Y N.Z P.X"),
+    ("visibility.exr", _without("light_001"), "needs channels light_000 light_001 (the shadow-ray visibility"),
+    ("visibility.exr", _shrunk, "channel light_000 is 5 x 4 (width x height), but"),
+    ("truth_labels.exr", lambda channels: {"labels": channels["label"]}, "needs channel label (the truth labels); "
+                                                                         "missing label (the file has labels)"),
+    ("truth_labels.exr", _shrunk, "channel label is 5 x 4 (width x height), but"),
+    ("images/light_001.exr", _without("G"), "needs channels R G B (the image of light 1 (images[1])); missing G"),
+    ("images/light_000.exr", _shrunk, "channel R is 5 x 4 (width x height), but"),
+])
+def test_exr_channels_and_sizes_are_checked(tmp_path, file, edit, message):
+    folder = make_rjfit_folder(tmp_path, full=True)
+    _rewrite_exr(folder / file, edit)
+    with raises(DatasetError, f"{folder / file}: {message}"):
+        load_dataset(folder)
+    if "x 4" in message:   # the size message says what size the data set has, and where that is stated
+        with raises(DatasetError, f"{folder / 'dataset.json'} says the images are {WIDTH} x {HEIGHT} (resolution)"):
+            load_dataset(folder)
+
+
+def test_truth_labels_must_be_finite_material_indices(tmp_path):
+    folder = make_rjfit_folder(tmp_path, full=True)
+    path = folder / "truth_labels.exr"
+    _rewrite_exr(path, lambda c: {"label": np.where(c["label"] >= 0, np.nan, c["label"]).astype(np.float32)})
+    with raises(DatasetError, path, f"{MASK_PIXELS} labels are NaN or Inf (first at row"):
+        load_dataset(folder)
+    _rewrite_exr(path, lambda c: {"label": np.where(np.isnan(c["label"]), 2.0, c["label"]).astype(np.float32)})
+    with raises(DatasetError, path, f"{MASK_PIXELS} labels are outside [-1, 1] (first 2 at row",
+                "an index into the 2 entries of 'materials'", folder / "dataset.json"):
+        load_dataset(folder)
+
+
+# -- --validation FILE that is not a validation result ----------------------------------------------
+
+@pytest.mark.parametrize("content, problem", [
+    ({"passed": False}, "no 'dataset_sha256' entry"),
+    ({"regions": [], "warnings": [], "dataset_sha256": "ab"}, "no 'passed' entry"),   # a fit's summary.json
+    ({"passed": "yes", "dataset_sha256": "ab"}, "'passed' is 'yes', not true or false"),
+    ([1, 2], "a JSON list, not an object"),
+])
+def test_validation_file_that_is_not_a_validation_result(tmp_path, content, problem):
+    from rjfit.fit_dataset import fit_datasets
+
+    folder = make_rjfit_folder(tmp_path / "data")
+    path = tmp_path / "summary.json"
+    path.write_text(json.dumps(content))
+    with raises(DatasetError, path, "not a validation result written by `rjfit validate`", problem,
+                "pass the validation.json that `rjfit validate DATASET --out DIR` wrote"):
+        fit_datasets([folder], tmp_path / "fit", validation_path=path, allow_unvalidated=True)
+    assert not (tmp_path / "fit").exists()
+
+
+def test_validation_result_without_measures_is_described(tmp_path):
+    """A failed result whose measures are null (NaN written by write_json_atomic) or absent."""
+    from rjfit.data.dataset import read_validation_result
+    from rjfit.fit_dataset import validation_record
+
+    path = tmp_path / "validation.json"
+    path.write_text(json.dumps({"passed": False, "dataset_sha256": "ab", "median_rel_err": None}))
+    result = read_validation_result(path)
+    assert np.isnan(result["median_rel_err"]) and np.isnan(result["p99_rel_err"])
+    record = validation_record({"passed": False, "median_rel_err": None}, path)
+    assert record["note"] == "FAILED the cross-check (median rel. err. n/a, p99 n/a)"
+
+
+# -- photometric-stereo masks with an alpha channel ------------------------------------------------------
+
+def test_mask_alpha_channel_is_not_a_colour(tmp_path):
+    import cv2
+    from PIL import Image
+
+    folder = make_ps_folder(tmp_path)
+    mask, _ = sphere_geometry()
+    colour = (mask * 255).astype(np.uint8)
+    opaque = np.full_like(colour, 255)
+    # RGBA (OpenCV writes BGRA) with an opaque alpha everywhere: the alpha must not select the whole frame
+    assert cv2.imwrite(str(folder / "mask.png"), np.stack([colour, colour, colour, opaque], axis=-1))
+    np.testing.assert_array_equal(load_dataset(folder).object_mask, mask)
+    # grey + alpha (OpenCV reads it as 4 channels) whose alpha agrees with the grey
+    Image.fromarray(np.stack([colour, colour], axis=-1), "LA").save(folder / "mask.png")
+    np.testing.assert_array_equal(load_dataset(folder).object_mask, mask)
+    # the object drawn in the alpha only (white everywhere): ambiguous, refused
+    Image.fromarray(np.stack([opaque, colour], axis=-1), "LA").save(folder / "mask.png")
+    with raises(DatasetError, folder / "mask.png", f"alpha channel marks {MASK_PIXELS} pixels but its colour channels "
+                f"mark {HEIGHT * WIDTH}", "save the mask without an alpha channel"):
+        load_dataset(folder)

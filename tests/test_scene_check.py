@@ -123,3 +123,41 @@ def test_out_of_range_material_reaching_mitsuba_is_a_value_error_naming_it(tmp_p
     activate("llvm_ad_rgb")
     with pytest.raises(ValueError, match=r"material 'upper left': rjfit_blinn: kd must lie in \[0, 1\], got 1.5"):
         material_dict({"name": "upper left", "I0": 100.0, "kd": 1.5, "gamma": 5.0}, 100.0)
+
+
+_STACK = {"format": "rjfit-mesh-stack/1", "images": ["img_000.exr", "img_001.exr"], "mesh": "object.ply",
+          "camera": {"kind": "perspective", "origin": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 30},
+          "resolution": [16, 16], "lights": [{"kind": "point", "position": [1, 1, 3], "intensity": 1.0},
+                                             {"kind": "point", "position": [-1, 1, 3], "intensity": 1.0}]}
+
+
+@pytest.mark.parametrize("change, entry", [
+    ({"images": [5, 6]}, "images[0] is 5; it must be an image file name relative to the folder, a non-empty string"),
+    ({"images": "img_000.exr"}, "images is 'img_000.exr'; it must be a non-empty list of image file names"),
+    ({"images": []}, "images is []; it must be a non-empty list"),
+    ({"images": ["img_000.exr", ""]}, "images[1] is ''; it must be an image file name"),
+    ({"mesh": 3}, "mesh is 3; it must be the mesh's file name relative to the folder, a non-empty string"),
+    ({"mesh": ["object.ply"]}, "mesh is ['object.ply']; it must be the mesh's file name"),
+])
+def test_mesh_stack_images_and_mesh_must_be_file_names(tmp_path, change, entry):
+    """Used to reach the loader as ``PosixPath / int`` (TypeError) or, for a string, count its
+    characters as images."""
+    from rjfit.data.dataset import load_dataset
+
+    (tmp_path / "stack.json").write_text(json.dumps({**_STACK, **change}))
+    with pytest.raises(SceneError) as caught:
+        load_dataset(tmp_path)
+    message = str(caught.value)
+    assert message.startswith(f"{tmp_path / 'stack.json'}: {entry}"), message
+    assert "Measured mesh stacks" in message and "\n" not in message
+
+
+def test_dataset_description_must_be_an_object_with_its_format():
+    from rjfit.render.scene_check import check_dataset_description
+
+    with pytest.raises(SceneError, match=r"^ds/dataset.json: a data set description is a JSON object"):
+        check_dataset_description("text", "ds/dataset.json")
+    with pytest.raises(SceneError, match=r"^ds/dataset.json: format is 'rjfit-dataset/0'; it must be 'rjfit-dat"):
+        check_dataset_description({"format": "rjfit-dataset/0", "resolution": [2, 2], "images": ["a.exr"],
+                                   "geometry": "g.exr", "lights": [{"kind": "directional", "direction": [0, 0, 1],
+                                                                    "intensity": 1.0}]}, "ds/dataset.json")

@@ -195,3 +195,15 @@ def test_any_non_negative_seed_renders_and_validates(tmp_path):
     assert len(streams) == 5 and all(0 <= s < 2 ** 32 for s in streams)
     with pytest.raises(ValueError, match="non-negative"):
         mitsuba_seed(-1)
+
+
+def test_a_damaged_mesh_file_is_one_clear_error(paper_sphere_small, tmp_path):
+    from rjfit.data.errors import DatasetError
+
+    copy = tmp_path / "ds"
+    shutil.copytree(paper_sphere_small, copy)
+    (copy / "validation").exists() and shutil.rmtree(copy / "validation")
+    part = sorted((copy / "meshes").glob("*.ply"))[0]
+    part.write_bytes(part.read_bytes() + b"trailing junk\n")
+    with pytest.raises(DatasetError, match=rf"Mitsuba cannot load the data set's scene: .*{part.name}.*damaged"):
+        validate_dataset(copy, tmp_path / "v", spp=1)

@@ -18,13 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.checks import check_lights_face_object, check_mask, check_unit_normals
-from rjfit.data.errors import DatasetError
+from rjfit.data.checks import check_finite, check_lights_face_object, check_mask, check_unit_normals
+from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.data.exr import read_exr
 from rjfit.data.lights import Light, geometry_terms
 from rjfit.data.observations import Observations, valid_observation_mask
 
-__all__ = ["Dataset", "load_dataset", "is_dataset", "read_json", "write_json_atomic", "DATASET_FORMAT", "CHANNELS"]
+__all__ = ["Dataset", "load_dataset", "is_dataset", "read_json", "read_validation_result", "write_json_atomic",
+           "DATASET_FORMAT", "CHANNELS"]
 
 DATASET_FORMAT = "rjfit-dataset/1"
 CHANNELS = ("mean", "R", "G", "B", "luminance")
@@ -219,26 +220,131 @@ def is_dataset(path) -> bool:
     return (path / "dataset.json").is_file() or is_mesh_stack_folder(path) or is_diligent_folder(path)
 
 
-def read_json(path) -> dict:
-    """A JSON file's content; a file that does not parse is a :class:`DatasetError` naming it."""
+def read_json(path):
+    """A JSON file's content (any JSON value; callers check its shape).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    DatasetError
+        If the file does not parse as JSON, is not UTF-8 text, or cannot be read (a folder,
+        no permission); the message names it.
+    """
     path = Path(path)
     try:
         return json.loads(path.read_text())
     except json.JSONDecodeError as error:
         raise DatasetError(f"{path}: not valid JSON ({error}); was it truncated or edited by hand?") from None
+    except FileNotFoundError:
+        raise
+    except (UnicodeDecodeError, OSError) as error:
+        raise DatasetError(f"{path}: not a readable JSON text file ({error})") from None
+
+
+#: The measures of a validation result that messages quote; a missing or null one reads as NaN.
+_VALIDATION_MEASURES = ("median_rel_err", "p99_rel_err", "unexplained_fraction")
+
+
+def read_validation_result(path) -> dict:
+    """The cross-check result in ``path`` (a ``validation.json`` that ``rjfit validate`` wrote),
+    checked: a JSON object with ``passed`` (true or false) and ``dataset_sha256`` (a string).
+
+    The measures ``median_rel_err``, ``p99_rel_err`` and ``unexplained_fraction`` come back as
+    floats, NaN where the file has none or ``null`` (``write_json_atomic`` writes NaN as
+    ``null``), so messages can always format them.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    DatasetError
+        If it is not JSON, or not a validation result (e.g. a fit's ``summary.json``); the
+        message names the file and says which file to pass instead.
+    """
+    path = Path(path)
+    result = read_json(path)
+    fix = ("pass the validation.json that `rjfit validate DATASET --out DIR` wrote (DIR/validation.json), or "
+           "run `rjfit validate` again")
+    if not isinstance(result, dict):
+        raise DatasetError(f"{path}: not a validation result written by `rjfit validate` (a JSON "
+                           f"{type(result).__name__}, not an object); {fix}")
+    problems = []
+    if not isinstance(result.get("passed"), bool):
+        problems.append(f"'passed' is {result['passed']!r}, not true or false" if "passed" in result
+                        else "no 'passed' entry")
+    if not isinstance(result.get("dataset_sha256"), str):
+        problems.append(f"'dataset_sha256' is {result['dataset_sha256']!r}, not a string"
+                        if "dataset_sha256" in result else "no 'dataset_sha256' entry")
+    if problems:
+        raise DatasetError(f"{path}: not a validation result written by `rjfit validate` ({'; '.join(problems)}); "
+                           f"{fix}")
+    measures = {}
+    for key in _VALIDATION_MEASURES:
+        value = result.get(key)
+        measures[key] = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else np.nan
+    return {**result, **measures}
+
+
+def _read_channels(path, names, shape, role, description_path):
+    """The channels ``names`` of the EXR file ``path`` that a data set needs, each (H, W) = ``shape``.
+
+    One check for every EXR file of the rjfit layout: the file exists, has the channels and
+    each has the images' size; ``role`` says what the file is, for messages.
+
+    Raises
+    ------
+    DatasetFileNotFoundError
+        If the file is missing.
+    DatasetError
+        If a channel is missing or has another size.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetFileNotFoundError(f"{path}: no such file; {description_path} names it as {role}")
+    channels = read_exr(path)
+    missing = [name for name in names if name not in channels]
+    _require(not missing, f"{path}: needs channel{'s' if len(names) > 1 else ''} {' '.join(names)} ({role}); missing "
+                          f"{' '.join(missing)} (the file has {' '.join(sorted(channels)) or 'no channel'})")
+    height, width = shape
+    for name in names:
+        size = channels[name].shape
+        _require(size == (height, width),
+                 f"{path}: channel {name} is {size[1]} x {size[0]} (width x height), but {description_path} says "
+                 f"the images are {width} x {height} (resolution); every file of a data set must have one size")
+    return [channels[name] for name in names]
 
 
 def load_dataset(path, **options) -> Dataset:
     """Load a data set: the rjfit layout (see the module docstring), a mesh stack
     (:mod:`rjfit.data.mesh_stack`) or a photometric-stereo folder (:mod:`rjfit.data.diligent`).
 
+    Parameters
+    ----------
+    path : path-like
+        The data set folder.
+    **options
+        Loader options of photometric-stereo folders (see :func:`rjfit.data.diligent.load_diligent`)
+        or mesh stacks (``variant``); none apply to the rjfit layout.
+
+    Returns
+    -------
+    Dataset
+
     Raises
     ------
     FileNotFoundError
-        If the folder, ``dataset.json`` or a file it names is missing.
-    ValueError
-        If a file holds NaN/Inf, sizes disagree, or lights and images do not pair up.
+        If the folder is not a data set of any layout.
+    DatasetFileNotFoundError
+        (a ``DatasetError`` and a ``FileNotFoundError``) if a file the description names is missing.
+    DatasetError
+        (a ``ValueError``) if ``dataset.json`` is not valid JSON or misses or mistypes an entry
+        (see :func:`rjfit.render.scene_check.check_dataset_description`), a file holds NaN/Inf,
+        lacks a channel, sizes disagree, a truth label indexes no material, or the geometry is
+        unusable (empty mask, normals not unit length, every light behind the object).
     """
+    from rjfit.render.scene_check import check_dataset_description
+
     path = Path(path)
     description_path = path / "dataset.json"
     if not description_path.is_file():
@@ -252,46 +358,54 @@ def load_dataset(path, **options) -> Dataset:
             return load_diligent(path, **options)
         raise FileNotFoundError(f"{path}: not a data set (no dataset.json, and not a DiLiGenT-style folder)")
     _require(not options, f"{path}: options {sorted(options)} apply to photometric-stereo folders only")
-    meta = read_json(description_path)
-    _require(meta.get("format") == DATASET_FORMAT,
-             f"{description_path}: format is {meta.get('format')!r}, expected {DATASET_FORMAT!r}")
+    meta = check_dataset_description(read_json(description_path), description_path)
     lights = [Light.from_json(entry) for entry in meta["lights"]]
-    image_files = meta["images"]
-    _require(len(image_files) == len(lights),
-             f"{description_path}: {len(lights)} lights but {len(image_files)} images; every light needs "
-             f"exactly one image")
-    height, width = meta["resolution"]
+    height, width = (int(n) for n in meta["resolution"])
+    shape = (height, width)
+    for index, part in enumerate(meta.get("meshes") or []):
+        mesh_file = path / part["file"]
+        if not mesh_file.is_file():
+            raise DatasetFileNotFoundError(f"{mesh_file}: no such file; {description_path} names it as "
+                                           f"meshes[{index}].file")
     images = []
-    for name in image_files:
-        channels = read_exr(path / name)
-        _require(all(c in channels for c in "RGB"), f"{path / name}: needs channels R, G, B, has {sorted(channels)}")
-        image = np.stack([channels[c] for c in "RGB"], axis=-1)
-        _require(image.shape[:2] == (height, width),
-                 f"{path / name}: image is {image.shape[1]} x {image.shape[0]}, the data set says "
-                 f"{width} x {height}")
+    for index, name in enumerate(meta["images"]):
+        image = np.stack(_read_channels(path / name, "RGB", shape, f"the image of light {index} (images[{index}])",
+                                        description_path), axis=-1)
         bad = ~np.isfinite(image)
         _require(not bad.any(), f"{path / name}: {int(bad.any(axis=-1).sum())} pixels are NaN or Inf")
         images.append(image)
-    geometry = read_exr(path / meta["geometry"])
-    for channel_name, channel in geometry.items():
-        _require(channel.shape == (height, width),
-                 f"{path / meta['geometry']}: channel {channel_name} is {channel.shape}, expected {(height, width)}")
+    geometry_file = path / meta["geometry"]
+    geometry_names = [f"{prefix}.{axis}" for prefix in "PNV" for axis in "XYZ"] + ["mask"]
+    geometry = dict(zip(geometry_names, _read_channels(geometry_file, geometry_names, shape, "the geometry",
+                                                       description_path)))
     stack3 = lambda prefix: np.stack([geometry[f"{prefix}.{axis}"] for axis in "XYZ"], axis=-1).astype(np.float64)
     object_mask = geometry["mask"] > 0.5
     visibility = None
     if meta.get("visibility"):
-        visibility_channels = read_exr(path / meta["visibility"])
-        visibility = np.stack([visibility_channels[f"light_{i:03d}"] > 0.5 for i in range(len(lights))])
+        visibility_file = path / meta["visibility"]
+        visibility = np.stack(_read_channels(visibility_file, [f"light_{i:03d}" for i in range(len(lights))], shape,
+                                             "the shadow-ray visibility (one channel per light)",
+                                             description_path)) > 0.5
     truth_labels = truth_params = None
     if meta.get("truth_labels"):
-        truth_labels = np.rint(read_exr(path / meta["truth_labels"])["label"]).astype(np.int32)
+        labels_file = path / meta["truth_labels"]
+        (labels,) = _read_channels(labels_file, ["label"], shape, "the truth labels", description_path)
+        check_finite(labels, labels_file, "labels")
+        truth_labels = np.rint(labels).astype(np.int32)
+        n_materials = len(meta["materials"])
+        outside = (truth_labels < -1) | (truth_labels >= n_materials)
+        if outside.any():
+            rows, cols = np.nonzero(outside)
+            raise DatasetError(f"{labels_file}: {int(outside.sum())} labels are outside [-1, {n_materials - 1}] "
+                               f"(first {truth_labels[rows[0], cols[0]]} at row {rows[0]}, column {cols[0]}); a label "
+                               f"is -1 off the object or an index into the {n_materials} entries of 'materials' in "
+                               f"{description_path}")
         truth_params = [{key: float(material[key]) for key in ("I0", "kd", "gamma", "sigma2")}
                         for material in meta["materials"]]
     dataset = Dataset(path=path, meta=meta, images=np.stack(images), normals=stack3("N"),
                       view_dirs=stack3("V"), positions=stack3("P"), visibility=visibility, object_mask=object_mask,
                       lights=lights, truth_labels=truth_labels, truth_params=truth_params,
                       saturation=meta.get("saturation"))
-    geometry_file = path / meta["geometry"]
     check_mask(object_mask, f"{geometry_file} (channel mask)")
     check_unit_normals(dataset.normals, object_mask, f"{geometry_file} (channels N.X N.Y N.Z)")
     check_lights_face_object(lights, dataset.normals, dataset.positions, dataset.view_dirs, object_mask,

@@ -7,6 +7,7 @@ Uncalibrated Photometric Stereo", CVPR 2016)::
     FOLDER/light_directions.txt   one unit vector "x y z" per line, *towards* the (distant) light
     FOLDER/light_intensities.txt  one RGB triple "r g b" (or one value) per line: relative intensities
     FOLDER/mask.png               object mask, non-zero on the object (8- or 16-bit, grey or RGB)
+                                  in its colour channels; an alpha channel is not part of it
     FOLDER/Normal_gt.mat          normal map (H, W, 3), MATLAB variable ``Normal_gt``; or one of
                                   ``NORMAL_MAP_NAMES`` (.npy / .mat / .exr), or ``normals=`` given
     FOLDER/001.png ...            the images: 16-bit linear PNG or TIFF (read whole with OpenCV),
@@ -161,6 +162,14 @@ def _check_depth(raw: np.ndarray, path: Path, encoded, reference) -> None:
 
 
 def _read_mask(path: Path) -> np.ndarray:
+    """The object mask: pixels where any colour (or grey) channel is above half its range.
+
+    The mask is drawn in colour (DiLiGenT's are 8-bit RGB, 0 or 255); an alpha channel is not
+    part of it. OpenCV returns grey + alpha and RGBA files with the alpha last (4 channels,
+    or 2 for a grey + alpha TIFF): that channel is set aside, so an opaque alpha does not
+    select the whole frame. Where the alpha itself varies and marks other pixels than the
+    colour does, the file is ambiguous and refused.
+    """
     import cv2
 
     mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -168,10 +177,20 @@ def _read_mask(path: Path) -> np.ndarray:
         raise DatasetError(f"{path}: not a readable image (OpenCV could not decode it)")
     if np.issubdtype(mask.dtype, np.floating):
         check_finite(mask, path)
-        selected = mask > 0.5
-    else:
-        selected = mask > np.iinfo(mask.dtype).max // 2
-    return selected.any(axis=-1) if selected.ndim == 3 else selected
+    alpha = None
+    if mask.ndim == 3 and mask.shape[-1] in (2, 4):
+        mask, alpha = mask[..., :-1], mask[..., -1]
+    above_half = (lambda values: values > 0.5) if np.issubdtype(mask.dtype, np.floating) else (
+        lambda values: values > np.iinfo(mask.dtype).max // 2)
+    selected = above_half(mask)
+    selected = selected.any(axis=-1) if selected.ndim == 3 else selected
+    if alpha is not None and (alpha != alpha.flat[0]).any():
+        by_alpha = above_half(alpha)
+        if not np.array_equal(by_alpha, selected):
+            raise DatasetError(f"{path}: the mask's alpha channel marks {int(by_alpha.sum())} pixels but its colour "
+                               f"channels mark {int(selected.sum())}; rjfit reads the colour (non-zero on the "
+                               f"object), so save the mask without an alpha channel, as grey or RGB")
+    return selected
 
 
 def _find_normal_map(folder: Path, normals) -> Path:
@@ -191,6 +210,9 @@ def _read_normal_map(path: Path) -> np.ndarray:
     if suffix == ".npy":
         try:
             normals = np.load(path, allow_pickle=False)
+        # Broad on purpose: it wraps only this one read of the user's file, numpy documents no complete
+        # list of what a bad file raises (ValueError, EOFError, OSError seen), and it is re-raised as a
+        # DatasetError that names the file.
         except Exception as error:
             raise DatasetError(f"{path}: not a readable .npy file ({error})") from error
     elif suffix == ".mat":
@@ -201,6 +223,9 @@ def _read_normal_map(path: Path) -> np.ndarray:
         except NotImplementedError as error:  # MATLAB v7.3 files are HDF5
             raise DatasetError(f"{path}: MATLAB v7.3 (HDF5) file, which scipy cannot read; save it with "
                                f"-v7, or as .npy") from error
+        # Broad on purpose: it wraps only this one read of the user's file, and scipy raises whatever its
+        # parser hits on a corrupt one (MatReadError, ValueError, even IndexError for junk bytes); it is
+        # re-raised as a DatasetError that names the file.
         except Exception as error:
             raise DatasetError(f"{path}: not a readable MATLAB file ({error})") from error
         variables = {k: v for k, v in contents.items() if not k.startswith("__")}

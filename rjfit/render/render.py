@@ -67,16 +67,28 @@ def write_mesh_parts(geometry: dict, mesh_dir: Path) -> list[dict]:
 
 def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, lights=None, max_depth=None,
                             light_format="rgb", bsdf_override=None, extra=None):
-    """Rebuild the Mitsuba scene a data set was rendered from (the active variant is used)."""
+    """Rebuild the Mitsuba scene a data set was rendered from (the active variant is used).
+
+    Raises
+    ------
+    DatasetError
+        If Mitsuba cannot load the scene (a damaged mesh file): one line naming the data set
+        and Mitsuba's reason, which names the file.
+    """
     from rjfit.render.mitsuba_scene import build_scene
 
     parts = [(Path(dataset_dir) / entry["file"], entry["material"]) for entry in meta["meshes"]]
-    return build_scene(meta["camera"], meta["resolution"], parts,
-                       materials if materials is not None else meta["materials"],
-                       lights if lights is not None else [Light.from_json(e) for e in meta["lights"]],
-                       reference_intensity=meta["reference_intensity"],
-                       max_depth=max_depth if max_depth is not None else meta.get("max_depth", 8),
-                       light_format=light_format, bsdf_override=bsdf_override, extra=extra)
+    try:
+        return build_scene(meta["camera"], meta["resolution"], parts,
+                           materials if materials is not None else meta["materials"],
+                           lights if lights is not None else [Light.from_json(e) for e in meta["lights"]],
+                           reference_intensity=meta["reference_intensity"],
+                           max_depth=max_depth if max_depth is not None else meta.get("max_depth", 8),
+                           light_format=light_format, bsdf_override=bsdf_override, extra=extra)
+    except RuntimeError as error:      # Mitsuba's loader reports a damaged file as a RuntimeError
+        reason = " ".join(str(error).split())
+        raise DatasetError(f"{dataset_dir}: Mitsuba cannot load the data set's scene: {reason}; "
+                           f"is a mesh file under {Path(dataset_dir) / 'meshes'} damaged? Render the data set again") from error
 
 
 def check_replaceable(out_dir: Path) -> None:

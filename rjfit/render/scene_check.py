@@ -29,7 +29,7 @@ from numbers import Integral, Real
 
 from rjfit.data.errors import SceneError
 
-__all__ = ["check_scene_definition", "check_stack_description"]
+__all__ = ["check_scene_definition", "check_stack_description", "check_dataset_description"]
 
 _TOP_LEVEL = {"name", "description", "units", "resolution", "camera", "geometry", "materials", "lights",
               "reference_intensity", "noise_variance", "spp", "max_depth", "seed"}
@@ -38,9 +38,10 @@ _EXAMPLE = "see scenes/paper_sphere.json for a complete scene"
 
 
 class _Checker:
-    def __init__(self, source, hint=f"fix it in the scene file ({_EXAMPLE})"):
+    def __init__(self, source, hint=f"fix it in the scene file ({_EXAMPLE})", noun="a scene"):
         self.source = str(source)
         self.hint = hint
+        self.noun = noun            # what needs a missing entry: "a scene needs a camera ..."
 
     def fail(self, field, message):
         raise SceneError(f"{self.source}: {field} {message}; {self.hint}")
@@ -70,6 +71,20 @@ class _Checker:
             self.fail(field, f"is {value!r}; it must be a list of 3 finite numbers [x, y, z]")
         return [float(v) for v in value]
 
+    def text(self, value, field, what):
+        """A non-empty string; ``what`` says what it names (e.g. "a file name relative to the folder")."""
+        if not (isinstance(value, str) and value.strip()):
+            self.fail(field, f"is {value!r}; it must be {what}, a non-empty string")
+        return value
+
+    def texts(self, value, field, what, each):
+        """A non-empty list of non-empty strings: ``what`` describes the list, ``each`` one entry."""
+        if not (isinstance(value, list) and value):
+            self.fail(field, f"is {value!r}; it must be a non-empty list of {what}")
+        for index, entry in enumerate(value):
+            self.text(entry, f"{field}[{index}]", each)
+        return value
+
     def mapping(self, value, field, what):
         if not isinstance(value, dict):
             self.fail(field, f"is {value!r}; it must be an object {what}")
@@ -77,7 +92,7 @@ class _Checker:
 
     def require(self, entry, key, field, what):
         if key not in entry:
-            self.fail(f"{field}.{key}" if field else f"'{key}'", f"is missing; a scene needs {what}")
+            self.fail(f"{field}.{key}" if field else f"'{key}'", f"is missing; {self.noun} needs {what}")
         return entry[key]
 
 
@@ -131,14 +146,16 @@ def check_scene_definition(definition, source="the scene definition") -> dict:
     return definition
 
 
-def _check_view(check, entry):
-    """What scenes and mesh stacks share: resolution, camera, lights, reference intensity."""
+def _check_view(check, entry, *, camera=True):
+    """What scenes, mesh stacks and data sets share: resolution, camera (unless ``camera`` is
+    False), lights, reference intensity."""
     resolution = entry["resolution"]
     if not (isinstance(resolution, (list, tuple)) and len(resolution) == 2):
         check.fail("resolution", f"is {resolution!r}; it must be [height, width], two integers >= 1")
     for index, size in enumerate(resolution):
         check.integer(size, f"resolution[{index}]", low=1, allowed="an integer >= 1 (pixels)")
-    _check_camera(check, entry["camera"])
+    if camera:
+        _check_camera(check, entry["camera"])
     _check_lights(check, entry["lights"])
     if "reference_intensity" in entry:
         check.number(entry["reference_intensity"], "reference_intensity", low=0.0, low_open=True,
@@ -282,7 +299,7 @@ def check_stack_description(meta, source) -> dict:
     """
     from rjfit.data.mesh_stack import MESH_STACK_FORMAT
 
-    check = _Checker(source, hint="see docs/dataset-format.md, 'Measured mesh stacks'")
+    check = _Checker(source, hint="see docs/dataset-format.md, 'Measured mesh stacks'", noun="a mesh stack")
     check.mapping(meta, "the description", "{format, images, mesh, camera, resolution, lights, ...}")
     for key, what in (("format", f"its format {MESH_STACK_FORMAT!r}"), ("images", "a list of image files"),
                       ("mesh", "a mesh file"), ("camera", "a camera {kind, origin, target, up, fov or half_width}"),
@@ -290,8 +307,126 @@ def check_stack_description(meta, source) -> dict:
         check.require(meta, key, "", what)
     if meta["format"] != MESH_STACK_FORMAT:
         check.fail("format", f"is {meta['format']!r}; it must be {MESH_STACK_FORMAT!r}")
+    check.texts(meta["images"], "images", "image file names relative to the folder, one per light",
+                "an image file name relative to the folder")
+    check.text(meta["mesh"], "mesh", "the mesh's file name relative to the folder")
     _check_view(check, meta)
     if meta.get("saturation") is not None:
         check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
                      allowed="a raw value > 0 at which a pixel clips, or null")
     return meta
+
+
+def check_dataset_description(meta, source) -> dict:
+    """Check an rjfit-layout ``dataset.json`` (:mod:`rjfit.data.dataset`, documented in
+    ``docs/dataset-format.md``) for every entry the loader, the cross-check and the diagnosis
+    read from it; return it unchanged.
+
+    Required: ``format``, ``resolution``, ``lights`` (as in a scene), ``images`` (one file name
+    per light) and ``geometry`` (a file name). Optional: ``visibility`` and ``truth_labels``
+    (file names, or null), ``camera`` (as in a scene; required with ``meshes``),
+    ``reference_intensity`` > 0 (required with ``meshes``: the scene is rebuilt from it),
+    ``materials`` (``{I0 > 0, kd in [0, 1], gamma > 0}`` per material, plus ``sigma2 >= 0`` when
+    ``truth_labels`` is set, which then requires them), ``meshes`` (``{file, material}`` per
+    part, the material an index into ``materials``), ``max_depth`` (integer >= 2) and
+    ``saturation`` (> 0, or null). Other entries (name, units, versions, ...) are free.
+
+    Parameters
+    ----------
+    meta : object
+        The parsed ``dataset.json``.
+    source : str or Path
+        What to name in messages: the ``dataset.json`` path.
+
+    Returns
+    -------
+    dict
+        ``meta``, unchanged.
+
+    Raises
+    ------
+    SceneError
+        (a ``DatasetError`` / ``ValueError``) naming ``source``, the entry and its allowed values.
+    """
+    from rjfit.data.dataset import DATASET_FORMAT
+
+    check = _Checker(source, hint="see docs/dataset-format.md for the dataset.json keys", noun="a data set")
+    if not isinstance(meta, dict):
+        raise SceneError(f"{source}: a data set description is a JSON object {{format, resolution, lights, images, "
+                         f"geometry, ...}}, got {type(meta).__name__}; see docs/dataset-format.md")
+    for key, what in (("format", f"its format {DATASET_FORMAT!r}"), ("resolution", "a resolution [height, width]"),
+                      ("lights", "a list of lights {kind, position or direction, intensity}"),
+                      ("images", "a list of image files, one per light"),
+                      ("geometry", "its geometry file (geometry.exr)")):
+        check.require(meta, key, "", what)
+    if meta["format"] != DATASET_FORMAT:
+        check.fail("format", f"is {meta['format']!r}; it must be {DATASET_FORMAT!r}")
+    meshes = meta.get("meshes")
+    if meshes:
+        for key, what in (("camera", "a camera {kind, origin, target, up, fov or half_width} when it has meshes"),
+                          ("reference_intensity", "a reference_intensity > 0 when it has meshes")):
+            check.require(meta, key, "", what)
+    _check_view(check, meta, camera="camera" in meta)
+    images = check.texts(meta["images"], "images", "image file names relative to the folder, one per light",
+                         "an image file name relative to the folder")
+    if len(images) != len(meta["lights"]):
+        check.fail("images", f"lists {len(images)} files but 'lights' has {len(meta['lights'])}; every light needs "
+                             f"exactly one image, in light order")
+    check.text(meta["geometry"], "geometry", "the geometry file's name relative to the folder")
+    for key in ("visibility", "truth_labels"):
+        if meta.get(key) is not None:
+            check.text(meta[key], key, "a file name relative to the folder (or null)")
+    truth = meta.get("truth_labels") is not None
+    if truth:
+        check.require(meta, "materials", "", "its materials {I0, kd, gamma, sigma2} when it has truth_labels")
+    n_materials = None
+    if meta.get("materials") is not None:
+        n_materials = _check_dataset_materials(check, meta["materials"], with_sigma2=truth)
+    if meshes is not None:
+        _check_meshes(check, meshes, n_materials)
+    if meta.get("max_depth") is not None:
+        check.integer(meta["max_depth"], "max_depth", low=2,
+                      allowed="an integer >= 2 (path length; 2 = direct light only)")
+    if meta.get("saturation") is not None:
+        check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
+                     allowed="a value > 0 at which a pixel clips, or null")
+    return meta
+
+
+def _check_dataset_materials(check, materials, *, with_sigma2):
+    keys = ("I0", "kd", "gamma") + (("sigma2",) if with_sigma2 else ())
+    listed = "{" + ", ".join(keys) + "}"
+    if not (isinstance(materials, list) and materials):
+        check.fail("materials", f"is {materials!r}; it must be a non-empty list of {listed}")
+    rules = {"I0": dict(low=0.0, low_open=True, allowed="a number > 0 (the region's intensity)"),
+             "kd": dict(low=0.0, high=1.0, allowed="a number in [0, 1] (the diffuse fraction; ks = 1 - kd)"),
+             "gamma": dict(low=0.0, low_open=True, allowed="a number > 0 (the Blinn-Phong exponent)"),
+             "sigma2": dict(low=0.0, allowed="a number >= 0 (the noise variance)")}
+    for index, material in enumerate(materials):
+        field = f"materials[{index}]"
+        check.mapping(material, field, listed)
+        for key in keys:
+            check.number(check.require(material, key, field, f"{key} for every material"), f"{field}.{key}",
+                         **rules[key])
+    return len(materials)
+
+
+def _check_meshes(check, meshes, n_materials):
+    if not isinstance(meshes, list):
+        check.fail("meshes", f"is {meshes!r}; it must be a list of {{file, material}}, one per mesh part")
+    for index, part in enumerate(meshes):
+        field = f"meshes[{index}]"
+        check.mapping(part, field, "{file, material}")
+        check.text(check.require(part, "file", field, "a mesh file for every part"), f"{field}.file",
+                   "the PLY file's name relative to the folder")
+        material = check.require(part, "material", field, "a material index for every part")
+        if n_materials is None:
+            check.integer(material, f"{field}.material", low=0, allowed="a material index, 0 without 'materials'")
+            if material != 0:
+                check.fail(f"{field}.material", f"is {material!r}; without 'materials' every part must use "
+                                                f"material 0 (the cross-check's probe material)")
+            continue
+        check.integer(material, f"{field}.material", low=0, allowed=f"a material index in [0, {n_materials - 1}]")
+        if material >= n_materials:
+            check.fail(f"{field}.material", f"is {material}; it must index the {n_materials} entries of "
+                                            f"'materials', i.e. lie in [0, {n_materials - 1}]")
