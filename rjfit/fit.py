@@ -33,13 +33,12 @@ import contextlib
 import hashlib
 import json
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from rjfit.atomic import publish, staging_dir
 from rjfit.data.dataset import write_json_atomic
 from rjfit.coarsen import misfit_warning, suggest_likelihood_power
 from rjfit.noise import DEFAULT_FLOOR, NOISE_MODELS, describe_noise, noise_scale
@@ -72,20 +71,10 @@ def publish_results(staging: Path, out_dir: Path) -> None:
 
     The previous ``summary.json`` goes first and the new one comes last: a folder without
     ``summary.json`` is an incomplete fit, never a mixture of two. Previous result files
-    the new fit does not write are removed too.
+    the new fit does not write are removed too. Every file is on disk (fsync) before the
+    new ``summary.json`` appears (see :func:`rjfit.atomic.publish`).
     """
-    out_dir = Path(out_dir)
-    (out_dir / "summary.json").unlink(missing_ok=True)
-    for name in RESULT_FILES + DERIVED_RESULTS:
-        old = out_dir / name
-        if old.is_dir():
-            shutil.rmtree(old)
-        else:
-            old.unlink(missing_ok=True)
-    for name in RESULT_FILES:
-        if (staging / name).exists():
-            os.replace(staging / name, out_dir / name)
-    os.replace(staging / "summary.json", out_dir / "summary.json")
+    publish(staging, out_dir, manifest="summary.json", names=RESULT_FILES, remove=RESULT_FILES + DERIVED_RESULTS)
 
 
 def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: int = 0, n_chains: int = 4,
@@ -269,10 +258,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     # Every result goes into a staging folder first and is published together (summary.json
     # last), so an interrupted run leaves the previous results whole or none: never labels of
     # one run beside the summary of another.
-    for leftover in out_dir.glob(".staging.*"):      # of a run killed while it wrote its results
-        shutil.rmtree(leftover, ignore_errors=True)
-    staging = Path(tempfile.mkdtemp(prefix=".staging.", dir=out_dir))
-    try:
+    # (staging_dir removes the staging folders of runs killed while they wrote their results)
+    with staging_dir(out_dir) as staging:
         write_exr(staging / "labels.exr", {"labels": labels.astype(np.float32)})
         summary["fit_id"] = results_digest(summary)
         idata = post.to_inference_data(records, burn, max_v)
@@ -299,8 +286,6 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         summary["seconds"] = time.perf_counter() - started
         write_json_atomic(staging / "summary.json", summary)
         publish_results(staging, out_dir)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     # The results are written: the checkpoints (for resuming an interrupted run) have
     # served, and a later run into this directory must start afresh, not resume them.
     for spec in specs:

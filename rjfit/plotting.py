@@ -1,8 +1,9 @@
 """The one place figures are made and saved: headless pyplot, atomic PNG writes, map panels."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
+
+from rjfit.atomic import atomic_path
 
 __all__ = ["pyplot", "save_figure", "map_figure"]
 
@@ -18,13 +19,18 @@ def pyplot():
 
 
 def save_figure(figure, path, *, dpi=100, tight=False) -> Path:
-    """Write ``figure`` to ``path`` as PNG atomically (temporary name, then rename) and close it."""
+    """Write ``figure`` to ``path`` as PNG atomically and close it.
+
+    The PNG is written under a temporary name beside ``path``, flushed to disk and renamed
+    (:func:`rjfit.atomic.atomic_path`): a failed or interrupted write leaves no temporary
+    file and the previous ``path``, if any, as it was. The figure is closed either way.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    figure.savefig(temporary, dpi=dpi, bbox_inches="tight" if tight else None)
-    pyplot().close(figure)
-    os.replace(temporary, path)
+    try:
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary, format="png", dpi=dpi, bbox_inches="tight" if tight else None)
+    finally:
+        pyplot().close(figure)
     return path
 
 

@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import base64
 import html
-import os
 from pathlib import Path
 
+from rjfit.atomic import write_text_atomic
 from rjfit.data.dataset import read_json
 
 __all__ = ["build_report"]
@@ -129,15 +129,35 @@ def _markdown_to_html(text: str) -> str:
     return "".join(out)
 
 
+def _listed_figures(sub: str, payload) -> list:
+    """The figures of a diagnosis or comparison: those its json names, not every PNG of its folder.
+
+    The json is published last, after its figures and after the previous run's files were
+    removed, so the figures it names are its own; a folder may also hold PNGs that are not
+    (the user's, a fit's when ``--out`` was the fit folder, those of an rjfit that did not
+    stage its results). A comparison.json from before ``figures`` was recorded had always
+    ``segmentations.png``.
+    """
+    if not isinstance(payload, dict):
+        return []
+    if sub == "diagnosis":
+        from rjfit.diagnose.report import listed_figures
+
+        return listed_figures(payload)
+    figures = payload.get("figures", ["segmentations.png"] if "rows" in payload else [])
+    return [name for name in figures if isinstance(name, str)] if isinstance(figures, list) else []
+
+
 def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=None) -> Path:
     """Write ``report.html`` for a fit folder and return its path.
 
     Reads ``summary.json`` and every PNG in the fit folder, and, where present, the data
     set's ``validation/validation.json`` (or the ``validation.json`` the fit was given) and the ``diagnosis`` and ``comparison`` results
     (``diagnosis_dir/diagnosis.json``, ``comparison_dir/comparison.json``; by default
-    ``FIT_DIR/diagnosis`` and ``FIT_DIR/comparison``). A diagnosis or comparison made from
-    another fit (its ``fit_id`` differs from the summary's) is not shown as this fit's: the
-    report says it is stale.
+    ``FIT_DIR/diagnosis`` and ``FIT_DIR/comparison``) with the figures their json names (no
+    other PNG of those folders). A diagnosis or comparison made from another fit (its
+    ``fit_id`` differs from the summary's) is not shown as this fit's: the report says it is
+    stale. The page is written atomically (:func:`rjfit.atomic.write_text_atomic`).
 
     Raises
     ------
@@ -243,7 +263,7 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
             else:
                 # diagnosis.md holds the gaps, the steps, every candidate's evidence and the skipped
                 # ones; its title and image links are left out (the figures follow, embedded)
-                lines = [line for line in markdown.read_text().splitlines()
+                lines = [line for line in markdown.read_text(encoding="utf-8").splitlines()
                          if not line.startswith("# ") and not line.startswith("![")]
                 parts.append(_markdown_to_html("\n".join(lines)))
         elif isinstance(payload, list) or "methods" in payload:
@@ -252,14 +272,17 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
             rows = "".join("<tr>" + "".join(f"<td>{_fmt(e.get(k))}</td>" for k in header) + "</tr>" for e in entries)
             parts.append("<table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in header) + f"</tr>{rows}</table>")
         elif markdown.is_file():
-            parts.append(_markdown_to_html(markdown.read_text()))
-        for png in sorted(folder.glob("*.png")):
-            parts.append(_embed(png, f"{sub}: {png.stem.replace('_', ' ')}"))
+            parts.append(_markdown_to_html(markdown.read_text(encoding="utf-8")))
+        for name in _listed_figures(sub, payload):
+            png = folder / name
+            if Path(name).name != name or png.suffix.lower() != ".png":
+                continue                # a figure of the folder is named by a plain PNG file name
+            if png.is_file():
+                parts.append(_embed(png, f"{sub}: {png.stem.replace('_', ' ')}"))
+            else:
+                parts.append(f'<p class="fail">Figure <code>{html.escape(name)}</code>, which {sub}.json names, is '
+                             f"missing from <code>{html.escape(str(folder.resolve()))}</code>.</p>")
 
     document = (f"<!doctype html><html><head><meta charset='utf-8'><title>rjfit report</title>"
                 f"<style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>")
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
-    temporary.write_text(document)
-    os.replace(temporary, out_path)
-    return out_path
+    return write_text_atomic(out_path, document)

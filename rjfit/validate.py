@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.atomic import atomic_path, publish, staging_dir
 from rjfit.data.dataset import is_dataset, read_json, read_validation_result, write_json_atomic
 from rjfit.data.exr import write_exr
 from rjfit.data.lights import geometry_terms
@@ -193,7 +194,9 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
         # (axes, light directions and units, the view direction) the loader assumed.
         materials = materials if materials is not None else PROBE_MATERIALS[:1]
         facet_path = out_dir / "facets.ply"
-        _facet_mesh(dataset.normals, dataset.object_mask).export(facet_path, file_type="ply", vertex_normal=True)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with atomic_path(facet_path) as temporary:
+            _facet_mesh(dataset.normals, dataset.object_mask).export(temporary, file_type="ply", vertex_normal=True)
         part_materials = [0]
         height, width = dataset.image_shape
         camera = {"kind": "orthographic", "origin": [0.0, 0.0, 10.0], "target": [0.0, 0.0, 0.0], "up": [0, 1, 0],
@@ -263,16 +266,21 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     }
     out_dir.mkdir(parents=True, exist_ok=True)
     max_rel_map = np.where(compared.any(0), np.where(compared, rel_err, 0).max(0), 0)
-    write_exr(out_dir / "validation_maps.exr", {
-        "max_rel_err": max_rel_map, "unexplained_fraction": unexplained_map,
-        **{f"rel_err_{i:03d}": np.where(compared[i], rel_err[i], 0) for i in range(len(lights))}})
-    map_figure(out_dir / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
-              f"log10 max relative error over lights\nmedian {result['median_rel_err']:.2e}, "
-              f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0)
-    map_figure(out_dir / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
-              f"radiance the closed form does not explain\n(total {result['unexplained_fraction']:.2%})",
-              cmap="viridis")
-    write_json_atomic(out_dir / "validation.json", result)
+    maps = ("validation_maps.exr", "relative_error.png", "unexplained_fraction.png")
+    # staged and published together, validation.json last: a reader never pairs a verdict with
+    # another run's maps, and an interrupted validation leaves the previous one whole
+    with staging_dir(out_dir) as staging:
+        write_exr(staging / "validation_maps.exr", {
+            "max_rel_err": max_rel_map, "unexplained_fraction": unexplained_map,
+            **{f"rel_err_{i:03d}": np.where(compared[i], rel_err[i], 0) for i in range(len(lights))}})
+        map_figure(staging / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
+                   f"log10 max relative error over lights\nmedian {result['median_rel_err']:.2e}, "
+                   f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0)
+        map_figure(staging / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
+                   f"radiance the closed form does not explain\n(total {result['unexplained_fraction']:.2%})",
+                   cmap="viridis")
+        write_json_atomic(staging / "validation.json", result)
+        publish(staging, out_dir, manifest="validation.json", names=maps, remove=maps)
     return result
 
 

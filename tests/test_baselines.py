@@ -325,3 +325,44 @@ def test_baselines_separate_two_flat_materials_exactly():
                          ("gmm_position", methods.gmm_position_segmentation(stack, mask, 2, rng=1))):
         metrics = segmentation_metrics(truth, labels, mask)
         assert metrics["pixel_accuracy"] == 1.0 and metrics["boundary_f1"] == 1.0, (name, metrics)
+
+
+def _few_methods(monkeypatch):
+    from rjfit.baselines import compare
+
+    monkeypatch.setattr(compare, "METHODS", {name: (label, list(ks)[:1])
+                                             for name, (label, ks) in compare.METHODS.items()})
+    return compare
+
+
+def test_an_interrupted_comparison_leaves_the_previous_one_whole(sphere, tmp_path, monkeypatch):
+    """The three files are published together, comparison.json last: Ctrl-C while the figure is
+    drawn (it used to come after the new json and Markdown) leaves the previous comparison."""
+    compare = _few_methods(monkeypatch)
+    out = tmp_path / "cmp"
+    compare.compare_dataset(sphere.path, out, seed=0)
+    before = {path.name: path.read_bytes() for path in out.iterdir()}
+    assert sorted(before) == ["comparison.json", "comparison.md", "segmentations.png"]
+    assert json.loads(before["comparison.json"])["figures"] == ["segmentations.png"]
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(compare, "_write_figure", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        compare.compare_dataset(sphere.path, out, seed=1)
+    assert {path.name: path.read_bytes() for path in out.iterdir()} == before, "a staging or temporary file stayed"
+
+
+def test_the_report_embeds_only_the_figures_a_comparison_names(sphere, tmp_path, monkeypatch):
+    from rjfit.report import build_report
+
+    compare = _few_methods(monkeypatch)
+    fit_dir = tmp_path / "fit"
+    fit_dir.mkdir()
+    (fit_dir / "summary.json").write_text("{}")
+    compare.compare_dataset(sphere.path, fit_dir / "comparison", seed=0)
+    (fit_dir / "comparison" / "old_run.png").write_bytes((fit_dir / "comparison" / "segmentations.png").read_bytes())
+    html = build_report(fit_dir).read_text()
+    assert "comparison: segmentations" in html and "old run" not in html
+    assert html.count("data:image/png") == 1

@@ -1,9 +1,12 @@
 """Run every baseline on one data set, score it against the truth, and write the comparison.
 
-:func:`compare_dataset` writes three files to ``out_dir`` (each atomically):
+:func:`compare_dataset` writes three files to ``out_dir``, together: they are written into a
+staging folder inside it and published at once, ``comparison.json`` last (see
+:func:`rjfit.atomic.publish`), so that the folder holds one comparison's files or none:
 
 - ``comparison.json``: the settings, notes and one row per (method, k) with its metrics
-  (see :func:`rjfit.baselines.metrics.segmentation_metrics`) and its runtime in seconds;
+  (see :func:`rjfit.baselines.metrics.segmentation_metrics`) and its runtime in seconds, and
+  ``figures``, the names of the figures it comes with (what ``rjfit report`` embeds);
 - ``comparison.md``: the same rows as a Markdown table, plus the notes;
 - ``segmentations.png``: all segmentations side by side, truth first (like Figs. 9-11 of
   Lenoch et al. 2016), each coloured after the true region it is matched to.
@@ -11,12 +14,12 @@
 from __future__ import annotations
 
 import math
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
+from rjfit.atomic import atomic_path, publish, staging_dir
 from rjfit.baselines import methods
 from rjfit.baselines.metrics import BOUNDARY_TOLERANCE, relabel_to_truth, segmentation_metrics
 from rjfit.data.dataset import read_json
@@ -35,6 +38,8 @@ RJFIT = "rjfit_map"
 MAP_LABEL_FILES = ("map_labels.exr", "labels.exr")
 #: keys of summary.json that may hold the fit's runtime in seconds, tried in this order
 RUNTIME_KEYS = ("seconds", "runtime_seconds", "runtime_s", "wall_seconds", "elapsed_seconds", "fit_seconds")
+#: the files of a comparison besides comparison.json (a new comparison replaces all of them)
+RESULT_FILES = ("comparison.md", "segmentations.png")
 
 
 def read_map_labels(fit_dir, mask) -> tuple[np.ndarray, dict]:
@@ -101,12 +106,6 @@ def _import_libraries():
     import skimage.segmentation  # noqa: F401
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_text(text)
-    os.replace(temporary, path)
-
-
 def format_markdown(rows, notes=()) -> str:
     """A Markdown table of comparison rows (and the notes as a list below it)."""
     def number(value, digits=3):
@@ -162,9 +161,8 @@ def _write_figure(path: Path, truth, mask, panels, title):
             axis.set_title(name, fontsize=8)
     figure.suptitle(title, fontsize=10)
     figure.tight_layout()
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    figure.savefig(temporary, format="png", dpi=110)
-    os.replace(temporary, path)
+    with atomic_path(path) as temporary:
+        figure.savefig(temporary, format="png", dpi=110)
 
 
 def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channel: str = "mean",
@@ -216,7 +214,7 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
         raise ValueError(f"{fit_dir}: is a fit of {fitted or 'an unknown data set (no summary.json)'}, not of "
                          f"{Path(dataset.path).resolve()}; compare a data set with its own fit")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)      # an --out that cannot be written fails before the baselines run
     grey = dataset.channel_values(channel)
     ncut_index = methods.pick_ncut_image(dataset.valid_mask(channel))
     n_valid = int(dataset.valid_mask(channel)[ncut_index].sum())
@@ -267,9 +265,8 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
 
     payload = {"dataset": str(dataset.path), "resolution": list(mask.shape), "n_object_pixels": int(mask.sum()),
                "channel": channel, "seed": seed, "boundary_tolerance_px": BOUNDARY_TOLERANCE,
-               "ncut_image": ncut_index, "notes": notes, "rows": rows, "fit_id": fit_summary.get("fit_id")}
-    write_json_atomic(out_dir / "comparison.json", payload)
-    _write_text_atomic(out_dir / "comparison.md", "# Segmentation baselines\n\n" + format_markdown(rows, notes))
+               "ncut_image": ncut_index, "notes": notes, "rows": rows, "fit_id": fit_summary.get("fit_id"),
+               "figures": ["segmentations.png"]}
 
     def panel(row):
         return (f"{row['method']} k={row['k']}\nacc {row['pixel_accuracy']:.2f}  bF1 {row['boundary_f1']:.2f}",
@@ -281,6 +278,11 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
     first += [panel(row) for row in rows if row["method"] == "normalized_cuts"]
     panels = [first] + [[panel(row) for row in rows if row["method"] == name]
                         for name in METHODS if name != "normalized_cuts"]
-    _write_figure(out_dir / "segmentations.png", truth, mask, panels,
-                  f"{dataset.path.name}: segmentations matched to the truth (colour = matched region)")
+    with staging_dir(out_dir) as staging:
+        _write_figure(staging / "segmentations.png", truth, mask, panels,
+                      f"{dataset.path.name}: segmentations matched to the truth (colour = matched region)")
+        (staging / "comparison.md").write_text("# Segmentation baselines\n\n" + format_markdown(rows, notes),
+                                               encoding="utf-8")
+        write_json_atomic(staging / "comparison.json", payload)
+        publish(staging, out_dir, manifest="comparison.json", names=RESULT_FILES, remove=RESULT_FILES)
     return rows

@@ -12,7 +12,6 @@ Layout (``dataset.json`` documents itself; see ``docs/dataset-format.md``)::
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,12 +36,10 @@ def write_json_atomic(path, payload) -> None:
     NaN and infinities (an R-hat that cannot be computed) are written as ``null``: Python
     would write ``NaN``, which is not JSON and which other languages' parsers reject.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_text(json.dumps(_finite_or_null(payload), indent=1, sort_keys=False, default=_json_default,
-                                    allow_nan=False))
-    os.replace(temporary, path)
+    from rjfit.atomic import write_text_atomic
+
+    write_text_atomic(Path(path), json.dumps(_finite_or_null(payload), indent=1, sort_keys=False,
+                                             default=_json_default, allow_nan=False))
 
 
 def _finite_or_null(value):

@@ -9,7 +9,7 @@ from rjfit.plotting import pyplot
 from rjfit.plotting import save_figure as _save_figure
 
 __all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure", "markdown",
-           "gap_text", "candidate_line", "gap_lines", "named_text"]
+           "gap_text", "candidate_line", "gap_lines", "named_text", "listed_figures"]
 
 
 def _plt():
@@ -86,6 +86,21 @@ def signature_figure(path, residual, panels, title):
     figure.suptitle(title, fontsize=8)
     figure.tight_layout()
     return save_figure(figure, path)
+
+
+def listed_figures(result: dict) -> list[str]:
+    """The figures a diagnosis made, as ``diagnosis.json`` names them (file names in its folder):
+    each step's, the signature panels, the Mitsuba simulation's; in that order, each once.
+
+    The files of one diagnosis are those its ``diagnosis.json`` names: ``rjfit report`` embeds
+    these and no others, and a new diagnosis removes them before it publishes its own.
+    """
+    names = []
+    for step in result.get("steps") or []:
+        names += list((step.get("figures") or {}).values())
+    names += list(result.get("signature_figures") or [])
+    names += list(((result.get("simulation") or {}).get("figures") or {}).values())
+    return list(dict.fromkeys(name for name in names if isinstance(name, str) and name))
 
 
 def _fmt(value, spec=".3g"):

@@ -14,12 +14,14 @@ log BF is named. The loop stops when nothing is decisive or after ``max_steps``.
 """
 from __future__ import annotations
 
+import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from rjfit.atomic import publish, staging_dir
 from rjfit.data.dataset import write_json_atomic
 from rjfit.diagnose import report as figures
 from rjfit.diagnose.context import build_context
@@ -35,6 +37,10 @@ GAP_DEFINITION = ("gap = mean(r^2) / sigma_hat^2 - 1 with r = y - E[mu] (posteri
                   "and sigma_hat^2 the noise variance from second differences of the final model's residual images "
                   "(robust MAD; one value for every gap of the report); ~0 when the model explains the data up to "
                   "noise")
+#: names of the figures diagnose writes (``step{n}_{effect}_*.png``, ``signatures_step{n}.png``, the
+#: Mitsuba simulation's): those of a previous diagnosis in the folder are removed by the next one
+FIGURE_PATTERNS = ("step*_residuals.png", "step*_per_light.png", "step*_posteriors.png", "signatures_step*.png",
+                   "mitsuba_residuals.png", "ppc_p_values.png", "mitsuba_per_image_*.png")
 DECISION_RULE = (f"decisive when log Bayes factor (Laplace evidence) > ln 100 = {LOG_BF_THRESHOLD:.2f} and "
                  f"delta ELPD (PSIS-LOO) > {LOO_SE_FACTOR:g} SE; the decisive candidate with the largest log BF is named")
 
@@ -93,7 +99,10 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     labels : ndarray (H, W)
         Region index per pixel (-1 off the object): the fit's MAP labels, or truth labels.
     out_dir : path
-        Receives ``diagnosis.json``, ``diagnosis.md`` and the figures.
+        Receives ``diagnosis.json``, ``diagnosis.md`` and the figures (created). They are written
+        into a staging folder inside it and published together, ``diagnosis.json`` last
+        (:func:`rjfit.atomic.publish`): the previous diagnosis's files, figures included, are
+        removed first, and an interrupted diagnosis leaves the previous one whole.
     candidates : sequence of Effect or names
     simulate : bool or None
         Posterior predictive rendering with Mitsuba of the plain and final models (default:
@@ -107,16 +116,45 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     dict
         The contents of ``diagnosis.json``.
     """
-    started = time.perf_counter()
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 0:
         raise ValueError(f"max_steps must be an integer >= 0 (0: measure the plain model's gap only), got {max_steps!r}")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with staging_dir(out_dir) as staging:
+        result = _search(dataset, labels, staging, candidates=candidates, seed=seed, max_steps=max_steps,
+                         threshold=threshold, loo_se_factor=loo_se_factor, simulate=simulate, n_sim_draws=n_sim_draws,
+                         channel=channel, make_figures=make_figures, progress=progress, provenance=provenance)
+        write_json_atomic(staging / "diagnosis.json", result)
+        (staging / "diagnosis.md").write_text(figures.markdown(result), encoding="utf-8")
+        publish(staging, out_dir, manifest="diagnosis.json", remove=_previous_results(out_dir))
+    return result
+
+
+def _previous_results(out_dir) -> list[str]:
+    """The files of the diagnosis in ``out_dir`` (if any), which a new one replaces: ``diagnosis.md``,
+    the figures its ``diagnosis.json`` names, and any file named as diagnose names its figures."""
+    out_dir = Path(out_dir)
+    names = {"diagnosis.md"}
+    names |= {path.name for pattern in FIGURE_PATTERNS for path in out_dir.glob(pattern) if path.is_file()}
+    try:
+        previous = json.loads((out_dir / "diagnosis.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        # none there (the first diagnosis) or unreadable: the patterns above still find every
+        # figure diagnose writes; only names it no longer uses would stay
+        previous = None
+    if isinstance(previous, dict):
+        names |= {name for name in figures.listed_figures(previous) if Path(name).name == name}
+    return sorted(names)
+
+
+def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, threshold, loo_se_factor, simulate,
+            n_sim_draws, channel, make_figures, progress, provenance):
+    """The search of :func:`diagnose`: its result, with the figures written into ``figure_dir``."""
+    started = time.perf_counter()
     def say(*args, **kwargs):
         if progress:
             print(*args, **kwargs, flush=True)      # flushed: a long search is followed as it goes
     candidates = [get_effect(c) for c in candidates]
-    ctx = build_context(dataset, labels, channel=channel)
+    ctx = build_context(dataset, labels, channel=channel, seed=seed)
     say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions: the plain model's refit, then one "
         f"refit per candidate effect and step (each a few seconds to minutes, growing with the observations)")
     plain = refit(ctx, (), seed=seed)
@@ -239,14 +277,15 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         if make_figures:
             tag = f"step{index + 1}_{record['effect']}"
             record["figures"]["residuals"] = figures.residual_pair_figure(
-                out_dir / f"{tag}_residuals.png", ctx.per_pixel_mean(before) / math.sqrt(sigma2_hat),
+                figure_dir / f"{tag}_residuals.png", ctx.per_pixel_mean(before) / math.sqrt(sigma2_hat),
                 ctx.per_pixel_mean(after) / math.sqrt(sigma2_hat),
                 f"before (gap {gap_before:.3g})", f"after + {record['effect']} (gap {gap_after:.3g})")
             record["figures"]["per_light"] = figures.per_light_figure(
-                out_dir / f"{tag}_per_light.png", before_b["per_light"], after_b["per_light"],
+                figure_dir / f"{tag}_per_light.png", before_b["per_light"], after_b["per_light"],
                 f"gap per light, step {index + 1}: + {record['effect']}")
             if panels:
-                record["figures"]["posteriors"] = figures.posterior_figure(out_dir / f"{tag}_posteriors.png", panels)
+                record["figures"]["posteriors"] = figures.posterior_figure(figure_dir / f"{tag}_posteriors.png",
+                                                                          panels)
     signature_figures = []
     if make_figures:
         for step, residuals in enumerate(step_residuals):
@@ -254,7 +293,7 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
                            if kind == "signature" and st == step), key=lambda t: -t[0])[:5]
             if maps:
                 signature_figures.append(figures.signature_figure(
-                    out_dir / f"signatures_step{step + 1}.png", ctx.per_pixel_mean(residuals) / math.sqrt(sigma2_hat),
+                    figure_dir / f"signatures_step{step + 1}.png", ctx.per_pixel_mean(residuals) / math.sqrt(sigma2_hat),
                     [(f"{name}\nscore {score:.2f}", image) for score, name, image in maps],
                     f"step {step + 1}: residual and what each missing effect would leave (fitted signature)"))
     result = {
@@ -297,12 +336,12 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         if make_figures:
             final = sim.get("final", sim["plain"])
             sim_figs["mitsuba_residuals"] = figures.residual_pair_figure(
-                out_dir / "mitsuba_residuals.png", sim["plain"]["mean_z_map"], final["mean_z_map"], f"Mitsuba, plain (gap {sim['plain']['gap']:.3g})",
+                figure_dir / "mitsuba_residuals.png", sim["plain"]["mean_z_map"], final["mean_z_map"], f"Mitsuba, plain (gap {sim['plain']['gap']:.3g})",
                 f"Mitsuba, final (gap {final['gap']:.3g})", label="mean standardised residual over lights")
-            sim_figs["ppc"] = figures.map_figure(out_dir / "ppc_p_values.png", final["ppc_p_values"],
+            sim_figs["ppc"] = figures.map_figure(figure_dir / "ppc_p_values.png", final["ppc_p_values"],
                                                  "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1)
             for label, s in sim.items():
-                sim_figs[f"per_image_{label}"] = _per_image_figure(out_dir / f"mitsuba_per_image_{label}.png",
+                sim_figs[f"per_image_{label}"] = _per_image_figure(figure_dir / f"mitsuba_per_image_{label}.png",
                                                                    s["standardised"], f"{label}: standardised residual per image")
         result["simulation"] = {label: {k: v for k, v in s.items() if not isinstance(v, np.ndarray)}
                                 for label, s in sim.items()}
@@ -312,11 +351,6 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     result["seconds"] = round(time.perf_counter() - started, 2)
     for line in figures.gap_lines(result):
         say(line)
-    write_json_atomic(out_dir / "diagnosis.json", result)
-    text = figures.markdown(result)
-    temporary = out_dir / ".diagnosis.md.tmp"
-    temporary.write_text(text)
-    temporary.replace(out_dir / "diagnosis.md")
     return result
 
 

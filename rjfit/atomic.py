@@ -1,0 +1,220 @@
+"""Writing results so that a reader sees the previous ones or the new ones, never a mixture.
+
+Two levels:
+
+- one file: :func:`atomic_path` yields a fresh temporary name beside the target; once the
+  caller has written it, the file is flushed to disk (fsync) and renamed over the target. If
+  the caller raises (a full disk, Ctrl-C, a ``savefig`` error) the temporary file is removed
+  and the target is left as it was. :func:`write_text_atomic` and :func:`write_bytes_atomic`
+  are the common cases.
+- a folder of results that belong together (``rjfit fit``, ``diagnose``, ``compare``): they
+  are written into a :func:`staging_dir` inside the output folder, then :func:`publish`
+  moves them in with the manifest (``summary.json``, ``diagnosis.json``, ...) last, after
+  removing the manifest and the previous run's files first. A folder without its manifest
+  holds no results; one with it holds the results of that run only.
+"""
+from __future__ import annotations
+
+import errno
+import functools
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+__all__ = ["atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir", "publish", "STAGING_PREFIX"]
+
+#: name prefix of staging folders; the creating process's id follows, so that a later run can
+#: tell the leftover of a killed run from the staging folder of a run still going
+STAGING_PREFIX = ".staging."
+
+
+@functools.cache
+def _new_file_mode() -> int:
+    """The mode ``open()`` gives a new file under this process's umask (mkstemp gives 0600)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def _fsync_file(path: Path) -> None:
+    with open(path, "rb+") as handle:
+        os.fsync(handle.fileno())
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make renames and removals in ``path`` durable (POSIX; a no-op where a folder cannot be opened)."""
+    if os.name == "nt":          # Windows cannot open a folder as a file; its renames are journalled
+        return
+    descriptor = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    except OSError as error:
+        # some file systems (certain network and FUSE mounts) refuse fsync on a folder; the
+        # renames are still atomic there, only not forced to disk at this point
+        if error.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EBADF):
+            raise
+    finally:
+        os.close(descriptor)
+
+
+@contextmanager
+def atomic_path(path):
+    """Yield a unique temporary path in ``path``'s folder; on success it replaces ``path``.
+
+    The caller writes the temporary path (by name: ``savefig``, ``write_text``, a library's
+    writer). When the ``with`` block ends normally the file is given the usual mode of a new
+    file, flushed to disk and renamed over ``path`` (atomic on POSIX and Windows). When the
+    block raises, anything included (KeyboardInterrupt), the temporary file is removed and
+    ``path`` is untouched. The folder is created if missing.
+
+    Examples
+    --------
+    >>> with atomic_path(out / "figure.png") as temporary:      # doctest: +SKIP
+    ...     figure.savefig(temporary, format="png")
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    descriptor, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(descriptor)
+    temporary = Path(name)
+    replaced = False
+    try:
+        yield temporary
+        os.chmod(temporary, _new_file_mode())
+        _fsync_file(temporary)
+        os.replace(temporary, path)
+        replaced = True
+    finally:
+        if not replaced:
+            temporary.unlink(missing_ok=True)
+
+
+def write_bytes_atomic(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_path`); returns ``path``."""
+    path = Path(path)
+    with atomic_path(path) as temporary:
+        temporary.write_bytes(data)
+    return path
+
+
+def write_text_atomic(path, text: str, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically (see :func:`atomic_path`); returns ``path``."""
+    path = Path(path)
+    with atomic_path(path) as temporary:
+        temporary.write_text(text, encoding=encoding)
+    return path
+
+
+def _owner_alive(folder: Path) -> bool:
+    """Whether the process that made a staging folder (its id follows the prefix) still runs."""
+    pid_text = folder.name[len(STAGING_PREFIX):].split(".", 1)[0]
+    if not pid_text.isdigit():
+        return False            # named by an rjfit that did not record its process id: a leftover
+    if os.name == "nt":
+        return True             # os.kill(pid, 0) would terminate the process there, not probe it
+    try:
+        os.kill(int(pid_text), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True             # alive, owned by another user
+    except OSError:
+        return True             # cannot tell: keep it rather than pull it from under a running run
+    return True
+
+
+@contextmanager
+def staging_dir(out_dir):
+    """A new, empty staging folder inside ``out_dir`` (created), removed with what is left in it
+    when the ``with`` block ends, however it ends.
+
+    Staging folders left by killed runs (whose process is gone) are removed first; those of
+    runs still going are left alone. Inside ``out_dir``, so that :func:`publish` moves files
+    by renaming within one file system.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for leftover in out_dir.glob(STAGING_PREFIX + "*"):
+        if leftover.is_dir() and not _owner_alive(leftover):
+            shutil.rmtree(leftover, ignore_errors=True)     # best effort: a leftover never blocks a run
+    staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}.", dir=out_dir))
+    try:
+        yield staging
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)          # gone already once published, or a half-written run
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def _fsync_tree(path: Path) -> None:
+    if path.is_dir():
+        for child in path.iterdir():
+            _fsync_tree(child)
+        _fsync_dir(path)
+    elif path.is_file():
+        _fsync_file(path)
+
+
+def _plain_name(name) -> str:
+    name = str(name)
+    if not name or name in (".", "..") or Path(name).name != name:
+        raise ValueError(f"{name!r}: a result is named by a plain file name in its folder")
+    return name
+
+
+def publish(staging, out_dir, *, manifest: str, names=None, remove=()) -> None:
+    """Move a finished run's results from ``staging`` into ``out_dir``, manifest last.
+
+    Parameters
+    ----------
+    staging : path
+        Folder holding the new results (from :func:`staging_dir`).
+    out_dir : path
+        The output folder.
+    manifest : str
+        File that describes the results (``diagnosis.json``, ...): the previous one is removed
+        first and the new one moved in last, so that a folder with a manifest never holds a
+        mixture of two runs. ``staging`` must hold it.
+    names : iterable of str, optional
+        Entries of ``staging`` to move in (files or folders); default: all but the manifest.
+        Names missing from ``staging`` are skipped.
+    remove : iterable of str
+        Entries of ``out_dir`` that the previous run wrote: removed before the new ones move in,
+        so that none of them outlives its run.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``staging`` has no ``manifest``.
+    ValueError
+        If a name is not a plain file name (a path could reach outside ``out_dir``).
+    """
+    staging, out_dir = Path(staging), Path(out_dir)
+    manifest = _plain_name(manifest)
+    if not (staging / manifest).is_file():
+        raise FileNotFoundError(f"{staging / manifest}: the results' manifest was not written; nothing published")
+    if names is None:
+        names = [entry.name for entry in staging.iterdir() if entry.name != manifest]
+    names = [_plain_name(name) for name in names if _plain_name(name) != manifest]
+    remove = [_plain_name(name) for name in remove]
+    # the new files reach the disk before any old one goes
+    for name in names + [manifest]:
+        _fsync_tree(staging / name)
+    (out_dir / manifest).unlink(missing_ok=True)
+    _fsync_dir(out_dir)
+    for name in dict.fromkeys(remove + names):
+        if name != manifest:
+            _remove(out_dir / name)
+    for name in names:
+        if (staging / name).exists():
+            os.replace(staging / name, out_dir / name)
+    _fsync_dir(out_dir)
+    os.replace(staging / manifest, out_dir / manifest)
+    _fsync_dir(out_dir)
