@@ -18,9 +18,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
-__all__ = ["b_sums", "b_sums_newton", "split_by_label", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
+__all__ = ["fast_exp", "b_sums", "b_sums_newton", "split_by_label", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
            "forward_filter", "removal_sums", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
            "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "BLOCK"]
 
@@ -29,12 +31,56 @@ LOG_2PI = math.log(2.0 * math.pi)
 INV_PI = 1.0 / math.pi
 
 
-@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def b_dots(y, C, power):
-    """``(SyB, SAB / pi, SBB)`` sums (unscaled) with ``B = C * power``; ``power`` = <h.n>^gamma, float64.
+@intrinsic
+def _float64_from_bits(typingctx, bits):
+    """The float64 whose IEEE bits are the int64 ``bits`` (an LLVM bitcast, no memory round trip)."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+    return types.float64(types.int64), codegen
 
-    The power is computed by NumPy beforehand (:func:`b_sums`): its SIMD ``exp`` is about
-    3.5 times faster than the scalar one a compiled loop calls.
+
+_LOG2_E = 1.4426950408889634
+_LN2_HI = 6.93147180369123816490e-01     # ln 2 split so that k * _LN2_HI is exact (Cody-Waite)
+_LN2_LO = 1.90821492927058770002e-10
+
+
+@njit(inline="always", fastmath={"contract"})
+def fast_exp(x):
+    """``e^x`` within 1 ulp of NumPy's (0 below ``e^-708``, where NumPy's is subnormal or 0).
+
+    Why not ``math.exp``: a compiled loop calls libm's scalar ``exp`` (about 5 ns), while this
+    is plain arithmetic that the compiler vectorises with the loop around it (about 0.5 ns):
+    ``x = k ln 2 + r`` with |r| <= ln 2 / 2, ``e^r`` by its Taylor polynomial of degree 13
+    (truncation error below 1e-17), ``2^k`` written into the exponent bits. Measured against
+    ``np.exp`` on 300,000 arguments in [-750, 0]: at most 1 ulp apart, 92 % equal.
+    """
+    clamped = min(max(x, -708.0), 709.0)
+    k = np.floor(clamped * _LOG2_E + 0.5)
+    r = (clamped - k * _LN2_HI) - k * _LN2_LO
+    p = 1.0 / 6227020800.0
+    p = p * r + 1.0 / 479001600.0
+    p = p * r + 1.0 / 39916800.0
+    p = p * r + 1.0 / 3628800.0
+    p = p * r + 1.0 / 362880.0
+    p = p * r + 1.0 / 40320.0
+    p = p * r + 1.0 / 5040.0
+    p = p * r + 1.0 / 720.0
+    p = p * r + 1.0 / 120.0
+    p = p * r + 1.0 / 24.0
+    p = p * r + 1.0 / 6.0
+    p = p * r + 0.5
+    p = p * r + 1.0
+    p = p * r + 1.0
+    value = p * _float64_from_bits((np.int64(k) + 1023) << 52)
+    return value if x >= -708.0 else 0.0
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def b_sums(y, C, log_cos_hn, gamma):
+    """``(SyB, SAB, SBB)`` (unscaled, float64) of one region's gathered arrays at exponent ``gamma``.
+
+    ``B = C <h.n>^gamma`` with the power from :func:`fast_exp`, fused with the sums: one
+    vectorised pass that reads the float32 arrays once.
     """
     yb = cb = bb = 0.0
     n = y.shape[0]
@@ -42,36 +88,21 @@ def b_dots(y, C, power):
         pyb = pcb = pbb = 0.0
         for i in range(start, min(start + BLOCK, n)):
             c = np.float64(C[i])
-            b = c * power[i]
+            b = c * fast_exp(gamma * np.float64(log_cos_hn[i]))
             pyb += np.float64(y[i]) * b
             pcb += c * b
             pbb += b * b
         yb += pyb
         cb += pcb
         bb += pbb
-    return yb, cb * INV_PI, bb
-
-
-def _powers(log_cos_hn, gamma, chunk):
-    """``(start, stop, <h.n>^gamma)`` per chunk, float64, from NumPy's SIMD exp (into one reused buffer)."""
-    buffer = np.empty(min(chunk, log_cos_hn.shape[0]))
-    for start in range(0, log_cos_hn.shape[0], chunk):
-        stop = min(start + chunk, log_cos_hn.shape[0])
-        power = np.multiply(log_cos_hn[start:stop], gamma, out=buffer[:stop - start], dtype=np.float64)
-        yield start, stop, np.exp(power, out=power)
-
-
-def b_sums(y, C, log_cos_hn, gamma, chunk=1 << 16):
-    """``(SyB, SAB, SBB)`` (unscaled, float64) of one region's gathered arrays at exponent ``gamma``."""
-    total = np.zeros(3)
-    for start, stop, power in _powers(log_cos_hn, gamma, chunk):
-        total += b_dots(y[start:stop], C[start:stop], power)
-    return total
+    out = np.empty(3)
+    out[0], out[1], out[2] = yb, cb * INV_PI, bb
+    return out
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def b_dots_newton(y, C, power, log_cos_hn):
-    """:func:`b_dots` plus the same three sums weighted by ``log <h.n>`` and by its square (9 values).
+def b_sums_newton(y, C, log_cos_hn, gamma):
+    """:func:`b_sums` plus the same three sums weighted by ``log <h.n>`` and by its square (9 values).
 
     ``d B / d gamma = B log <h.n>``: these are the first and second gamma-derivatives of
     ``(SyB, SAB, SBB / 2)``, for the Newton proposal of the gamma move.
@@ -83,8 +114,8 @@ def b_dots_newton(y, C, power, log_cos_hn):
         s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
         for i in range(start, min(start + BLOCK, n)):
             c = np.float64(C[i])
-            b = c * power[i]
             lh = np.float64(log_cos_hn[i])
+            b = c * fast_exp(gamma * lh)
             yb = np.float64(y[i]) * b
             cb = c * b
             bb = b * b
@@ -107,14 +138,6 @@ def b_dots_newton(y, C, power, log_cos_hn):
         out[7] += s7 * INV_PI
         out[8] += s8
     return out
-
-
-def b_sums_newton(y, C, log_cos_hn, gamma, chunk=1 << 16):
-    """``(SyB, SAB, SBB)`` at ``gamma`` and the same sums weighted by ``log <h.n>`` and ``log^2 <h.n>`` (9,)."""
-    total = np.zeros(9)
-    for start, stop, power in _powers(log_cos_hn, gamma, chunk):
-        total += b_dots_newton(y[start:stop], C[start:stop], power, log_cos_hn[start:stop])
-    return total
 
 
 @njit(cache=True, nogil=True)

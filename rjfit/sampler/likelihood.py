@@ -257,7 +257,7 @@ class RegionData:
         return int(self.y.size)
 
     def b_sums(self, gamma: float) -> np.ndarray:
-        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; NumPy exp, one compiled pass for the sums)."""
+        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.jit.b_sums`)."""
         return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, float(gamma))
 
     def b_sums_newton(self, gamma: float) -> np.ndarray:
