@@ -191,16 +191,35 @@ def _add_terms(stats, r, sign, yv, c, a, lh, gamma):
 
 @njit(cache=True, nogil=True)
 def region_stats_labels(y, C, log_cos_hn, labels, gammas, n_regions):
-    """Unscaled sufficient statistics (R, 7) of every region in one pass over all observations."""
+    """Unscaled sufficient statistics (R, 7) of every region in one pass over all observations.
+
+    Per block: each observation's exponent looked up, the powers in one vectorised loop
+    (:func:`_powers_into`), then the terms added to their regions.
+    """
     out = np.zeros((n_regions, 7))
     part = np.zeros((n_regions, 7))
+    exponent = np.empty(BLOCK)
+    power = np.empty(BLOCK)
     n = y.shape[0]
     for start in range(0, n, BLOCK):
+        m = min(BLOCK, n - start)
+        for k in range(m):
+            exponent[k] = gammas[np.int64(labels[start + k])]
+        _powers_into(log_cos_hn[start:start + m], exponent[:m], power[:m])
         part[:] = 0.0
-        for i in range(start, min(start + BLOCK, n)):
+        for k in range(m):
+            i = start + k
             r = np.int64(labels[i])
-            c = np.float64(C[i])
-            _add_terms(part, r, 1.0, np.float64(y[i]), c, c * INV_PI, np.float64(log_cos_hn[i]), gammas[r])
+            yv, c = np.float64(y[i]), np.float64(C[i])
+            a = c * INV_PI
+            b = c * power[k]
+            part[r, 0] += 1.0
+            part[r, 1] += yv * yv
+            part[r, 2] += yv * a
+            part[r, 3] += a * a
+            part[r, 4] += yv * b
+            part[r, 5] += a * b
+            part[r, 6] += b * b
         out += part
     return out
 
@@ -275,6 +294,13 @@ def shift_stats(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta,
             labels[i] = r_new
 
 
+@njit(cache=True, nogil=True, fastmath={"contract"})
+def _powers_into(log_cos_hn, gammas, out):
+    """``out[k] = exp(gammas[k] log_cos_hn[k])`` (:func:`fast_exp`): contiguous, no gather, so it vectorises."""
+    for k in range(out.shape[0]):
+        out[k] = fast_exp(gammas[k] * np.float64(log_cos_hn[k]))
+
+
 @njit(cache=True, nogil=True)
 def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, theta, size,
                         right_case, left_case):
@@ -285,18 +311,41 @@ def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step
     its line lies left of it; ``right_case`` gets its log density in the base region and
     ``left_case`` in base + step_label (flat index ``line * size + along``; both
     accumulate).
+
+    Three phases per block of observations: regions and exponents looked up (scalar), the
+    powers (:func:`_powers_into`, vectorised: the exps are most of the work), the densities
+    and their scatter into the pixels (scalar).
     """
     coef = coefficients(theta)
-    for i in range(y.shape[0]):
-        line = line_of[i]
-        along = along_of[i]
-        base = labels[i]
-        if x_old[line] < along + 0.5:
-            base -= step_label
-        yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
-        key = line * size + along
-        right_case[key] += _log_density(yv, c, lh, coef, base)
-        left_case[key] += _log_density(yv, c, lh, coef, base + step_label)
+    n = y.shape[0]
+    base_of = np.empty(BLOCK, np.int64)
+    gamma_right = np.empty(BLOCK)
+    gamma_left = np.empty(BLOCK)
+    power_right = np.empty(BLOCK)
+    power_left = np.empty(BLOCK)
+    for start in range(0, n, BLOCK):
+        m = min(BLOCK, n - start)
+        for k in range(m):
+            i = start + k
+            base = np.int64(labels[i])
+            if x_old[line_of[i]] < along_of[i] + 0.5:
+                base -= step_label
+            base_of[k] = base
+            gamma_right[k] = coef[base, 2]
+            gamma_left[k] = coef[base + step_label, 2]
+        lh = log_cos_hn[start:start + m]
+        _powers_into(lh, gamma_right[:m], power_right[:m])
+        _powers_into(lh, gamma_left[:m], power_left[:m])
+        for k in range(m):
+            i = start + k
+            base = base_of[k]
+            other = base + step_label
+            yv, c = np.float64(y[i]), np.float64(C[i])
+            key = np.int64(line_of[i]) * size + np.int64(along_of[i])
+            resid = yv - coef[base, 0] * c - coef[base, 1] * c * power_right[k]
+            right_case[key] += coef[base, 3] - coef[base, 4] * resid * resid
+            resid = yv - coef[other, 0] * c - coef[other, 1] * c * power_left[k]
+            left_case[key] += coef[other, 3] - coef[other, 4] * resid * resid
 
 
 @njit(cache=True, nogil=True, fastmath={"contract"})
@@ -365,20 +414,37 @@ def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u,
 
     ``sums`` (3, L * (n + 1)) accumulates; column = the observation's region index along the
     axis (``label // (n_v + 1)`` for u, ``label % (n_v + 1)`` for v). See
-    :func:`rjfit.sampler.moves._removal_log_emit`.
+    :func:`rjfit.sampler.moves._removal_log_emit`. Phased per block like
+    :func:`per_pixel_two_cases` (the three powers in vectorised loops).
     """
     coef = coefficients(theta)
-    for i in range(y.shape[0]):
-        lab = np.int64(labels[i])
-        column = lab // (n_v + 1) if axis_u else lab % (n_v + 1)
-        key = np.int64(line_of[i]) * (n + 1) + column
-        yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
-        ll = _log_density(yv, c, lh, coef, lab)
-        sums[0, key] += ll
-        ll_down = _log_density(yv, c, lh, coef, lab - step) if column > 0 else ll
-        sums[1, key] += ll_down
-        ll_up = _log_density(yv, c, lh, coef, lab + step) if column < n else ll
-        sums[2, key] += ll_up
+    total = y.shape[0]
+    region = np.empty((3, BLOCK), np.int64)     # as labelled, moved down, moved up (itself at the edges)
+    exponent = np.empty((3, BLOCK))
+    power = np.empty((3, BLOCK))
+    keys = np.empty(BLOCK, np.int64)
+    for start in range(0, total, BLOCK):
+        m = min(BLOCK, total - start)
+        for k in range(m):
+            i = start + k
+            lab = np.int64(labels[i])
+            column = lab // (n_v + 1) if axis_u else lab % (n_v + 1)
+            keys[k] = np.int64(line_of[i]) * (n + 1) + column
+            region[0, k] = lab
+            region[1, k] = lab - step if column > 0 else lab
+            region[2, k] = lab + step if column < n else lab
+            for case in range(3):
+                exponent[case, k] = coef[region[case, k], 2]
+        lh = log_cos_hn[start:start + m]
+        for case in range(3):
+            _powers_into(lh, exponent[case, :m], power[case, :m])
+        for k in range(m):
+            i = start + k
+            yv, c = np.float64(y[i]), np.float64(C[i])
+            for case in range(3):
+                r = region[case, k]
+                resid = yv - coef[r, 0] * c - coef[r, 1] * c * power[case, k]
+                sums[case, keys[k]] += coef[r, 3] - coef[r, 4] * resid * resid
 
 
 @njit(cache=True, nogil=True)
