@@ -62,6 +62,18 @@ def main():
     """
 
 
+def _echo_cuda_fallback(variant_ran: str) -> None:
+    """With RJFIT_DEBUG set, say why ``--variant auto`` did not take cuda_ad_rgb. Quiet
+    otherwise: without a GPU that is the normal case, and with one resolve_variant warns."""
+    import os
+
+    from rjfit.render import mitsuba_scene
+
+    reason = mitsuba_scene.CUDA_FALLBACK_REASON
+    if os.environ.get("RJFIT_DEBUG") and reason and not variant_ran.startswith("cuda"):
+        click.echo(f"  cuda_ad_rgb not used ({variant_ran} instead): {reason}", err=True)
+
+
 @main.command()
 @click.argument("scene")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
@@ -84,6 +96,7 @@ def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
     meta = json.loads((path / "dataset.json").read_text())
     click.echo(f"wrote {path} ({meta['variant']}): {len(meta['images'])} images, {meta['resolution'][1]} x {meta['resolution'][0]}, "
                f"{meta['render_seconds']:.1f} s")
+    _echo_cuda_fallback(meta["variant"])
 
 
 @main.command()
@@ -105,6 +118,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
     result = validate_dataset(dataset, out_dir, spp=spp, max_depth=max_depth, seed=seed, variant=variant,
                               progress=True)
     click.echo(f"validation of {dataset} ({result['settings']['variant']}): {'PASSED' if result['passed'] else 'FAILED'}")
+    _echo_cuda_fallback(result["settings"]["variant"])
     _echo_json(result, ["median_rel_err", "p99_rel_err", "max_rel_err", "pixels_compared", "unexplained_fraction",
                         "seconds"])
     out = Path(out_dir) if out_dir else Path(dataset) / "validation"

@@ -151,6 +151,24 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     -------
     dict
         The summary written to ``summary.json``.
+
+    Raises
+    ------
+    ValueError
+        Before any chain runs: if ``burn_in`` is not in [0, 1) or leaves no iteration to
+        keep; ``n_chains < 1`` or ``iterations < 10``; ``prior`` or ``noise`` is unknown;
+        ``likelihood_power`` is neither ``'auto'`` nor a number in (0, 1] (the range is
+        checked by :class:`rjfit.sampler.likelihood.Problem`); ``'auto'`` cannot be measured
+        (no two adjacent pixels under one light have a residual); ``truth_labels`` does not
+        have the images' shape (H, W); ``noise_floor`` is not positive and finite for the
+        'shot' / 'relative' models (:func:`rjfit.noise.noise_scale`); the observations are
+        unusable (none, some with ``<l.n> <= 0``, or a mean value that is not positive under
+        the 'shot' / 'relative' models); or a sampler setting is out of range
+        (:class:`rjfit.sampler.state.SamplerConfig`: ``sampler``, ``split_map``,
+        ``cp_prior``, ``max_u``/``max_v``, ``jump_prob``). While the chains start: if a
+        ``start`` entry does not fit ``max_u``/``max_v``, or a checkpoint in
+        ``out_dir/checkpoints`` is unreadable, of another checkpoint version or of another
+        run (the message says to delete it).
     """
     if not 0.0 <= burn_in < 1.0:
         raise ValueError(f"burn_in (--burn-in) is a fraction in [0, 1), got {burn_in}")

@@ -23,7 +23,23 @@ def _first_pixel(bad):
 
 
 def check_finite(array, source, what="pixels") -> None:
-    """Raise if ``array`` (H, W[, C]) holds NaN or Inf; ``source`` names the file."""
+    """Raise if ``array`` (H, W[, C]) holds NaN or Inf; ``source`` names the file.
+
+    Parameters
+    ----------
+    array : array_like, shape (H, W) or (H, W, C)
+        The values; arrays of a non-floating dtype (integers, bool) are not checked.
+    source : str or Path
+        What to name in the message (the file).
+    what : str
+        What the entries are, for the message (default ``"pixels"``).
+
+    Raises
+    ------
+    DatasetError
+        If an entry is NaN or +-Inf (a pixel counts once, whatever its channels); the
+        message gives the count and, for (H, W[, C]) arrays, the first pixel's row and column.
+    """
     array = np.asarray(array)
     if not np.issubdtype(array.dtype, np.floating):
         return
@@ -37,14 +53,48 @@ def check_finite(array, source, what="pixels") -> None:
 
 
 def check_mask(mask, source) -> None:
-    """Raise if the object mask selects no pixel."""
+    """Raise if the object mask selects no pixel.
+
+    Parameters
+    ----------
+    mask : array_like, shape (H, W)
+        The object mask, read as bool.
+    source : str or Path
+        What to name in the message (the file and channel).
+
+    Raises
+    ------
+    DatasetError
+        If no entry of ``mask`` is true.
+    """
     if not np.asarray(mask, dtype=bool).any():
         raise DatasetError(f"{source}: the object mask selects no pixel (every value is background), so "
                            f"there is nothing to fit")
 
 
 def check_unit_normals(normals, mask, source, tolerance=NORMAL_TOLERANCE) -> None:
-    """Raise if a normal inside ``mask`` is not finite or not of unit length (within ``tolerance``)."""
+    """Raise if a normal inside ``mask`` is not finite or not of unit length (within ``tolerance``).
+
+    Normals outside the mask are not looked at.
+
+    Parameters
+    ----------
+    normals : array_like, shape (H, W, 3)
+    mask : ndarray of bool, shape (H, W)
+        The object mask.
+    source : str or Path
+        What to name in the message (the file and channels).
+    tolerance : float
+        Largest allowed ``| |n| - 1 |`` (default :data:`NORMAL_TOLERANCE`).
+
+    Raises
+    ------
+    DatasetError
+        If a normal inside the mask has a NaN or Inf component, or else if one has
+        ``| |n| - 1 | > tolerance``; the message gives the count, the first pixel's row and
+        column, the range of lengths and how many are zero (a hint that the mask does not
+        match the normal map).
+    """
     inside = np.asarray(normals, dtype=float)[mask]
     finite = np.isfinite(inside).all(axis=-1)
     if not finite.all():
@@ -72,7 +122,26 @@ def check_lights_face_object(lights, normals, positions, view_dirs, mask, descri
 
     Such a light illuminates nothing; every one, or all of them, being behind is the mark
     of a flipped axis (z points towards the camera) or a typo in a light's direction.
-    ``describe(i)`` names light ``i`` and where it was read from.
+
+    Parameters
+    ----------
+    lights : sequence of Light
+    normals, view_dirs : array_like, shape (H, W, 3)
+        Unit shading normals and unit directions towards the camera.
+    positions : array_like, shape (H, W, 3) or None
+        Surface points (needed for point lights); None for directional lights only.
+    mask : array_like of bool, shape (H, W)
+        The object mask; only its pixels are looked at.
+    describe : callable
+        ``describe(i)`` names light ``i`` and where it was read from; ``describe(None)``
+        names the source of all lights.
+
+    Raises
+    ------
+    DatasetError
+        If one or more lights have ``<l.n> <= 0`` at every pixel of the mask: one message
+        for all of them being behind (suggesting a flipped z axis or direction sign), or one
+        naming the lights behind (the first five).
     """
     mask = np.asarray(mask, dtype=bool)
     n = np.asarray(normals, dtype=float)[mask]

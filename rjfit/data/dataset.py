@@ -68,7 +68,11 @@ def _json_default(value):
 class Dataset:
     """An image stack with its geometry, lights and (for synthetic data) ground truth.
 
-    Attributes
+    Built by :func:`load_dataset` (which checks the files) or by the synthetic and
+    photometric-stereo loaders; the constructor stores its arguments as they are, without
+    checks. Each parameter is kept as the attribute of the same name.
+
+    Parameters
     ----------
     path : Path
     meta : dict
@@ -109,14 +113,18 @@ class Dataset:
 
     @property
     def n_lights(self) -> int:
+        """The number of lights (images) L."""
         return len(self.lights)
 
     @property
     def image_shape(self) -> tuple[int, int]:
+        """``(height, width)`` of the images."""
         return tuple(self.object_mask.shape)
 
     @property
     def reference_intensity(self) -> float:
+        """The light intensity the fitted ``I0`` is relative to (``dataset.json``'s
+        ``reference_intensity``, 1.0 when absent)."""
         return float(self.meta.get("reference_intensity", 1.0))
 
     def channel_values(self, channel: str = "mean") -> np.ndarray:
@@ -124,6 +132,22 @@ class Dataset:
 
         ``luminance`` is CIE Y of linear RGB with the sRGB / ITU-R BT.709 primaries
         (colour-science's ``RGB_luminance``).
+
+        Parameters
+        ----------
+        channel : {"mean", "R", "G", "B", "luminance"}
+            Which value per pixel: the mean of R, G and B, one of them, or the luminance
+            (see :data:`CHANNELS`).
+
+        Returns
+        -------
+        numpy.ndarray, shape (L, H, W)
+            The values, for every pixel (not only the object's).
+
+        Raises
+        ------
+        ValueError
+            If ``channel`` is not one of :data:`CHANNELS`.
         """
         if channel not in CHANNELS:
             raise ValueError(f"channel must be one of {CHANNELS}, got {channel!r}")
@@ -173,7 +197,25 @@ class Dataset:
             yield index, valid, y, cos_ln, cos_hn, irradiance
 
     def valid_mask(self, channel: str = "mean", dark: float | None = None) -> np.ndarray:
-        """Valid observations (L, H, W): on the object, lit, not shadowed, not saturated."""
+        """Valid observations (L, H, W): on the object, lit, not shadowed, not saturated.
+
+        Parameters
+        ----------
+        channel : str
+            The channel whose values must be finite (and above ``dark``); see
+            :meth:`channel_values`. Saturation is checked on every channel.
+        dark : float, optional
+            Values at or below it are left out.
+
+        Returns
+        -------
+        ndarray of bool, shape (L, H, W)
+
+        Raises
+        ------
+        ValueError
+            If ``channel`` is not one of :data:`CHANNELS`.
+        """
         valid = np.zeros((self.n_lights,) + self.image_shape, dtype=bool)
         rows, cols = np.nonzero(self.object_mask)
         for index, valid_on_object, *_ in self._object_pixel_lights(channel, dark):
@@ -183,8 +225,19 @@ class Dataset:
     def observations(self, channel: str = "mean", dark: float | None = None) -> Observations:
         """The valid observations of one channel (see :meth:`valid_mask`).
 
+        Parameters
+        ----------
+        channel, dark
+            As in :meth:`valid_mask`.
+
+        Returns
+        -------
+        Observations
+
         Raises
         ------
+        ValueError
+            If ``channel`` is not one of :data:`CHANNELS`.
         DatasetError
             If no observation is valid.
         """
@@ -219,6 +272,16 @@ def is_dataset(path) -> bool:
 
 def read_json(path):
     """A JSON file's content (any JSON value; callers check its shape).
+
+    Parameters
+    ----------
+    path : path-like
+        The JSON file.
+
+    Returns
+    -------
+    object
+        The parsed value (dict, list, str, number, bool or None).
 
     Raises
     ------

@@ -15,6 +15,27 @@ class Light:
     ``kind`` is ``"point"`` (``position`` in scene units, ``intensity`` as Mitsuba's point
     emitter takes it: radiance ``I / r^2`` at the surface) or ``"directional"``
     (``direction`` points *towards* the light, ``intensity`` is the irradiance).
+
+    Parameters
+    ----------
+    kind : {"point", "directional"}
+        The emitter type.
+    intensity : float
+        Point light: Mitsuba's point-emitter intensity ``I``; directional light: the
+        irradiance. Positive and finite.
+    position : tuple of 3 floats, optional
+        Position in scene units; required for a point light (ignored otherwise).
+    direction : tuple of 3 floats, optional
+        Direction *towards* the light, any non-zero finite length; required for a
+        directional light (ignored otherwise).
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is neither ``"point"`` nor ``"directional"``, a point light has no
+        ``position``, a directional light has no ``direction`` or one of zero or non-finite
+        length, or ``intensity`` is not positive and finite. The length and values of
+        ``position`` are not checked here (the data set checks do that).
     """
 
     kind: str
@@ -37,6 +58,14 @@ class Light:
             raise ValueError(f"light intensity must be positive and finite, got {self.intensity}")
 
     def to_json(self) -> dict:
+        """The light as a ``dataset.json`` / scene entry (inverse of :meth:`from_json`).
+
+        Returns
+        -------
+        dict
+            ``{"kind", "intensity"}`` plus ``"position"`` and/or ``"direction"`` (lists of
+            floats) where set.
+        """
         out = {"kind": self.kind, "intensity": float(self.intensity)}
         if self.position is not None:
             out["position"] = [float(c) for c in self.position]
@@ -46,6 +75,35 @@ class Light:
 
     @classmethod
     def from_json(cls, entry: dict) -> "Light":
+        """The light of a ``dataset.json`` / scene entry (inverse of :meth:`to_json`).
+
+        Parameters
+        ----------
+        entry : dict
+            ``{"kind", "intensity", "position" or "direction"}``; a missing or null
+            ``position`` / ``direction`` is None.
+
+        Returns
+        -------
+        Light
+
+        Raises
+        ------
+        KeyError
+            If ``entry`` has no ``"kind"`` or no ``"intensity"``.
+        TypeError
+            If ``intensity`` is not a number or string (e.g. null), or ``position`` /
+            ``direction`` is not iterable (e.g. a number).
+        ValueError
+            If ``intensity`` is a string that is not a number, or from :class:`Light`'s own
+            checks (kind, missing position or direction, zero direction, intensity <= 0).
+
+        Notes
+        -----
+        This converts only; it does not check that ``position`` / ``direction`` have three
+        finite components. Callers that read user files check the entry first (see
+        :mod:`rjfit.render.scene_check`).
+        """
         return cls(
             kind=entry["kind"],
             intensity=float(entry["intensity"]),

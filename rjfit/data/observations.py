@@ -16,7 +16,11 @@ __all__ = ["Observations", "valid_observation_mask", "observations_from_stack", 
 class Observations:
     """The valid observations of one image stack (paper, eq. 1: one y per pixel and light).
 
-    Attributes
+    Usually built by :meth:`rjfit.Dataset.observations` or :func:`observations_from_stack`;
+    the constructor stores its arguments as they are (no copy, no check). Each parameter
+    is kept as the attribute of the same name.
+
+    Parameters
     ----------
     image_shape : (int, int)
         ``(height, width)`` of the images.
@@ -42,14 +46,17 @@ class Observations:
 
     @property
     def n_obs(self) -> int:
+        """The number of observations N."""
         return int(self.y.shape[0])
 
     @property
     def row(self) -> np.ndarray:
+        """Image row of each observation, shape (N,)."""
         return self.pixel // self.image_shape[1]
 
     @property
     def col(self) -> np.ndarray:
+        """Image column of each observation, shape (N,)."""
         return self.pixel % self.image_shape[1]
 
     @property
@@ -108,10 +115,26 @@ def valid_images_per_pixel(valid):
 def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_mask) -> Observations:
     """Gather the valid entries of dense (L, H, W) arrays into :class:`Observations`.
 
+    Parameters
+    ----------
+    images, cos_ln, cos_hn, irradiance : array_like, shape (L, H, W)
+        Measured values, geometry terms and relative irradiance per light and pixel.
+    valid : array_like of bool, shape (L, H, W)
+        Which entries to keep, used as given (e.g. from :func:`valid_observation_mask`;
+        it is not intersected with ``object_mask`` here).
+    object_mask : array_like of bool, shape (H, W)
+        Stored with the observations.
+
+    Returns
+    -------
+    Observations
+        The entries where ``valid`` is true, in (light, row, column) order.
+
     Raises
     ------
     ValueError
-        If the arrays disagree in shape or no observation is valid.
+        If ``images`` is not 3-D, another array's shape differs from it (``object_mask``:
+        from its last two axes), or no observation is valid.
     """
     images = np.asarray(images, dtype=float)
     if images.ndim != 3:

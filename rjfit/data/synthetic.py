@@ -36,6 +36,25 @@ def default_light_positions(n_lights: int = 10, *, distance: float = 2.2, seed: 
     mirror images (the paper stresses asymmetric placement: symmetric lights make regions
     indistinguishable). Distance ``distance`` from the centre keeps the irradiance 1/r^2
     of order one.
+
+    Parameters
+    ----------
+    n_lights : int
+        How many lights.
+    distance : float
+        Distance of every light from the sphere's centre.
+    seed : int
+        Seed of the directions (``np.random.default_rng``).
+
+    Returns
+    -------
+    ndarray, shape (n_lights, 3)
+        The positions.
+
+    Raises
+    ------
+    ValueError
+        If ``n_lights < 1``.
     """
     if n_lights < 1:
         raise ValueError(f"n_lights must be at least 1, got {n_lights}")
@@ -65,6 +84,8 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
         Seed of the Gaussian noise (``np.random.default_rng``).
     extent : float
         Half-width of the orthographic view in sphere radii.
+    min_cos : float
+        Observations with ``<l.n> <= min_cos`` are left out.
 
     Returns
     -------
@@ -73,6 +94,14 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
         Region per pixel, -1 off the object.
     truth_params : list of dict
         ``truth`` as a list of plain dicts.
+
+    Raises
+    ------
+    ValueError
+        If the image is smaller than 2 x 2, ``truth`` does not have 4 entries,
+        ``light_positions`` is not of shape (L, 3), ``n_lights < 1`` (when
+        ``light_positions`` is not given), or no observation is valid (every light behind
+        the sphere; from :func:`rjfit.data.observations.observations_from_stack`).
     """
     height, width = (size, size) if np.isscalar(size) else tuple(int(s) for s in size)
     if height < 2 or width < 2:

@@ -115,6 +115,15 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     -------
     dict
         The contents of ``diagnosis.json``.
+
+    Raises
+    ------
+    ValueError
+        If ``max_steps`` is not an integer >= 0, a candidate name is unknown, ``labels`` does
+        not have the images' shape, or ``channel`` is not one of
+        :data:`rjfit.data.dataset.CHANNELS`.
+    FileNotFoundError, DatasetError
+        When ``dataset`` is a path: as :func:`rjfit.data.dataset.load_dataset`.
     """
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 0:
         raise ValueError(f"max_steps must be an integer >= 0 (0: measure the plain model's gap only), got {max_steps!r}")
@@ -375,10 +384,34 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     gives it, when the folder has moved) and the channel fitted, ``map_labels.exr`` (or
     ``labels.exr``, as ``rjfit.fit`` writes it; channel ``labels``) holds the MAP segmentation.
 
+    Parameters
+    ----------
+    fit_dir : path
+        The folder ``rjfit fit`` wrote (``summary.json`` and the MAP labels).
+    out_dir : path
+        Where the diagnosis goes (see :func:`diagnose`).
+    dataset : path or Dataset, optional
+        The fitted data set, when the one ``summary.json`` names has moved.
+    **options
+        Keyword arguments of :func:`diagnose`; ``channel`` defaults to the fit's, and
+        ``provenance`` is always set to the fit's folder and ``fit_id``.
+
+    Returns
+    -------
+    dict
+        The contents of ``diagnosis.json``.
+
     Raises
     ------
     FileNotFoundError
-        If ``fit_dir`` is not a fit folder, or the data set it names is not there.
+        If ``fit_dir`` is not a fit folder, has no MAP labels, or the data set it names is
+        not there.
+    ValueError
+        If ``summary.json`` names no data set and ``dataset`` is not given, or the data set's
+        files differ from those the fit recorded (``dataset_sha256``); and as :func:`diagnose`.
+    DatasetError
+        If ``summary.json`` is not valid JSON (:func:`rjfit.data.dataset.read_json`); and as
+        :func:`diagnose`.
     """
     from rjfit.data.dataset import read_json
     from rjfit.data.exr import read_exr

@@ -20,6 +20,16 @@ def blinn_normalisation(gamma):
 
     With it, the lobe ``N(g) <h.n>^g <l.n>`` integrates to (nearly exactly) one over the
     hemisphere of light directions for normal incidence of the viewer.
+
+    Parameters
+    ----------
+    gamma : float or array_like
+        Blinn exponent ``g`` (> 0 in the model; any float is evaluated, without checks).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``N(g)`` with the shape of ``gamma`` (a 0-d array for a scalar).
     """
     gamma = np.asarray(gamma, dtype=float)
     return (gamma + 2.0) * (gamma + 4.0) / (8.0 * np.pi * (np.exp2(-gamma / 2.0) + gamma))
@@ -38,7 +48,23 @@ def log_cos_power(cos_hn, gamma):
 
 
 def brdf(kd, gamma, cos_hn):
-    """The BRDF value ``kd/pi + (1 - kd) N(g) <h.n>^g`` (per steradian)."""
+    """The BRDF value ``kd/pi + (1 - kd) N(g) <h.n>^g`` (per steradian).
+
+    Parameters
+    ----------
+    kd : float or array_like
+        Diffuse fraction (``ks = 1 - kd``).
+    gamma : float or array_like
+        Blinn exponent ``g``; ``N(g)`` is :func:`blinn_normalisation`.
+    cos_hn : float or array_like
+        ``<h.n>`` per observation; the specular lobe is zero where ``<h.n> <= 0``
+        (see :func:`log_cos_power`).
+
+    Returns
+    -------
+    numpy.ndarray
+        The BRDF with the broadcast shape of the inputs. No input is checked.
+    """
     return kd / np.pi + (1.0 - kd) * blinn_normalisation(gamma) * log_cos_power(cos_hn, gamma)
 
 

@@ -27,11 +27,31 @@ TV_MAX = 0.5
 
 
 def model_key(n_u: int, n_v: int) -> str:
+    """The key ``"(n_u,n_v)"`` of a model in :func:`model_posterior` and the summaries."""
     return f"({int(n_u)},{int(n_v)})"
 
 
 def model_posterior(records, burn_in: int) -> dict:
-    """Posterior probability of every visited model ``"(n_u,n_v)"`` (pooled over chains)."""
+    """Posterior probability of every visited model ``"(n_u,n_v)"`` (pooled over chains).
+
+    Parameters
+    ----------
+    records : sequence of ChainRecord
+        The chains; each draw's model is ``(record.n_u[i], record.n_v[i])``.
+    burn_in : int
+        Iterations discarded at the start of every chain.
+
+    Returns
+    -------
+    dict
+        ``{model_key(n_u, n_v): probability}`` over the models visited after burn-in, most
+        probable first (ties in increasing ``(n_u, n_v)``), probabilities summing to 1.
+
+    Raises
+    ------
+    ValueError
+        If no chain has a draw after burn-in, or ``records`` is empty.
+    """
     pairs = np.concatenate([np.stack([r.n_u[burn_in:], r.n_v[burn_in:]], axis=1) for r in records])
     if pairs.size == 0:
         raise ValueError("no draws after burn-in: lower the burn-in (--burn-in) or run more iterations (--iterations)")

@@ -10,6 +10,9 @@ part of path tracing (indirect light), never the geometry.
 """
 from __future__ import annotations
 
+import os
+import warnings
+
 import numpy as np
 
 from rjfit.data.lights import Light
@@ -18,6 +21,13 @@ __all__ = ["activate", "resolve_variant", "supported_variant", "is_scalar_varian
            "shadow_visibility", "DEFAULT_VARIANT"]
 
 DEFAULT_VARIANT = "llvm_ad_rgb"
+
+#: Why the last ``resolve_variant("auto")`` fell back from ``cuda_ad_rgb`` to
+#: :data:`DEFAULT_VARIANT` (``"ImportError: ..."``), or None when it did not fall back. On a
+#: machine without a CUDA GPU or driver the fallback is the normal case and is not warned
+#: about (``RJFIT_DEBUG=1`` makes the CLI print it); read it with ``rjfit.render.mitsuba_scene.CUDA_FALLBACK_REASON`` (module attribute, not a
+#: from-import, which would copy the value at import time).
+CUDA_FALLBACK_REASON: str | None = None
 
 
 class UnsupportedVariantError(ValueError):
@@ -55,6 +65,10 @@ def resolve_variant(variant: str = "auto") -> str:
     installed and supported (see :func:`supported_variant`).
 
     A CUDA variant is listed by every Mitsuba wheel, GPU or not; only initialising it tells.
+    When ``"auto"`` falls back, the reason is kept in :data:`CUDA_FALLBACK_REASON`; it is
+    also emitted as a ``RuntimeWarning`` when a CUDA GPU seems present (the NVIDIA driver is
+    loaded, or Dr.Jit's CUDA backend initialised), since the fallback then points at a broken
+    CUDA or OptiX set-up. Without a GPU the fallback stays quiet.
 
     Raises
     ------
@@ -63,6 +77,7 @@ def resolve_variant(variant: str = "auto") -> str:
     ValueError
         If the variant is not available in the installed Mitsuba.
     """
+    global CUDA_FALLBACK_REASON
     import mitsuba as mi
 
     if variant != "auto":
@@ -70,6 +85,7 @@ def resolve_variant(variant: str = "auto") -> str:
             raise ValueError(f"Mitsuba variant {variant!r} is not available; installed: {', '.join(mi.variants())}")
         _check_supported(variant)
         return variant
+    CUDA_FALLBACK_REASON = None
     if "cuda_ad_rgb" in mi.variants():
         try:
             mi.set_variant("cuda_ad_rgb")
@@ -77,9 +93,29 @@ def resolve_variant(variant: str = "auto") -> str:
 
             dr.eval(mi.Float(1.0) + 1.0)      # fails here without a GPU or driver
             return "cuda_ad_rgb"
-        except (ImportError, RuntimeError):
-            pass
+        except (ImportError, RuntimeError) as error:
+            # Not an error: "auto" means "CUDA if it works". Keep why, and say it only when a
+            # GPU is there (without one this is every CPU machine's normal path).
+            CUDA_FALLBACK_REASON = f"{type(error).__name__}: {error}"
+            if _cuda_gpu_present():
+                warnings.warn(f"variant 'auto': cuda_ad_rgb could not be used although a CUDA GPU seems present "
+                              f"({CUDA_FALLBACK_REASON}); falling back to {DEFAULT_VARIANT}",
+                              RuntimeWarning, stacklevel=2)
     return DEFAULT_VARIANT
+
+
+def _cuda_gpu_present() -> bool:
+    """Whether this machine seems to have a CUDA GPU: the NVIDIA kernel driver is loaded
+    (Linux) or Dr.Jit's CUDA backend initialised. Used only to decide whether a CUDA
+    fallback is worth a warning."""
+    if os.path.exists("/proc/driver/nvidia/version"):
+        return True
+    try:
+        import drjit as dr
+
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    except (ImportError, AttributeError, RuntimeError):   # an old Dr.Jit without has_backend: say nothing
+        return False
 
 
 def activate(variant: str = DEFAULT_VARIANT):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.special import log_ndtr
@@ -74,10 +75,28 @@ def _ll(stats_r, I0, kd, g, s2) -> float:
     return -0.5 * n * (LOG_2PI + math.log(s2)) - 0.5 * ssr / s2
 
 
-def _ab_conditional(stats_r, s2):
-    """Gaussian of (a, b) given gamma and sigma^2 under a flat prior: (ma, mb, la, lc, lb, det, s2) or None.
+class ABConditional(NamedTuple):
+    """Gaussian of (a, b) given gamma and sigma^2 under a flat prior (see :func:`_ab_conditional`).
 
-    (la, lc, lb) is the lower Cholesky factor of the covariance ``s2 * P^-1``.
+    The covariance is ``s2 * P^-1`` with the precision-like matrix ``P = [[saa, sab], [sab, sbb]]``.
+    """
+
+    ma: float    # mean of a (the least-squares point, or the non-negative one)
+    mb: float    # mean of b
+    la: float    # lower Cholesky factor [[la, 0], [lc, lb]] of the covariance
+    lc: float
+    lb: float
+    saa: float   # entries of P (the region's SAA, SAB, SBB statistics)
+    sab: float
+    sbb: float
+    det: float   # det(P)
+    s2: float    # sigma^2 the covariance is scaled by
+
+
+def _ab_conditional(stats_r, s2):
+    """Gaussian of (a, b) given gamma and sigma^2 under a flat prior: an :class:`ABConditional`, or None.
+
+    None when the system is singular or not finite.
     """
     _, _, sya, saa, syb, sab, sbb = stats_r.tolist() if hasattr(stats_r, "tolist") else stats_r
     s2 = float(s2)
@@ -103,18 +122,17 @@ def _ab_conditional(stats_r, s2):
     if not (math.isfinite(lb2) and lb2 > 0):
         return None
     lb = math.sqrt(lb2)
-    return ma, mb, la, lc, lb, saa, sab, sbb, det, s2
+    return ABConditional(ma=ma, mb=mb, la=la, lc=lc, lb=lb, saa=saa, sab=sab, sbb=sbb, det=det, s2=s2)
 
 
-def _draw_ab(cond, rng):
-    ma, mb, la, lc, lb = cond[:5]
+def _draw_ab(cond: ABConditional, rng):
     z1, z2 = rng.normal(size=2)
-    return ma + la * z1, mb + lc * z1 + lb * z2
+    return cond.ma + cond.la * z1, cond.mb + cond.lc * z1 + cond.lb * z2
 
 
-def _log_q_ab(a, b, cond):
-    ma, mb, _, _, _, saa, sab, sbb, det, s2 = cond
-    da, db = a - ma, b - mb
+def _log_q_ab(a, b, cond: ABConditional):
+    saa, sab, sbb, det, s2 = cond.saa, cond.sab, cond.sbb, cond.det, cond.s2
+    da, db = a - cond.ma, b - cond.mb
     # log N((a,b); m, s2 P^-1) with |cov| = s2^2 / det(P)
     return -LOG_2PI - math.log(s2) + 0.5 * math.log(det) - 0.5 * (saa * da * da + 2 * sab * da * db + sbb * db * db) / s2
 
@@ -580,12 +598,12 @@ def _ssr_min(stats_r):
     cond = _ab_conditional(stats_r, 1.0)
     if cond is None:
         return None
-    ma, mb, saa, sab, sbb = cond[0], cond[1], cond[5], cond[6], cond[7]
+    ma, mb, saa, sab, sbb = cond.ma, cond.mb, cond.saa, cond.sab, cond.sbb
     # at the unconstrained least-squares point this is Syy - ma SyA - mb SyB; written out
     # in full because the centre may be the non-negative one
     ssr = (stats_r[STAT_YY] - 2.0 * (ma * stats_r[STAT_YA] + mb * stats_r[STAT_YB])
            + ma * ma * saa + 2.0 * ma * mb * sab + mb * mb * sbb)
-    return (ssr, cond[8]) if ssr > 0 else None
+    return (ssr, cond.det) if ssr > 0 else None
 
 
 def _sigma2_prior_as_invgamma(prior):

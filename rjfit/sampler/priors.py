@@ -198,7 +198,18 @@ def make_prior(name: str = "default", *, y=None, diffuse_scale=None) -> Prior:
     y, diffuse_scale : ndarray, optional
         Observed values and ``E <l.n> / pi`` per observation; the ``default`` preset
         centres ``I0`` on ``median(y / diffuse_scale)`` and ``sigma2`` on ``1e-3 var(y)``.
-        Without them it centres on 1 and 1e-2.
+        Without them it centres on 1 and 1e-2. The paper presets ignore them.
+
+    Returns
+    -------
+    Prior
+        The preset's per-parameter priors, start point (None for ``default``) and
+        proposal scales.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not one of :data:`PRESETS`.
     """
     if name == "default":
         if y is not None and diffuse_scale is not None:
