@@ -249,3 +249,24 @@ def test_within_cell_draw_and_density_equal_the_reference(sd):
     for x in (compiled, lo + 0.5 * (hi - lo)):
         expected = float(np.sum(_within_cell_log_density(x, x[1:], lo, hi, sd)))
         assert abs(jit.within_cells_log_density(x, lo, hi, step_sd) - expected) < 1e-9 * max(1.0, abs(expected))
+
+
+def test_rank_chain_compiled_twins_equal_the_reference():
+    """Forward alphas, path probabilities and backward draws of the removed-rank chain against
+    moves._rank_chain / _path_log_prob / _backward_sample (the same uniforms, last line first)."""
+    from rjfit.sampler.moves import _backward_sample, _rank_chain, _rank_transitions
+
+    rng = np.random.default_rng(11)
+    for n in (1, 2, 3):
+        log_emit = rng.normal(0.0, 3.0, (40, n))
+        log_emit[5, 0] = -np.inf if n > 1 else log_emit[5, 0]      # a rank that cannot be removed there
+        alpha_ref, logits = _rank_chain(log_emit)
+        log_t = _rank_transitions(*log_emit.shape)
+        alpha = jit.rank_forward(log_emit, log_t)
+        np.testing.assert_allclose(alpha, alpha_ref, atol=1e-12)
+        for seed in range(20):
+            reference = _backward_sample(alpha_ref, logits, np.random.default_rng(seed))
+            path = jit.rank_backward_sample(alpha, log_t, np.random.default_rng(seed).random(40))
+            np.testing.assert_array_equal(path, reference)
+            assert jit.rank_path_log_prob(alpha, path, log_t) == pytest.approx(_path_log_prob(alpha_ref, path, logits),
+                                                                               abs=1e-10)

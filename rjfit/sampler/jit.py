@@ -23,7 +23,7 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 __all__ = ["fast_exp", "b_sums", "b_sums_newton", "split_by_label", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
-           "forward_filter", "removal_sums", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
+           "forward_filter", "removal_sums", "rank_forward", "rank_path_log_prob", "rank_backward_sample", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
            "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "BLOCK"]
 
 BLOCK = 512
@@ -533,6 +533,91 @@ def cell_backward_sample(alpha, log_kernel, uniforms):
                 chosen = j      # rounding may leave running <= target: the last cell of weight > 0 then
             running += weights[j]
             if running > target and weights[j] > 0.0:
+                break
+        path[r] = chosen
+    return path
+
+
+@njit(cache=True, nogil=True)
+def _log_sum_exp(values):
+    top = -np.inf
+    for v in values:
+        if v > top:
+            top = v
+    if not np.isfinite(top):
+        return top
+    total = 0.0
+    for v in values:
+        total += math.exp(v - top)
+    return top + math.log(total)
+
+
+@njit(cache=True, nogil=True)
+def rank_forward(log_emit, log_t):
+    """Normalised forward log alphas (L, n) of the chain of removed ranks with log transitions ``log_t[from, to]``.
+
+    The compiled twin of :func:`rjfit.sampler.moves._rank_chain`'s forward pass.
+    """
+    n_lines, n = log_emit.shape
+    alpha = np.empty_like(log_emit)
+    terms = np.empty(n)
+    for r in range(n_lines):
+        for j in range(n):
+            a = log_emit[r, j]
+            if r > 0:
+                for i in range(n):
+                    terms[i] = alpha[r - 1, i] + log_t[i, j]
+                a += _log_sum_exp(terms)
+            alpha[r, j] = a
+        norm = _log_sum_exp(alpha[r])
+        for j in range(n):
+            alpha[r, j] -= norm
+    return alpha
+
+
+@njit(cache=True, nogil=True)
+def rank_path_log_prob(alpha, path, log_t):
+    """Log probability that backward sampling from ``alpha`` (:func:`rank_backward_sample`) draws ``path``."""
+    n_lines, n = alpha.shape
+    logits = np.empty(n)
+    total = alpha[n_lines - 1, path[n_lines - 1]]
+    for r in range(n_lines - 2, -1, -1):
+        for j in range(n):
+            logits[j] = alpha[r, j] + log_t[j, path[r + 1]]
+        if not np.isfinite(logits[path[r]]):
+            return -np.inf
+        total += logits[path[r]] - _log_sum_exp(logits)
+    return total
+
+
+@njit(cache=True, nogil=True)
+def rank_backward_sample(alpha, log_t, uniforms):
+    """A path of ranks drawn backwards from ``alpha``, last line first with ``uniforms[0]``.
+
+    Each line's draw is the first rank whose cumulative weight exceeds ``u`` times the total,
+    as ``moves._draw_index`` (its reference) does with ``np.searchsorted(..., side='right')``.
+    """
+    n_lines, n = alpha.shape
+    logits = np.empty(n)
+    path = np.empty(n_lines, np.int64)
+    for step in range(n_lines):
+        r = n_lines - 1 - step
+        for j in range(n):
+            logits[j] = alpha[r, j] + (log_t[j, path[r + 1]] if r < n_lines - 1 else 0.0)
+        top = -np.inf
+        for j in range(n):
+            if logits[j] > top:
+                top = logits[j]
+        cumulative = np.empty(n)
+        running = 0.0
+        for j in range(n):
+            running += math.exp(logits[j] - top)
+            cumulative[j] = running
+        target = uniforms[step] * cumulative[n - 1]
+        chosen = n - 1
+        for j in range(n):
+            if cumulative[j] > target:
+                chosen = j
                 break
         path[r] = chosen
     return path

@@ -1236,17 +1236,26 @@ def _removal_log_emit(problem, labels, theta, n, n_v, axis):
     return np.maximum(down[:, 1:] - current[:, 1:], up[:, :-1] - current[:, :-1])
 
 
-def _rank_chain(log_emit):
-    """Forward alphas and backward logits of the chain of removed ranks along the lines.
-
-    A line keeps the previous line's rank with probability 1 - 1/L and switches to one of
-    the other ranks otherwise, so a removed vector may change rank where vectors meet.
-    """
-    n_lines, n = log_emit.shape
+def _rank_transitions(n_lines, n):
+    """Log transitions (n, n) of the rank chain: keep the rank with probability 1 - 1/L, else any other."""
     eps = 1.0 / n_lines if n > 1 else 0.0
     with np.errstate(divide="ignore"):
         log_t = np.full((n, n), np.log(eps / max(n - 1, 1)))
         np.fill_diagonal(log_t, np.log1p(-eps))
+    return log_t
+
+
+def _rank_chain(log_emit):
+    """Forward alphas and backward logits of the chain of removed ranks along the lines.
+
+    A line keeps the previous line's rank with probability 1 - 1/L and switches to one of
+    the other ranks otherwise, so a removed vector may change rank where vectors meet. The
+    reference of the compiled :func:`rjfit.sampler.jit.rank_forward`,
+    :func:`~rjfit.sampler.jit.rank_backward_sample` and
+    :func:`~rjfit.sampler.jit.rank_path_log_prob`, which the moves use.
+    """
+    n_lines, n = log_emit.shape
+    log_t = _rank_transitions(n_lines, n)
     alpha = np.empty_like(log_emit)
     previous = None
     for r in range(n_lines):
@@ -1263,8 +1272,9 @@ def _rank_chain(log_emit):
 
 def _rank_path_log_prob(problem, u, v, theta, labels, axis, ranks):
     cps = u if axis == "u" else v
-    alpha, logits = _rank_chain(_removal_log_emit(problem, labels, theta, cps.shape[1], v.shape[1], axis))
-    return _path_log_prob(alpha, ranks, logits)
+    log_emit = _removal_log_emit(problem, labels, theta, cps.shape[1], v.shape[1], axis)
+    log_t = _rank_transitions(*log_emit.shape)
+    return jit.rank_path_log_prob(jit.rank_forward(log_emit, log_t), np.asarray(ranks, np.int64), log_t)
 
 
 def _free_birth_ratio(problem, prior, config, small, big, axis, x, log_q_ranks, n, n_max, theta_term):
@@ -1341,8 +1351,10 @@ def propose_death_free(work, rng, problem, prior, config, axis: str):
     """
     cps, size, n, n_max = _axis_info(work, problem, config, axis)
     n_lines = cps.shape[0]
-    alpha, logits = _rank_chain(_removal_log_emit(problem, work.labels, work.theta, n, work.v.shape[1], axis))
-    ranks = _backward_sample(alpha, logits, rng)
+    log_emit = _removal_log_emit(problem, work.labels, work.theta, n, work.v.shape[1], axis)
+    log_t = _rank_transitions(*log_emit.shape)
+    alpha = jit.rank_forward(log_emit, log_t)
+    ranks = jit.rank_backward_sample(alpha, log_t, rng.random(n_lines))   # compiled twins of _rank_chain, _backward_sample
     rows = np.arange(n_lines)
     x = cps[rows, ranks]
     keep = np.ones(cps.shape, bool)
@@ -1354,5 +1366,5 @@ def propose_death_free(work, rng, problem, prior, config, axis: str):
         return u_new, v_new, None, labels, None, None, -np.inf
     birth_ratio = _free_birth_ratio(problem, prior, config, (u_new, v_new, float(np.sum(log_lik))),
                                     (work.u, work.v, float(np.sum(work.log_lik))), axis, x,
-                                    _path_log_prob(alpha, ranks, logits), n - 1, n_max, -term)
+                                    jit.rank_path_log_prob(alpha, ranks, log_t), n - 1, n_max, -term)
     return u_new, v_new, theta_new, labels, stats, log_lik, float(-birth_ratio)
