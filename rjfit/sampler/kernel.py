@@ -46,7 +46,7 @@ def make_state(problem: Problem, u, v, theta, *, log_g_scale: float = 0.0, itera
     theta = np.asarray(theta, float).reshape(-1, 4)
     if theta.shape[0] != n_regions(u.shape[1], v.shape[1]):
         raise ValueError(f"theta has {theta.shape[0]} regions, change points make {n_regions(u.shape[1], v.shape[1])}")
-    labels = obs_region_labels(u, v, problem.row, problem.col)
+    labels = obs_region_labels(u, v, problem.row, problem.col, pixel_start=problem.pixel_start)
     stats = region_stats(problem, labels, theta[:, 2], theta.shape[0])
     return ChainState(u=u, v=v, theta=theta, stats=stats, log_lik=log_likelihood_from_stats(stats, theta),
                       labels=labels, log_g_scale=float(log_g_scale), iteration=int(iteration))

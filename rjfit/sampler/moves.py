@@ -528,7 +528,7 @@ def log_posterior(problem, prior, u, v, theta, log_lik, config=None) -> float:
 
 
 def _build(problem, u, v, theta):
-    labels = obs_region_labels(u, v, problem.row, problem.col)
+    labels = obs_region_labels(u, v, problem.row, problem.col, pixel_start=problem.pixel_start)
     stats = region_stats(problem, labels, theta[:, 2], theta.shape[0])
     return labels, stats, log_likelihood_from_stats(stats, theta)
 
@@ -872,7 +872,7 @@ def propose_birth(work, rng, problem, prior, config, axis: str):
         phi_a, phi_b, log_jac = split_phi(to_phi(grid[j]), w, config.split_map)
         theta_new = _ungrid(np.concatenate([grid[:j], from_phi(phi_a)[None], from_phi(phi_b)[None], grid[j + 1:]],
                                            axis=0), axis)
-    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col, pixel_start=problem.pixel_start)
     if not np.isfinite(_vector_log_q(x, lower, upper, size, config)):
         return u_new, v_new, theta_new, labels, None, None, -np.inf
     if config.split_map == "conditional":
@@ -905,7 +905,7 @@ def propose_death(work, rng, problem, prior, config, axis: str):
     u_new, v_new = (new_cps, work.v) if axis == "u" else (work.u, new_cps)
     ns_u, ns_v = u_new.shape[1], v_new.shape[1]
     grid = _grid(work.theta, n_u, n_v, axis)
-    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col, pixel_start=problem.pixel_start)
     if config.split_map == "conditional":
         theta_new = _ungrid(np.concatenate([grid[:k + 1], grid[k + 2:]], axis=0), axis)
         new_ids = _region_ids(ns_u, ns_v, axis, [k])
@@ -957,7 +957,7 @@ def propose_block_shift(work, rng, problem, prior, config, axis: str):
                or np.any(np.diff(block, axis=1) <= 0))
     if invalid:
         return u_new, v_new, None, None, None, None, -np.inf
-    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col, pixel_start=problem.pixel_start)
     changed = labels != work.labels
     if not np.any(changed):
         log_lik = work.log_lik
@@ -1298,7 +1298,7 @@ def _redraw_all(problem, prior, config, u_new, v_new, work, rng):
     Returns ``(labels, theta, log term new - old, stats, log_lik)``; theta is None when a
     draw was invalid.
     """
-    labels = obs_region_labels(u_new, v_new, problem.row, problem.col)
+    labels = obs_region_labels(u_new, v_new, problem.row, problem.col, pixel_start=problem.pixel_start)
     n_new = n_regions(u_new.shape[1], v_new.shape[1])
     theta_new, term_new = _regions_term(problem, prior, config, labels, np.ones((n_new, 4)), range(n_new),
                                         draw_rng=rng)
