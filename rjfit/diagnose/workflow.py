@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from pathlib import Path
 
@@ -212,7 +213,12 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
                 columns = template_columns(current, ctx, effect)
                 score, signature_map = effect.signature(ctx, residuals, sigma2_hat, columns)
                 stored[("signature", step, effect.name)] = (score, signature_map)
-            except Exception as error:          # a failing candidate is reported, not fatal
+            except Exception as error:
+                # A failing candidate (a refit that does not converge, a Mitsuba feature that
+                # cannot be rendered) is reported in its row and the search goes on; with
+                # RJFIT_DEBUG set it is raised instead, so a programming error shows its traceback.
+                if os.environ.get("RJFIT_DEBUG"):
+                    raise
                 row["error"] = f"{type(error).__name__}: {error}"
                 _bar_say(bar, say, f"  step {step + 1} {effect.name:18s} failed: {row['error']}")
                 step_rows.append(row)
