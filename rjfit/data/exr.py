@@ -5,10 +5,11 @@ rejects float64, so every channel is made a contiguous float32 array here, in on
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
+
+from rjfit.atomic import atomic_path
 
 __all__ = ["write_exr", "read_exr"]
 
@@ -29,14 +30,8 @@ def write_exr(path, channels: dict[str, np.ndarray]) -> None:
         raise ValueError(f"{path}: EXR channels must be 2-D arrays of one shape, got {shapes}")
     prepared = {name: np.ascontiguousarray(np.asarray(data, dtype=np.float32)) for name, data in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp.exr")
-    try:
+    with atomic_path(path) as temporary:       # the project's one atomic writer (fsync, unique name)
         OpenEXR.File(header, prepared).write(str(temporary))
-        os.replace(temporary, path)
-    finally:
-        if temporary.exists():
-            temporary.unlink()
 
 
 def read_exr(path) -> dict[str, np.ndarray]:
