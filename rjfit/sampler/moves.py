@@ -626,8 +626,9 @@ def _thinned(data, max_obs):
     m = data.n // max_obs
     if m < 2:
         return data
-    return RegionData(idx=data.idx[::m], y=data.y[::m], C=data.C[::m], log_cos_hn=data.log_cos_hn[::m],
-                      weight=data.weight * data.n / len(data.y[::m]))
+    # contiguous copies: the compiled passes vectorise only over contiguous arrays
+    return RegionData(idx=data.idx[::m], y=np.ascontiguousarray(data.y[::m]), C=np.ascontiguousarray(data.C[::m]),
+                      log_cos_hn=np.ascontiguousarray(data.log_cos_hn[::m]), weight=data.weight * data.n / len(data.y[::m]))
 
 
 def _laplace_log_gamma(data, prior):
@@ -638,7 +639,8 @@ def _laplace_log_gamma(data, prior):
     integrated out under flat priors for (a, b). The mode is located on a coarse grid
     evaluated on a thinning of the region (at most :data:`LAPLACE_COARSE_OBS`
     observations), then refined by Newton steps on the whole region with the closed-form
-    derivatives of :func:`_ls_profile`: about 4 passes over the region instead of 18.
+    derivatives of :func:`_ls_profile`, first on the thinning, then on the whole region from
+    the thinning's mode: about 2 passes over the region instead of 18.
     Where that fails (a non-concave or bounded profile) it falls back to finite
     differences on the whole region. A function of the region's data only, as a
     proposal's parameters must be.
@@ -663,7 +665,14 @@ def _laplace_log_gamma(data, prior):
     best = int(np.argmax(values))
     if not np.isfinite(values[best]):
         return None
-    newton = _laplace_newton(data, grid[best], k, b0, prior_part)
+    # Newton on the thinning first (cheap), so the passes over the whole region start within
+    # a few posterior sds of its mode: about 2 of them instead of 4 to 5 from a grid point.
+    start = grid[best]
+    if coarse is not data:
+        coarse_mode = _laplace_newton(coarse, start, k, b0, prior_part)
+        if coarse_mode is not None:
+            start = coarse_mode[0]
+    newton = _laplace_newton(data, start, k, b0, prior_part)
     if newton is not None:
         return newton
     return _laplace_finite_differences(lambda ell: h(data, ell), grid)
