@@ -207,13 +207,21 @@ def test_backward_sampler_draws_paths_with_the_probability_it_reports():
 
 
 def test_split_by_label_equals_one_gather_per_region(problem):
+    # split's regions are runs of the problem's arrays: the same observations, and the same
+    # sums (to float64 rounding: the runs are summed in another order) as a gather
     labels = _labels(problem, np.random.default_rng(5), 6)
     labels[labels == 4] = 3                      # an empty region too
     for r, data in enumerate(RegionData.split(problem, labels, 6)):
         reference = RegionData.gather(problem, np.flatnonzero(labels == r))
-        for name in ("idx", "y", "C", "log_cos_hn"):
-            np.testing.assert_array_equal(getattr(data, name), getattr(reference, name), err_msg=f"region {r} {name}")
-        assert data.weight == reference.weight
+        np.testing.assert_array_equal(data.idx, reference.idx, err_msg=f"region {r}")
+        assert data.n == reference.n and data.weight == reference.weight
+        gathered = data.gathered()
+        for name in ("y", "C", "log_cos_hn"):
+            np.testing.assert_array_equal(getattr(gathered, name), getattr(reference, name), err_msg=f"region {r} {name}")
+        np.testing.assert_allclose(data.fixed, reference.fixed, rtol=1e-12, err_msg=f"region {r}")
+        for gamma in (0.5, 10.0, 300.0):
+            np.testing.assert_allclose(data.b_sums(gamma), reference.b_sums(gamma), rtol=1e-12, atol=0)
+            np.testing.assert_allclose(data.b_sums_newton(gamma), reference.b_sums_newton(gamma), rtol=1e-12, atol=0)
     with pytest.raises(ValueError, match="labels must lie"):
         RegionData.split(problem, labels, 3)
 

@@ -29,7 +29,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-__all__ = ["fast_exp", "b_sums", "b_sums_newton", "split_by_label", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
+__all__ = ["fast_exp", "b_sums", "b_sums_newton", "b_sums_runs", "b_sums_newton_runs", "fixed_sums_runs", "run_indices", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
            "forward_filter", "removal_sums", "rank_forward", "rank_path_log_prob", "rank_backward_sample", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
            "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "BLOCK"]
 
@@ -83,18 +83,13 @@ def fast_exp(x):
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def b_sums(y, C, log_cos_hn, gamma):
-    """``(SyB, SAB, SBB)`` (unscaled, float64) of one region's gathered arrays at exponent ``gamma``.
-
-    ``B = C <h.n>^gamma`` with the power from :func:`fast_exp`, fused with the sums: one
-    vectorised pass that reads the float32 arrays once.
-    """
+def _b_sums_range(y, C, log_cos_hn, lo, hi, gamma):
+    """Unscaled ``(SyB, SCB, SBB)`` of observations ``lo .. hi - 1`` (see :func:`b_sums`)."""
     yb = cb = bb = 0.0
-    n = y.shape[0]
-    for start in range(0, n, BLOCK):
+    for start in range(lo, hi, BLOCK):
         # views indexed from 0: no negative-index wraparound in the loop, which then vectorises
         # (indexing y[start + k] instead makes this pass 3 times slower)
-        m = min(BLOCK, n - start)
+        m = min(BLOCK, hi - start)
         ys, cs, ls = y[start:start + m], C[start:start + m], log_cos_hn[start:start + m]
         pyb = pcb = pbb = 0.0
         for k in range(m):
@@ -106,22 +101,41 @@ def b_sums(y, C, log_cos_hn, gamma):
         yb += pyb
         cb += pcb
         bb += pbb
+    return yb, cb, bb
+
+
+@njit(cache=True, nogil=True)
+def b_sums(y, C, log_cos_hn, gamma):
+    """``(SyB, SAB, SBB)`` (unscaled, float64) of one region's gathered arrays at exponent ``gamma``.
+
+    ``B = C <h.n>^gamma`` with the power from :func:`fast_exp`, fused with the sums: one
+    vectorised pass that reads the float32 arrays once.
+    """
+    yb, cb, bb = _b_sums_range(y, C, log_cos_hn, 0, y.shape[0], gamma)
+    out = np.empty(3)
+    out[0], out[1], out[2] = yb, cb * INV_PI, bb
+    return out
+
+
+@njit(cache=True, nogil=True)
+def b_sums_runs(y, C, log_cos_hn, starts, ends, gamma):
+    """:func:`b_sums` of the observations in the runs ``[starts[k], ends[k])`` of the arrays."""
+    yb = cb = bb = 0.0
+    for k in range(starts.shape[0]):
+        a, b, c = _b_sums_range(y, C, log_cos_hn, starts[k], ends[k], gamma)
+        yb += a
+        cb += b
+        bb += c
     out = np.empty(3)
     out[0], out[1], out[2] = yb, cb * INV_PI, bb
     return out
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def b_sums_newton(y, C, log_cos_hn, gamma):
-    """:func:`b_sums` plus the same three sums weighted by ``log <h.n>`` and by its square (9 values).
-
-    ``d B / d gamma = B log <h.n>``: these are the first and second gamma-derivatives of
-    ``(SyB, SAB, SBB / 2)``, for the Newton proposal of the gamma move.
-    """
-    out = np.zeros(9)
-    n = y.shape[0]
-    for start in range(0, n, BLOCK):
-        m = min(BLOCK, n - start)
+def _b_sums_newton_range(y, C, log_cos_hn, lo, hi, gamma, out):
+    """Add the nine unscaled sums of :func:`b_sums_newton` of observations ``lo .. hi - 1`` to ``out``."""
+    for start in range(lo, hi, BLOCK):
+        m = min(BLOCK, hi - start)
         ys, cs, ls = y[start:start + m], C[start:start + m], log_cos_hn[start:start + m]   # as in b_sums
         # scalar accumulators (not an array) so the loop vectorises
         s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
@@ -150,37 +164,62 @@ def b_sums_newton(y, C, log_cos_hn, gamma):
         out[6] += s6
         out[7] += s7 * INV_PI
         out[8] += s8
+
+
+@njit(cache=True, nogil=True)
+def b_sums_newton(y, C, log_cos_hn, gamma):
+    """:func:`b_sums` plus the same three sums weighted by ``log <h.n>`` and by its square (9 values).
+
+    ``d B / d gamma = B log <h.n>``: these are the first and second gamma-derivatives of
+    ``(SyB, SAB, SBB / 2)``, for the Newton proposal of the gamma move.
+    """
+    out = np.zeros(9)
+    _b_sums_newton_range(y, C, log_cos_hn, 0, y.shape[0], gamma, out)
     return out
 
 
 @njit(cache=True, nogil=True)
-def split_by_label(labels, n_regions, y, C, log_cos_hn):
-    """Every region's observations in one pass (a stable counting sort by label).
+def b_sums_newton_runs(y, C, log_cos_hn, starts, ends, gamma):
+    """:func:`b_sums_newton` of the observations in the runs ``[starts[k], ends[k])`` of the arrays."""
+    out = np.zeros(9)
+    for k in range(starts.shape[0]):
+        _b_sums_newton_range(y, C, log_cos_hn, starts[k], ends[k], gamma, out)
+    return out
 
-    Returns ``offsets`` (R + 1,) and the indices, ``y``, ``C`` and ``log <h.n>`` sorted by
-    region: region r is ``[offsets[r], offsets[r + 1])``, its indices ascending. One
-    sequential pass replaces a scan of the labels and a gather per region.
-    """
-    n = labels.shape[0]
-    offsets = np.zeros(n_regions + 1, np.int64)
-    for i in range(n):
-        offsets[np.int64(labels[i]) + 1] += 1
-    for r in range(n_regions):
-        offsets[r + 1] += offsets[r]
-    fill = offsets[:-1].copy()
-    idx = np.empty(n, np.int64)
-    y_out = np.empty(n, y.dtype)
-    C_out = np.empty(n, C.dtype)
-    lh_out = np.empty(n, log_cos_hn.dtype)
-    for i in range(n):
-        r = np.int64(labels[i])
-        p = fill[r]
-        idx[p] = i
-        y_out[p] = y[i]
-        C_out[p] = C[i]
-        lh_out[p] = log_cos_hn[i]
-        fill[r] = p + 1
-    return offsets, idx, y_out, C_out, lh_out
+
+@njit(cache=True, nogil=True)
+def fixed_sums_runs(y, C, starts, ends):
+    """Unscaled ``(Syy, SyC, SCC)`` of the observations in the runs, float64 (blocked like :func:`b_sums`)."""
+    yy = yc = cc = 0.0
+    for k in range(starts.shape[0]):
+        for start in range(starts[k], ends[k], BLOCK):
+            m = min(BLOCK, ends[k] - start)
+            ys, cs = y[start:start + m], C[start:start + m]
+            pyy = pyc = pcc = 0.0
+            for j in range(m):
+                yv, c = np.float64(ys[j]), np.float64(cs[j])
+                pyy += yv * yv
+                pyc += yv * c
+                pcc += c * c
+            yy += pyy
+            yc += pyc
+            cc += pcc
+    return yy, yc, cc
+
+
+@njit(cache=True, nogil=True)
+def run_indices(starts, ends):
+    """The indices ``[starts[0], ends[0]) + [starts[1], ends[1]) + ...`` as one int64 array."""
+    total = 0
+    for k in range(starts.shape[0]):
+        total += ends[k] - starts[k]
+    out = np.empty(total, np.int64)
+    p = 0
+    for k in range(starts.shape[0]):
+        for i in range(starts[k], ends[k]):
+            out[p] = i
+            p += 1
+    return out
 
 
 @njit(cache=True, nogil=True)

@@ -25,7 +25,7 @@ from rjfit.model.blinn import blinn_normalisation, radiance
 from rjfit.sampler import jit
 
 __all__ = ["Problem", "STAT_N", "region_stats", "stat_terms", "log_likelihood_from_stats",
-           "oracle_log_likelihood", "region_stats_numpy", "ab_from_theta", "theta_from_ab", "b_terms", "index_dtype", "RegionData",
+           "oracle_log_likelihood", "region_stats_numpy", "ab_from_theta", "theta_from_ab", "b_terms", "index_dtype", "RegionData", "label_runs",
            "CHUNK"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
@@ -209,42 +209,90 @@ def stat_terms(problem: Problem, idx, gamma_per_obs):
     return problem.likelihood_power * np.stack([np.ones_like(columns[0]), *columns], axis=1)
 
 
+def label_runs(labels, n_regions: int):
+    """Every region's observations as runs of consecutive indices with that label.
+
+    Returns ``offsets`` (R + 1,), ``starts`` and ``ends`` (int64): region r's runs are
+    ``[starts[k], ends[k])`` for k in ``[offsets[r], offsets[r + 1])``, ascending.
+    Observations are sorted by pixel and a region is a union of pixel runs along the image
+    rows, so a few runs per row hold all of a region: passes over it read the problem's
+    arrays in place, and a new labelling costs one vectorised comparison of the labels
+    instead of a copy of every region's observations.
+    """
+    labels = np.asarray(labels)
+    if labels.size == 0:
+        return np.zeros(n_regions + 1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    change = np.flatnonzero(labels[1:] != labels[:-1]) + 1
+    starts = np.concatenate([[0], change]).astype(np.int64)
+    ends = np.concatenate([change, [labels.size]]).astype(np.int64)
+    run_label = labels[starts]
+    order = np.argsort(run_label, kind="stable")
+    offsets = np.searchsorted(run_label[order], np.arange(n_regions + 1)).astype(np.int64)
+    return offsets, starts[order], ends[order]
+
+
 @dataclass(frozen=True, eq=False)
 class RegionData:
-    """One region's observations, gathered (float32), with float64 sums at any gamma.
+    """One region's observations, with float64 sums at any gamma.
 
-    :meth:`b_sums` streams in chunks so every product and sum is float64 without a float64
-    copy of the region; the gamma-free sums ``(n, Syy, SyA, SAA)`` (:attr:`fixed`) are
-    computed on first use only, since the within-model moves never need them.
+    Either gathered (``runs`` None: ``y``, ``C`` and ``log_cos_hn`` are the region's own
+    float32 arrays, ``gathered_idx`` their indices in the problem) or, as :meth:`split`
+    makes them, runs of the problem's own arrays (``runs = (starts, ends)``: the region is
+    the observations ``[starts[k], ends[k])``), read in place. :meth:`b_sums` is one
+    compiled pass either way, every product and sum in float64 without a float64 copy; the
+    gamma-free sums ``(n, Syy, SyA, SAA)`` (:attr:`fixed`) are computed on first use only,
+    since the within-model moves never need them.
     """
 
-    idx: np.ndarray
     y: np.ndarray
     C: np.ndarray
     log_cos_hn: np.ndarray
     weight: float = 1.0            # the Problem's likelihood power: every sum is scaled by it
+    runs: tuple | None = None
+    gathered_idx: np.ndarray | None = None
     newton_memo: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def gather(cls, problem: Problem, idx) -> "RegionData":
-        return cls(idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx],
+        return cls(gathered_idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx],
                    weight=problem.likelihood_power)
 
     @classmethod
     def split(cls, problem: Problem, labels, n_regions: int) -> list:
-        """Every region's :class:`RegionData` from one pass over the labels (views of one sorted copy)."""
+        """Every region's :class:`RegionData` from one read of the labels (runs of the problem's arrays)."""
         labels = np.asarray(labels)
         if labels.shape != problem.y.shape:
             raise ValueError(f"labels has shape {labels.shape}, the problem has {problem.n_obs} observations")
         if labels.size and (int(labels.min()) < 0 or int(labels.max()) >= n_regions):
             raise ValueError(f"labels must lie in [0, {n_regions})")
-        offsets, idx, y, C, lh = jit.split_by_label(labels, int(n_regions), problem.y, problem.C, problem.log_cos_hn)
-        return [cls(idx=idx[a:b], y=y[a:b], C=C[a:b], log_cos_hn=lh[a:b], weight=problem.likelihood_power)
+        offsets, starts, ends = label_runs(labels, int(n_regions))
+        return [cls(y=problem.y, C=problem.C, log_cos_hn=problem.log_cos_hn, weight=problem.likelihood_power,
+                    runs=(starts[a:b], ends[a:b]))
                 for a, b in zip(offsets[:-1], offsets[1:])]
+
+    @cached_property
+    def idx(self) -> np.ndarray:
+        """The region's observation indices in the problem, ascending for :meth:`split`'s."""
+        return self.gathered_idx if self.runs is None else jit.run_indices(*self.runs)
+
+    @cached_property
+    def n(self) -> int:
+        return int(self.y.size) if self.runs is None else int(np.sum(self.runs[1] - self.runs[0]))
+
+    def gathered(self) -> "RegionData":
+        """The same region with its own contiguous arrays (itself if it has them)."""
+        if self.runs is None:
+            return self
+        idx = self.idx
+        return RegionData(gathered_idx=idx, y=self.y[idx], C=self.C[idx], log_cos_hn=self.log_cos_hn[idx],
+                          weight=self.weight)
 
     @cached_property
     def fixed(self) -> np.ndarray:
         """``(n, Syy, SyA, SAA)`` in float64."""
+        if self.runs is not None:
+            yy, yc, cc = jit.fixed_sums_runs(self.y, self.C, *self.runs)
+            return self.weight * np.array([self.n, yy, yc / np.pi, cc / np.pi ** 2])
         yy = yc = cc = 0.0
         for start in range(0, self.y.size, CHUNK):
             y64 = self.y[start:start + CHUNK].astype(np.float64)
@@ -252,12 +300,10 @@ class RegionData:
             yy, yc, cc = yy + np.dot(y64, y64), yc + np.dot(y64, c64), cc + np.dot(c64, c64)
         return self.weight * np.array([self.y.size, yy, yc / np.pi, cc / np.pi ** 2])
 
-    @property
-    def n(self) -> int:
-        return int(self.y.size)
-
     def b_sums(self, gamma: float) -> np.ndarray:
         """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.jit.b_sums`)."""
+        if self.runs is not None:
+            return self.weight * jit.b_sums_runs(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma))
         return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, float(gamma))
 
     def b_sums_newton(self, gamma: float) -> np.ndarray:
@@ -269,7 +315,10 @@ class RegionData:
         gamma = float(gamma)
         hit = self.newton_memo.get(gamma)
         if hit is None:
-            hit = self.weight * jit.b_sums_newton(self.y, self.C, self.log_cos_hn, gamma)
+            if self.runs is not None:
+                hit = self.weight * jit.b_sums_newton_runs(self.y, self.C, self.log_cos_hn, *self.runs, gamma)
+            else:
+                hit = self.weight * jit.b_sums_newton(self.y, self.C, self.log_cos_hn, gamma)
             if len(self.newton_memo) >= 2:
                 self.newton_memo.pop(next(iter(self.newton_memo)))
             self.newton_memo[gamma] = hit

@@ -41,15 +41,14 @@ class Work:
     log_lik: np.ndarray
     labels: np.ndarray
     labels_owned: bool = False
-    region_index: dict | None = None  # region -> observation indices, valid for ``labels``
+    region_index: dict | None = None  # region -> RegionData, valid for ``labels``
 
     def region_data(self, r: int, problem):
-        """(indices, :class:`RegionData`) of region r; every region is gathered in one pass, once per labelling."""
+        """:class:`RegionData` of region r; every region's runs come from one read of the labels, once per labelling."""
         if self.region_index is None:
             self.region_index = {}
         if not self.region_index:     # filled in place: the kernel memoises this dict per labelling
-            regions = RegionData.split(problem, self.labels, self.theta.shape[0])
-            self.region_index.update({k: (data.idx, data) for k, data in enumerate(regions)})
+            self.region_index.update(enumerate(RegionData.split(problem, self.labels, self.theta.shape[0])))
         return self.region_index[r]
 
 
@@ -58,7 +57,7 @@ class Work:
 def _b_sums_region(work, problem, r, gamma):
     """(SyB, SAB, SBB) of region r at exponent gamma: the only O(n_r) work of a gamma move."""
     # np.dot on 1-D arrays; the runner limits BLAS to one thread (threads only add overhead here).
-    return work.region_data(r, problem)[1].b_sums(gamma)
+    return work.region_data(r, problem).b_sums(gamma)
 
 
 def _norm(g: float) -> float:
@@ -293,7 +292,7 @@ def _move_gamma_newton(work, r, rng, prior, problem, scale, rw_sd):
     cond_old = _ab_conditional(stats_r, s2)
     if cond_old is None:
         return None
-    data = work.region_data(r, problem)[1]
+    data = work.region_data(r, problem)
     ell = math.log(g)
     forward = _newton_log_gamma(stats_r, data.b_sums_newton(g), g, s2, scale)
     ell_new = (forward[0] + forward[1] * rng.normal()) if forward is not None else ell + rw_sd * rng.normal()
@@ -626,9 +625,12 @@ def _thinned(data, max_obs):
     m = data.n // max_obs
     if m < 2:
         return data
-    # contiguous copies: the compiled passes vectorise only over contiguous arrays
-    return RegionData(idx=data.idx[::m], y=np.ascontiguousarray(data.y[::m]), C=np.ascontiguousarray(data.C[::m]),
-                      log_cos_hn=np.ascontiguousarray(data.log_cos_hn[::m]), weight=data.weight * data.n / len(data.y[::m]))
+    # where the thinning lies in data's arrays: the problem's (runs) or the region's own
+    take = data.idx[::m] if data.runs is not None else np.arange(0, data.n, m)
+    idx = None if data.idx is None else data.idx[::m]
+    # gathered copies, contiguous: the compiled passes vectorise only over contiguous arrays
+    return RegionData(gathered_idx=idx, y=data.y[take], C=data.C[take], log_cos_hn=data.log_cos_hn[take],
+                      weight=data.weight * data.n / take.size)
 
 
 def _laplace_log_gamma(data, prior):
