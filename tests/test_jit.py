@@ -214,6 +214,8 @@ def test_split_by_label_equals_one_gather_per_region(problem):
     for r, data in enumerate(RegionData.split(problem, labels, 6)):
         reference = RegionData.gather(problem, np.flatnonzero(labels == r))
         np.testing.assert_array_equal(data.idx, reference.idx, err_msg=f"region {r}")
+        for every in (2, 7):
+            np.testing.assert_array_equal(jit.run_indices(*data.runs, every), reference.idx[::every])
         assert data.n == reference.n and data.weight == reference.weight
         gathered = data.gathered()
         for name in ("y", "C", "log_cos_hn"):

@@ -29,7 +29,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-__all__ = ["fast_exp", "b_sums", "b_sums_newton", "b_sums_runs", "b_sums_newton_runs", "fixed_sums_runs", "run_indices", "region_stats_labels", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
+__all__ = ["fast_exp", "b_sums", "b_sums_newton", "b_sums_runs", "b_sums_newton_runs", "fixed_sums_runs", "run_indices", "region_stats_runs", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
            "forward_filter", "removal_sums", "rank_forward", "rank_path_log_prob", "rank_backward_sample", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
            "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "BLOCK"]
 
@@ -208,17 +208,21 @@ def fixed_sums_runs(y, C, starts, ends):
 
 
 @njit(cache=True, nogil=True)
-def run_indices(starts, ends):
-    """The indices ``[starts[0], ends[0]) + [starts[1], ends[1]) + ...`` as one int64 array."""
+def run_indices(starts, ends, every=1):
+    """Every ``every``-th of the indices ``[starts[0], ends[0]) + [starts[1], ends[1]) + ...``, int64."""
     total = 0
     for k in range(starts.shape[0]):
         total += ends[k] - starts[k]
-    out = np.empty(total, np.int64)
-    p = 0
+    out = np.empty((total + every - 1) // every, np.int64)
+    p = q = 0
     for k in range(starts.shape[0]):
-        for i in range(starts[k], ends[k]):
+        # the first index of this run that is a multiple of `every` along the concatenation
+        i = starts[k] + (-q) % every
+        while i < ends[k]:
             out[p] = i
             p += 1
+            i += every
+        q += ends[k] - starts[k]
     return out
 
 
@@ -235,38 +239,54 @@ def _add_terms(stats, r, sign, yv, c, a, lh, gamma):
     stats[r, 6] += sign * b * b
 
 
-@njit(cache=True, nogil=True)
-def region_stats_labels(y, C, log_cos_hn, labels, gammas, n_regions):
-    """Unscaled sufficient statistics (R, 7) of every region in one pass over all observations.
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _stats_range(y, C, log_cos_hn, lo, hi, gamma):
+    """Unscaled ``(Syy, SyC, SCC, SyB, SCB, SBB)`` of observations ``lo .. hi - 1`` at exponent ``gamma``."""
+    yy = yc = cc = yb = cb = bb = 0.0
+    for start in range(lo, hi, BLOCK):
+        m = min(BLOCK, hi - start)
+        ys, cs, ls = y[start:start + m], C[start:start + m], log_cos_hn[start:start + m]   # as in b_sums
+        pyy = pyc = pcc = pyb = pcb = pbb = 0.0
+        for k in range(m):
+            yv, c = np.float64(ys[k]), np.float64(cs[k])
+            b = c * fast_exp(gamma * np.float64(ls[k]))
+            pyy += yv * yv
+            pyc += yv * c
+            pcc += c * c
+            pyb += yv * b
+            pcb += c * b
+            pbb += b * b
+        yy += pyy
+        yc += pyc
+        cc += pcc
+        yb += pyb
+        cb += pcb
+        bb += pbb
+    return yy, yc, cc, yb, cb, bb
 
-    Per block: each observation's exponent looked up, the powers in one vectorised loop
-    (:func:`_powers_into`), then the terms added to their regions.
+
+@njit(cache=True, nogil=True)
+def region_stats_runs(y, C, log_cos_hn, offsets, starts, ends, gammas):
+    """Unscaled sufficient statistics (R, 7) of every region from its runs (:func:`rjfit.sampler.likelihood.label_runs`).
+
+    Each run is one vectorised pass that reads the problem's arrays in place; region r's
+    runs ``offsets[r] .. offsets[r + 1] - 1`` are summed at its exponent ``gammas[r]``.
     """
+    n_regions = offsets.shape[0] - 1
     out = np.zeros((n_regions, 7))
-    part = np.zeros((n_regions, 7))
-    exponent = np.empty(BLOCK)
-    power = np.empty(BLOCK)
-    n = y.shape[0]
-    for start in range(0, n, BLOCK):
-        m = min(BLOCK, n - start)
-        for k in range(m):
-            exponent[k] = gammas[np.int64(labels[start + k])]
-        _powers_into(log_cos_hn[start:start + m], exponent[:m], power[:m])
-        part[:] = 0.0
-        for k in range(m):
-            i = start + k
-            r = np.int64(labels[i])
-            yv, c = np.float64(y[i]), np.float64(C[i])
-            a = c * INV_PI
-            b = c * power[k]
-            part[r, 0] += 1.0
-            part[r, 1] += yv * yv
-            part[r, 2] += yv * a
-            part[r, 3] += a * a
-            part[r, 4] += yv * b
-            part[r, 5] += a * b
-            part[r, 6] += b * b
-        out += part
+    for r in range(n_regions):
+        for k in range(offsets[r], offsets[r + 1]):
+            yy, yc, cc, yb, cb, bb = _stats_range(y, C, log_cos_hn, starts[k], ends[k], gammas[r])
+            out[r, 0] += ends[k] - starts[k]
+            out[r, 1] += yy
+            out[r, 2] += yc
+            out[r, 3] += cc
+            out[r, 4] += yb
+            out[r, 5] += cb
+            out[r, 6] += bb
+        out[r, 2] *= INV_PI
+        out[r, 3] *= INV_PI * INV_PI
+        out[r, 5] *= INV_PI
     return out
 
 

@@ -330,15 +330,16 @@ class RegionData:
 
 
 def region_stats(problem: Problem, labels, gammas, n_regions: int):
-    """Sufficient statistics (R, 7) of every region from scratch (O(N), float64 sums, one compiled pass)."""
+    """Sufficient statistics (R, 7) of every region from scratch (O(N), float64 sums: one compiled pass over its runs)."""
     labels = np.asarray(labels)
     gammas = np.ascontiguousarray(gammas, dtype=float)
     if labels.shape != problem.y.shape:
         raise ValueError(f"labels has shape {labels.shape}, the problem has {problem.n_obs} observations")
     if labels.size and (int(labels.min()) < 0 or int(labels.max()) >= n_regions or gammas.size < n_regions):
         raise ValueError(f"labels must lie in [0, {n_regions}) with a gamma per region")
-    return problem.likelihood_power * jit.region_stats_labels(problem.y, problem.C, problem.log_cos_hn, labels,
-                                                              gammas, int(n_regions))
+    offsets, starts, ends = label_runs(labels, int(n_regions))
+    return problem.likelihood_power * jit.region_stats_runs(problem.y, problem.C, problem.log_cos_hn, offsets, starts,
+                                                            ends, gammas)
 
 
 def region_stats_numpy(problem: Problem, labels, gammas, n_regions: int):

@@ -626,8 +626,8 @@ def _thinned(data, max_obs):
     if m < 2:
         return data
     # where the thinning lies in data's arrays: the problem's (runs) or the region's own
-    take = data.idx[::m] if data.runs is not None else np.arange(0, data.n, m)
-    idx = None if data.idx is None else data.idx[::m]
+    take = jit.run_indices(*data.runs, m) if data.runs is not None else np.arange(0, data.n, m)
+    idx = take if data.runs is not None else (None if data.idx is None else data.idx[::m])
     # gathered copies, contiguous: the compiled passes vectorise only over contiguous arrays
     return RegionData(gathered_idx=idx, y=data.y[take], C=data.C[take], log_cos_hn=data.log_cos_hn[take],
                       weight=data.weight * data.n / take.size)
