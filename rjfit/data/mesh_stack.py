@@ -14,7 +14,10 @@ A folder with ``stack.json``::
 
 The per-pixel geometry (positions, shading normals, view directions, shadow-ray
 visibility) comes from tracing the mesh with Mitsuba from the camera, through each pixel
-centre, exactly as for rendered data sets; the gate then path-traces the same mesh.
+centre, exactly as for rendered data sets; the gate then path-traces the same mesh. The
+loaded ``Dataset.meta`` is ``stack.json`` plus ``meshes`` (the mesh as the one part, material
+0), which is what :func:`rjfit.render.render.scene_from_dataset_meta` rebuilds the scene
+from, here and for diagnose's Mitsuba features (shadow rays, indirect light, simulation).
 """
 from __future__ import annotations
 
@@ -50,7 +53,8 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
     from rjfit.data.checks import check_lights_face_object
     from rjfit.data.diligent import _check_depth, _read_raw_image
     from rjfit.data.mesh import load_mesh
-    from rjfit.render.mitsuba_scene import activate, build_scene, shadow_visibility, trace_pixels
+    from rjfit.render.mitsuba_scene import activate, shadow_visibility, trace_pixels
+    from rjfit.render.render import scene_from_dataset_meta
 
     path = Path(path)
     description = path / "stack.json"
@@ -85,9 +89,12 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
         saturation = np.iinfo(images.dtype).max          # an integer image clips at its largest code
     saturated = (images >= saturation).any(axis=-1) if saturation is not None else None
     mi = activate(variant)
-    scene = build_scene(meta["camera"], (height, width), [(path / meta["mesh"], 0)],
-                        [{"I0": 1.0, "kd": 1.0, "gamma": 1.0}], [],
+    # The stack in the rjfit layout's terms (its mesh is the one part, material 0): the scene is
+    # rebuilt from this meta here and wherever Mitsuba needs it again (diagnose's features).
+    dataset_meta = dict(meta, kind="measured", layout="mesh-stack", variant=mi.variant(),
+                        meshes=[{"file": meta["mesh"], "material": 0}],
                         reference_intensity=float(meta.get("reference_intensity", 1.0)))
+    scene = scene_from_dataset_meta(dataset_meta, path, lights=[])
     traced = trace_pixels(scene, [0])
     if not traced["hit"].any():
         raise DatasetError(f"{description}: the camera sees no part of {path / meta['mesh']}; check the camera's "
@@ -96,9 +103,6 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
                            for light in lights])
     check_lights_face_object(lights, traced["normals"], traced["positions"], traced["view_dirs"], traced["hit"],
                              lambda i: f"{description}" if i is None else f"{description} light {i}")
-    dataset_meta = dict(meta, kind="measured", layout="mesh-stack", variant=mi.variant(),
-                        meshes=[{"file": meta["mesh"], "material": 0}],
-                        reference_intensity=float(meta.get("reference_intensity", 1.0)))
     return Dataset(path=path, meta=dataset_meta, images=images.astype(np.float32), normals=traced["normals"],
                    view_dirs=traced["view_dirs"], positions=traced["positions"], visibility=visibility,
                    object_mask=traced["hit"], lights=lights, saturated=saturated)

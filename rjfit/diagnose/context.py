@@ -57,9 +57,12 @@ class Context:
 
     @property
     def has_mesh(self) -> bool:
-        """Whether the data set's scene can be rebuilt in Mitsuba (rendered data sets)."""
-        return bool(self.dataset.meta.get("meshes")) and self.dataset.positions is not None \
-            and (self.dataset_dir / "dataset.json").is_file()
+        """Whether the data set's scene can be rebuilt in Mitsuba: its meta names mesh files that
+        exist (a rendered data set, or a measured mesh stack; see
+        :func:`rjfit.render.render.scene_from_dataset_meta`)."""
+        meshes = self.dataset.meta.get("meshes")
+        return bool(meshes) and self.dataset.positions is not None \
+            and all((self.dataset_dir / entry["file"]).is_file() for entry in meshes)
 
     @property
     def reference_intensity(self) -> float:

@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 
 from rjfit.data.lights import Light
 
-__all__ = ["EXT_PLUGIN_NAME", "register_ext", "materials_for_parts", "render_model", "indirect_radiance", "gate"]
+__all__ = ["EXT_PLUGIN_NAME", "register_ext", "materials_for_parts", "model_scene", "render_model", "indirect_radiance",
+           "gate"]
 
 EXT_PLUGIN_NAME = "rjfit_blinn_ext"
 STOCHASTIC_RATIO = 1.5
@@ -150,6 +152,7 @@ def materials_for_parts(ctx, region_params):
     A Mitsuba BSDF is constant per mesh part, the fit's regions are pixel sets: each mesh
     material gets the parameters of the region covering most of its pixels (exact when the
     segmentation follows the parts, e.g. the truth labels or a good MAP segmentation).
+    For a data set without materials (a measured mesh stack) see :func:`model_scene`.
     """
     region_params = np.asarray(region_params, dtype=float)
     parts = _mesh_material_map(ctx.dataset)
@@ -161,6 +164,56 @@ def materials_for_parts(ctx, region_params):
         params = region_params[np.bincount(regions).argmax(), :3] if regions.size else fallback
         out.append({"I0": float(params[0]), "kd": float(params[1]), "gamma": float(params[2])})
     return out
+
+
+def _region_parts(ctx):
+    """A measured data set's mesh cut into one part per fit region: (data set, temporary folder).
+
+    Each face of the mesh as Mitsuba loads it (positions, shading normals and faces taken from
+    the loaded shape, so the geometry is unchanged) takes the region of the nearest traced
+    pixel-centre point of the object; the parts are written as PLY files into a temporary
+    folder that lives as long as the returned object, and the data set returned names them as
+    its ``meshes`` (material = region index).
+    """
+    import dataclasses
+    import tempfile
+
+    import mitsuba as mi
+    from scipy.spatial import cKDTree
+
+    from rjfit.render.meshes import split_by_face_label
+    from rjfit.render.mitsuba_scene import activate
+    from rjfit.render.render import scene_from_dataset_meta
+
+    activate()
+    dataset = ctx.dataset
+    labelled = (ctx.labels >= 0) & dataset.object_mask
+    tree = cKDTree(dataset.positions[labelled])
+    folder = tempfile.TemporaryDirectory(prefix="rjfit-regions-")
+    meshes = []
+    for shape in scene_from_dataset_meta(dataset.meta, dataset.path, lights=[]).shapes():
+        params = mi.traverse(shape)
+        vertices = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
+        normals = np.array(params["vertex_normals"], dtype=np.float64).reshape(-1, 3)
+        faces = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
+        face_region = ctx.labels[labelled][tree.query(vertices[faces].mean(axis=1))[1]]
+        for mesh, region in split_by_face_label(vertices, faces, normals, face_region):
+            meshes.append({"file": str(Path(folder.name) / f"part_{len(meshes):03d}.ply"), "material": region})
+            mesh.export(meshes[-1]["file"], file_type="ply", vertex_normal=True)
+    return dataclasses.replace(dataset, meta=dict(dataset.meta, meshes=meshes)), folder
+
+
+def model_scene(ctx, region_params):
+    """The data set to render the fitted model on, and its materials (``{I0, kd, gamma}``).
+
+    A rendered data set's mesh parts are its materials: :func:`materials_for_parts`. A data
+    set without materials (a measured mesh stack: one mesh) is cut into one part per fit
+    region (:func:`_region_parts`, once per context), each region's parameters its material.
+    """
+    if ctx.dataset.meta.get("materials") is not None:
+        return ctx.dataset, materials_for_parts(ctx, region_params)
+    dataset, _ = ctx.feature("region_parts", lambda: _region_parts(ctx))
+    return dataset, [{"I0": float(p[0]), "kd": float(p[1]), "gamma": float(p[2])} for p in np.asarray(region_params)]
 
 
 def _bsdf_override(materials, reference_intensity, bsdf_params):
@@ -237,10 +290,10 @@ def indirect_radiance(ctx, region_params, *, spp=32, max_depth=8, seed=None, bat
     from rjfit.diagnose.effects.base import MitsubaChange
 
     seed = (ctx.seed if seed is None else seed, INDIRECT_STREAM)
-    materials = materials_for_parts(ctx, region_params)
-    full, se = render_model(ctx.dataset, materials, MitsubaChange(), spp=max(spp // batches, 1), seed=seed,
+    dataset, materials = model_scene(ctx, region_params)
+    full, se = render_model(dataset, materials, MitsubaChange(), spp=max(spp // batches, 1), seed=seed,
                             max_depth=max_depth, batches=batches)
-    direct = render_model(ctx.dataset, materials, MitsubaChange(), spp=1, seed=seed, max_depth=2)
+    direct = render_model(dataset, materials, MitsubaChange(), spp=1, seed=seed, max_depth=2)
     ctx.features["indirect_se"] = se
     return full - direct
 

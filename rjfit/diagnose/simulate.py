@@ -26,7 +26,7 @@ import numpy as np
 
 from rjfit.diagnose.effects.base import merge_changes
 from rjfit.diagnose.gap import gap, gap_breakdown
-from rjfit.diagnose.mitsuba_ext import materials_for_parts, render_model
+from rjfit.diagnose.mitsuba_ext import model_scene, render_model
 
 __all__ = ["simulate_fit"]
 
@@ -36,7 +36,8 @@ SIMULATION_STREAM = 14     # purpose tag of the posterior predictive renders' st
 def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, spp_stochastic=256):  # environment: 16 x that, once per draw
     """Mitsuba posterior predictive of ``fit`` on ``ctx`` (needs the data set's mesh)."""
     if not ctx.has_mesh:
-        raise ValueError("posterior predictive rendering needs the data set's mesh (a rendered data set)")
+        raise ValueError("posterior predictive rendering needs the data set's mesh (a rendered data set "
+                         "or a mesh stack)")
     rng = np.random.default_rng(seed)
     picks = rng.choice(fit.draws.shape[0], size=min(n_draws, fit.draws.shape[0]), replace=False)
     width = ctx.image_shape[1]
@@ -47,7 +48,7 @@ def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, sp
         region = fit.region_params(z)
         thetas = fit.effect_thetas(z)
         change = merge_changes([e.mitsuba_change(t, ctx) for e, t in zip(fit.effects, thetas)])
-        stack = render_model(ctx.dataset, materials_for_parts(ctx, region), change,
+        stack = render_model(*model_scene(ctx, region), change,
                              spp=spp_stochastic if change.stochastic else 1, seed=(seed, SIMULATION_STREAM, k))
         sims.append(stack[at])
         sigma2s.append(region[ctx.region, 3])

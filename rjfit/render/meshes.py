@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sphere_quadrants", "dented_slab", "build_parts"]
+__all__ = ["sphere_quadrants", "dented_slab", "build_parts", "split_by_face_label"]
 
 
 def _trimesh(vertices, faces, normals):
@@ -16,7 +16,7 @@ def _trimesh(vertices, faces, normals):
     return trimesh.Trimesh(vertices=vertices, faces=faces, vertex_normals=normals, process=False)
 
 
-def _split_by_face_label(vertices, faces, normals, face_labels):
+def split_by_face_label(vertices, faces, normals, face_labels):
     """One mesh per label, holding only the vertices its faces use."""
     parts = []
     for label in np.unique(face_labels):
@@ -54,7 +54,7 @@ def sphere_quadrants(radius=1.0, n_longitude=256, n_latitude=128, materials=(0, 
     upper, right = centroid[:, 1] > 0, centroid[:, 0] > 0
     quadrant = np.where(upper, np.where(right, 2, 0), np.where(right, 3, 1))
     face_labels = np.asarray(materials)[quadrant]
-    return _split_by_face_label(vertices, faces, normals, face_labels)
+    return split_by_face_label(vertices, faces, normals, face_labels)
 
 
 def dented_slab(size=2.0, resolution=200, dents=(), grooves=(), boundary_x=0.0, materials=(0, 1)):
@@ -89,7 +89,7 @@ def dented_slab(size=2.0, resolution=200, dents=(), grooves=(), boundary_x=0.0, 
     faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
     centroid_x = vertices[faces, 0].mean(axis=1)
     face_labels = np.where(centroid_x < boundary_x, materials[0], materials[1])
-    return _split_by_face_label(vertices, faces, normals, face_labels)
+    return split_by_face_label(vertices, faces, normals, face_labels)
 
 
 _GENERATORS = {"sphere_quadrants": sphere_quadrants, "dented_slab": dented_slab}

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -208,7 +209,8 @@ def build_scene(camera: dict, resolution, mesh_parts, materials, lights=(), *, r
     camera : dict
         The scene definition's camera entry.
     resolution : (height, width)
-    mesh_parts : list of (ply_path, material_index)
+    mesh_parts : list of (mesh_path, material_index)
+        PLY files (``.obj``: Wavefront OBJ).
     materials : list of dict
         ``{I0, kd, gamma}`` per material index.
     lights : sequence of Light
@@ -223,10 +225,11 @@ def build_scene(camera: dict, resolution, mesh_parts, materials, lights=(), *, r
 
     scene = {"type": "scene", "integrator": {"type": "path", "max_depth": int(max_depth)},
              "sensor": camera_dict(camera, resolution)}
-    for part_index, (ply_path, material_index) in enumerate(mesh_parts):
+    for part_index, (mesh_path, material_index) in enumerate(mesh_parts):
         bsdf = (bsdf_override(material_index) if bsdf_override is not None
                 else material_dict(materials[material_index], reference_intensity))
-        scene[f"part_{part_index:03d}"] = {"type": "ply", "filename": str(ply_path), "bsdf": bsdf}
+        kind = "obj" if Path(mesh_path).suffix.lower() == ".obj" else "ply"     # a mesh stack's mesh may be OBJ
+        scene[f"part_{part_index:03d}"] = {"type": kind, "filename": str(mesh_path), "bsdf": bsdf}
     for light_index, light in enumerate(lights):
         scene[f"light_{light_index:03d}"] = light_dict(light, light_format)
     scene.update(extra or {})

@@ -16,7 +16,7 @@ from rjfit.data.lights import Light
 from rjfit.render.meshes import build_parts
 
 __all__ = ["SCENES_DIR", "load_scene_definition", "available_scenes", "render_dataset", "write_mesh_parts",
-           "scene_from_dataset_meta"]
+           "scene_from_dataset_meta", "GEOMETRY_MATERIAL"]
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 # purpose tag of the rendering's path-tracing streams (rjfit.render.mitsuba_scene.mitsuba_seed):
@@ -65,9 +65,20 @@ def write_mesh_parts(geometry: dict, mesh_dir: Path) -> list[dict]:
     return entries
 
 
+#: The BSDF of a scene rebuilt without known materials (a measured mesh stack's): enough for its
+#: geometry (pixel-centre hits, shadow rays); callers that render radiance pass materials.
+GEOMETRY_MATERIAL = {"I0": 1.0, "kd": 1.0, "gamma": 1.0}
+
+
 def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, lights=None, max_depth=None,
                             light_format="rgb", bsdf_override=None, extra=None):
-    """Rebuild the Mitsuba scene a data set was rendered from (the active variant is used).
+    """Rebuild the Mitsuba scene of a data set with a mesh (the active variant is used).
+
+    ``meta`` is ``Dataset.meta``: a rendered data set's ``dataset.json``, or a measured mesh
+    stack's ``stack.json`` as :func:`rjfit.data.mesh_stack.load_mesh_stack` completes it (its
+    mesh as the one entry of ``meshes``, material 0). Mesh files are relative to
+    ``dataset_dir``. Without ``materials`` the data set's own are used, or, when it has none
+    (a measured stack), :data:`GEOMETRY_MATERIAL` for every part.
 
     Raises
     ------
@@ -78,17 +89,20 @@ def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, li
     from rjfit.render.mitsuba_scene import build_scene
 
     parts = [(Path(dataset_dir) / entry["file"], entry["material"]) for entry in meta["meshes"]]
+    if materials is None:
+        materials = meta.get("materials") or [GEOMETRY_MATERIAL] * (max(m for _, m in parts) + 1)
     try:
-        return build_scene(meta["camera"], meta["resolution"], parts,
-                           materials if materials is not None else meta["materials"],
+        return build_scene(meta["camera"], meta["resolution"], parts, materials,
                            lights if lights is not None else [Light.from_json(e) for e in meta["lights"]],
                            reference_intensity=meta["reference_intensity"],
                            max_depth=max_depth if max_depth is not None else meta.get("max_depth", 8),
                            light_format=light_format, bsdf_override=bsdf_override, extra=extra)
     except RuntimeError as error:      # Mitsuba's loader reports a damaged file as a RuntimeError
         reason = " ".join(str(error).split())
-        raise DatasetError(f"{dataset_dir}: Mitsuba cannot load the data set's scene: {reason}; "
-                           f"is a mesh file under {Path(dataset_dir) / 'meshes'} damaged? Render the data set again") from error
+        files = ", ".join(str(path) for path, _ in parts)
+        fix = "export the stack's mesh again" if meta.get("layout") == "mesh-stack" else "render the data set again"
+        raise DatasetError(f"{dataset_dir}: Mitsuba cannot load the data set's scene: {reason}; is a mesh file "
+                           f"({files}) damaged? If so, {fix}") from error
 
 
 def check_replaceable(out_dir: Path) -> None:
