@@ -7,6 +7,7 @@ from pathlib import Path
 
 from rjfit.atomic import write_text_atomic
 from rjfit.data.dataset import read_json
+from rjfit.fit_folder import read_summary
 
 __all__ = ["build_report"]
 
@@ -27,6 +28,13 @@ code{background:#f4f4f4;padding:0 .2em}
 
 def _load_json(path: Path):
     return read_json(path) if path.is_file() else None
+
+
+def _number(value, spec=".4g") -> str:
+    """A number of the summary formatted by ``spec``; any other value (hand-edited) as text."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return format(value, spec)
+    return _fmt(value)
 
 
 def _embed(path: Path, caption: str) -> str:
@@ -52,10 +60,9 @@ def _region_table(summary: dict) -> str:
     """The paper's Table 2 / 4 layout: one row per region, mean &plusmn; sd and 95 % interval."""
     regions = summary.get("regions") or []
     # label_matching maps a fitted region to the true label it was matched to (Hungarian).
-    truth = {}
-    if summary.get("truth_params") and summary.get("label_matching"):
-        truth = {str(region): summary["truth_params"][int(label)]
-                 for region, label in summary["label_matching"].items() if label is not None and int(label) >= 0}
+    truth_params = summary.get("truth_params") or []
+    truth = {str(region): truth_params[label] for region, label in (summary.get("label_matching") or {}).items()
+             if isinstance(label, int) and 0 <= label < len(truth_params) and isinstance(truth_params[label], dict)}
     head = "".join(f"<th>{_LABELS[p]}</th>" for p in _PARAMETERS)
     rows = []
     for index, region in enumerate(regions):
@@ -66,13 +73,13 @@ def _region_table(summary: dict) -> str:
             if not isinstance(stats, dict) or "mean" not in stats:
                 cells.append("<td>&ndash;</td>")
                 continue
-            text = f"{stats['mean']:.4g} &plusmn; {stats.get('sd', float('nan')):.2g}"
+            text = f"{_number(stats['mean'])} &plusmn; {_number(stats.get('sd', float('nan')), '.2g')}"
             low, high = stats.get("q2.5"), stats.get("q97.5")
             if low is not None and high is not None:
-                text += f"<br><small>[{low:.4g}, {high:.4g}]</small>"
+                text += f"<br><small>[{_number(low)}, {_number(high)}]</small>"
             true_value = (truth.get(str(index)) or {}).get(parameter) if truth else None
             if true_value is not None:
-                text += f"<br><small>truth {true_value:.4g}</small>"
+                text += f"<br><small>truth {_number(true_value)}</small>"
             cells.append(f"<td>{text}</td>")
         rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small></td>"
                     + "".join(cells) + "</tr>")
@@ -163,11 +170,11 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
     ------
     FileNotFoundError
         If ``fit_dir`` has no ``summary.json``.
+    DatasetError
+        If ``summary.json`` is damaged (see :func:`rjfit.fit_folder.read_summary`).
     """
     fit_dir = Path(fit_dir)
-    summary = _load_json(fit_dir / "summary.json")
-    if summary is None:
-        raise FileNotFoundError(f"{fit_dir}: no summary.json; run `rjfit fit DATASET --out {fit_dir}` first")
+    summary = read_summary(fit_dir)
     out_path = Path(out_path) if out_path else fit_dir / "report.html"
     dataset_dir = Path(summary["dataset"]) if summary.get("dataset") else None
     # a rendered data set's folder is often just "dataset": its description has the scene's name
@@ -180,7 +187,7 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
     # the gate's result: the data set's own, or the file the fit was given (a read-only data set)
     validation_file = dataset_dir / "validation" / "validation.json" if dataset_dir else None
     recorded = (summary.get("validation") or {}).get("path")
-    if recorded and not (validation_file and validation_file.is_file()):
+    if isinstance(recorded, str) and recorded and not (validation_file and validation_file.is_file()):
         validation_file = Path(recorded)
     validation = _load_json(validation_file) if validation_file else None
     validation_dir = validation_file.parent if validation_file else None
@@ -225,7 +232,7 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
                 "seed": summary.get("seed"), "sampler": summary.get("sampler"), "split map": summary.get("split_map"),
                 "noise model": noise.get("model"), "likelihood power (zeta)": summary.get("likelihood_power"),
                 "observations": summary.get("n_observations"),
-                "crop (row0, col0 of the files)": (f"{summary['crop']['row0']}, {summary['crop']['col0']}"
+                "crop (row0, col0 of the files)": (f"{summary['crop'].get('row0')}, {summary['crop'].get('col0')}"
                                                    if summary.get("crop") else None),
                 "fit id": summary.get("fit_id")}
     parts.append("<h3>Fit settings</h3>" + _key_values({k: v for k, v in settings.items() if v is not None},

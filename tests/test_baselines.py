@@ -270,7 +270,7 @@ def test_compare_command_writes_its_three_outputs(sphere, tmp_path):
 def test_read_map_labels_missing_or_wrong_size(sphere, tmp_path):
     from rjfit.baselines.compare import read_map_labels
 
-    with pytest.raises(FileNotFoundError, match="--fit"):
+    with pytest.raises(FileNotFoundError, match="no MAP segmentation"):
         read_map_labels(tmp_path, sphere.object_mask)
     fit = _write_fit(tmp_path / "fit", sphere.truth_labels[:-2], -1.0, {})
     with pytest.raises(ValueError, match="data set it was run on"):

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit import fit_folder
 from rjfit.atomic import atomic_path, publish, staging_dir
 from rjfit.baselines import methods
 from rjfit.baselines.metrics import BOUNDARY_TOLERANCE, relabel_to_truth, segmentation_metrics
-from rjfit.data.dataset import read_json
 
 __all__ = ["compare_dataset", "read_map_labels", "format_markdown", "METHODS", "MAP_LABEL_FILES", "RUNTIME_KEYS"]
 
@@ -35,7 +35,7 @@ METHODS = {
 }
 RJFIT = "rjfit_map"
 #: file names of the MAP labels in a fit folder, tried in this order (rjfit/fit.py currently writes labels.exr)
-MAP_LABEL_FILES = ("map_labels.exr", "labels.exr")
+MAP_LABEL_FILES = fit_folder.MAP_LABEL_FILES
 #: keys of summary.json that may hold the fit's runtime in seconds, tried in this order
 RUNTIME_KEYS = ("seconds", "runtime_seconds", "runtime_s", "wall_seconds", "elapsed_seconds", "fit_seconds")
 #: the files of a comparison besides comparison.json (a new comparison replaces all of them)
@@ -57,7 +57,7 @@ def read_map_labels(fit_dir, mask) -> tuple[np.ndarray, dict]:
     Returns
     -------
     labels : ndarray of int, shape (H, W)
-        Region index on the object; -1 off it and wherever the file has NaN / a negative value.
+        Region index on the object; -1 off it and wherever the file has -1.
     summary : dict
         The contents of ``summary.json`` ({} if it is missing).
 
@@ -66,28 +66,12 @@ def read_map_labels(fit_dir, mask) -> tuple[np.ndarray, dict]:
     FileNotFoundError
         If neither ``map_labels.exr`` nor ``labels.exr`` exists.
     ValueError
-        If it has no ``labels`` channel or its size differs from the mask's.
+        As :func:`rjfit.fit_folder.read_map_labels` and :func:`rjfit.fit_folder.read_summary`
+        (a damaged or hand-edited file; the message names it).
     """
-    from rjfit.data.exr import read_exr
-
     fit_dir = Path(fit_dir)
-    candidates = [fit_dir / name for name in MAP_LABEL_FILES]
-    path = next((candidate for candidate in candidates if candidate.is_file()), None)
-    if path is None:
-        raise FileNotFoundError(f"{fit_dir}: no MAP segmentation (looked for {', '.join(MAP_LABEL_FILES)}); "
-                                f"point --fit at the folder `rjfit fit` wrote")
-    channels = read_exr(path)
-    if "labels" not in channels:
-        raise ValueError(f"{path}: needs a channel 'labels', has {sorted(channels)}")
-    raw = np.asarray(channels["labels"], dtype=np.float64)
-    if raw.shape != mask.shape:
-        raise ValueError(f"{path}: labels are {raw.shape[1]} x {raw.shape[0]} but the data set is "
-                         f"{mask.shape[1]} x {mask.shape[0]}; compare the fit with the data set it was run on")
-    labels = np.full(raw.shape, -1, dtype=np.int64)
-    good = mask & np.isfinite(raw) & (raw >= 0)
-    labels[good] = np.rint(raw[good]).astype(np.int64)
-    summary_path = fit_dir / "summary.json"
-    summary = read_json(summary_path) if summary_path.is_file() else {}
+    labels = fit_folder.read_map_labels(fit_dir, mask)
+    summary = fit_folder.read_summary(fit_dir) if (fit_dir / "summary.json").is_file() else {}
     return labels, summary
 
 
@@ -211,7 +195,9 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
     fit_labels, fit_summary = read_map_labels(fit_dir, mask) if fit_dir is not None else (None, {})
     fitted = fit_summary.get("dataset")
     if fit_dir is not None and (not fitted or Path(fitted).resolve() != Path(dataset.path).resolve()):
-        raise ValueError(f"{fit_dir}: is a fit of {fitted or 'an unknown data set (no summary.json)'}, not of "
+        unknown = ("an unknown data set (summary.json has no 'dataset' entry)" if fit_summary
+                   else "an unknown data set (no summary.json)")
+        raise ValueError(f"{fit_dir}: is a fit of {fitted or unknown}, not of "
                          f"{Path(dataset.path).resolve()}; compare a data set with its own fit")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)      # an --out that cannot be written fails before the baselines run

@@ -416,17 +416,14 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
         If ``summary.json`` names no data set and ``dataset`` is not given, or the data set's
         files differ from those the fit recorded (``dataset_sha256``); and as :func:`diagnose`.
     DatasetError
-        If ``summary.json`` is not valid JSON (:func:`rjfit.data.dataset.read_json`); and as
-        :func:`diagnose`.
+        If ``summary.json`` or the MAP labels are damaged (:func:`rjfit.fit_folder.read_summary`,
+        :func:`rjfit.fit_folder.read_map_labels`); and as :func:`diagnose`.
     """
-    from rjfit.data.dataset import read_json
-    from rjfit.data.exr import read_exr
+    from rjfit.data.dataset import load_dataset
+    from rjfit.fit_folder import read_map_labels, read_summary
 
     fit_dir = Path(fit_dir)
-    if not (fit_dir / "summary.json").is_file():
-        raise FileNotFoundError(f"{fit_dir}: not a fit folder (no summary.json); point diagnose at the folder "
-                                f"that `rjfit fit DATASET --out FOLDER` wrote")
-    summary = read_json(fit_dir / "summary.json")
+    summary = read_summary(fit_dir)
     if dataset is None:
         named = summary.get("dataset")
         if not named:
@@ -444,11 +441,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
         if dataset_fingerprint(dataset) != recorded:
             raise ValueError(f"{dataset}: not the data this fit was made from (its files differ from those "
                              f"{fit_dir / 'summary.json'} records); give the fitted data set, or fit this one again")
-    options.setdefault("channel", summary.get("channel", "mean"))     # the channel the fit used
+    options.setdefault("channel", summary.get("channel") or "mean")     # the channel the fit used
     options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
-    candidates = [fit_dir / name for name in ("map_labels.exr", "labels.exr")]
-    found = [path for path in candidates if path.is_file()]
-    if not found:
-        raise FileNotFoundError(f"{fit_dir}: no MAP segmentation ({' or '.join(p.name for p in candidates)})")
-    labels = np.rint(read_exr(found[0])["labels"]).astype(np.int64)
+    dataset = dataset if hasattr(dataset, "images") else load_dataset(dataset)
+    labels = read_map_labels(fit_dir, dataset.object_mask)
     return diagnose(dataset, labels, out_dir, **options)
