@@ -402,16 +402,28 @@ def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step
         lh = log_cos_hn[start:start + m]
         _powers_into(lh, gamma_right[:m], power_right[:m])
         _powers_into(lh, gamma_left[:m], power_left[:m])
+        # a pixel's observations are consecutive (sorted by pixel): sum them in registers and
+        # write each pixel's two sums once, not once per observation
+        key = -1
+        right = left = 0.0
         for k in range(m):
             i = start + k
             base = base_of[k]
             other = base + step_label
             yv, c = np.float64(y[i]), np.float64(C[i])
-            key = np.int64(line_of[i]) * size + np.int64(along_of[i])
+            key_i = np.int64(line_of[i]) * size + np.int64(along_of[i])
+            if key_i != key:
+                if key >= 0:
+                    right_case[key] += right
+                    left_case[key] += left
+                key, right, left = key_i, 0.0, 0.0
             resid = yv - coef[base, 0] * c - coef[base, 1] * c * power_right[k]
-            right_case[key] += coef[base, 3] - coef[base, 4] * resid * resid
+            right += coef[base, 3] - coef[base, 4] * resid * resid
             resid = yv - coef[other, 0] * c - coef[other, 1] * c * power_left[k]
-            left_case[key] += coef[other, 3] - coef[other, 4] * resid * resid
+            left += coef[other, 3] - coef[other, 4] * resid * resid
+        if key >= 0:
+            right_case[key] += right
+            left_case[key] += left
 
 
 @njit(cache=True, nogil=True, fastmath={"contract"})
