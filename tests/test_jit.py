@@ -206,7 +206,7 @@ def test_backward_sampler_draws_paths_with_the_probability_it_reports():
     assert chi2.sf(statistic, observed.size - 1) > 1e-3
 
 
-def test_split_by_label_equals_one_gather_per_region(problem):
+def test_split_into_runs_equals_one_gather_per_region(problem):
     # split's regions are runs of the problem's arrays: the same observations, and the same
     # sums (to float64 rounding: the runs are summed in another order) as a gather
     labels = _labels(problem, np.random.default_rng(5), 6)
