@@ -30,7 +30,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-__all__ = ["fast_exp", "b_sums", "b_sums_newton", "b_sums_runs", "b_sums_newton_runs", "fixed_sums_runs", "run_indices", "region_stats_runs", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
+__all__ = ["fast_exp", "b_sums", "b_sums_newton", "fixed_sums", "run_indices", "region_stats_runs", "obs_log_density_delta", "shift_stats", "per_pixel_two_cases",
            "forward_filter", "removal_sums", "rank_forward", "rank_path_log_prob", "rank_backward_sample", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
            "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "BLOCK"]
 
@@ -106,21 +106,12 @@ def _b_sums_range(y, C, log_cos_hn, lo, hi, gamma):
 
 
 @njit(cache=True, nogil=True)
-def b_sums(y, C, log_cos_hn, gamma):
-    """``(SyB, SAB, SBB)`` (unscaled, float64) of one region's gathered arrays at exponent ``gamma``.
+def b_sums(y, C, log_cos_hn, starts, ends, gamma):
+    """``(SyB, SAB, SBB)`` (unscaled, float64) of the observations in the runs ``[starts[k], ends[k])``.
 
     ``B = C <h.n>^gamma`` with the power from :func:`fast_exp`, fused with the sums: one
-    vectorised pass that reads the float32 arrays once.
+    vectorised pass per run that reads the float32 arrays once.
     """
-    yb, cb, bb = _b_sums_range(y, C, log_cos_hn, 0, y.shape[0], gamma)
-    out = np.empty(3)
-    out[0], out[1], out[2] = yb, cb * INV_PI, bb
-    return out
-
-
-@njit(cache=True, nogil=True)
-def b_sums_runs(y, C, log_cos_hn, starts, ends, gamma):
-    """:func:`b_sums` of the observations in the runs ``[starts[k], ends[k])`` of the arrays."""
     yb = cb = bb = 0.0
     for k in range(starts.shape[0]):
         a, b, c = _b_sums_range(y, C, log_cos_hn, starts[k], ends[k], gamma)
@@ -168,20 +159,12 @@ def _b_sums_newton_range(y, C, log_cos_hn, lo, hi, gamma, out):
 
 
 @njit(cache=True, nogil=True)
-def b_sums_newton(y, C, log_cos_hn, gamma):
+def b_sums_newton(y, C, log_cos_hn, starts, ends, gamma):
     """:func:`b_sums` plus the same three sums weighted by ``log <h.n>`` and by its square (9 values).
 
     ``d B / d gamma = B log <h.n>``: these are the first and second gamma-derivatives of
     ``(SyB, SAB, SBB / 2)``, for the Newton proposal of the gamma move.
     """
-    out = np.zeros(9)
-    _b_sums_newton_range(y, C, log_cos_hn, 0, y.shape[0], gamma, out)
-    return out
-
-
-@njit(cache=True, nogil=True)
-def b_sums_newton_runs(y, C, log_cos_hn, starts, ends, gamma):
-    """:func:`b_sums_newton` of the observations in the runs ``[starts[k], ends[k])`` of the arrays."""
     out = np.zeros(9)
     for k in range(starts.shape[0]):
         _b_sums_newton_range(y, C, log_cos_hn, starts[k], ends[k], gamma, out)
@@ -189,7 +172,7 @@ def b_sums_newton_runs(y, C, log_cos_hn, starts, ends, gamma):
 
 
 @njit(cache=True, nogil=True)
-def fixed_sums_runs(y, C, starts, ends):
+def fixed_sums(y, C, starts, ends):
     """Unscaled ``(Syy, SyC, SCC)`` of the observations in the runs, float64 (blocked like :func:`b_sums`)."""
     yy = yc = cc = 0.0
     for k in range(starts.shape[0]):

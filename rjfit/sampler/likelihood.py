@@ -233,29 +233,29 @@ def label_runs(labels, n_regions: int):
 
 @dataclass(frozen=True, eq=False)
 class RegionData:
-    """One region's observations, with float64 sums at any gamma.
+    """One region's observations, as runs ``[starts[k], ends[k])`` of float32 arrays, with float64 sums at any gamma.
 
-    Either gathered (``runs`` None: ``y``, ``C`` and ``log_cos_hn`` are the region's own
-    float32 arrays, ``gathered_idx`` their indices in the problem) or, as :meth:`split`
-    makes them, runs of the problem's own arrays (``runs = (starts, ends)``: the region is
-    the observations ``[starts[k], ends[k])``), read in place. :meth:`b_sums` is one
-    compiled pass either way, every product and sum in float64 without a float64 copy; the
-    gamma-free sums ``(n, Syy, SyA, SAA)`` (:attr:`fixed`) are computed on first use only,
-    since the within-model moves never need them.
+    :meth:`split` makes every region of a labelling as runs of the problem's own arrays,
+    read in place; :meth:`gather` copies chosen observations into arrays of their own (one
+    run, ``gathered_idx`` their indices in the problem). Each sum is one compiled pass over
+    the runs (:mod:`rjfit.sampler.jit`), every product and sum in float64 without a float64
+    copy; the gamma-free sums ``(n, Syy, SyA, SAA)`` (:attr:`fixed`) are computed on first
+    use only, since the within-model moves never need them.
     """
 
     y: np.ndarray
     C: np.ndarray
     log_cos_hn: np.ndarray
+    runs: tuple                    # (starts, ends), int64
     weight: float = 1.0            # the Problem's likelihood power: every sum is scaled by it
-    runs: tuple | None = None
     gathered_idx: np.ndarray | None = None
     newton_memo: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def gather(cls, problem: Problem, idx) -> "RegionData":
+        idx = np.asarray(idx)
         return cls(gathered_idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx],
-                   weight=problem.likelihood_power)
+                   runs=(np.zeros(1, np.int64), np.full(1, idx.size, np.int64)), weight=problem.likelihood_power)
 
     @classmethod
     def split(cls, problem: Problem, labels, n_regions: int) -> list:
@@ -270,41 +270,40 @@ class RegionData:
                     runs=(starts[a:b], ends[a:b]))
                 for a, b in zip(offsets[:-1], offsets[1:])]
 
+    def positions(self, every: int = 1) -> np.ndarray:
+        """Every ``every``-th of the region's observations, as positions in its arrays."""
+        return jit.run_indices(*self.runs, every)
+
     @cached_property
     def idx(self) -> np.ndarray:
         """The region's observation indices in the problem, ascending for :meth:`split`'s."""
-        return self.gathered_idx if self.runs is None else jit.run_indices(*self.runs)
+        positions = self.positions()
+        return positions if self.gathered_idx is None else self.gathered_idx[positions]
 
     @cached_property
     def n(self) -> int:
-        return int(self.y.size) if self.runs is None else int(np.sum(self.runs[1] - self.runs[0]))
+        return int(np.sum(self.runs[1] - self.runs[0]))
 
-    def gathered(self) -> "RegionData":
-        """The same region with its own contiguous arrays (itself if it has them)."""
-        if self.runs is None:
-            return self
-        idx = self.idx
-        return RegionData(gathered_idx=idx, y=self.y[idx], C=self.C[idx], log_cos_hn=self.log_cos_hn[idx],
-                          weight=self.weight)
+    def thinned(self, every: int) -> "RegionData":
+        """Every ``every``-th observation gathered into contiguous arrays of its own, sums scaled by ``every``.
+
+        Contiguous: the compiled passes vectorise only over contiguous arrays.
+        """
+        take = self.positions(every)
+        return RegionData(gathered_idx=take if self.gathered_idx is None else self.gathered_idx[take],
+                          y=self.y[take], C=self.C[take], log_cos_hn=self.log_cos_hn[take],
+                          runs=(np.zeros(1, np.int64), np.full(1, take.size, np.int64)),
+                          weight=self.weight * self.n / max(take.size, 1))
 
     @cached_property
     def fixed(self) -> np.ndarray:
         """``(n, Syy, SyA, SAA)`` in float64."""
-        if self.runs is not None:
-            yy, yc, cc = jit.fixed_sums_runs(self.y, self.C, *self.runs)
-            return self.weight * np.array([self.n, yy, yc / np.pi, cc / np.pi ** 2])
-        yy = yc = cc = 0.0
-        for start in range(0, self.y.size, CHUNK):
-            y64 = self.y[start:start + CHUNK].astype(np.float64)
-            c64 = self.C[start:start + CHUNK].astype(np.float64)
-            yy, yc, cc = yy + np.dot(y64, y64), yc + np.dot(y64, c64), cc + np.dot(c64, c64)
-        return self.weight * np.array([self.y.size, yy, yc / np.pi, cc / np.pi ** 2])
+        yy, yc, cc = jit.fixed_sums(self.y, self.C, *self.runs)
+        return self.weight * np.array([self.n, yy, yc / np.pi, cc / np.pi ** 2])
 
     def b_sums(self, gamma: float) -> np.ndarray:
         """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.jit.b_sums`)."""
-        if self.runs is not None:
-            return self.weight * jit.b_sums_runs(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma))
-        return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, float(gamma))
+        return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma))
 
     def b_sums_newton(self, gamma: float) -> np.ndarray:
         """:meth:`b_sums` and their weightings by ``log <h.n>`` and its square (9,); the last two gammas asked are memoised.
@@ -315,10 +314,7 @@ class RegionData:
         gamma = float(gamma)
         hit = self.newton_memo.get(gamma)
         if hit is None:
-            if self.runs is not None:
-                hit = self.weight * jit.b_sums_newton_runs(self.y, self.C, self.log_cos_hn, *self.runs, gamma)
-            else:
-                hit = self.weight * jit.b_sums_newton(self.y, self.C, self.log_cos_hn, gamma)
+            hit = self.weight * jit.b_sums_newton(self.y, self.C, self.log_cos_hn, *self.runs, gamma)
             if len(self.newton_memo) >= 2:
                 self.newton_memo.pop(next(iter(self.newton_memo)))
             self.newton_memo[gamma] = hit

@@ -625,12 +625,7 @@ def _thinned(data, max_obs):
     m = data.n // max_obs
     if m < 2:
         return data
-    # where the thinning lies in data's arrays: the problem's (runs) or the region's own
-    take = jit.run_indices(*data.runs, m) if data.runs is not None else np.arange(0, data.n, m)
-    idx = take if data.runs is not None else (None if data.idx is None else data.idx[::m])
-    # gathered copies, contiguous: the compiled passes vectorise only over contiguous arrays
-    return RegionData(gathered_idx=idx, y=data.y[take], C=data.C[take], log_cos_hn=data.log_cos_hn[take],
-                      weight=data.weight * data.n / take.size)
+    return data.thinned(m)
 
 
 def _laplace_log_gamma(data, prior):
