@@ -148,6 +148,66 @@ def test_element_move_delta_and_shift_equal_reference(problem, axis):
                                rtol=1e-9, atol=1e-9)
 
 
+def _changepoint_labels(problem, rng, n_u, n_v):
+    """Labels of a random (n_u, n_v) model whose vectors wander across the image."""
+    from rjfit.sampler.changepoints import obs_region_labels
+
+    height, width = problem.image_shape
+    u = np.sort(rng.uniform(-1.0, width + 1.0, (height, n_u)), axis=1)
+    v = np.sort(rng.uniform(-1.0, height + 1.0, (width, n_v)), axis=1)
+    return u, v, obs_region_labels(u, v, problem.row, problem.col, pixel_start=problem.pixel_start)
+
+
+@pytest.mark.parametrize("axis", ["u", "v"])
+def test_per_pixel_two_cases_equal_reference(problem, axis):
+    """The vector redraw's per-pixel sums: every observation's density in its base region and in base + step."""
+    rng = np.random.default_rng(4)
+    height, width = problem.image_shape
+    u, v, labels = _changepoint_labels(problem, rng, 2, 1)       # 6 regions, as THETA
+    size, step = (width, v.shape[1] + 1) if axis == "u" else (height, 1)
+    cps, k = (u, 1) if axis == "u" else (v, 0)
+    line_of, along_of = (problem.row, problem.col) if axis == "u" else (problem.col, problem.row)
+    x_old = np.ascontiguousarray(cps[:, k])
+    right, left = np.zeros(cps.shape[0] * size), np.zeros(cps.shape[0] * size)
+    jit.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, line_of, along_of, labels, x_old, step, THETA,
+                            size, right, left)
+    idx = np.arange(problem.n_obs)
+    base = labels.astype(np.int64) - np.where(x_old[line_of] < along_of + 0.5, step, 0)
+    key = line_of.astype(np.int64) * size + along_of
+    expected_right = np.bincount(key, _log_density(problem, idx, THETA[base]), minlength=right.size)
+    expected_left = np.bincount(key, _log_density(problem, idx, THETA[base + step]), minlength=left.size)
+    np.testing.assert_allclose(right, expected_right, rtol=1e-11, atol=1e-8)
+    np.testing.assert_allclose(left, expected_left, rtol=1e-11, atol=1e-8)
+    # line r's log-likelihood with the element in cell j: pixels t < j in the base case, t >= j in the other
+    cells = jit.cell_log_lik(right, left, cps.shape[0], size, 0.6)
+    right_2d, left_2d = right.reshape(-1, size), left.reshape(-1, size)
+    for j in (0, 1, size // 2, size):
+        expected = 0.6 * (right_2d[:, :j].sum(axis=1) + left_2d[:, j:].sum(axis=1))
+        np.testing.assert_allclose(cells[:, j], expected, rtol=1e-11, atol=1e-8)
+
+
+@pytest.mark.parametrize("axis", ["u", "v"])
+def test_removal_sums_equal_reference(problem, axis):
+    """Per (line, column) sums with the observations as labelled, moved one column down and one up."""
+    rng = np.random.default_rng(5)
+    u, v, labels = _changepoint_labels(problem, rng, 2, 1)
+    n, n_v = (u.shape[1], v.shape[1])
+    n_axis = n if axis == "u" else n_v
+    step = (n_v + 1) if axis == "u" else 1
+    n_lines = problem.height if axis == "u" else problem.width
+    line_of = problem.row if axis == "u" else problem.col
+    sums = np.zeros((3, n_lines * (n_axis + 1)))
+    jit.removal_sums(problem.y, problem.C, problem.log_cos_hn, line_of, labels, THETA, n_axis, n_v, step, axis == "u",
+                     sums)
+    lab = labels.astype(np.int64)
+    column = lab // (n_v + 1) if axis == "u" else lab % (n_v + 1)
+    key = line_of.astype(np.int64) * (n_axis + 1) + column
+    idx = np.arange(problem.n_obs)
+    for case, region in enumerate([lab, np.where(column > 0, lab - step, lab), np.where(column < n_axis, lab + step, lab)]):
+        expected = np.bincount(key, _log_density(problem, idx, THETA[region]), minlength=sums.shape[1])
+        np.testing.assert_allclose(sums[case], expected, rtol=1e-11, atol=1e-8)
+
+
 def _forward_filter_fft(log_emit, log_kernel):
     """The FFT forward filter this module replaced (reference)."""
     n_cells = log_emit.shape[1]

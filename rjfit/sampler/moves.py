@@ -1166,11 +1166,7 @@ def propose_vector_redraw(work, rng, problem, prior, config, axis: str):
     line_of, along_of = (problem.row, problem.col) if axis == "u" else (problem.col, problem.row)
     jit.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, line_of, along_of, work.labels,
                             np.ascontiguousarray(x_old), step_label, work.theta, size, per_pixel[0], per_pixel[1])
-    per_pixel = [problem.likelihood_power * p.reshape(n_lines, size) for p in per_pixel]
-    zero = np.zeros((n_lines, 1))
-    right_of = np.concatenate([zero, np.cumsum(per_pixel[0], axis=1)], axis=1)    # pixels t < j: element right
-    left_of = np.concatenate([zero, np.cumsum(per_pixel[1], axis=1)], axis=1)
-    log_lik_cell = right_of + (left_of[:, -1:] - left_of)                           # (L, S + 1)
+    log_lik_cell = jit.cell_log_lik(per_pixel[0], per_pixel[1], n_lines, size, problem.likelihood_power)  # (L, S + 1)
     widths, cell_lo = _vector_cells(lower, upper, size)
     with np.errstate(divide="ignore"):
         log_emit = log_lik_cell + np.log(widths)
