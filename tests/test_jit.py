@@ -148,6 +148,26 @@ def test_element_move_delta_and_shift_equal_reference(problem, axis):
                                rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.parametrize("axis", ["u", "v"])
+def test_element_shift_equals_reference(problem, axis):
+    """The observations that change side when elements move: the pixels t with min < t + 0.5 <= max."""
+    rng = np.random.default_rng(6)
+    height, width = problem.image_shape
+    size, n_lines = (width, height) if axis == "u" else (height, width)
+    offsets = problem.pixel_start if axis == "u" else problem.colmajor_start
+    lines = np.arange(1, n_lines, 2)
+    x_old = rng.uniform(-1.0, size + 1.0, lines.size)
+    x_new = np.where(rng.random(lines.size) < 0.3, x_old, rng.uniform(-3.0, size + 3.0, lines.size))
+    x_new[:3] = [-1.0, size + 1.0, np.floor(x_old[2]) + 0.5]             # the edges and a pixel centre
+    starts, ends, delta = jit.element_shift(x_old, x_new, lines, size, offsets, 3)
+    for j, line in enumerate(lines):
+        changed = [t for t in range(size) if min(x_old[j], x_new[j]) < t + 0.5 <= max(x_old[j], x_new[j])]
+        expected = np.arange(offsets[line * size + changed[0]], offsets[line * size + changed[-1] + 1]) if changed \
+            else np.zeros(0, np.int64)
+        np.testing.assert_array_equal(np.arange(starts[j], ends[j]), expected)
+        assert delta[j] == (-3 if x_new[j] > x_old[j] else 3)
+
+
 def _changepoint_labels(problem, rng, n_u, n_v):
     """Labels of a random (n_u, n_v) model whose vectors wander across the image."""
     from rjfit.sampler.changepoints import obs_region_labels

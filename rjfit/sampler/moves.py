@@ -466,12 +466,10 @@ def _element_shift(problem, work, axis, lines, x_old, x_new):
     and the label change.
     """
     size = problem.width if axis == "u" else problem.height
-    lo = np.clip(np.floor(np.minimum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
-    hi = np.clip(np.floor(np.maximum(x_old, x_new) - 0.5).astype(np.int64) + 1, 0, size)
     step_label = (work.v.shape[1] + 1) if axis == "u" else 1
-    delta = np.where(x_new > x_old, -step_label, step_label).astype(np.int64)
     offsets = problem.pixel_start if axis == "u" else problem.colmajor_start
-    return offsets[lines * size + lo], offsets[lines * size + hi], delta
+    return jit.element_shift(np.ascontiguousarray(x_old, dtype=float), np.ascontiguousarray(x_new, dtype=float),
+                             np.ascontiguousarray(lines, dtype=np.int64), size, offsets, step_label)
 
 
 def _apply_shift(work, problem, axis, starts, ends, delta):
@@ -691,7 +689,7 @@ def _laplace_newton(data, ell, k, b0, prior_part, max_steps=8, eps=1e-3):
         if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0 and q > 0):
             return None
         sd = 1.0 / math.sqrt(-h2)
-        step = float(np.clip(-h1 / h2, -0.5, 0.5))
+        step = min(max(-h1 / h2, -0.5), 0.5)
         ell += step
         if abs(step) < 0.2 * sd:        # what is left after this step is O(step^2): negligible
             # only inside a, b > 0 is this unbounded profile the one h uses
@@ -711,7 +709,7 @@ def _laplace_finite_differences(h, grid):
         curvature = (hp - 2 * h0 + hm) / (delta * delta)
         if not (np.isfinite(hm) and np.isfinite(hp)) or curvature >= 0:
             break
-        shift = float(np.clip(-0.5 * (hp - hm) / delta / curvature, -delta, delta))
+        shift = min(max(-0.5 * (hp - hm) / delta / curvature, -delta), delta)
         centre += shift
         h0 = h(centre)
         delta /= 3.0
