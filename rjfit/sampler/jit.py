@@ -11,10 +11,13 @@ What makes a loop fast here (measured; ``tests/test_jit.py`` checks each against
 the exponentials use :func:`fast_exp`, plain arithmetic that vectorises, where libm's scalar
 ``exp`` costs about 5 ns; a loop vectorises only without gathers (per-observation lookups by
 label: those go to a scalar phase per block, then the densities over each run of one
-region in a vectorised phase, then a scalar scatter; a region's passes run over its runs of consecutive observations, see
-:func:`rjfit.sampler.likelihood.label_runs`, so they need no lookup at all) and when it indexes views from 0 (``y[start + k]`` inside the loop left
-the gamma-move sums scalar and 3 times slower). Each function here has a plain NumPy
-counterpart that stays the test oracle (:func:`rjfit.sampler.likelihood.oracle_log_likelihood`,
+region in a vectorised phase, then a scalar scatter; a region's passes run over its runs of
+consecutive observations, see :func:`rjfit.sampler.likelihood.label_runs`, so they need no
+lookup at all), when it indexes views from 0 (``y[start + k]`` inside the loop left the
+gamma-move sums scalar and 3 times slower) and when its accumulators fit in the vector
+registers (nine in one loop made the gamma-move sums 1.7 times slower than three loops of
+three). Each function here has a plain NumPy counterpart that stays the test oracle
+(:func:`rjfit.sampler.likelihood.oracle_log_likelihood`,
 :func:`rjfit.sampler.likelihood.region_stats_numpy`).
 
 Every sum is accumulated in float64 in blocks of :data:`BLOCK` terms (a block's partial
