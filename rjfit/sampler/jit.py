@@ -33,7 +33,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-__all__ = ["fast_exp", "b_sums", "b_sums_newton", "fixed_sums", "run_indices", "region_stats_runs", "obs_log_density_delta", "element_shift", "shift_stats", "per_pixel_two_cases", "cell_log_lik",
+__all__ = ["fast_exp", "b_sums", "b_sums_many", "b_sums_newton", "fixed_sums", "run_indices", "region_stats_runs", "obs_log_density_delta", "element_shift", "shift_stats", "per_pixel_two_cases", "cell_log_lik",
            "forward_filter", "removal_sums", "rank_forward", "rank_path_log_prob", "rank_backward_sample", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
            "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "BLOCK"]
 
@@ -123,6 +123,15 @@ def b_sums(y, C, log_cos_hn, starts, ends, gamma):
         bb += c
     out = np.empty(3)
     out[0], out[1], out[2] = yb, cb * INV_PI, bb
+    return out
+
+
+@njit(cache=True, nogil=True)
+def b_sums_many(y, C, log_cos_hn, starts, ends, gammas):
+    """:func:`b_sums` at each of ``gammas``: (G, 3)."""
+    out = np.empty((gammas.shape[0], 3))
+    for q in range(gammas.shape[0]):
+        out[q] = b_sums(y, C, log_cos_hn, starts, ends, gammas[q])
     return out
 
 
