@@ -3,7 +3,7 @@
 Its readers (``rjfit report``, ``rjfit diagnose``, ``rjfit compare --fit``) get the contents,
 or one :class:`~rjfit.data.errors.DatasetError` that names the file, says what is wrong with it
 and what to do: a damaged or hand-edited file never reaches them as a traceback.
-(``chains.nc`` has no reader yet.)
+(``chains.nc`` is read by ArviZ itself: ``arviz.from_netcdf``.)
 """
 from __future__ import annotations
 
