@@ -59,6 +59,32 @@ def run_one(problem, prior, config, iterations, seed, start_theta):
     return draws, t1 - t0, t1 - t_burn
 
 
+def _parallel_chain(problem, prior, iterations, seed, start):
+    from rjfit.sampler.state import SamplerConfig
+
+    with threadpool_limits(1):
+        config = SamplerConfig(burn_in=iterations // 2, sampler="adaptive", max_u=3, max_v=3)
+        _, total_s, _ = run_one(problem, prior, config, iterations, seed, start)
+    return total_s
+
+
+def parallel_figures(problem, prior, args, start):
+    """The full kernel as fits run it: chains side by side in processes, ``--parallel-iterations`` in total."""
+    from concurrent.futures import ProcessPoolExecutor
+    import multiprocessing
+
+    k = args.parallel_chains
+    share = args.parallel_iterations // k
+    seeds = np.random.SeedSequence(args.seed).spawn(k)       # one independent stream per chain
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(k, mp_context=multiprocessing.get_context("spawn")) as pool:
+        seconds = list(pool.map(_parallel_chain, [problem] * k, [prior] * k, [share] * k, seeds, [start] * k))
+    wall = time.perf_counter() - t0
+    print(f"full kernel, {k} chains x {share} iterations side by side ({k * share} in all): the chains sample for "
+          f"{', '.join(f'{s:.1f}' for s in seconds)} s; wall {wall:.1f} s with process start and loading "
+          f"(goal at 256 x 256: 20,000 iterations in <= 60 s)")
+
+
 def ess_figures(draws, burn):
     import arviz as az
 
@@ -83,6 +109,11 @@ def main(argv=None):
     parser.add_argument("--burn-in", type=float, default=0.5, help="discarded fraction of each run")
     parser.add_argument("--dataset", default=None, help="a data set folder instead of the pure-NumPy sphere")
     parser.add_argument("--seed", type=int, default=0, help="seed of the data and the chains")
+    parser.add_argument("--parallel-chains", type=int, default=0,
+                        help="also run this many chains of the full kernel side by side, in processes (as fits run "
+                             "their chains), --parallel-iterations in total, and print their wall time (0: skip)")
+    parser.add_argument("--parallel-iterations", type=int, default=20000,
+                        help="iterations of the --parallel-chains chains together (each runs its share)")
     args = parser.parse_args(argv)
 
     from rjfit.sampler.likelihood import Problem
@@ -128,7 +159,9 @@ def main(argv=None):
                   f">= 137, NumPyro NUTS with the segmentation fixed; >= 100x the paper-style sampler); 20,000 "
                   f"iterations of the full kernel at this size take {20000 / its_per_s:.0f} s (goal at 256 x 256: "
                   f"<= 60 s)")
-    if truth:
+    if args.parallel_chains > 0:
+        parallel_figures(problem, prior, args, start)
+    if truth and rows:
         print("posterior means of the default sampler vs truth (I0, kd, gamma, sigma2):")
         for r, t in enumerate(truth):
             print(f"  region {r}: {np.round(rows[0][7][r], 4)}  truth {[t['I0'], t['kd'], t['gamma'], t['sigma2']]}")
