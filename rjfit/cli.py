@@ -241,8 +241,10 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
               help="Change-point prior: random walk along the vector (smooth) or independent uniform per row.")
 @click.option("--drop-jacobian", is_flag=True,
               help="Reproduce the paper's acceptance ratio without the split/merge Jacobian (wrong; for study).")
-@click.option("--channel", type=click.Choice(["mean", "R", "G", "B", "luminance"]), default="mean",
-              show_default=True, help="Colour channel fitted (luminance: CIE Y, sRGB primaries).")
+@click.option("--channel", type=click.Choice(["mean", "R", "G", "B", "luminance", "each"]), default="mean",
+              show_default=True,
+              help="Colour channel fitted (luminance: CIE Y, sRGB primaries); each: R, G and B fitted separately, "
+                   "into OUT/R, OUT/G and OUT/B (OUT/NAME/R, ... for several data sets).")
 @click.option("--likelihood-power", default="1", show_default=True,
               help="zeta in (0, 1] of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each "
                    "observation counts as zeta observations, so a BRDF misfit shared by neighbouring pixels of "
@@ -293,7 +295,7 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
                              checkpoint_every=checkpoint_every)
     for folder, summary in summaries:
         map_model = summary["map_model"]
-        click.echo(f"fit of {summary['dataset']} -> {folder}")
+        click.echo(f"fit of {summary['dataset']} ({summary['channel']}) -> {folder}")
         noise_model = summary.get("noise", {}).get("model", "constant")
         if noise_model != "constant" or summary["likelihood_power"] != 1.0:
             noise_text = (f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), "

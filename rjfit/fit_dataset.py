@@ -168,11 +168,17 @@ def _fit_one(arguments):
     return fit_dataset(dataset_dir, out_dir, **options)
 
 
+EACH_CHANNEL = ("R", "G", "B")     # what ``channel="each"`` fits, one fit per channel
+
+
 def fit_datasets(dataset_dirs, out_dir, *, scheduler=None, n_workers=2, **options):
     """Fit several data sets: ``out_dir`` itself for one, ``out_dir/<name>`` for each of several.
 
-    With a scheduler and several data sets, each fit is one Dask task (its chains run in
-    that worker, one after another); results equal the serial ones for the same seed.
+    With ``channel="each"`` every data set is fitted once per colour channel
+    (:data:`EACH_CHANNEL`), into a sub-folder named after the channel (``out_dir/R``, or
+    ``out_dir/<name>/R`` for several data sets). With a scheduler and several fits, each fit
+    is one Dask task (its chains run in that worker, one after another); results equal the
+    serial ones for the same seed.
 
     Returns
     -------
@@ -203,15 +209,19 @@ def fit_datasets(dataset_dirs, out_dir, *, scheduler=None, n_workers=2, **option
         if len(set(names)) != len(names):
             raise ValueError(f"data sets share folder names {names}; fit them into separate --out folders")
         folders = [out_dir / name for name in names]
-    if len(dataset_dirs) == 1:
-        return [(folders[0], fit_dataset(dataset_dirs[0], folders[0], scheduler=scheduler, n_workers=n_workers,
-                                         **options))]
+    if options.get("channel") == "each":
+        jobs = [(d, folder / channel, dict(options, channel=channel))
+                for d, folder in zip(dataset_dirs, folders) for channel in EACH_CHANNEL]
+    else:
+        jobs = [(d, folder, options) for d, folder in zip(dataset_dirs, folders)]
+    if len(jobs) == 1:
+        dataset_dir, folder, job_options = jobs[0]
+        return [(folder, fit_dataset(dataset_dir, folder, scheduler=scheduler, n_workers=n_workers, **job_options))]
     if scheduler is None:
-        return [(folder, fit_dataset(d, folder, **options)) for d, folder in zip(dataset_dirs, folders)]
+        return [(folder, fit_dataset(d, folder, **job_options)) for d, folder, job_options in jobs]
     from rjfit.distributed import dask_map
 
     address = None if scheduler == "local" else scheduler
-    batch_options = dict(options, processes=1, progress=False)
-    summaries = dask_map(_fit_one, [(d, f, batch_options) for d, f in zip(dataset_dirs, folders)], scheduler=address,
-                         n_workers=n_workers, key_prefix="rjfit-fit")
-    return list(zip(folders, summaries))
+    tasks = [(d, folder, dict(job_options, processes=1, progress=False)) for d, folder, job_options in jobs]
+    summaries = dask_map(_fit_one, tasks, scheduler=address, n_workers=n_workers, key_prefix="rjfit-fit")
+    return list(zip([folder for _, folder, _ in jobs], summaries))

@@ -192,3 +192,30 @@ def test_a_fit_killed_by_sigkill_resumes_to_the_uninterrupted_results(paper_sphe
     timings = {"seconds", "chain_seconds", "chain_resumed_from"}
     assert {key: value for key, value in resumed.items() if key not in timings} == \
         {key: value for key, value in whole.items() if key not in timings}
+
+
+def test_fit_each_channel_fits_r_g_and_b_into_their_own_folders(paper_sphere_small, tmp_path):
+    """--channel each: one fit per colour channel, each of its own channel's values."""
+    import math
+    import shutil
+
+    from rjfit.data.exr import read_exr, write_exr
+
+    dataset = tmp_path / "tinted"
+    shutil.copytree(paper_sphere_small, dataset)
+    scale = {"R": 1.0, "G": 0.5, "B": 0.25}          # a tinted material: G and B reflect less than R
+    for image in sorted((dataset / "images").glob("*.exr")):
+        channels = read_exr(image)
+        write_exr(image, {name: values * scale[name] for name, values in channels.items()})
+    result = CliRunner().invoke(main, ["fit", str(dataset), "--out", str(tmp_path / "fit"), "--channel", "each",
+                                       "--chains", "1", "--iterations", "20", "--allow-unvalidated"])
+    assert result.exit_code == 0, result.output
+    summaries = {name: json.loads((tmp_path / "fit" / name / "summary.json").read_text()) for name in scale}
+    for name, summary in summaries.items():
+        assert summary["channel"] == name
+        assert f"({name}) -> {tmp_path / 'fit' / name}" in result.output
+    # the default prior centres I0 on the median of y / (E <l.n> / pi): it scales with the channel's values
+    centre = {name: summary["prior"]["I0"]["a"] for name, summary in summaries.items()}
+    assert abs(centre["G"] - centre["R"] - math.log(0.5)) < 1e-6
+    assert abs(centre["B"] - centre["R"] - math.log(0.25)) < 1e-6
+    assert not (tmp_path / "fit" / "summary.json").exists()
