@@ -77,7 +77,7 @@ def test_b_sums_equal_numpy_reference(problem):
         reference = 0.6 * np.array([math.fsum(y * B), math.fsum(A * B), math.fsum(B * B)])
         np.testing.assert_allclose(data.b_sums(gamma), reference, rtol=1e-12)
     gammas = np.array([0.3, 5.0, 80.0])
-    np.testing.assert_array_equal(data.b_sums_many(gammas), np.stack([data.b_sums(g) for g in gammas]))
+    np.testing.assert_array_equal(data.stats_at_many(gammas), np.stack([data.stats_at(g) for g in gammas]))
 
 
 def test_b_sums_newton_equal_numpy_reference(problem):

@@ -584,12 +584,17 @@ def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u,
             lab = labels_of[lo]
             hi = _run_end(labels_of, lo, m)
             column = column_of[lab]
-            # as labelled, moved one column down, moved one column up (itself at the edges)
+            # as labelled, moved one column down, moved one column up; at the edges a move keeps
+            # the observations where they are, so their densities are copied, not recomputed
             _log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab, density[0, lo:hi])
-            _log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab - step if column > 0 else lab,
-                                density[1, lo:hi])
-            _log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab + step if column < n else lab,
-                                density[2, lo:hi])
+            if column > 0:
+                _log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab - step, density[1, lo:hi])
+            else:
+                density[1, lo:hi] = density[0, lo:hi]
+            if column < n:
+                _log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab + step, density[2, lo:hi])
+            else:
+                density[2, lo:hi] = density[0, lo:hi]
             lo = hi
         # consecutive observations share a (line, column) key: add them in registers
         key = keys[0]

@@ -305,10 +305,6 @@ class RegionData:
         """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.jit.b_sums`)."""
         return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma))
 
-    def b_sums_many(self, gammas) -> np.ndarray:
-        """:meth:`b_sums` at each of ``gammas``: (G, 3), in one compiled call."""
-        return self.weight * jit.b_sums_many(self.y, self.C, self.log_cos_hn, *self.runs,
-                                             np.ascontiguousarray(gammas, dtype=float))
 
     def b_sums_newton(self, gamma: float) -> np.ndarray:
         """:meth:`b_sums` and their weightings by ``log <h.n>`` and its square (9,); the last two gammas asked are memoised.
@@ -328,6 +324,12 @@ class RegionData:
     def stats_at(self, gamma: float) -> np.ndarray:
         """The seven sufficient statistics at exponent ``gamma``."""
         return np.concatenate([self.fixed, self.b_sums(gamma)])
+
+    def stats_at_many(self, gammas) -> np.ndarray:
+        """:meth:`stats_at` at each of ``gammas``: (G, 7), the passes in one compiled call."""
+        gammas = np.ascontiguousarray(gammas, dtype=float)
+        b_sums = self.weight * jit.b_sums_many(self.y, self.C, self.log_cos_hn, *self.runs, gammas)
+        return np.hstack([np.broadcast_to(self.fixed, (gammas.size, self.fixed.size)), b_sums])
 
 
 def region_stats(problem: Problem, labels, gammas, n_regions: int):

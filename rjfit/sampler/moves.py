@@ -658,8 +658,7 @@ def _laplace_log_gamma(data, prior):
     grid = LAPLACE_GRID
     coarse = _thinned(data, LAPLACE_COARSE_OBS)
     # the grid's sums in one compiled call (nine calls from Python cost more than the sums)
-    grid_sums = coarse.b_sums_many(np.exp(grid))
-    values = [h_of_stats(np.concatenate([coarse.fixed, sums]), e) for sums, e in zip(grid_sums, grid)]
+    values = [h_of_stats(stats_r, e) for stats_r, e in zip(coarse.stats_at_many(np.exp(grid)), grid)]
     best = int(np.argmax(values))
     if not np.isfinite(values[best]):
         return None
