@@ -101,15 +101,42 @@ def dataset_fingerprint(dataset_dir) -> str:
 PROBE_MATERIALS = [{"name": "probe", "I0": 1.0, "kd": 0.5, "gamma": 10.0}]
 
 
-def _facet_mesh(normals, object_mask, size=0.1):
-    """A small square facet (``size`` pixels wide) per object pixel, centred on the pixel
-    centre in the plane z = 0 of an orthographic frame (x right, y up), tilted to the pixel's
-    normal; the pixel-centre ray hits each facet at its centre."""
+def _angle_deg(a, b):
+    """Angle between vectors in degrees, per pixel; atan2 of |a x b| and a.b stays accurate near 0
+    (arccos of the dot product of float32 unit vectors cannot resolve less than about 0.03 deg)."""
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+
+
+def _facet_camera(camera_meta, height, width):
+    """The Mitsuba camera of the facet scene and the principal point ``(cx, cy)`` in pixels.
+
+    Orthographic: one world unit per pixel, the frame centred on the origin. Perspective: the
+    pinhole at distance ``f`` (the focal length in pixels) from the plane z = 0, so a pixel
+    there is again one world unit wide, and the principal point falls on the origin; Mitsuba's
+    principal-point offsets are fractions of the film, from its centre.
+    """
+    if (camera_meta or {}).get("type") != "perspective":
+        return ({"kind": "orthographic", "origin": [0.0, 0.0, 10.0], "target": [0.0, 0.0, 0.0], "up": [0, 1, 0],
+                 "half_width": width / 2.0}, (width / 2.0, height / 2.0))
+    focal = float(camera_meta["focal_px"])
+    cx, cy = (float(v) for v in camera_meta["principal_point"])
+    camera = {"kind": "perspective", "origin": [0.0, 0.0, focal], "target": [0.0, 0.0, 0.0], "up": [0, 1, 0],
+              "fov": float(np.degrees(2.0 * np.arctan(width / (2.0 * focal)))),
+              "principal_point_offset": [(width / 2.0 - cx) / width, (height / 2.0 - cy) / height]}
+    return camera, (cx, cy)
+
+
+def _facet_mesh(normals, object_mask, size=0.1, principal_point=None):
+    """A small square facet (``size`` pixels wide) per object pixel, centred where the
+    pixel-centre ray meets the plane z = 0 (x right, y up; :func:`_facet_camera`'s frame, whose
+    principal point ``(cx, cy)`` lies on the origin), tilted to the pixel's normal; the
+    pixel-centre ray hits each facet at its centre."""
     import trimesh
 
     height, width = object_mask.shape
+    cx, cy = principal_point if principal_point is not None else (width / 2.0, height / 2.0)
     rows, cols = np.nonzero(object_mask)
-    centres = np.stack([cols + 0.5 - width / 2.0, height / 2.0 - rows - 0.5, np.zeros(rows.size)], axis=-1)
+    centres = np.stack([cols + 0.5 - cx, cy - rows - 0.5, np.zeros(rows.size)], axis=-1)
     n = normals[rows, cols]
     helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     t1 = np.cross(n, helper)
@@ -190,17 +217,18 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
         geometry_source = "the data set's meshes"
     else:
         # A normal-map data set has no mesh: each object pixel becomes a small facet with the
-        # pixel's normal, seen by an orthographic camera, so Mitsuba checks the conventions
-        # (axes, light directions and units, the view direction) the loader assumed.
+        # pixel's normal, seen by the folder's camera (orthographic or a pinhole), so Mitsuba
+        # checks the conventions (axes, light directions and units, the view directions) the
+        # loader assumed.
         materials = materials if materials is not None else PROBE_MATERIALS[:1]
         facet_path = out_dir / "facets.ply"
         out_dir.mkdir(parents=True, exist_ok=True)
-        with atomic_path(facet_path) as temporary:
-            _facet_mesh(dataset.normals, dataset.object_mask).export(temporary, file_type="ply", vertex_normal=True)
-        part_materials = [0]
         height, width = dataset.image_shape
-        camera = {"kind": "orthographic", "origin": [0.0, 0.0, 10.0], "target": [0.0, 0.0, 0.0], "up": [0, 1, 0],
-                  "half_width": width / 2.0}
+        camera, principal_point = _facet_camera(meta.get("camera"), height, width)
+        with atomic_path(facet_path) as temporary:
+            _facet_mesh(dataset.normals, dataset.object_mask, principal_point=principal_point).export(
+                temporary, file_type="ply", vertex_normal=True)
+        part_materials = [0]
 
         def make_scene(scene_lights, depth, value_format="rgb"):
             return build_scene(camera, (height, width), [(facet_path, 0)], materials, scene_lights,
@@ -210,7 +238,8 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     traced = trace_pixels(geometry_scene, part_materials)
     hit = traced["hit"] & dataset.object_mask
     shape = hit.shape
-    normal_angle = np.degrees(np.arccos(np.clip(np.sum(traced["normals"] * dataset.normals, axis=-1), -1, 1)))
+    normal_angle = _angle_deg(traced["normals"], dataset.normals)
+    view_angle = _angle_deg(traced["view_dirs"], dataset.view_dirs)
     material_maps = _material_maps(np.where(hit, traced["material"], -1), materials)
     positions = dataset.positions if dataset.positions is not None else np.zeros_like(dataset.normals)
     path_stack, closed_stack, worst_stack = [], [], []
@@ -257,6 +286,7 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
                                      for i in range(len(lights))],
         "geometry": geometry_source,
         "max_normal_angle_deg": float(normal_angle[hit].max()) if hit.any() else None,
+        "max_view_angle_deg": float(view_angle[hit].max()) if hit.any() else None,
         "thresholds": {"median_rel_err": MEDIAN_TOLERANCE, "p99_rel_err": P99_TOLERANCE},
         "settings": {"integrator": "path", "max_depth": max_depth, "spp": spp, "seed": seed, "variant": mi_module.variant(),
                      "rays": "one per pixel centre, shared by the path tracer and the closed form"},

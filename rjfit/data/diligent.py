@@ -21,6 +21,16 @@ Conventions (DiLiGenT's): an orthographic camera looking along -z, so the view d
 v = (0, 0, 1) at every pixel; x to the right, y up, z towards the camera, for normals and light
 directions alike; image rows run top to bottom (row index grows as y falls).
 
+A perspective (pinhole) camera is declared with ``camera={"kind": "perspective", "focal_px": f,
+"principal_point": [cx, cy]}`` (``rjfit.json`` or :func:`load_diligent`): the focal length in
+pixels (square pixels) and the principal point in pixel coordinates of the files' full frame,
+where pixel (row r, column c) spans [c, c + 1] x [r, r + 1] (default: the frame's centre,
+[W / 2, H / 2]). The camera sits at the origin of the same axes, looking along -z. With
+distant lights the radiance then depends on the point only through its normal and the
+direction towards the camera, which for a pinhole is minus the pixel-centre ray's
+direction, whatever the depth: ``v = normalise(-(c + 0.5 - cx) / f, (r + 0.5 - cy) / f, 1)``.
+So no depth map is needed.
+
 Units of the loaded images: for integer images, raw sensor counts divided by the light's
 intensity in that channel (``raw / intensity[l, c]``); for sRGB-encoded images, the decoded linear
 value in [0, 1] divided by the intensity; for float images, the stored value divided by the
@@ -43,7 +53,8 @@ from rjfit.data.checks import check_finite, check_lights_face_object, check_mask
 from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.data.lights import Light
 
-__all__ = ["is_diligent_folder", "load_diligent", "crop_to_mask", "LAYOUT_FILES", "NORMAL_MAP_NAMES", "ENCODINGS"]
+__all__ = ["is_diligent_folder", "load_diligent", "crop_to_mask", "check_camera", "view_directions", "LAYOUT_FILES",
+           "NORMAL_MAP_NAMES", "ENCODINGS", "CAMERA_KINDS"]
 
 FILENAMES = "filenames.txt"
 DIRECTIONS = "light_directions.txt"
@@ -54,7 +65,8 @@ NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "n
                          for ext in ("mat", "npy", "exr"))
 ENCODINGS = ("sRGB",)
 OPTIONS_FILE = "rjfit.json"
-_OPTIONS = ("saturation", "encoded", "normals", "crop")
+_OPTIONS = ("saturation", "encoded", "normals", "crop", "camera")
+CAMERA_KINDS = ("orthographic", "perspective")
 _MAT_VARIABLES = ("Normal_gt", "normals", "normal", "N")
 
 
@@ -282,12 +294,74 @@ def folder_options(folder) -> dict:
              "encoded": (lambda v: v is None or v in ENCODINGS, f"null (linear data) or one of {list(ENCODINGS)}"),
              "normals": (lambda v: v is None or (isinstance(v, str) and v), "a file name, or null"),
              "crop": (lambda v: isinstance(v, bool) or (isinstance(v, int) and v >= 0),
-                      "true, false or a margin in pixels >= 0")}
+                      "true, false or a margin in pixels >= 0"),
+             "camera": (lambda v: v is None or isinstance(v, dict), "an object such as {\"kind\": \"orthographic\"}")}
     for key, value in options.items():
         valid, allowed = rules[key]
         if not valid(value):
             raise DatasetError(f"{path}: {key} is {value!r}; it must be {allowed}")
+    if options.get("camera") is not None:
+        check_camera(options["camera"], f"{path}: camera")
     return options
+
+
+def check_camera(camera, where: str) -> dict:
+    """A photometric-stereo folder's camera declaration, checked; returns it with its defaults filled in.
+
+    Parameters
+    ----------
+    camera : dict or None
+        ``{"kind": "orthographic"}`` (the default, None) or ``{"kind": "perspective",
+        "focal_px": f, "principal_point": [cx, cy]}`` (principal point optional).
+    where : str
+        Names the declaration in messages (the file and key).
+
+    Raises
+    ------
+    DatasetError
+        If the kind is unknown, a key is unknown, the focal length is not a positive number or
+        the principal point is not two finite numbers.
+    """
+    if camera is None:
+        return {"kind": "orthographic"}
+    if not isinstance(camera, dict):
+        raise DatasetError(f"{where} is {camera!r}; it must be an object such as {{\"kind\": \"orthographic\"}}")
+    kind = camera.get("kind")
+    if kind not in CAMERA_KINDS:
+        raise DatasetError(f"{where}: kind is {kind!r}; it must be one of {', '.join(CAMERA_KINDS)}")
+    allowed = {"orthographic": {"kind"}, "perspective": {"kind", "focal_px", "principal_point"}}[kind]
+    unknown = sorted(set(camera) - allowed)
+    if unknown:
+        raise DatasetError(f"{where}: unknown key(s) {', '.join(unknown)} for a {kind} camera; allowed: "
+                           f"{', '.join(sorted(allowed))}")
+    if kind == "orthographic":
+        return {"kind": "orthographic"}
+    focal = camera.get("focal_px")
+    if not (_is_number(focal) and focal > 0):
+        raise DatasetError(f"{where}: focal_px is {focal!r}; a perspective camera needs its focal length in pixels, "
+                           f"a number > 0")
+    principal = camera.get("principal_point")
+    if principal is not None and not (isinstance(principal, (list, tuple)) and len(principal) == 2
+                                      and all(_is_number(v) for v in principal)):
+        raise DatasetError(f"{where}: principal_point is {principal!r}; it must be [cx, cy] in pixels (or left out "
+                           f"for the frame's centre)")
+    return {"kind": "perspective", "focal_px": float(focal),
+            "principal_point": None if principal is None else [float(v) for v in principal]}
+
+
+def view_directions(camera: dict, height: int, width: int) -> np.ndarray:
+    """Unit directions towards the camera at every pixel centre, (H, W, 3), for a checked ``camera``.
+
+    Orthographic: (0, 0, 1) everywhere. Perspective: minus the pixel-centre ray's direction
+    (module docstring), with the principal point defaulting to the frame's centre.
+    """
+    if camera["kind"] == "orthographic":
+        return np.broadcast_to(np.array([0.0, 0.0, 1.0]), (height, width, 3)).copy()
+    cx, cy = camera["principal_point"] or (width / 2.0, height / 2.0)
+    focal = camera["focal_px"]
+    cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    towards = np.stack([-(cols - cx) / focal, (rows - cy) / focal, np.ones_like(cols)], axis=-1)
+    return towards / np.linalg.norm(towards, axis=-1, keepdims=True)
 
 
 def _is_number(value) -> bool:
@@ -297,7 +371,7 @@ def _is_number(value) -> bool:
 _UNSET = object()
 
 
-def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, crop=_UNSET):
+def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, crop=_UNSET, camera=_UNSET):
     """Load a photometric-stereo folder (DiLiGenT layout; see the module docstring) as a Dataset.
 
     Each option not given here is read from the folder's ``rjfit.json`` if it declares it
@@ -321,12 +395,16 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
         False: keep the whole frame. True or a margin in pixels (True means 2): crop every array
         to the mask's bounding box plus the margin (see :func:`crop_to_mask`); the DiLiGenT ball
         then shrinks from 612 x 512 to 146 x 146 pixels and per-pixel work ~15 times.
+    camera : dict or None
+        None or ``{"kind": "orthographic"}``: view direction (0, 0, 1) everywhere (DiLiGenT's).
+        ``{"kind": "perspective", "focal_px": f, "principal_point": [cx, cy]}``: a pinhole camera
+        (see the module docstring); the principal point defaults to the frame's centre.
 
     Returns
     -------
     Dataset
         ``images`` float32 (L, H, W, 3) in the units of the module docstring; directional lights of
-        intensity 1; ``view_dirs`` (0, 0, 1); ``positions`` and ``visibility`` None; ``saturated``
+        intensity 1; ``view_dirs`` from the camera; ``positions`` and ``visibility`` None; ``saturated``
         (L, H, W) flags.
 
     Raises
@@ -342,9 +420,10 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
     if not folder.is_dir():
         raise DatasetFileNotFoundError(f"{folder}: no such folder")
     declared = {**dict.fromkeys(_OPTIONS), "crop": False, **folder_options(folder)}
-    saturation, encoded, normals, crop = (declared[name] if given is _UNSET else given for name, given in
-                                          (("saturation", saturation), ("encoded", encoded), ("normals", normals),
-                                           ("crop", crop)))
+    saturation, encoded, normals, crop, camera = (
+        declared[name] if given is _UNSET else given for name, given in
+        (("saturation", saturation), ("encoded", encoded), ("normals", normals), ("crop", crop), ("camera", camera)))
+    camera = check_camera(camera, f"{folder}: camera")
     if encoded is not None and encoded not in ENCODINGS:
         raise DatasetError(f"{folder}: encoded must be None (linear data) or one of {ENCODINGS}, got {encoded!r}")
 
@@ -404,7 +483,7 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
                            f"{_size(mask)}; the mask, the normal map and every image must have one size")
     check_unit_normals(normal_map, mask, normals_file)
     normal_map = np.where(mask[..., None], normal_map, 0.0)
-    view_dirs = np.broadcast_to(np.array([0.0, 0.0, 1.0]), normal_map.shape).copy()
+    view_dirs = view_directions(camera, *mask.shape)
     lights = [Light(kind="directional", intensity=1.0, direction=tuple(float(c) for c in d)) for d in directions]
 
     def describe(index):
@@ -457,7 +536,7 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
         "source": "photometric-stereo folder, DiLiGenT layout (Shi et al., CVPR 2016)",
         "description": _first_heading(readme),
         "path": str(folder),
-        "camera": {"type": "orthographic", "view_direction": [0.0, 0.0, 1.0],
+        "camera": {**_camera_meta(camera, *mask.shape),
                    "axes": "x right, y up, z towards the camera; image rows top to bottom"},
         "resolution": [height, width],
         "units": units,
@@ -482,10 +561,19 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
     return dataset
 
 
+def _camera_meta(camera, height, width) -> dict:
+    """The camera as ``meta["camera"]`` records it: ``type`` and, for a pinhole, its intrinsics in pixels."""
+    if camera["kind"] == "orthographic":
+        return {"type": "orthographic", "view_direction": [0.0, 0.0, 1.0]}
+    return {"type": "perspective", "focal_px": camera["focal_px"],
+            "principal_point": camera["principal_point"] or [width / 2.0, height / 2.0]}
+
+
 def crop_to_mask(dataset, margin=2):
     """The data set cut to its object mask's bounding box plus ``margin`` pixels (clipped to the frame).
 
-    Every per-pixel array is sliced alike; ``meta["crop"]`` records ``row0``, ``col0`` (the crop's
+    Every per-pixel array is sliced alike (a perspective camera's principal point moves with the
+    crop's corner); ``meta["crop"]`` records ``row0``, ``col0`` (the crop's
     top-left pixel in the full frame) and ``full_resolution``; ``meta["resolution"]`` becomes the
     cropped size. Pixel (r, c) of the crop is pixel (r + row0, c + col0) of the files.
     """
@@ -502,6 +590,10 @@ def crop_to_mask(dataset, margin=2):
     meta = dict(dataset.meta)
     meta["crop"] = {"row0": r0, "col0": c0, "full_resolution": [height, width]}
     meta["resolution"] = [r1 - r0, c1 - c0]
+    if meta.get("camera", {}).get("type") == "perspective":
+        # the principal point in the crop's pixel coordinates (the view directions are cut alike)
+        cx, cy = meta["camera"]["principal_point"]
+        meta["camera"] = {**meta["camera"], "principal_point": [cx - c0, cy - r0]}
     return dataclasses.replace(
         dataset, meta=meta, images=cut(dataset.images, per_light), normals=cut(dataset.normals, window),
         view_dirs=cut(dataset.view_dirs, window), positions=cut(dataset.positions, window),

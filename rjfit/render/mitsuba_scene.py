@@ -149,6 +149,10 @@ def camera_dict(camera: dict, resolution) -> dict:
                                              "rfilter": {"type": "box"}, "pixel_format": "rgb"}}
     if camera["kind"] == "perspective":
         sensor.update(type="perspective", fov=float(camera["fov"]), fov_axis="x")
+        if camera.get("principal_point_offset") is not None:
+            # fractions of the film's width and height, from its centre (an off-centre pinhole)
+            offset_x, offset_y = (float(v) for v in camera["principal_point_offset"])
+            sensor.update(principal_point_offset_x=offset_x, principal_point_offset_y=offset_y)
     elif camera["kind"] == "orthographic":
         half_width = float(camera["half_width"])
         sensor.update(type="orthographic",
