@@ -118,6 +118,55 @@ def fit_region_student(A, C, log_hn, y, select, nu, em_steps=20):
     return best
 
 
+def observation_arrays(obs):
+    """``(y, A, C, log <h.n>, rows, cols)`` of the observations, float64 (A = C / pi, C = E <l.n>)."""
+    width = obs.image_shape[1]
+    y = np.asarray(obs.y, float)
+    C = np.asarray(obs.irradiance, float) * np.asarray(obs.cos_ln, float)
+    log_hn = np.log(np.clip(np.asarray(obs.cos_hn, float), 1e-300, None))
+    return y, C / math.pi, C, log_hn, obs.pixel // width, obs.pixel % width
+
+
+def clip_distance(dataset, obs):
+    """Distance (px) of each observation to the nearest clipped pixel of its own image (inf: none)."""
+    from scipy import ndimage
+
+    width = obs.image_shape[1]
+    return np.stack([ndimage.distance_transform_edt(~clipped) if clipped.any() else np.full(clipped.shape, np.inf)
+                     for clipped in dataset.saturated])[obs.light, obs.pixel // width, obs.pixel % width]
+
+
+def split_evidence(obs, weight, kept, boxes=BOXES):
+    """The evidence for splitting the kept observations at each box, under known noise scales 1 / weight.
+
+    One region (a Lambert + Blinn lobe, its own sigma^2) against two, inside and outside the
+    box. Returns one dict per box: ``box``, ``zeta`` (``--likelihood-power auto`` on the kept,
+    weighted observations), ``gain`` (log-likelihood), ``penalty`` (``4 / 2 log(zeta n)``, the
+    split's 4 extra parameters), ``gamma_in``, ``gamma_out`` and ``n``.
+    """
+    from rjfit.coarsen import suggest_likelihood_power
+
+    y, A, C, log_hn, rows, cols = observation_arrays(obs)
+    fields = ("pixel", "light", "y", "cos_ln", "cos_hn", "irradiance")
+    scaled = replace(obs, **{f: getattr(obs, f)[kept] for f in fields})
+    scaled = replace(scaled, y=scaled.y * weight[kept], irradiance=scaled.irradiance * weight[kept])
+    zeta = suggest_likelihood_power(scaled)["likelihood_power"]
+    n = int(kept.sum())
+    one_region = fit_region(A, C, log_hn, y, weight, kept)[0]
+    rows_out = []
+    for r0, r1, c0, c1 in boxes:
+        inside = kept & (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
+        outside = kept & ~inside
+        ssr_in, gamma_in = fit_region(A, C, log_hn, y, weight, inside)[:2]
+        ssr_out, gamma_out = fit_region(A, C, log_hn, y, weight, outside)[:2]
+        n_in, n_out = int(inside.sum()), int(outside.sum())
+        gain = (0.5 * n * math.log(one_region / n) - 0.5 * n_in * math.log(ssr_in / n_in)
+                - 0.5 * n_out * math.log(ssr_out / n_out))
+        rows_out.append({"box": (r0, r1, c0, c1), "zeta": zeta, "gain": gain, "penalty": 2.0 * math.log(zeta * n),
+                         "gamma_in": gamma_in, "gamma_out": gamma_out, "n": n})
+    return rows_out
+
+
 def main(argv=None):
     from scipy.optimize import minimize
 
@@ -135,19 +184,14 @@ def main(argv=None):
     started = time.perf_counter()
     dataset = load_dataset(args.folder)
     obs = dataset.observations()
-    width = obs.image_shape[1]
-    rows, cols = obs.pixel // width, obs.pixel % width
+    y, A, C, log_hn, rows, cols = observation_arrays(obs)
+    cos_hn = np.exp(log_hn)
     normals = dataset.normals.reshape(-1, 3)[obs.pixel].astype(float)
     lights = np.array([light.direction for light in dataset.lights], float)
     lights /= np.linalg.norm(lights, axis=1, keepdims=True)
     l_dir = lights[obs.light]
     h_dir = l_dir + np.array([0.0, 0.0, 1.0])
     h_dir /= np.linalg.norm(h_dir, axis=1, keepdims=True)
-    y = np.asarray(obs.y, float)
-    C = np.asarray(obs.irradiance, float) * np.asarray(obs.cos_ln, float)
-    A = C / math.pi
-    cos_hn = np.clip(np.asarray(obs.cos_hn, float), 1e-300, None)
-    log_hn = np.log(cos_hn)
     everything = np.ones(y.size, bool)
     print(f"{args.folder}: {y.size:,} observations, {obs.object_mask.sum():,} pixels, loaded in "
           f"{time.perf_counter() - started:.0f} s")
@@ -191,34 +235,16 @@ def main(argv=None):
               "geometric": (1.0 / np.sqrt(1.0 + (sd_n / s0) ** 2 * slope ** 2), everything),
               "normal error": (math.exp(q[0]) / np.sqrt(normal_error_variance(q)), everything)}
     if args.clip_margin:
-        from scipy import ndimage
-
-        # distance of each observation to the nearest clipped pixel of its own image
-        clipped = dataset.saturated
-        distance = np.stack([ndimage.distance_transform_edt(~c) if c.any() else np.full(c.shape, np.inf)
-                             for c in clipped])[obs.light, rows, cols]
+        distance = clip_distance(dataset, obs)
         for margin in args.clip_margin:
             models[f"margin {margin}"] = (np.ones_like(y), distance > margin)
     print(f"\n{'noise':12s} {'zeta':>7s} {'box (rows, cols)':>26s} {'gain':>11s} {'gain x zeta':>12s} "
           f"{'penalty':>8s} {'gamma in / out':>16s} {'n':>10s}")
     for name, (weight, kept) in models.items():
-        fields = ("pixel", "light", "y", "cos_ln", "cos_hn", "irradiance")
-        scaled = replace(obs, **{f: getattr(obs, f)[kept] for f in fields})
-        scaled = replace(scaled, y=scaled.y * weight[kept], irradiance=scaled.irradiance * weight[kept])
-        zeta = suggest_likelihood_power(scaled)["likelihood_power"]
-        n = int(kept.sum())
-        penalty = 4 * 0.5 * math.log(zeta * n)
-        S1 = fit_region(A, C, log_hn, y, weight, kept)[0]
-        for r0, r1, c0, c1 in BOXES:
-            inside = kept & (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
-            outside = kept & ~inside
-            SB, gB = fit_region(A, C, log_hn, y, weight, inside)[:2]
-            SO, gO = fit_region(A, C, log_hn, y, weight, outside)[:2]
-            nB, nO = int(inside.sum()), int(outside.sum())
-            gain = 0.5 * n * math.log(S1 / n) - 0.5 * nB * math.log(SB / nB) - 0.5 * nO * math.log(SO / nO)
-            box = f"{r0}-{r1}, {c0}-{c1}"
-            print(f"{name:12s} {zeta:7.4f} {box:>26s} {gain:11.0f} {zeta * gain:12.0f} {penalty:8.1f} "
-                  f"{gB:7.3g} / {gO:<7.3g} {n:10,d}", flush=True)
+        for row in split_evidence(obs, weight, kept):
+            box = "{}-{}, {}-{}".format(*row["box"])
+            print(f"{name:12s} {row['zeta']:7.4f} {box:>26s} {row['gain']:11.0f} {row['zeta'] * row['gain']:12.0f} "
+                  f"{row['penalty']:8.1f} {row['gamma_in']:7.3g} / {row['gamma_out']:<7.3g} {row['n']:10,d}", flush=True)
     for nu in args.student_t:
         name = f"student-t {nu:g}"
         L1, g1, w1 = fit_region_student(A, C, log_hn, y, everything, nu)
