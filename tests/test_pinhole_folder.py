@@ -25,9 +25,9 @@ from rjfit.validate import closed_form_radiance, validate_dataset
 PINHOLE = {"kind": "perspective", "focal_px": 6.0, "principal_point": [4.0, 3.5]}
 
 
-def pinhole_folder(folder, camera=PINHOLE):
+def pinhole_folder(folder, camera=PINHOLE, **options):
     folder = make_ps_folder(folder)
-    (folder / "rjfit.json").write_text(json.dumps({"camera": camera}))
+    (folder / "rjfit.json").write_text(json.dumps({"camera": camera, **options}))
     return folder
 
 
@@ -76,12 +76,14 @@ def test_bad_camera_declarations_name_the_file(tmp_path, camera, message):
     assert str(folder / "rjfit.json") in str(error.value) and message in str(error.value), str(error.value)
 
 
-def test_gate_traces_the_pinhole(tmp_path):
+@pytest.mark.parametrize("options", [{}, {"crop": 0}], ids=["full frame", "cropped"])
+def test_gate_traces_the_pinhole(tmp_path, options):
     """Mitsuba's pinhole (fov and principal-point offsets from the declaration) sees each facet
     from the direction the loader computed: the view directions agree to float rounding and
-    the closed form matches the path tracer. Negative control: the same folder judged by a
-    closed form that assumes an orthographic view, v = (0, 0, 1), fails the gate."""
-    folder = pinhole_folder(tmp_path / "ps")
+    the closed form matches the path tracer, on the full frame and on a crop (whose principal
+    point moves with its corner). Negative control: the same folder judged by a closed form
+    that assumes an orthographic view, v = (0, 0, 1), fails the gate."""
+    folder = pinhole_folder(tmp_path / "ps", **options)
     result = validate_dataset(folder, tmp_path / "v", spp=1)
     assert result["passed"], result
     # float32 ray directions: about 1e-7 rad, i.e. 1e-5 deg
