@@ -18,6 +18,10 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
                 allow_unvalidated=False, scheduler=None, n_workers=2, client=None, **fit_options) -> dict:
     """Fit one data set after checking that its forward model passed the gate.
 
+    Besides :func:`rjfit.fit.fit`'s results it writes ``maps.exr`` (per-pixel parameters,
+    labels, valid-images count and residual RMS) and, with figures, ``figures/valid_images.png``
+    (the valid-images map beside a map per rule that left observations out).
+
     Parameters
     ----------
     dataset_dir, out_dir : path
@@ -69,6 +73,13 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
 
     def describe_data_set(summary, staging):
         summary["maps"] = write_parameter_maps(observations, summary, staging)
+        if fit_options.get("figures", True):
+            from rjfit.plotting import exclusion_figure
+
+            # which observations the stated rules left out, and why (the valid-images map)
+            exclusion_figure(staging / "figures" / "valid_images.png", dataset.exclusion_counts(channel),
+                             dataset.object_mask, dataset.n_lights)
+            summary.setdefault("figures", {})["valid_images"] = "figures/valid_images.png"
         summary["dataset"] = str(dataset_dir.resolve())
         summary["dataset_sha256"] = dataset_fingerprint(dataset_dir)    # what later commands check it against
         if dataset.meta.get("crop"):

@@ -5,7 +5,7 @@ from pathlib import Path
 
 from rjfit.atomic import atomic_path
 
-__all__ = ["pyplot", "save_figure", "map_figure"]
+__all__ = ["pyplot", "save_figure", "map_figure", "exclusion_figure"]
 
 
 def pyplot():
@@ -42,5 +42,41 @@ def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None, *, dpi=
     axis.set_title(title, fontsize=9)
     axis.axis("off")
     figure.colorbar(shown, ax=axis, fraction=0.046)
+    figure.tight_layout()
+    return save_figure(figure, path, dpi=dpi)
+
+
+EXCLUSION_TITLES = {"unlit": "light behind or grazing the surface", "shadowed": "cast shadow (shadow rays)",
+                    "saturated": "saturated (clipped)", "too_dark": "too dark (declared threshold)",
+                    "not_finite": "NaN or Inf"}
+
+
+def exclusion_figure(path, counts, object_mask, n_lights, *, dpi=100) -> Path:
+    """The valid-images map (paper, Fig. 8) beside a map per rule that left observations out.
+
+    Shows the object's bounding box. ``counts`` is :meth:`rjfit.data.dataset.Dataset.exclusion_counts`; a rule that left
+    nothing out gets no panel, and each panel's title gives its total.
+    """
+    import numpy as np
+
+    plt = pyplot()
+    shown = [("valid", "valid images per pixel")] + [(name, title) for name, title in EXCLUSION_TITLES.items()
+                                                    if counts[name][object_mask].any()]
+    # the object's bounding box (plus a margin), so a small object is not lost in a large frame
+    rows, cols = np.nonzero(object_mask)
+    margin = 3
+    window = (slice(max(rows.min() - margin, 0), rows.max() + 1 + margin),
+              slice(max(cols.min() - margin, 0), cols.max() + 1 + margin))
+    figure, axes = plt.subplots(1, len(shown), figsize=(4.4 * len(shown), 4), squeeze=False)
+    for axis, (name, title) in zip(axes[0], shown):
+        image = np.where(object_mask, counts[name], np.nan)[window]
+        # a rule's own scale (it may take one image in 96 from a few pixels), the valid count's 0..L
+        top = n_lights if name == "valid" else max(int(np.nanmax(image)), 1)
+        panel = axis.imshow(image, cmap="viridis" if name == "valid" else "magma", vmin=0, vmax=top,
+                            interpolation="nearest")
+        axis.set_title(f"{title}\n{int(counts[name][object_mask].sum()):,} of {n_lights * int(object_mask.sum()):,} "
+                       f"observations", fontsize=9)
+        axis.axis("off")
+        figure.colorbar(panel, ax=axis, fraction=0.046, label="images")
     figure.tight_layout()
     return save_figure(figure, path, dpi=dpi)

@@ -135,6 +135,14 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path, paper_spher
         assert where.any()
         np.testing.assert_allclose(maps["I0"][where], region["I0"]["mean"], rtol=1e-6)
         np.testing.assert_allclose(maps["kd_sd"][where], region["kd"]["sd"], rtol=1e-6)
+    # the valid-images map (paper, Fig. 8) with the rules that left observations out, as a
+    # figure in the report; its counts are those of the maps' valid_images channel
+    assert summary["figures"]["valid_images"] == "figures/valid_images.png"
+    assert (tmp_path / "run" / "fit" / "figures" / "valid_images.png").is_file() and 'alt="valid images"' in html
+    from rjfit.data.dataset import load_dataset
+
+    counts = load_dataset(tmp_path / "run" / "dataset").exclusion_counts(summary["channel"])
+    np.testing.assert_array_equal(counts["valid"], maps["valid_images"])
     comparison = json.loads((tmp_path / "run" / "fit" / "comparison" / "comparison.json").read_text())
     diagnosis = json.loads((tmp_path / "run" / "fit" / "diagnosis" / "diagnosis.json").read_text())
     assert comparison["fit_id"] == diagnosis["fit_id"] == summary["fit_id"]

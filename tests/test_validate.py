@@ -150,6 +150,15 @@ def test_measured_stack_with_mesh_camera_and_point_lights(paper_sphere_small, tm
     assert np.array_equal(stack.object_mask, rendered.object_mask)
     np.testing.assert_allclose(stack.normals, rendered.normals, atol=1e-5)
     assert stack.observations().n_obs == rendered.observations().n_obs
+    assert stack.too_dark is None
+    # a declared dark threshold flags the observations whose every channel is at or below it
+    description = json.loads((folder / "stack.json").read_text())
+    threshold = max(float(np.quantile(stack.images[:, stack.object_mask].mean(axis=-1), 0.2)), 0.0)
+    (folder / "stack.json").write_text(json.dumps({**description, "dark": threshold}))
+    darkened = load_dataset(folder)
+    np.testing.assert_array_equal(darkened.too_dark, (stack.images <= threshold).all(axis=-1))
+    assert 0 < darkened.too_dark[:, stack.object_mask].sum() and not darkened.valid_mask()[darkened.too_dark].any()
+    (folder / "stack.json").write_text(json.dumps(description))
     result = validate_dataset(folder, tmp_path / "v", spp=1)
     assert result["passed"] and result["geometry"] == "the data set's meshes"
     # the gate covers the mesh (and the images) the fit reads: a changed mesh voids it
@@ -173,6 +182,7 @@ def test_mesh_stack_description_errors_name_the_file_and_entry(tmp_path):
               ({"camera": {k: v for k, v in good["camera"].items() if k != "fov"}}, "camera.fov is missing"),
               ({"reference_intensity": 0}, "reference_intensity is 0; it must be a number > 0"),
               ({"saturation": "high"}, "saturation is 'high'"),
+              ({"dark": -5}, "dark is -5; it must be a value >= 0"),
               ({"lights": [{"kind": "directional", "intensity": 1.0}]}, "lights[0].direction is missing"),
               ({"lights": [{"kind": "point", "position": [1, 1, 3], "intensity": -100}]}, "lights[0].intensity is -100")]
     for change, message in broken:

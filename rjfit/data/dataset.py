@@ -21,10 +21,10 @@ from rjfit.data.checks import check_finite, check_lights_face_object, check_mask
 from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.data.exr import read_exr
 from rjfit.data.lights import Light, geometry_terms
-from rjfit.data.observations import Observations, valid_observation_mask
+from rjfit.data.observations import MIN_COS, Observations, valid_observation_mask
 
 __all__ = ["Dataset", "load_dataset", "is_dataset", "read_json", "read_validation_result", "write_json_atomic",
-           "DATASET_FORMAT", "CHANNELS"]
+           "dark_flags", "DATASET_FORMAT", "CHANNELS"]
 
 DATASET_FORMAT = "rjfit-dataset/1"
 CHANNELS = ("mean", "R", "G", "B", "luminance")
@@ -64,6 +64,17 @@ def _json_default(value):
     raise TypeError(f"cannot write {type(value).__name__} as JSON")
 
 
+def dark_flags(images, dark):
+    """(L, H, W) flags of the observations whose every channel is at or below ``dark`` (None: no threshold).
+
+    ``images`` are the stack's raw values, (L, H, W, 3) or a list of (H, W, 3); every channel
+    must be dark, so a channel that saw light keeps the observation.
+    """
+    if dark is None:
+        return None
+    return np.stack([(np.asarray(image) <= dark).all(axis=-1) for image in images])
+
+
 @dataclass(frozen=True)
 class Dataset:
     """An image stack with its geometry, lights and (for synthetic data) ground truth.
@@ -95,6 +106,11 @@ class Dataset:
         Observations known to be clipped (any channel), never entering the likelihood; used
         where one threshold on the stored images does not apply (measured images divided by
         per-channel light intensities).
+    too_dark : ndarray of bool, shape (L, H, W) or None
+        Observations at or below the data set's declared dark threshold in every channel (a
+        cast shadow, the background, the sensor's floor: no measurement of the surface's
+        reflectance), never entering the likelihood. Set by the loaders from ``dark`` in
+        ``dataset.json``, ``stack.json`` or a photometric-stereo folder's ``rjfit.json``.
     """
 
     path: Path
@@ -110,6 +126,7 @@ class Dataset:
     truth_params: list | None = None
     saturation: float | None = None
     saturated: np.ndarray | None = None
+    too_dark: np.ndarray | None = None
 
     @property
     def n_lights(self) -> int:
@@ -194,10 +211,50 @@ class Dataset:
                 valid &= ~(pixels >= self.saturation).any(axis=-1)
             if self.saturated is not None:
                 valid &= ~self.saturated[index][rows, cols]
+            if self.too_dark is not None:
+                valid &= ~self.too_dark[index][rows, cols]
             yield index, valid, y, cos_ln, cos_hn, irradiance
 
+    def exclusion_counts(self, channel: str = "mean") -> dict:
+        """Per object pixel, how many lights' observations each stated rule leaves out, and how many are valid.
+
+        Each left-out observation counts under the first rule that applies, in the order of the
+        returned dict, so on the object ``valid + unlit + shadowed + saturated + too_dark +
+        not_finite`` is the number of lights.
+
+        Returns
+        -------
+        dict of str -> ndarray of int, shape (H, W)
+            ``valid`` (the paper's valid images per pixel, Fig. 8); ``unlit`` (the light is
+            behind the surface or grazes it: ``<l.n> <=`` :data:`rjfit.data.observations.MIN_COS`); ``shadowed`` (a shadow ray is blocked);
+            ``saturated`` (clipped in some channel); ``too_dark`` (at or below the declared dark
+            threshold in every channel); ``not_finite`` (the channel's value is NaN or Inf).
+            Zero off the object.
+        """
+        names = ("valid", "unlit", "shadowed", "saturated", "too_dark", "not_finite")
+        counts = {name: np.zeros(self.image_shape, dtype=np.int64) for name in names}
+        rows, cols = np.nonzero(self.object_mask)
+        for index, valid, y, cos_ln, *_ in self._object_pixel_lights(channel, None):
+            left = ~valid
+            pixels = self.images[index][rows, cols]
+            reasons = {
+                "unlit": cos_ln <= MIN_COS,
+                "shadowed": (~self.visibility[index][rows, cols]) if self.visibility is not None else None,
+                "saturated": ((self.saturated[index][rows, cols] if self.saturated is not None else False)
+                              | ((pixels >= self.saturation).any(axis=-1) if self.saturation is not None else False)),
+                "too_dark": self.too_dark[index][rows, cols] if self.too_dark is not None else None,
+                "not_finite": ~np.isfinite(y)}
+            counts["valid"][rows, cols] += valid
+            for name, flags in reasons.items():
+                if flags is None or flags is False:
+                    continue
+                hit = left & flags
+                counts[name][rows, cols] += hit
+                left &= ~hit
+        return counts
+
     def valid_mask(self, channel: str = "mean", dark: float | None = None) -> np.ndarray:
-        """Valid observations (L, H, W): on the object, lit, not shadowed, not saturated.
+        """Valid observations (L, H, W): on the object, lit, not shadowed, not saturated, not too dark.
 
         Parameters
         ----------
@@ -465,7 +522,7 @@ def load_dataset(path, **options) -> Dataset:
     dataset = Dataset(path=path, meta=meta, images=np.stack(images), normals=stack3("N"),
                       view_dirs=stack3("V"), positions=stack3("P"), visibility=visibility, object_mask=object_mask,
                       lights=lights, truth_labels=truth_labels, truth_params=truth_params,
-                      saturation=meta.get("saturation"))
+                      saturation=meta.get("saturation"), too_dark=dark_flags(images, meta.get("dark")))
     check_mask(object_mask, f"{geometry_file} (channel mask)")
     check_unit_normals(dataset.normals, object_mask, f"{geometry_file} (channels N.X N.Y N.Z)")
     check_lights_face_object(lights, dataset.normals, dataset.positions, dataset.view_dirs, object_mask,

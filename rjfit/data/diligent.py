@@ -13,7 +13,7 @@ Uncalibrated Photometric Stereo", CVPR 2016)::
     FOLDER/001.png ...            the images: 16-bit linear PNG or TIFF (read whole with OpenCV),
                                   float EXR or TIFF, or sRGB-encoded 8/16-bit with ``encoded="sRGB"``
     FOLDER/rjfit.json             optional: how to read the folder, for the command line, e.g.
-                                  ``{"encoded": "sRGB", "saturation": 250}`` (keys: the options of
+                                  ``{"encoded": "sRGB", "saturation": 250, "dark": 5}`` (keys: the options of
                                   :func:`load_diligent`; an argument given to it wins). Part of
                                   the folder, so the cross-check's fingerprint covers it.
 
@@ -42,6 +42,10 @@ above the threshold (default: the largest code of the file's integer type, 65535
 none for float images). Dividing by per-channel intensities makes the threshold differ per light
 and channel in the stored units, so the loader stores the flags, ``Dataset.saturated`` (L, H, W),
 which ``Dataset.valid_mask`` excludes.
+
+Dark: with a declared ``dark`` threshold (raw code values, as for saturation), an observation
+whose every channel is at or below it is flagged in ``Dataset.too_dark`` and excluded too; a
+photometric-stereo folder has no shadow rays, so this is how cast shadows are kept out.
 """
 from __future__ import annotations
 
@@ -65,7 +69,7 @@ NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "n
                          for ext in ("mat", "npy", "exr"))
 ENCODINGS = ("sRGB",)
 OPTIONS_FILE = "rjfit.json"
-_OPTIONS = ("saturation", "encoded", "normals", "crop", "camera")
+_OPTIONS = ("saturation", "dark", "encoded", "normals", "crop", "camera")
 CAMERA_KINDS = ("orthographic", "perspective")
 _MAT_VARIABLES = ("Normal_gt", "normals", "normal", "N")
 
@@ -291,6 +295,7 @@ def folder_options(folder) -> dict:
         raise DatasetError(f"{path}: must be a JSON object with keys among {', '.join(_OPTIONS)}"
                            + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
     rules = {"saturation": (lambda v: v is None or (_is_number(v) and v > 0), "a raw value > 0, or null"),
+             "dark": (lambda v: v is None or (_is_number(v) and v >= 0), "a raw value >= 0, or null"),
              "encoded": (lambda v: v is None or v in ENCODINGS, f"null (linear data) or one of {list(ENCODINGS)}"),
              "normals": (lambda v: v is None or (isinstance(v, str) and v), "a file name, or null"),
              "crop": (lambda v: isinstance(v, bool) or (isinstance(v, int) and v >= 0),
@@ -371,7 +376,8 @@ def _is_number(value) -> bool:
 _UNSET = object()
 
 
-def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, crop=_UNSET, camera=_UNSET):
+def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, normals=_UNSET, crop=_UNSET,
+                  camera=_UNSET):
     """Load a photometric-stereo folder (DiLiGenT layout; see the module docstring) as a Dataset.
 
     Each option not given here is read from the folder's ``rjfit.json`` if it declares it
@@ -386,6 +392,12 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
         intensity) at or above which a channel counts as clipped; an observation is saturated when
         any of its channels is. None: the integer type's maximum (65535 for 16-bit, 255 for 8-bit),
         and no threshold for float images.
+    dark : float or None
+        Raw value (the file's own code values, like ``saturation``) at or below which an
+        observation is too dark to measure the surface (a cast shadow, the background, the
+        sensor's floor) when every channel is; such observations never enter the likelihood
+        (``Dataset.too_dark``). None (default): no threshold; attached shadows (light behind
+        the surface) are left out by the geometry in any case.
     encoded : None or "sRGB"
         None: the images are linear (16-bit integer or float). ``"sRGB"``: integer images are
         sRGB-encoded and are decoded with ``colour.cctf_decoding(value / max_code, "sRGB")``.
@@ -420,9 +432,10 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
     if not folder.is_dir():
         raise DatasetFileNotFoundError(f"{folder}: no such folder")
     declared = {**dict.fromkeys(_OPTIONS), "crop": False, **folder_options(folder)}
-    saturation, encoded, normals, crop, camera = (
+    saturation, dark, encoded, normals, crop, camera = (
         declared[name] if given is _UNSET else given for name, given in
-        (("saturation", saturation), ("encoded", encoded), ("normals", normals), ("crop", crop), ("camera", camera)))
+        (("saturation", saturation), ("dark", dark), ("encoded", encoded), ("normals", normals), ("crop", crop),
+         ("camera", camera)))
     camera = check_camera(camera, f"{folder}: camera")
     if encoded is not None and encoded not in ENCODINGS:
         raise DatasetError(f"{folder}: encoded must be None (linear data) or one of {ENCODINGS}, got {encoded!r}")
@@ -499,6 +512,7 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
     height, width = mask.shape
     images = np.empty((len(lights), height, width, 3), dtype=np.float32)
     saturated = np.zeros((len(lights), height, width), dtype=bool)
+    too_dark = None if dark is None else np.zeros((len(lights), height, width), dtype=bool)
     reference = None
     threshold_used = saturation
     for index, image_file in enumerate(image_files):
@@ -514,6 +528,8 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
         if threshold is not None:
             saturated[index] = (raw >= threshold).any(axis=-1)
             threshold_used = threshold
+        if too_dark is not None:
+            too_dark[index] = (raw <= dark).all(axis=-1)
         if integer and encoded == "sRGB":
             import colour
 
@@ -551,11 +567,14 @@ def load_diligent(path, *, saturation=_UNSET, encoded=_UNSET, normals=_UNSET, cr
         "saturation": {"raw_threshold": None if threshold_used is None else float(threshold_used),
                        "rule": "an observation is saturated when any channel's raw value >= raw_threshold",
                        "saturated_observations_in_mask": int(saturated[:, mask].sum())},
+        "dark": {"raw_threshold": dark, "rule": "an observation is too dark when every channel's raw value <= "
+                 "raw_threshold (null: no threshold)",
+                 "dark_observations_in_mask": None if too_dark is None else int(too_dark[:, mask].sum())},
         "reference_intensity": 1.0,
     }
     dataset = Dataset(path=folder, meta=meta, images=images, normals=normal_map, view_dirs=view_dirs,
                       positions=None, visibility=None, object_mask=mask, lights=lights, saturation=None,
-                      saturated=saturated)
+                      saturated=saturated, too_dark=too_dark)
     if crop is not False and crop is not None:
         dataset = crop_to_mask(dataset, margin=2 if crop is True else int(crop))
     return dataset
@@ -598,7 +617,8 @@ def crop_to_mask(dataset, margin=2):
         dataset, meta=meta, images=cut(dataset.images, per_light), normals=cut(dataset.normals, window),
         view_dirs=cut(dataset.view_dirs, window), positions=cut(dataset.positions, window),
         visibility=cut(dataset.visibility, per_light), object_mask=cut(dataset.object_mask, window),
-        truth_labels=cut(dataset.truth_labels, window), saturated=cut(dataset.saturated, per_light))
+        truth_labels=cut(dataset.truth_labels, window), saturated=cut(dataset.saturated, per_light),
+        too_dark=cut(dataset.too_dark, per_light))
 
 
 def _first_heading(readme: Path):

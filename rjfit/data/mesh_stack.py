@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import Dataset, read_json
+from rjfit.data.dataset import Dataset, dark_flags, read_json
 from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.data.lights import Light
 
@@ -105,4 +105,5 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
                              lambda i: f"{description}" if i is None else f"{description} light {i}")
     return Dataset(path=path, meta=dataset_meta, images=images.astype(np.float32), normals=traced["normals"],
                    view_dirs=traced["view_dirs"], positions=traced["positions"], visibility=visibility,
-                   object_mask=traced["hit"], lights=lights, saturated=saturated)
+                   object_mask=traced["hit"], lights=lights, saturated=saturated,
+                   too_dark=dark_flags(images, meta.get("dark")))

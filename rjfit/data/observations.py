@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Observations", "valid_observation_mask", "observations_from_stack", "valid_images_per_pixel"]
+__all__ = ["Observations", "valid_observation_mask", "observations_from_stack", "valid_images_per_pixel", "MIN_COS"]
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,12 @@ class Observations:
         )
 
 
+# <l.n> at or below which the light grazes or is behind the surface: no usable observation
+MIN_COS = 1e-3
+
+
 def valid_observation_mask(images, cos_ln, visible, object_mask, *, saturation=None, dark=None,
-                           min_cos=1e-3):
+                           min_cos=MIN_COS):
     """Which observations may enter the likelihood.
 
     An observation (light ``l``, pixel ``p``) is valid when the pixel lies in the object

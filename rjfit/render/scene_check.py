@@ -290,7 +290,7 @@ def _check_lights(check, lights):
 def check_stack_description(meta, source) -> dict:
     """Check a mesh stack's ``stack.json`` (:mod:`rjfit.data.mesh_stack`) by the rules it
     shares with a scene: format, resolution, camera, lights, reference intensity and the
-    optional saturation level; return it unchanged.
+    optional saturation and dark levels; return it unchanged.
 
     Raises
     ------
@@ -314,6 +314,7 @@ def check_stack_description(meta, source) -> dict:
     if meta.get("saturation") is not None:
         check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
                      allowed="a raw value > 0 at which a pixel clips, or null")
+    _check_dark(check, meta)
     return meta
 
 
@@ -329,7 +330,7 @@ def check_dataset_description(meta, source) -> dict:
     ``materials`` (``{I0 > 0, kd in [0, 1], gamma > 0}`` per material, plus ``sigma2 >= 0`` when
     ``truth_labels`` is set, which then requires them), ``meshes`` (``{file, material}`` per
     part, the material an index into ``materials``), ``max_depth`` (integer >= 2) and
-    ``saturation`` (> 0, or null). Other entries (name, units, versions, ...) are free.
+    ``saturation`` (> 0, or null), ``dark`` (>= 0, or null). Other entries (name, units, versions, ...) are free.
 
     Parameters
     ----------
@@ -390,7 +391,14 @@ def check_dataset_description(meta, source) -> dict:
     if meta.get("saturation") is not None:
         check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
                      allowed="a value > 0 at which a pixel clips, or null")
+    _check_dark(check, meta)
     return meta
+
+
+def _check_dark(check, meta):
+    if meta.get("dark") is not None:
+        check.number(meta["dark"], "dark", low=0.0,
+                     allowed="a value >= 0 at or below which an observation (every channel) is too dark, or null")
 
 
 def _check_dataset_materials(check, materials, *, with_sigma2):
