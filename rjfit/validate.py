@@ -112,8 +112,7 @@ def _facet_camera(camera_meta, height, width):
 
     Orthographic: one world unit per pixel, the frame centred on the origin. Perspective: the
     pinhole at distance ``f`` (the focal length in pixels) from the plane z = 0, so a pixel
-    there is again one world unit wide, and the principal point falls on the origin; Mitsuba's
-    principal-point offsets are fractions of the film, from its centre.
+    there is again one world unit wide, and the principal point falls on the origin.
     """
     if (camera_meta or {}).get("type") != "perspective":
         return ({"kind": "orthographic", "origin": [0.0, 0.0, 10.0], "target": [0.0, 0.0, 0.0], "up": [0, 1, 0],
@@ -121,8 +120,7 @@ def _facet_camera(camera_meta, height, width):
     focal = float(camera_meta["focal_px"])
     cx, cy = (float(v) for v in camera_meta["principal_point"])
     camera = {"kind": "perspective", "origin": [0.0, 0.0, focal], "target": [0.0, 0.0, 0.0], "up": [0, 1, 0],
-              "fov": float(np.degrees(2.0 * np.arctan(width / (2.0 * focal)))),
-              "principal_point_offset": [(width / 2.0 - cx) / width, (height / 2.0 - cy) / height]}
+              "focal_px": focal, "principal_point": [cx, cy]}
     return camera, (cx, cy)
 
 

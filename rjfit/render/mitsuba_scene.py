@@ -10,6 +10,8 @@ part of path tracing (indirect light), never the geometry.
 """
 from __future__ import annotations
 
+import math
+
 import os
 import warnings
 from pathlib import Path
@@ -148,11 +150,16 @@ def camera_dict(camera: dict, resolution) -> dict:
     sensor = {"to_world": to_world, "film": {"type": "hdrfilm", "width": width, "height": height,
                                              "rfilter": {"type": "box"}, "pixel_format": "rgb"}}
     if camera["kind"] == "perspective":
-        sensor.update(type="perspective", fov=float(camera["fov"]), fov_axis="x")
-        if camera.get("principal_point_offset") is not None:
-            # fractions of the film's width and height, from its centre (an off-centre pinhole)
-            offset_x, offset_y = (float(v) for v in camera["principal_point_offset"])
-            sensor.update(principal_point_offset_x=offset_x, principal_point_offset_y=offset_y)
+        # a calibrated pinhole: focal length and principal point in pixels (pixel (r, c) spans
+        # [c, c + 1] x [r, r + 1]); Mitsuba takes the field of view along x and the principal
+        # point's offset from the film's centre as fractions of its width and height
+        fov = (float(camera["fov"]) if "fov" in camera
+               else math.degrees(2.0 * math.atan(width / (2.0 * float(camera["focal_px"])))))
+        sensor.update(type="perspective", fov=fov, fov_axis="x")
+        if camera.get("principal_point") is not None:
+            cx, cy = (float(v) for v in camera["principal_point"])
+            sensor.update(principal_point_offset_x=(width / 2.0 - cx) / width,
+                          principal_point_offset_y=(height / 2.0 - cy) / height)
     elif camera["kind"] == "orthographic":
         half_width = float(camera["half_width"])
         sensor.update(type="orthographic",

@@ -12,7 +12,9 @@ The format (see ``scenes/paper_sphere.json``)::
     name               non-empty string
     resolution         [height, width], integers >= 1
     camera             {kind: perspective | orthographic, origin, target, up: 3 numbers,
-                        fov: degrees in (0, 180) (perspective) | half_width > 0 (orthographic)}
+                        fov: degrees in (0, 180) or focal_px > 0, principal_point: [cx, cy] in
+                        pixels (optional; default the frame's centre) (perspective)
+                        | half_width > 0 (orthographic)}
     geometry           {generator: sphere_quadrants | dented_slab, its arguments}
     materials          non-empty list of {I0 > 0, kd in [0, 1], gamma > 0, name (optional)}
     lights             non-empty list of {kind: point, position: 3 numbers, intensity > 0}
@@ -163,7 +165,7 @@ def _check_view(check, entry, *, camera=True):
 
 
 def _check_camera(check, camera):
-    check.mapping(camera, "camera", "{kind, origin, target, up, fov or half_width}")
+    check.mapping(camera, "camera", "{kind, origin, target, up, fov or focal_px or half_width}")
     kind = check.require(camera, "kind", "camera", "a camera kind ('perspective' or 'orthographic')")
     if kind not in ("perspective", "orthographic"):
         check.fail("camera.kind", f"is {kind!r}; it must be 'perspective' or 'orthographic'")
@@ -180,9 +182,25 @@ def _check_camera(check, camera):
         check.fail("camera.up", f"is {up}, parallel to the viewing direction {view} (or zero); it must point "
                                 f"across it (e.g. [0, 1, 0] for a camera on the z axis)")
     if kind == "perspective":
-        fov = check.require(camera, "fov", "camera", "a field of view in degrees for a perspective camera")
-        check.number(fov, "camera.fov", low=0.0, high=180.0, low_open=True, high_open=True,
-                     allowed="a horizontal field of view in degrees, in (0, 180)")
+        # a calibrated pinhole gives its focal length (and principal point) in pixels instead
+        if "focal_px" in camera and "fov" in camera:
+            check.fail("camera", "gives both fov and focal_px; give one (fov in degrees along x, or the focal "
+                                 "length in pixels)")
+        if "focal_px" in camera:
+            check.number(camera["focal_px"], "camera.focal_px", low=0.0, low_open=True,
+                         allowed="a focal length in pixels, > 0 (square pixels)")
+        else:
+            fov = check.require(camera, "fov", "camera", "a field of view in degrees (or focal_px, a focal length "
+                                                         "in pixels) for a perspective camera")
+            check.number(fov, "camera.fov", low=0.0, high=180.0, low_open=True, high_open=True,
+                         allowed="a horizontal field of view in degrees, in (0, 180)")
+        if camera.get("principal_point") is not None:
+            point = camera["principal_point"]
+            if not (isinstance(point, list) and len(point) == 2):
+                check.fail("camera.principal_point", f"is {point!r}; it must be [cx, cy] in pixels (x right, y down "
+                                                     f"from the frame's top-left corner)")
+            for axis, value in zip("xy", point):
+                check.number(value, f"camera.principal_point ({axis})", allowed="a finite number of pixels")
     else:
         half_width = check.require(camera, "half_width", "camera", "a half width for an orthographic camera")
         check.number(half_width, "camera.half_width", low=0.0, low_open=True,
