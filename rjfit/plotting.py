@@ -54,8 +54,9 @@ EXCLUSION_TITLES = {"unlit": "light behind or grazing the surface", "shadowed": 
 def exclusion_figure(path, counts, object_mask, n_lights, *, dpi=100) -> Path:
     """The valid-images map (paper, Fig. 8) beside a map per rule that left observations out.
 
-    Shows the object's bounding box. ``counts`` is :meth:`rjfit.data.dataset.Dataset.exclusion_counts`; a rule that left
-    nothing out gets no panel, and each panel's title gives its total.
+    Shows the object's bounding box. ``counts`` is
+    :meth:`rjfit.data.dataset.Dataset.exclusion_counts`; a rule that left nothing out gets no
+    panel, and each panel's title gives its total.
     """
     import numpy as np
 

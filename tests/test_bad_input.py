@@ -180,7 +180,8 @@ def test_srgb_encoded_eight_bit_is_decoded(tmp_path):
     with raises(DatasetError, folder / "001.png", "8-bit image"):
         load_diligent(folder, encoded=None)
     (folder / "rjfit.json").write_text('{"encoding": "sRGB"}')
-    with raises(DatasetError, folder / "rjfit.json", "keys among saturation, dark, encoded, normals, crop, camera; unknown: encoding"):
+    with raises(DatasetError, folder / "rjfit.json",
+                "keys among saturation, dark, encoded, normals, crop, camera; unknown: encoding"):
         load_dataset(folder)
     for text, message in (('{"crop": -40}', "crop is -40; it must be true, false or a margin in pixels >= 0"),
                           ('{"crop": "yes"}', "crop is 'yes'"), ('{"saturation": "250"}', "saturation is '250'"),

@@ -94,5 +94,6 @@ def test_exclusion_counts_give_each_left_out_observation_one_reason(tmp_path):
     cos_ln = dataset.geometry()[0]
     unlit = (cos_ln <= 1e-3) & mask
     np.testing.assert_array_equal(counts["unlit"], unlit.sum(axis=0))
-    np.testing.assert_array_equal(counts["too_dark"], (dataset.too_dark & ~unlit & ~dataset.saturated & mask).sum(axis=0))
+    np.testing.assert_array_equal(counts["too_dark"],
+                                  (dataset.too_dark & ~unlit & ~dataset.saturated & mask).sum(axis=0))
     assert counts["too_dark"][4, 6] == 1 and counts["too_dark"].sum() == 1

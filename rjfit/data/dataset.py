@@ -226,7 +226,8 @@ class Dataset:
         -------
         dict of str -> ndarray of int, shape (H, W)
             ``valid`` (the paper's valid images per pixel, Fig. 8); ``unlit`` (the light is
-            behind the surface or grazes it: ``<l.n> <=`` :data:`rjfit.data.observations.MIN_COS`); ``shadowed`` (a shadow ray is blocked);
+            behind the surface or grazes it: ``<l.n> <=``
+            :data:`rjfit.data.observations.MIN_COS`); ``shadowed`` (a shadow ray is blocked);
             ``saturated`` (clipped in some channel); ``too_dark`` (at or below the declared dark
             threshold in every channel); ``not_finite`` (the channel's value is NaN or Inf).
             Zero off the object.

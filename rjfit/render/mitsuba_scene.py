@@ -11,7 +11,6 @@ part of path tracing (indirect light), never the geometry.
 from __future__ import annotations
 
 import math
-
 import os
 import warnings
 from pathlib import Path
