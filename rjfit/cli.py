@@ -120,7 +120,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
     click.echo(f"validation of {dataset} ({result['settings']['variant']}): {'PASSED' if result['passed'] else 'FAILED'}")
     _echo_cuda_fallback(result["settings"]["variant"])
     _echo_json(result, ["median_rel_err", "p99_rel_err", "max_rel_err", "pixels_compared", "unexplained_fraction",
-                        "seconds"])
+                        "max_normal_angle_deg", "max_view_angle_deg", "seconds"])
     out = Path(out_dir) if out_dir else Path(dataset) / "validation"
     click.echo(f"  report: {out / 'validation.json'}")
     if not result["passed"]:
