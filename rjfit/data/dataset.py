@@ -21,7 +21,7 @@ from rjfit.data.checks import check_finite, check_lights_face_object, check_mask
 from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.data.exr import read_exr
 from rjfit.data.lights import Light, geometry_terms
-from rjfit.data.observations import MIN_COS, Observations, valid_observation_mask
+from rjfit.data.observations import EXCLUSION_RULES, Observations, exclusion_reasons
 
 __all__ = ["Dataset", "load_dataset", "is_dataset", "read_json", "read_validation_result", "write_json_atomic",
            "dark_flags", "DATASET_FORMAT", "CHANNELS"]
@@ -189,7 +189,10 @@ class Dataset:
         return image[..., "RGB".index(channel)]
 
     def _object_pixel_lights(self, channel: str, dark: float | None):
-        """Per light, on object pixels only: (light index, valid, y, cos_ln, cos_hn, irradiance).
+        """Per light, on object pixels only: (light index, valid, y, cos_ln, cos_hn, irradiance, reasons).
+
+        ``reasons`` are :func:`rjfit.data.observations.exclusion_reasons` with the data set's own
+        flags (clipped in any channel, too dark) added; ``valid`` is that no reason applies.
 
         Streams one light at a time and never forms full-frame (L, H, W) geometry, so memory
         grows with the object's pixels, not with the frame.
@@ -204,16 +207,16 @@ class Dataset:
             pixels = self.images[index][rows, cols]
             y = self._channel_of(pixels, channel)
             visible = self.visibility[index][rows, cols] if self.visibility is not None else None
-            valid = valid_observation_mask(y[None], cos_ln[None], None if visible is None else visible[None],
-                                           np.ones((1, y.size), bool), dark=dark)[0]
+            reasons = exclusion_reasons(y, cos_ln, visible, dark=dark)
             if self.saturation is not None:
                 # A pixel is saturated when any of its channels is clipped.
-                valid &= ~(pixels >= self.saturation).any(axis=-1)
+                reasons["saturated"] |= (pixels >= self.saturation).any(axis=-1)
             if self.saturated is not None:
-                valid &= ~self.saturated[index][rows, cols]
+                reasons["saturated"] |= self.saturated[index][rows, cols]
             if self.too_dark is not None:
-                valid &= ~self.too_dark[index][rows, cols]
-            yield index, valid, y, cos_ln, cos_hn, irradiance
+                reasons["too_dark"] |= self.too_dark[index][rows, cols]
+            valid = ~np.logical_or.reduce(list(reasons.values()))
+            yield index, valid, y, cos_ln, cos_hn, irradiance, reasons
 
     def exclusion_counts(self, channel: str = "mean") -> dict:
         """Per object pixel, how many lights' observations each stated rule leaves out, and how many are valid.
@@ -232,26 +235,14 @@ class Dataset:
             threshold in every channel); ``not_finite`` (the channel's value is NaN or Inf).
             Zero off the object.
         """
-        names = ("valid", "unlit", "shadowed", "saturated", "too_dark", "not_finite")
-        counts = {name: np.zeros(self.image_shape, dtype=np.int64) for name in names}
+        counts = {name: np.zeros(self.image_shape, dtype=np.int64) for name in ("valid", *EXCLUSION_RULES)}
         rows, cols = np.nonzero(self.object_mask)
-        for index, valid, y, cos_ln, *_ in self._object_pixel_lights(channel, None):
-            left = ~valid
-            pixels = self.images[index][rows, cols]
-            reasons = {
-                "unlit": cos_ln <= MIN_COS,
-                "shadowed": (~self.visibility[index][rows, cols]) if self.visibility is not None else None,
-                "saturated": ((self.saturated[index][rows, cols] if self.saturated is not None else False)
-                              | ((pixels >= self.saturation).any(axis=-1) if self.saturation is not None else False)),
-                "too_dark": self.too_dark[index][rows, cols] if self.too_dark is not None else None,
-                "not_finite": ~np.isfinite(y)}
+        for _, valid, *_, reasons in self._object_pixel_lights(channel, None):
             counts["valid"][rows, cols] += valid
-            for name, flags in reasons.items():
-                if flags is None or flags is False:
-                    continue
-                hit = left & flags
-                counts[name][rows, cols] += hit
-                left &= ~hit
+            left = ~valid
+            for name, flags in reasons.items():     # the first rule that applies takes the observation
+                counts[name][rows, cols] += left & flags
+                left &= ~flags
         return counts
 
     def valid_mask(self, channel: str = "mean", dark: float | None = None) -> np.ndarray:
@@ -302,7 +293,7 @@ class Dataset:
         rows, cols = np.nonzero(self.object_mask)
         flat_pixel = rows.astype(np.int64) * self.image_shape[1] + cols
         parts = {"pixel": [], "light": [], "y": [], "cos_ln": [], "cos_hn": [], "irradiance": []}
-        for index, valid, y, cos_ln, cos_hn, irradiance in self._object_pixel_lights(channel, dark):
+        for index, valid, y, cos_ln, cos_hn, irradiance, _ in self._object_pixel_lights(channel, dark):
             parts["pixel"].append(flat_pixel[valid])
             parts["light"].append(np.full(int(valid.sum()), index, dtype=np.int32))
             for name, values in (("y", y), ("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance)):

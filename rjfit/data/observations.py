@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Observations", "valid_observation_mask", "observations_from_stack", "valid_images_per_pixel", "MIN_COS"]
+__all__ = ["Observations", "valid_observation_mask", "exclusion_reasons", "observations_from_stack",
+           "valid_images_per_pixel", "MIN_COS", "EXCLUSION_RULES"]
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,40 @@ class Observations:
 
 # <l.n> at or below which the light grazes or is behind the surface: no usable observation
 MIN_COS = 1e-3
+# the rules that leave an observation out, in the order :func:`exclusion_reasons` returns them
+EXCLUSION_RULES = ("unlit", "shadowed", "saturated", "too_dark", "not_finite")
+
+
+def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, min_cos=MIN_COS) -> dict:
+    """Why observations may not enter the likelihood: one bool array per rule, in this order.
+
+    ``unlit`` (the surface does not face the light: ``<l.n> <= min_cos``), ``shadowed`` (the
+    light is occluded: not ``visible``), ``saturated`` (at or above ``saturation``: a clipped
+    value is a bound, not a measurement), ``too_dark`` (at or below ``dark``) and
+    ``not_finite``. A rule without its input (``visible``, ``saturation`` or ``dark`` None)
+    flags nothing. The rules are the complements of the valid tests, so an observation is
+    valid exactly when no rule flags it (:func:`valid_observation_mask`).
+
+    Parameters
+    ----------
+    images, cos_ln : ndarray, shape (L, H, W) (or any one shape)
+    visible : ndarray of bool of that shape, or None (no cast shadows known)
+    saturation, dark : float or None
+
+    Returns
+    -------
+    dict of str -> ndarray of bool
+    """
+    images = np.asarray(images)
+
+    def none():     # a fresh array per rule: callers add their own flags to a rule in place
+        return np.zeros(images.shape, dtype=bool)
+
+    return {"unlit": ~(np.asarray(cos_ln) > min_cos),
+            "shadowed": ~np.asarray(visible, dtype=bool) if visible is not None else none(),
+            "saturated": ~(images < saturation) if saturation is not None else none(),
+            "too_dark": ~(images > dark) if dark is not None else none(),
+            "not_finite": ~np.isfinite(images)}
 
 
 def valid_observation_mask(images, cos_ln, visible, object_mask, *, saturation=None, dark=None,
@@ -83,9 +118,9 @@ def valid_observation_mask(images, cos_ln, visible, object_mask, *, saturation=N
     """Which observations may enter the likelihood.
 
     An observation (light ``l``, pixel ``p``) is valid when the pixel lies in the object
-    mask, the surface faces the light (``<l.n> > min_cos``), the light is not occluded
-    (``visible``), the value is finite, below ``saturation`` (a saturated value is a bound,
-    not a measurement) and, if given, above ``dark``.
+    mask and no rule of :func:`exclusion_reasons` flags it: the surface faces the light
+    (``<l.n> > min_cos``), the light is not occluded (``visible``), the value is finite, below
+    ``saturation`` (a saturated value is a bound, not a measurement) and, if given, above ``dark``.
 
     Parameters
     ----------
@@ -99,16 +134,9 @@ def valid_observation_mask(images, cos_ln, visible, object_mask, *, saturation=N
     ndarray of bool, shape (L, H, W)
     """
     images = np.asarray(images)
-    valid = np.broadcast_to(np.asarray(object_mask, dtype=bool), images.shape).copy()
-    valid &= np.asarray(cos_ln) > min_cos
-    valid &= np.isfinite(images)
-    if visible is not None:
-        valid &= np.asarray(visible, dtype=bool)
-    if saturation is not None:
-        valid &= images < saturation
-    if dark is not None:
-        valid &= images > dark
-    return valid
+    reasons = exclusion_reasons(images, cos_ln, visible, saturation=saturation, dark=dark, min_cos=min_cos)
+    return np.broadcast_to(np.asarray(object_mask, dtype=bool), images.shape) & ~np.logical_or.reduce(
+        list(reasons.values()))
 
 
 def valid_images_per_pixel(valid):

@@ -305,7 +305,6 @@ class RegionData:
         """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.jit.b_sums`)."""
         return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma))
 
-
     def b_sums_newton(self, gamma: float) -> np.ndarray:
         """:meth:`b_sums` and their weightings by ``log <h.n>`` and its square (9,); the last two gammas asked are memoised.
 
