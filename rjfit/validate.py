@@ -114,7 +114,7 @@ def _facet_camera(camera_meta, height, width):
     pinhole at distance ``f`` (the focal length in pixels) from the plane z = 0, so a pixel
     there is again one world unit wide, and the principal point falls on the origin.
     """
-    if (camera_meta or {}).get("type") != "perspective":
+    if (camera_meta or {}).get("kind") != "perspective":
         return ({"kind": "orthographic", "origin": [0.0, 0.0, 10.0], "target": [0.0, 0.0, 0.0], "up": [0, 1, 0],
                  "half_width": width / 2.0}, (width / 2.0, height / 2.0))
     focal = float(camera_meta["focal_px"])

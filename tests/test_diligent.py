@@ -42,7 +42,7 @@ def test_shapes_meta_and_mask(ball):
     assert ball.n_lights == 96 and ball.image_shape == (512, 612)
     assert int(ball.object_mask.sum()) == MASK_PIXELS
     assert ball.meta["kind"] == "measured" and ball.meta["layout"] == "diligent"
-    assert ball.meta["camera"]["type"] == "orthographic"
+    assert ball.meta["camera"]["kind"] == "orthographic"
     assert ball.meta["units"] == "raw sensor counts / light intensity (per channel)"
     assert ball.meta["pixel_type"] == "uint16"
     assert ball.meta["mask_pixels"] == MASK_PIXELS

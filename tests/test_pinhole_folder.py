@@ -33,7 +33,7 @@ def pinhole_folder(folder, camera=PINHOLE, **options):
 
 def test_view_directions_of_a_pinhole(tmp_path):
     dataset = load_diligent(pinhole_folder(tmp_path / "ps"))
-    assert dataset.meta["camera"]["type"] == "perspective"
+    assert dataset.meta["camera"]["kind"] == "perspective"
     assert dataset.meta["camera"]["focal_px"] == 6.0 and dataset.meta["camera"]["principal_point"] == [4.0, 3.5]
     for row, col in ((0, 0), (HEIGHT - 1, WIDTH - 1), (3, 4), (5, 2)):
         # minus the ray through the pixel centre (col + 0.5, row + 0.5); x right, y up
@@ -47,7 +47,7 @@ def test_view_directions_of_a_pinhole(tmp_path):
     np.testing.assert_allclose(centred.view_dirs[::-1, ::-1, :2], -centred.view_dirs[..., :2], atol=1e-12)
     # an orthographic declaration (DiLiGenT's convention, the default) looks along z everywhere
     orthographic = load_diligent(tmp_path / "ps", camera={"kind": "orthographic"})
-    assert orthographic.meta["camera"]["type"] == "orthographic"
+    assert orthographic.meta["camera"]["kind"] == "orthographic"
     assert np.array_equal(orthographic.view_dirs, np.broadcast_to([0.0, 0.0, 1.0], orthographic.view_dirs.shape))
 
 

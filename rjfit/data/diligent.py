@@ -581,10 +581,11 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
 
 
 def _camera_meta(camera, height, width) -> dict:
-    """The camera as ``meta["camera"]`` records it: ``type`` and, for a pinhole, its intrinsics in pixels."""
+    """The camera as ``meta["camera"]`` records it: ``kind`` (as in ``rjfit.json`` and scenes) and, for a
+    pinhole, its intrinsics in pixels."""
     if camera["kind"] == "orthographic":
-        return {"type": "orthographic", "view_direction": [0.0, 0.0, 1.0]}
-    return {"type": "perspective", "focal_px": camera["focal_px"],
+        return {"kind": "orthographic", "view_direction": [0.0, 0.0, 1.0]}
+    return {"kind": "perspective", "focal_px": camera["focal_px"],
             "principal_point": camera["principal_point"] or [width / 2.0, height / 2.0]}
 
 
@@ -609,7 +610,7 @@ def crop_to_mask(dataset, margin=2):
     meta = dict(dataset.meta)
     meta["crop"] = {"row0": r0, "col0": c0, "full_resolution": [height, width]}
     meta["resolution"] = [r1 - r0, c1 - c0]
-    if meta.get("camera", {}).get("type") == "perspective":
+    if meta.get("camera", {}).get("kind") == "perspective":
         # the principal point in the crop's pixel coordinates (the view directions are cut alike)
         cx, cy = meta["camera"]["principal_point"]
         meta["camera"] = {**meta["camera"], "principal_point": [cx - c0, cy - r0]}
