@@ -63,7 +63,7 @@ def read_summary(fit_dir) -> dict:
     DatasetError
         If it is not valid JSON, not a JSON object, or an entry has the wrong type (``regions``
         must hold objects, ``warnings`` strings, ``model_posterior`` numbers, ``channel`` one of
-        :data:`rjfit.data.dataset.CHANNELS`).
+        :data:`rjfit.data.dataset.CHANNELS`, ``likelihood_power`` a number in (0, 1]).
     """
     fit_dir = Path(fit_dir)
     path = fit_dir / "summary.json"
@@ -89,6 +89,9 @@ def read_summary(fit_dir) -> dict:
         problems += _first_bad("warnings", enumerate(summary["warnings"]), lambda v: isinstance(v, str), str)
     if isinstance(summary.get("model_posterior"), dict):
         problems += _first_bad("model_posterior", summary["model_posterior"].items(), _is_number, float)
+    power = summary.get("likelihood_power")
+    if power is not None and not (_is_number(power) and 0.0 < power <= 1.0):
+        problems.append(f"'likelihood_power' is {_short(power)}, not a number in (0, 1]")
     if isinstance(summary.get("channel"), str) and summary["channel"] not in CHANNELS:
         problems.append(f"'channel' is {summary['channel']!r}, not one of {', '.join(CHANNELS)}")
     if problems:

@@ -105,12 +105,34 @@ SUMMARY = "{fit}/summary.json: not a summary `rjfit fit` wrote ({problem}); " + 
     (edit_summary(lambda s: s.update(model_posterior={"(1,0)": "high"})),
      "'model_posterior' entry '(1,0)' is 'high', not a number"),
     (edit_summary(lambda s: s.update(channel="red")), "'channel' is 'red', not one of mean, R, G, B, luminance"),
-], ids=["list", "regions", "map_model", "fit_id", "dataset", "region", "warning", "model_posterior", "channel"])
+    (edit_summary(lambda s: s.update(likelihood_power=2)), "'likelihood_power' is 2, not a number in (0, 1]"),
+], ids=["list", "regions", "map_model", "fit_id", "dataset", "region", "warning", "model_posterior", "channel",
+        "likelihood_power"])
 def test_a_summary_of_the_wrong_shape_is_named_by_every_reader(copy, damage, problem):
     fit, commands = copy
     damage(fit)
     for command in commands.values():
         assert one_error_line(command) == "Error: " + SUMMARY.format(fit=fit, problem=problem)
+
+
+def test_diagnose_weighs_the_likelihood_as_the_fit_did(copy, tmp_path):
+    """A coarsened fit's power (summary.json's likelihood_power) is the diagnosis' default;
+    --likelihood-power overrides it, and the refits' evidence changes with it."""
+    fit, commands = copy
+    edit_summary(lambda s: s.update(likelihood_power=0.25))(fit)
+    evidence = {}
+    for option, expected in (([], 0.25), (["--likelihood-power", "1"], 1.0)):
+        result = CliRunner().invoke(main, commands["diagnose"] + option)
+        assert result.exit_code == 0, result.output
+        diagnosis = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+        assert diagnosis["likelihood_power"] == expected
+        evidence[expected] = diagnosis["plain_model"]["log_evidence"]
+        assert ("Likelihood power: 0.25" in (tmp_path / "d" / "diagnosis.md").read_text()) == (expected == 0.25)
+    # the refits weigh the likelihood by the power (test_diagnose_units checks how); unweighted,
+    # both would give the same evidence
+    assert abs(evidence[0.25] - evidence[1.0]) > 1.0, evidence
+    result = CliRunner().invoke(main, commands["diagnose"] + ["--likelihood-power", "0"])
+    assert result.exit_code == 2 and "'--likelihood-power': 0.0 is not in the range 0.0<x<=1.0" in result.output
 
 
 def test_a_truncated_summary_is_named_by_every_reader(copy):

@@ -36,6 +36,7 @@ class Context:
     valid: np.ndarray               # (L, H, W) which observations are in
     channel: str = "mean"
     seed: int = 0                   # the diagnosis' seed: Monte Carlo features (indirect light) draw from it
+    likelihood_power: float = 1.0   # zeta of a coarsened fit: refits weigh the log-likelihood by it
     features: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
 
@@ -109,7 +110,7 @@ def _light_directions(dataset):
     return np.stack(out)
 
 
-def build_context(dataset, labels, *, channel="mean", valid=None, seed=0) -> Context:
+def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likelihood_power=1.0) -> Context:
     """Gather a data set's valid observations under a fixed segmentation.
 
     Parameters
@@ -120,7 +121,19 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0) -> Con
         order of their label; pixels on the object mask with a negative label are left out.
     valid : ndarray (L, H, W), optional
         Which observations to use (default: ``dataset.valid_mask(channel)``).
+    likelihood_power : float in (0, 1]
+        The power zeta of a coarsened fit (:mod:`rjfit.coarsen`): every refit on the context
+        raises the likelihood to it, so its evidence and Bayes factors weigh the data as the
+        fit did (1: the plain likelihood).
+
+    Raises
+    ------
+    ValueError
+        If ``labels`` do not have the images' shape or ``likelihood_power`` is not in (0, 1].
     """
+    zeta = float(likelihood_power)
+    if not 0.0 < zeta <= 1.0:
+        raise ValueError(f"likelihood_power is {likelihood_power!r}; it must be in (0, 1] (1: the plain likelihood)")
     if not hasattr(dataset, "images"):
         from rjfit.data.dataset import load_dataset
 
@@ -150,4 +163,4 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0) -> Con
                    region=region_map[rows, cols].astype(np.int64), light=obs.light.astype(np.int64),
                    pixel=obs.pixel, y=obs.y, cos_ln=obs.cos_ln, cos_hn=obs.cos_hn, irradiance=obs.irradiance,
                    cos_vn=np.clip(np.sum(v * n, axis=-1), 1e-6, 1.0), cos_hv=np.clip(np.sum(h * v, axis=-1), 0.0, 1.0),
-                   valid=valid, channel=channel, seed=int(seed))
+                   valid=valid, channel=channel, seed=int(seed), likelihood_power=zeta)

@@ -5,7 +5,8 @@ log sigma^2, then each effect's parameters. The negative log posterior in those 
 
     f(z) = - sum_i log N(y_i | m_i(z), sigma^2_r(i)) - sum_j log p_zj(z_j)
 
-(``p_z`` includes the transforms' log-Jacobians) is minimised by alternating a Levenberg-Marquardt
+(``p_z`` includes the transforms' log-Jacobians; for a coarsened fit the sum of log N is
+weighted by the context's ``likelihood_power`` zeta, as the sampler weighs it) is minimised by alternating a Levenberg-Marquardt
 least-squares solve for the mean parameters (scipy ``least_squares``; the Gaussian priors are
 extra residual rows, so the objective is exactly f at fixed sigma^2) with the closed-form
 update of each region's log sigma^2, then one Newton correction with a finite-difference
@@ -142,6 +143,7 @@ class _Problem:
         self.loc = np.array([p.loc for p in self.priors])
         self.scale = np.array([p.scale for p in self.priors])
         self.log_norm = float(-np.sum(np.log(self.scale)) - 0.5 * self.P * _LOG_2PI)
+        self.zeta = float(ctx.likelihood_power)
 
     def split(self, z):
         theta = np.array([p.to_constrained(v) for p, v in zip(self.priors, z)], dtype=float)
@@ -165,15 +167,20 @@ class _Problem:
     def log_prior(self, z):
         return float(-0.5 * np.sum(((z - self.loc) / self.scale) ** 2) + self.log_norm)
 
+    def log_lik(self, z):
+        """The log-likelihood the objective weighs: zeta times the sum of the pointwise terms."""
+        return self.zeta * float(np.sum(self.log_lik_pointwise(z)))
+
     def f(self, z):
-        value = -float(np.sum(self.log_lik_pointwise(z))) - self.log_prior(z)
+        value = -self.log_lik(z) - self.log_prior(z)
         return value if np.isfinite(value) else 1e300
 
     def mean_residuals(self, zm, z_full):
         z = z_full.copy()
         z[self.mean_index] = zm
         mu, region = self.mean(z)
-        r = (self.ctx.y - mu) / np.sqrt(region[self.ctx.region, 3])
+        # zeta sum r^2 / 2 sigma^2 = sum (sqrt(zeta) r)^2 / 2 sigma^2
+        r = (self.ctx.y - mu) * np.sqrt(self.zeta / region[self.ctx.region, 3])
         prior = (zm - self.loc[self.mean_index]) / self.scale[self.mean_index]
         out = np.concatenate([r, prior])
         return np.where(np.isfinite(out), out, 1e10)
@@ -183,7 +190,7 @@ class _Problem:
         resid2 = (self.ctx.y - mu) ** 2
         for r, index in enumerate(self.sigma_index):
             sel = self.ctx.region == r
-            n, ss = float(sel.sum()), float(resid2[sel].sum())
+            n, ss = self.zeta * float(sel.sum()), self.zeta * float(resid2[sel].sum())
             m, v = self.loc[index], self.scale[index] ** 2
             s = math.log(max(ss / max(n, 1.0), 1e-12))
             for _ in range(20):   # Newton on n/2 s + ss/2 e^-s + (s - m)^2 / 2v
@@ -276,7 +283,7 @@ def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=
     sd = np.empty(problem.P)
     sd[problem.mean_index] = 1.0 / np.sqrt(np.maximum(np.diag(gn), 1e-12))
     for r, index in enumerate(problem.sigma_index):
-        sd[index] = math.sqrt(2.0 / max(float((ctx.region == r).sum()), 1.0))
+        sd[index] = math.sqrt(2.0 / max(problem.zeta * float((ctx.region == r).sum()), 1.0))
     steps = np.minimum(0.05 * sd, 0.05)
     H, g, f0 = _fd_hessian(problem.f, z, steps)
     hessian_kind = "finite differences"
@@ -301,11 +308,11 @@ def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=
         mi = problem.mean_index
         Hgn[np.ix_(mi, mi)] = gn
         for r, index in enumerate(problem.sigma_index):
-            Hgn[index, index] = 0.5 * float((ctx.region == r).sum()) + 1.0 / problem.scale[index] ** 2
+            Hgn[index, index] = 0.5 * problem.zeta * float((ctx.region == r).sum()) + 1.0 / problem.scale[index] ** 2
         H = Hgn
     H = 0.5 * (H + H.T)
     sign, logdet = np.linalg.slogdet(H)
-    log_lik = float(np.sum(problem.log_lik_pointwise(z)))
+    log_lik = problem.log_lik(z)
     log_prior = problem.log_prior(z)
     log_evidence = log_lik + log_prior + 0.5 * problem.P * _LOG_2PI - 0.5 * logdet
     rng = np.random.default_rng(seed)

@@ -157,6 +157,8 @@ def markdown(result: dict) -> str:
     lines.append(f"**Named effects:** {named_text(result)}")
     lines += ["", f"Gap: {result['gap_definition']}", "",
               f"Decision rule: {result['decision_rule']}", "",
+              *([f"Likelihood power: {result['likelihood_power']:.4g} (the fit's coarsened likelihood; log Bayes "
+                 f"factors weigh the data as the fit did)", ""] if result.get("likelihood_power", 1.0) != 1.0 else []),
               f"Plain model gap: {gap_text(result['gap_plain'])}; final gap: {gap_text(result['gap_final'])} "
               f"(noise variance estimate {_fmt(result['noise_variance_estimate'], '.4g')}).", ""]
     if result.get("skipped"):

@@ -91,7 +91,7 @@ def _bar_say(bar, say, line):
 
 def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_steps=3,
              threshold=LOG_BF_THRESHOLD, loo_se_factor=LOO_SE_FACTOR, simulate=None, n_sim_draws=3,
-             channel="mean", make_figures=True, progress=False, provenance=None):
+             channel="mean", make_figures=True, progress=False, provenance=None, likelihood_power=1.0):
     """Run the criticism workflow on a data set with a FIXED segmentation.
 
     Parameters
@@ -111,6 +111,11 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     provenance : dict, optional
         Entries recorded in ``diagnosis.json`` as they are (``fit_dir``, ``fit_id`` of the
         fit diagnosed), so a report can tell a diagnosis of another fit.
+    likelihood_power : float in (0, 1]
+        The power zeta of a coarsened fit (``rjfit fit --likelihood-power``): the refits raise
+        the likelihood to it, so the Bayes factors weigh the data as that fit did (the
+        plain likelihood of a million observations whose misfit neighbours share would make
+        nearly any candidate "decisive"). 1: the plain likelihood.
 
     Returns
     -------
@@ -121,7 +126,7 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     ------
     ValueError
         If ``max_steps`` is not an integer >= 0, a candidate name is unknown, ``labels`` does
-        not have the images' shape, or ``channel`` is not one of
+        not have the images' shape, ``likelihood_power`` is not in (0, 1], or ``channel`` is not one of
         :data:`rjfit.data.dataset.CHANNELS`.
     FileNotFoundError, DatasetError
         When ``dataset`` is a path: as :func:`rjfit.data.dataset.load_dataset`.
@@ -132,7 +137,8 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     with staging_dir(out_dir) as staging:
         result = _search(dataset, labels, staging, candidates=candidates, seed=seed, max_steps=max_steps,
                          threshold=threshold, loo_se_factor=loo_se_factor, simulate=simulate, n_sim_draws=n_sim_draws,
-                         channel=channel, make_figures=make_figures, progress=progress, provenance=provenance)
+                         channel=channel, make_figures=make_figures, progress=progress, provenance=provenance,
+                         likelihood_power=likelihood_power)
         write_json_atomic(staging / "diagnosis.json", result)
         (staging / "diagnosis.md").write_text(figures.markdown(result), encoding="utf-8")
         publish(staging, out_dir, manifest="diagnosis.json", remove=_previous_results(out_dir))
@@ -157,16 +163,17 @@ def _previous_results(out_dir) -> list[str]:
 
 
 def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, threshold, loo_se_factor, simulate,
-            n_sim_draws, channel, make_figures, progress, provenance):
+            n_sim_draws, channel, make_figures, progress, provenance, likelihood_power):
     """The search of :func:`diagnose`: its result, with the figures written into ``figure_dir``."""
     started = time.perf_counter()
     def say(*args, **kwargs):
         if progress:
             print(*args, **kwargs, flush=True)      # flushed: a long search is followed as it goes
     candidates = [get_effect(c) for c in candidates]
-    ctx = build_context(dataset, labels, channel=channel, seed=seed)
-    say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions: the plain model's refit, then one "
-        f"refit per candidate effect and step (each a few seconds to minutes, growing with the observations)")
+    ctx = build_context(dataset, labels, channel=channel, seed=seed, likelihood_power=likelihood_power)
+    weighed = "" if ctx.likelihood_power == 1.0 else f", the likelihood to the fit's power {ctx.likelihood_power:.4g}"
+    say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions{weighed}: the plain model's refit, then "
+        f"one refit per candidate effect and step (each a few seconds to minutes, growing with the observations)")
     plain = refit(ctx, (), seed=seed)
     ctx.features["fit_region_params"] = plain.region_params()
     # The noise estimate of the plain model's residuals only scores the candidates' signatures
@@ -324,6 +331,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
         "gap_definition": GAP_DEFINITION,
         "decision_rule": DECISION_RULE,
         "thresholds": {"log_bayes_factor": threshold, "loo_se_factor": loo_se_factor},
+        "likelihood_power": ctx.likelihood_power,
         "noise_variance_estimate": sigma2_hat,
         "noise_variance_estimate_plain_residuals": sigma2_plain_estimate,
         "gap_plain": gap_plain,
@@ -399,7 +407,7 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     dataset : path or Dataset, optional
         The fitted data set, when the one ``summary.json`` names has moved.
     **options
-        Keyword arguments of :func:`diagnose`; ``channel`` defaults to the fit's, and
+        Keyword arguments of :func:`diagnose`; ``channel`` and ``likelihood_power`` default to the fit's, and
         ``provenance`` is always set to the fit's folder and ``fit_id``.
 
     Returns
@@ -442,6 +450,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
             raise ValueError(f"{dataset}: not the data this fit was made from (its files differ from those "
                              f"{fit_dir / 'summary.json'} records); give the fitted data set, or fit this one again")
     options.setdefault("channel", summary.get("channel") or "mean")     # the channel the fit used
+    # the power of a coarsened fit: its Bayes factors weigh the data as the fit did
+    options.setdefault("likelihood_power", summary.get("likelihood_power", 1.0))
     options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
     dataset = dataset if hasattr(dataset, "images") else load_dataset(dataset)
     labels = read_map_labels(fit_dir, dataset.object_mask)
