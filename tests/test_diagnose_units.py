@@ -93,6 +93,45 @@ def test_laplace_evidence_agrees_with_importance_sampling(tmp_path):
         assert abs(log_z - fit.log_evidence) < 0.5, (log_z, fit.log_evidence, se)
 
 
+def test_the_hessian_skips_only_pairs_that_never_meet(tmp_path):
+    """The refit's Hessian leaves out pairs of parameters of two different regions: computed
+    anyway (the full finite-difference Hessian), they are 0 up to the differences' rounding,
+    while the pairs it keeps are not, for the plain model and with effects of every stage
+    that shares parameters across regions (light calibration) or not (Fresnel)."""
+    from rjfit.data.dataset import load_dataset
+    from rjfit.diagnose.context import build_context
+    from rjfit.diagnose.effects import EFFECTS
+    from rjfit.diagnose.refit import _fd_hessian, coupled_pairs, refit
+    from rjfit.render.render import render_dataset
+
+    dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
+    ctx = build_context(dataset, dataset.truth_labels)
+    plain = refit(ctx, ())
+    for fit in (plain, refit(ctx, (EFFECTS["fresnel"], EFFECTS["light_calibration"]), start=plain)):
+        problem = fit._cache["problem"]
+        coupled = coupled_pairs(problem)
+        assert (~coupled).sum() == 16 * 4 * 3          # 4 x 4 parameters of each region with another's
+        steps = np.minimum(0.05 / np.sqrt(np.diag(fit.hessian)), 0.05)
+        full, _, _ = _fd_hessian(problem.f, fit.z, steps)
+        correlation = np.abs(full) / np.sqrt(np.outer(np.diag(full), np.diag(full)))
+        # rounding of f (about 1e-16 of |f|, over steps^2) gives 1e-7-sized correlations;
+        # a real cross term between two regions would be of order 1 (kd-gamma: 0.9)
+        assert correlation[~coupled].max() < 1e-4, correlation[~coupled].max()
+        assert np.median(correlation[coupled & ~np.eye(problem.P, dtype=bool)]) > 1e-3
+        # the refit's own steps differ from these (measured: 2e-5 apart at most)
+        np.testing.assert_allclose(fit.hessian[coupled], full[coupled], rtol=1e-3, atol=1e-9 * np.abs(full).max())
+        assert np.all(fit.hessian[~coupled] == 0.0)
+        # the least-squares Jacobian differences the same parameter of every region in one
+        # evaluation: it must equal the one-column-at-a-time forward differences (rows of
+        # different regions never overlap, so to rounding)
+        zm = fit.z[problem.mean_index]
+        grouped = problem.mean_jacobian(zm, fit.z)
+        assert len(problem.jacobian_groups()) == 3 + zm.size - 12
+        problem.jacobian_groups = lambda: [[position] for position in range(zm.size)]
+        single = problem.mean_jacobian(zm, fit.z)
+        np.testing.assert_allclose(grouped, single, rtol=1e-12, atol=1e-12 * np.abs(single).max())
+
+
 def test_a_coarsened_refit_weighs_the_likelihood_by_its_power(tmp_path):
     """With likelihood power zeta the refit's objective is -zeta log L - log prior, so its
     Laplace Hessian is zeta times the data's part plus the prior's, and its evidence still

@@ -87,6 +87,11 @@ class Effect:
     stage: str = ""
     description: str = ""
     needs_mitsuba: bool = False
+    # apply() changes an observation's terms through its own region's parameters and the
+    # effect's only, so the refit's objective has no cross terms between two regions'
+    # parameters and its Hessian skips them (rjfit.diagnose.refit); False for an effect that
+    # couples regions (say, light one region sends to another at its fitted albedo)
+    region_local: bool = True
 
     # -- parameters --------------------------------------------------------------------
     def params(self, ctx) -> list:
