@@ -15,10 +15,19 @@ from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
 from rjfit.diagnose.priors import LogitNormal
 
 
+def tangent(cos_theta):
+    """tan theta from cos theta, cos clipped to [1e-6, 1] (grazing angles stay finite)."""
+    cos_theta = np.clip(cos_theta, 1e-6, 1.0)
+    return np.sqrt(np.maximum(1.0 - cos_theta ** 2, 0.0)) / cos_theta
+
+
 def smith_g1(cos_theta, alpha):
     """Walter et al. (2007) rational approximation of Beckmann's Smith G1."""
-    cos_theta = np.clip(cos_theta, 1e-6, 1.0)
-    tan_theta = np.sqrt(np.maximum(1.0 - cos_theta ** 2, 0.0)) / cos_theta
+    return smith_g1_tan(tangent(cos_theta), alpha)
+
+
+def smith_g1_tan(tan_theta, alpha):
+    """:func:`smith_g1` from tan theta (:func:`tangent`), which a refit computes once per observation."""
     a = 1.0 / np.maximum(alpha * tan_theta, 1e-12)
     g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
     return np.where(a >= 1.6, 1.0, g)
@@ -38,11 +47,13 @@ class Masking(Effect):
         return [Param("w_mask", LogitNormal(loc=0.0, scale=2.0), init=0.5, null=0.0)]
 
     def prepare(self, ctx):
-        return None
+        # the geometry's tangents: fixed, while alpha changes with every gamma a refit tries
+        return tangent(ctx.cos_vn), tangent(ctx.cos_ln)
 
     def apply(self, terms, theta, features, ctx):
         alpha = beckmann_alpha(terms["gamma"])
-        g = smith_g1(ctx.cos_vn, alpha) * smith_g1(ctx.cos_ln, alpha)
+        tan_v, tan_l = features
+        g = smith_g1_tan(tan_v, alpha) * smith_g1_tan(tan_l, alpha)
         w = theta[0]
         terms["spec"] = terms["spec"] * ((1.0 - w) + w * g)
 
