@@ -28,6 +28,24 @@ def test_blinn_lobe_albedo_is_one_at_normal_view_and_table_matches_quadrature():
         assert np.allclose(lobe_albedo([gamma, gamma], [0.3, 0.7]), exact, rtol=5e-3)
 
 
+def test_the_ambient_effect_interpolates_as_lobe_albedo():
+    """The effect interpolates per region's gamma, then per view angle (separable bilinear):
+    the same values as the table's bilinear interpolation per observation."""
+    from types import SimpleNamespace
+
+    from rjfit.diagnose.effects.ambient import Ambient, lobe_albedo
+
+    rng = np.random.default_rng(3)
+    n, gammas = 5000, np.array([0.02, 0.7, 13.0, 480.0, 9000.0])     # beyond the table at both ends too
+    ctx = SimpleNamespace(region=rng.integers(0, gammas.size, n), cos_vn=rng.uniform(-0.1, 1.1, n))
+    terms = {"kd": rng.uniform(0, 1, n), "I0": rng.uniform(1, 2, n), "gamma_region": gammas,
+             "gamma": gammas[ctx.region], "mu": np.zeros(n)}
+    effect = Ambient()
+    effect.apply(terms, np.array([0.5]), effect.prepare(ctx), ctx)
+    expected = 0.5 * terms["I0"] * (terms["kd"] + (1 - terms["kd"]) * lobe_albedo(terms["gamma"], ctx.cos_vn))
+    np.testing.assert_allclose(terms["mu"], expected, rtol=1e-12)
+
+
 def test_srgb_curve_matches_colour_science():
     import colour
 
