@@ -288,7 +288,8 @@ def levenberg_marquardt(fun, jac, x0, args=(), *, tol=1e-10, max_iterations=200)
     diagonal of J'J seen so far, as MINPACK scales) with the damping ``mu`` updated by
     Nielsen's rule (Madsen, Nielsen and Tingleff, "Methods for non-linear least squares
     problems", 2004, eq. 2.21). The residuals here are standardised and the parameters
-    unconstrained and of order 1, so J'J is well conditioned in double precision.
+    unconstrained and of order 1, so forming J'J loses little in double precision, and what
+    a step gets wrong the next one corrects (only the minimum found matters).
 
     Stops when the step is below ``tol`` relative to x, the relative decrease of the cost
     and its prediction are below ``tol``, the gradient is orthogonal to the residuals to
