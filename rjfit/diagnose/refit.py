@@ -145,6 +145,11 @@ class _Problem:
         self.log_norm = float(-np.sum(np.log(self.scale)) - 0.5 * self.P * _LOG_2PI)
         self.zeta = float(ctx.likelihood_power)
         self.region_rows = [np.flatnonzero(ctx.region == r) for r in range(R)]     # observations of each region
+        # Every observation has one region: unless an effect couples regions, a parameter of one
+        # region never meets another region's in a term (Hessian pairs, Jacobian columns)
+        self.region_local = all(getattr(effect, "region_local", True) for effect in self.effects)
+        self.owner = np.full(self.P, -1)            # the region of each parameter, -1: an effect's (shared)
+        self.owner[: 4 * R] = np.arange(4 * R) // 4
 
     def split(self, z):
         theta = np.array([p.to_constrained(v) for p, v in zip(self.priors, z)], dtype=float)
@@ -190,7 +195,7 @@ class _Problem:
         """The mean parameters (positions in ``mean_index``) whose residual columns one evaluation
         can difference together: the same parameter of every region (their rows never overlap:
         each observation has one region, each prior row one parameter), each effect's alone."""
-        if not all(getattr(effect, "region_local", True) for effect in self.effects):
+        if not self.region_local:
             return [[position] for position in range(self.mean_index.size)]
         R = self.ctx.n_regions
         per_region = [[3 * r + k for r in range(R)] for k in range(3)]     # I0, kd, gamma of each region
@@ -213,7 +218,7 @@ class _Problem:
                 if len(group) == 1:
                     jacobian[:, position] = change / dx
                     continue
-                rows = self.region_rows[position // 3]
+                rows = self.region_rows[self.owner[self.mean_index[position]]]
                 jacobian[rows, position] = change[rows] / dx
                 jacobian[n_obs + position, position] = change[n_obs + position] / dx    # its prior row
         return jacobian
@@ -222,8 +227,8 @@ class _Problem:
         mu, _ = self.mean(z)
         resid2 = (self.ctx.y - mu) ** 2
         for r, index in enumerate(self.sigma_index):
-            sel = self.ctx.region == r
-            n, ss = self.zeta * float(sel.sum()), self.zeta * float(resid2[sel].sum())
+            rows = self.region_rows[r]
+            n, ss = self.zeta * float(rows.size), self.zeta * float(resid2[rows].sum())
             m, v = self.loc[index], self.scale[index] ** 2
             s = math.log(max(ss / max(n, 1.0), 1e-12))
             for _ in range(20):   # Newton on n/2 s + ss/2 e^-s + (s - m)^2 / 2v
@@ -244,10 +249,9 @@ def coupled_pairs(problem) -> np.ndarray:
     parameters of different regions never meet in one term, unless an effect couples
     regions (``Effect.region_local`` False): then every pair may.
     """
-    owner = np.full(problem.P, -1)
-    owner[: 4 * problem.ctx.n_regions] = np.arange(4 * problem.ctx.n_regions) // 4
-    if not all(getattr(effect, "region_local", True) for effect in problem.effects):
+    if not problem.region_local:
         return np.ones((problem.P, problem.P), bool)
+    owner = problem.owner
     shared = owner < 0
     return (owner[:, None] == owner[None, :]) | shared[:, None] | shared[None, :]
 
@@ -381,7 +385,7 @@ def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=
     sd = np.empty(problem.P)
     sd[problem.mean_index] = 1.0 / np.sqrt(np.maximum(np.diag(gn), 1e-12))
     for r, index in enumerate(problem.sigma_index):
-        sd[index] = math.sqrt(2.0 / max(problem.zeta * float((ctx.region == r).sum()), 1.0))
+        sd[index] = math.sqrt(2.0 / max(problem.zeta * float(problem.region_rows[r].size), 1.0))
     steps = np.minimum(0.05 * sd, 0.05)
     coupled = coupled_pairs(problem)
     H, g, f0 = _fd_hessian(problem.f, z, steps, coupled)
@@ -407,7 +411,7 @@ def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=
         mi = problem.mean_index
         Hgn[np.ix_(mi, mi)] = gn
         for r, index in enumerate(problem.sigma_index):
-            Hgn[index, index] = 0.5 * problem.zeta * float((ctx.region == r).sum()) + 1.0 / problem.scale[index] ** 2
+            Hgn[index, index] = 0.5 * problem.zeta * float(problem.region_rows[r].size) + 1.0 / problem.scale[index] ** 2
         H = Hgn
     H = 0.5 * (H + H.T)
     sign, logdet = np.linalg.slogdet(H)

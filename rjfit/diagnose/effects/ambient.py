@@ -51,12 +51,17 @@ def lobe_albedo(gamma, cos_v):
     """``A_g(theta_v)``, bilinear in (log gamma, cos theta_v) from the table (vectorised)."""
     table = _table()
     gamma, cos_v = np.broadcast_arrays(np.asarray(gamma, dtype=float), np.asarray(cos_v, dtype=float))
-    x = (np.clip(np.log(gamma), _LOG_G[0], _LOG_G[-1]) - _LOG_G[0]) / (_LOG_G[1] - _LOG_G[0])
-    i = np.minimum(x.astype(int), _LOG_G.size - 2)
-    fx = x - i
+    i, fx = gamma_weights(gamma)
     j, fy = cos_v_weights(cos_v)
     return ((1 - fx) * (1 - fy) * table[i, j] + fx * (1 - fy) * table[i + 1, j]
             + (1 - fx) * fy * table[i, j + 1] + fx * fy * table[i + 1, j + 1])
+
+
+def gamma_weights(gamma):
+    """The table row ``i`` below each gamma (linear in log gamma, clipped to the table) and the weight ``fx`` of row ``i + 1``."""
+    x = (np.clip(np.log(np.asarray(gamma, dtype=float)), _LOG_G[0], _LOG_G[-1]) - _LOG_G[0]) / (_LOG_G[1] - _LOG_G[0])
+    i = np.minimum(x.astype(int), _LOG_G.size - 2)
+    return i, x - i
 
 
 def cos_v_weights(cos_v):
@@ -69,10 +74,8 @@ def cos_v_weights(cos_v):
 def albedo_rows(gammas):
     """The table interpolated at each of ``gammas`` (linear in log gamma): (len(gammas), n_cos_v)."""
     table = _table()
-    x = (np.clip(np.log(np.asarray(gammas, dtype=float)), _LOG_G[0], _LOG_G[-1]) - _LOG_G[0]) / (_LOG_G[1] - _LOG_G[0])
-    i = np.minimum(x.astype(int), _LOG_G.size - 2)
-    fx = (x - i)[:, None]
-    return (1 - fx) * table[i] + fx * table[i + 1]
+    i, fx = gamma_weights(gammas)
+    return (1 - fx[:, None]) * table[i] + fx[:, None] * table[i + 1]
 
 
 class Ambient(Effect):
