@@ -16,7 +16,7 @@ Hessian. The Laplace approximation at the MAP z* with that Hessian H gives
 
 the marginal likelihood whose differences are log Bayes factors (they penalise extra
 parameters through the Occam factor of their prior and posterior widths), and posterior
-draws z ~ N(z*, H^-1) (seeded). PSIS-LOO (ArviZ) on the pointwise log-likelihood of those
+draws z ~ N(z*, H^-1) (seeded). PSIS-LOO (:mod:`rjfit.diagnose.psis`) on the pointwise log-likelihood of those
 draws is the second opinion; its Pareto k-hat says where the draws are a poor proposal.
 Region priors (shared by every model of a context, so they cancel in Bayes factors):
 log I0 ~ N(log I0_init, 2^2) (empirical centre: the initial linear fit's median I0),
@@ -32,6 +32,7 @@ import numpy as np
 
 from rjfit.diagnose.model import order_effects, predict
 from rjfit.diagnose.priors import LogitNormal, LogNormal
+from rjfit.diagnose.psis import psis_loo as vectorised_psis_loo
 from rjfit.model.blinn import blinn_normalisation, log_cos_power
 
 __all__ = ["FitResult", "refit", "initial_region_params", "region_priors"]
@@ -457,20 +458,15 @@ def pointwise_log_lik(fit: FitResult):
 
 
 def psis_loo(fit: FitResult):
-    """ArviZ PSIS-LOO on the Laplace draws: (elpd_loo, se, pointwise elpd, max k-hat)."""
-    import warnings
+    """PSIS-LOO on the Laplace draws: (elpd_loo, se, pointwise elpd, max k-hat).
 
-    import arviz as az
-
+    :func:`rjfit.diagnose.psis.psis_loo` (ArviZ's estimator, vectorised); a coarsened refit's
+    draws leave an observation out with its likelihood to the refit's power.
+    """
     key = "loo"
     if key not in fit._cache:
-        ll = pointwise_log_lik(fit)
-        idata = az.from_dict(posterior={"z0": fit.draws[None, :, 0]}, log_likelihood={"y": ll[None]})
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            loo = az.loo(idata, pointwise=True)
-        fit._cache[key] = (float(loo.elpd_loo), float(loo.se), np.asarray(loo.loo_i),
-                           float(np.nanmax(np.asarray(loo.pareto_k))))
+        loo = vectorised_psis_loo(pointwise_log_lik(fit), likelihood_power=fit._cache["problem"].zeta)
+        fit._cache[key] = (loo.elpd, loo.se, loo.pointwise, float(np.max(loo.pareto_k)))
     return fit._cache[key]
 
 
