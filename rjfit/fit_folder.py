@@ -13,6 +13,7 @@ import numpy as np
 
 from rjfit.data.dataset import CHANNELS, read_json
 from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.noise import NOISE_MODELS
 
 __all__ = ["read_summary", "read_map_labels", "MAP_LABEL_FILES", "SUMMARY_TYPES"]
 
@@ -63,7 +64,8 @@ def read_summary(fit_dir) -> dict:
     DatasetError
         If it is not valid JSON, not a JSON object, or an entry has the wrong type (``regions``
         must hold objects, ``warnings`` strings, ``model_posterior`` numbers, ``channel`` one of
-        :data:`rjfit.data.dataset.CHANNELS`, ``likelihood_power`` a number in (0, 1]).
+        :data:`rjfit.data.dataset.CHANNELS`, ``likelihood_power`` a number in (0, 1], ``noise`` a
+        model of :data:`rjfit.noise.NOISE_MODELS` with a positive floor or none).
     """
     fit_dir = Path(fit_dir)
     path = fit_dir / "summary.json"
@@ -92,6 +94,13 @@ def read_summary(fit_dir) -> dict:
     power = summary.get("likelihood_power")
     if power is not None and not (_is_number(power) and 0.0 < power <= 1.0):
         problems.append(f"'likelihood_power' is {_short(power)}, not a number in (0, 1]")
+    noise = summary.get("noise")
+    if isinstance(noise, dict):
+        if noise.get("model") is not None and noise["model"] not in NOISE_MODELS:
+            problems.append(f"'noise' entry 'model' is {_short(noise['model'])}, not one of {', '.join(NOISE_MODELS)}")
+        floor = noise.get("floor")
+        if floor is not None and not (_is_number(floor) and 0.0 < floor < float("inf")):
+            problems.append(f"'noise' entry 'floor' is {_short(floor)}, not a positive number")
     if isinstance(summary.get("channel"), str) and summary["channel"] not in CHANNELS:
         problems.append(f"'channel' is {summary['channel']!r}, not one of {', '.join(CHANNELS)}")
     if problems:

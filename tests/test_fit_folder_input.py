@@ -106,8 +106,11 @@ SUMMARY = "{fit}/summary.json: not a summary `rjfit fit` wrote ({problem}); " + 
      "'model_posterior' entry '(1,0)' is 'high', not a number"),
     (edit_summary(lambda s: s.update(channel="red")), "'channel' is 'red', not one of mean, R, G, B, luminance"),
     (edit_summary(lambda s: s.update(likelihood_power=2)), "'likelihood_power' is 2, not a number in (0, 1]"),
+    (edit_summary(lambda s: s["noise"].update(model="loud")),
+     "'noise' entry 'model' is 'loud', not one of constant, shot, relative"),
+    (edit_summary(lambda s: s["noise"].update(model="shot", floor=-1)), "'noise' entry 'floor' is -1, not a positive number"),
 ], ids=["list", "regions", "map_model", "fit_id", "dataset", "region", "warning", "model_posterior", "channel",
-        "likelihood_power"])
+        "likelihood_power", "noise_model", "noise_floor"])
 def test_a_summary_of_the_wrong_shape_is_named_by_every_reader(copy, damage, problem):
     fit, commands = copy
     damage(fit)
@@ -133,6 +136,23 @@ def test_diagnose_weighs_the_likelihood_as_the_fit_did(copy, tmp_path):
     assert abs(evidence[0.25] - evidence[1.0]) > 1.0, evidence
     result = CliRunner().invoke(main, commands["diagnose"] + ["--likelihood-power", "0"])
     assert result.exit_code == 2 and "'--likelihood-power': 0.0 is not in the range 0.0<x<=1.0" in result.output
+
+
+def test_diagnose_weighs_the_observations_by_the_fit_s_noise_model(copy, tmp_path):
+    """A fit made with --noise relative is diagnosed with the same known scales (summary.json's
+    noise record, its floor included); --noise constant overrides it."""
+    fit, commands = copy
+    edit_summary(lambda s: s["noise"].update(model="relative", floor=0.1))(fit)
+    for option, expected in (([], "relative"), (["--noise", "constant"], "constant")):
+        result = CliRunner().invoke(main, commands["diagnose"] + option)
+        assert result.exit_code == 0, result.output
+        diagnosis = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+        assert diagnosis["noise"]["model"] == expected
+        assert diagnosis["noise"]["floor"] == (0.1 if expected == "relative" else None)
+        # the scales were computed (their range is recorded) for the relative model only;
+        # test_diagnose_units checks how they enter the refits
+        assert ("sum_log_scale" in diagnosis["noise"]) == (expected == "relative")
+        assert ("Noise model: relative" in (tmp_path / "d" / "diagnosis.md").read_text()) == (expected == "relative")
 
 
 def test_a_truncated_summary_is_named_by_every_reader(copy):

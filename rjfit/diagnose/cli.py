@@ -28,7 +28,10 @@ def _effect_names():
 @click.option("--likelihood-power", type=click.FloatRange(min=0.0, max=1.0, min_open=True), default=None,
               help="The power zeta the refits raise the likelihood to, so that Bayes factors weigh the data as a "
                    "coarsened fit did (default: the fit's, 1 for a plain fit).")
-def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulate, likelihood_power):
+@click.option("--noise", type=click.Choice(["constant", "shot", "relative"]), default=None,
+              help="The noise model the refits weigh the observations by (see `rjfit fit --help`; default: the "
+                   "fit's, with its --noise-floor).")
+def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulate, likelihood_power, noise):
     """Criticise a fit: find where simulation and data disagree, name the missing effect
     (only when the evidence is decisive), add it, refit and show the gap shrink."""
     from rjfit.diagnose.effects import ALL_EFFECTS
@@ -38,6 +41,8 @@ def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no
     out_dir = out_dir or fit_dir / "diagnosis"
     candidates = ALL_EFFECTS if not effects else [name.strip() for name in effects.split(",") if name.strip()]
     options = {} if likelihood_power is None else {"likelihood_power": likelihood_power}
+    if noise is not None:
+        options["noise"] = noise
     result = diagnose_fit(fit_dir, out_dir, dataset=dataset_dir, candidates=candidates, seed=seed, max_steps=max_steps,
                           simulate=False if no_simulate else None, progress=True, **options)
     click.echo(f"named effects: {named_text(result)}")

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.observations import observations_from_stack
+from rjfit.noise import DEFAULT_FLOOR, describe_noise, noise_scale
 
 __all__ = ["Context", "build_context"]
 
@@ -37,6 +38,8 @@ class Context:
     channel: str = "mean"
     seed: int = 0                   # the diagnosis' seed: Monte Carlo features (indirect light) draw from it
     likelihood_power: float = 1.0   # zeta of a coarsened fit: refits weigh the log-likelihood by it
+    noise_scale: np.ndarray | None = None   # (N,) known noise scales s_i of the fit's noise model (None: all 1)
+    noise: dict = field(default_factory=lambda: describe_noise("constant", DEFAULT_FLOOR))
     features: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
 
@@ -110,7 +113,8 @@ def _light_directions(dataset):
     return np.stack(out)
 
 
-def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likelihood_power=1.0) -> Context:
+def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likelihood_power=1.0, noise="constant",
+                  noise_floor=DEFAULT_FLOOR) -> Context:
     """Gather a data set's valid observations under a fixed segmentation.
 
     Parameters
@@ -125,11 +129,17 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
         The power zeta of a coarsened fit (:mod:`rjfit.coarsen`): every refit on the context
         raises the likelihood to it, so its evidence and Bayes factors weigh the data as the
         fit did (1: the plain likelihood).
+    noise : {'constant', 'shot', 'relative'}
+        The fit's noise model (:mod:`rjfit.noise`): refits then weigh observation i by its
+        known scale s_i, ``y_i ~ N(mu_i, sigma_r^2 s_i^2)``, as the sampler did.
+    noise_floor : float
+        Its floor (``rjfit fit --noise-floor``).
 
     Raises
     ------
     ValueError
-        If ``labels`` do not have the images' shape or ``likelihood_power`` is not in (0, 1].
+        If ``labels`` do not have the images' shape, ``likelihood_power`` is not in (0, 1], or
+        the noise model is unknown or its floor not positive (:func:`rjfit.noise.noise_scale`).
     """
     zeta = float(likelihood_power)
     if not 0.0 < zeta <= 1.0:
@@ -159,8 +169,10 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
     l = light_dirs[obs.light, rows, cols]
     h = l + v
     h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    scale = noise_scale(obs, noise, noise_floor)
     return Context(dataset=dataset, labels=region_map.astype(np.int64), n_regions=int(used.size),
                    region=region_map[rows, cols].astype(np.int64), light=obs.light.astype(np.int64),
                    pixel=obs.pixel, y=obs.y, cos_ln=obs.cos_ln, cos_hn=obs.cos_hn, irradiance=obs.irradiance,
                    cos_vn=np.clip(np.sum(v * n, axis=-1), 1e-6, 1.0), cos_hv=np.clip(np.sum(h * v, axis=-1), 0.0, 1.0),
-                   valid=valid, channel=channel, seed=int(seed), likelihood_power=zeta)
+                   valid=valid, channel=channel, seed=int(seed), likelihood_power=zeta, noise_scale=scale,
+                   noise=describe_noise(noise, noise_floor, scale))

@@ -3,9 +3,10 @@
 Parameters (all unconstrained, see ``priors``): per region log I0, logit kd, log gamma,
 log sigma^2, then each effect's parameters. The negative log posterior in those coordinates
 
-    f(z) = - sum_i log N(y_i | m_i(z), sigma^2_r(i)) - sum_j log p_zj(z_j)
+    f(z) = - sum_i log N(y_i | m_i(z), sigma^2_r(i) s_i^2) - sum_j log p_zj(z_j)
 
-(``p_z`` includes the transforms' log-Jacobians; for a coarsened fit the sum of log N is
+(``p_z`` includes the transforms' log-Jacobians; ``s_i`` are the known scales of the fit's
+noise model, :mod:`rjfit.noise`, all 1 for the default 'constant'; for a coarsened fit the sum of log N is
 weighted by the context's ``likelihood_power`` zeta, as the sampler weighs it) is minimised by alternating a Levenberg-Marquardt
 least-squares solve for the mean parameters (:func:`levenberg_marquardt`; the Gaussian priors are
 extra residual rows, so the objective is exactly f at fixed sigma^2) with the closed-form
@@ -41,12 +42,14 @@ _LOG_2PI = math.log(2.0 * math.pi)
 
 
 def initial_region_params(ctx):
-    """Per region (I0, kd, gamma, sigma2) from linear least squares on a gamma grid."""
+    """Per region (I0, kd, gamma, sigma2) from linear least squares on a gamma grid (weighted
+    by the noise model's scales: dividing y and the design by s_i)."""
     out = np.zeros((ctx.n_regions, 4))
+    inverse_scale = np.ones(ctx.n_obs) if ctx.noise_scale is None else 1.0 / ctx.noise_scale
     for r in range(ctx.n_regions):
         sel = ctx.region == r
-        y = ctx.y[sel]
-        base = ctx.irradiance[sel] * np.maximum(ctx.cos_ln[sel], 0.0)
+        y = ctx.y[sel] * inverse_scale[sel]
+        base = ctx.irradiance[sel] * np.maximum(ctx.cos_ln[sel], 0.0) * inverse_scale[sel]
         best = None
         for gamma in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0):
             design = np.stack([base / np.pi, base * blinn_normalisation(gamma) * log_cos_power(ctx.cos_hn[sel], gamma)], 1)
@@ -145,6 +148,9 @@ class _Problem:
         self.scale = np.array([p.scale for p in self.priors])
         self.log_norm = float(-np.sum(np.log(self.scale)) - 0.5 * self.P * _LOG_2PI)
         self.zeta = float(ctx.likelihood_power)
+        # the fit's noise model: residuals are standardised by the known scales s_i as well
+        self.inverse_scale = None if ctx.noise_scale is None else 1.0 / ctx.noise_scale
+        self.log_scale2 = None if ctx.noise_scale is None else 2.0 * np.log(ctx.noise_scale)
         self.region_rows = [np.flatnonzero(ctx.region == r) for r in range(R)]     # observations of each region
         # Every observation has one region: unless an effect couples regions, a parameter of one
         # region never meets another region's in a term (Hessian pairs, Jacobian columns)
@@ -166,10 +172,16 @@ class _Problem:
         region, thetas = self.split(z)
         return predict(self.ctx, self.effects, region, thetas, self.features), region
 
+    def scaled_residuals(self, mu):
+        """``(y - mu) / s_i``: the residuals in units of the noise model's scales."""
+        residuals = self.ctx.y - mu
+        return residuals if self.inverse_scale is None else residuals * self.inverse_scale
+
     def log_lik_pointwise(self, z):
         mu, region = self.mean(z)
         s2 = region[self.ctx.region, 3]
-        return -0.5 * (_LOG_2PI + np.log(s2) + (self.ctx.y - mu) ** 2 / s2)
+        values = -0.5 * (_LOG_2PI + np.log(s2) + self.scaled_residuals(mu) ** 2 / s2)
+        return values if self.log_scale2 is None else values - 0.5 * self.log_scale2
 
     def log_prior(self, z):
         return float(-0.5 * np.sum(((z - self.loc) / self.scale) ** 2) + self.log_norm)
@@ -187,7 +199,7 @@ class _Problem:
         z[self.mean_index] = zm
         mu, region = self.mean(z)
         # zeta sum r^2 / 2 sigma^2 = sum (sqrt(zeta) r)^2 / 2 sigma^2
-        r = (self.ctx.y - mu) * np.sqrt(self.zeta / region[self.ctx.region, 3])
+        r = self.scaled_residuals(mu) * np.sqrt(self.zeta / region[self.ctx.region, 3])
         prior = (zm - self.loc[self.mean_index]) / self.scale[self.mean_index]
         out = np.concatenate([r, prior])
         return np.where(np.isfinite(out), out, 1e10)
@@ -226,7 +238,7 @@ class _Problem:
 
     def update_sigma(self, z):
         mu, _ = self.mean(z)
-        resid2 = (self.ctx.y - mu) ** 2
+        resid2 = self.scaled_residuals(mu) ** 2
         for r, index in enumerate(self.sigma_index):
             rows = self.region_rows[r]
             n, ss = self.zeta * float(rows.size), self.zeta * float(resid2[rows].sum())

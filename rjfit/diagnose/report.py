@@ -159,6 +159,9 @@ def markdown(result: dict) -> str:
               f"Decision rule: {result['decision_rule']}", "",
               *([f"Likelihood power: {result['likelihood_power']:.4g} (the fit's coarsened likelihood; log Bayes "
                  f"factors weigh the data as the fit did)", ""] if result.get("likelihood_power", 1.0) != 1.0 else []),
+              *([f"Noise model: {result['noise']['model']}, {result['noise']['formula']} (the fit's; the refits weigh "
+                 f"each observation by its known scale)", ""]
+                if (result.get("noise") or {}).get("model", "constant") != "constant" else []),
               f"Plain model gap: {gap_text(result['gap_plain'])}; final gap: {gap_text(result['gap_final'])} "
               f"(noise variance estimate {_fmt(result['noise_variance_estimate'], '.4g')}).", ""]
     if result.get("skipped"):

@@ -29,6 +29,7 @@ from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.refit import posterior_mean_prediction, psis_loo, refit, template_columns
+from rjfit.noise import DEFAULT_FLOOR
 
 __all__ = ["diagnose", "diagnose_fit", "LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "GAP_DEFINITION", "DECISION_RULE"]
 
@@ -91,7 +92,8 @@ def _bar_say(bar, say, line):
 
 def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_steps=3,
              threshold=LOG_BF_THRESHOLD, loo_se_factor=LOO_SE_FACTOR, simulate=None, n_sim_draws=3,
-             channel="mean", make_figures=True, progress=False, provenance=None, likelihood_power=1.0):
+             channel="mean", make_figures=True, progress=False, provenance=None, likelihood_power=1.0,
+             noise="constant", noise_floor=DEFAULT_FLOOR):
     """Run the criticism workflow on a data set with a FIXED segmentation.
 
     Parameters
@@ -116,6 +118,9 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         the likelihood to it, so the Bayes factors weigh the data as that fit did (the
         plain likelihood of a million observations whose misfit neighbours share would make
         nearly any candidate "decisive"). 1: the plain likelihood.
+    noise, noise_floor : str, float
+        The fit's noise model and floor (``rjfit fit --noise``, :mod:`rjfit.noise`): the
+        refits weigh each observation by its known scale, as the sampler did.
 
     Returns
     -------
@@ -126,8 +131,8 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     ------
     ValueError
         If ``max_steps`` is not an integer >= 0, a candidate name is unknown, ``labels`` does
-        not have the images' shape, ``likelihood_power`` is not in (0, 1], or ``channel`` is not one of
-        :data:`rjfit.data.dataset.CHANNELS`.
+        not have the images' shape, ``likelihood_power`` is not in (0, 1], ``channel`` is not one of
+        :data:`rjfit.data.dataset.CHANNELS`, or the noise model is unknown or its floor not positive.
     FileNotFoundError, DatasetError
         When ``dataset`` is a path: as :func:`rjfit.data.dataset.load_dataset`.
     """
@@ -138,7 +143,7 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         result = _search(dataset, labels, staging, candidates=candidates, seed=seed, max_steps=max_steps,
                          threshold=threshold, loo_se_factor=loo_se_factor, simulate=simulate, n_sim_draws=n_sim_draws,
                          channel=channel, make_figures=make_figures, progress=progress, provenance=provenance,
-                         likelihood_power=likelihood_power)
+                         likelihood_power=likelihood_power, noise=noise, noise_floor=noise_floor)
         write_json_atomic(staging / "diagnosis.json", result)
         (staging / "diagnosis.md").write_text(figures.markdown(result), encoding="utf-8")
         publish(staging, out_dir, manifest="diagnosis.json", remove=_previous_results(out_dir))
@@ -163,15 +168,17 @@ def _previous_results(out_dir) -> list[str]:
 
 
 def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, threshold, loo_se_factor, simulate,
-            n_sim_draws, channel, make_figures, progress, provenance, likelihood_power):
+            n_sim_draws, channel, make_figures, progress, provenance, likelihood_power, noise, noise_floor):
     """The search of :func:`diagnose`: its result, with the figures written into ``figure_dir``."""
     started = time.perf_counter()
     def say(*args, **kwargs):
         if progress:
             print(*args, **kwargs, flush=True)      # flushed: a long search is followed as it goes
     candidates = [get_effect(c) for c in candidates]
-    ctx = build_context(dataset, labels, channel=channel, seed=seed, likelihood_power=likelihood_power)
+    ctx = build_context(dataset, labels, channel=channel, seed=seed, likelihood_power=likelihood_power, noise=noise,
+                        noise_floor=noise_floor)
     weighed = "" if ctx.likelihood_power == 1.0 else f", the likelihood to the fit's power {ctx.likelihood_power:.4g}"
+    weighed += "" if noise == "constant" else f", '{noise}' noise ({ctx.noise['formula']})"
     say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions{weighed}: the plain model's refit, then "
         f"one refit per candidate effect and step (each a few seconds to minutes, growing with the observations)")
     plain = refit(ctx, (), seed=seed)
@@ -332,6 +339,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
         "decision_rule": DECISION_RULE,
         "thresholds": {"log_bayes_factor": threshold, "loo_se_factor": loo_se_factor},
         "likelihood_power": ctx.likelihood_power,
+        "noise": ctx.noise,
         "noise_variance_estimate": sigma2_hat,
         "noise_variance_estimate_plain_residuals": sigma2_plain_estimate,
         "gap_plain": gap_plain,
@@ -407,7 +415,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     dataset : path or Dataset, optional
         The fitted data set, when the one ``summary.json`` names has moved.
     **options
-        Keyword arguments of :func:`diagnose`; ``channel`` and ``likelihood_power`` default to the fit's, and
+        Keyword arguments of :func:`diagnose`; ``channel``, ``likelihood_power``, ``noise`` and
+        ``noise_floor`` default to the fit's, and
         ``provenance`` is always set to the fit's folder and ``fit_id``.
 
     Returns
@@ -452,6 +461,10 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     options.setdefault("channel", summary.get("channel") or "mean")     # the channel the fit used
     # the power of a coarsened fit: its Bayes factors weigh the data as the fit did
     options.setdefault("likelihood_power", summary.get("likelihood_power", 1.0))
+    # and its noise model: the refits weigh the observations as its sampler did
+    noise_record = summary.get("noise") or {}
+    options.setdefault("noise", noise_record.get("model") or "constant")
+    options.setdefault("noise_floor", noise_record.get("floor") or DEFAULT_FLOOR)
     options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
     dataset = dataset if hasattr(dataset, "images") else load_dataset(dataset)
     labels = read_map_labels(fit_dir, dataset.object_mask)
