@@ -7,7 +7,8 @@ Decision rule (stated once, used everywhere): a candidate is DECISIVE when
     and  delta ELPD_LOO > 4 SE(delta)                                  (PSIS-LOO agrees)
 
 with Z the Laplace marginal likelihood (``refit``), which penalises extra parameters through
-their Occam factor, and ELPD_LOO from ArviZ's PSIS-LOO on the Laplace draws (a second opinion
+their Occam factor, and ELPD_LOO from PSIS-LOO on the Laplace draws (ArviZ's estimator,
+vectorised in :mod:`rjfit.diagnose.psis`; a second opinion
 that does not rest on the Laplace evidence; 4 SE because the pointwise differences of nested
 models are skewed and a 2-SE rule names too eagerly). Among decisive candidates the largest
 log BF is named. The loop stops when nothing is decisive or after ``max_steps``.
@@ -352,7 +353,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
         "n_observations": ctx.n_obs, "n_regions": ctx.n_regions, "seed": seed,
         "method": {"refit": "MAP (least squares + sigma^2 updates + Newton) and Laplace approximation with a "
                             "finite-difference Hessian in unconstrained coordinates",
-                   "evidence": "Laplace log marginal likelihood; PSIS-LOO (ArviZ) on 100 Laplace draws as second opinion",
+                   "evidence": "Laplace log marginal likelihood; PSIS-LOO (ArviZ's estimator, vectorised) on 100 Laplace draws as second opinion",
                    "segmentation": "fixed (given labels)"},
     }
     if simulate is None:
