@@ -16,6 +16,15 @@ def order_effects(effects):
     return tuple(sorted(effects, key=lambda e: STAGES.index(e.stage)))
 
 
+def _geometry(ctx):
+    """What every prediction of a context reuses: log <h.n> (-inf where <h.n> <= 0, so that the
+    lobe's power is 0 there for every gamma > 0) and E max(<l.n>, 0)."""
+    positive = ctx.cos_hn > 0
+    with np.errstate(divide="ignore"):
+        log_cos = np.where(positive, np.log(np.where(positive, ctx.cos_hn, 1.0)), -np.inf)
+    return log_cos, ctx.irradiance * np.maximum(ctx.cos_ln, 0.0)
+
+
 def predict(ctx, effects, region_params, effect_thetas, features):
     """Expected value of every observation of ``ctx``.
 
@@ -33,9 +42,8 @@ def predict(ctx, effects, region_params, effect_thetas, features):
     kd = region_params[ctx.region, 1]
     gamma_r = region_params[:, 2]
     gamma = gamma_r[ctx.region]
-    positive = ctx.cos_hn > 0
-    log_cos = np.log(np.where(positive, ctx.cos_hn, 1.0))
-    lobe = np.where(positive, blinn_normalisation(gamma_r)[ctx.region] * np.exp(gamma * log_cos), 0.0)
+    log_cos, irradiance_cos = ctx.feature("predict_geometry", lambda: _geometry(ctx))
+    lobe = blinn_normalisation(gamma_r)[ctx.region] * np.exp(gamma * log_cos)     # 0 where <h.n> <= 0
     terms = {"I0": I0, "kd": kd, "gamma": gamma, "gamma_region": gamma_r, "spec": lobe}
     by_stage = {stage: [] for stage in STAGES}
     for effect, theta, feature in zip(effects, effect_thetas, features):
@@ -46,7 +54,7 @@ def predict(ctx, effects, region_params, effect_thetas, features):
             effect.apply(terms, theta, feature, ctx)
 
     run("lobe")
-    terms["direct"] = I0 * ctx.irradiance * (kd / np.pi + (1.0 - kd) * terms["spec"]) * np.maximum(ctx.cos_ln, 0.0)
+    terms["direct"] = I0 * irradiance_cos * (kd / np.pi + (1.0 - kd) * terms["spec"])
     run("direct")
     terms["indirect"] = np.zeros_like(terms["direct"])
     run("indirect")
