@@ -106,6 +106,31 @@ def test_clean_data_names_nothing_via_cli(hidden, tmp_path):
     assert "no missing effect was found" in (tmp_path / "out" / "diagnosis.md").read_text()
 
 
+def test_noise_that_follows_the_signal_is_no_missing_effect_under_its_noise_model(tmp_path):
+    """Noise whose sd grows with the signal (sd = 0.02 (mu + 0.05 ybar), the 'relative' model's
+    form) on the noise-free paper_sphere: diagnosed with the fit's 'relative' noise model, the
+    standardised residuals are noise (|gap| < 0.1, as for clean data) and nothing is named;
+    with 'constant' noise (negative control) the same residuals read as a misfit (gap > 1:
+    their mean square is mean(s^2) / typical s^2, about 4 times the noise; measured 3.0)."""
+    from dataclasses import replace
+
+    dataset = load_dataset(render_hidden("clean", tmp_path / "d", resolution=32, noise_variance=0.0))
+    clean = dataset.images.astype(float)
+    values = clean[:, dataset.object_mask]
+    mean_value = values[values > 0].mean()
+    noise = np.random.default_rng(0).standard_normal(clean.shape[:3] + (1,))
+    noisy = replace(dataset, images=(clean + 0.02 * (clean + 0.05 * mean_value) * noise).astype(np.float32))
+    gaps = {}
+    for model in ("relative", "constant"):
+        result = diagnose(noisy, noisy.truth_labels, tmp_path / model, seed=0, max_steps=1, simulate=False,
+                          make_figures=False, noise=model)
+        assert result["noise"]["model"] == model
+        gaps[model] = result["gap_final"]
+        if model == "relative":
+            assert result["named_effects"] == [], [(c["effect"], c.get("log_bayes_factor")) for c in result["candidates"]]
+    assert abs(gaps["relative"]) < 0.1 and gaps["constant"] > 1.0, gaps
+
+
 def test_two_hidden_effects_both_named_with_mitsuba_simulation(hidden, tmp_path):
     out = tmp_path / "two"
     result = _run(hidden("ambient+light_calibration"), out, max_steps=3, simulate=True, n_sim_draws=2)

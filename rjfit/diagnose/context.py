@@ -92,6 +92,14 @@ class Context:
         with np.errstate(invalid="ignore", divide="ignore"):
             return (total / count).reshape(self.image_shape)
 
+    def standardise(self, values):
+        """Per-observation values (along the first axis) divided by the noise model's known scales
+        s_i: residuals in the units in which the noise is homoscedastic (unchanged for 'constant')."""
+        if self.noise_scale is None:
+            return values
+        values = np.asarray(values, dtype=float)
+        return values / self.noise_scale.reshape((-1,) + (1,) * (values.ndim - 1))
+
     def feature(self, key, compute):
         """A cached feature: ``compute()`` runs once per context and key."""
         if key not in self.features:

@@ -148,8 +148,7 @@ class _Problem:
         self.scale = np.array([p.scale for p in self.priors])
         self.log_norm = float(-np.sum(np.log(self.scale)) - 0.5 * self.P * _LOG_2PI)
         self.zeta = float(ctx.likelihood_power)
-        # the fit's noise model: residuals are standardised by the known scales s_i as well
-        self.inverse_scale = None if ctx.noise_scale is None else 1.0 / ctx.noise_scale
+        # the fit's noise model: residuals are standardised by its known scales s_i as well
         self.log_scale2 = None if ctx.noise_scale is None else 2.0 * np.log(ctx.noise_scale)
         self.region_rows = [np.flatnonzero(ctx.region == r) for r in range(R)]     # observations of each region
         # Every observation has one region: unless an effect couples regions, a parameter of one
@@ -174,8 +173,7 @@ class _Problem:
 
     def scaled_residuals(self, mu):
         """``(y - mu) / s_i``: the residuals in units of the noise model's scales."""
-        residuals = self.ctx.y - mu
-        return residuals if self.inverse_scale is None else residuals * self.inverse_scale
+        return self.ctx.standardise(self.ctx.y - mu)
 
     def log_lik_pointwise(self, z):
         mu, region = self.mean(z)

@@ -51,7 +51,7 @@ def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, sp
         stack = render_model(*model_scene(ctx, region), change,
                              spp=spp_stochastic if change.stochastic else 1, seed=(seed, SIMULATION_STREAM, k))
         sims.append(stack[at])
-        sigma2s.append(region[ctx.region, 3])
+        sigma2s.append(region[ctx.region, 3] * (1.0 if ctx.noise_scale is None else ctx.noise_scale ** 2))
     sims, sigma2s = np.stack(sims), np.stack(sigma2s)              # (S, N)
     mean = sims.mean(axis=0)
     var_sim = sims.var(axis=0, ddof=1) if sims.shape[0] > 1 else np.zeros_like(mean)
@@ -72,10 +72,10 @@ def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, sp
     p_values = (exceed / (sims.shape[0] * n_replicates)).reshape(ctx.image_shape)
     observed = np.bincount(ctx.pixel, minlength=n_pix).reshape(ctx.image_shape) > 0
     p_values = np.where(observed, p_values, np.nan)
-    breakdown = gap_breakdown(ctx, residuals, sigma2_hat)
+    breakdown = gap_breakdown(ctx, ctx.standardise(residuals), sigma2_hat)
     return {
         "n_draws": int(sims.shape[0]),
-        "gap": gap(residuals, sigma2_hat),
+        "gap": gap(ctx.standardise(residuals), sigma2_hat),
         "per_light_gap": breakdown["per_light"],
         "per_region_gap": breakdown["per_region"],
         "gap_map": breakdown["per_pixel"],

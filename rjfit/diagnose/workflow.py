@@ -36,7 +36,8 @@ __all__ = ["diagnose", "diagnose_fit", "LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "GAP
 
 LOG_BF_THRESHOLD = math.log(100.0)
 LOO_SE_FACTOR = 4.0
-GAP_DEFINITION = ("gap = mean(r^2) / sigma_hat^2 - 1 with r = y - E[mu] (posterior mean of the model's prediction) "
+GAP_DEFINITION = ("gap = mean(r^2) / sigma_hat^2 - 1 with r = (y - E[mu]) / s (posterior mean of the model's prediction; "
+                  "s the noise model's known scale, 1 for constant noise) "
                   "and sigma_hat^2 the noise variance from second differences of the final model's residual images "
                   "(robust MAD; one value for every gap of the report); ~0 when the model explains the data up to "
                   "noise")
@@ -46,6 +47,12 @@ FIGURE_PATTERNS = ("step*_residuals.png", "step*_per_light.png", "step*_posterio
                    "mitsuba_residuals.png", "ppc_p_values.png", "mitsuba_per_image_*.png")
 DECISION_RULE = (f"decisive when log Bayes factor (Laplace evidence) > ln 100 = {LOG_BF_THRESHOLD:.2f} and "
                  f"delta ELPD (PSIS-LOO) > {LOO_SE_FACTOR:g} SE; the decisive candidate with the largest log BF is named")
+
+
+def _residuals(ctx, fit):
+    """``(y - E[mu]) / s_i``: the residuals of the posterior mean prediction in the units of the
+    noise model (divided by its known scales; the plain residuals for 'constant' noise)."""
+    return ctx.standardise(ctx.y - posterior_mean_prediction(fit))
 
 
 def _loo_difference(candidate, current):
@@ -187,7 +194,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
     # The noise estimate of the plain model's residuals only scores the candidates' signatures
     # during the search; every gap reported (printed, in diagnosis.json and diagnosis.md) uses
     # the final model's estimate, computed once the search is over (see GAP_DEFINITION).
-    sigma2_hat = noise_variance(ctx, ctx.y - posterior_mean_prediction(plain))
+    sigma2_hat = noise_variance(ctx, _residuals(ctx, plain))
     say(f"plain model: log Z {plain.log_evidence:.1f} (gaps follow at the end, with the final noise estimate)")
     skipped = {}
     usable = []
@@ -210,7 +217,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
     stored = {}            # residual vectors (-> gaps once the noise estimate is final), signatures
     step_residuals = []
     for step in range(max_steps if usable else 0):
-        residuals = ctx.y - posterior_mean_prediction(current)
+        residuals = _residuals(ctx, current)
         step_residuals.append(residuals)
         fits = {}
         step_rows = []
@@ -225,7 +232,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
             row = {"step": step, "effect": effect.name, "kind": effect.kind}
             try:
                 candidate = refit(ctx, tuple(current.effects) + (effect,), start=current, seed=seed)
-                columns = template_columns(current, ctx, effect)
+                columns = ctx.standardise(template_columns(current, ctx, effect))
                 score, signature_map = effect.signature(ctx, residuals, sigma2_hat, columns)
                 stored[("signature", step, effect.name)] = (score, signature_map)
             except Exception as error:
@@ -239,7 +246,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
                 step_rows.append(row)
                 continue
             fits[effect.name] = candidate
-            stored[("candidate", step, effect.name)] = ctx.y - posterior_mean_prediction(candidate)
+            stored[("candidate", step, effect.name)] = _residuals(ctx, candidate)
             row.update(log_evidence=candidate.log_evidence, log_bayes_factor=candidate.log_evidence - current.log_evidence,
                        n_params_added=candidate.n_params - current.n_params, signature_score=score,
                        effect_params={k: v for k, v in candidate.summary().items() if k.startswith(effect.name + ".")},
@@ -270,7 +277,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
             # refitted materials (whose albedos no longer absorb the indirect light) and refit.
             ctx.features["fit_region_params"] = new.region_params()
             new = refit(ctx, new.effects, start=new, seed=seed)
-        after_residuals = ctx.y - posterior_mean_prediction(new)
+        after_residuals = _residuals(ctx, new)
         moved, panels = _moved(current, new, ctx)
         record = {"effect": best["effect"], "kind": best["kind"],
                   "evidence": {k: best.get(k) for k in ("log_bayes_factor", "delta_elpd_loo", "delta_elpd_loo_se",
@@ -287,10 +294,10 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
     # The noise estimate, final: second differences of the FINAL model's residuals (the best
     # model leaves the smoothest misfit, so its estimate is the least inflated); every gap of
     # the report uses it.
-    final_residuals = ctx.y - posterior_mean_prediction(current)
+    final_residuals = _residuals(ctx, current)
     sigma2_plain_estimate = sigma2_hat
     sigma2_hat = noise_variance(ctx, final_residuals)
-    gap_plain = gap(ctx.y - posterior_mean_prediction(plain), sigma2_hat)
+    gap_plain = gap(_residuals(ctx, plain), sigma2_hat)
     for row in rows:
         key = ("candidate", row["step"], row["effect"])
         if key in stored:
@@ -345,7 +352,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
         "noise_variance_estimate_plain_residuals": sigma2_plain_estimate,
         "gap_plain": gap_plain,
         "gap_final": gap(final_residuals, sigma2_hat),
-        "per_region_gap": {"plain": gap_breakdown(ctx, ctx.y - posterior_mean_prediction(plain), sigma2_hat)["per_region"],
+        "per_region_gap": {"plain": gap_breakdown(ctx, _residuals(ctx, plain), sigma2_hat)["per_region"],
                            "final": gap_breakdown(ctx, final_residuals, sigma2_hat)["per_region"]},
         "final_model": {"effects": [e.name for e in current.effects], "log_evidence": current.log_evidence,
                         "parameters": current.summary(), "laplace_hessian": current.hessian_kind},
