@@ -45,11 +45,11 @@ def initial_region_params(ctx):
     """Per region (I0, kd, gamma, sigma2) from linear least squares on a gamma grid (weighted
     by the noise model's scales: dividing y and the design by s_i)."""
     out = np.zeros((ctx.n_regions, 4))
-    inverse_scale = np.ones(ctx.n_obs) if ctx.noise_scale is None else 1.0 / ctx.noise_scale
+    y_all = ctx.standardise(ctx.y)
+    base_all = ctx.standardise(ctx.irradiance * np.maximum(ctx.cos_ln, 0.0))
     for r in range(ctx.n_regions):
         sel = ctx.region == r
-        y = ctx.y[sel] * inverse_scale[sel]
-        base = ctx.irradiance[sel] * np.maximum(ctx.cos_ln[sel], 0.0) * inverse_scale[sel]
+        y, base = y_all[sel], base_all[sel]
         best = None
         for gamma in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0):
             design = np.stack([base / np.pi, base * blinn_normalisation(gamma) * log_cos_power(ctx.cos_hn[sel], gamma)], 1)
