@@ -47,7 +47,9 @@ class LooResult(NamedTuple):
 
 
 def _log_sum_exp(values):
-    """log sum exp of each row of a finite (n, S) array."""
+    """log sum exp of each row of a finite (n, S) array. Not scipy's ``logsumexp``: its checks
+    for infinities and signs made the whole estimator 1.5 times slower (measured with
+    ``validation/bench_psis.py``), and these rows are finite by construction."""
     top = values.max(axis=1)
     return top + np.log(np.exp(values - top[:, None]).sum(axis=1))
 
@@ -61,7 +63,7 @@ def _gpd_fit(exceedances):
 
     Returns (k, sigma), each (n,); k includes the prior's pull towards 0.5.
     """
-    n_rows, m = exceedances.shape
+    m = exceedances.shape[1]
     m_grid = 30 + int(math.sqrt(m))
     quartile = exceedances[:, int(m / 4.0 + 0.5) - 1]
     base = 1.0 - np.sqrt(m_grid / (np.arange(1, m_grid + 1, dtype=float) - 0.5))
