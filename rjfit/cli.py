@@ -270,13 +270,17 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
 @click.option("--scheduler", default=None,
               help="Run chains on Dask: 'local' for a local cluster, or a scheduler address (tcp://host:8786).")
 @click.option("--workers", type=int, default=2, show_default=True, help="Workers of a local Dask cluster.")
+@click.option("--threads", type=click.IntRange(min=1), default=None,
+              help="Threads per chain for its large passes over the observations (default: the cores left to "
+                   "each chain that runs at once, e.g. 2 for one chain on 2 cores, 1 for 4 chains; 1 on Dask). "
+                   "The samples are the same for any number.")
 @click.option("--checkpoint-every", type=click.IntRange(min=1), default=2000, show_default=True,
               help="Iterations between a chain's checkpoints (OUT/checkpoints): a fit stopped by Ctrl-C, a crash or "
                    "SIGKILL and run again with the same command resumes there and gives the samples of an "
                    "uninterrupted run.")
 def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler, prior, split_map, cp_prior,
         drop_jacobian, channel, likelihood_power, noise, noise_floor, seed, validation_path, allow_unvalidated,
-        scheduler, workers, checkpoint_every):
+        scheduler, workers, threads, checkpoint_every):
     """Segment DATASET(S) and sample the region BRDF posteriors (RJMCMC).
 
     Refuses a data set whose forward model has not passed `rjfit validate` unless
@@ -292,7 +296,7 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
                              noise_floor=noise_floor, seed=seed,
                              validation_path=validation_path,
                              allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers,
-                             checkpoint_every=checkpoint_every)
+                             threads=threads, checkpoint_every=checkpoint_every)
     for folder, summary in summaries:
         map_model = summary["map_model"]
         click.echo(f"fit of {summary['dataset']} ({summary['channel']}) -> {folder}")

@@ -82,8 +82,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         prior: str = "default", split_map: str = "conditional", cp_prior: str = "smooth",
         drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float | str = 1.0,
         noise: str = "constant", noise_floor: float = DEFAULT_FLOOR, anneal: float = 0.5,
-        cp_thin: int = 10, checkpoint_every: int = 2000, processes: int | None = None, start=None,
-        fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None,
+        cp_thin: int = 10, checkpoint_every: int = 2000, processes: int | None = None, threads: int | None = None,
+        start=None, fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None,
         before_publish=None) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
 
@@ -136,6 +136,11 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         checkpoint of the same run (same data, prior, settings, seed and sampler code) is
         resumed, one of another run is refused with an error. They are deleted once the
         results are written.
+    processes : int, optional
+        Worker processes for the chains (default: one per chain, at most one per core).
+    threads : int, optional
+        Numba threads per chain for its large passes (default: the cores left to each chain
+        that runs at once). The samples are the same for any number.
     start : list of dict, optional
         Per chain keyword arguments of :func:`rjfit.sampler.kernel.initial_state`.
     fixed_segmentation : (u, v), optional
@@ -225,7 +230,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
                                iterations=iterations, checkpoint_path=str(out_dir / "checkpoints" / f"chain_{c}.pkl"),
                                checkpoint_every=checkpoint_every, cp_thin=cp_thin, truth_labels=truth_labels,
                                start=chain_start, progress=progress))
-    records = list(chain_runner(specs)) if chain_runner is not None else run_chains(specs, processes=processes)
+    records = (list(chain_runner(specs)) if chain_runner is not None
+               else run_chains(specs, processes=processes, threads=threads))
 
     model_post = post.model_posterior(records, burn)
     n_u, n_v = post.map_model(records, burn)

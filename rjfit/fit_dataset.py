@@ -66,7 +66,9 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
         from rjfit.sampler.runner import run_chain
 
         address = None if scheduler in (None, "local") else scheduler
-        chain_runner = functools.partial(dask_map, run_chain, scheduler=address, n_workers=n_workers, client=client,
+        # a Dask worker runs one chain on one core unless told otherwise (--threads)
+        chain = functools.partial(run_chain, threads=fit_options.get("threads") or 1)
+        chain_runner = functools.partial(dask_map, chain, scheduler=address, n_workers=n_workers, client=client,
                                          key_prefix="rjfit-chain")
     observations = dataset.observations(channel)
     validation_file = Path(validation_path) if validation_path else dataset_dir / "validation" / "validation.json"
@@ -233,6 +235,6 @@ def fit_datasets(dataset_dirs, out_dir, *, scheduler=None, n_workers=2, **option
     from rjfit.distributed import dask_map
 
     address = None if scheduler == "local" else scheduler
-    tasks = [(d, folder, dict(job_options, processes=1, progress=False)) for d, folder, job_options in jobs]
+    tasks = [(d, folder, dict(job_options, processes=1, threads=1, progress=False)) for d, folder, job_options in jobs]
     summaries = dask_map(_fit_one, tasks, scheduler=address, n_workers=n_workers, key_prefix="rjfit-fit")
     return list(zip([folder for _, folder, _ in jobs], summaries))

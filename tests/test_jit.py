@@ -362,3 +362,83 @@ def test_rank_chain_compiled_twins_equal_the_reference():
             np.testing.assert_array_equal(path, reference)
             assert jit.rank_path_log_prob(alpha, path, log_t) == pytest.approx(_path_log_prob(alpha_ref, path, logits),
                                                                                abs=1e-10)
+
+
+# -- threads within one chain ---------------------------------------------------------------
+
+def _two_threads():
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("Numba has one thread here: nothing to compare")
+
+
+@pytest.fixture(scope="module")
+def large_problem():
+    """40,326 observations: over jit.PARALLEL_MIN_OBS, so the passes run in pieces."""
+    obs, _, _ = sphere_stack(96, n_lights=10, seed=3)
+    problem = Problem.from_observations(obs, likelihood_power=0.6)
+    assert problem.n_obs >= jit.PARALLEL_MIN_OBS
+    return problem
+
+
+def test_split_runs_cuts_the_runs_into_equal_parts_in_order():
+    rng = np.random.default_rng(7)
+    lengths = rng.integers(0, 900, 200)
+    starts = np.cumsum(np.r_[0, lengths[:-1] + rng.integers(0, 50, 199)])
+    ends = starts + lengths
+    pieces_start, pieces_end, offsets = jit.split_runs(starts, ends)
+    total = int(lengths.sum())
+    assert total >= jit.PARALLEL_MIN_OBS and offsets.size == jit.PARTS + 1 and offsets[-1] == pieces_start.size
+    # the pieces are the runs' observations, in order, each once
+    indices = np.concatenate([np.arange(a, b) for a, b in zip(starts, ends)])
+    np.testing.assert_array_equal(np.concatenate([np.arange(a, b) for a, b in zip(pieces_start, pieces_end)]), indices)
+    part_sizes = [int(np.sum(pieces_end[a:b] - pieces_start[a:b])) for a, b in zip(offsets[:-1], offsets[1:])]
+    assert max(part_sizes) - min(part_sizes) <= 1 and sum(part_sizes) == total
+    # below the threshold: one part, the runs themselves
+    small_start, small_end, small_offsets = jit.split_runs(starts[:10], ends[:10])
+    assert list(small_offsets) == [0, 10]
+    np.testing.assert_array_equal(small_start, starts[:10])
+
+
+def test_passes_in_pieces_equal_the_reference_and_do_not_depend_on_the_threads(large_problem):
+    """b_sums, b_sums_newton and the per-pixel sums over more than PARALLEL_MIN_OBS observations:
+    the NumPy reference's values, and the same bits on one thread and on two."""
+    from rjfit.sampler.runner import numba_threads
+
+    _two_threads()
+    problem = large_problem
+    idx = np.arange(problem.n_obs)
+    data = RegionData.gather(problem, idx)
+    y, A = problem.y.astype(float), problem.C.astype(float) / math.pi
+    lh = problem.log_cos_hn.astype(float)
+    rng = np.random.default_rng(4)
+    height, width = problem.image_shape
+    u, v, labels = _changepoint_labels(problem, rng, 2, 1)
+    x_old = np.ascontiguousarray(u[:, 1])
+
+    def passes():
+        right, left = np.zeros(height * width), np.zeros(height * width)
+        jit.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, problem.row, problem.col, labels, x_old,
+                                2, THETA, width, right, left)
+        return ([jit.b_sums(data.y, data.C, data.log_cos_hn, *data.runs, g) for g in (0.3, 80.0)]
+                + [jit.b_sums_newton(data.y, data.C, data.log_cos_hn, *data.runs, g) for g in (0.3, 80.0)]
+                + [right, left])
+
+    with numba_threads(1):
+        one = passes()
+    with numba_threads(2):
+        two = passes()
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a, b)
+    for k, gamma in enumerate((0.3, 80.0)):
+        B = b_terms(problem.C.astype(float), problem.log_cos_hn, gamma)
+        terms = (y * B, A * B, B * B)
+        np.testing.assert_allclose(one[k], [math.fsum(t) for t in terms], rtol=1e-12)
+        newton = [math.fsum(t * w) for w in (1.0, lh, lh * lh) for t in terms]
+        np.testing.assert_allclose(one[2 + k], newton, rtol=1e-11, atol=1e-9 * abs(np.array(newton)).max())
+    base = labels.astype(np.int64) - np.where(x_old[problem.row] < problem.col + 0.5, 2, 0)
+    key = problem.row.astype(np.int64) * width + problem.col
+    for case, shift in ((one[4], 0), (one[5], 2)):       # right of the element, left of it
+        expected = np.bincount(key, _log_density(problem, idx, THETA[base + shift]), minlength=height * width)
+        np.testing.assert_allclose(case, expected, rtol=1e-11, atol=1e-8)

@@ -139,3 +139,24 @@ def test_run_fingerprint_depends_on_content_not_on_print_options():
     nudged = _spec("x")
     nudged.problem.y[7] = np.nextafter(nudged.problem.y[7], np.float32(np.inf))     # one ulp of one observation
     assert run_fingerprint(nudged)["data"] != before["data"]
+
+
+def test_a_chain_gives_the_same_samples_on_one_thread_and_on_two():
+    """Threads within a chain cut its large passes into fixed pieces (rjfit.sampler.jit), so the
+    samples do not depend on the number of threads: checked on a problem large enough for them."""
+    import numba
+
+    from rjfit.sampler import jit
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("Numba has one thread here: nothing to compare")
+    obs, labels, _ = sphere_stack(96, n_lights=10, seed=2)
+    problem = Problem.from_observations(obs)
+    assert problem.n_obs >= jit.PARALLEL_MIN_OBS
+    prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
+    config = SamplerConfig(max_u=2, max_v=2, burn_in=40, jump_prob=0.5)
+    spec = ChainSpec(problem=problem, prior=prior, config=config, seed=5, chain=0, n_chains=2, iterations=80,
+                     cp_thin=5, truth_labels=labels)
+    one, two = run_chain(spec, threads=1), run_chain(spec, threads=2)
+    _assert_same(one, two)
+    assert sum(one.proposed.values()) > 0 and len(set(zip(one.n_u, one.n_v))) > 1, "the chain must move between models"

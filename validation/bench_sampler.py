@@ -1,7 +1,9 @@
 """Benchmark of the samplers in effective samples per second (the sampler issue's speed goals).
 
 One chain per sampler, run one after the other in this process (BLAS limited to one
-thread). Prints, side by side: rjfit's default sampler with the segmentation fixed at the
+thread; ``--threads N`` gives each chain N Numba threads for its large passes, default 1:
+one core; the ``--parallel-chains`` share the cores among them unless ``--threads`` is
+given). Prints, side by side: rjfit's default sampler with the segmentation fixed at the
 true four quadrant regions; the same kernel with the segmentation sampled as well (change
 points moved, whole vectors redrawn, births and deaths tried; started in the true model,
 ESS over its iterations in that model); and the paper-style component-wise random-walk MH
@@ -61,10 +63,11 @@ def run_one(problem, prior, config, iterations, seed, start_theta):
     return draws, t1 - t0, t1 - t_burn
 
 
-def _parallel_chain(problem, prior, iterations, seed, start):
+def _parallel_chain(problem, prior, iterations, seed, start, threads):
+    from rjfit.sampler.runner import numba_threads
     from rjfit.sampler.state import SamplerConfig
 
-    with threadpool_limits(1):
+    with threadpool_limits(1), numba_threads(threads):
         config = SamplerConfig(burn_in=iterations // 2, sampler="adaptive", max_u=3, max_v=3)
         _, total_s, _ = run_one(problem, prior, config, iterations, seed, start)
     return total_s
@@ -75,14 +78,19 @@ def parallel_figures(problem, prior, args, start):
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
 
+    from rjfit.sampler.runner import available_cores
+
     k = args.parallel_chains
     share = args.parallel_iterations // k
+    threads = args.threads or max(1, available_cores() // k)     # as rjfit fit shares the cores among its chains
     seeds = np.random.SeedSequence(args.seed).spawn(k)       # one independent stream per chain
     t0 = time.perf_counter()
     with ProcessPoolExecutor(k, mp_context=multiprocessing.get_context("spawn")) as pool:
-        seconds = list(pool.map(_parallel_chain, [problem] * k, [prior] * k, [share] * k, seeds, [start] * k))
+        seconds = list(pool.map(_parallel_chain, [problem] * k, [prior] * k, [share] * k, seeds, [start] * k,
+                                 [threads] * k))
     wall = time.perf_counter() - t0
-    print(f"full kernel, {k} chains x {share} iterations side by side ({k * share} in all): the chains sample for "
+    print(f"full kernel, {k} chains x {share} iterations side by side ({k * share} in all, {threads} thread(s) "
+          f"each): the chains sample for "
           f"{', '.join(f'{s:.1f}' for s in seconds)} s; wall {wall:.1f} s with process start and loading "
           f"(goal at 256 x 256: 20,000 iterations in <= 60 s)")
 
@@ -111,6 +119,10 @@ def main(argv=None):
     parser.add_argument("--burn-in", type=float, default=0.5, help="discarded fraction of each run")
     parser.add_argument("--dataset", default=None, help="a data set folder instead of the pure-NumPy sphere")
     parser.add_argument("--seed", type=int, default=0, help="seed of the data and the chains")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="Numba threads of each chain (its large passes run in pieces on them; the samples are "
+                             "the same for any number); default: 1 for the chains run in this process, the cores "
+                             "each of the --parallel-chains leaves free for those")
     parser.add_argument("--parallel-chains", type=int, default=0,
                         help="also run this many chains of the full kernel side by side, in processes (as fits run "
                              "their chains), --parallel-iterations in total, and print their wall time (0: skip)")
@@ -134,7 +146,11 @@ def main(argv=None):
             ("default, segmentation sampled", dict(sampler="adaptive", max_u=3, max_v=3), args.segmentation_iterations),
             ("paper-style MH, incremental", dict(sampler="paper", **fixed), args.paper_iterations),
             ("paper-style MH, full pass", dict(sampler="paper", full_recompute=True, **fixed), args.full_iterations)]
-    with threadpool_limits(1):
+    from rjfit.sampler.runner import numba_threads
+
+    threads = args.threads or 1
+    print(f"each chain on {threads} Numba thread(s)")
+    with threadpool_limits(1), numba_threads(threads):
         for name, options, iterations in runs:
             if iterations <= 0:
                 continue

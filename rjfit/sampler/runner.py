@@ -5,6 +5,10 @@ Every random draw of a chain comes from one ``numpy.random.Generator`` seeded fr
 in each checkpoint, so a chain resumed from its last checkpoint draws exactly the numbers
 an uninterrupted run would have drawn and yields identical samples.
 
+Threads: a chain runs the large passes over observations on ``threads`` Numba threads
+(:mod:`rjfit.sampler.jit`); :func:`run_chains` gives each chain the cores its parallel
+chains leave free. The samples do not depend on the number of threads.
+
 Checkpoints are pickles written atomically (temporary file in the same folder, then
 ``os.replace``): a chain killed mid-write (even by SIGKILL) leaves the previous checkpoint
 intact.
@@ -12,12 +16,14 @@ intact.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import os
 import pickle
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -251,17 +257,41 @@ def _load_checkpoint(path, fingerprint):
     return payload
 
 
-def run_chain(spec: ChainSpec) -> ChainRecord:
+def available_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:      # macOS, Windows
+        return os.cpu_count() or 1
+
+
+@contextmanager
+def numba_threads(threads: int):
+    """Run the block with ``threads`` Numba threads (at most Numba's pool), then restore the count."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
     """Run (or resume from ``spec.checkpoint_path``) one chain and return its record.
 
-    Spawn-safe entry point of the worker processes.
+    Spawn-safe entry point of the worker processes. ``threads``: Numba threads for the
+    chain's large passes (1 where other chains share the cores, as on Dask workers); the
+    samples are the same for any number.
     """
     from threadpoolctl import threadpool_limits
 
     from rjfit.sampler.moves import log_posterior
 
     problem, prior, config = spec.problem, spec.prior, spec.config
-    with threadpool_limits(1):   # BLAS threads only add overhead to these small dot products
+    # BLAS threads only add overhead to these small dot products
+    with threadpool_limits(1), numba_threads(threads):
         rng = chain_rngs(spec.seed, spec.n_chains)[spec.chain]
         recorder = _Recorder(spec)
         start_t = 0
@@ -313,15 +343,21 @@ def run_chain(spec: ChainSpec) -> ChainRecord:
         return recorder.result(done)
 
 
-def run_chains(specs, *, processes: int | None = None):
+def run_chains(specs, *, processes: int | None = None, threads: int | None = None):
     """Run chains in parallel worker processes (spawn context); returns their records in order.
 
-    ``processes=1`` (or a single chain) runs in this process.
+    ``processes=1`` (or a single chain) runs in this process. ``threads``: Numba threads per
+    chain; default: the cores left to each of the chains that run at once (a single chain
+    on 2 cores gets 2; 4 chains on 2 cores get 1 each).
     """
     specs = list(specs)
+    cores = available_cores()
     if processes is None:
-        processes = min(len(specs), os.cpu_count() or 1)
-    if processes <= 1 or len(specs) == 1:
-        return [run_chain(spec) for spec in specs]
+        processes = min(len(specs), cores)
+    at_once = max(1, min(processes, len(specs)))
+    if threads is None:
+        threads = max(1, cores // at_once)
+    if at_once == 1:
+        return [run_chain(spec, threads) for spec in specs]
     with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn")) as pool:
-        return list(pool.map(run_chain, specs))
+        return list(pool.map(functools.partial(run_chain, threads=threads), specs))
