@@ -159,22 +159,6 @@ def split_runs(starts, ends):
 
 
 @njit(cache=True, nogil=True)
-def _b_sums_part(y, C, log_cos_hn, starts, ends, first, last, gamma, out):
-    for k in range(first, last):
-        a, b, c = _b_sums_range(y, C, log_cos_hn, starts[k], ends[k], gamma)
-        out[0] += a
-        out[1] += b
-        out[2] += c
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _b_sums_parts(y, C, log_cos_hn, starts, ends, offsets, gamma, part_sums):
-    # only the prange loop: Numba would run any array expression here as a parallel loop too
-    for p in prange(offsets.shape[0] - 1):
-        _b_sums_part(y, C, log_cos_hn, starts, ends, offsets[p], offsets[p + 1], gamma, part_sums[p])
-
-
-@njit(cache=True, nogil=True)
 def b_sums(y, C, log_cos_hn, starts, ends, gamma):
     """``(SyB, SAB, SBB)`` (unscaled, float64) of the observations in the runs ``[starts[k], ends[k])``.
 
@@ -182,16 +166,7 @@ def b_sums(y, C, log_cos_hn, starts, ends, gamma):
     vectorised pass per run that reads the float32 arrays once; in :data:`PARTS` pieces on
     the chain's threads when the runs hold :data:`PARALLEL_MIN_OBS` observations or more.
     """
-    piece_starts, piece_ends, offsets = split_runs(starts, ends)
-    parts = offsets.shape[0] - 1
-    part_sums = np.zeros((parts, 3))
-    if parts == 1:
-        _b_sums_part(y, C, log_cos_hn, starts, ends, 0, starts.shape[0], gamma, part_sums[0])
-    else:
-        _b_sums_parts(y, C, log_cos_hn, piece_starts, piece_ends, offsets, gamma, part_sums)
-    out = np.zeros(3)
-    for p in range(parts):
-        out += part_sums[p]
+    out = _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, False)
     out[1] *= INV_PI
     return out
 
@@ -248,16 +223,41 @@ def _b_sums_newton_range(y, C, log_cos_hn, lo, hi, gamma, out, powers):
 
 
 @njit(cache=True, nogil=True)
-def _b_sums_newton_part(y, C, log_cos_hn, starts, ends, first, last, gamma, out):
-    powers = np.empty(BLOCK)
-    for k in range(first, last):
-        _b_sums_newton_range(y, C, log_cos_hn, starts[k], ends[k], gamma, out, powers)
+def _gamma_sums_part(y, C, log_cos_hn, starts, ends, first, last, gamma, newton, out):
+    """Add runs ``first .. last - 1``'s sums to ``out``: :func:`b_sums`' three (unscaled) or, with ``newton``, nine."""
+    if newton:
+        powers = np.empty(BLOCK)
+        for k in range(first, last):
+            _b_sums_newton_range(y, C, log_cos_hn, starts[k], ends[k], gamma, out, powers)
+    else:
+        for k in range(first, last):
+            a, b, c = _b_sums_range(y, C, log_cos_hn, starts[k], ends[k], gamma)
+            out[0] += a
+            out[1] += b
+            out[2] += c
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _b_sums_newton_parts(y, C, log_cos_hn, starts, ends, offsets, gamma, part_sums):
-    for p in prange(offsets.shape[0] - 1):       # only the prange loop, as in _b_sums_parts
-        _b_sums_newton_part(y, C, log_cos_hn, starts, ends, offsets[p], offsets[p + 1], gamma, part_sums[p])
+def _gamma_sums_parts(y, C, log_cos_hn, starts, ends, offsets, gamma, newton, part_sums):
+    # only the prange loop: Numba would run any array expression here as a parallel loop too
+    for p in prange(offsets.shape[0] - 1):
+        _gamma_sums_part(y, C, log_cos_hn, starts, ends, offsets[p], offsets[p + 1], gamma, newton, part_sums[p])
+
+
+@njit(cache=True, nogil=True)
+def _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, newton):
+    """:func:`_gamma_sums_part` over all the runs, in :func:`split_runs`' pieces, the pieces added in order."""
+    piece_starts, piece_ends, offsets = split_runs(starts, ends)
+    parts = offsets.shape[0] - 1
+    part_sums = np.zeros((parts, 9 if newton else 3))
+    if parts == 1:
+        _gamma_sums_part(y, C, log_cos_hn, starts, ends, 0, starts.shape[0], gamma, newton, part_sums[0])
+    else:
+        _gamma_sums_parts(y, C, log_cos_hn, piece_starts, piece_ends, offsets, gamma, newton, part_sums)
+    out = np.zeros(part_sums.shape[1])
+    for p in range(parts):
+        out += part_sums[p]
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -268,17 +268,7 @@ def b_sums_newton(y, C, log_cos_hn, starts, ends, gamma):
     ``(SyB, SAB, SBB / 2)``, for the Newton proposal of the gamma move. In pieces on the
     chain's threads as :func:`b_sums`.
     """
-    piece_starts, piece_ends, offsets = split_runs(starts, ends)
-    parts = offsets.shape[0] - 1
-    part_sums = np.zeros((parts, 9))
-    if parts == 1:
-        _b_sums_newton_part(y, C, log_cos_hn, starts, ends, 0, starts.shape[0], gamma, part_sums[0])
-    else:
-        _b_sums_newton_parts(y, C, log_cos_hn, piece_starts, piece_ends, offsets, gamma, part_sums)
-    out = np.zeros(9)
-    for p in range(parts):
-        out += part_sums[p]
-    return out
+    return _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, True)
 
 
 @njit(cache=True, nogil=True)
