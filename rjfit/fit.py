@@ -257,6 +257,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "acceptance": {k: sum(r.accepted.get(k, 0) for r in records) / max(1, sum(r.proposed.get(k, 0) for r in records))
                        for k in sorted({k for r in records for k in r.proposed})},
         "chain_seconds": [r.seconds for r in records],
+        "chain_threads": [r.threads for r in records],
         "chain_resumed_from": [list(r.resumed_from) for r in records],
         "chain_model_posterior": [post.model_posterior([r], burn) for r in records],
     }

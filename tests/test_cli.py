@@ -50,9 +50,12 @@ def test_fit_refuses_an_unvalidated_data_set_with_one_clear_line(paper_sphere_sm
     assert not (tmp_path / "fit" / "summary.json").exists()
     # forced, the fit runs, and its summary, its warnings and the command's output say so
     result = CliRunner().invoke(main, ["fit", str(dataset), "--out", str(tmp_path / "fit"), "--allow-unvalidated",
-                                       "--iterations", "20", "--chains", "1"])
+                                       "--iterations", "20", "--chains", "1", "--threads", "2"])
     assert result.exit_code == 0, result.output
     summary = json.loads((tmp_path / "fit" / "summary.json").read_text())
+    import numba
+
+    assert summary["chain_threads"] == [min(2, numba.config.NUMBA_NUM_THREADS)]     # --threads reaches the chain
     assert summary["validation"]["passed"] is None
     assert summary["warnings"][0].startswith("the forward model was not cross-checked")
     assert f"WARNING: {summary['warnings'][0]}" in result.output
@@ -116,6 +119,13 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path, paper_spher
     assert "<th>method</th>" in html and "|---" not in html
     summary = json.loads((tmp_path / "run" / "fit" / "summary.json").read_text())
     assert summary["validation"]["passed"] is True
+    # the two chains share the cores: each gets the cores the other leaves free
+    import numba
+
+    from rjfit.sampler.runner import available_cores
+
+    cores = available_cores()
+    assert summary["chain_threads"] == [min(max(1, cores // min(2, cores)), numba.config.NUMBA_NUM_THREADS)] * 2
     # convergence warnings (a 200-iteration run may have some) reach the report verbatim
     import html as html_module
 

@@ -82,13 +82,14 @@ class ChainRecord:
     seconds: float
     iterations_done: int
     resumed_from: tuple = ()        # iterations of the checkpoints this chain resumed from, in order
+    threads: int = 1                # Numba threads it ran on (its samples do not depend on them; its seconds do)
 
     def truncated(self, t: int) -> "ChainRecord":
         keep = self.cp_iteration < t
         return ChainRecord(self.n_u[:t], self.n_v[:t], self.theta[:t], self.log_lik[:t], self.log_post[:t],
                            self.exact_truth[:t], self.true_regions[:t], self.object_regions[:t], self.cp_iteration[keep],
                            self.cp_u[keep], self.cp_v[keep], dict(self.accepted), dict(self.proposed), self.seconds, min(t, self.iterations_done),
-                           self.resumed_from)
+                           self.resumed_from, self.threads)
 
 
 def chain_rngs(seed: int, n_chains: int):
@@ -267,13 +268,13 @@ def available_cores() -> int:
 
 @contextmanager
 def numba_threads(threads: int):
-    """Run the block with ``threads`` Numba threads (at most Numba's pool), then restore the count."""
+    """Run the block with ``threads`` Numba threads (at most Numba's pool; yields the count set), then restore it."""
     import numba
 
     before = numba.get_num_threads()
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
-        yield
+        yield numba.get_num_threads()
     finally:
         numba.set_num_threads(before)
 
@@ -291,7 +292,7 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
 
     problem, prior, config = spec.problem, spec.prior, spec.config
     # BLAS threads only add overhead to these small dot products
-    with threadpool_limits(1), numba_threads(threads):
+    with threadpool_limits(1), numba_threads(threads) as threads_used:
         rng = chain_rngs(spec.seed, spec.n_chains)[spec.chain]
         recorder = _Recorder(spec)
         start_t = 0
@@ -340,7 +341,7 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
         if bar is not None:
             bar.close()
         recorder.seconds = seconds_before + time.perf_counter() - t0
-        return recorder.result(done)
+        return dataclasses.replace(recorder.result(done), threads=threads_used)
 
 
 def run_chains(specs, *, processes: int | None = None, threads: int | None = None):
