@@ -5,11 +5,13 @@ set -euo pipefail
 cd "$(dirname "$0")"
 
 # Mitsuba's LLVM variants crash with Debian 12's default LLVM 15 ("Cannot select ...
-# fminimum"); drjit picks up libllvm19 by itself once it is installed.
-if ! dpkg -s libllvm19 >/dev/null 2>&1; then
+# fminimum"); drjit picks up libllvm19 by itself once it is installed. libgomp1: the
+# OpenMP runtime of Numba's threading layer, which runs a chain's large passes on threads.
+PACKAGES="libllvm19 libgomp1"
+if ! dpkg -s $PACKAGES >/dev/null 2>&1; then
   SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   export DEBIAN_FRONTEND=noninteractive
-  $SUDO apt-get install -y -q libllvm19 || { $SUDO apt-get update -q && $SUDO apt-get install -y -q libllvm19; }
+  $SUDO apt-get install -y -q $PACKAGES || { $SUDO apt-get update -q && $SUDO apt-get install -y -q $PACKAGES; }
 fi
 
 PYTHON="${PYTHON:-python3}"

@@ -160,3 +160,30 @@ def test_a_chain_gives_the_same_samples_on_one_thread_and_on_two():
     one, two = run_chain(spec, threads=1), run_chain(spec, threads=2)
     _assert_same(one, two)
     assert sum(one.proposed.values()) > 0 and len(set(zip(one.n_u, one.n_v))) > 1, "the chain must move between models"
+
+
+def test_a_lone_chain_takes_the_free_cores_unless_threads_would_not_pay(monkeypatch):
+    """run_chains' default: the cores the chains at once leave free, but one thread where Numba
+    could only fall back to its workqueue layer (no OpenMP or TBB runtime: threads made it slower)."""
+    import dataclasses
+    import importlib
+
+    import numba
+
+    from rjfit.sampler import runner
+
+    spec = dataclasses.replace(_spec(), iterations=20, checkpoint_path=None)
+    expected = min(runner.available_cores(), numba.config.NUMBA_NUM_THREADS)
+    assert [r.threads for r in runner.run_chains([spec])] == [expected]
+    assert [r.threads for r in runner.run_chains([spec], threads=1)] == [1]
+
+    real_import = importlib.import_module
+
+    def without_thread_runtimes(name, *args, **kwargs):
+        if name in ("numba.np.ufunc.omppool", "numba.np.ufunc.tbbpool"):
+            raise ImportError(f"{name}: its runtime library is not installed (simulated)")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(importlib, "import_module", without_thread_runtimes)
+    assert not runner.threads_pay()
+    assert [r.threads for r in runner.run_chains([spec])] == [1]
