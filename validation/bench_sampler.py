@@ -78,11 +78,11 @@ def parallel_figures(problem, prior, args, start):
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
 
-    from rjfit.sampler.runner import available_cores
+    from rjfit.sampler.runner import default_threads
 
     k = args.parallel_chains
     share = args.parallel_iterations // k
-    threads = args.threads or max(1, available_cores() // k)     # as rjfit fit shares the cores among its chains
+    threads = args.threads or default_threads(k)     # as rjfit fit shares the cores among its chains
     seeds = np.random.SeedSequence(args.seed).spawn(k)       # one independent stream per chain
     t0 = time.perf_counter()
     with ProcessPoolExecutor(k, mp_context=multiprocessing.get_context("spawn")) as pool:

@@ -281,6 +281,13 @@ def threads_pay() -> bool:
     return False
 
 
+def default_threads(chains_at_once: int) -> int:
+    """Numba threads per chain when the user does not say: the cores left to each of the
+    chains that run at once (a single chain on 2 cores gets 2; 4 chains on 2 cores get 1
+    each), 1 where :func:`threads_pay` is False."""
+    return max(1, available_cores() // max(1, chains_at_once)) if threads_pay() else 1
+
+
 @contextmanager
 def numba_threads(threads: int):
     """Run the block with ``threads`` Numba threads (at most Numba's pool; yields the count set), then restore it."""
@@ -363,16 +370,14 @@ def run_chains(specs, *, processes: int | None = None, threads: int | None = Non
     """Run chains in parallel worker processes (spawn context); returns their records in order.
 
     ``processes=1`` (or a single chain) runs in this process. ``threads``: Numba threads per
-    chain; default: the cores left to each of the chains that run at once (a single chain
-    on 2 cores gets 2; 4 chains on 2 cores get 1 each), 1 where :func:`threads_pay` is False.
+    chain; default: :func:`default_threads` of the chains that run at once.
     """
     specs = list(specs)
-    cores = available_cores()
     if processes is None:
-        processes = min(len(specs), cores)
+        processes = min(len(specs), available_cores())
     at_once = max(1, min(processes, len(specs)))
     if threads is None:
-        threads = max(1, cores // at_once) if threads_pay() else 1
+        threads = default_threads(at_once)
     if at_once == 1:
         return [run_chain(spec, threads) for spec in specs]
     with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn")) as pool:
