@@ -145,3 +145,76 @@ def test_two_hidden_effects_both_named_with_mitsuba_simulation(hidden, tmp_path)
     for name in ("diagnosis.md", "mitsuba_residuals.png", "ppc_p_values.png", result["steps"][0]["figures"]["residuals"],
                  result["signature_figures"][0]):
         assert (out / name).is_file()
+
+
+def _rows(result):
+    # a refit's seconds are the only entry allowed to differ between runs
+    return [{k: v for k, v in row.items() if k != "seconds"} for row in result["candidates"]]
+
+
+def test_candidates_refitted_at_once_give_the_same_diagnosis_as_one_at_a_time(hidden, tmp_path):
+    """``jobs`` only changes how many candidate refits run at once (threads): every row, in the
+    candidates' order, and the named effect are the same, to the last bit, for 1 and 3 jobs."""
+    path = hidden("ambient")
+    one = _run(path, tmp_path / "one", max_steps=1, simulate=False, make_figures=False, jobs=1)
+    three = _run(path, tmp_path / "three", max_steps=1, simulate=False, make_figures=False, jobs=3)
+    assert len(one["candidates"]) >= 3
+    assert [row["effect"] for row in one["candidates"]] == [row["effect"] for row in three["candidates"]]
+    assert _rows(one) == _rows(three)
+    assert one["named_effects"] == three["named_effects"] == ["ambient"]
+    assert one["final_model"] == three["final_model"]
+
+
+def test_a_candidate_that_fails_on_a_worker_is_reported_and_the_search_goes_on(hidden, tmp_path, monkeypatch):
+    """A refit that raises on a worker thread becomes that candidate's row (type and message),
+    the other candidates are scored and the hidden effect is still named; with RJFIT_DEBUG
+    set the error is raised instead."""
+    import rjfit.diagnose.workflow as workflow
+
+    real_refit = workflow.refit
+
+    def refit_failing_for_fresnel(ctx, effects=(), **options):
+        if any(effect.name == "fresnel" for effect in effects):
+            raise FloatingPointError("refit diverged (test)")
+        return real_refit(ctx, effects, **options)
+
+    monkeypatch.setattr(workflow, "refit", refit_failing_for_fresnel)
+    monkeypatch.delenv("RJFIT_DEBUG", raising=False)
+    path = hidden("ambient")
+    result = _run(path, tmp_path / "out", max_steps=1, simulate=False, make_figures=False, jobs=2)
+    rows = {row["effect"]: row for row in result["candidates"]}
+    assert rows["fresnel"]["error"] == "FloatingPointError: refit diverged (test)"
+    assert "log_bayes_factor" not in rows["fresnel"]
+    assert all("log_bayes_factor" in row for name, row in rows.items() if name != "fresnel")
+    assert result["named_effects"] == ["ambient"]
+    monkeypatch.setenv("RJFIT_DEBUG", "1")
+    with pytest.raises(FloatingPointError, match="diverged"):
+        _run(path, tmp_path / "debug", max_steps=1, simulate=False, make_figures=False, jobs=2)
+
+
+@pytest.mark.parametrize("jobs", [0, -1, 1.5, True])
+def test_jobs_must_be_a_positive_integer(hidden, tmp_path, jobs):
+    with pytest.raises(ValueError, match="jobs"):
+        _run(hidden("clean"), tmp_path / "out", max_steps=1, simulate=False, make_figures=False, jobs=jobs)
+
+
+def test_cli_jobs_reaches_the_workflow(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    import rjfit.diagnose.workflow as workflow
+    from rjfit.diagnose.cli import diagnose_command
+
+    seen = {}
+
+    def fake_diagnose_fit(fit_dir, out_dir, **options):
+        seen.update(options)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(workflow, "diagnose_fit", fake_diagnose_fit)
+    assert CliRunner().invoke(diagnose_command, [str(tmp_path), "--jobs", "3"]).exit_code == 0
+    assert seen["jobs"] == 3
+    seen.clear()
+    assert CliRunner().invoke(diagnose_command, [str(tmp_path)]).exit_code == 0
+    assert seen["jobs"] is None          # the workflow's default: the cores available
+    outcome = CliRunner().invoke(diagnose_command, [str(tmp_path), "--jobs", "0"])
+    assert outcome.exit_code == 2 and "--jobs" in outcome.output

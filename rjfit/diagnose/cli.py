@@ -31,7 +31,12 @@ def _effect_names():
 @click.option("--noise", type=click.Choice(["constant", "shot", "relative"]), default=None,
               help="The noise model the refits weigh the observations by (see `rjfit fit --help`; default: the "
                    "fit's, with its --noise-floor).")
-def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulate, likelihood_power, noise):
+@click.option("--jobs", type=click.IntRange(min=1), default=None,
+              help="Candidate effects refitted at once, on threads (default: the cores available). The result does "
+                   "not depend on it; memory grows with it (each refit in flight holds arrays the size of the "
+                   "observations).")
+def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulate, likelihood_power, noise,
+                     jobs):
     """Criticise a fit: find where simulation and data disagree, name the missing effect
     (only when the evidence is decisive), add it, refit and show the gap shrink."""
     from rjfit.diagnose.effects import ALL_EFFECTS
@@ -44,7 +49,7 @@ def diagnose_command(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no
     if noise is not None:
         options["noise"] = noise
     result = diagnose_fit(fit_dir, out_dir, dataset=dataset_dir, candidates=candidates, seed=seed, max_steps=max_steps,
-                          simulate=False if no_simulate else None, progress=True, **options)
+                          simulate=False if no_simulate else None, progress=True, jobs=jobs, **options)
     click.echo(f"named effects: {named_text(result)}")
     if result["named_effects"] and result["search"]["stopped"].startswith("stopped after"):
         click.echo(f"  {result['search']['stopped']} (raise --max-steps to search on)")
