@@ -401,6 +401,23 @@ def test_split_runs_cuts_the_runs_into_equal_parts_in_order():
     np.testing.assert_array_equal(small_start, starts[:10])
 
 
+def test_pixel_cuts_keep_each_pixel_whole_in_one_piece():
+    """The per-pixel pass's pieces run at once and add into their pixels' entries: every cut
+    must fall on a pixel's first observation (a pixel in two pieces would be a race), and the
+    pieces stay near-equal (no piece more than one pixel's observations above n / PARTS)."""
+    rng = np.random.default_rng(11)
+    per_pixel = rng.integers(1, 12, 9000)         # 1 to 11 observations per pixel, ~54,000 in all
+    pixel = np.repeat(np.arange(per_pixel.size), per_pixel)
+    line_of, along_of = pixel // 97, pixel % 97
+    n = pixel.size
+    bounds = jit.pixel_cuts(line_of, along_of)
+    assert bounds.size == jit.PARTS + 1 and bounds[0] == 0 and bounds[-1] == n
+    assert np.all(np.diff(bounds) >= 0)
+    inner = bounds[1:-1]
+    assert np.all(pixel[inner] != pixel[inner - 1]), "a cut splits a pixel between two pieces"
+    assert np.all(np.diff(bounds) <= n // jit.PARTS + per_pixel.max())
+
+
 def test_passes_in_pieces_equal_the_reference_and_do_not_depend_on_the_threads(large_problem):
     """b_sums, b_sums_newton and the per-pixel sums over more than PARALLEL_MIN_OBS observations:
     the NumPy reference's values, and the same bits on one thread and on two."""

@@ -44,7 +44,7 @@ from numba.extending import intrinsic
 
 __all__ = ["fast_exp", "b_sums", "b_sums_many", "b_sums_newton", "fixed_sums", "run_indices", "region_stats_runs", "obs_log_density_delta", "element_shift", "shift_stats", "per_pixel_two_cases", "cell_log_lik",
            "forward_filter", "removal_sums", "rank_forward", "rank_path_log_prob", "rank_backward_sample", "cell_path_log_prob", "cell_backward_sample", "sweep_proposal",
-           "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "split_runs", "BLOCK", "PARTS",
+           "ndtr", "ndtri", "within_cells_draw", "within_cells_log_density", "split_runs", "pixel_cuts", "BLOCK", "PARTS",
            "PARALLEL_MIN_OBS"]
 
 BLOCK = 512
@@ -560,6 +560,20 @@ def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step
         _per_pixel_range(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, coef, size,
                          right_case, left_case, 0, n)
         return
+    _per_pixel_parts(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, coef, size,
+                     right_case, left_case, pixel_cuts(line_of, along_of))
+
+
+@njit(cache=True, nogil=True)
+def pixel_cuts(line_of, along_of):
+    """Bounds of :data:`PARTS` near-equal pieces of observations sorted by pixel, each cut at a
+    pixel's first observation: (PARTS + 1,) from 0 to n, non-decreasing.
+
+    Whole pixels per piece, because the pieces of :func:`per_pixel_two_cases` run at once and
+    each adds into its pixels' entries: a pixel split between two pieces would be written by
+    two threads at a time, a race whose lost updates are rare and would go unseen.
+    """
+    n = line_of.shape[0]
     bounds = np.empty(PARTS + 1, np.int64)
     bounds[0], bounds[PARTS] = 0, n
     for p in range(1, PARTS):
@@ -567,8 +581,7 @@ def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step
         while 0 < cut < n and line_of[cut] == line_of[cut - 1] and along_of[cut] == along_of[cut - 1]:
             cut += 1
         bounds[p] = cut
-    _per_pixel_parts(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, coef, size,
-                     right_case, left_case, bounds)
+    return bounds
 
 
 @njit(cache=True, nogil=True)
