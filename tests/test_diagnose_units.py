@@ -144,7 +144,8 @@ def test_the_hessian_skips_only_pairs_that_never_meet(tmp_path):
         # different regions never overlap, so to rounding)
         zm = fit.z[problem.mean_index]
         grouped = problem.mean_jacobian(zm, fit.z)
-        assert len(problem.jacobian_groups()) == 3 + zm.size - 12
+        per_light = sum(index.size for index, _ in problem.per_light_effects().values())
+        assert len(problem.jacobian_groups()) == 3 + zm.size - 12 - per_light
         problem.jacobian_groups = lambda: [[position] for position in range(zm.size)]
         single = problem.mean_jacobian(zm, fit.z)
         np.testing.assert_allclose(grouped, single, rtol=1e-12, atol=1e-12 * np.abs(single).max())
@@ -248,3 +249,59 @@ def test_hidden_ambient_is_added_before_the_camera_response():
     camera_of_sum = _hidden_post(None, (np.random.default_rng(1), 0.0), images + ambient[None, :, :, None])
     np.testing.assert_allclose(both, camera_of_sum)
     assert not np.allclose(both, _hidden_post(None, (np.random.default_rng(1), 0.0), images))
+
+
+def test_a_per_light_effect_is_differenced_over_its_light_values(tmp_path):
+    """Light calibration acts through one value per light (log s = H theta): the refit's Hessian
+    and least-squares Jacobian difference those L values, whose pairs never meet, instead of
+    every pair of its L - 1 parameters. Both must equal the plain finite differences in z: the
+    block Hessian the all-pairs one (measured: within 1.1e-7 of sqrt(H_ii H_jj); a pair summed
+    over the wrong blocks or a missing chain-rule factor B would be of order 1, so 1e-5 holds
+    only the two schemes' truncation error), its evaluations 1 + 2T + 2T(T - 1) for T types of
+    parameters whatever the number of lights, and the Jacobian's calibration columns the
+    one-column forward differences (measured: 2.5e-8 of the column's largest entry, both being
+    forward differences with sqrt(eps) steps, whose error is of that order; 1e-5 would still
+    catch a wrong light's row or a missing factor of B). The normal equations the least
+    squares solve, formed from per-light sums, equal the dense Jacobian's J'J and J'r."""
+    from rjfit.data.dataset import load_dataset
+    from rjfit.diagnose.context import build_context
+    from rjfit.diagnose.effects import EFFECTS
+    from rjfit.diagnose.refit import _block_hessian, _fd_hessian, refit
+    from rjfit.render.render import render_dataset
+
+    dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
+    ctx = build_context(dataset, dataset.truth_labels)
+    plain = refit(ctx, ())
+    fit = refit(ctx, (EFFECTS["fresnel"], EFFECTS["ambient"], EFFECTS["light_calibration"]), start=plain)
+    problem = fit._cache["problem"]
+    steps = np.minimum(0.05 / np.sqrt(np.diag(fit.hessian)), 0.05)
+    full, _, f_full = _fd_hessian(problem.f, fit.z, steps)
+    evaluations = []
+    pointwise = problem.log_lik_pointwise
+    problem.log_lik_pointwise = lambda *args: evaluations.append(1) or pointwise(*args)
+    block, _, f_block = _block_hessian(problem, fit.z, steps)
+    problem.log_lik_pointwise = pointwise
+    scale = np.sqrt(np.outer(np.diag(full), np.diag(full)))
+    assert np.abs(block - full).max() / scale.max() < 1e-5
+    assert (np.abs(block - full) / scale).max() < 1e-5, (np.abs(block - full) / scale).max()
+    types = 4 + 2 + 1             # the region parameters, Fresnel's and ambient's, the light values
+    assert len(evaluations) == 1 + 2 * types + 2 * types * (types - 1) + 1     # + f(z) itself
+    assert f_block == f_full
+    # the Jacobian's calibration columns against one-column forward differences in z
+    zm = fit.z[problem.mean_index]
+    grouped = problem.mean_jacobian(zm, fit.z)
+    (index, _), = problem.per_light_effects().values()
+    columns = [int(np.flatnonzero(problem.mean_index == i)[0]) for i in index]
+    r0 = problem.mean_residuals(zm, fit.z)
+    eps_step = np.sqrt(np.finfo(float).eps)
+    for column in columns[:: max(1, len(columns) // 4)]:
+        shifted = zm.copy()
+        shifted[column] += eps_step * max(1.0, abs(zm[column]))
+        single = (problem.mean_residuals(shifted, fit.z) - r0) / (shifted[column] - zm[column])
+        difference = np.abs(grouped[:, column] - single).max() / np.abs(single).max()
+        assert difference < 1e-5, (problem.names[problem.mean_index[column]], difference)
+    # the least squares' normal equations, formed without the calibration's dense columns,
+    # equal the dense Jacobian's products to rounding
+    normal, gradient = problem.mean_normal_equations(zm, r0, fit.z)
+    np.testing.assert_allclose(normal, grouped.T @ grouped, rtol=1e-9, atol=1e-12 * np.abs(normal).max())
+    np.testing.assert_allclose(gradient, grouped.T @ r0, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())

@@ -92,6 +92,12 @@ class Effect:
     # parameters and its Hessian skips them (rjfit.diagnose.refit); False for an effect that
     # couples regions (say, light one region sends to another at its fitted albedo)
     region_local: bool = True
+    # An effect whose parameters act only through one value per light, ``u = B theta`` with
+    # ``B = light_basis(ctx)`` (L, k) and an observation of light l depending on u[l] alone
+    # (its priors Normal, so theta = z): the refit's Hessian is then taken over the L
+    # light values, whose pairs never meet (rjfit.diagnose.refit), and mapped back by B.
+    # Such an effect defines ``light_basis`` and ``apply_light_values(terms, u, ctx)``.
+    light_basis = None
 
     # -- parameters --------------------------------------------------------------------
     def params(self, ctx) -> list:

@@ -51,8 +51,14 @@ class LightCalibration(Effect):
         return helmert_basis(ctx.n_lights)
 
     def apply(self, terms, theta, features, ctx):
-        scales = np.exp(features @ np.asarray(theta, dtype=float))
-        terms["mu"] = terms["mu"] * scales[ctx.light]
+        self.apply_light_values(terms, features @ np.asarray(theta, dtype=float), ctx)
+
+    def light_basis(self, ctx):
+        """log s = H theta: each light's log scale (see Effect.light_basis)."""
+        return helmert_basis(ctx.n_lights)
+
+    def apply_light_values(self, terms, log_scales, ctx):
+        terms["mu"] = terms["mu"] * np.exp(np.asarray(log_scales, dtype=float))[ctx.light]
 
     def scales(self, theta, ctx):
         return light_scales(theta, ctx.n_lights)
