@@ -236,7 +236,7 @@ class _Problem:
             return [[position] for position in range(3 * R)] + shared
         return [[3 * r + k for r in range(R)] for k in range(3)] + shared     # I0, kd, gamma of each region
 
-    def jacobian_parts(self, zm, z_full):
+    def jacobian_parts(self, zm, z_full, r0=None):
         """Forward differences of :meth:`mean_residuals` at ``zm``, in parts: ``(r0, dense, columns,
         per_light)``. ``dense`` (N + M, len(columns)) holds the Jacobian's ``columns`` (every mean
         parameter but the per-light effects'), one evaluation per :meth:`jacobian_groups`
@@ -244,8 +244,9 @@ class _Problem:
         |z|), with z's sign). ``per_light`` lists, per per-light effect, ``(its columns, d, B)``:
         one evaluation with every light's value u_l moved gives each observation's derivative
         ``d_i`` by its own light's value (rows of two lights never overlap), so its columns are
-        ``d_i B[light_i]`` by the chain rule (u = B theta), and its prior rows ``1 / scale``."""
-        r0 = self.mean_residuals(zm, z_full)
+        ``d_i B[light_i]`` by the chain rule (u = B theta), and its prior rows ``1 / scale``.
+        ``r0``: the residuals at ``zm`` where the caller has them (the least squares do)."""
+        r0 = self.mean_residuals(zm, z_full) if r0 is None else r0
         n_obs = self.ctx.n_obs
         groups = self.jacobian_groups()
         columns = np.array(sorted(position for group in groups for position in group), dtype=int)
@@ -292,7 +293,7 @@ class _Problem:
         a per-light effect's N x (L - 1) columns: their products go through per-light sums
         (``J_u' J_u`` is diagonal in the lights), so a light calibration of 96 lights adds
         96-entry sums, not 95 dense columns, to each step."""
-        _, dense, columns, per_light = self.jacobian_parts(zm, z_full)
+        _, dense, columns, per_light = self.jacobian_parts(zm, z_full, residuals)
         n_obs, n_lights = self.ctx.n_obs, self.ctx.n_lights
         light = self.ctx.light
         normal = np.zeros((zm.size, zm.size))
