@@ -305,3 +305,32 @@ def test_a_per_light_effect_is_differenced_over_its_light_values(tmp_path):
     normal, gradient = problem.mean_normal_equations(zm, r0, fit.z)
     np.testing.assert_allclose(normal, grouped.T @ grouped, rtol=1e-9, atol=1e-12 * np.abs(normal).max())
     np.testing.assert_allclose(gradient, grouped.T @ r0, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())
+
+
+def test_a_fit_s_loo_and_mean_prediction_are_computed_once_and_keep_no_draw_arrays(tmp_path):
+    """The diagnosis' candidate threads all ask for the current model's LOO: it is computed
+    once (the pointwise log-likelihood of the draws evaluated once per draw, counted) and the
+    same result returned to every thread; afterwards the fit keeps no (draws, observations)
+    array (1.1 GB each on the measured ball). The mean prediction, summed draw by draw, equals
+    the mean of the stacked predictions exactly (the same additions in the same order)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from rjfit.data.dataset import load_dataset
+    from rjfit.diagnose.context import build_context
+    from rjfit.diagnose.refit import posterior_mean_prediction, predictions, psis_loo, refit
+    from rjfit.render.render import render_dataset
+
+    dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
+    fit = refit(build_context(dataset, dataset.truth_labels), (), n_draws=20)
+    problem = fit._cache["problem"]
+    calls = []
+    evaluate = problem.log_lik_pointwise
+    problem.log_lik_pointwise = lambda z: calls.append(1) or evaluate(z)
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        results = list(pool.map(lambda _: psis_loo(fit), range(4)))
+    assert len(calls) == len(fit.draws)
+    assert all(result is results[0] for result in results)
+    n_obs = problem.ctx.y.size
+    held = [key for key, value in fit._cache.items() if isinstance(value, np.ndarray) and value.size >= 2 * n_obs]
+    assert not held, held
+    np.testing.assert_array_equal(posterior_mean_prediction(fit), predictions(fit).mean(axis=0))
