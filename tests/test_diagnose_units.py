@@ -334,3 +334,35 @@ def test_a_fit_s_loo_and_mean_prediction_are_computed_once_and_keep_no_draw_arra
     held = [key for key, value in fit._cache.items() if isinstance(value, np.ndarray) and value.size >= 2 * n_obs]
     assert not held, held
     np.testing.assert_array_equal(posterior_mean_prediction(fit), predictions(fit).mean(axis=0))
+
+
+def test_loo_difference_reports_the_share_of_observations_with_an_unreliable_k_hat(tmp_path):
+    """The threshold is ArviZ's ``good_k`` for the number of draws (0.5 for 100, 0.7 from
+    10^(10/3) draws up); an observation counts as unreliable where either model's k-hat
+    exceeds it. On a measured stack many may (the ball's highlight peak): the report says how many."""
+    import arviz as az
+
+    from rjfit.data.dataset import load_dataset
+    from rjfit.diagnose.context import build_context
+    from rjfit.diagnose.effects import EFFECTS
+    from rjfit.diagnose.psis import good_k_threshold
+    from rjfit.diagnose.refit import psis_loo, refit
+    from rjfit.diagnose.workflow import _loo_difference
+    from rjfit.render.render import render_dataset
+
+    rng = np.random.default_rng(0)
+    for n_draws in (100, 400, 4000):
+        log_lik = rng.normal(size=(1, n_draws, 30))
+        data = az.from_dict(posterior={"x": rng.normal(size=(1, n_draws))}, log_likelihood={"y": log_lik})
+        assert np.isclose(good_k_threshold(n_draws), az.loo(data, pointwise=True).good_k)
+    assert np.isclose(good_k_threshold(100), 0.5)
+
+    dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
+    ctx = build_context(dataset, dataset.truth_labels)
+    plain = refit(ctx, ())
+    fresnel = refit(ctx, (EFFECTS["fresnel"],), start=plain)
+    delta, se, max_khat, unreliable = _loo_difference(fresnel, plain)
+    khat = np.maximum(psis_loo(fresnel).pareto_k, psis_loo(plain).pareto_k)
+    assert max_khat == khat.max()
+    assert unreliable == np.mean(khat > 0.5)
+    assert np.isclose(delta, psis_loo(fresnel).elpd - psis_loo(plain).elpd)

@@ -29,7 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["LooResult", "psis_loo", "psis_smooth"]
+__all__ = ["LooResult", "good_k_threshold", "psis_loo", "psis_smooth"]
 
 _TINY_LOG = math.log(np.finfo(float).tiny)
 _EPS = np.finfo(float).eps
@@ -44,6 +44,13 @@ class LooResult(NamedTuple):
     se: float
     pointwise: np.ndarray
     pareto_k: np.ndarray
+
+
+def good_k_threshold(n_draws: int) -> float:
+    """The k-hat above which an observation's PSIS estimate is unreliable with ``n_draws`` draws:
+    ``min(1 - 1 / log10(S), 0.7)`` (Vehtari et al. 2024, section 3.2.4; ArviZ's ``good_k``);
+    0.5 for 100 draws."""
+    return min(1.0 - 1.0 / math.log10(n_draws), 0.7)
 
 
 def _log_sum_exp(values):

@@ -666,17 +666,16 @@ def pointwise_log_lik(fit: FitResult):
 
 
 def psis_loo(fit: FitResult):
-    """PSIS-LOO on the Laplace draws: (elpd_loo, se, pointwise elpd, max k-hat).
+    """PSIS-LOO on the Laplace draws: a :class:`rjfit.diagnose.psis.LooResult` (elpd, se,
+    pointwise elpd, pointwise k-hat).
 
     :func:`rjfit.diagnose.psis.psis_loo` (ArviZ's estimator, vectorised); a coarsened refit's
     draws leave an observation out with its likelihood to the refit's power. Only the result
     is kept: the (S, N) pointwise log-likelihood it is computed from is dropped at once, so a
     diagnosis holds one such array per candidate refitting at that moment, not one per fit.
     """
-    def compute(fit):
-        loo = vectorised_psis_loo(pointwise_log_lik(fit), likelihood_power=fit._cache["problem"].zeta)
-        return loo.elpd, loo.se, loo.pointwise, float(np.max(loo.pareto_k))
-    return _cached(fit, "loo", compute)
+    return _cached(fit, "loo", lambda fit: vectorised_psis_loo(pointwise_log_lik(fit),
+                                                               likelihood_power=fit._cache["problem"].zeta))
 
 
 def evidence_by_importance_sampling(fit: FitResult, n_draws=2000, seed=0, inflate=1.2):

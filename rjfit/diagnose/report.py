@@ -111,6 +111,10 @@ def _fmt(value, spec=".3g"):
     return str(value)
 
 
+def _percent(fraction) -> str:
+    return "-" if fraction is None else f"{100.0 * float(fraction):.2g} %"
+
+
 def gap_text(value) -> str:
     """How every gap is written (terminal, diagnosis.md): 4 significant digits."""
     return "-" if value is None else format(float(value), ".4g")
@@ -135,6 +139,8 @@ def candidate_line(row: dict) -> str:
     text = f"{head} log BF {row['log_bayes_factor']:10.1f}  "
     if "delta_elpd_loo" in row:
         text += f"dLOO {row['delta_elpd_loo']:9.1f} +- {row['delta_elpd_loo_se']:6.1f}"
+        if row.get("khat_unreliable_fraction"):
+            text += f" (k-hat too high for {_percent(row['khat_unreliable_fraction'])})"
     else:
         text += f"dLOO skipped: {row['loo_skipped']}" if "loo_skipped" in row else "dLOO not computed"
     return text + ("  decisive" if row.get("decisive") else "")
@@ -188,17 +194,25 @@ def markdown(result: dict) -> str:
             lines += ["", "Parameters that moved (more than 2 posterior sd):", ""]
             lines += [f"- {m['name']}: {_fmt(m['before'])} -> {_fmt(m['after'])} (sd {_fmt(m['sd_after'])})" for m in moved]
     lines += ["", "## Candidates per step", "",
-              "| step | effect | log BF | dLOO | SE | max k-hat | signature | gap with effect | decisive |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "| step | effect | log BF | dLOO | SE | max k-hat | k-hat > threshold | signature | gap with effect | decisive |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for row in result["candidates"]:
         loo = (f"{_fmt(row.get('delta_elpd_loo'), '.1f')} | {_fmt(row.get('delta_elpd_loo_se'), '.1f')}"
                if "delta_elpd_loo" in row else (f"skipped ({row['loo_skipped']}) | -" if "loo_skipped" in row else "- | -"))
         lines.append(f"| {row['step'] + 1} | {row['effect']} | {_fmt(row.get('log_bayes_factor'), '.1f')} | {loo} | "
-                     f"{_fmt(row.get('max_khat'), '.2f')} | {_fmt(row.get('signature_score'), '.2f')} | "
+                     f"{_fmt(row.get('max_khat'), '.2f')} | {_percent(row.get('khat_unreliable_fraction'))} | "
+                     f"{_fmt(row.get('signature_score'), '.2f')} | "
                      f"{gap_text(row.get('gap_with_effect'))} | "
                      f"{'yes' if row.get('decisive') else ('failed: ' + row['error'] if 'error' in row else 'no')} |")
     if not result["candidates"]:
-        lines.append(f"| - | {result.get('search', {}).get('stopped', 'none tried')} | | | | | | | |")
+        lines.append(f"| - | {result.get('search', {}).get('stopped', 'none tried')} | | | | | | | | |")
+    unreliable = [row for row in result["candidates"] if (row.get("khat_unreliable_fraction") or 0.0) > 0.0]
+    if unreliable:
+        worst = max(unreliable, key=lambda row: row["khat_unreliable_fraction"])
+        lines += ["", f"PSIS-LOO is unreliable for some observations: their Pareto k-hat exceeds the threshold for "
+                  f"the refits' draws (min(1 - 1/log10 S, 0.7), Vehtari et al. 2024), for up to "
+                  f"{_percent(worst['khat_unreliable_fraction'])} of them (step {worst['step'] + 1}, {worst['effect']}). "
+                  f"There dLOO and its SE are rough; the log Bayes factor (Laplace evidence) is the primary evidence."]
     if result.get("signature_figures"):
         lines += ["", "## Signatures", "",
                   "Each candidate's signature: the derivative of the predictions with respect to its parameters "

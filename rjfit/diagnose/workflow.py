@@ -29,6 +29,7 @@ from rjfit.diagnose import report as figures
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
+from rjfit.diagnose.psis import good_k_threshold
 from rjfit.diagnose.refit import posterior_mean_prediction, psis_loo, refit, template_columns
 from rjfit.noise import DEFAULT_FLOOR
 
@@ -56,10 +57,17 @@ def _residuals(ctx, fit):
 
 
 def _loo_difference(candidate, current):
-    elpd_c, _, pointwise_c, khat_c = psis_loo(candidate)
-    elpd_0, _, pointwise_0, khat_0 = psis_loo(current)
-    diff = pointwise_c - pointwise_0
-    return float(diff.sum()), float(math.sqrt(diff.size * np.var(diff))), float(max(khat_c, khat_0))
+    """``(delta ELPD, its SE, max k-hat, fraction of observations with an unreliable k-hat)``.
+
+    An observation is unreliable where either model's k-hat exceeds the threshold for the
+    number of draws (:func:`good_k_threshold`, 0.5 for 100): there its importance weights
+    have too heavy a tail for the estimate to converge (on the measured ball: the
+    highlight's peak, whose observations move the Laplace draws most)."""
+    loo_c, loo_0 = psis_loo(candidate), psis_loo(current)
+    diff = loo_c.pointwise - loo_0.pointwise
+    khat = np.maximum(loo_c.pareto_k, loo_0.pareto_k)
+    bad = float(np.mean(khat > good_k_threshold(min(len(candidate.draws), len(current.draws)))))
+    return float(diff.sum()), float(math.sqrt(diff.size * np.var(diff))), float(khat.max()), bad
 
 
 def _moved(before, after, ctx):
@@ -262,7 +270,7 @@ def _candidate_row(step, effect, outcome, current, threshold, loo_se_factor):
                effect_params={k: v for k, v in candidate.summary().items() if k.startswith(effect.name + ".")},
                hessian=candidate.hessian_kind, seconds=candidate.seconds)
     if loo is not None:
-        row.update(delta_elpd_loo=loo[0], delta_elpd_loo_se=loo[1], max_khat=loo[2])
+        row.update(delta_elpd_loo=loo[0], delta_elpd_loo_se=loo[1], max_khat=loo[2], khat_unreliable_fraction=loo[3])
     else:
         bound = "ln 100" if math.isclose(threshold, LOG_BF_THRESHOLD) else f"{threshold:.4g}"
         row["loo_skipped"] = f"log BF <= {bound}, cannot be decisive"
@@ -355,7 +363,7 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
         moved, panels = _moved(current, new, ctx)
         record = {"effect": best["effect"], "kind": best["kind"],
                   "evidence": {k: best.get(k) for k in ("log_bayes_factor", "delta_elpd_loo", "delta_elpd_loo_se",
-                                                         "max_khat", "signature_score")},
+                                                         "max_khat", "khat_unreliable_fraction", "signature_score")},
                   "effect_params": {k: v for k, v in new.summary().items() if k.startswith(best["effect"] + ".")},
                   "moved_parameters": moved, "figures": {}, "_residuals": (residuals, after_residuals),
                   "_panels": panels}
