@@ -7,7 +7,8 @@ import pytest
 from rjfit.diagnose.priors import LogitNormal, LogNormal, Normal
 
 
-@pytest.mark.parametrize("prior, z", [(LogNormal(0.3, 1.2), 0.7), (LogitNormal(-1.0, 2.0), 1.3), (Normal(0.0, 0.2), -0.1)])
+@pytest.mark.parametrize("prior, z", [(LogNormal(0.3, 1.2), 0.7), (LogitNormal(-1.0, 2.0), 1.3),
+                                      (LogitNormal(-1.5, 2.0, low=0.01, high=1.0), -4.0), (Normal(0.0, 0.2), -0.1)])
 def test_prior_density_in_unconstrained_coordinates_includes_jacobian(prior, z):
     theta = prior.to_constrained(z)
     assert np.isclose(prior.to_unconstrained(theta), z)
@@ -366,3 +367,70 @@ def test_loo_difference_reports_the_share_of_observations_with_an_unreliable_k_h
     assert max_khat == khat.max()
     assert unreliable == np.mean(khat > 0.5)
     assert np.isclose(delta, psis_loo(fresnel).elpd - psis_loo(plain).elpd)
+
+
+def test_a_bounded_logit_normal_stays_within_its_bounds():
+    """Fresnel's F0 lives on (0.01, 1): however far the data pull its coordinate, F0 stays
+    above the floor (on the measured ball an unbounded F0 went to 0.0000)."""
+    from rjfit.diagnose.effects.fresnel import F0_MIN, Fresnel
+
+    (param,) = Fresnel().params(None)
+    z = np.array([-40.0, -10.0, 0.0, 10.0, 40.0])
+    f0 = param.prior.to_constrained(z)
+    assert np.all(f0 >= F0_MIN) and np.all(f0 <= 1.0) and np.all(np.diff(f0) >= 0)
+    assert np.isclose(param.prior.to_constrained(param.prior.loc), 0.2)        # centred on F0 = 0.2
+    assert np.isclose(param.prior.to_unconstrained(0.04), param.prior.to_unconstrained(np.array([0.04]))[0])
+
+
+def test_prior_data_conflicts_are_the_effect_parameters_beyond_3_prior_sd_away_from_the_null():
+    """Flagged: an effect parameter more than 3 prior sd from its prior's centre, unless it lies
+    on the way to the parameter's null (an ambient term at 2e-6 says "no ambient", not that it
+    stands in for another effect); a parameter whose null is only a limit is flagged either way."""
+    from types import SimpleNamespace
+
+    from rjfit.diagnose.effects.base import Param
+    from rjfit.diagnose.report import candidate_line, prior_conflict_text
+    from rjfit.diagnose.workflow import PRIOR_CONFLICT_SD, _prior_conflicts
+
+    fresnel = [Param("F0", LogitNormal(-1.0, 2.0), init=0.5, null=1.0),          # null at z = +inf
+               Param("far_side", LogitNormal(-1.0, 2.0), init=0.5, null=1.0),
+               Param("near", LogNormal(1.0, 0.5), init=1.0, null=None),
+               Param("limit_only", LogNormal(0.0, 1.0), init=1.0, null=None)]
+    ambient = [Param("ambient", LogNormal(-4.6, 2.0), init=0.01, null=0.0)]      # null at z = -inf
+    z = np.array([9.0, 0, 0, 0,                      # one region's I0, kd, gamma, sigma2: never flagged
+                  -1.0 - 2.0 * 3.5,                 # F0: 3.5 sd towards 0, away from its null
+                  -1.0 + 2.0 * 3.5,                 # 3.5 sd towards its null F0 = 1: not flagged
+                  1.0 + 0.5 * 2.5,                  # 2.5 sd: not flagged
+                  -4.0,                             # 4 sd, null only a limit: flagged
+                  -4.6 - 2.0 * 5.0])                # ambient 5 sd towards its null 0: not flagged
+    problem = SimpleNamespace(ctx=SimpleNamespace(n_regions=1), effects=[SimpleNamespace(name="fresnel"),
+                              SimpleNamespace(name="ambient")], effect_params=[fresnel, ambient])
+    fit = SimpleNamespace(z=z, _cache={"problem": problem})
+    conflicts = _prior_conflicts(fit, "fresnel")
+    assert PRIOR_CONFLICT_SD == 3.0
+    assert [c["param"] for c in conflicts] == ["fresnel.F0", "fresnel.limit_only"]
+    assert np.allclose([c["prior_sd_from_centre"] for c in conflicts], [3.5, 4.0])
+    assert np.isclose(conflicts[0]["map"], fresnel[0].prior.to_constrained(z[4]))
+    assert _prior_conflicts(fit, "ambient") == []
+    row = {"step": 0, "effect": "fresnel", "log_bayes_factor": 12.0, "loo_skipped": "x", "prior_conflict": conflicts}
+    assert prior_conflict_text(conflicts[0]) in candidate_line(row)
+    assert "3.5 prior sd" in candidate_line(row)
+
+
+def test_diagnosis_md_warns_of_prior_conflicts_and_unreliable_loo():
+    from rjfit.diagnose.report import markdown
+
+    conflict = {"param": "fresnel.F0", "map": 0.0101, "prior_sd_from_centre": 4.2}
+    row = {"step": 0, "effect": "fresnel", "kind": "Fresnel reflection", "log_bayes_factor": 50.0,
+           "delta_elpd_loo": 80.0, "delta_elpd_loo_se": 9.0, "max_khat": 0.9, "khat_unreliable_fraction": 0.031,
+           "signature_score": 0.2, "gap_with_effect": 1.5, "decisive": True, "prior_conflict": [conflict]}
+    step = {"effect": "fresnel", "evidence": {"log_bayes_factor": 50.0, "delta_elpd_loo": 80.0, "delta_elpd_loo_se": 9.0},
+            "gap_before": 2.0, "gap_after": 1.5, "prior_conflict": [conflict]}
+    result = {"dataset": "d", "named_effects": ["fresnel"], "gap_definition": "g", "decision_rule": "r",
+              "gap_plain": 2.0, "gap_final": 1.5, "noise_variance_estimate": 1.0, "steps": [step], "candidates": [row],
+              "search": {"stopped": "x"}, "per_region_gap": {"plain": [2.0], "final": [1.5]},
+              "thresholds": {"prior_conflict_sd": 3.0}}
+    text = markdown(result)
+    assert "**Warning**, prior-data conflict: fresnel.F0 = 0.0101 lies 4.2 prior sd from its prior's centre" in text
+    assert "more than 3.0 prior sd" in text and "- step 1, fresnel (decisive): prior-data conflict" in text
+    assert "| 0.90 | 3.1 % |" in text and "for up to 3.1 % of them (step 1, fresnel)" in text

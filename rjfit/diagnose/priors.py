@@ -71,18 +71,25 @@ class LogNormal(Prior):
 
 @dataclass(frozen=True)
 class LogitNormal(Prior):
-    """theta in (0, 1), logit theta ~ N(loc, scale^2)."""
+    """theta in (low, high) (default (0, 1)), logit((theta - low) / (high - low)) ~ N(loc, scale^2)."""
+
+    low: float = 0.0
+    high: float = 1.0
 
     def to_constrained(self, z):
-        return 1.0 / (1.0 + np.exp(-np.asarray(z, dtype=float)))
+        return self.low + (self.high - self.low) / (1.0 + np.exp(-np.asarray(z, dtype=float)))
 
     def to_unconstrained(self, theta):
-        theta = np.asarray(theta, dtype=float)
-        return np.log(theta) - np.log1p(-theta)
+        unit = (np.asarray(theta, dtype=float) - self.low) / (self.high - self.low)
+        return np.log(unit) - np.log1p(-unit)
 
     def log_abs_det_jacobian(self, z):
         z = np.asarray(z, dtype=float)
-        return -np.logaddexp(0.0, z) - np.logaddexp(0.0, -z)
+        return math.log(self.high - self.low) - np.logaddexp(0.0, z) - np.logaddexp(0.0, -z)
+
+    def describe(self) -> str:
+        bounds = "" if (self.low, self.high) == (0.0, 1.0) else f" on ({self.low:g}, {self.high:g})"
+        return f"LogitNormal(loc={self.loc:.4g}, scale={self.scale:.4g}){bounds} on the unconstrained value"
 
 
 @dataclass(frozen=True)

@@ -115,6 +115,12 @@ def _percent(fraction) -> str:
     return "-" if fraction is None else f"{100.0 * float(fraction):.2g} %"
 
 
+def prior_conflict_text(conflict: dict) -> str:
+    """One prior-data conflict of an effect parameter (workflow ``PRIOR_CONFLICT_SD``), in words."""
+    return (f"prior-data conflict: {conflict['param']} = {conflict['map']:.3g} lies "
+            f"{conflict['prior_sd_from_centre']:.1f} prior sd from its prior's centre")
+
+
 def gap_text(value) -> str:
     """How every gap is written (terminal, diagnosis.md): 4 significant digits."""
     return "-" if value is None else format(float(value), ".4g")
@@ -143,6 +149,7 @@ def candidate_line(row: dict) -> str:
             text += f" (k-hat too high for {_percent(row['khat_unreliable_fraction'])})"
     else:
         text += f"dLOO skipped: {row['loo_skipped']}" if "loo_skipped" in row else "dLOO not computed"
+    text += "".join(f"  [{prior_conflict_text(c)}]" for c in row.get("prior_conflict", ()))
     return text + ("  decisive" if row.get("decisive") else "")
 
 
@@ -185,6 +192,8 @@ def markdown(result: dict) -> str:
         lines.append(f"| - | {'no search' if stopped.startswith('search skipped') else 'none decisive'} | | | | |")
     for i, step in enumerate(result["steps"]):
         lines += ["", f"### Step {i + 1}: {step['effect']}", ""]
+        lines += [f"**Warning**, {prior_conflict_text(c)}: the effect may stand in for another with a similar "
+                  f"signature.\n" for c in step.get("prior_conflict", ())]
         figs = step.get("figures", {})
         for key in ("residuals", "per_light", "posteriors"):
             if key in figs:
@@ -206,6 +215,14 @@ def markdown(result: dict) -> str:
                      f"{'yes' if row.get('decisive') else ('failed: ' + row['error'] if 'error' in row else 'no')} |")
     if not result["candidates"]:
         lines.append(f"| - | {result.get('search', {}).get('stopped', 'none tried')} | | | | | | | | |")
+    conflicted = [row for row in result["candidates"] if row.get("prior_conflict")]
+    if conflicted:
+        lines += ["", f"Prior-data conflicts (an effect parameter's MAP more than "
+                  f"{result.get('thresholds', {}).get('prior_conflict_sd', '?')} prior sd from its prior's centre: "
+                  "the data pull it where the effect's physics is implausible, so a decisive effect may be standing "
+                  "in for another with a similar signature):", ""]
+        lines += [f"- step {row['step'] + 1}, {row['effect']}{' (decisive)' if row.get('decisive') else ''}: "
+                  f"{prior_conflict_text(c)}" for row in conflicted for c in row["prior_conflict"]]
     unreliable = [row for row in result["candidates"] if (row.get("khat_unreliable_fraction") or 0.0) > 0.0]
     if unreliable:
         worst = max(unreliable, key=lambda row: row["khat_unreliable_fraction"])

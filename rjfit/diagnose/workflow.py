@@ -37,6 +37,11 @@ __all__ = ["diagnose", "diagnose_fit", "LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "GAP
 
 LOG_BF_THRESHOLD = math.log(100.0)
 LOO_SE_FACTOR = 4.0
+# An effect parameter whose MAP lies more than this many prior sd from its prior's centre (in
+# the unconstrained coordinate: prior probability 0.27 % of being as far) is reported as a
+# prior-data conflict: the data pull it where its physics is implausible, so the effect may
+# be standing in for another with a similar signature.
+PRIOR_CONFLICT_SD = 3.0
 GAP_DEFINITION = ("gap = mean(r^2) / sigma_hat^2 - 1 with r = (y - E[mu]) / s (posterior mean of the model's prediction; "
                   "s the noise model's known scale, 1 for constant noise) "
                   "and sigma_hat^2 the noise variance from second differences of the final model's residual images "
@@ -61,8 +66,7 @@ def _loo_difference(candidate, current):
 
     An observation is unreliable where either model's k-hat exceeds the threshold for the
     number of draws (:func:`good_k_threshold`, 0.5 for 100): there its importance weights
-    have too heavy a tail for the estimate to converge (on the measured ball: the
-    highlight's peak, whose observations move the Laplace draws most)."""
+    have too heavy a tail for the estimate to converge."""
     loo_c, loo_0 = psis_loo(candidate), psis_loo(current)
     diff = loo_c.pointwise - loo_0.pointwise
     khat = np.maximum(loo_c.pareto_k, loo_0.pareto_k)
@@ -255,6 +259,33 @@ def _try_candidates(ctx, current, effects, residuals, sigma2_hat, *, seed, thres
     return outcomes
 
 
+def _towards_null(param, z) -> bool:
+    """Whether ``z`` lies between the prior's centre and the parameter's null (where the effect
+    vanishes): a parameter pulled there says the effect is absent, not that it stands in for another."""
+    if param.null is None:          # no value of it alone removes the effect: no side to tell
+        return False
+    with np.errstate(divide="ignore"):
+        z_null = float(param.prior.to_unconstrained(param.null))      # +-inf at a bound
+    return (z - param.prior.loc) * (z_null - param.prior.loc) > 0 and abs(z - param.prior.loc) <= abs(z_null - param.prior.loc)
+
+
+def _prior_conflicts(fit, effect_name):
+    """The parameters of ``effect_name`` in ``fit`` whose MAP lies beyond ``PRIOR_CONFLICT_SD``
+    prior sd of the prior's centre, away from the effect's null: ``[{"param", "map",
+    "prior_sd_from_centre"}]``."""
+    problem = fit._cache["problem"]
+    conflicts, offset = [], 4 * problem.ctx.n_regions
+    for effect, params in zip(problem.effects, problem.effect_params):
+        for k, param in enumerate(params if effect.name == effect_name else ()):
+            z = float(fit.z[offset + k])
+            distance = abs(z - param.prior.loc) / param.prior.scale
+            if distance > PRIOR_CONFLICT_SD and not _towards_null(param, z):
+                conflicts.append({"param": f"{effect.name}.{param.name}", "map": float(param.prior.to_constrained(z)),
+                                  "prior_sd_from_centre": distance})
+        offset += len(params)
+    return conflicts
+
+
 def _candidate_row(step, effect, outcome, current, threshold, loo_se_factor):
     """A candidate's row of ``diagnosis.json``: its error, or its evidence, signature score,
     parameters and whether it is decisive."""
@@ -269,6 +300,9 @@ def _candidate_row(step, effect, outcome, current, threshold, loo_se_factor):
                n_params_added=candidate.n_params - current.n_params, signature_score=score,
                effect_params={k: v for k, v in candidate.summary().items() if k.startswith(effect.name + ".")},
                hessian=candidate.hessian_kind, seconds=candidate.seconds)
+    conflicts = _prior_conflicts(candidate, effect.name)
+    if conflicts:
+        row["prior_conflict"] = conflicts
     if loo is not None:
         row.update(delta_elpd_loo=loo[0], delta_elpd_loo_se=loo[1], max_khat=loo[2], khat_unreliable_fraction=loo[3])
     else:
@@ -364,10 +398,12 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
         record = {"effect": best["effect"], "kind": best["kind"],
                   "evidence": {k: best.get(k) for k in ("log_bayes_factor", "delta_elpd_loo", "delta_elpd_loo_se",
                                                          "max_khat", "khat_unreliable_fraction", "signature_score")},
+                  "prior_conflict": _prior_conflicts(new, best["effect"]),
                   "effect_params": {k: v for k, v in new.summary().items() if k.startswith(best["effect"] + ".")},
                   "moved_parameters": moved, "figures": {}, "_residuals": (residuals, after_residuals),
                   "_panels": panels}
-        say(f"named {best['effect']} at step {step + 1} (log BF {best['log_bayes_factor']:.1f})")
+        say(f"named {best['effect']} at step {step + 1} (log BF {best['log_bayes_factor']:.1f})"
+            + "".join(f"; {figures.prior_conflict_text(c)}" for c in record["prior_conflict"]))
         steps.append(record)
         current = new
     else:
@@ -427,7 +463,8 @@ def _search(dataset, labels, figure_dir, *, candidates, seed, max_steps, thresho
         "search": {"max_steps": int(max_steps), "stopped": stopped},
         "gap_definition": GAP_DEFINITION,
         "decision_rule": DECISION_RULE,
-        "thresholds": {"log_bayes_factor": threshold, "loo_se_factor": loo_se_factor},
+        "thresholds": {"log_bayes_factor": threshold, "loo_se_factor": loo_se_factor,
+                       "prior_conflict_sd": PRIOR_CONFLICT_SD},
         "likelihood_power": ctx.likelihood_power,
         "noise": ctx.noise,
         "noise_variance_estimate": sigma2_hat,

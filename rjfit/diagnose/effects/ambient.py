@@ -85,7 +85,7 @@ class Ambient(Effect):
     description = "constant environment radiance a (relative to the reference intensity) x the BRDF's albedo"
 
     def params(self, ctx):
-        return [Param("ambient", LogNormal(loc=float(np.log(0.01)), scale=2.5), init=0.01, null=None)]
+        return [Param("ambient", LogNormal(loc=float(np.log(0.01)), scale=2.5), init=0.01, null=0.0)]
 
     def prepare(self, ctx):
         # Bilinear interpolation is separable: the view angle's column and weight are fixed per

@@ -28,7 +28,9 @@ STAGES = ("lobe", "direct", "indirect", "light", "ambient", "camera")
 @dataclass(frozen=True)
 class Param:
     """One scalar parameter of an effect: its prior (with the transform) and two values:
-    ``init`` where a refit starts, ``null`` where the effect vanishes (None: only as a limit)."""
+    ``init`` where a refit starts, ``null`` where the effect vanishes (possibly a bound of the
+    prior's support, approached only as a limit: an ambient term's 0, camera sRGB's infinite
+    white level; None where no value of this parameter alone makes the effect vanish)."""
 
     name: str
     prior: object

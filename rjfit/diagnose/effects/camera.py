@@ -54,7 +54,7 @@ class CameraSRGB(Effect):
     description = "sRGB-encoded values y = W sRGB(mu/W) with a free white level W"
 
     def params(self, ctx):
-        return [Param("white_rel", LogNormal(loc=0.0, scale=1.0), init=1.0, null=None)]
+        return [Param("white_rel", LogNormal(loc=0.0, scale=1.0), init=1.0, null=float("inf"))]
 
     def prepare(self, ctx):
         return ctx.white_level

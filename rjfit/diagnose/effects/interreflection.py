@@ -28,7 +28,7 @@ class Interreflection(Effect):
     description = "beta x Mitsuba path-traced indirect radiance of the fitted model (depth 8 minus direct)"
 
     def params(self, ctx):
-        return [Param("beta", LogNormal(loc=0.0, scale=1.0), init=1.0, null=None)]
+        return [Param("beta", LogNormal(loc=0.0, scale=1.0), init=1.0, null=0.0)]
 
     def prepare(self, ctx):
         from rjfit.diagnose.mitsuba_ext import indirect_radiance
