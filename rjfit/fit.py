@@ -265,6 +265,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     misfit = misfit_warning(power_suggestion, float(likelihood_power))
     if misfit:
         summary["warnings"].append(misfit)
+    if prior_obj.caveat:
+        summary["warnings"].append(prior_obj.caveat)
     if truth_labels is not None:
         acc = post.label_accuracy(labels, truth_labels)
         summary["label_accuracy"] = acc["accuracy"]

@@ -158,3 +158,18 @@ def test_summary_json_is_strict_json_even_without_rhat(tmp_path):
     assert "NaN" not in text and "Infinity" not in text
     on_disk = json.loads(text, parse_constant=lambda name: pytest.fail(f"non-JSON constant {name}"))
     assert on_disk["rhat_max"] is None
+
+
+@pytest.mark.parametrize("preset, table", [("paper-synthetic", 1), ("paper-real", 3)])
+def test_a_fit_with_a_placeholder_paper_preset_says_so(tmp_path, preset, table):
+    """The paper presets' numbers could not be read: a fit with one records that in its prior and warns."""
+    obs, _, _ = sphere_stack(12, n_lights=4, seed=2)
+    summary = fit(obs, tmp_path, n_chains=1, iterations=10, max_u=1, max_v=1, processes=1, progress=False,
+                  figures=False, prior=preset)
+    on_disk = json.loads((tmp_path / "summary.json").read_text())
+    assert f"Table {table} could not be read" in on_disk["prior"]["caveat"]
+    assert on_disk["prior"]["caveat"] in summary["warnings"]
+    default = fit(obs, tmp_path / "default", n_chains=1, iterations=10, max_u=1, max_v=1, processes=1,
+                  progress=False, figures=False)
+    assert default["prior"]["caveat"] is None
+    assert not any("placeholder" in w for w in default["warnings"])

@@ -26,6 +26,20 @@ ESS_PER_CHAIN_MIN = 100
 TV_MAX = 0.5
 
 
+def _arviz():
+    """ArviZ, imported without its 0.x FutureWarning about the 1.0 refactor.
+
+    Every fit would otherwise print that notice in the middle of its own output; it is
+    about ArviZ's future API, not about anything rjfit calls (pinned in pyproject.toml).
+    """
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="ArviZ is undergoing a major refactor", category=FutureWarning)
+        import arviz
+    return arviz
+
+
 def model_key(n_u: int, n_v: int) -> str:
     """The key ``"(n_u,n_v)"`` of a model in :func:`model_posterior` and the summaries."""
     return f"({int(n_u)},{int(n_v)})"
@@ -85,7 +99,7 @@ def diagnostics(draws_per_chain) -> dict:
     Chains are truncated to the shortest chain's number of MAP-model draws (ArviZ needs equal
     lengths); a chain with fewer than 4 such draws is left out.
     """
-    import arviz as az
+    az = _arviz()
 
     usable = [d for d in draws_per_chain if len(d) >= 4]
     if not usable:
@@ -251,7 +265,7 @@ def to_inference_data(records, burn_in: int, max_v: int):
     not exist in the draw's model; ``n_u``, ``n_v``, ``model_number`` and ``log_lik`` are
     per draw.
     """
-    import arviz as az
+    az = _arviz()
 
     T = min(len(r.n_u) for r in records)
 

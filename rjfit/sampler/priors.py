@@ -125,12 +125,16 @@ class Prior:
     proposal_sd : ndarray (4,)
         Normal random-walk widths (natural space) of the paper-style component-wise sampler.
     name : str
+    caveat : str or None
+        What a user of this prior must know before trusting a fit made with it (the paper
+        presets' numbers are placeholders); a fit records it and lists it among its warnings.
     """
 
     params: tuple
     start: np.ndarray | None = None
     proposal_sd: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.01, 0.1, 0.01]))
     name: str = "custom"
+    caveat: str | None = None
 
     def logpdf(self, theta):
         """Log prior density in natural space; ``theta`` has shape (..., 4)."""
@@ -168,7 +172,7 @@ class Prior:
     def to_json(self):
         return {"name": self.name, **{n: p.to_json() for n, p in zip(PARAM_NAMES, self.params)},
                 "start": None if self.start is None else [float(s) for s in self.start],
-                "proposal_sd": [float(s) for s in self.proposal_sd]}
+                "proposal_sd": [float(s) for s in self.proposal_sd], "caveat": self.caveat}
 
 
 def _softplus(x: float) -> float:
@@ -225,10 +229,18 @@ def make_prior(name: str = "default", *, y=None, diffuse_scale=None) -> Prior:
         # Placeholders with the structure of the paper's Table 1 (see module docstring).
         return Prior(params=(ParamPrior("uniform", 0.0, 500.0), ParamPrior("uniform", 0.0, 1.0),
                              ParamPrior("uniform", 0.0, 100.0), ParamPrior("uniform", 0.0, 10.0)),
-                     start=np.array([50.0, 0.5, 10.0, 1.0]), proposal_sd=np.array([0.5, 0.01, 0.1, 0.01]), name=name)
+                     start=np.array([50.0, 0.5, 10.0, 1.0]), proposal_sd=np.array([0.5, 0.01, 0.1, 0.01]), name=name,
+                     caveat=_placeholder_caveat(1))
     if name == "paper-real":
         # Placeholders with the structure of the paper's Table 3 (see module docstring).
         return Prior(params=(ParamPrior("uniform", 0.0, 5000.0), ParamPrior("uniform", 0.0, 1.0),
                              ParamPrior("uniform", 0.0, 200.0), ParamPrior("uniform", 0.0, 100.0)),
-                     start=np.array([500.0, 0.5, 20.0, 10.0]), proposal_sd=np.array([5.0, 0.01, 0.2, 0.1]), name=name)
+                     start=np.array([500.0, 0.5, 20.0, 10.0]), proposal_sd=np.array([5.0, 0.01, 0.2, 0.1]), name=name,
+                     caveat=_placeholder_caveat(3))
     raise ValueError(f"unknown prior preset {name!r}: choose one of {', '.join(PRESETS)}")
+
+
+def _placeholder_caveat(table: int) -> str:
+    return (f"prior preset placeholders: the paper's Table {table} could not be read, so these priors, starting "
+            f"values and proposal widths only have its structure (uniform priors, a fixed start, normal "
+            f"random-walk widths); a fit with them is no reproduction of the paper's numbers")
