@@ -141,3 +141,24 @@ def test_region_summaries_are_the_pooled_draws_quantiles():
             assert summary[name]["sd"] == pytest.approx(values.std(ddof=1), rel=1e-6)
             assert summary[name]["q2.5"] == pytest.approx(np.quantile(values, 0.025), rel=1e-12)
             assert summary[name]["q97.5"] == pytest.approx(np.quantile(values, 0.975), rel=1e-12)
+
+
+def test_trace_limits_span_the_kept_draws_not_the_burn_in():
+    """traces.png scales each panel to the kept draws: a wild burn-in no longer flattens them."""
+    from rjfit.posterior.figures import kept_draw_limits
+
+    rng = np.random.default_rng(3)
+    burn = 100
+    chains = [np.concatenate([rng.normal(0, 50, burn), rng.normal(0.5, 0.01, 200)]) for _ in range(2)]
+    chains[1][150:170] = np.nan                               # iterations in another model
+    low, high = kept_draw_limits(chains, burn)
+    kept = np.concatenate([c[burn:] for c in chains])
+    kept = kept[np.isfinite(kept)]
+    span = kept.max() - kept.min()
+    assert low < kept.min() and high > kept.max()              # no kept draw is cut off
+    assert np.isclose(low, kept.min() - 0.1 * span) and np.isclose(high, kept.max() + 0.1 * span)
+    assert high - low < 0.01 * (np.nanmax(chains[0]) - np.nanmin(chains[0]))   # the burn-in is what is cut
+    constant = kept_draw_limits([np.full(10, 2.0)], 5)
+    assert constant[0] < 2.0 < constant[1]
+    assert kept_draw_limits([np.full(10, np.nan)], 5) is None
+    assert kept_draw_limits([np.arange(10.0)], 10) is None       # nothing kept

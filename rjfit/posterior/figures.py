@@ -1,7 +1,8 @@
 """The paper's figures as PNG (matplotlib, Agg backend).
 
 - ``model_histogram.png``: posterior over model numbers (paper Fig. 2/5);
-- ``traces.png``: parameter traces of the MAP model's regions, burn-in marked (Fig. 3/6);
+- ``traces.png``: parameter traces of the MAP model's regions, burn-in marked, each y axis spanning
+  the kept draws (Fig. 3/6);
 - ``changepoints.png``: change-point modes with 95 % bands and 2-D histograms (Fig. 7);
 - ``reflectance.png``: fitted radiance, observed radiance and absolute error maps, averaged
   over lights (Fig. 1b, 4b/c).
@@ -16,7 +17,7 @@ from rjfit.model.blinn import radiance
 from rjfit.plotting import pyplot, save_figure
 from rjfit.sampler.priors import PARAM_NAMES
 
-__all__ = ["write_all", "model_histogram", "traces", "changepoints", "reflectance"]
+__all__ = ["write_all", "model_histogram", "traces", "kept_draw_limits", "changepoints", "reflectance"]
 
 
 def _plt():
@@ -40,6 +41,24 @@ def model_histogram(records, burn_in, max_v, path):
     return _save(fig, path)
 
 
+def kept_draw_limits(series, burn_in, margin=0.1):
+    """y limits that show every kept draw of a trace: ``(low, high)``, or None without kept draws.
+
+    ``series`` holds one 1-D trace per chain (NaN where the chain is in another model). The
+    limits span the draws from ``burn_in`` on, widened by ``margin`` of their range on each
+    side, so the kept draws fill a trace panel: scaled to the whole run, the burn-in's
+    excursions (a dispersed start, the annealed warm-up) squeeze the kept draws into a flat
+    line and hide how they mix.
+    """
+    kept = np.concatenate([np.asarray(s, float)[burn_in:] for s in series]) if len(series) else np.empty(0)
+    kept = kept[np.isfinite(kept)]
+    if kept.size == 0:
+        return None
+    low, high = float(kept.min()), float(kept.max())
+    pad = margin * (high - low) or max(abs(high), 1.0) * 1e-6     # constant draws: a visible band around them
+    return low - pad, high + pad
+
+
 def traces(records, burn_in, model, path):
     plt = _plt()
     R = (model[0] + 1) * (model[1] + 1)
@@ -47,15 +66,24 @@ def traces(records, burn_in, model, path):
     for r in range(R):
         for k, name in enumerate(PARAM_NAMES):
             ax = axes[r, k]
+            series = []
             for c, rec in enumerate(records):
                 in_model = (rec.n_u == model[0]) & (rec.n_v == model[1])
-                y = np.where(in_model, rec.theta[:, r, k], np.nan)
-                ax.plot(y, lw=0.4, alpha=0.8, label=f"chain {c}")
+                series.append(np.where(in_model, rec.theta[:, r, k], np.nan))
+                ax.plot(series[-1], lw=0.4, alpha=0.8, label=f"chain {c}")
+            limits = kept_draw_limits(series, burn_in)
+            if limits is not None:
+                ax.set_ylim(*limits)
             ax.axvline(burn_in, color="k", ls="--", lw=0.8)
-            ax.set_ylabel(f"region {r}\n{name}", fontsize=8)
+            ax.ticklabel_format(axis="y", useOffset=False)      # I0 near 100 reads 100.02, not 0.02 + 1e2
             ax.tick_params(labelsize=7)
+            if r == 0:
+                ax.set_title(name, fontsize=9)
+            if k == 0:
+                ax.set_ylabel(f"region {r}", fontsize=9)
     axes[-1, 0].set_xlabel("iteration (dashed: end of burn-in)")
-    fig.suptitle(f"Traces of the MAP model {model}")
+    fig.suptitle(f"Traces of the MAP model {model}; each y axis spans the kept draws "
+                 "(burn-in excursions beyond them are cut off)")
     return _save(fig, path)
 
 
