@@ -260,6 +260,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "chain_threads": [r.threads for r in records],
         "chain_resumed_from": [list(r.resumed_from) for r in records],
         "chain_model_posterior": [post.model_posterior([r], burn) for r in records],
+        "chain_regions": post.chain_region_summaries(records, draws, burn, (n_u, n_v), problem.image_shape,
+                                                     problem.object_mask),
     }
     summary["warnings"] = post.convergence_warnings(diag, summary["chain_model_posterior"], n_chains)
     misfit = misfit_warning(power_suggestion, float(likelihood_power))

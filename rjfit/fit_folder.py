@@ -23,7 +23,7 @@ MAP_LABEL_FILES = ("map_labels.exr", "labels.exr")
 #: the entries of summary.json that a reader uses and the JSON type each must have (null reads as absent)
 SUMMARY_TYPES = {"dataset": str, "dataset_sha256": str, "fit_id": str, "channel": str, "map_model": dict,
                  "regions": list, "model_posterior": dict, "warnings": list, "noise": dict, "validation": dict,
-                 "crop": dict, "truth_params": list, "label_matching": dict}
+                 "crop": dict, "truth_params": list, "label_matching": dict, "chain_regions": list}
 _TYPE_NAMES = {str: "a string", dict: "an object", list: "a list", float: "a number"}
 
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 from rjfit.atomic import atomic_path
 
-__all__ = ["pyplot", "save_figure", "map_figure", "exclusion_figure"]
+__all__ = ["pyplot", "save_figure", "map_figure", "exclusion_figure", "object_window", "zoom_to_object"]
 
 
 def pyplot():
@@ -34,11 +34,41 @@ def save_figure(figure, path, *, dpi=100, tight=False) -> Path:
     return path
 
 
+def object_window(mask, margin: int = 3):
+    """The bounding box of ``mask``'s True pixels plus ``margin``, as (row slice, column slice) within the image.
+
+    None when ``mask`` selects nothing. A map of a small object in a large frame (the
+    DiLiGenT ball fills 2 % of its 612 x 512 images) is shown in this window, not lost in
+    the frame.
+    """
+    import numpy as np
+
+    rows, cols = np.nonzero(np.asarray(mask, bool))
+    if rows.size == 0:
+        return None
+    height, width = np.shape(mask)
+    return (slice(max(int(rows.min()) - margin, 0), min(int(rows.max()) + 1 + margin, height)),
+            slice(max(int(cols.min()) - margin, 0), min(int(cols.max()) + 1 + margin, width)))
+
+
+def zoom_to_object(axis, mask, margin: int = 3) -> None:
+    """Limit an ``imshow`` axis to :func:`object_window` of ``mask`` (pixel coordinates stay those of the files)."""
+    window = object_window(mask, margin)
+    if window is None:
+        return
+    rows, cols = window
+    axis.set_xlim(cols.start - 0.5, cols.stop - 0.5)
+    axis.set_ylim(rows.stop - 0.5, rows.start - 0.5)       # image rows run downwards
+
+
 def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None, *, dpi=100) -> Path:
-    """One image with a colour bar and a title, saved with :func:`save_figure`."""
+    """One image with a colour bar and a title, saved with :func:`save_figure`; zoomed to its finite pixels."""
+    import numpy as np
+
     plt = pyplot()
     figure, axis = plt.subplots(figsize=(4.6, 4))
     shown = axis.imshow(image, cmap=cmap, vmin=vmin, vmax=vmax)
+    zoom_to_object(axis, np.isfinite(image))                # maps are NaN off the object
     axis.set_title(title, fontsize=9)
     axis.axis("off")
     figure.colorbar(shown, ax=axis, fraction=0.046)
@@ -64,10 +94,7 @@ def exclusion_figure(path, counts, object_mask, n_lights, *, dpi=100) -> Path:
     shown = [("valid", "valid images per pixel")] + [(name, title) for name, title in EXCLUSION_TITLES.items()
                                                     if counts[name][object_mask].any()]
     # the object's bounding box (plus a margin), so a small object is not lost in a large frame
-    rows, cols = np.nonzero(object_mask)
-    margin = 3
-    window = (slice(max(rows.min() - margin, 0), rows.max() + 1 + margin),
-              slice(max(cols.min() - margin, 0), cols.max() + 1 + margin))
+    window = object_window(object_mask) or (slice(None), slice(None))
     figure, axes = plt.subplots(1, len(shown), figsize=(4.4 * len(shown), 4), squeeze=False)
     for axis, (name, title) in zip(axes[0], shown):
         image = np.where(object_mask, counts[name], np.nan)[window]

@@ -8,6 +8,7 @@ from pathlib import Path
 from rjfit.atomic import write_text_atomic
 from rjfit.data.dataset import read_json
 from rjfit.fit_folder import read_summary
+from rjfit.posterior.summary import RHAT_MAX
 
 __all__ = ["build_report"]
 
@@ -84,6 +85,21 @@ def _region_table(summary: dict) -> str:
         rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small></td>"
                     + "".join(cells) + "</tr>")
     return f"<table><tr><th>region</th>{head}</tr>{''.join(rows)}</table>"
+
+
+def _chain_region_tables(summary: dict) -> str:
+    """Each chain's own region table, shown when the chains have not mixed (the pooled table mixes their modes)."""
+    chains = [c for c in (summary.get("chain_regions") or []) if isinstance(c, dict) and c.get("regions")]
+    rhat = summary.get("rhat_max")
+    if len(chains) < 2 or (isinstance(rhat, (int, float)) and rhat <= RHAT_MAX):
+        return ""
+    parts = [f"<p>The chains have not mixed (R-hat {_fmt(rhat)}): region r is a cell of the change points, which "
+             "lie elsewhere in each chain's mode, so the pooled table above mixes regions that are not the same "
+             "pixels. Each chain on its own:</p>"]
+    for chain in chains:
+        parts.append(f"<h3>chain {_fmt(chain.get('chain'))} ({_fmt(chain.get('draws'))} draws in the MAP model)</h3>"
+                     + _region_table({"regions": chain["regions"]}))
+    return "".join(parts)
 
 
 def _key_values(payload: dict, keys) -> str:
@@ -225,6 +241,7 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
                        for k, v in sorted(model_posterior.items(), key=lambda kv: -kv[1])[:12])
         parts.append(f"<table><tr><th>model (n_u, n_v)</th><th>posterior</th></tr>{rows}</table>")
     parts.append("<h2>Region parameters</h2>" + _region_table(summary))
+    parts.append(_chain_region_tables(summary))
     # what the numbers above were computed with: two fits of one data set can differ in these
     noise = summary.get("noise") or {}
     settings = {"channel": summary.get("channel"), "chains": summary.get("n_chains"),

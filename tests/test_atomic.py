@@ -154,3 +154,27 @@ def test_publish_refuses_names_outside_the_folder_and_a_missing_manifest(tmp_pat
     with pytest.raises(ValueError, match="plain file name"):
         publish(staging, tmp_path / "out", manifest="result.json", remove=["../elsewhere"])
     assert (staging / "result.json").is_file()
+
+
+def test_maps_of_a_small_object_are_shown_in_its_window(tmp_path):
+    """map_figure zooms to the finite pixels plus a margin; axes keep the files' pixel coordinates."""
+    import numpy as np
+
+    from rjfit.plotting import object_window, pyplot, zoom_to_object
+
+    mask = np.zeros((512, 612), bool)
+    mask[200:341, 250:391] = True                       # a ball-sized object in a DiLiGenT-sized frame
+    assert object_window(mask) == (slice(197, 344), slice(247, 394))
+    edge = np.zeros((10, 12), bool)
+    edge[0:2, 10:12] = True                             # the margin stops at the image's borders
+    assert object_window(edge) == (slice(0, 5), slice(7, 12))
+    assert object_window(np.zeros((4, 4), bool)) is None
+    plt = pyplot()
+    figure, axis = plt.subplots()
+    axis.imshow(np.where(mask, 1.0, np.nan))
+    zoom_to_object(axis, mask)
+    assert axis.get_xlim() == (246.5, 393.5) and axis.get_ylim() == (343.5, 196.5)
+    untouched = axis.get_xlim(), axis.get_ylim()
+    zoom_to_object(axis, np.zeros_like(mask))           # nothing to show: limits left as they were
+    assert (axis.get_xlim(), axis.get_ylim()) == untouched
+    plt.close(figure)

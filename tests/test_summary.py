@@ -162,3 +162,53 @@ def test_trace_limits_span_the_kept_draws_not_the_burn_in():
     assert constant[0] < 2.0 < constant[1]
     assert kept_draw_limits([np.full(10, np.nan)], 5) is None
     assert kept_draw_limits([np.arange(10.0)], 10) is None       # nothing kept
+
+
+def _cp_record(x_u, draws, height=4, width=6, iterations=20, burn=10):
+    """A chain record in model (1, 0) whose one u vector stands straight at column position x_u."""
+    from types import SimpleNamespace
+
+    snapshots = np.arange(burn, iterations)
+    return SimpleNamespace(n_u=np.ones(iterations, int), n_v=np.zeros(iterations, int), cp_iteration=snapshots,
+                           cp_u=np.full((len(snapshots), height, 1), float(x_u)),
+                           cp_v=np.zeros((len(snapshots), width, 0)), theta=None, draws=draws)
+
+
+def test_chain_region_summaries_keep_each_chain_s_mode_apart():
+    """Two chains in different modes: pooled, region 0 is a mixture; per chain, each its own pixels and values."""
+    from rjfit.posterior.summary import chain_region_summaries, region_summaries
+
+    rng = np.random.default_rng(5)
+    draws = [rng.normal(size=(300, 2, 4)) * 0.01 + 1.0, rng.normal(size=(300, 2, 4)) * 0.01 + 5.0,
+             rng.normal(size=(1, 2, 4))]                           # the third: too few draws to summarise
+    records = [_cp_record(2.0, draws[0]), _cp_record(4.0, draws[1]), _cp_record(3.0, draws[2])]
+    per_chain = chain_region_summaries(records, draws, 10, (1, 0), (4, 6))
+    assert [c["chain"] for c in per_chain] == [0, 1] and [c["draws"] for c in per_chain] == [300, 300]
+    assert [r["pixels"] for r in per_chain[0]["regions"]] == [8, 16]     # cut after column 1
+    assert [r["pixels"] for r in per_chain[1]["regions"]] == [16, 8]     # cut after column 3
+    for chain in (0, 1):                                                # the chain's own draws, summarised alone
+        own = region_summaries([draws[chain]])
+        for r in range(2):
+            assert all(per_chain[chain]["regions"][r][p] == own[r][p] for p in ("I0", "kd", "gamma", "sigma2"))
+    pooled = region_summaries(draws[:2])[0]["kd"]
+    assert pooled["sd"] > 1.5 and all(c["regions"][0]["kd"]["sd"] < 0.02 for c in per_chain)
+
+
+def test_the_report_shows_each_chain_s_regions_only_when_the_chains_have_not_mixed(tmp_path):
+    import json
+
+    from rjfit.report import build_report
+
+    def region(kd):
+        return {"region": 0, "pixels": 7, **{p: {"mean": kd, "sd": 0.01, "q2.5": kd - 0.02, "q97.5": kd + 0.02}
+                                              for p in ("I0", "kd", "gamma", "sigma2")}}
+
+    chains = [{"chain": 0, "draws": 800, "regions": [region(0.123)]},
+              {"chain": 1, "draws": 600, "regions": [region(0.789)]}]
+    for rhat, shown in ((3.6, True), (None, True), (1.004, False)):
+        (tmp_path / "summary.json").write_text(json.dumps({"regions": [region(0.456)], "rhat_max": rhat,
+                                                           "chain_regions": chains}))
+        page = build_report(tmp_path).read_text()
+        assert "0.456" in page
+        assert ("chain 1 (600 draws in the MAP model)" in page) == shown
+        assert ("0.789" in page) == shown and ("0.123" in page) == shown

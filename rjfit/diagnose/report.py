@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.plotting import map_figure as _map_figure
-from rjfit.plotting import pyplot
+from rjfit.plotting import pyplot, zoom_to_object
 from rjfit.plotting import save_figure as _save_figure
 
 __all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure", "markdown",
@@ -27,6 +27,7 @@ def residual_pair_figure(path, before, after, title_before, title_after, label="
     figure, axes = plt.subplots(1, 2, figsize=(8.4, 3.8))
     for axis, image, title in zip(axes, (before, after), (title_before, title_after)):
         shown = axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        zoom_to_object(axis, np.isfinite(before) | np.isfinite(after))
         axis.set_title(title, fontsize=9)
         axis.axis("off")
     figure.colorbar(shown, ax=axes, fraction=0.046, label=label)
@@ -81,6 +82,7 @@ def signature_figure(path, residual, panels, title):
     figure, axes = plt.subplots(1, len(panels) + 1, figsize=(2.3 * (len(panels) + 1), 2.8), squeeze=False)
     for axis, (label, image) in zip(axes[0], [("residual", residual)] + list(panels)):
         axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        zoom_to_object(axis, np.isfinite(residual))
         axis.set_title(label, fontsize=7)
         axis.axis("off")
     figure.suptitle(title, fontsize=8)

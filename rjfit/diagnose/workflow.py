@@ -32,6 +32,7 @@ from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.psis import good_k_threshold
 from rjfit.diagnose.refit import posterior_mean_prediction, psis_loo, refit, template_columns
 from rjfit.noise import DEFAULT_FLOOR
+from rjfit.plotting import zoom_to_object
 
 __all__ = ["diagnose", "diagnose_fit", "LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "GAP_DEFINITION", "DECISION_RULE"]
 
@@ -523,6 +524,7 @@ def _per_image_figure(path, stack, title):
         axis.axis("off")
         if i < L:
             axis.imshow(stack[i], cmap="RdBu_r", vmin=-limit, vmax=limit)
+            zoom_to_object(axis, np.isfinite(stack).any(axis=0))
             axis.set_title(f"light {i}", fontsize=7)
     figure.suptitle(title + f" (colour range +-{limit:.2g})", fontsize=9)
     return figures.save_figure(figure, path)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.model.blinn import radiance
-from rjfit.plotting import pyplot, save_figure
+from rjfit.plotting import pyplot, save_figure, zoom_to_object
 from rjfit.sampler.priors import PARAM_NAMES
 
 __all__ = ["write_all", "model_histogram", "traces", "kept_draw_limits", "changepoints", "reflectance"]
@@ -161,6 +161,8 @@ def reflectance(problem, labels, draws, path, truth_labels=None):
         fig.colorbar(im, ax=ax, shrink=0.85)
     shown = np.where(np.asarray(labels) >= 0, labels, np.nan)
     im = axes[3].imshow(shown, cmap="tab10", vmin=-0.5, vmax=9.5, interpolation="nearest")
+    for ax in axes:
+        zoom_to_object(ax, np.isfinite(observed) | np.isfinite(shown))
     axes[3].set_title("MAP labels", fontsize=9)
     regions = np.unique(np.asarray(labels)[np.asarray(labels) >= 0])
     colorbar = fig.colorbar(im, ax=axes[3], shrink=0.85, ticks=regions)

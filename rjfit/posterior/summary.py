@@ -14,7 +14,7 @@ from rjfit.sampler.priors import PARAM_NAMES
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
            "object_region_count_probability", "to_inference_data", "model_key", "convergence_warnings",
-           "RHAT_MAX", "ESS_PER_CHAIN_MIN", "TV_MAX"]
+           "RHAT_MAX", "ESS_PER_CHAIN_MIN", "TV_MAX", "chain_region_summaries"]
 
 # Vehtari, Gelman, Simpson, Carpenter and Buerkner (2021), "Rank-normalization, folding, and
 # localization: an improved R-hat", Bayesian Analysis 16(2): trust a posterior summary when
@@ -182,6 +182,34 @@ def region_summaries(draws_per_chain, labels=None) -> list:
             entry[name] = {"mean": float(np.mean(x)), "sd": float(np.std(x, ddof=1)) if len(x) > 1 else 0.0,
                            "q2.5": float(np.quantile(x, 0.025)), "q97.5": float(np.quantile(x, 0.975))}
         out.append(entry)
+    return out
+
+
+def chain_region_summaries(records, draws_per_chain, burn_in: int, model, image_shape, object_mask=None) -> list:
+    """:func:`region_summaries` of each chain on its own, with its own MAP labels' pixel counts.
+
+    Region r of model (n_u, n_v) is a cell of the change points, so chains that settled in
+    different modes (the change points elsewhere, one region on a highlight in one chain and
+    on a half of the object in another) give region r different pixels and parameters; pooled,
+    their draws make a mixture whose mean and sd describe neither. Each chain's own summary
+    is what a reader can compare when the chains disagree. Chains with fewer than 2 draws in
+    the model are left out.
+
+    Returns
+    -------
+    list of dict
+        ``{"chain": c, "draws": n, "regions": [...]}`` per chain, ``regions`` as in
+        :func:`region_summaries`.
+    """
+    out = []
+    for chain, (record, draws) in enumerate(zip(records, draws_per_chain)):
+        if len(draws) < 2:
+            continue
+        try:
+            labels = map_labels([record], burn_in, model, image_shape, object_mask)
+        except ValueError:          # no change-point snapshot of the model after burn-in in this chain
+            labels = None
+        out.append({"chain": chain, "draws": int(len(draws)), "regions": region_summaries([draws], labels)})
     return out
 
 
