@@ -149,8 +149,10 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         ``chain_runner(specs) -> records``: runs :func:`rjfit.sampler.runner.run_chain` over
         the chain specs elsewhere (e.g. on Dask); default: local worker processes.
     before_publish : callable, optional
-        ``before_publish(summary, staging_dir)``: adds files (any of :data:`RESULT_FILES`)
-        and summary keys before the results replace the folder's previous ones.
+        ``before_publish(summary, staging_dir, prediction)``: adds files (any of
+        :data:`RESULT_FILES`) and summary keys before the results replace the folder's
+        previous ones; ``prediction`` is
+        :func:`rjfit.posterior.summary.posterior_mean_prediction` of the fit.
 
     Returns
     -------
@@ -237,6 +239,8 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     n_u, n_v = post.map_model(records, burn)
     draws = post.map_model_draws(records, burn, (n_u, n_v))
     labels = post.map_labels(records, burn, (n_u, n_v), problem.image_shape, problem.object_mask)
+    # what the figures and residual maps show: averaged draw by draw, each with its own segmentation
+    prediction = post.posterior_mean_prediction(records, burn, problem)
     diag = post.diagnostics(draws)
     summary = {
         "model_posterior": model_post,
@@ -307,11 +311,10 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
             from rjfit.posterior import figures as figs
 
             written = figs.write_all(staging / "figures", records=records, burn_in=burn, model=(n_u, n_v),
-                                     labels=labels, problem=problem, draws=draws, truth_labels=truth_labels,
-                                     truth_params=truth_params, max_v=max_v)
+                                     labels=labels, problem=problem, prediction=prediction, max_v=max_v)
             summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
         if before_publish is not None:
-            before_publish(summary, staging)
+            before_publish(summary, staging, prediction)
         summary["seconds"] = time.perf_counter() - started
         write_json_atomic(staging / "summary.json", summary)
         publish_results(staging, out_dir)

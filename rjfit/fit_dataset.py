@@ -73,8 +73,8 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
     observations = dataset.observations(channel)
     validation_file = Path(validation_path) if validation_path else dataset_dir / "validation" / "validation.json"
 
-    def describe_data_set(summary, staging):
-        summary["maps"] = write_parameter_maps(observations, summary, staging)
+    def describe_data_set(summary, staging, prediction):
+        summary["maps"] = write_parameter_maps(observations, summary, staging, prediction)
         if fit_options.get("figures", True):
             from rjfit.plotting import exclusion_figure
 
@@ -140,11 +140,16 @@ def validation_record(validation, validation_file) -> dict:
     return record
 
 
-def write_parameter_maps(observations, summary, out_dir: Path) -> str:
+def write_parameter_maps(observations, summary, out_dir: Path, prediction=None) -> str:
     """Per-pixel maps of the MAP segmentation as one EXR: each region's posterior mean and sd
     of I0, kd, gamma, sigma^2, the label, the valid-images count (paper, Fig. 8) and the RMS
-    over lights of the standardised residual ``(y - mu) / (sigma s)`` at the posterior means
-    (``s`` the known noise scales of the summary's noise model, 1 for 'constant')."""
+    over lights of the standardised residual ``(y - mu) / (sigma s)`` (``s`` the known noise
+    scales of the summary's noise model, 1 for 'constant').
+
+    The residual is ``prediction["residual_rms"]`` when given (the posterior mean prediction,
+    averaged draw by draw: :func:`rjfit.posterior.summary.posterior_mean_prediction`, what a
+    fit passes), else computed at the summary's region means on these labels (a plug-in that
+    mixes modes when chains disagree)."""
     import numpy as np
 
     from rjfit.data.exr import read_exr, write_exr
@@ -160,18 +165,21 @@ def write_parameter_maps(observations, summary, out_dir: Path) -> str:
     region_of_pixel = np.where(labels >= 0, labels, table.shape[0] - 1)      # last row stays NaN
     channels = {f"{name}{suffix}": table[region_of_pixel, 2 * k + j]
                 for k, name in enumerate(names) for j, suffix in enumerate(("", "_sd"))}
-    obs_params = table[region_of_pixel.ravel()[observations.pixel]]
-    mu = radiance(obs_params[:, 0], obs_params[:, 2], obs_params[:, 4], observations.cos_ln, observations.cos_hn,
-                  observations.irradiance)
-    standardised = (observations.y - mu) / np.sqrt(obs_params[:, 6])
-    noise = summary.get("noise") or {"model": "constant"}
-    if noise["model"] != "constant":
-        standardised /= noise_scale(observations, noise["model"], noise["floor"])
     size = labels.size
     count = np.bincount(observations.pixel, minlength=size)
-    sum_squares = np.bincount(observations.pixel, weights=np.nan_to_num(standardised) ** 2, minlength=size)
-    rms = np.where(count > 0, np.sqrt(sum_squares / np.maximum(count, 1)), np.nan)
-    channels.update(label=labels, valid_images=count.reshape(labels.shape), residual_rms=rms.reshape(labels.shape))
+    if prediction is not None:
+        rms = prediction["residual_rms"]
+    else:
+        obs_params = table[region_of_pixel.ravel()[observations.pixel]]
+        mu = radiance(obs_params[:, 0], obs_params[:, 2], obs_params[:, 4], observations.cos_ln, observations.cos_hn,
+                      observations.irradiance)
+        standardised = (observations.y - mu) / np.sqrt(obs_params[:, 6])
+        noise = summary.get("noise") or {"model": "constant"}
+        if noise["model"] != "constant":
+            standardised /= noise_scale(observations, noise["model"], noise["floor"])
+        sum_squares = np.bincount(observations.pixel, weights=np.nan_to_num(standardised) ** 2, minlength=size)
+        rms = np.where(count > 0, np.sqrt(sum_squares / np.maximum(count, 1)), np.nan).reshape(labels.shape)
+    channels.update(label=labels, valid_images=count.reshape(labels.shape), residual_rms=rms)
     write_exr(out_dir / "maps.exr", channels)
     return "maps.exr"
 

@@ -80,7 +80,7 @@ def test_an_interrupted_fit_leaves_the_previous_results_whole(tmp_path):
     (tmp_path / "report.html").write_text("report of the first fit")
     before = {path.relative_to(tmp_path): path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
 
-    def interrupt(summary, staging):
+    def interrupt(summary, staging, prediction):
         assert (staging / "labels.exr").is_file() and summary["seed"] == 2
         raise KeyboardInterrupt
 

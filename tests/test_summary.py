@@ -212,3 +212,64 @@ def test_the_report_shows_each_chain_s_regions_only_when_the_chains_have_not_mix
         assert "0.456" in page
         assert ("chain 1 (600 draws in the MAP model)" in page) == shown
         assert ("0.789" in page) == shown and ("0.123" in page) == shown
+
+
+def _quadrant_record(problem, theta, x_u, y_v, iterations=40, burn=20, thin=2):
+    """A chain record that sits at (u, v) = (x_u, y_v) in model (1, 1) with constant parameters ``theta``."""
+    from types import SimpleNamespace
+
+    height, width = problem.image_shape
+    snapshots = np.arange(0, iterations, thin)
+    return SimpleNamespace(n_u=np.ones(iterations, int), n_v=np.ones(iterations, int), cp_iteration=snapshots,
+                           cp_u=np.full((len(snapshots), height, 1), float(x_u), np.float32),
+                           cp_v=np.full((len(snapshots), width, 1), float(y_v), np.float32),
+                           theta=np.broadcast_to(np.asarray(theta, float), (iterations, 4, 4)))
+
+
+def test_posterior_mean_prediction_at_the_truth_is_the_noise_free_radiance():
+    """Draws at the true segmentation and parameters: E[mu] is the noise-free radiance and the standardised
+    residuals are the noise, so the count-weighted mean of residual_rms^2 (chi2_N / N) is 1 within its
+    Monte Carlo error (sd sqrt(2 / N); tolerance 5 sd)."""
+    from rjfit.data.synthetic import sphere_stack
+    from rjfit.model.blinn import radiance
+    from rjfit.posterior.summary import posterior_mean_prediction
+    from rjfit.sampler.likelihood import Problem
+
+    obs, labels, truth = sphere_stack(24, n_lights=8, seed=4)
+    problem = Problem.from_observations(obs)
+    theta = [[t["I0"], t["kd"], t["gamma"], t["sigma2"]] for t in truth]
+    prediction = posterior_mean_prediction([_quadrant_record(problem, theta, 12.0, 12.0)], 20, problem)
+    assert prediction["draws"] == 10
+    region = labels.ravel()[obs.pixel]
+    table = np.asarray(theta)
+    mu = radiance(table[region, 0], table[region, 1], table[region, 2], obs.cos_ln, obs.cos_hn, obs.irradiance)
+    count = np.bincount(obs.pixel, minlength=labels.size)
+    expected = np.bincount(obs.pixel, weights=mu, minlength=labels.size) / np.maximum(count, 1)
+    seen = count > 0
+    np.testing.assert_allclose(prediction["radiance"].ravel()[seen], expected[seen], rtol=1e-5)
+    assert np.all(np.isnan(prediction["radiance"].ravel()[~seen]))
+    mean_square = np.nansum(prediction["residual_rms"].ravel() ** 2 * count) / count.sum()
+    assert abs(mean_square - 1.0) < 5 * np.sqrt(2.0 / count.sum())
+
+
+def test_posterior_mean_prediction_averages_each_chain_s_own_segmentation():
+    """Two chains in different modes: the prediction is the mean of each chain's own, not radiance at mixed means."""
+    from rjfit.data.synthetic import sphere_stack
+    from rjfit.posterior.summary import posterior_mean_prediction
+    from rjfit.sampler.likelihood import Problem
+
+    obs, _, _ = sphere_stack(16, n_lights=6, seed=2)
+    problem = Problem.from_observations(obs)
+    theta_a = [[100.0, 0.5, 5.0, 0.1], [100.0, 0.9, 10.0, 0.1], [100.0, 0.6, 5.0, 0.1], [100.0, 0.4, 1.0, 0.1]]
+    theta_b = [[60.0, 0.2, 40.0, 0.3]] * 4
+    chain_a, chain_b = _quadrant_record(problem, theta_a, 5.0, 9.0), _quadrant_record(problem, theta_b, 11.0, 4.0)
+    alone_a = posterior_mean_prediction([chain_a], 20, problem)["radiance"]
+    alone_b = posterior_mean_prediction([chain_b], 20, problem)["radiance"]
+    both = posterior_mean_prediction([chain_a, chain_b], 20, problem)
+    assert both["draws"] == 20
+    np.testing.assert_allclose(both["radiance"], (alone_a + alone_b) / 2, rtol=1e-12)
+    mixed = _quadrant_record(problem, (np.asarray(theta_a) + np.asarray(theta_b)) / 2, 5.0, 9.0)
+    plug_in = posterior_mean_prediction([mixed], 20, problem)["radiance"]
+    assert np.nanmax(np.abs(plug_in - both["radiance"]) / both["radiance"]) > 0.1
+    with pytest.raises(ValueError, match="no change-point snapshot after burn-in"):
+        posterior_mean_prediction([chain_a], 40, problem)

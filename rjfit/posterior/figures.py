@@ -4,8 +4,8 @@
 - ``traces.png``: parameter traces of the MAP model's regions, burn-in marked, each y axis spanning
   the kept draws (Fig. 3/6);
 - ``changepoints.png``: change-point modes with 95 % bands and 2-D histograms (Fig. 7);
-- ``reflectance.png``: fitted radiance, observed radiance and absolute error maps, averaged
-  over lights (Fig. 1b, 4b/c).
+- ``reflectance.png``: posterior mean radiance, observed radiance and absolute error maps,
+  averaged over lights (Fig. 1b, 4b/c).
 """
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.model.blinn import radiance
 from rjfit.plotting import pyplot, save_figure, zoom_to_object
 from rjfit.sampler.priors import PARAM_NAMES
 
@@ -129,33 +128,29 @@ def changepoints(records, burn_in, model, image_shape, path):
     return _save(fig, path)
 
 
-def reflectance(problem, labels, draws, path, truth_labels=None):
-    """Fitted vs observed radiance (posterior-mean parameters, MAP labels), mean over lights."""
+def reflectance(problem, labels, prediction, path):
+    """Posterior mean radiance vs observed radiance, their absolute difference and the MAP labels, mean over lights.
+
+    ``prediction`` is :func:`rjfit.posterior.summary.posterior_mean_prediction`: the
+    radiance is averaged draw by draw, each draw with its own segmentation, not computed
+    at pooled region means (which mix modes when chains disagree).
+    """
     plt = _plt()
-    pooled = np.concatenate([d for d in draws if len(d)], axis=0)
-    theta = pooled.mean(axis=0)
-    pixel = problem.pixel
-    pix_labels = np.asarray(labels).ravel()[pixel]
-    pix_labels = np.clip(pix_labels, 0, theta.shape[0] - 1)
-    # the Problem's compact arrays: C = E <l.n> (irradiance 1), <h.n> = exp(log <h.n>)
-    # with known noise scales the Problem stores y / s and C / s: undo the weighting for the plots
-    s = 1.0 if problem.noise_scale is None else problem.noise_scale.astype(np.float64)
-    mu = radiance(theta[pix_labels, 0], theta[pix_labels, 1], theta[pix_labels, 2], problem.C * s,
-                  np.exp(problem.log_cos_hn.astype(np.float64)), 1.0)
-    y = problem.y.astype(np.float64) * s
     n_pix = problem.height * problem.width
-    count = np.bincount(pixel, minlength=n_pix).astype(float)
+    count = np.bincount(problem.pixel, minlength=n_pix).astype(float)
+    # with known noise scales the Problem stores y / s: undo the weighting for the plots
+    s = 1.0 if problem.noise_scale is None else problem.noise_scale.astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        fitted = (np.bincount(pixel, weights=mu, minlength=n_pix) / count).reshape(problem.image_shape)
-        observed = (np.bincount(pixel, weights=y, minlength=n_pix) / count).reshape(problem.image_shape)
-        abs_err = (np.bincount(pixel, weights=np.abs(y - mu), minlength=n_pix) / count).reshape(problem.image_shape)
+        observed = (np.bincount(problem.pixel, weights=problem.y.astype(np.float64) * s, minlength=n_pix)
+                    / count).reshape(problem.image_shape)
+    fitted, abs_err = prediction["radiance"], prediction["abs_error"]
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
     # fitted and observed share one colour scale, so equal colours mean equal radiance
     shared = dict(vmin=float(np.nanmin([np.nanmin(fitted), np.nanmin(observed)])),
                   vmax=float(np.nanmax([np.nanmax(fitted), np.nanmax(observed)])))
     for ax, img, title, scale in zip(axes[:3], (fitted, observed, abs_err),
-                                     ("fitted radiance (mean over lights)", "observed radiance",
-                                      "absolute error |y - mu|"), (shared, shared, {})):
+                                     (f"posterior mean radiance (mean over lights; {prediction['draws']} draws)",
+                                      "observed radiance", "absolute error |y - E[mu]|"), (shared, shared, {})):
         im = ax.imshow(img, cmap="viridis", **scale)
         ax.set_title(title, fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.85)
@@ -170,15 +165,14 @@ def reflectance(problem, labels, draws, path, truth_labels=None):
     return _save(fig, path)
 
 
-def write_all(folder, *, records, burn_in, model, labels, problem, draws, truth_labels=None, truth_params=None,
-              max_v=3) -> dict:
+def write_all(folder, *, records, burn_in, model, labels, problem, prediction, max_v=3) -> dict:
     """Write every figure into ``folder``; returns name -> path."""
     folder = Path(folder)
     return {
         "model_histogram": model_histogram(records, burn_in, max_v, folder / "model_histogram.png"),
         "traces": traces(records, burn_in, model, folder / "traces.png"),
         "changepoints": changepoints(records, burn_in, model, problem.image_shape, folder / "changepoints.png"),
-        "reflectance": reflectance(problem, labels, draws, folder / "reflectance.png", truth_labels),
+        "reflectance": reflectance(problem, labels, prediction, folder / "reflectance.png"),
     }
 
 

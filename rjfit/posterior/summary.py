@@ -14,7 +14,8 @@ from rjfit.sampler.priors import PARAM_NAMES
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
            "object_region_count_probability", "to_inference_data", "model_key", "convergence_warnings",
-           "RHAT_MAX", "ESS_PER_CHAIN_MIN", "TV_MAX", "chain_region_summaries"]
+           "RHAT_MAX", "ESS_PER_CHAIN_MIN", "TV_MAX", "chain_region_summaries",
+           "posterior_mean_prediction"]
 
 # Vehtari, Gelman, Simpson, Carpenter and Buerkner (2021), "Rank-normalization, folding, and
 # localization: an improved R-hat", Bayesian Analysis 16(2): trust a posterior summary when
@@ -211,6 +212,65 @@ def chain_region_summaries(records, draws_per_chain, burn_in: int, model, image_
             labels = None
         out.append({"chain": chain, "draws": int(len(draws)), "regions": region_summaries([draws], labels)})
     return out
+
+
+def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 200) -> dict:
+    """Per-pixel maps of the posterior mean prediction, averaged draw by draw over kept draws of every model.
+
+    For each kept draw with a change-point snapshot (at most ``max_draws``, evenly spaced
+    over the chains' snapshots after ``burn_in``) every observation's radiance ``mu_i`` is
+    computed from that draw's own segmentation and parameters, then averaged. Unlike
+    radiance at pooled region means on the MAP labels, this is the posterior's prediction
+    also when chains sit in different modes (region r then holds other pixels, and other
+    parameters, in each chain) or the model is uncertain.
+
+    Returns
+    -------
+    dict
+        ``radiance``: mean over a pixel's lights of E[mu_i]; ``abs_error``: mean over its
+        lights of ``|y_i - E[mu_i]|``, both in the data's units; ``residual_rms``: RMS over
+        its lights of ``(y_i - E[mu_i]) / (sqrt(E[sigma_i^2]) s_i)`` (``s_i`` the known noise
+        scales, 1 for constant noise); each (H, W), NaN at pixels without observations;
+        ``draws``, the number of draws averaged.
+
+    Raises
+    ------
+    ValueError
+        If no change-point snapshot lies after ``burn_in``.
+    """
+    from rjfit.model.blinn import radiance
+    from rjfit.sampler.changepoints import obs_region_labels
+
+    kept = [(rec, s) for rec in records for s in np.flatnonzero(rec.cp_iteration >= burn_in)]
+    if not kept:
+        raise ValueError("no change-point snapshot after burn-in: run more iterations (or keep snapshots more often)")
+    picks = np.unique(np.linspace(0, len(kept) - 1, min(max_draws, len(kept))).round().astype(int))
+    C = problem.C.astype(np.float64)
+    cos_hn = np.exp(problem.log_cos_hn.astype(np.float64))
+    mu_sum = np.zeros(problem.n_obs)
+    sigma2_sum = np.zeros(problem.n_obs)
+    for index in picks:
+        rec, s = kept[index]
+        t = rec.cp_iteration[s]
+        n_u, n_v = int(rec.n_u[t]), int(rec.n_v[t])
+        labels = obs_region_labels(rec.cp_u[s, :, :n_u].astype(float), rec.cp_v[s, :, :n_v].astype(float),
+                                   problem.row, problem.col, pixel_start=problem.pixel_start)
+        theta = rec.theta[t][labels]
+        # the Problem's y and C are divided by the known noise scales s: mu here is mu / s too
+        mu_sum += radiance(theta[:, 0], theta[:, 1], theta[:, 2], C, cos_hn, 1.0)
+        sigma2_sum += theta[:, 3]
+    mu, sigma2 = mu_sum / len(picks), sigma2_sum / len(picks)
+    scale = 1.0 if problem.noise_scale is None else problem.noise_scale.astype(np.float64)
+    y = problem.y.astype(np.float64)
+    n_pix = problem.height * problem.width
+    count = np.bincount(problem.pixel, minlength=n_pix).astype(float)
+
+    def per_pixel(values):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return (np.bincount(problem.pixel, weights=values, minlength=n_pix) / count).reshape(problem.image_shape)
+
+    return {"radiance": per_pixel(mu * scale), "abs_error": per_pixel(np.abs(y - mu) * scale),
+            "residual_rms": np.sqrt(per_pixel((y - mu) ** 2 / sigma2)), "draws": int(len(picks))}
 
 
 def map_labels(records, burn_in: int, model, image_shape, object_mask=None) -> np.ndarray:
