@@ -214,7 +214,7 @@ def chain_region_summaries(records, draws_per_chain, burn_in: int, model, image_
     return out
 
 
-def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 200) -> dict:
+def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 100) -> dict:
     """Per-pixel maps of the posterior mean prediction, averaged draw by draw over kept draws of every model.
 
     For each kept draw with a change-point snapshot (at most ``max_draws``, evenly spaced
@@ -238,7 +238,7 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 2
     ValueError
         If no change-point snapshot lies after ``burn_in``.
     """
-    from rjfit.model.blinn import radiance
+    from rjfit.model.blinn import blinn_normalisation
     from rjfit.sampler.changepoints import obs_region_labels
 
     kept = [(rec, s) for rec in records for s in np.flatnonzero(rec.cp_iteration >= burn_in)]
@@ -246,7 +246,7 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 2
         raise ValueError("no change-point snapshot after burn-in: run more iterations (or keep snapshots more often)")
     picks = np.unique(np.linspace(0, len(kept) - 1, min(max_draws, len(kept))).round().astype(int))
     C = problem.C.astype(np.float64)
-    cos_hn = np.exp(problem.log_cos_hn.astype(np.float64))
+    log_cos_hn = problem.log_cos_hn.astype(np.float64)
     mu_sum = np.zeros(problem.n_obs)
     sigma2_sum = np.zeros(problem.n_obs)
     for index in picks:
@@ -255,10 +255,12 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 2
         n_u, n_v = int(rec.n_u[t]), int(rec.n_v[t])
         labels = obs_region_labels(rec.cp_u[s, :, :n_u].astype(float), rec.cp_v[s, :, :n_v].astype(float),
                                    problem.row, problem.col, pixel_start=problem.pixel_start)
-        theta = rec.theta[t][labels]
-        # the Problem's y and C are divided by the known noise scales s: mu here is mu / s too
-        mu_sum += radiance(theta[:, 0], theta[:, 1], theta[:, 2], C, cos_hn, 1.0)
-        sigma2_sum += theta[:, 3]
+        I0, kd, gamma, sigma2 = (rec.theta[t, :(n_u + 1) * (n_v + 1), k] for k in range(4))
+        # eq. 2 per region, gathered per observation: mu = C (I0 kd / pi + I0 (1 - kd) N(g) <h.n>^g), with
+        # C = E <l.n>; the Problem's y and C are divided by the known noise scales s, so mu here is mu / s too
+        diffuse, lobe = I0 * kd / np.pi, I0 * (1.0 - kd) * blinn_normalisation(gamma)
+        mu_sum += C * (diffuse[labels] + lobe[labels] * np.exp(gamma[labels] * log_cos_hn))
+        sigma2_sum += sigma2[labels]
     mu, sigma2 = mu_sum / len(picks), sigma2_sum / len(picks)
     scale = 1.0 if problem.noise_scale is None else problem.noise_scale.astype(np.float64)
     y = problem.y.astype(np.float64)
