@@ -225,6 +225,21 @@ def test_nan_normals_and_directions(tmp_path):
         load_dataset(folder)
 
 
+def test_light_directions_that_are_not_unit_vectors(tmp_path):
+    """A direction off unit length by more than 1 % (a typo, or a position) is refused; a few decimals' rounding is not."""
+    folder = make_ps_folder(tmp_path)
+    lines = (folder / "light_directions.txt").read_text().splitlines()
+    rounded = list(lines)
+    rounded[1] = " ".join(f"{c:.2f}" for c in DIRECTIONS[1])              # within 1 % of unit length
+    (folder / "light_directions.txt").write_text("\n".join(rounded) + "\n")
+    np.testing.assert_allclose(load_dataset(folder).lights[1].direction, DIRECTIONS[1], atol=0.01)
+    lines[2] = "0.5 0.5 0.5"
+    (folder / "light_directions.txt").write_text("\n".join(lines) + "\n")
+    with raises(DatasetError, folder / "light_directions.txt", "line 3: light direction [0.5, 0.5, 0.5] has length 0.866",
+                "1 of 4 lines are so"):
+        load_dataset(folder)
+
+
 def test_nan_pixels_in_rjfit_layout(tmp_path):
     folder = make_rjfit_folder(tmp_path)
     write_exr(folder / "images/light_001.exr", {c: np.full((HEIGHT, WIDTH), np.nan, np.float32) for c in "RGB"})

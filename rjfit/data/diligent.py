@@ -63,6 +63,7 @@ __all__ = ["is_diligent_folder", "load_diligent", "crop_to_mask", "check_camera"
 FILENAMES = "filenames.txt"
 DIRECTIONS = "light_directions.txt"
 INTENSITIES = "light_intensities.txt"
+LIGHT_DIRECTION_TOLERANCE = 0.01      # largest | |d| - 1 | of a light direction read from DIRECTIONS
 MASK = "mask.png"
 LAYOUT_FILES = (FILENAMES, DIRECTIONS, INTENSITIES, MASK)
 NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "normal")
@@ -480,6 +481,16 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
         index = int(np.argmax(lengths == 0))
         raise DatasetError(f"{directions_file} line {direction_lines[index]}: light direction (0, 0, 0) has no "
                            f"length")
+    # The layout promises unit vectors: a few decimals leave them within a fraction of a per cent
+    # of length 1 (they are renormalised); further off is a typo or a position, not a direction.
+    off = np.abs(lengths - 1.0) > LIGHT_DIRECTION_TOLERANCE
+    if off.any():
+        index = int(np.argmax(off))
+        raise DatasetError(f"{directions_file} line {direction_lines[index]}: light direction "
+                           f"{directions[index].tolist()} has length {lengths[index]:.4g}, not 1 (within "
+                           f"{LIGHT_DIRECTION_TOLERANCE:g}); {int(off.sum())} of {len(lengths)} lines are so: the file "
+                           f"holds unit vectors towards distant lights (point lights with positions belong in a "
+                           f"stack.json mesh stack)")
     directions /= lengths[:, None]
     intensities = np.asarray([row * 3 if len(row) == 1 else row for row in intensities], dtype=np.float64)
     if (intensities <= 0).any():
