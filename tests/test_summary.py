@@ -248,6 +248,8 @@ def test_posterior_mean_prediction_at_the_truth_is_the_noise_free_radiance():
     seen = count > 0
     np.testing.assert_allclose(prediction["radiance"].ravel()[seen], expected[seen], rtol=1e-5)
     assert np.all(np.isnan(prediction["radiance"].ravel()[~seen]))
+    observed = np.bincount(obs.pixel, weights=obs.y, minlength=labels.size) / np.maximum(count, 1)
+    np.testing.assert_allclose(prediction["observed"].ravel()[seen], observed[seen], rtol=1e-5)
     mean_square = np.nansum(prediction["residual_rms"].ravel() ** 2 * count) / count.sum()
     assert abs(mean_square - 1.0) < 5 * np.sqrt(2.0 / count.sum())
 

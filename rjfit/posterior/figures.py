@@ -128,7 +128,7 @@ def changepoints(records, burn_in, model, image_shape, path):
     return _save(fig, path)
 
 
-def reflectance(problem, labels, prediction, path):
+def reflectance(labels, prediction, path):
     """Posterior mean radiance vs observed radiance, their absolute difference and the MAP labels, mean over lights.
 
     ``prediction`` is :func:`rjfit.posterior.summary.posterior_mean_prediction`: the
@@ -136,14 +136,7 @@ def reflectance(problem, labels, prediction, path):
     at pooled region means (which mix modes when chains disagree).
     """
     plt = _plt()
-    n_pix = problem.height * problem.width
-    count = np.bincount(problem.pixel, minlength=n_pix).astype(float)
-    # with known noise scales the Problem stores y / s: undo the weighting for the plots
-    s = 1.0 if problem.noise_scale is None else problem.noise_scale.astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        observed = (np.bincount(problem.pixel, weights=problem.y.astype(np.float64) * s, minlength=n_pix)
-                    / count).reshape(problem.image_shape)
-    fitted, abs_err = prediction["radiance"], prediction["abs_error"]
+    fitted, observed, abs_err = prediction["radiance"], prediction["observed"], prediction["abs_error"]
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
     # fitted and observed share one colour scale, so equal colours mean equal radiance
     shared = dict(vmin=float(np.nanmin([np.nanmin(fitted), np.nanmin(observed)])),
@@ -172,7 +165,7 @@ def write_all(folder, *, records, burn_in, model, labels, problem, prediction, m
         "model_histogram": model_histogram(records, burn_in, max_v, folder / "model_histogram.png"),
         "traces": traces(records, burn_in, model, folder / "traces.png"),
         "changepoints": changepoints(records, burn_in, model, problem.image_shape, folder / "changepoints.png"),
-        "reflectance": reflectance(problem, labels, prediction, folder / "reflectance.png"),
+        "reflectance": reflectance(labels, prediction, folder / "reflectance.png"),
     }
 
 

@@ -227,8 +227,9 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
     Returns
     -------
     dict
-        ``radiance``: mean over a pixel's lights of E[mu_i]; ``abs_error``: mean over its
-        lights of ``|y_i - E[mu_i]|``, both in the data's units; ``residual_rms``: RMS over
+        ``radiance``: mean over a pixel's lights of E[mu_i]; ``observed``: mean over its
+        lights of y_i; ``abs_error``: mean over its lights of ``|y_i - E[mu_i]|``, all three
+        in the data's units; ``residual_rms``: RMS over
         its lights of ``(y_i - E[mu_i]) / (sqrt(E[sigma_i^2]) s_i)`` (``s_i`` the known noise
         scales, 1 for constant noise); each (H, W), NaN at pixels without observations;
         ``draws``, the number of draws averaged.
@@ -271,7 +272,8 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
         with np.errstate(invalid="ignore", divide="ignore"):
             return (np.bincount(problem.pixel, weights=values, minlength=n_pix) / count).reshape(problem.image_shape)
 
-    return {"radiance": per_pixel(mu * scale), "abs_error": per_pixel(np.abs(y - mu) * scale),
+    return {"radiance": per_pixel(mu * scale), "observed": per_pixel(y * scale),
+            "abs_error": per_pixel(np.abs(y - mu) * scale),
             "residual_rms": np.sqrt(per_pixel((y - mu) ** 2 / sigma2)), "draws": int(len(picks))}
 
 
