@@ -1,14 +1,18 @@
 """rjfit: a Mitsuba-validated reflectance fitter (Lenoch, Wilhelm and Woehler, VISAPP 2016).
 
-Data flows one way: scene -> render -> observations -> validate -> fit -> diagnose.
-Mitsuba is imported only by the modules that render (``rjfit.render``, ``rjfit.validate``).
+Data flows one way: scene -> render -> observations -> validate -> fit -> diagnose, and the
+packages import downwards only (docs/architecture.md). Mitsuba is imported only inside
+``rjfit.render`` (and only when a function there needs it), so ``import rjfit`` stays light.
 """
-from rjfit.data.dataset import Dataset, load_dataset
+from importlib.metadata import version as _installed_version
+
+from rjfit.data.dataset import Dataset
 from rjfit.data.lights import Light, geometry_terms
 from rjfit.data.observations import Observations, observations_from_stack, valid_observation_mask
 from rjfit.model.blinn import blinn_normalisation, brdf, radiance
+from rjfit.render.datasets import load_dataset
 
-__version__ = "0.1.0"
+__version__ = _installed_version("rjfit")   # pyproject.toml is the one place the version is written
 
 __all__ = [
     "__version__",

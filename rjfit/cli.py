@@ -40,8 +40,8 @@ class _Group(click.Group):
     def invoke(self, ctx):
         import os
 
-        from rjfit.data.errors import DatasetError
-        from rjfit.validate import ValidationRequiredError
+        from rjfit.errors import DatasetError
+        from rjfit.render.gate import ValidationRequiredError
 
         try:
             return super().invoke(ctx)
@@ -113,7 +113,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
     """Cross-check the closed form against Mitsuba's path tracer on DATASET.
 
     Exits with status 1 when the gate fails (median rel. error > 1e-4 or p99 > 1e-3)."""
-    from rjfit.validate import validate_dataset
+    from rjfit.render.gate import validate_dataset
 
     result = validate_dataset(dataset, out_dir, spp=spp, max_depth=max_depth, seed=seed, variant=variant,
                               progress=True)
@@ -155,7 +155,7 @@ def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed, allow_unval
     ctx.invoke(render, scene=scene, out_dir=dataset_dir, resolution=resolution, seed=None, spp=None,
                noise_variance=None, variant="auto")
     click.echo("== 2/6 validate (closed form vs Mitsuba path tracer)")
-    from rjfit.validate import validate_dataset
+    from rjfit.render.gate import validate_dataset
 
     validation = validate_dataset(dataset_dir, spp=4, seed=seed, progress=True)
     click.echo(f"  {'PASSED' if validation['passed'] else 'FAILED'}: median rel. err. {validation['median_rel_err']:.3g}, "
@@ -175,9 +175,9 @@ def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed, allow_unval
         ctx.invoke(compare, dataset=dataset_dir, out_dir=fit_dir / "comparison", fit_dir=fit_dir, seed=seed,
                    channel="mean")
     click.echo("== 5/6 diagnose (model criticism)")
-    ctx.invoke(main.get_command(ctx, "diagnose"), fit_dir=fit_dir, out_dir=fit_dir / "diagnosis")
+    ctx.invoke(diagnose, fit_dir=fit_dir, out_dir=fit_dir / "diagnosis")
     click.echo("== 6/6 report")
-    from rjfit.report import build_report
+    from rjfit.pipeline.report import build_report
 
     report_path = build_report(fit_dir)
     click.echo(f"done in {time.perf_counter() - started:.0f} s. Open the report: {report_path.resolve()}")
@@ -199,7 +199,7 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
     normalized cuts on one image (k = 5..6, background included) and, with --fit, rjfit's
     MAP segmentation. Scores pixel accuracy, adjusted Rand index and boundary F1 (2 px)
     after Hungarian matching, and the runtime of each method."""
-    from rjfit.baselines.compare import compare_dataset
+    from rjfit.pipeline.compare import compare_dataset
 
     click.echo(f"comparing segmentations of {dataset}")
     rows = compare_dataset(dataset, out_dir, fit_dir=fit_dir, seed=seed, channel=channel, progress=click.echo)
@@ -287,7 +287,7 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
     --allow-unvalidated is given. Writes summary.json, labels.exr (MAP labels), maps.exr,
     chains.nc, changepoints.npz and the paper's figures; an interrupted fit leaves the
     folder's previous results untouched and resumes from its checkpoints."""
-    from rjfit.fit_dataset import fit_datasets
+    from rjfit.pipeline.fit_dataset import fit_datasets
 
     summaries = fit_datasets(datasets, out_dir, n_chains=n_chains, iterations=iterations, burn_in=burn_in,
                              max_u=max_u, max_v=max_v, sampler=sampler, prior=prior, split_map=split_map,
@@ -326,19 +326,60 @@ def report(fit_dir, out_path, diagnosis_dir, comparison_dir):
     """Build one self-contained HTML report of a fit: figures, the paper's parameter table,
     validation, diagnosis and comparison results where present (those made from another
     fit are flagged as stale, not shown)."""
-    from rjfit.report import build_report
+    from rjfit.pipeline.report import build_report
 
     click.echo(f"report: {build_report(fit_dir, out_path, diagnosis_dir=diagnosis_dir, comparison_dir=comparison_dir)}")
 
 
-def _register_diagnose():
-    # The criticism workflow keeps its command beside its code (rjfit/diagnose/cli.py).
-    from rjfit.diagnose.cli import diagnose_command
+def _effect_names():
+    from rjfit.diagnose.effects import ALL_EFFECTS
 
-    main.add_command(diagnose_command, "diagnose")
+    return [getattr(effect, "name", effect) for effect in ALL_EFFECTS]
 
 
-_register_diagnose()
+@main.command("diagnose")
+@click.argument("fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for diagnosis.json, diagnosis.md and the figures (default: FIT_DIR/diagnosis, where "
+                   "`rjfit report` looks).")
+@click.option("--max-steps", type=click.IntRange(min=0), default=3, show_default=True,
+              help="Most effects to add; 0 measures the plain model's gap and tries no candidate.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed of the refits and the simulations.")
+@click.option("--effects", default=None,
+              help="Comma-separated candidate names (default: all): " + ", ".join(_effect_names()) + ".")
+@click.option("--dataset", "dataset_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="The fitted data set, if it has moved since the fit (default: the one summary.json names).")
+@click.option("--no-simulate", is_flag=True, help="Skip the Mitsuba posterior predictive rendering.")
+@click.option("--likelihood-power", type=click.FloatRange(min=0.0, max=1.0, min_open=True), default=None,
+              help="The power zeta the refits raise the likelihood to, so that Bayes factors weigh the data as a "
+                   "coarsened fit did (default: the fit's, 1 for a plain fit).")
+@click.option("--noise", type=click.Choice(["constant", "shot", "relative"]), default=None,
+              help="The noise model the refits weigh the observations by (see `rjfit fit --help`; default: the "
+                   "fit's, with its --noise-floor).")
+@click.option("--jobs", type=click.IntRange(min=1), default=None,
+              help="Candidate effects refitted at once, on threads (default: the cores available). The result does "
+                   "not depend on it; memory grows with it (each refit in flight holds arrays the size of the "
+                   "observations).")
+def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulate, likelihood_power, noise,
+                     jobs):
+    """Criticise a fit: find where simulation and data disagree, name the missing effect
+    (only when the evidence is decisive), add it, refit and show the gap shrink."""
+    from rjfit.diagnose.effects import ALL_EFFECTS
+    from rjfit.diagnose.report import gap_text, named_text
+    from rjfit.pipeline.diagnose import diagnose_fit
+
+    out_dir = out_dir or fit_dir / "diagnosis"
+    candidates = ALL_EFFECTS if not effects else [name.strip() for name in effects.split(",") if name.strip()]
+    options = {} if likelihood_power is None else {"likelihood_power": likelihood_power}
+    if noise is not None:
+        options["noise"] = noise
+    result = diagnose_fit(fit_dir, out_dir, dataset=dataset_dir, candidates=candidates, seed=seed, max_steps=max_steps,
+                          simulate=False if no_simulate else None, progress=True, jobs=jobs, **options)
+    click.echo(f"named effects: {named_text(result)}")
+    if result["named_effects"] and result["search"]["stopped"].startswith("stopped after"):
+        click.echo(f"  {result['search']['stopped']} (raise --max-steps to search on)")
+    click.echo(f"gap: plain {gap_text(result['gap_plain'])} -> final {gap_text(result['gap_final'])}")
+    click.echo(f"report: {Path(out_dir) / 'diagnosis.md'}")
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rjfit.atomic import atomic_path
+from rjfit.io import atomic_path
 
 __all__ = ["pyplot", "save_figure", "map_figure", "exclusion_figure", "object_window", "zoom_to_object"]
 
@@ -22,7 +22,7 @@ def save_figure(figure, path, *, dpi=100, tight=False) -> Path:
     """Write ``figure`` to ``path`` as PNG atomically and close it.
 
     The PNG is written under a temporary name beside ``path``, flushed to disk and renamed
-    (:func:`rjfit.atomic.atomic_path`): a failed or interrupted write leaves no temporary
+    (:func:`rjfit.io.atomic_path`): a failed or interrupted write leaves no temporary
     file and the previous ``path``, if any, as it was. The figure is closed either way.
     """
     path = Path(path)

@@ -1,4 +1,4 @@
-"""rjfit.atomic and its users: a write that fails leaves the previous file whole and no temporary
+"""rjfit.io and its users: a write that fails leaves the previous file whole and no temporary
 file; staging folders of killed runs are cleared, those of running ones kept; a folder is
 published with its manifest last; the report page and figures are written through them."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from rjfit.atomic import STAGING_PREFIX, atomic_path, publish, staging_dir, write_bytes_atomic, write_text_atomic
+from rjfit.io import STAGING_PREFIX, atomic_path, publish, staging_dir, write_bytes_atomic, write_text_atomic
 
 
 def _files(folder):
@@ -89,7 +89,7 @@ def test_save_figure_that_fails_leaves_the_old_png_and_closes_the_figure(tmp_pat
 
 
 def test_report_page_that_cannot_be_written_leaves_the_old_one(tmp_path):
-    from rjfit.report import build_report
+    from rjfit.pipeline.report import build_report
 
     fit_dir = tmp_path / "fit"
     fit_dir.mkdir()

@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rjfit.data.dataset import DATASET_FORMAT, load_dataset
 from rjfit.data.diligent import load_diligent
-from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.data.exr import write_exr
+from rjfit.data.formats import DATASET_FORMAT
 from rjfit.data.mesh import load_mesh
+from rjfit.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.render.datasets import load_dataset
 
 HEIGHT, WIDTH = 8, 10
 DIRECTIONS = np.array([[0.0, 0.0, 1.0], [0.3, 0.3, 0.9], [-0.3, 0.2, 0.93], [0.2, -0.4, 0.89]])
@@ -448,7 +449,7 @@ DESCRIPTION_CASES = {
 
 @pytest.mark.parametrize("case", sorted(DESCRIPTION_CASES))
 def test_bad_dataset_description_names_the_file_and_entry(tmp_path, case):
-    from rjfit.data.errors import SceneError
+    from rjfit.errors import SceneError
 
     edit, message = DESCRIPTION_CASES[case]
     folder = make_rjfit_folder(tmp_path, full=True)
@@ -491,7 +492,7 @@ def test_missing_mesh_file_is_named(tmp_path):
 
 
 def test_unreadable_json_names_the_file(tmp_path):
-    from rjfit.data.dataset import read_json
+    from rjfit.io import read_json
 
     folder = make_rjfit_folder(tmp_path)
     (folder / "dataset.json").write_bytes(b"{\n \"x\xfb\xfe\": 1}")
@@ -564,7 +565,7 @@ def test_truth_labels_must_be_finite_material_indices(tmp_path):
     ([1, 2], "a JSON list, not an object"),
 ])
 def test_validation_file_that_is_not_a_validation_result(tmp_path, content, problem):
-    from rjfit.fit_dataset import fit_datasets
+    from rjfit.pipeline.fit_dataset import fit_datasets
 
     folder = make_rjfit_folder(tmp_path / "data")
     path = tmp_path / "summary.json"
@@ -578,7 +579,7 @@ def test_validation_file_that_is_not_a_validation_result(tmp_path, content, prob
 def test_validation_result_without_measures_is_described(tmp_path):
     """A failed result whose measures are null (NaN written by write_json_atomic) or absent."""
     from rjfit.data.dataset import read_validation_result
-    from rjfit.fit_dataset import validation_record
+    from rjfit.pipeline.fit_dataset import validation_record
 
     path = tmp_path / "validation.json"
     path.write_text(json.dumps({"passed": False, "dataset_sha256": "ab", "median_rel_err": None}))

@@ -8,8 +8,13 @@ import numpy as np
 import pytest
 
 from rjfit.baselines import metrics
-from rjfit.baselines.methods import (gmm_position_segmentation, kmeans_segmentation, multichannel_kmeans,
-                                     normalized_cuts, pick_ncut_image)
+from rjfit.baselines.methods import (
+    gmm_position_segmentation,
+    kmeans_segmentation,
+    multichannel_kmeans,
+    normalized_cuts,
+    pick_ncut_image,
+)
 
 RESOLUTION = 48
 
@@ -138,7 +143,7 @@ def test_metrics_reject_bad_input_with_a_hint():
 
 @pytest.fixture(scope="module")
 def sphere(paper_sphere_small):
-    from rjfit.data.dataset import load_dataset
+    from rjfit.render.datasets import load_dataset
 
     dataset = load_dataset(paper_sphere_small)
     assert dataset.truth_labels is not None
@@ -225,7 +230,7 @@ def _write_fit(folder, labels, off_value, summary, name="map_labels.exr"):
 @pytest.mark.parametrize("off_value, name", [(np.nan, "map_labels.exr"), (-1.0, "map_labels.exr"),
                                              (-1.0, "labels.exr")])
 def test_read_map_labels_tolerates_nan_and_minus_one(sphere, tmp_path, off_value, name):
-    from rjfit.baselines.compare import read_map_labels
+    from rjfit.pipeline.compare import read_map_labels
 
     fit = _write_fit(tmp_path / "fit", sphere.truth_labels, off_value, {"seconds": 3.0}, name)
     labels, summary = read_map_labels(fit, sphere.object_mask)
@@ -268,7 +273,7 @@ def test_compare_command_writes_its_three_outputs(sphere, tmp_path):
 
 
 def test_read_map_labels_missing_or_wrong_size(sphere, tmp_path):
-    from rjfit.baselines.compare import read_map_labels
+    from rjfit.pipeline.compare import read_map_labels
 
     with pytest.raises(FileNotFoundError, match="no MAP segmentation"):
         read_map_labels(tmp_path, sphere.object_mask)
@@ -278,7 +283,7 @@ def test_read_map_labels_missing_or_wrong_size(sphere, tmp_path):
 
 
 def test_compare_refuses_a_fit_of_another_data_set_before_any_baseline_runs(sphere, tmp_path, monkeypatch):
-    from rjfit.baselines import compare
+    from rjfit.pipeline import compare
 
     def fail(*args, **kwargs):
         raise AssertionError("a baseline ran before the fit was checked")
@@ -294,7 +299,7 @@ def test_compare_refuses_a_fit_of_another_data_set_before_any_baseline_runs(sphe
 
 
 def test_compare_without_fit_notes_missing_rjfit(sphere, tmp_path, monkeypatch):
-    from rjfit.baselines import compare
+    from rjfit.pipeline import compare
 
     monkeypatch.setattr(compare, "METHODS", {name: (label, list(ks)[:1])
                                              for name, (label, ks) in compare.METHODS.items()})
@@ -328,7 +333,7 @@ def test_baselines_separate_two_flat_materials_exactly():
 
 
 def _few_methods(monkeypatch):
-    from rjfit.baselines import compare
+    from rjfit.pipeline import compare
 
     monkeypatch.setattr(compare, "METHODS", {name: (label, list(ks)[:1])
                                              for name, (label, ks) in compare.METHODS.items()})
@@ -355,7 +360,7 @@ def test_an_interrupted_comparison_leaves_the_previous_one_whole(sphere, tmp_pat
 
 
 def test_the_report_embeds_only_the_figures_a_comparison_names(sphere, tmp_path, monkeypatch):
-    from rjfit.report import build_report
+    from rjfit.pipeline.report import build_report
 
     compare = _few_methods(monkeypatch)
     fit_dir = tmp_path / "fit"

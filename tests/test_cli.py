@@ -4,7 +4,6 @@ import subprocess
 import sys
 
 import numpy as np
-
 from click.testing import CliRunner
 
 from rjfit.cli import main
@@ -149,7 +148,7 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path, paper_spher
     # figure in the report; its counts are those of the maps' valid_images channel
     assert summary["figures"]["valid_images"] == "figures/valid_images.png"
     assert (tmp_path / "run" / "fit" / "figures" / "valid_images.png").is_file() and 'alt="valid images"' in html
-    from rjfit.data.dataset import load_dataset
+    from rjfit.render.datasets import load_dataset
 
     counts = load_dataset(tmp_path / "run" / "dataset").exclusion_counts(summary["channel"])
     np.testing.assert_array_equal(counts["valid"], maps["valid_images"])

@@ -4,7 +4,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rjfit.coarsen import misfit_warning, per_pixel_residuals, suggest_likelihood_power
+from rjfit.data.coarsen import misfit_warning, suggest_likelihood_power
+from rjfit.data.pixelfit import per_pixel_residuals
 from rjfit.data.synthetic import sphere_stack
 
 
@@ -44,7 +45,7 @@ def test_a_misfit_shared_by_neighbours_lowers_the_power(stack):
 
 def test_a_fit_of_misfit_data_warns_that_regions_may_split_one_material(stack, tmp_path):
     """Through fit(): the warning reaches summary.json whatever likelihood power the fit uses."""
-    from rjfit.fit import fit
+    from rjfit.pipeline.fit import fit
 
     height, width = stack.image_shape
     rows, cols = np.asarray(stack.pixel) // width, np.asarray(stack.pixel) % width

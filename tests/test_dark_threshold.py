@@ -13,13 +13,20 @@ import json
 
 import numpy as np
 import pytest
+from test_bad_input import (
+    INTENSITIES,
+    edit_description,
+    make_ps_folder,
+    make_rjfit_folder,
+    raises,
+    shading,
+    sphere_geometry,
+    write_png,
+)
 
-from test_bad_input import INTENSITIES, edit_description, make_ps_folder, make_rjfit_folder, raises, shading, \
-    sphere_geometry, write_png
-
-from rjfit.data.dataset import load_dataset
 from rjfit.data.diligent import crop_to_mask
-from rjfit.data.errors import DatasetError
+from rjfit.errors import DatasetError
+from rjfit.render.datasets import load_dataset
 
 
 def dark_folder(folder):

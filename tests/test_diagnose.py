@@ -18,9 +18,9 @@ import json
 import numpy as np
 import pytest
 
-from rjfit.data.dataset import load_dataset
 from rjfit.diagnose.hidden import render_hidden
 from rjfit.diagnose.workflow import LOG_BF_THRESHOLD, diagnose
+from rjfit.render.datasets import load_dataset
 
 CAMERA = {"camera_gamma", "camera_srgb"}
 
@@ -86,18 +86,18 @@ def test_hidden_effect_is_named_and_gap_shrinks(hidden, tmp_path, kind, expected
 
 
 def test_clean_data_names_nothing_via_cli(hidden, tmp_path):
-    """The clean paper_sphere through ``diagnose_command`` on a fit folder (summary.json + map_labels.exr)."""
+    """The clean paper_sphere through ``rjfit diagnose`` on a fit folder (summary.json + map_labels.exr)."""
     from click.testing import CliRunner
 
+    from rjfit.cli import main
     from rjfit.data.exr import write_exr
-    from rjfit.diagnose.cli import diagnose_command
 
     path = hidden("clean")
     fit_dir = tmp_path / "fit"
     fit_dir.mkdir()
     (fit_dir / "summary.json").write_text(json.dumps({"dataset": str(path)}))
     write_exr(fit_dir / "map_labels.exr", {"labels": load_dataset(path).truth_labels.astype(float)})
-    outcome = CliRunner().invoke(diagnose_command, [str(fit_dir), "--out", str(tmp_path / "out"), "--no-simulate"])
+    outcome = CliRunner().invoke(main, ["diagnose", str(fit_dir), "--out", str(tmp_path / "out"), "--no-simulate"])
     assert outcome.exit_code == 0, outcome.output
     result = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert result["named_effects"] == [] and result["steps"] == []
@@ -201,8 +201,8 @@ def test_jobs_must_be_a_positive_integer(hidden, tmp_path, jobs):
 def test_cli_jobs_reaches_the_workflow(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
-    import rjfit.diagnose.workflow as workflow
-    from rjfit.diagnose.cli import diagnose_command
+    import rjfit.pipeline.diagnose as pipeline_diagnose
+    from rjfit.cli import main
 
     seen = {}
 
@@ -210,11 +210,11 @@ def test_cli_jobs_reaches_the_workflow(tmp_path, monkeypatch):
         seen.update(options)
         raise SystemExit(0)
 
-    monkeypatch.setattr(workflow, "diagnose_fit", fake_diagnose_fit)
-    assert CliRunner().invoke(diagnose_command, [str(tmp_path), "--jobs", "3"]).exit_code == 0
+    monkeypatch.setattr(pipeline_diagnose, "diagnose_fit", fake_diagnose_fit)
+    assert CliRunner().invoke(main, ["diagnose", str(tmp_path), "--jobs", "3"]).exit_code == 0
     assert seen["jobs"] == 3
     seen.clear()
-    assert CliRunner().invoke(diagnose_command, [str(tmp_path)]).exit_code == 0
+    assert CliRunner().invoke(main, ["diagnose", str(tmp_path)]).exit_code == 0
     assert seen["jobs"] is None          # the workflow's default: the cores available
-    outcome = CliRunner().invoke(diagnose_command, [str(tmp_path), "--jobs", "0"])
+    outcome = CliRunner().invoke(main, ["diagnose", str(tmp_path), "--jobs", "0"])
     assert outcome.exit_code == 2 and "--jobs" in outcome.output

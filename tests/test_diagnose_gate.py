@@ -2,7 +2,7 @@
 
 For every effect: Mitsuba renders the data set's scene WITH the effect's change; the
 extended closed form must pass the gate and the plain closed form (without the effect) must
-fail it, on the same path-traced stack. Deterministic changes use rjfit.validate's thresholds
+fail it, on the same path-traced stack. Deterministic changes use rjfit.render.gate's thresholds
 (median relative error <= 1e-4, p99 <= 1e-3); Monte Carlo ones (ambient, interreflection)
 the statistical criterion of rjfit.diagnose.mitsuba_ext.gate.
 """

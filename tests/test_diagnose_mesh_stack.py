@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rjfit.data.dataset import load_dataset
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import get_effect
 from rjfit.diagnose.hidden import render_hidden
 from rjfit.diagnose.workflow import LOG_BF_THRESHOLD, diagnose
+from rjfit.render.datasets import load_dataset
 
 CANDIDATES = ("cast_shadows", "interreflection")
 

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rjfit.data.dataset import load_dataset
+from rjfit.cli import main
 from rjfit.data.exr import write_exr
-from rjfit.diagnose.cli import diagnose_command
 from rjfit.diagnose.hidden import render_hidden
 from rjfit.diagnose.report import gap_text
+from rjfit.render.datasets import load_dataset
 
 BALL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "diligent-ball"
 NUMBER = r"-?\d+(?:\.\d+)?(?:e[+-]?\d+)?"
@@ -47,7 +47,7 @@ def _fit_folder(dataset_path, folder: Path) -> Path:
 
 
 def _diagnose(fit_dir, out_dir, *options):
-    outcome = CliRunner().invoke(diagnose_command, [str(fit_dir), "--out", str(out_dir), "--no-simulate", *options])
+    outcome = CliRunner().invoke(main, ["diagnose", str(fit_dir), "--out", str(out_dir), "--no-simulate", *options])
     return outcome
 
 

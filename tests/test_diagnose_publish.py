@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from rjfit.data.dataset import load_dataset
 from rjfit.diagnose import report as diagnosis_report
 from rjfit.diagnose.hidden import render_hidden
 from rjfit.diagnose.workflow import diagnose
-from rjfit.report import build_report
+from rjfit.pipeline.report import build_report
+from rjfit.render.datasets import load_dataset
 
 QUICK = dict(candidates=["ambient", "fresnel"], max_steps=1, simulate=False)
 

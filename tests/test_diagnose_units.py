@@ -93,10 +93,10 @@ def test_laplace_evidence_agrees_with_importance_sampling(tmp_path):
     """The Bayes factors rest on the Laplace evidence: on a small rendered data set its value
     must agree with an importance-sampling estimate (proposal: the inflated Laplace Gaussian)
     to within 0.5 nat, for the plain model and for one with an extra effect."""
-    from rjfit.data.dataset import load_dataset
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects import EFFECTS
     from rjfit.diagnose.refit import evidence_by_importance_sampling, refit
+    from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
     dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
@@ -117,10 +117,10 @@ def test_the_hessian_skips_only_pairs_that_never_meet(tmp_path):
     anyway (the full finite-difference Hessian), they are 0 up to the differences' rounding,
     while the pairs it keeps are not, for the plain model and with effects of every stage
     that shares parameters across regions (light calibration) or not (Fresnel)."""
-    from rjfit.data.dataset import load_dataset
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects import EFFECTS
     from rjfit.diagnose.refit import _fd_hessian, coupled_pairs, refit
+    from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
     dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
@@ -156,9 +156,9 @@ def test_a_coarsened_refit_weighs_the_likelihood_by_its_power(tmp_path):
     """With likelihood power zeta the refit's objective is -zeta log L - log prior, so its
     Laplace Hessian is zeta times the data's part plus the prior's, and its evidence still
     agrees with importance sampling of the same (tempered) target."""
-    from rjfit.data.dataset import load_dataset
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.refit import evidence_by_importance_sampling, refit
+    from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
     dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
@@ -190,9 +190,9 @@ def test_a_refit_weighs_each_observation_by_the_noise_model_s_scale(tmp_path):
     import math
     from dataclasses import replace
 
-    from rjfit.data.dataset import load_dataset
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.refit import predictions, refit
+    from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
     dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24, noise_variance=0.0))
@@ -264,10 +264,10 @@ def test_a_per_light_effect_is_differenced_over_its_light_values(tmp_path):
     forward differences with sqrt(eps) steps, whose error is of that order; 1e-5 would still
     catch a wrong light's row or a missing factor of B). The normal equations the least
     squares solve, formed from per-light sums, equal the dense Jacobian's J'J and J'r."""
-    from rjfit.data.dataset import load_dataset
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects import EFFECTS
     from rjfit.diagnose.refit import _block_hessian, _fd_hessian, refit
+    from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
     dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
@@ -316,9 +316,9 @@ def test_a_fit_s_loo_and_mean_prediction_are_computed_once_and_keep_no_draw_arra
     the mean of the stacked predictions exactly (the same additions in the same order)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from rjfit.data.dataset import load_dataset
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.refit import posterior_mean_prediction, predictions, psis_loo, refit
+    from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
     dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
@@ -343,12 +343,12 @@ def test_loo_difference_reports_the_share_of_observations_with_an_unreliable_k_h
     exceeds it. On a measured stack many may (the ball's highlight peak): the report says how many."""
     import arviz as az
 
-    from rjfit.data.dataset import load_dataset
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects import EFFECTS
     from rjfit.diagnose.psis import good_k_threshold
     from rjfit.diagnose.refit import psis_loo, refit
     from rjfit.diagnose.workflow import _loo_difference
+    from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
     rng = np.random.default_rng(0)

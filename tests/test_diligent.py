@@ -6,8 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rjfit.data.dataset import Dataset, load_dataset
+from rjfit.data.dataset import Dataset
 from rjfit.data.diligent import crop_to_mask, is_diligent_folder, load_diligent
+from rjfit.render.datasets import load_dataset
 
 BALL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "diligent-ball"
 MASK_PIXELS = 15_791  # stated in the data's README

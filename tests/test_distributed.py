@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.distributed import dask_client, dask_map
+from rjfit.pipeline.distributed import dask_client, dask_map
 from rjfit.sampler.likelihood import Problem
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.runner import ChainSpec, run_chain
@@ -74,8 +74,8 @@ def test_killed_worker_resumes_chain_from_checkpoint(client, serial_records, tmp
 
 
 def test_an_unreachable_scheduler_is_one_clear_error(monkeypatch):
-    from rjfit import distributed
-    from rjfit.distributed import dask_client
+    from rjfit.pipeline import distributed
+    from rjfit.pipeline.distributed import dask_client
 
     monkeypatch.setattr(distributed, "CONNECT_TIMEOUT_S", 1)
     with pytest.raises(ValueError, match=r"cannot reach the Dask scheduler at tcp://127\.0\.0\.1:1 .*--scheduler local"):

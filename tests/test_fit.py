@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.fit import fit
+from rjfit.pipeline.fit import fit
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +126,7 @@ def test_parameter_maps_at_the_true_parameters(tmp_path):
     per-pixel RMS weighted by the pixel's observation count, chi2_N / N over all N
     observations, is 1 within its Monte Carlo error (sd sqrt(2 / N); tolerance 5 sd)."""
     from rjfit.data.exr import read_exr, write_exr
-    from rjfit.fit_dataset import write_parameter_maps
+    from rjfit.pipeline.fit_dataset import write_parameter_maps
 
     obs, labels, truth = sphere_stack(24, n_lights=8, seed=4)
     write_exr(tmp_path / "labels.exr", {"labels": labels.astype(np.float32)})

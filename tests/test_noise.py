@@ -6,13 +6,12 @@ import pytest
 from scipy import stats
 from threadpoolctl import threadpool_limits
 
+from rjfit.data.noise import noise_scale, reference_signal, weighted_observations
 from rjfit.data.synthetic import sphere_stack
 from rjfit.model.blinn import radiance
-from rjfit.noise import noise_scale, reference_signal, weighted_observations
 from rjfit.sampler.changepoints import obs_region_labels
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.likelihood import (Problem, RegionData, log_likelihood_from_stats, oracle_log_likelihood,
-                                      region_stats)
+from rjfit.sampler.likelihood import Problem, RegionData, log_likelihood_from_stats, oracle_log_likelihood, region_stats
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.state import SamplerConfig
 

@@ -13,12 +13,11 @@ import json
 
 import numpy as np
 import pytest
-
 from test_bad_input import HEIGHT, WIDTH, make_ps_folder
 
 from rjfit.data.diligent import crop_to_mask, load_diligent
-from rjfit.data.errors import DatasetError
-from rjfit.validate import closed_form_radiance, validate_dataset
+from rjfit.errors import DatasetError
+from rjfit.render.gate import closed_form_radiance, validate_dataset
 
 # A wide, off-centre pinhole: the view directions across the 10 x 8 frame differ by up to
 # about 45 deg, so a closed form that assumed v = (0, 0, 1) would be far off.
@@ -103,10 +102,10 @@ def write_glossy_pinhole_folder(folder, camera, size=28, seed=3):
     seen through ``camera``, as 16-bit PNGs with Gaussian noise of sd 30 counts: the images
     come from the closed form with the pinhole's per-pixel view directions."""
     import scipy.io
+    from test_bad_input import write_lines, write_png
 
     from rjfit.data.diligent import check_camera, view_directions
     from rjfit.data.lights import Light
-    from test_bad_input import write_lines, write_png
 
     folder.mkdir(parents=True)
     rng = np.random.default_rng(seed)
@@ -144,7 +143,7 @@ def test_fit_of_a_pinhole_stack_needs_its_camera(tmp_path):
     is off by many sd and sigma^2 grows by three orders of magnitude (measured over data
     seeds 3, 4, 5: gamma z 0.9, -1.7, 0.03 with the pinhole; gamma 61.7 +- 0.86 and sigma^2
     1.4e6 read as orthographic)."""
-    from rjfit.fit import fit
+    from rjfit.pipeline.fit import fit
 
     camera = {"kind": "perspective", "focal_px": 20.0}
     folder = write_glossy_pinhole_folder(tmp_path / "ps", camera)

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from rjfit.data.dataset import load_dataset
 from rjfit.data.exr import read_exr
 from rjfit.model.blinn import radiance
+from rjfit.render.datasets import load_dataset
 from rjfit.render.render import render_dataset
 
 
@@ -95,7 +95,7 @@ def test_unknown_scene_is_a_clear_error(tmp_path):
 
 def test_render_never_replaces_a_folder_that_is_not_a_data_set(tmp_path, monkeypatch):
     """``--out`` pointed at the wrong folder (a fit, the working folder) must not delete it."""
-    from rjfit.data.errors import DatasetError
+    from rjfit.errors import DatasetError
 
     precious = tmp_path / "work" / "notes.txt"
     precious.parent.mkdir()
@@ -134,8 +134,8 @@ def test_calibrated_pinhole_camera_focal_length_and_principal_point(tmp_path):
     point in pixels (off-centre here, on a frame that is not square, so a swapped or mirrored
     axis shows). The traced view directions are minus the rays through the pixel centres that
     those intrinsics define, to float32 rounding, and the rendered data set passes the gate."""
+    from rjfit.render.gate import validate_dataset
     from rjfit.render.render import load_scene_definition
-    from rjfit.validate import validate_dataset
 
     definition = load_scene_definition("paper_sphere")
     height, width, focal, cx, cy = 32, 40, 142.0, 17.0, 13.5

@@ -5,8 +5,13 @@ from scipy import integrate
 from threadpoolctl import threadpool_limits
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.sampler.changepoints import (log_prior_changepoints, model_from_number, model_number,
-                                        obs_region_labels, pixel_region_labels)
+from rjfit.sampler.changepoints import (
+    log_prior_changepoints,
+    model_from_number,
+    model_number,
+    obs_region_labels,
+    pixel_region_labels,
+)
 from rjfit.sampler.kernel import initial_state, make_state, step
 from rjfit.sampler.likelihood import Problem, oracle_log_likelihood, region_stats
 from rjfit.sampler.priors import ParamPrior, Prior, make_prior
@@ -27,7 +32,7 @@ def small():
 def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(small, sampler, likelihood_power, noise):
     problem, prior, _, _ = small
     if likelihood_power != 1.0 or noise is not None:
-        from rjfit.noise import noise_scale
+        from rjfit.data.noise import noise_scale
 
         obs = sphere_stack(20, n_lights=6, seed=3)[0]
         scale = None if noise is None else noise_scale(obs, noise, 0.05)
@@ -59,8 +64,14 @@ def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(sm
 
 
 def _forced_jump(state, rng, problem, prior, config):
-    from rjfit.sampler.moves import (Work, birth_probability, propose_birth, propose_birth_free, propose_death,
-                                     propose_death_free)
+    from rjfit.sampler.moves import (
+        Work,
+        birth_probability,
+        propose_birth,
+        propose_birth_free,
+        propose_death,
+        propose_death_free,
+    )
     from rjfit.sampler.state import ChainState
 
     for _ in range(100):      # retry until the proposal is a valid state

@@ -6,10 +6,10 @@ import json
 
 import pytest
 
-from rjfit.data.dataset import read_json
-from rjfit.data.errors import DatasetError, SceneError
+from rjfit.data.descriptions import check_scene_definition
+from rjfit.errors import DatasetError, SceneError
+from rjfit.io import read_json
 from rjfit.render.render import SCENES_DIR
-from rjfit.render.scene_check import check_scene_definition
 
 
 def _paper_sphere():
@@ -149,7 +149,7 @@ _STACK = {"format": "rjfit-mesh-stack/1", "images": ["img_000.exr", "img_001.exr
 def test_mesh_stack_images_and_mesh_must_be_file_names(tmp_path, change, entry):
     """Used to reach the loader as ``PosixPath / int`` (TypeError) or, for a string, count its
     characters as images."""
-    from rjfit.data.dataset import load_dataset
+    from rjfit.render.datasets import load_dataset
 
     (tmp_path / "stack.json").write_text(json.dumps({**_STACK, **change}))
     with pytest.raises(SceneError) as caught:
@@ -160,7 +160,7 @@ def test_mesh_stack_images_and_mesh_must_be_file_names(tmp_path, change, entry):
 
 
 def test_dataset_description_must_be_an_object_with_its_format():
-    from rjfit.render.scene_check import check_dataset_description
+    from rjfit.data.descriptions import check_dataset_description
 
     with pytest.raises(SceneError, match=r"^ds/dataset.json: a data set description is a JSON object"):
         check_dataset_description("text", "ds/dataset.json")

@@ -44,7 +44,7 @@ def test_render_refuses_a_bad_scene_file_in_one_line(tmp_path, scene, message):
 
 
 def test_a_scene_passed_as_a_dict_is_checked_too():
-    from rjfit.data.errors import SceneError
+    from rjfit.errors import SceneError
 
     with pytest.raises(SceneError, match=r"the scene definition: materials\[0\]\.kd is 1.5"):
         load_scene_definition(_scene(materials=_materials(0, kd=1.5)))

@@ -197,7 +197,7 @@ def test_chain_region_summaries_keep_each_chain_s_mode_apart():
 def test_the_report_shows_each_chain_s_regions_only_when_the_chains_have_not_mixed(tmp_path):
     import json
 
-    from rjfit.report import build_report
+    from rjfit.pipeline.report import build_report
 
     def region(kd):
         return {"region": 0, "pixels": 7, **{p: {"mean": kd, "sd": 0.01, "q2.5": kd - 0.02, "q97.5": kd + 0.02}

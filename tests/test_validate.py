@@ -9,7 +9,7 @@ import pytest
 
 from rjfit.data.lights import geometry_terms
 from rjfit.model.blinn import log_cos_power
-from rjfit.validate import (ValidationRequiredError, closed_form_radiance, require_validated, validate_dataset)
+from rjfit.render.gate import ValidationRequiredError, closed_form_radiance, require_validated, validate_dataset
 
 
 def test_paper_sphere_passes_with_the_issue_tolerances(paper_sphere_small, tmp_path):
@@ -116,8 +116,8 @@ def test_normal_map_data_is_checked_with_one_facet_per_pixel(tmp_path):
     # The gate's record lives outside a read-only data folder and the fitter finds it there.
     assert require_validated(folder, tmp_path / "v" / "validation.json")["passed"]
     # ... and so does the fit's report, figures included
-    from rjfit.fit_dataset import fit_dataset
-    from rjfit.report import build_report
+    from rjfit.pipeline.fit_dataset import fit_dataset
+    from rjfit.pipeline.report import build_report
 
     fit_dataset(folder, tmp_path / "fit", validation_path=tmp_path / "v" / "validation.json", n_chains=1,
                 iterations=20, processes=1, figures=False, progress=False)
@@ -132,7 +132,7 @@ def test_measured_stack_with_mesh_camera_and_point_lights(paper_sphere_small, tm
     the observations agree with the rendered data set the images came from."""
     import trimesh
 
-    from rjfit.data.dataset import load_dataset
+    from rjfit.render.datasets import load_dataset
 
     source = json.loads((paper_sphere_small / "dataset.json").read_text())
     folder = tmp_path / "stack"
@@ -169,8 +169,8 @@ def test_measured_stack_with_mesh_camera_and_point_lights(paper_sphere_small, tm
 
 
 def test_mesh_stack_description_errors_name_the_file_and_entry(tmp_path):
-    from rjfit.data.dataset import load_dataset
-    from rjfit.data.errors import DatasetError
+    from rjfit.errors import DatasetError
+    from rjfit.render.datasets import load_dataset
 
     folder = tmp_path / "stack"
     folder.mkdir()
@@ -208,7 +208,7 @@ def test_any_non_negative_seed_renders_and_validates(tmp_path):
 
 
 def test_a_damaged_mesh_file_is_one_clear_error(paper_sphere_small, tmp_path):
-    from rjfit.data.errors import DatasetError
+    from rjfit.errors import DatasetError
 
     copy = tmp_path / "ds"
     shutil.copytree(paper_sphere_small, copy)

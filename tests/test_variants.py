@@ -16,8 +16,8 @@ import pytest
 from click.testing import CliRunner
 
 from rjfit.cli import main
-from rjfit.data.dataset import load_dataset
 from rjfit.data.exr import read_exr
+from rjfit.render.datasets import load_dataset
 from rjfit.render.mitsuba_scene import UnsupportedVariantError, activate, supported_variant
 from rjfit.render.render import render_dataset
 

@@ -5,7 +5,7 @@ For one material the posterior should keep one region; it keeps several
 fitted to the whole ball (exponent on a grid, amplitudes by non-negative least squares)
 against two, one inside a box around the highlight and one outside, each with its own
 sigma^2. The log-likelihood gain of that split, times the likelihood power zeta that
-``--likelihood-power auto`` would choose (:func:`rjfit.coarsen.suggest_likelihood_power`),
+``--likelihood-power auto`` would choose (:func:`rjfit.data.coarsen.suggest_likelihood_power`),
 is the evidence the sampler weighs against the penalty of the split's 4 extra parameters,
 about ``4 / 2 log(zeta n)``.
 
@@ -144,7 +144,7 @@ def split_evidence(obs, weight, kept, boxes=BOXES):
     weighted observations), ``gain`` (log-likelihood), ``penalty`` (``4 / 2 log(zeta n)``, the
     split's 4 extra parameters), ``gamma_in``, ``gamma_out`` and ``n``.
     """
-    from rjfit.coarsen import suggest_likelihood_power
+    from rjfit.data.coarsen import suggest_likelihood_power
 
     y, A, C, log_hn, rows, cols = observation_arrays(obs)
     fields = ("pixel", "light", "y", "cos_ln", "cos_hn", "irradiance")
@@ -170,8 +170,8 @@ def split_evidence(obs, weight, kept, boxes=BOXES):
 def main(argv=None):
     from scipy.optimize import minimize
 
-    from rjfit.coarsen import suggest_likelihood_power
-    from rjfit.data.dataset import load_dataset
+    from rjfit.data.coarsen import suggest_likelihood_power
+    from rjfit.render.datasets import load_dataset
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", nargs="?", default="../shared/data/diligent-ball")

@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.distributed import dask_client, dask_map
+from rjfit.pipeline.distributed import dask_client, dask_map
 from rjfit.sampler.likelihood import Problem
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.runner import ChainSpec, run_chain

@@ -16,7 +16,7 @@ run side by side in processes (as ``rjfit fit`` runs its chains), ``--parallel-i
 
 Data: the pure-numpy synthetic sphere (``rjfit.data.synthetic.sphere_stack``: Table 2 truth,
 10 asymmetric point lights, noise variance 0.1), or a rendered data set (``--dataset DIR``,
-read with ``rjfit.data.dataset.load_dataset``; the fixed change points are then the image's
+read with ``rjfit.render.datasets.load_dataset``; the fixed change points are then the image's
 centre lines, which is where ``paper_sphere`` puts its quadrant boundaries).
 
     .venv/bin/python validation/bench_sampler.py --size 128 --iterations 4000
@@ -32,7 +32,7 @@ from threadpoolctl import threadpool_limits
 
 def _observations(args):
     if args.dataset:
-        from rjfit.data.dataset import load_dataset
+        from rjfit.render.datasets import load_dataset
 
         dataset = load_dataset(args.dataset)
         return dataset.observations(), dataset.truth_params
@@ -75,8 +75,8 @@ def _parallel_chain(problem, prior, iterations, seed, start, threads):
 
 def parallel_figures(problem, prior, args, start):
     """The full kernel as fits run it: chains side by side in processes, ``--parallel-iterations`` in total."""
-    from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
 
     from rjfit.sampler.runner import default_threads
 

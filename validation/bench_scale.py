@@ -25,8 +25,8 @@ def render_and_validate(size: int, folder: Path, variant: str):
     """Render scanner_sphere at ``size`` and run the gate; (dataset folder, validation, timings)."""
     import json as json_module
 
+    from rjfit.render.gate import validate_dataset
     from rjfit.render.render import render_dataset
-    from rjfit.validate import validate_dataset
 
     timings = {}
     started = time.perf_counter()
@@ -47,7 +47,7 @@ def render_only(size: int, folder: Path, variant: str) -> dict:
 
 
 def one_size(size: int, iterations: int, folder: Path, variant: str = "auto") -> dict:
-    from rjfit.data.dataset import load_dataset
+    from rjfit.render.datasets import load_dataset
     from rjfit.sampler.likelihood import Problem
     from rjfit.sampler.priors import make_prior
     from rjfit.sampler.runner import ChainSpec, run_chain

@@ -8,7 +8,7 @@ label accuracy, every parameter against the truth (within 2 posterior sd; within
 the posterior sd is below 1 % of the value), R-hat and ESS.
 
 Data: ``--dataset DIR`` (a rendered ``paper_sphere``, read with
-``rjfit.data.dataset.load_dataset``) or, by default, the pure-numpy synthetic sphere.
+``rjfit.render.datasets.load_dataset``) or, by default, the pure-numpy synthetic sphere.
 
     .venv/bin/python validation/paper_reproduction.py --out runs/paper_reproduction --iterations 20000
 """
@@ -38,10 +38,10 @@ def main(argv=None):
                              "straight at dispersed positions either way")
     args = parser.parse_args(argv)
 
-    from rjfit.fit import fit
+    from rjfit.pipeline.fit import fit
 
     if args.dataset:
-        from rjfit.data.dataset import load_dataset
+        from rjfit.render.datasets import load_dataset
 
         dataset = load_dataset(args.dataset)
         obs, labels, truth = dataset.observations(), dataset.truth_labels, dataset.truth_params

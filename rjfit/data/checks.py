@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.data.errors import DatasetError
 from rjfit.data.lights import geometry_terms
+from rjfit.errors import DatasetError
 
 __all__ = ["NORMAL_TOLERANCE", "check_finite", "check_mask", "check_unit_normals", "check_lights_face_object"]
 

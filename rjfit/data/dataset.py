@@ -18,50 +18,16 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.checks import check_finite, check_lights_face_object, check_mask, check_unit_normals
-from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.data.descriptions import check_dataset_description
 from rjfit.data.exr import read_exr
+from rjfit.data.formats import CHANNELS
 from rjfit.data.lights import Light, geometry_terms
 from rjfit.data.observations import EXCLUSION_RULES, Observations, exclusion_reasons
+from rjfit.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.io import read_json
 
-__all__ = ["Dataset", "load_dataset", "is_dataset", "read_json", "read_validation_result", "write_json_atomic",
-           "dark_flags", "DATASET_FORMAT", "CHANNELS"]
+__all__ = ["Dataset", "load_rjfit_layout", "read_validation_result", "dark_flags"]
 
-DATASET_FORMAT = "rjfit-dataset/1"
-CHANNELS = ("mean", "R", "G", "B", "luminance")
-
-
-def write_json_atomic(path, payload) -> None:
-    """Write JSON so that readers see the old file or the new one, never half of one.
-
-    NaN and infinities (an R-hat that cannot be computed) are written as ``null``: Python
-    would write ``NaN``, which is not JSON and which other languages' parsers reject.
-    """
-    from rjfit.atomic import write_text_atomic
-
-    write_text_atomic(Path(path), json.dumps(_finite_or_null(payload), indent=1, sort_keys=False,
-                                             default=_json_default, allow_nan=False))
-
-
-def _finite_or_null(value):
-    if isinstance(value, dict):
-        return {key: _finite_or_null(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite_or_null(item) for item in value]
-    if isinstance(value, np.ndarray):
-        return _finite_or_null(value.tolist())
-    if isinstance(value, (float, np.floating)):
-        return float(value) if np.isfinite(value) else None
-    return value
-
-
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"cannot write {type(value).__name__} as JSON")
 
 
 def dark_flags(images, dark):
@@ -310,47 +276,6 @@ def _require(condition, message):
         raise DatasetError(message)
 
 
-def is_dataset(path) -> bool:
-    """Whether ``path`` is a folder :func:`load_dataset` reads (rjfit layout, mesh stack or DiLiGenT)."""
-    from rjfit.data.diligent import is_diligent_folder
-    from rjfit.data.mesh_stack import is_mesh_stack_folder
-
-    path = Path(path)
-    return (path / "dataset.json").is_file() or is_mesh_stack_folder(path) or is_diligent_folder(path)
-
-
-def read_json(path):
-    """A JSON file's content (any JSON value; callers check its shape).
-
-    Parameters
-    ----------
-    path : path-like
-        The JSON file.
-
-    Returns
-    -------
-    object
-        The parsed value (dict, list, str, number, bool or None).
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` does not exist.
-    DatasetError
-        If the file does not parse as JSON, is not UTF-8 text, or cannot be read (a folder,
-        no permission); the message names it.
-    """
-    path = Path(path)
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as error:
-        raise DatasetError(f"{path}: not valid JSON ({error}); was it truncated or edited by hand?") from None
-    except FileNotFoundError:
-        raise
-    except (UnicodeDecodeError, OSError) as error:
-        raise DatasetError(f"{path}: not a readable JSON text file ({error})") from None
-
-
 #: The measures of a validation result that messages quote; a missing or null one reads as NaN.
 _VALIDATION_MEASURES = ("median_rel_err", "p99_rel_err", "unexplained_fraction")
 
@@ -424,17 +349,13 @@ def _read_channels(path, names, shape, role, description_path):
     return [channels[name] for name in names]
 
 
-def load_dataset(path, **options) -> Dataset:
-    """Load a data set: the rjfit layout (see the module docstring), a mesh stack
-    (:mod:`rjfit.data.mesh_stack`) or a photometric-stereo folder (:mod:`rjfit.data.diligent`).
+def load_rjfit_layout(path) -> Dataset:
+    """Load a data set in the rjfit layout (see the module docstring): ``dataset.json`` and the files it names.
 
     Parameters
     ----------
     path : path-like
         The data set folder.
-    **options
-        Loader options of photometric-stereo folders (see :func:`rjfit.data.diligent.load_diligent`)
-        or mesh stacks (``variant``); none apply to the rjfit layout.
 
     Returns
     -------
@@ -442,31 +363,19 @@ def load_dataset(path, **options) -> Dataset:
 
     Raises
     ------
-    FileNotFoundError
-        If the folder is not a data set of any layout.
     DatasetFileNotFoundError
-        (a ``DatasetError`` and a ``FileNotFoundError``) if a file the description names is missing.
+        (a ``DatasetError`` and a ``FileNotFoundError``) if ``dataset.json`` or a file it names is missing.
     DatasetError
         (a ``ValueError``) if ``dataset.json`` is not valid JSON or misses or mistypes an entry
-        (see :func:`rjfit.render.scene_check.check_dataset_description`), a file holds NaN/Inf,
+        (see :func:`rjfit.data.descriptions.check_dataset_description`), a file holds NaN/Inf,
         lacks a channel, sizes disagree, a truth label indexes no material, or the geometry is
         unusable (empty mask, normals not unit length, every light behind the object).
     """
-    from rjfit.render.scene_check import check_dataset_description
-
     path = Path(path)
     description_path = path / "dataset.json"
     if not description_path.is_file():
-        from rjfit.data.diligent import is_diligent_folder, load_diligent
-        from rjfit.data.mesh_stack import is_mesh_stack_folder, load_mesh_stack
-
-        if is_mesh_stack_folder(path):
-            return load_mesh_stack(path, **options)
-
-        if is_diligent_folder(path):
-            return load_diligent(path, **options)
-        raise FileNotFoundError(f"{path}: not a data set (no dataset.json, and not a DiLiGenT-style folder)")
-    _require(not options, f"{path}: options {sorted(options)} apply to photometric-stereo folders only")
+        raise DatasetFileNotFoundError(f"{description_path}: no such file; a data set in the rjfit layout is described "
+                                       f"by it")
     meta = check_dataset_description(read_json(description_path), description_path)
     lights = [Light.from_json(entry) for entry in meta["lights"]]
     height, width = (int(n) for n in meta["resolution"])

@@ -54,8 +54,10 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.checks import check_finite, check_lights_face_object, check_mask, check_unit_normals
-from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.data.dataset import Dataset
 from rjfit.data.lights import Light
+from rjfit.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.io import read_json
 
 __all__ = ["is_diligent_folder", "load_diligent", "crop_to_mask", "check_camera", "view_directions", "LAYOUT_FILES",
            "NORMAL_MAP_NAMES", "ENCODINGS", "CAMERA_KINDS"]
@@ -285,8 +287,6 @@ def folder_options(folder) -> dict:
     DatasetError
         If the file is not a JSON object of known options.
     """
-    from rjfit.data.dataset import read_json
-
     path = Path(folder) / OPTIONS_FILE
     if not path.is_file():
         return {}
@@ -427,8 +427,6 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
     DatasetError
         Any other problem: the message names the file (and line) and what is wrong.
     """
-    from rjfit.data.dataset import Dataset
-
     folder = Path(path)
     if not folder.is_dir():
         raise DatasetFileNotFoundError(f"{folder}: no such folder")

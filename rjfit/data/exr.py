@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.atomic import atomic_path
+from rjfit.io import atomic_path
 
 __all__ = ["write_exr", "read_exr"]
 

@@ -102,7 +102,7 @@ class Light:
         -----
         This converts only; it does not check that ``position`` / ``direction`` have three
         finite components. Callers that read user files check the entry first (see
-        :mod:`rjfit.render.scene_check`).
+        :mod:`rjfit.data.descriptions`).
         """
         return cls(
             kind=entry["kind"],

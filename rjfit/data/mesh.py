@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.errors import DatasetError, DatasetFileNotFoundError
 
 __all__ = ["load_mesh"]
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.data.noise import DEFAULT_FLOOR, describe_noise, noise_scale
 from rjfit.data.observations import observations_from_stack
-from rjfit.noise import DEFAULT_FLOOR, describe_noise, noise_scale
 
 __all__ = ["Context", "build_context"]
 
@@ -134,11 +134,11 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
     valid : ndarray (L, H, W), optional
         Which observations to use (default: ``dataset.valid_mask(channel)``).
     likelihood_power : float in (0, 1]
-        The power zeta of a coarsened fit (:mod:`rjfit.coarsen`): every refit on the context
+        The power zeta of a coarsened fit (:mod:`rjfit.data.coarsen`): every refit on the context
         raises the likelihood to it, so its evidence and Bayes factors weigh the data as the
         fit did (1: the plain likelihood).
     noise : {'constant', 'shot', 'relative'}
-        The fit's noise model (:mod:`rjfit.noise`): refits then weigh observation i by its
+        The fit's noise model (:mod:`rjfit.data.noise`): refits then weigh observation i by its
         known scale s_i, ``y_i ~ N(mu_i, sigma_r^2 s_i^2)``, as the sampler did.
     noise_floor : float
         Its floor (``rjfit fit --noise-floor``).
@@ -147,13 +147,13 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
     ------
     ValueError
         If ``labels`` do not have the images' shape, ``likelihood_power`` is not in (0, 1], or
-        the noise model is unknown or its floor not positive (:func:`rjfit.noise.noise_scale`).
+        the noise model is unknown or its floor not positive (:func:`rjfit.data.noise.noise_scale`).
     """
     zeta = float(likelihood_power)
     if not 0.0 < zeta <= 1.0:
         raise ValueError(f"likelihood_power is {likelihood_power!r}; it must be in (0, 1] (1: the plain likelihood)")
     if not hasattr(dataset, "images"):
-        from rjfit.data.dataset import load_dataset
+        from rjfit.render.datasets import load_dataset
 
         dataset = load_dataset(dataset)
     labels = np.asarray(labels)

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import write_json_atomic
+from rjfit.io import write_json_atomic
 
 __all__ = ["HIDDEN", "render_hidden", "backlit_sphere_definition"]
 

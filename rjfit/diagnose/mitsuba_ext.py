@@ -181,7 +181,7 @@ def _region_parts(ctx):
     import mitsuba as mi
     from scipy.spatial import cKDTree
 
-    from rjfit.render.meshes import split_by_face_label
+    from rjfit.data.meshes import split_by_face_label
     from rjfit.render.mitsuba_scene import activate
     from rjfit.render.render import scene_from_dataset_meta
 
@@ -300,7 +300,7 @@ def indirect_radiance(ctx, region_params, *, spp=32, max_depth=8, seed=None, bat
 
 def _verdict(path, closed, se, stochastic):
     """Compare path-traced and closed-form values of the same observations."""
-    from rjfit.validate import MEDIAN_TOLERANCE, P99_TOLERANCE
+    from rjfit.render.gate import MEDIAN_TOLERANCE, P99_TOLERANCE
 
     scale = np.maximum(np.abs(path), np.abs(closed))
     compared = scale > 1e-6 * max(float(scale.max()), 1e-30)
@@ -334,7 +334,7 @@ def gate(dataset_dir, effects=(), thetas=(), *, materials=None, spp=64, batches=
     occlusion is part of what is checked) where the path-traced or the closed-form radiance
     exceeds 1e-6 of the largest; relative error = |path - closed| / max(path, closed).
     Deterministic changes (no Monte Carlo in the path tracer's answer): the thresholds of
-    ``rjfit.validate`` (median relative error <= 1e-4, p99 <= 1e-3). Stochastic changes
+    ``rjfit.render.gate`` (median relative error <= 1e-4, p99 <= 1e-3). Stochastic changes
     (ambient, interreflection): the Monte Carlo error is estimated from ``batches``
     independent batches (and, for interreflection, the feature's own batches); the gate passes
     when sum (path - closed)^2 / sum se^2 <= 1.5 (its expectation is 1 when they agree) and the
@@ -346,10 +346,10 @@ def gate(dataset_dir, effects=(), thetas=(), *, materials=None, spp=64, batches=
     ``reference_effects`` (default none: the plain eq. 2), which must fail where the effect
     matters. Returns ``{"extended": verdict, "reference": verdict, ...}``.
     """
-    from rjfit.data.dataset import load_dataset
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects.base import merge_changes
     from rjfit.diagnose.model import order_effects, predict
+    from rjfit.render.datasets import load_dataset
 
     started = time.perf_counter()
     dataset = load_dataset(dataset_dir)

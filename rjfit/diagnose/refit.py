@@ -6,7 +6,7 @@ log sigma^2, then each effect's parameters. The negative log posterior in those 
     f(z) = - sum_i log N(y_i | m_i(z), sigma^2_r(i) s_i^2) - sum_j log p_zj(z_j)
 
 (``p_z`` includes the transforms' log-Jacobians; ``s_i`` are the known scales of the fit's
-noise model, :mod:`rjfit.noise`, all 1 for the default 'constant'; for a coarsened fit the sum of log N is
+noise model, :mod:`rjfit.data.noise`, all 1 for the default 'constant'; for a coarsened fit the sum of log N is
 weighted by the context's ``likelihood_power`` zeta, as the sampler weighs it) is minimised by alternating a Levenberg-Marquardt
 least-squares solve for the mean parameters (:func:`levenberg_marquardt`; the Gaussian priors are
 extra residual rows, so the objective is exactly f at fixed sigma^2) with the closed-form

@@ -23,18 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.atomic import publish, staging_dir
-from rjfit.data.dataset import write_json_atomic
+from rjfit.data.noise import DEFAULT_FLOOR
 from rjfit.diagnose import report as figures
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.psis import good_k_threshold
 from rjfit.diagnose.refit import posterior_mean_prediction, psis_loo, refit, template_columns
-from rjfit.noise import DEFAULT_FLOOR
+from rjfit.io import publish, staging_dir, write_json_atomic
 from rjfit.plotting import zoom_to_object
 
-__all__ = ["diagnose", "diagnose_fit", "LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "GAP_DEFINITION", "DECISION_RULE"]
+__all__ = ["diagnose", "LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "GAP_DEFINITION", "DECISION_RULE"]
 
 LOG_BF_THRESHOLD = math.log(100.0)
 LOO_SE_FACTOR = 4.0
@@ -125,7 +124,7 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     out_dir : path
         Receives ``diagnosis.json``, ``diagnosis.md`` and the figures (created). They are written
         into a staging folder inside it and published together, ``diagnosis.json`` last
-        (:func:`rjfit.atomic.publish`): the previous diagnosis's files, figures included, are
+        (:func:`rjfit.io.publish`): the previous diagnosis's files, figures included, are
         removed first, and an interrupted diagnosis leaves the previous one whole.
     candidates : sequence of Effect or names
     simulate : bool or None
@@ -140,7 +139,7 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         plain likelihood of a million observations whose misfit neighbours share would make
         nearly any candidate "decisive"). 1: the plain likelihood.
     noise, noise_floor : str, float
-        The fit's noise model and floor (``rjfit fit --noise``, :mod:`rjfit.noise`): the
+        The fit's noise model and floor (``rjfit fit --noise``, :mod:`rjfit.data.noise`): the
         refits weigh each observation by its known scale, as the sampler did.
     jobs : int, optional
         Candidates refitted at once, on threads (default: the cores this process may use).
@@ -158,10 +157,10 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     ValueError
         If ``max_steps`` is not an integer >= 0, ``jobs`` not an integer >= 1, a candidate name
         is unknown, ``labels`` does not have the images' shape, ``likelihood_power`` is not in
-        (0, 1], ``channel`` is not one of :data:`rjfit.data.dataset.CHANNELS`, or the noise model
+        (0, 1], ``channel`` is not one of :data:`rjfit.data.formats.CHANNELS`, or the noise model
         is unknown or its floor not positive.
     FileNotFoundError, DatasetError
-        When ``dataset`` is a path: as :func:`rjfit.data.dataset.load_dataset`.
+        When ``dataset`` is a path: as :func:`rjfit.render.datasets.load_dataset`.
     """
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 0:
         raise ValueError(f"max_steps must be an integer >= 0 (0: measure the plain model's gap only), got {max_steps!r}")
@@ -528,73 +527,3 @@ def _per_image_figure(path, stack, title):
             axis.set_title(f"light {i}", fontsize=7)
     figure.suptitle(title + f" (colour range +-{limit:.2g})", fontsize=9)
     return figures.save_figure(figure, path)
-
-
-def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
-    """``diagnose`` on a fit folder: its ``summary.json`` names the data set (or ``dataset``
-    gives it, when the folder has moved) and the channel fitted, ``map_labels.exr`` (or
-    ``labels.exr``, as ``rjfit.fit`` writes it; channel ``labels``) holds the MAP segmentation.
-
-    Parameters
-    ----------
-    fit_dir : path
-        The folder ``rjfit fit`` wrote (``summary.json`` and the MAP labels).
-    out_dir : path
-        Where the diagnosis goes (see :func:`diagnose`).
-    dataset : path or Dataset, optional
-        The fitted data set, when the one ``summary.json`` names has moved.
-    **options
-        Keyword arguments of :func:`diagnose`; ``channel``, ``likelihood_power``, ``noise`` and
-        ``noise_floor`` default to the fit's, and
-        ``provenance`` is always set to the fit's folder and ``fit_id``.
-
-    Returns
-    -------
-    dict
-        The contents of ``diagnosis.json``.
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``fit_dir`` is not a fit folder, has no MAP labels, or the data set it names is
-        not there.
-    ValueError
-        If ``summary.json`` names no data set and ``dataset`` is not given, or the data set's
-        files differ from those the fit recorded (``dataset_sha256``); and as :func:`diagnose`.
-    DatasetError
-        If ``summary.json`` or the MAP labels are damaged (:func:`rjfit.fit_folder.read_summary`,
-        :func:`rjfit.fit_folder.read_map_labels`); and as :func:`diagnose`.
-    """
-    from rjfit.data.dataset import load_dataset
-    from rjfit.fit_folder import read_map_labels, read_summary
-
-    fit_dir = Path(fit_dir)
-    summary = read_summary(fit_dir)
-    if dataset is None:
-        named = summary.get("dataset")
-        if not named:
-            raise ValueError(f"{fit_dir / 'summary.json'}: no 'dataset' entry; pass the data set (--dataset DIR)")
-        dataset = Path(named)
-        if not dataset.is_absolute() and not dataset.exists():
-            dataset = fit_dir / dataset
-        if not dataset.exists():
-            raise FileNotFoundError(f"{fit_dir}: the data set this fit names, {named}, is not there (moved?); "
-                                    f"pass its new place with --dataset DIR")
-    recorded = summary.get("dataset_sha256")
-    if recorded:
-        from rjfit.validate import dataset_fingerprint
-
-        if dataset_fingerprint(dataset) != recorded:
-            raise ValueError(f"{dataset}: not the data this fit was made from (its files differ from those "
-                             f"{fit_dir / 'summary.json'} records); give the fitted data set, or fit this one again")
-    options.setdefault("channel", summary.get("channel") or "mean")     # the channel the fit used
-    # the power of a coarsened fit: its Bayes factors weigh the data as the fit did
-    options.setdefault("likelihood_power", summary.get("likelihood_power", 1.0))
-    # and its noise model: the refits weigh the observations as its sampler did
-    noise_record = summary.get("noise") or {}
-    options.setdefault("noise", noise_record.get("model") or "constant")
-    options.setdefault("noise_floor", noise_record.get("floor") or DEFAULT_FLOOR)
-    options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
-    dataset = dataset if hasattr(dataset, "images") else load_dataset(dataset)
-    labels = read_map_labels(fit_dir, dataset.object_mask)
-    return diagnose(dataset, labels, out_dir, **options)

@@ -9,11 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import DATASET_FORMAT, read_json, write_json_atomic
-from rjfit.data.errors import DatasetError
 from rjfit.data.exr import write_exr
+from rjfit.data.formats import DATASET_FORMAT
 from rjfit.data.lights import Light
-from rjfit.render.meshes import build_parts
+from rjfit.data.meshes import build_parts
+from rjfit.errors import DatasetError
+from rjfit.io import read_json, write_json_atomic
 
 __all__ = ["SCENES_DIR", "load_scene_definition", "available_scenes", "render_dataset", "write_mesh_parts",
            "scene_from_dataset_meta", "GEOMETRY_MATERIAL"]
@@ -38,9 +39,9 @@ def load_scene_definition(scene) -> dict:
         If neither a built-in scene nor a file of that name exists.
     SceneError
         If the definition has a missing or out-of-range entry (a ``DatasetError`` naming the
-        file, the entry and its allowed values; see :mod:`rjfit.render.scene_check`).
+        file, the entry and its allowed values; see :mod:`rjfit.data.descriptions`).
     """
-    from rjfit.render.scene_check import check_scene_definition
+    from rjfit.data.descriptions import check_scene_definition
 
     if isinstance(scene, dict):
         return check_scene_definition(json.loads(json.dumps(scene)))
@@ -75,7 +76,7 @@ def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, li
     """Rebuild the Mitsuba scene of a data set with a mesh (the active variant is used).
 
     ``meta`` is ``Dataset.meta``: a rendered data set's ``dataset.json``, or a measured mesh
-    stack's ``stack.json`` as :func:`rjfit.data.mesh_stack.load_mesh_stack` completes it (its
+    stack's ``stack.json`` as :func:`rjfit.render.mesh_stack.load_mesh_stack` completes it (its
     mesh as the one entry of ``meshes``, material 0). Mesh files are relative to
     ``dataset_dir``. Without ``materials`` the data set's own are used, or, when it has none
     (a measured stack), :data:`GEOMETRY_MATERIAL` for every part.
@@ -169,7 +170,8 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
     ValueError
         For a resolution or spp below 1, or a negative noise variance.
     """
-    from rjfit import __version__
+    from importlib.metadata import version
+
     from rjfit.render.mitsuba_scene import activate, path_trace, shadow_visibility, trace_pixels
 
     started = time.perf_counter()
@@ -210,7 +212,7 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
             "images": [f"images/light_{i:03d}.exr" for i in range(len(lights))],
             "geometry": "geometry.exr", "visibility": "visibility.exr", "truth_labels": "truth_labels.exr",
             "hidden_effects": list(hidden_effects),
-            "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__, "rjfit": __version__},
+            "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__, "rjfit": version("rjfit")},
         }
         scene_args = dict(light_format=light_format, bsdf_override=bsdf_override, extra=extra)
         geometry_scene = scene_from_dataset_meta(meta, staging, lights=[], **scene_args)

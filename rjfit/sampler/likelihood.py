@@ -72,7 +72,7 @@ class Problem:
 
     ``noise_scale`` (float32, or None for homoscedastic noise) holds known per-observation
     noise scales ``s_i``: the likelihood is then ``y_i ~ N(mu_i, sigma_r^2 s_i^2)`` (see
-    :mod:`rjfit.noise`). That is weighted least squares, so ``y`` and ``C`` are stored
+    :mod:`rjfit.data.noise`). That is weighted least squares, so ``y`` and ``C`` are stored
     divided by ``s_i`` and every statistic and move is unchanged; the density's remaining
     factor, the constant ``-zeta sum(log s_i)`` (:attr:`log_likelihood_constant`), is the
     same for every segmentation and parameter value, so the sampler leaves it out of
@@ -130,7 +130,7 @@ class Problem:
         likelihood_power : float
             zeta in (0, 1].
         noise_scale : array_like (N,), optional
-            Known noise scales ``s_i > 0`` in the order of ``obs`` (see :mod:`rjfit.noise`);
+            Known noise scales ``s_i > 0`` in the order of ``obs`` (see :mod:`rjfit.data.noise`);
             None: homoscedastic noise (every ``s_i = 1``).
 
         Raises

@@ -98,8 +98,8 @@ def chain_rngs(seed: int, n_chains: int):
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temporary file + fsync + os.replace; see :mod:`rjfit.atomic`)."""
-    from rjfit.atomic import write_bytes_atomic
+    """Write ``data`` to ``path`` atomically (temporary file + fsync + os.replace; see :mod:`rjfit.io`)."""
+    from rjfit.io import write_bytes_atomic
 
     write_bytes_atomic(path, data)
 

@@ -5,9 +5,8 @@ import base64
 import html
 from pathlib import Path
 
-from rjfit.atomic import write_text_atomic
-from rjfit.data.dataset import read_json
-from rjfit.fit_folder import read_summary
+from rjfit.io import read_json, write_text_atomic
+from rjfit.pipeline.fit_folder import read_summary
 from rjfit.posterior.summary import RHAT_MAX
 
 __all__ = ["build_report"]
@@ -180,14 +179,14 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
     ``FIT_DIR/diagnosis`` and ``FIT_DIR/comparison``) with the figures their json names (no
     other PNG of those folders). A diagnosis or comparison made from another fit (its
     ``fit_id`` differs from the summary's) is not shown as this fit's: the report says it is
-    stale. The page is written atomically (:func:`rjfit.atomic.write_text_atomic`).
+    stale. The page is written atomically (:func:`rjfit.io.write_text_atomic`).
 
     Raises
     ------
     FileNotFoundError
         If ``fit_dir`` has no ``summary.json``.
     DatasetError
-        If ``summary.json`` is damaged (see :func:`rjfit.fit_folder.read_summary`).
+        If ``summary.json`` is damaged (see :func:`rjfit.pipeline.fit_folder.read_summary`).
     """
     fit_dir = Path(fit_dir)
     summary = read_summary(fit_dir)

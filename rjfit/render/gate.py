@@ -20,23 +20,24 @@ The gate passes when ``median_rel_err <= 1e-4`` and ``p99_rel_err <= 1e-3``.
 """
 from __future__ import annotations
 
-import hashlib
 import time
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.atomic import atomic_path, publish, staging_dir
-from rjfit.data.dataset import is_dataset, read_json, read_validation_result, write_json_atomic
+from rjfit.data.dataset import read_validation_result
 from rjfit.data.exr import write_exr
+from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.data.lights import geometry_terms
+from rjfit.data.loading import is_dataset
+from rjfit.io import atomic_path, publish, read_json, staging_dir, write_json_atomic
 from rjfit.model.blinn import radiance
 from rjfit.plotting import map_figure
 
 # purpose tag of the validation's path-tracing streams (see rjfit.render.render.RENDER_STREAM)
 VALIDATE_STREAM = 2
 
-__all__ = ["closed_form_radiance", "validate_dataset", "require_validated", "dataset_fingerprint", "dataset_files",
+__all__ = ["closed_form_radiance", "validate_dataset", "require_validated",
            "MEDIAN_TOLERANCE", "P99_TOLERANCE", "ValidationRequiredError"]
 
 MEDIAN_TOLERANCE = 1e-4
@@ -57,44 +58,6 @@ def closed_form_radiance(positions, normals, view_dirs, light, material, referen
     """
     cos_ln, cos_hn, irradiance = geometry_terms(positions, normals, view_dirs, light, reference_intensity)
     return radiance(material["I0"], material["kd"], material["gamma"], cos_ln, cos_hn, irradiance)
-
-
-def dataset_files(dataset_dir) -> list:
-    """Every file a fit of the data set reads, whatever its layout (the gate's fingerprint
-    covers them all: a changed geometry or mesh must void a validation as a changed image does).
-
-    rjfit layout: ``dataset.json``, its images, geometry, visibility, truth labels and meshes;
-    mesh stack: ``stack.json``, its images and mesh; photometric-stereo folder: every file
-    in it, plus a normal map its ``rjfit.json`` names elsewhere.
-    """
-    dataset_dir = Path(dataset_dir)
-    if (dataset_dir / "dataset.json").is_file():
-        meta = read_json(dataset_dir / "dataset.json")
-        names = (["dataset.json"] + list(meta.get("images", []))
-                 + [meta[key] for key in ("geometry", "visibility", "truth_labels") if meta.get(key)]
-                 + [part["file"] for part in meta.get("meshes", [])])
-        return [dataset_dir / name for name in names if (dataset_dir / name).is_file()]
-    if (dataset_dir / "stack.json").is_file():
-        meta = read_json(dataset_dir / "stack.json")
-        names = ["stack.json"] + list(meta.get("images", [])) + ([meta["mesh"]] if meta.get("mesh") else [])
-        return [dataset_dir / name for name in names if (dataset_dir / name).is_file()]
-    files = sorted(p for p in dataset_dir.iterdir() if p.is_file())
-    from rjfit.data.diligent import folder_options
-
-    normals = folder_options(dataset_dir).get("normals")
-    if normals and (dataset_dir / normals).is_file() and (dataset_dir / normals).parent != dataset_dir:
-        files.append(dataset_dir / normals)
-    return files
-
-
-def dataset_fingerprint(dataset_dir) -> str:
-    """SHA-256 over the names (relative to the folder) and bytes of :func:`dataset_files`."""
-    dataset_dir = Path(dataset_dir)
-    digest = hashlib.sha256()
-    for file in dataset_files(dataset_dir):
-        digest.update(str(file.relative_to(dataset_dir) if file.is_relative_to(dataset_dir) else file).encode())
-        digest.update(file.read_bytes())
-    return digest.hexdigest()
 
 
 #: Materials the gate renders a data set with when it has no truth (measured data): both lobes.
@@ -190,9 +153,9 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     Raises
     ------
     FileNotFoundError, ValueError
-        If the data set cannot be loaded (see :func:`rjfit.data.dataset.load_dataset`).
+        If the data set cannot be loaded (see :func:`rjfit.render.datasets.load_dataset`).
     """
-    from rjfit.data.dataset import load_dataset
+    from rjfit.render.datasets import load_dataset
     from rjfit.render.mitsuba_scene import activate, build_scene, path_trace, shadow_visibility, trace_pixels
     from rjfit.render.render import scene_from_dataset_meta
 

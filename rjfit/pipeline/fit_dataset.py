@@ -9,7 +9,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-from rjfit.data.dataset import load_dataset
+from rjfit.render.datasets import load_dataset
 
 __all__ = ["fit_dataset", "fit_datasets", "check_validation_file"]
 
@@ -18,7 +18,7 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
                 allow_unvalidated=False, scheduler=None, n_workers=2, client=None, **fit_options) -> dict:
     """Fit one data set after checking that its forward model passed the gate.
 
-    Besides :func:`rjfit.fit.fit`'s results it writes ``maps.exr`` (per-pixel parameters,
+    Besides :func:`rjfit.pipeline.fit.fit`'s results it writes ``maps.exr`` (per-pixel parameters,
     labels, valid-images count and residual RMS) and, with figures, ``figures/valid_images.png``
     (the valid-images map beside a map per rule that left observations out).
 
@@ -36,7 +36,7 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
     scheduler, n_workers, client
         Run the chains as Dask tasks (``scheduler='local'`` starts a local cluster).
     **fit_options
-        Passed to :func:`rjfit.fit.fit` (n_chains, iterations, seed, max_u, max_v, ...).
+        Passed to :func:`rjfit.pipeline.fit.fit` (n_chains, iterations, seed, max_u, max_v, ...).
 
     Returns
     -------
@@ -45,14 +45,15 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
 
     Raises
     ------
-    rjfit.validate.ValidationRequiredError
+    rjfit.render.gate.ValidationRequiredError
         If the data set has not passed the gate and ``allow_unvalidated`` is False.
     DatasetError
         If the validation file is not a validation result (e.g. a fit's ``summary.json``), or
-        the data set cannot be loaded (see :func:`rjfit.data.dataset.load_dataset`).
+        the data set cannot be loaded (see :func:`rjfit.render.datasets.load_dataset`).
     """
-    from rjfit.fit import fit
-    from rjfit.validate import dataset_fingerprint, require_validated
+    from rjfit.data.fingerprint import dataset_fingerprint
+    from rjfit.pipeline.fit import fit
+    from rjfit.render.gate import require_validated
 
     dataset_dir = Path(dataset_dir)
     check_validation_file(dataset_dir, validation_path)
@@ -62,7 +63,7 @@ def fit_dataset(dataset_dir, out_dir, *, channel="mean", burn_in=None, validatio
         burn_in = 0.2 if dataset.meta.get("kind") == "measured" else 0.5
     chain_runner = None
     if scheduler is not None or client is not None:
-        from rjfit.distributed import dask_map
+        from rjfit.pipeline.distributed import dask_map
         from rjfit.sampler.runner import run_chain
 
         address = None if scheduler in (None, "local") else scheduler
@@ -102,7 +103,7 @@ def check_validation_file(dataset_dir, validation_path=None) -> None:
 
     A file that is not a validation result (a fit's ``summary.json``, ``{"passed": false}``)
     must be refused with a message naming it, not fail while the gate formats its numbers.
-    A missing file is left to :func:`rjfit.validate.require_validated`, which says what to run.
+    A missing file is left to :func:`rjfit.render.gate.require_validated`, which says what to run.
 
     Raises
     ------
@@ -153,8 +154,8 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None) 
     import numpy as np
 
     from rjfit.data.exr import read_exr, write_exr
+    from rjfit.data.noise import noise_scale
     from rjfit.model.blinn import radiance
-    from rjfit.noise import noise_scale
 
     labels = np.rint(np.nan_to_num(read_exr(out_dir / "labels.exr")["labels"], nan=-1)).astype(int)
     names = ("I0", "kd", "gamma", "sigma2")
@@ -208,14 +209,14 @@ def fit_datasets(dataset_dirs, out_dir, *, scheduler=None, n_workers=2, **option
 
     Raises
     ------
-    rjfit.validate.ValidationRequiredError
+    rjfit.render.gate.ValidationRequiredError
         If a data set has not passed the gate and ``allow_unvalidated`` is not set.
     DatasetError
         If a validation file is not a validation result, or a data set cannot be loaded.
     ValueError
         If several data sets share a folder name.
     """
-    from rjfit.validate import require_validated
+    from rjfit.render.gate import require_validated
 
     dataset_dirs = [Path(d) for d in dataset_dirs]
     out_dir = Path(out_dir)
@@ -240,7 +241,7 @@ def fit_datasets(dataset_dirs, out_dir, *, scheduler=None, n_workers=2, **option
         return [(folder, fit_dataset(dataset_dir, folder, scheduler=scheduler, n_workers=n_workers, **job_options))]
     if scheduler is None:
         return [(folder, fit_dataset(d, folder, **job_options)) for d, folder, job_options in jobs]
-    from rjfit.distributed import dask_map
+    from rjfit.pipeline.distributed import dask_map
 
     address = None if scheduler == "local" else scheduler
     tasks = [(d, folder, dict(job_options, processes=1, threads=1, progress=False)) for d, folder, job_options in jobs]

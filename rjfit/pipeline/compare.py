@@ -2,7 +2,7 @@
 
 :func:`compare_dataset` writes three files to ``out_dir``, together: they are written into a
 staging folder inside it and published at once, ``comparison.json`` last (see
-:func:`rjfit.atomic.publish`), so that the folder holds one comparison's files or none:
+:func:`rjfit.io.publish`), so that the folder holds one comparison's files or none:
 
 - ``comparison.json``: the settings, notes and one row per (method, k) with its metrics
   (see :func:`rjfit.baselines.metrics.segmentation_metrics`) and its runtime in seconds, and
@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit import fit_folder
-from rjfit.atomic import atomic_path, publish, staging_dir
 from rjfit.baselines import methods
 from rjfit.baselines.metrics import BOUNDARY_TOLERANCE, relabel_to_truth, segmentation_metrics
+from rjfit.io import atomic_path, publish, staging_dir
+from rjfit.pipeline import fit_folder
 
 __all__ = ["compare_dataset", "read_map_labels", "format_markdown", "METHODS", "MAP_LABEL_FILES", "RUNTIME_KEYS"]
 
@@ -66,7 +66,7 @@ def read_map_labels(fit_dir, mask) -> tuple[np.ndarray, dict]:
     FileNotFoundError
         If neither ``map_labels.exr`` nor ``labels.exr`` exists.
     ValueError
-        As :func:`rjfit.fit_folder.read_map_labels` and :func:`rjfit.fit_folder.read_summary`
+        As :func:`rjfit.pipeline.fit_folder.read_map_labels` and :func:`rjfit.pipeline.fit_folder.read_summary`
         (a damaged or hand-edited file; the message names it).
     """
     fit_dir = Path(fit_dir)
@@ -84,10 +84,10 @@ def _runtime_from(summary: dict):
 
 
 def _import_libraries():
-    import sklearn.cluster  # noqa: F401
-    import sklearn.mixture  # noqa: F401
     import skimage.graph  # noqa: F401
     import skimage.segmentation  # noqa: F401
+    import sklearn.cluster  # noqa: F401
+    import sklearn.mixture  # noqa: F401
 
 
 def format_markdown(rows, notes=()) -> str:
@@ -184,7 +184,8 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
     ValueError
         If the data set has no ground truth, or ``fit_dir`` holds a fit of another data set.
     """
-    from rjfit.data.dataset import load_dataset, write_json_atomic
+    from rjfit.io import write_json_atomic
+    from rjfit.render.datasets import load_dataset
 
     dataset = load_dataset(dataset_dir)
     if dataset.truth_labels is None:

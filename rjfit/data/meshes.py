@@ -92,7 +92,7 @@ def dented_slab(size=2.0, resolution=200, dents=(), grooves=(), boundary_x=0.0, 
     return split_by_face_label(vertices, faces, normals, face_labels)
 
 
-_GENERATORS = {"sphere_quadrants": sphere_quadrants, "dented_slab": dented_slab}
+GENERATORS = {"sphere_quadrants": sphere_quadrants, "dented_slab": dented_slab}
 
 
 def build_parts(geometry: dict):
@@ -105,9 +105,9 @@ def build_parts(geometry: dict):
     """
     arguments = dict(geometry)
     name = arguments.pop("generator", None)
-    if name not in _GENERATORS:
-        raise ValueError(f"unknown geometry generator {name!r}; known: {sorted(_GENERATORS)}")
+    if name not in GENERATORS:
+        raise ValueError(f"unknown geometry generator {name!r}; known: {sorted(GENERATORS)}")
     for key, value in arguments.items():
         if isinstance(value, list):
             arguments[key] = tuple(tuple(v) if isinstance(v, list) else v for v in value)
-    return _GENERATORS[name](**arguments)
+    return GENERATORS[name](**arguments)

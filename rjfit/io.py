@@ -1,6 +1,10 @@
-"""Writing results so that a reader sees the previous ones or the new ones, never a mixture.
+"""Files in and out: strict JSON, and results written so that a reader sees the previous ones or
+the new ones, never a mixture.
 
-Two levels:
+JSON: :func:`write_json_atomic` writes strict JSON (NaN and infinities as ``null``, NumPy
+values as plain numbers) atomically; :func:`read_json` reads it, naming the file in its error.
+
+Atomic writing has two levels:
 
 - one file: :func:`atomic_path` yields a fresh temporary name beside the target; once the
   caller has written it, the file is flushed to disk (fsync) and renamed over the target. If
@@ -17,13 +21,18 @@ from __future__ import annotations
 
 import errno
 import functools
+import json
 import os
 import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir", "publish", "STAGING_PREFIX"]
+import numpy as np
+
+from rjfit.errors import DatasetError
+
+__all__ = ["write_json_atomic", "read_json", "atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir", "publish", "STAGING_PREFIX"]
 
 #: name prefix of staging folders; the creating process's id follows, so that a later run can
 #: tell the leftover of a killed run from the staging folder of a run still going
@@ -218,3 +227,69 @@ def publish(staging, out_dir, *, manifest: str, names=None, remove=()) -> None:
     _fsync_dir(out_dir)
     os.replace(staging / manifest, out_dir / manifest)
     _fsync_dir(out_dir)
+
+
+# -- strict JSON ------------------------------------------------------------------------------
+
+def write_json_atomic(path, payload) -> None:
+    """Write JSON so that readers see the old file or the new one, never half of one.
+
+    NaN and infinities (an R-hat that cannot be computed) are written as ``null``: Python
+    would write ``NaN``, which is not JSON and which other languages' parsers reject.
+    """
+    write_text_atomic(Path(path), json.dumps(_finite_or_null(payload), indent=1, sort_keys=False,
+                                             default=_json_default, allow_nan=False))
+
+
+def _finite_or_null(value):
+    if isinstance(value, dict):
+        return {key: _finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_null(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return _finite_or_null(value.tolist())
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    return value
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
+
+
+def read_json(path):
+    """A JSON file's content (any JSON value; callers check its shape).
+
+    Parameters
+    ----------
+    path : path-like
+        The JSON file.
+
+    Returns
+    -------
+    object
+        The parsed value (dict, list, str, number, bool or None).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    DatasetError
+        If the file does not parse as JSON, is not UTF-8 text, or cannot be read (a folder,
+        no permission); the message names it.
+    """
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise DatasetError(f"{path}: not valid JSON ({error}); was it truncated or edited by hand?") from None
+    except FileNotFoundError:
+        raise
+    except (UnicodeDecodeError, OSError) as error:
+        raise DatasetError(f"{path}: not a readable JSON text file ({error})") from None

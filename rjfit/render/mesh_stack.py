@@ -25,17 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import Dataset, dark_flags, read_json
-from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.data.dataset import Dataset, dark_flags
 from rjfit.data.lights import Light
+from rjfit.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.io import read_json
 
-__all__ = ["MESH_STACK_FORMAT", "is_mesh_stack_folder", "load_mesh_stack"]
-
-MESH_STACK_FORMAT = "rjfit-mesh-stack/1"
-
-
-def is_mesh_stack_folder(path) -> bool:
-    return (Path(path) / "stack.json").is_file()
+__all__ = ["load_mesh_stack"]
 
 
 def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
@@ -60,7 +55,7 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
     description = path / "stack.json"
     if not description.is_file():
         raise DatasetFileNotFoundError(f"{description}: no such file")
-    from rjfit.render.scene_check import check_stack_description
+    from rjfit.data.descriptions import check_stack_description
 
     meta = check_stack_description(read_json(description), description)
     lights = [Light.from_json(entry) for entry in meta["lights"]]

@@ -1,7 +1,7 @@
 """Reading the folder ``rjfit fit`` wrote: ``summary.json`` and the MAP labels, checked.
 
 Its readers (``rjfit report``, ``rjfit diagnose``, ``rjfit compare --fit``) get the contents,
-or one :class:`~rjfit.data.errors.DatasetError` that names the file, says what is wrong with it
+or one :class:`~rjfit.errors.DatasetError` that names the file, says what is wrong with it
 and what to do: a damaged or hand-edited file never reaches them as a traceback.
 (``chains.nc`` is read by ArviZ itself: ``arviz.from_netcdf``.)
 """
@@ -11,9 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.dataset import CHANNELS, read_json
-from rjfit.data.errors import DatasetError, DatasetFileNotFoundError
-from rjfit.noise import NOISE_MODELS
+from rjfit.data.formats import CHANNELS
+from rjfit.data.noise import NOISE_MODELS
+from rjfit.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.io import read_json
 
 __all__ = ["read_summary", "read_map_labels", "MAP_LABEL_FILES", "SUMMARY_TYPES"]
 
@@ -64,8 +65,8 @@ def read_summary(fit_dir) -> dict:
     DatasetError
         If it is not valid JSON, not a JSON object, or an entry has the wrong type (``regions``
         must hold objects, ``warnings`` strings, ``model_posterior`` numbers, ``channel`` one of
-        :data:`rjfit.data.dataset.CHANNELS`, ``likelihood_power`` a number in (0, 1], ``noise`` a
-        model of :data:`rjfit.noise.NOISE_MODELS` with a positive floor or none).
+        :data:`rjfit.data.formats.CHANNELS`, ``likelihood_power`` a number in (0, 1], ``noise`` a
+        model of :data:`rjfit.data.noise.NOISE_MODELS` with a positive floor or none).
     """
     fit_dir = Path(fit_dir)
     path = fit_dir / "summary.json"

@@ -38,10 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.atomic import publish, staging_dir
-from rjfit.data.dataset import write_json_atomic
-from rjfit.coarsen import misfit_warning, suggest_likelihood_power
-from rjfit.noise import DEFAULT_FLOOR, NOISE_MODELS, describe_noise, noise_scale
+from rjfit.data.coarsen import misfit_warning, suggest_likelihood_power
+from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS, describe_noise, noise_scale
+from rjfit.io import publish, staging_dir, write_json_atomic
 from rjfit.posterior import summary as post
 from rjfit.sampler.changepoints import model_number
 from rjfit.sampler.likelihood import Problem
@@ -72,7 +71,7 @@ def publish_results(staging: Path, out_dir: Path) -> None:
     The previous ``summary.json`` goes first and the new one comes last: a folder without
     ``summary.json`` is an incomplete fit, never a mixture of two. Previous result files
     the new fit does not write are removed too. Every file is on disk (fsync) before the
-    new ``summary.json`` appears (see :func:`rjfit.atomic.publish`).
+    new ``summary.json`` appears (see :func:`rjfit.io.publish`).
     """
     publish(staging, out_dir, manifest="summary.json", names=RESULT_FILES, remove=RESULT_FILES + DERIVED_RESULTS)
 
@@ -115,10 +114,10 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         2019) for a model known to miss part of measured data; see
         :class:`rjfit.sampler.likelihood.Problem`. 1 (default): the plain posterior.
         'auto': the effective fraction of independent observations, from the spatial
-        correlation of per-pixel-fit residuals (:func:`rjfit.coarsen.suggest_likelihood_power`).
+        correlation of per-pixel-fit residuals (:func:`rjfit.data.coarsen.suggest_likelihood_power`).
     noise : {'constant', 'shot', 'relative'}
         Noise model, ``y_i ~ N(mu_i, sigma_r^2 s_i^2)`` with known scales ``s_i``
-        (:func:`rjfit.noise.noise_scale`): 'constant' (default, the paper's) ``s_i = 1``;
+        (:func:`rjfit.data.noise.noise_scale`): 'constant' (default, the paper's) ``s_i = 1``;
         'shot' ``s_i^2 = (m_i + c) / ybar``; 'relative' ``s_i = (m_i + c) / ybar``, with
         ``m_i`` a per-pixel fit's prediction, ``ybar`` the mean observed value and
         ``c = noise_floor * ybar``. With 'auto' likelihood power, zeta is measured on the
@@ -168,7 +167,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         checked by :class:`rjfit.sampler.likelihood.Problem`); ``'auto'`` cannot be measured
         (no two adjacent pixels under one light have a residual); ``truth_labels`` does not
         have the images' shape (H, W); ``noise_floor`` is not positive and finite for the
-        'shot' / 'relative' models (:func:`rjfit.noise.noise_scale`); the observations are
+        'shot' / 'relative' models (:func:`rjfit.data.noise.noise_scale`); the observations are
         unusable (none, some with ``<l.n> <= 0``, or a mean value that is not positive under
         the 'shot' / 'relative' models); or a sampler setting is out of range
         (:class:`rjfit.sampler.state.SamplerConfig`: ``sampler``, ``split_map``,

@@ -23,7 +23,7 @@ floor that keeps every scale positive; ``m_i`` is a reference signal, see below)
 
 The reference signal ``m_i`` is not ``y_i`` itself (a weight built from the noisy value
 would favour observations that happen to fall low and bias the fit), but the prediction of
-a separate least-squares fit of every pixel (:func:`rjfit.coarsen.per_pixel_residuals`:
+a separate least-squares fit of every pixel (:func:`rjfit.data.pixelfit.per_pixel_residuals`:
 Lambert plus one Blinn lobe, exponent on a grid), clipped at 0. It needs no segmentation
 and follows every material of a multi-material surface. Pixels with fewer than 4 valid
 observations (no per-pixel fit) use ``max(y_i, 0)``.
@@ -42,6 +42,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+
+from rjfit.data.pixelfit import per_pixel_residuals
 
 __all__ = ["NOISE_MODELS", "DEFAULT_FLOOR", "reference_signal", "noise_scale", "weighted_observations",
            "describe_noise"]
@@ -63,8 +65,6 @@ def reference_signal(observations) -> np.ndarray:
         ``max(y_i - r_i, 0)`` with ``r_i`` the residual of the pixel's own fit, or
         ``max(y_i, 0)`` where the pixel has fewer than 4 observations.
     """
-    from rjfit.coarsen import per_pixel_residuals
-
     y = np.asarray(observations.y, float)
     residuals = per_pixel_residuals(observations)
     return np.maximum(np.where(np.isfinite(residuals), y - residuals, y), 0.0)

@@ -3,7 +3,7 @@
 A bad value in a scene file used to surface deep inside rendering: ``kd 1.5`` or ``gamma -2``
 as a ``ValueError`` raised in the Mitsuba plugin's constructor (wrapped in Mitsuba's parser
 error), a missing ``camera`` as ``KeyError: 'camera'``. :func:`check_scene_definition`
-checks every entry the renderer reads, up front, and raises :class:`~rjfit.data.errors.SceneError`
+checks every entry the renderer reads, up front, and raises :class:`~rjfit.errors.SceneError`
 (a ``DatasetError``, so the command line prints one line) naming the scene file, the entry
 (``materials[0].kd``) and what values it allows.
 
@@ -29,7 +29,9 @@ import inspect
 import math
 from numbers import Integral, Real
 
-from rjfit.data.errors import SceneError
+from rjfit.data.formats import DATASET_FORMAT, MESH_STACK_FORMAT
+from rjfit.data.meshes import GENERATORS
+from rjfit.errors import SceneError
 
 __all__ = ["check_scene_definition", "check_stack_description", "check_dataset_description"]
 
@@ -228,13 +230,12 @@ def _check_materials(check, materials):
 
 
 def _check_geometry(check, geometry, n_materials):
-    from rjfit.render.meshes import _GENERATORS
 
     check.mapping(geometry, "geometry", "{generator, ...}")
-    name = check.require(geometry, "generator", "geometry", f"a generator ({', '.join(sorted(_GENERATORS))})")
-    if name not in _GENERATORS:
-        check.fail("geometry.generator", f"is {name!r}; it must be one of {', '.join(sorted(_GENERATORS))}")
-    parameters = inspect.signature(_GENERATORS[name]).parameters
+    name = check.require(geometry, "generator", "geometry", f"a generator ({', '.join(sorted(GENERATORS))})")
+    if name not in GENERATORS:
+        check.fail("geometry.generator", f"is {name!r}; it must be one of {', '.join(sorted(GENERATORS))}")
+    parameters = inspect.signature(GENERATORS[name]).parameters
     unknown = sorted(set(geometry) - {"generator"} - set(parameters))
     if unknown:
         check.fail("geometry", f"has entries {unknown} that the {name!r} generator does not take; it takes "
@@ -306,7 +307,7 @@ def _check_lights(check, lights):
 
 
 def check_stack_description(meta, source) -> dict:
-    """Check a mesh stack's ``stack.json`` (:mod:`rjfit.data.mesh_stack`) by the rules it
+    """Check a mesh stack's ``stack.json`` (:mod:`rjfit.render.mesh_stack`) by the rules it
     shares with a scene: format, resolution, camera, lights, reference intensity and the
     optional saturation and dark levels; return it unchanged.
 
@@ -315,7 +316,6 @@ def check_stack_description(meta, source) -> dict:
     SceneError
         (a ``DatasetError``) naming ``source``, the entry and its allowed values.
     """
-    from rjfit.data.mesh_stack import MESH_STACK_FORMAT
 
     check = _Checker(source, hint="see docs/dataset-format.md, 'Measured mesh stacks'", noun="a mesh stack")
     check.mapping(meta, "the description", "{format, images, mesh, camera, resolution, lights, ...}")
@@ -367,7 +367,6 @@ def check_dataset_description(meta, source) -> dict:
     SceneError
         (a ``DatasetError`` / ``ValueError``) naming ``source``, the entry and its allowed values.
     """
-    from rjfit.data.dataset import DATASET_FORMAT
 
     check = _Checker(source, hint="see docs/dataset-format.md for the dataset.json keys", noun="a data set")
     if not isinstance(meta, dict):

@@ -1,0 +1,78 @@
+"""``rjfit diagnose FIT``: the criticism workflow on a fit folder, with the data set and MAP
+segmentation the fit recorded."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from rjfit.data.fingerprint import dataset_fingerprint
+from rjfit.data.noise import DEFAULT_FLOOR
+from rjfit.diagnose.workflow import diagnose
+from rjfit.pipeline.fit_folder import read_map_labels, read_summary
+from rjfit.render.datasets import load_dataset
+
+__all__ = ["diagnose_fit"]
+
+
+def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
+    """The criticism workflow (:func:`rjfit.diagnose.workflow.diagnose`) on a fit folder: its ``summary.json`` names the data set (or ``dataset``
+    gives it, when the folder has moved) and the channel fitted, ``map_labels.exr`` (or
+    ``labels.exr``, as ``rjfit.pipeline.fit`` writes it; channel ``labels``) holds the MAP segmentation.
+
+    Parameters
+    ----------
+    fit_dir : path
+        The folder ``rjfit fit`` wrote (``summary.json`` and the MAP labels).
+    out_dir : path
+        Where the diagnosis goes (see :func:`rjfit.diagnose.workflow.diagnose`).
+    dataset : path or Dataset, optional
+        The fitted data set, when the one ``summary.json`` names has moved.
+    **options
+        Keyword arguments of :func:`rjfit.diagnose.workflow.diagnose`; ``channel``, ``likelihood_power``, ``noise`` and
+        ``noise_floor`` default to the fit's, and
+        ``provenance`` is always set to the fit's folder and ``fit_id``.
+
+    Returns
+    -------
+    dict
+        The contents of ``diagnosis.json``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``fit_dir`` is not a fit folder, has no MAP labels, or the data set it names is
+        not there.
+    ValueError
+        If ``summary.json`` names no data set and ``dataset`` is not given, or the data set's
+        files differ from those the fit recorded (``dataset_sha256``); and as :func:`rjfit.diagnose.workflow.diagnose`.
+    DatasetError
+        If ``summary.json`` or the MAP labels are damaged (:func:`rjfit.pipeline.fit_folder.read_summary`,
+        :func:`rjfit.pipeline.fit_folder.read_map_labels`); and as :func:`rjfit.diagnose.workflow.diagnose`.
+    """
+    fit_dir = Path(fit_dir)
+    summary = read_summary(fit_dir)
+    if dataset is None:
+        named = summary.get("dataset")
+        if not named:
+            raise ValueError(f"{fit_dir / 'summary.json'}: no 'dataset' entry; pass the data set (--dataset DIR)")
+        dataset = Path(named)
+        if not dataset.is_absolute() and not dataset.exists():
+            dataset = fit_dir / dataset
+        if not dataset.exists():
+            raise FileNotFoundError(f"{fit_dir}: the data set this fit names, {named}, is not there (moved?); "
+                                    f"pass its new place with --dataset DIR")
+    recorded = summary.get("dataset_sha256")
+    if recorded:
+        if dataset_fingerprint(dataset) != recorded:
+            raise ValueError(f"{dataset}: not the data this fit was made from (its files differ from those "
+                             f"{fit_dir / 'summary.json'} records); give the fitted data set, or fit this one again")
+    options.setdefault("channel", summary.get("channel") or "mean")     # the channel the fit used
+    # the power of a coarsened fit: its Bayes factors weigh the data as the fit did
+    options.setdefault("likelihood_power", summary.get("likelihood_power", 1.0))
+    # and its noise model: the refits weigh the observations as its sampler did
+    noise_record = summary.get("noise") or {}
+    options.setdefault("noise", noise_record.get("model") or "constant")
+    options.setdefault("noise_floor", noise_record.get("floor") or DEFAULT_FLOOR)
+    options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
+    dataset = dataset if hasattr(dataset, "images") else load_dataset(dataset)
+    labels = read_map_labels(fit_dir, dataset.object_mask)
+    return diagnose(dataset, labels, out_dir, **options)
