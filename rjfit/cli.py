@@ -91,11 +91,14 @@ def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
     data set: one linear EXR per light, geometry, visibility, truth and dataset.json."""
     from rjfit.render.render import render_dataset
 
-    path = render_dataset(scene, out_dir, resolution=resolution, seed=seed, spp=spp, noise_variance=noise_variance,
-                          variant=variant, progress=True)
+    _echo_render(render_dataset(scene, out_dir, resolution=resolution, seed=seed, spp=spp,
+                                noise_variance=noise_variance, variant=variant, progress=True))
+
+
+def _echo_render(path: Path) -> None:
     meta = json.loads((path / "dataset.json").read_text())
-    click.echo(f"wrote {path} ({meta['variant']}): {len(meta['images'])} images, {meta['resolution'][1]} x {meta['resolution'][0]}, "
-               f"{meta['render_seconds']:.1f} s")
+    click.echo(f"wrote {path} ({meta['variant']}): {len(meta['images'])} images, {meta['resolution'][1]} x "
+               f"{meta['resolution'][0]}, {meta['render_seconds']:.1f} s")
     _echo_cuda_fallback(meta["variant"])
 
 
@@ -139,48 +142,26 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
 @click.option("--allow-unvalidated", is_flag=True,
               help="Go on to fit, compare and diagnose when the cross-check fails (the criticism workflow on data "
                    "with a hidden effect); the fit's warnings then say so.")
-@click.pass_context
-def run(ctx, scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidated):
+def run(scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidated):
     """The main job, end to end on SCENE (default: the paper's synthetic sphere):
     render -> validate -> fit -> compare -> diagnose -> report.
 
     Stops with status 1 after a failed cross-check, unless --allow-unvalidated."""
-    import time
+    from rjfit.pipeline.run import run as run_main_job
 
-    started = time.perf_counter()
-    name = Path(scene).stem
-    out_dir = out_dir or Path("runs") / name
-    dataset_dir, fit_dir = out_dir / "dataset", out_dir / "fit"
-    click.echo(f"== 1/6 render {scene}")
-    ctx.invoke(render, scene=scene, out_dir=dataset_dir, resolution=resolution, seed=None, spp=None,
-               noise_variance=None, variant="auto")
-    click.echo("== 2/6 validate (closed form vs Mitsuba path tracer)")
-    from rjfit.render.gate import validate_dataset
-
-    validation = validate_dataset(dataset_dir, spp=4, seed=seed, progress=True)
-    click.echo(f"  {'PASSED' if validation['passed'] else 'FAILED'}: median rel. err. {validation['median_rel_err']:.3g}, "
-               f"p99 {validation['p99_rel_err']:.3g}, unexplained fraction {validation['unexplained_fraction']:.3g}")
-    if not validation["passed"] and not allow_unvalidated:
-        raise click.ClickException(
-            f"the closed-form model does not match Mitsuba on {dataset_dir} (see {dataset_dir / 'validation'}), so a "
-            f"fit would not be trustworthy; stopped. Pass --allow-unvalidated to fit and diagnose it anyway.")
-    click.echo("== 3/6 fit (RJMCMC)")
-    ctx.invoke(fit, datasets=(dataset_dir,), out_dir=fit_dir, n_chains=n_chains, iterations=iterations, burn_in=None,
-               max_u=3, max_v=3, sampler="adaptive", prior="default", split_map="conditional", cp_prior="smooth",
-               drop_jacobian=False, channel="mean", seed=seed,
-               validation_path=None, allow_unvalidated=allow_unvalidated, scheduler=None, workers=2)
-    truth = (dataset_dir / "truth_labels.exr").is_file()
-    if truth:
-        click.echo("== 4/6 compare with baselines")
-        ctx.invoke(compare, dataset=dataset_dir, out_dir=fit_dir / "comparison", fit_dir=fit_dir, seed=seed,
-                   channel="mean")
-    click.echo("== 5/6 diagnose (model criticism)")
-    ctx.invoke(diagnose, fit_dir=fit_dir, out_dir=fit_dir / "diagnosis")
-    click.echo("== 6/6 report")
-    from rjfit.pipeline.report import build_report
-
-    report_path = build_report(fit_dir)
-    click.echo(f"done in {time.perf_counter() - started:.0f} s. Open the report: {report_path.resolve()}")
+    out_dir = out_dir or Path("runs") / Path(scene).stem
+    echo = {"render": _echo_render,
+            "validate": lambda result: click.echo(
+                f"  {'PASSED' if result['passed'] else 'FAILED'}: median rel. err. {result['median_rel_err']:.3g}, "
+                f"p99 {result['p99_rel_err']:.3g}, unexplained fraction {result['unexplained_fraction']:.3g}"),
+            "fit": lambda summary: _echo_fit(out_dir / "fit", summary),
+            "compare": lambda rows: _echo_comparison(rows, out_dir / "fit" / "comparison", out_dir / "fit"),
+            "diagnose": lambda result: _echo_diagnosis(result, out_dir / "fit" / "diagnosis"),
+            "report": lambda path: None}
+    results = run_main_job(scene, out_dir, resolution=resolution, iterations=iterations, n_chains=n_chains, seed=seed,
+                           allow_unvalidated=allow_unvalidated, announce=click.echo,
+                           done=lambda step, result: echo[step](result))
+    click.echo(f"done in {results['seconds']:.0f} s. Open the report: {results['report'].resolve()}")
 
 
 @main.command()
@@ -202,7 +183,11 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
     from rjfit.pipeline.compare import compare_dataset
 
     click.echo(f"comparing segmentations of {dataset}")
-    rows = compare_dataset(dataset, out_dir, fit_dir=fit_dir, seed=seed, channel=channel, progress=click.echo)
+    _echo_comparison(compare_dataset(dataset, out_dir, fit_dir=fit_dir, seed=seed, channel=channel,
+                                     progress=click.echo), out_dir, fit_dir)
+
+
+def _echo_comparison(rows, out_dir, fit_dir) -> None:
     click.echo("best k per method (by pixel accuracy):")
     click.echo(f"  {'method':<22} {'k':>2} {'acc':>6} {'ARI':>6} {'bF1':>6} {'seconds':>8}")
     best = {}
@@ -218,51 +203,32 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
     click.echo(f"  table: {Path(out_dir) / 'comparison.md'}  figure: {Path(out_dir) / 'segmentations.png'}")
 
 
+def _click_option(name, default, spec):
+    """The click option of one :class:`rjfit.pipeline.options.FitOptions` field."""
+    if spec.kind == "flag":
+        return click.option(spec.flag, name, is_flag=True, help=spec.help)
+    types = {"int": click.IntRange(min=spec.low) if spec.low is not None else int, "float": float,
+             "choice": click.Choice(spec.choices), "text": str,
+             "power": click.STRING, "path": click.Path(dir_okay=False, path_type=Path)}
+    default = "1" if spec.kind == "power" and default == 1.0 else default
+    return click.option(spec.flag, name, type=types[spec.kind], default=default, help=spec.help,
+                        show_default=spec.show_default and default is not None)
+
+
+def fit_options(command):
+    """Add every command-line option of :class:`rjfit.pipeline.options.FitOptions` to ``command``."""
+    from rjfit.pipeline.options import FitOptions
+
+    for name, default, spec in reversed(FitOptions.cli_fields()):
+        command = _click_option(name, default, spec)(command)
+    return command
+
+
 @main.command()
 @click.argument("datasets", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Fit folder; with several data sets, one sub-folder per data set.")
-@click.option("--chains", "n_chains", type=click.IntRange(min=1), default=4, show_default=True,
-              help="Chains from dispersed starts.")
-@click.option("--iterations", type=click.IntRange(min=10), default=4000, show_default=True, help="Iterations per chain.")
-@click.option("--burn-in", type=float, default=None,
-              help="Discarded fraction (default: 0.5 for synthetic data, 0.2 for measured, as in the paper).")
-@click.option("--max-u", type=int, default=3, show_default=True, help="Most u change-point vectors.")
-@click.option("--max-v", type=int, default=3, show_default=True, help="Most v change-point vectors.")
-@click.option("--sampler", type=click.Choice(["adaptive", "paper"]), default="adaptive", show_default=True,
-              help="Within-model moves: adaptive blocks (default) or the paper's component-wise MH.")
-@click.option("--prior", type=click.Choice(["default", "paper-synthetic", "paper-real"]), default="default",
-              show_default=True, help="Prior preset (paper: Table 1 synthetic, Table 3 real).")
-@click.option("--split-map", type=click.Choice(["conditional", "mean", "paper"]), default="conditional",
-              show_default=True,
-              help="Parameters of regions born by a split: drawn from a data-driven proposal (conditional), "
-                   "or a bijective map: mean (|det| 2) or the paper's eq. 10 (|det| 3), Jacobian included.")
-@click.option("--cp-prior", type=click.Choice(["smooth", "paper"]), default="smooth", show_default=True,
-              help="Change-point prior: random walk along the vector (smooth) or independent uniform per row.")
-@click.option("--drop-jacobian", is_flag=True,
-              help="Reproduce the paper's acceptance ratio without the split/merge Jacobian (wrong; for study).")
-@click.option("--channel", type=click.Choice(["mean", "R", "G", "B", "luminance", "each"]), default="mean",
-              show_default=True,
-              help="Colour channel fitted (luminance: CIE Y, sRGB primaries); each: R, G and B fitted separately, "
-                   "into OUT/R, OUT/G and OUT/B (OUT/NAME/R, ... for several data sets).")
-@click.option("--likelihood-power", default="1", show_default=True,
-              help="zeta in (0, 1] of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each "
-                   "observation counts as zeta observations, so a BRDF misfit shared by neighbouring pixels of "
-                   "measured data does not split a uniform material into regions. 'auto': zeta = ((1-rho)/(1+rho))^2 "
-                   "from the lag-1 spatial correlation rho of per-pixel-fit residuals (about 1 for white noise). "
-                   "1: the plain posterior.")
-@click.option("--noise", type=click.Choice(["constant", "shot", "relative"]), default="constant", show_default=True,
-              help="Noise model y_i ~ N(mu_i, sigma_r^2 s_i^2), s_i known per observation: constant: s_i = 1 "
-                   "(homoscedastic per region, the paper's); shot: s_i^2 = (m_i + c) / ybar (variance grows with "
-                   "the signal: photon plus read noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: "
-                   "a multiplicative error). m_i: the prediction of a separate Lambert + Blinn fit of each pixel; "
-                   "ybar: the mean observed value; c = NOISE_FLOOR * ybar. Weighted least squares: the sampler is "
-                   "unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
-                   "known to grow with the signal.")
-@click.option("--noise-floor", type=float, default=0.05, show_default=True,
-              help="c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, "
-                   "as a fraction of the mean observed value. Unused for --noise constant.")
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of every random draw.")
+@fit_options
 @click.option("--validation", "validation_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="validation.json of the data set (default: DATASET/validation/validation.json).")
 @click.option("--allow-unvalidated", is_flag=True,
@@ -270,17 +236,7 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
 @click.option("--scheduler", default=None,
               help="Run chains on Dask: 'local' for a local cluster, or a scheduler address (tcp://host:8786).")
 @click.option("--workers", type=int, default=2, show_default=True, help="Workers of a local Dask cluster.")
-@click.option("--threads", type=click.IntRange(min=1), default=None,
-              help="Threads per chain for its large passes over the observations (default: the cores left to "
-                   "each chain that runs at once, e.g. 2 for one chain on 2 cores, 1 for 4 chains; 1 on Dask). "
-                   "The samples are the same for any number.")
-@click.option("--checkpoint-every", type=click.IntRange(min=1), default=2000, show_default=True,
-              help="Iterations between a chain's checkpoints (OUT/checkpoints): a fit stopped by Ctrl-C, a crash or "
-                   "SIGKILL and run again with the same command resumes there and gives the samples of an "
-                   "uninterrupted run.")
-def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler, prior, split_map, cp_prior,
-        drop_jacobian, channel, likelihood_power, noise, noise_floor, seed, validation_path, allow_unvalidated,
-        scheduler, workers, threads, checkpoint_every):
+def fit(datasets, out_dir, validation_path, allow_unvalidated, scheduler, workers, **options):
     """Segment DATASET(S) and sample the region BRDF posteriors (RJMCMC).
 
     Refuses a data set whose forward model has not passed `rjfit validate` unless
@@ -288,30 +244,31 @@ def fit(datasets, out_dir, n_chains, iterations, burn_in, max_u, max_v, sampler,
     chains.nc, changepoints.npz and the paper's figures; an interrupted fit leaves the
     folder's previous results untouched and resumes from its checkpoints."""
     from rjfit.pipeline.fit_dataset import fit_datasets
+    from rjfit.pipeline.options import FitOptions
 
-    summaries = fit_datasets(datasets, out_dir, n_chains=n_chains, iterations=iterations, burn_in=burn_in,
-                             max_u=max_u, max_v=max_v, sampler=sampler, prior=prior, split_map=split_map,
-                             cp_prior=cp_prior, drop_jacobian=drop_jacobian, channel=channel,
-                             likelihood_power=_likelihood_power(likelihood_power), noise=noise,
-                             noise_floor=noise_floor, seed=seed,
-                             validation_path=validation_path,
-                             allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers,
-                             threads=threads, checkpoint_every=checkpoint_every)
+    options["likelihood_power"] = _likelihood_power(options["likelihood_power"])
+    summaries = fit_datasets(datasets, out_dir, FitOptions(**options), validation_path=validation_path,
+                             allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers)
     for folder, summary in summaries:
-        map_model = summary["map_model"]
-        click.echo(f"fit of {summary['dataset']} ({summary['channel']}) -> {folder}")
-        noise_model = summary.get("noise", {}).get("model", "constant")
-        if noise_model != "constant" or summary["likelihood_power"] != 1.0:
-            noise_text = (f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), "
-                          if noise_model != "constant" else "")
-            click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
-        click.echo(f"  MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
-                   f"{len(summary['regions'])} regions; R-hat max {summary['rhat_max']:.4f}, "
-                   f"ESS min {summary['ess_min']:.0f}; {summary['seconds']:.1f} s")
-        if "label_accuracy" in summary:
-            click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
-        for warning in summary.get("warnings", []):
-            click.echo(f"  WARNING: {warning}", err=True)
+        _echo_fit(folder, summary)
+
+
+def _echo_fit(folder, summary: dict) -> None:
+    """A fit's one-paragraph summary: model, regions, convergence, time, warnings."""
+    map_model = summary["map_model"]
+    click.echo(f"fit of {summary['dataset']} ({summary['channel']}) -> {folder}")
+    noise_model = summary.get("noise", {}).get("model", "constant")
+    if noise_model != "constant" or summary["likelihood_power"] != 1.0:
+        noise_text = (f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), "
+                      if noise_model != "constant" else "")
+        click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
+    click.echo(f"  MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
+               f"{len(summary['regions'])} regions; R-hat max {summary['rhat_max']:.4f}, "
+               f"ESS min {summary['ess_min']:.0f}; {summary['seconds']:.1f} s")
+    if "label_accuracy" in summary:
+        click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
+    for warning in summary.get("warnings", []):
+        click.echo(f"  WARNING: {warning}", err=True)
 
 
 @main.command()
@@ -365,7 +322,6 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
     """Criticise a fit: find where simulation and data disagree, name the missing effect
     (only when the evidence is decisive), add it, refit and show the gap shrink."""
     from rjfit.diagnose.effects import ALL_EFFECTS
-    from rjfit.diagnose.report import gap_text, named_text
     from rjfit.pipeline.diagnose import diagnose_fit
 
     out_dir = out_dir or fit_dir / "diagnosis"
@@ -375,6 +331,12 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
         options["noise"] = noise
     result = diagnose_fit(fit_dir, out_dir, dataset=dataset_dir, candidates=candidates, seed=seed, max_steps=max_steps,
                           simulate=False if no_simulate else None, progress=True, jobs=jobs, **options)
+    _echo_diagnosis(result, out_dir)
+
+
+def _echo_diagnosis(result: dict, out_dir) -> None:
+    from rjfit.diagnose.report import gap_text, named_text
+
     click.echo(f"named effects: {named_text(result)}")
     if result["named_effects"] and result["search"]["stopped"].startswith("stopped after"):
         click.echo(f"  {result['search']['stopped']} (raise --max-steps to search on)")

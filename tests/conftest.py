@@ -1,12 +1,9 @@
 """Shared fixtures: small data sets rendered once per test session with the real Mitsuba."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+from builders import SHARED_DATA
 
 
 @pytest.fixture(scope="session")

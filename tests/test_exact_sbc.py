@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 from scipy import stats
+from test_exact_rj import tiny_problem
 from threadpoolctl import threadpool_limits
 
 from rjfit.data.observations import Observations
@@ -22,8 +23,6 @@ from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.likelihood import Problem
 from rjfit.sampler.priors import ParamPrior
 from rjfit.sampler.state import SamplerConfig
-
-from test_exact_rj import tiny_problem
 
 REPLICATES, DRAWS, THIN, BURN = 100, 19, 20, 200
 

@@ -2,14 +2,22 @@
 import math
 
 import numpy as np
-from numba import njit
 import pytest
+from numba import njit
 from scipy.signal import fftconvolve
 from scipy.stats import chi2
 
 from rjfit.data.synthetic import sphere_stack
 from rjfit.sampler import jit
-from rjfit.sampler.likelihood import LOG_2PI, Problem, RegionData, ab_from_theta, b_terms, region_stats, region_stats_numpy
+from rjfit.sampler.likelihood import (
+    LOG_2PI,
+    Problem,
+    RegionData,
+    ab_from_theta,
+    b_terms,
+    region_stats,
+    region_stats_numpy,
+)
 from rjfit.sampler.moves import _cell_step_logits, _path_log_prob
 
 

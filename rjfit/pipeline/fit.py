@@ -1,16 +1,17 @@
 """Fit a stack: run the RJMCMC chains and write the results (summary, labels, chains, figures).
 
-``fit(observations, out_dir, ...)`` is what ``rjfit fit DATASET`` calls once the data set has
-passed the cross-check gate (the gate is the caller's business).
+``fit(observations, out_dir, options)`` is what ``rjfit fit DATASET`` calls once the data set has
+passed the cross-check gate (the gate and the data set are :mod:`rjfit.pipeline.fit_dataset`'s
+business). Its options are a :class:`rjfit.pipeline.options.FitOptions`.
 
 Outputs in ``out_dir`` (each written atomically):
 
-- ``summary.json``: model_posterior, map_model {n_u, n_v, m}, regions, rhat_max, ess_min,
-  iterations, seconds, noise (the noise model, its floor and scale range), chain_model_posterior (per chain), and with ground truth
-  label_accuracy, true_regions_probability and exact_truth_probability;
+- ``summary.json``: see :data:`rjfit.pipeline.fit_folder.SUMMARY_FIELDS`;
 - ``labels.exr``: MAP labels (channel ``labels``, -1 off the object);
 - ``chains.nc``: full chains as ArviZ InferenceData (dims chain, draw, region, parameter);
 - ``changepoints.npz``: thinned change-point snapshots per chain;
+- ``maps.exr``: per-pixel parameters, labels, valid-images count and residual RMS
+  (:func:`write_parameter_maps`);
 - ``figures/*.png``: the paper's figures (see :mod:`rjfit.posterior.figures`).
 
 Change points that cut no object pixel. Regions with no observation contribute only their
@@ -30,116 +31,63 @@ observations cannot tell two regions apart make it ~0 even for a good fit).
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import json
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rjfit.data.coarsen import misfit_warning, suggest_likelihood_power
-from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS, describe_noise, noise_scale
-from rjfit.io import publish, staging_dir, write_json_atomic
+from rjfit.data.exr import read_exr, write_exr
+from rjfit.data.noise import describe_noise, noise_scale
+from rjfit.io import staging_dir
+from rjfit.model.blinn import radiance
+from rjfit.pipeline.fit_folder import publish_results, results_digest, write_summary
+from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import summary as post
 from rjfit.sampler.changepoints import model_number
 from rjfit.sampler.likelihood import Problem
-from rjfit.sampler.priors import PRESETS, make_prior
+from rjfit.sampler.priors import make_prior
 from rjfit.sampler.runner import ChainSpec, run_chains
 from rjfit.sampler.state import SamplerConfig
 
-__all__ = ["fit"]
+__all__ = ["fit", "FitSource", "write_parameter_maps"]
 
 
-RESULT_FILES = ("labels.exr", "chains.nc", "changepoints.npz", "maps.exr", "figures")
-# Results derived from a fit by later commands; those of a replaced fit no longer describe it.
-DERIVED_RESULTS = ("report.html",)
+@dataclass(frozen=True)
+class FitSource:
+    """What a fit records of the data set it was made from (written into its summary).
 
-
-def results_digest(summary: dict) -> str:
-    """A short digest of a fit's results (models, regions, seed, settings): it identifies the
-    fit that a diagnosis or comparison was made from, so a report can tell a stale one."""
-    keys = ("model_posterior", "map_model", "regions", "iterations", "burn_in", "n_chains", "seed", "n_observations",
-            "likelihood_power", "prior")
-    text = json.dumps({key: summary.get(key) for key in keys}, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def publish_results(staging: Path, out_dir: Path) -> None:
-    """Move a finished fit's files from ``staging`` into ``out_dir``, replacing the previous fit's.
-
-    The previous ``summary.json`` goes first and the new one comes last: a folder without
-    ``summary.json`` is an incomplete fit, never a mixture of two. Previous result files
-    the new fit does not write are removed too. Every file is on disk (fsync) before the
-    new ``summary.json`` appears (see :func:`rjfit.io.publish`).
+    ``entries`` are summary.json entries (dataset, dataset_sha256, channel, crop, validation);
+    ``warnings`` go before the fit's own; ``exclusion_counts`` (per rule, (H, W)),
+    ``object_mask`` and ``n_lights`` draw the valid-images figure.
     """
-    publish(staging, out_dir, manifest="summary.json", names=RESULT_FILES, remove=RESULT_FILES + DERIVED_RESULTS)
+
+    entries: dict
+    warnings: tuple = ()
+    exclusion_counts: dict | None = None
+    object_mask: np.ndarray | None = None
+    n_lights: int = 0
 
 
-def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: int = 0, n_chains: int = 4,
-        iterations: int = 20000, burn_in: float = 0.5, max_u: int = 3, max_v: int = 3, sampler: str = "adaptive",
-        prior: str = "default", split_map: str = "conditional", cp_prior: str = "smooth",
-        drop_jacobian: bool = False, jump_prob: float = 0.2, likelihood_power: float | str = 1.0,
-        noise: str = "constant", noise_floor: float = DEFAULT_FLOOR, anneal: float = 0.5,
-        cp_thin: int = 10, checkpoint_every: int = 2000, processes: int | None = None, threads: int | None = None,
-        start=None, fixed_segmentation=None, figures: bool = True, progress: bool = True, chain_runner=None,
-        before_publish=None) -> dict:
+def fit(observations, out_dir, options: FitOptions | None = None, *, truth_labels=None, truth_params=None,
+        start=None, fixed_segmentation=None, chain_runner=None, source: FitSource | None = None,
+        before_publish=None, **option_keywords) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
 
     Parameters
     ----------
     observations : rjfit.data.observations.Observations
     out_dir : path
+    options : FitOptions, optional
+        The fit's options; ``option_keywords`` (any :class:`FitOptions` field, e.g. ``seed=1,
+        n_chains=2``) build or change them. A ``burn_in`` of None means 0.5.
     truth_labels : ndarray (H, W), optional
         Ground-truth region per pixel (-1 off the object): adds label_accuracy and
         exact_truth_probability.
     truth_params : list of dict, optional
         Ground-truth parameters per true label (written beside the estimates).
-    seed : int
-        User seed; chain c draws from ``SeedSequence(seed).spawn(n_chains)[c]``.
-    n_chains, iterations : int
-    burn_in : float
-        Fraction of iterations discarded (paper: 0.5 synthetic, 0.2 real); the gamma step
-        adapts during it only.
-    max_u, max_v : int
-        Maximum numbers of u and v change-point vectors.
-    sampler : {'adaptive', 'paper'}
-    prior : {'default', 'paper-synthetic', 'paper-real'}
-    anneal : float
-        Fraction of the burn-in run as a tempered warm-up (likelihood power rising
-        geometrically from 1e-3 of its value to all of it; see
-        :func:`rjfit.sampler.kernel.anneal_power`); 0 for none. Only burn-in is tempered.
-    likelihood_power : float or 'auto'
-        zeta in (0, 1]: the coarsened posterior (likelihood ** zeta; Miller and Dunson, JASA
-        2019) for a model known to miss part of measured data; see
-        :class:`rjfit.sampler.likelihood.Problem`. 1 (default): the plain posterior.
-        'auto': the effective fraction of independent observations, from the spatial
-        correlation of per-pixel-fit residuals (:func:`rjfit.data.coarsen.suggest_likelihood_power`).
-    noise : {'constant', 'shot', 'relative'}
-        Noise model, ``y_i ~ N(mu_i, sigma_r^2 s_i^2)`` with known scales ``s_i``
-        (:func:`rjfit.data.noise.noise_scale`): 'constant' (default, the paper's) ``s_i = 1``;
-        'shot' ``s_i^2 = (m_i + c) / ybar``; 'relative' ``s_i = (m_i + c) / ybar``, with
-        ``m_i`` a per-pixel fit's prediction, ``ybar`` the mean observed value and
-        ``c = noise_floor * ybar``. With 'auto' likelihood power, zeta is measured on the
-        standardised residuals.
-    noise_floor : float
-        ``c / ybar`` of the 'shot' and 'relative' models (default 0.05); unused for 'constant'.
-    split_map, cp_prior, drop_jacobian, jump_prob : see :class:`rjfit.sampler.state.SamplerConfig`
-        (``cp_prior='paper'`` and ``split_map='paper'`` with ``drop_jacobian=True`` give the
-        paper's own choices).
-    cp_thin : int
-        Keep a change-point snapshot every ``cp_thin`` iterations (fewer when a short run
-        would keep under 50 after burn-in).
-    checkpoint_every : int
-        Iterations between checkpoints (``out_dir/checkpoints/chain_<c>.pkl``); an existing
-        checkpoint of the same run (same data, prior, settings, seed and sampler code) is
-        resumed, one of another run is refused with an error. They are deleted once the
-        results are written.
-    processes : int, optional
-        Worker processes for the chains (default: one per chain, at most one per core).
-    threads : int, optional
-        Numba threads per chain for its large passes (default: the cores left to each chain
-        that runs at once). The samples are the same for any number.
     start : list of dict, optional
         Per chain keyword arguments of :func:`rjfit.sampler.kernel.initial_state`.
     fixed_segmentation : (u, v), optional
@@ -147,11 +95,11 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     chain_runner : callable, optional
         ``chain_runner(specs) -> records``: runs :func:`rjfit.sampler.runner.run_chain` over
         the chain specs elsewhere (e.g. on Dask); default: local worker processes.
+    source : FitSource, optional
+        The data set the observations come from (recorded in the summary).
     before_publish : callable, optional
-        ``before_publish(summary, staging_dir, prediction)``: adds files (any of
-        :data:`RESULT_FILES`) and summary keys before the results replace the folder's
-        previous ones; ``prediction`` is
-        :func:`rjfit.posterior.summary.posterior_mean_prediction` of the fit.
+        ``before_publish(staging_dir, summary)``, called once every result is staged and
+        before it replaces the folder's previous results (tests use it to interrupt a fit there).
 
     Returns
     -------
@@ -160,81 +108,122 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
 
     Raises
     ------
+    TypeError
+        For a keyword that is not a fit option.
     ValueError
-        Before any chain runs: if ``burn_in`` is not in [0, 1) or leaves no iteration to
-        keep; ``n_chains < 1`` or ``iterations < 10``; ``prior`` or ``noise`` is unknown;
-        ``likelihood_power`` is neither ``'auto'`` nor a number in (0, 1] (the range is
-        checked by :class:`rjfit.sampler.likelihood.Problem`); ``'auto'`` cannot be measured
-        (no two adjacent pixels under one light have a residual); ``truth_labels`` does not
-        have the images' shape (H, W); ``noise_floor`` is not positive and finite for the
-        'shot' / 'relative' models (:func:`rjfit.data.noise.noise_scale`); the observations are
-        unusable (none, some with ``<l.n> <= 0``, or a mean value that is not positive under
-        the 'shot' / 'relative' models); or a sampler setting is out of range
-        (:class:`rjfit.sampler.state.SamplerConfig`: ``sampler``, ``split_map``,
-        ``cp_prior``, ``max_u``/``max_v``, ``jump_prob``). While the chains start: if a
-        ``start`` entry does not fit ``max_u``/``max_v``, or a checkpoint in
-        ``out_dir/checkpoints`` is unreadable, of another checkpoint version or of another
-        run (the message says to delete it).
+        Before any chain runs: for an option out of range (:class:`FitOptions`);
+        ``likelihood_power='auto'`` that cannot be measured (no two adjacent pixels under one
+        light have a residual); ``truth_labels`` not of the images' shape (H, W); unusable
+        observations (none, some with ``<l.n> <= 0``, or a mean value that is not positive
+        under the 'shot' / 'relative' noise models); or a burn-in that leaves no iteration.
+        While the chains start: if a ``start`` entry does not fit ``max_u``/``max_v``, or a
+        checkpoint in ``out_dir/checkpoints`` is unreadable, of another checkpoint version or
+        of another run (the message says to delete it).
     """
-    if not 0.0 <= burn_in < 1.0:
-        raise ValueError(f"burn_in (--burn-in) is a fraction in [0, 1), got {burn_in}")
-    if n_chains < 1 or iterations < 10:
-        raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got {n_chains}, "
-                         f"{iterations}")
-    if prior not in PRESETS:
-        raise ValueError(f"unknown prior {prior!r}: choose one of {', '.join(PRESETS)}")
-    if noise not in NOISE_MODELS:
-        raise ValueError(f"unknown noise model {noise!r}: choose one of {', '.join(NOISE_MODELS)}")
-    if likelihood_power != "auto":
-        try:
-            likelihood_power = float(likelihood_power)
-        except (TypeError, ValueError):
-            raise ValueError(f"likelihood_power must be a number in (0, 1] or 'auto', got {likelihood_power!r}") from None
+    options = FitOptions.build(options, **option_keywords)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    scale = noise_scale(observations, noise, noise_floor)
-    # measured always (a fraction of a second): a misfit shared by neighbouring pixels is
-    # worth a warning whatever power the fit uses
-    try:
-        power_suggestion = suggest_likelihood_power(observations, noise_scale=scale)
-    except ValueError:
-        if likelihood_power == "auto":
-            raise
-        power_suggestion = None      # too few adjacent pixels to measure it
-    if likelihood_power == "auto":
-        likelihood_power = power_suggestion["likelihood_power"]
-    problem = Problem.from_observations(observations, likelihood_power=float(likelihood_power), noise_scale=scale)
-    noise_record = describe_noise(noise, noise_floor, scale)
-    del scale
-    prior_obj = make_prior(prior, y=problem.y, diffuse_scale=problem.A)
-    burn = int(round(burn_in * iterations))
-    if iterations - burn < 1:
-        raise ValueError(f"burn-in {burn_in} leaves no iteration of {iterations} to keep; lower --burn-in")
-    # at least ~50 change-point snapshots after burn-in, so a short run still has its MAP labels
-    cp_thin = max(1, min(cp_thin, (iterations - burn) // 50))
-    fixed = fixed_segmentation is not None
-    config = SamplerConfig(max_u=max_u, max_v=max_v, sampler=sampler, split_map=split_map, cp_prior=cp_prior,
-                           drop_jacobian=drop_jacobian, burn_in=burn, jump_prob=jump_prob,
-                           anneal=int(round(anneal * burn)),
-                           # reproducing the paper's omission: every jump must use its map
-                           free_jump_prob=0.0 if drop_jacobian else SamplerConfig.free_jump_prob,
-                           update_changepoints=not fixed, jumps=not fixed)
+    problem, suggestion, noise_record = prepare_problem(observations, options)
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
-    specs = []
-    for c in range(n_chains):
-        chain_start = dict(start[c]) if start is not None else {}
-        if fixed:
-            chain_start.setdefault("changepoints", fixed_segmentation)
-        specs.append(ChainSpec(problem=problem, prior=prior_obj, config=config, seed=seed, chain=c, n_chains=n_chains,
-                               iterations=iterations, checkpoint_path=str(out_dir / "checkpoints" / f"chain_{c}.pkl"),
-                               checkpoint_every=checkpoint_every, cp_thin=cp_thin, truth_labels=truth_labels,
-                               start=chain_start, progress=progress))
+    prior = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A)
+    config = sampler_config(options, fixed=fixed_segmentation is not None)
+    specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation)
     records = (list(chain_runner(specs)) if chain_runner is not None
-               else run_chains(specs, processes=processes, threads=threads))
+               else run_chains(specs, processes=options.processes, threads=options.threads))
+    result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels)
+    if truth_params is not None:
+        result.summary["truth_params"] = truth_params
+    write_results(out_dir, result, records, observations, options, source, before_publish, started)
+    # The results are written: the checkpoints (for resuming an interrupted run) have
+    # served, and a later run into this directory must start afresh, not resume them.
+    for spec in specs:
+        if os.path.exists(spec.checkpoint_path):
+            os.remove(spec.checkpoint_path)
+    with contextlib.suppress(OSError):      # only when empty: a folder the user keeps files in stays
+        (out_dir / "checkpoints").rmdir()
+    return result.summary
 
-    model_post = post.model_posterior(records, burn)
+
+def prepare_problem(observations, options: FitOptions):
+    """The sampler's :class:`~rjfit.sampler.likelihood.Problem` of ``observations`` under the
+    options' noise model and likelihood power; with the measured power suggestion and the
+    noise model's record.
+
+    The suggestion is measured always (a fraction of a second): a misfit shared by
+    neighbouring pixels is worth a warning whatever power the fit uses.
+    """
+    scale = noise_scale(observations, options.noise, options.noise_floor)
+    try:
+        suggestion = suggest_likelihood_power(observations, noise_scale=scale)
+    except ValueError:
+        if options.likelihood_power == "auto":
+            raise
+        suggestion = None      # too few adjacent pixels to measure it
+    power = suggestion["likelihood_power"] if options.likelihood_power == "auto" else options.likelihood_power
+    problem = Problem.from_observations(observations, likelihood_power=float(power), noise_scale=scale)
+    return problem, suggestion, describe_noise(options.noise, options.noise_floor, scale)
+
+
+def burn_in_iterations(options: FitOptions) -> int:
+    """Iterations discarded per chain (``burn_in`` of None: half, the paper's choice for synthetic data).
+
+    Raises
+    ------
+    ValueError
+        If the burn-in leaves no iteration to keep.
+    """
+    fraction = 0.5 if options.burn_in is None else options.burn_in
+    burn = int(round(fraction * options.iterations))
+    if options.iterations - burn < 1:
+        raise ValueError(f"burn-in {fraction} leaves no iteration of {options.iterations} to keep; lower --burn-in")
+    return burn
+
+
+def sampler_config(options: FitOptions, *, fixed: bool = False) -> SamplerConfig:
+    """The kernel's settings from the fit's options; ``fixed``: the segmentation does not move."""
+    burn = burn_in_iterations(options)
+    return SamplerConfig(max_u=options.max_u, max_v=options.max_v, sampler=options.sampler,
+                         split_map=options.split_map, cp_prior=options.cp_prior, drop_jacobian=options.drop_jacobian,
+                         burn_in=burn, jump_prob=options.jump_prob, anneal=int(round(options.anneal * burn)),
+                         # reproducing the paper's omission: every jump must use its map
+                         free_jump_prob=0.0 if options.drop_jacobian else SamplerConfig.free_jump_prob,
+                         update_changepoints=not fixed, jumps=not fixed)
+
+
+def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, truth_labels, start, fixed_segmentation):
+    """One :class:`~rjfit.sampler.runner.ChainSpec` per chain (its seed, start and checkpoint file)."""
+    # at least ~50 change-point snapshots after burn-in, so a short run still has its MAP labels
+    cp_thin = max(1, min(options.cp_thin, (options.iterations - config.burn_in) // 50))
+    specs = []
+    for c in range(options.n_chains):
+        chain_start = dict(start[c]) if start is not None else {}
+        if fixed_segmentation is not None:
+            chain_start.setdefault("changepoints", fixed_segmentation)
+        specs.append(ChainSpec(problem=problem, prior=prior, config=config, seed=options.seed, chain=c,
+                               n_chains=options.n_chains, iterations=options.iterations,
+                               checkpoint_path=str(out_dir / "checkpoints" / f"chain_{c}.pkl"),
+                               checkpoint_every=options.checkpoint_every, cp_thin=cp_thin, truth_labels=truth_labels,
+                               start=chain_start, progress=options.progress))
+    return specs
+
+
+@dataclass
+class FitResult:
+    """A fit's results in memory: the summary and what its files are made of."""
+
+    summary: dict
+    labels: np.ndarray          # MAP labels (H, W), -1 off the object
+    prediction: dict            # posterior mean prediction (rjfit.posterior.summary.posterior_mean_prediction)
+    problem: Problem
+    burn: int
+    model: tuple
+
+
+def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels):
+    """The posterior summaries of the chains' kept draws, with the settings they ran with."""
+    burn = config.burn_in
     n_u, n_v = post.map_model(records, burn)
     draws = post.map_model_draws(records, burn, (n_u, n_v))
     labels = post.map_labels(records, burn, (n_u, n_v), problem.image_shape, problem.object_mask)
@@ -242,21 +231,21 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     prediction = post.posterior_mean_prediction(records, burn, problem)
     diag = post.diagnostics(draws)
     summary = {
-        "model_posterior": model_post,
-        "map_model": {"n_u": n_u, "n_v": n_v, "m": model_number(n_u, n_v, max_v)},
+        "model_posterior": post.model_posterior(records, burn),
+        "map_model": {"n_u": n_u, "n_v": n_v, "m": model_number(n_u, n_v, options.max_v)},
         "model_number_convention": "m = n_u * (max_v + 1) + n_v + 1",
         "regions": post.region_summaries(draws, labels),
         "rhat_max": diag["rhat_max"],
         "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
         "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"],
         "diagnostics": diag,
-        "iterations": iterations, "burn_in": burn, "n_chains": n_chains, "seed": seed,
+        "iterations": options.iterations, "burn_in": burn, "n_chains": options.n_chains, "seed": options.seed,
         "n_observations": problem.n_obs,
-        "sampler": sampler, "prior": prior_obj.to_json(), "max_u": max_u, "max_v": max_v,
-        "split_map": split_map, "cp_prior": cp_prior, "drop_jacobian": drop_jacobian,
-        "likelihood_power": float(likelihood_power), "likelihood_power_suggestion": power_suggestion,
+        "sampler": options.sampler, "prior": prior.to_json(), "max_u": options.max_u, "max_v": options.max_v,
+        "split_map": options.split_map, "cp_prior": options.cp_prior, "drop_jacobian": options.drop_jacobian,
+        "likelihood_power": float(problem.likelihood_power), "likelihood_power_suggestion": suggestion,
         "noise": noise_record,
-        "anneal_iterations": int(round(anneal * burn)),
+        "anneal_iterations": int(round(options.anneal * burn)),
         "acceptance": {k: sum(r.accepted.get(k, 0) for r in records) / max(1, sum(r.proposed.get(k, 0) for r in records))
                        for k in sorted({k for r in records for k in r.proposed})},
         "chain_seconds": [r.seconds for r in records],
@@ -266,39 +255,47 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         "chain_regions": post.chain_region_summaries(records, draws, burn, (n_u, n_v), problem.image_shape,
                                                      problem.object_mask),
     }
-    summary["warnings"] = post.convergence_warnings(diag, summary["chain_model_posterior"], n_chains)
-    misfit = misfit_warning(power_suggestion, float(likelihood_power))
+    summary["warnings"] = post.convergence_warnings(diag, summary["chain_model_posterior"], options.n_chains)
+    misfit = misfit_warning(suggestion, float(problem.likelihood_power))
     if misfit:
         summary["warnings"].append(misfit)
-    if prior_obj.caveat:
-        summary["warnings"].append(prior_obj.caveat)
+    if prior.caveat:
+        summary["warnings"].append(prior.caveat)
     if truth_labels is not None:
-        acc = post.label_accuracy(labels, truth_labels)
-        summary["label_accuracy"] = acc["accuracy"]
-        summary["label_matching"] = acc["matching"]
-        summary["exact_truth_probability"] = post.exact_truth_probability(records, burn)
-        n_true = int(len(np.unique(np.asarray(truth_labels)[np.asarray(truth_labels) >= 0])))
-        summary["true_region_count"] = n_true
-        summary["four_region_probability"] = post.object_region_count_probability(records, burn, n_true)
-        summary["true_regions_probability"] = post.true_regions_probability(records, burn)
-        summary["chain_true_regions_probability"] = [post.true_regions_probability([r], burn) for r in records]
-    if truth_params is not None:
-        summary["truth_params"] = truth_params
+        summary.update(truth_summary(records, burn, labels, truth_labels))
+    return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
+                     model=(n_u, n_v))
 
-    from rjfit.data.exr import write_exr
 
-    # Every result goes into a staging folder first and is published together (summary.json
-    # last), so an interrupted run leaves the previous results whole or none: never labels of
-    # one run beside the summary of another.
-    # (staging_dir removes the staging folders of runs killed while they wrote their results)
+def truth_summary(records, burn, labels, truth_labels) -> dict:
+    """How the fit compares with the ground truth of a synthetic data set."""
+    accuracy = post.label_accuracy(labels, truth_labels)
+    n_true = int(len(np.unique(np.asarray(truth_labels)[np.asarray(truth_labels) >= 0])))
+    return {"label_accuracy": accuracy["accuracy"], "label_matching": accuracy["matching"],
+            "exact_truth_probability": post.exact_truth_probability(records, burn),
+            "true_region_count": n_true,
+            "four_region_probability": post.object_region_count_probability(records, burn, n_true),
+            "true_regions_probability": post.true_regions_probability(records, burn),
+            "chain_true_regions_probability": [post.true_regions_probability([r], burn) for r in records]}
+
+
+def write_results(out_dir: Path, result: FitResult, records, observations, options: FitOptions,
+                  source: FitSource | None, before_publish, started: float) -> None:
+    """Stage every result file and publish them together, ``summary.json`` last.
+
+    An interrupted run leaves the previous results whole or none: never labels of one run
+    beside the summary of another. (``staging_dir`` removes the staging folders of runs
+    killed while they wrote their results.)
+    """
+    summary, burn, max_v = result.summary, result.burn, options.max_v
     with staging_dir(out_dir) as staging:
-        write_exr(staging / "labels.exr", {"labels": labels.astype(np.float32)})
+        write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)})
         summary["fit_id"] = results_digest(summary)
         idata = post.to_inference_data(records, burn, max_v)
         idata.posterior.attrs.update({
-            "rjfit_fit_id": summary["fit_id"], "seed": seed, "burn_in_iterations": burn,
+            "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
             "regions": f"region r of a draw is cell r of its model (n_u, n_v); slots past (n_u + 1)(n_v + 1) "
-                       f"are NaN (the region dimension has room for the largest model, {max_u}, {max_v})",
+                       f"are NaN (the region dimension has room for the largest model, {options.max_u}, {max_v})",
             "parameters": "I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise "
                           "variance), in the units of the observations"})
         idata.to_netcdf(str(staging / "chains.nc"))
@@ -306,22 +303,69 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
                       for k in ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v")}
         with open(staging / "changepoints.npz", "wb") as handle:
             np.savez_compressed(handle, **cp_payload)
-        if figures:
-            from rjfit.posterior import figures as figs
+        if options.figures:
+            from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
 
-            written = figs.write_all(staging / "figures", records=records, burn_in=burn, model=(n_u, n_v),
-                                     labels=labels, problem=problem, prediction=prediction, max_v=max_v)
+            written = figs.write_all(staging / "figures", records=records, burn_in=burn, model=result.model,
+                                     labels=result.labels, problem=result.problem, prediction=result.prediction,
+                                     max_v=max_v)
             summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
+        summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction)
+        if source is not None:
+            record_source(summary, source, staging, options)
         if before_publish is not None:
-            before_publish(summary, staging, prediction)
+            before_publish(staging, summary)
         summary["seconds"] = time.perf_counter() - started
-        write_json_atomic(staging / "summary.json", summary)
+        write_summary(staging / "summary.json", summary)
         publish_results(staging, out_dir)
-    # The results are written: the checkpoints (for resuming an interrupted run) have
-    # served, and a later run into this directory must start afresh, not resume them.
-    for spec in specs:
-        if os.path.exists(spec.checkpoint_path):
-            os.remove(spec.checkpoint_path)
-    with contextlib.suppress(OSError):      # only when empty: a folder the user keeps files in stays
-        (out_dir / "checkpoints").rmdir()
-    return summary
+
+
+def record_source(summary: dict, source: FitSource, staging: Path, options: FitOptions) -> None:
+    """Add the data set's entries and warnings to ``summary``, and its valid-images figure to ``staging``."""
+    if options.figures and source.exclusion_counts is not None:
+        from rjfit.plotting import exclusion_figure  # matplotlib: only when figures are drawn
+
+        # which observations the stated rules left out, and why (the valid-images map)
+        exclusion_figure(staging / "figures" / "valid_images.png", source.exclusion_counts,
+                         source.object_mask, source.n_lights)
+        summary.setdefault("figures", {})["valid_images"] = "figures/valid_images.png"
+    summary.update(source.entries)
+    summary["warnings"][:0] = list(source.warnings)
+
+
+def write_parameter_maps(observations, summary, out_dir: Path, prediction=None) -> str:
+    """Per-pixel maps of the MAP segmentation as one EXR: each region's posterior mean and sd
+    of I0, kd, gamma, sigma^2, the label, the valid-images count (paper, Fig. 8) and the RMS
+    over lights of the standardised residual ``(y - mu) / (sigma s)`` (``s`` the known noise
+    scales of the summary's noise model, 1 for 'constant').
+
+    The residual is ``prediction["residual_rms"]`` when given (the posterior mean prediction,
+    averaged draw by draw: :func:`rjfit.posterior.summary.posterior_mean_prediction`, what a
+    fit passes), else computed at the summary's region means on these labels (a plug-in that
+    mixes modes when chains disagree)."""
+    labels = np.rint(np.nan_to_num(read_exr(out_dir / "labels.exr")["labels"], nan=-1)).astype(int)
+    names = ("I0", "kd", "gamma", "sigma2")
+    table = np.full((max(len(summary["regions"]), int(labels.max()) + 1) + 1, 8), np.nan)
+    for index, region in enumerate(summary["regions"]):
+        row = int(region.get("region", index))
+        table[row] = [region[name][stat] for name in names for stat in ("mean", "sd")]
+    region_of_pixel = np.where(labels >= 0, labels, table.shape[0] - 1)      # last row stays NaN
+    channels = {f"{name}{suffix}": table[region_of_pixel, 2 * k + j]
+                for k, name in enumerate(names) for j, suffix in enumerate(("", "_sd"))}
+    size = labels.size
+    count = np.bincount(observations.pixel, minlength=size)
+    if prediction is not None:
+        rms = prediction["residual_rms"]
+    else:
+        obs_params = table[region_of_pixel.ravel()[observations.pixel]]
+        mu = radiance(obs_params[:, 0], obs_params[:, 2], obs_params[:, 4], observations.cos_ln, observations.cos_hn,
+                      observations.irradiance)
+        standardised = (observations.y - mu) / np.sqrt(obs_params[:, 6])
+        noise = summary.get("noise") or {"model": "constant"}
+        if noise["model"] != "constant":
+            standardised /= noise_scale(observations, noise["model"], noise["floor"])
+        sum_squares = np.bincount(observations.pixel, weights=np.nan_to_num(standardised) ** 2, minlength=size)
+        rms = np.where(count > 0, np.sqrt(sum_squares / np.maximum(count, 1)), np.nan).reshape(labels.shape)
+    channels.update(label=labels, valid_images=count.reshape(labels.shape), residual_rms=rms)
+    write_exr(out_dir / "maps.exr", channels)
+    return "maps.exr"

@@ -1,31 +1,151 @@
-"""Reading the folder ``rjfit fit`` wrote: ``summary.json`` and the MAP labels, checked.
+"""The folder ``rjfit fit`` writes: its files, the ``summary.json`` schema, and their reading, checked.
 
-Its readers (``rjfit report``, ``rjfit diagnose``, ``rjfit compare --fit``) get the contents,
-or one :class:`~rjfit.errors.DatasetError` that names the file, says what is wrong with it
-and what to do: a damaged or hand-edited file never reaches them as a traceback.
-(``chains.nc`` is read by ArviZ itself: ``arviz.from_netcdf``.)
+:data:`SUMMARY_FIELDS` is the one statement of what ``summary.json`` holds: every entry with
+its JSON type and meaning. :func:`write_summary` refuses to write an entry that is not in it
+or has another type (so the schema cannot drift from the writer), and :func:`read_summary`
+checks a folder's summary against it. Its readers (``rjfit report``, ``rjfit diagnose``,
+``rjfit compare --fit``) get the contents, or one :class:`~rjfit.errors.DatasetError` that
+names the file, says what is wrong with it and what to do: a damaged or hand-edited file
+never reaches them as a traceback. (``chains.nc`` is read by ArviZ itself:
+``arviz.from_netcdf``.)
 """
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 
 import numpy as np
 
+from rjfit.data.exr import read_exr
 from rjfit.data.formats import CHANNELS
 from rjfit.data.noise import NOISE_MODELS
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
-from rjfit.io import read_json
+from rjfit.io import publish, read_json, write_json_atomic
 
-__all__ = ["read_summary", "read_map_labels", "MAP_LABEL_FILES", "SUMMARY_TYPES"]
+__all__ = ["SUMMARY_FIELDS", "write_summary", "read_summary", "read_map_labels", "results_digest", "publish_results",
+           "MAP_LABEL_FILES", "RESULT_FILES", "DERIVED_RESULTS"]
 
-#: file names of the MAP labels in a fit folder, tried in this order (rjfit/fit.py writes labels.exr)
+#: file names of the MAP labels in a fit folder, tried in this order (the fit writes labels.exr)
 MAP_LABEL_FILES = ("map_labels.exr", "labels.exr")
+#: the results a fit writes beside summary.json (published together with it)
+RESULT_FILES = ("labels.exr", "chains.nc", "changepoints.npz", "maps.exr", "figures")
+#: results derived from a fit by later commands; those of a replaced fit no longer describe it
+DERIVED_RESULTS = ("report.html",)
 
-#: the entries of summary.json that a reader uses and the JSON type each must have (null reads as absent)
-SUMMARY_TYPES = {"dataset": str, "dataset_sha256": str, "fit_id": str, "channel": str, "map_model": dict,
-                 "regions": list, "model_posterior": dict, "warnings": list, "noise": dict, "validation": dict,
-                 "crop": dict, "truth_params": list, "label_matching": dict, "chain_regions": list}
-_TYPE_NAMES = {str: "a string", dict: "an object", list: "a list", float: "a number"}
+_NUMBER = (int, float)
+#: every entry of summary.json: (JSON type(s), meaning). null is allowed for every entry (a
+#: value that could not be computed, such as an R-hat of one chain) and reads as absent.
+SUMMARY_FIELDS = {
+    # the posterior
+    "model_posterior": (dict, "posterior probability of each model 'n_u,n_v' (pooled over chains, kept draws)"),
+    "map_model": (dict, "the most probable model: n_u, n_v and its number m"),
+    "model_number_convention": (str, "how m is computed from (n_u, n_v)"),
+    "regions": (list, "per region of the MAP model: posterior mean, sd, 95 % interval of I0, kd, gamma, sigma2, "
+                      "with its pixel count"),
+    "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),
+    "chain_model_posterior": (list, "model posterior of each chain"),
+    "rhat_max": (_NUMBER, "largest R-hat over the MAP model's parameters (null: not computable)"),
+    "ess_min": (_NUMBER, "smallest of the bulk and tail ESS"),
+    "ess_bulk_min": (_NUMBER, "smallest bulk ESS"),
+    "ess_tail_min": (_NUMBER, "smallest tail ESS"),
+    "diagnostics": (dict, "R-hat and ESS per parameter, and their extremes"),
+    "acceptance": (dict, "acceptance rate of each move kind"),
+    "warnings": (list, "what a reader must know before trusting the numbers, one sentence each"),
+    # against the truth (synthetic data only)
+    "label_accuracy": (_NUMBER, "share of object pixels whose MAP label matches the truth after matching"),
+    "label_matching": (dict, "region -> true label of that matching"),
+    "exact_truth_probability": (_NUMBER, "posterior probability that the partition equals the true one exactly"),
+    "true_region_count": (int, "number of true regions"),
+    "four_region_probability": (_NUMBER, "posterior probability of as many regions holding object pixels as the truth"),
+    "true_regions_probability": (_NUMBER, "posterior probability that the object's pixels fall into exactly the true "
+                                          "regions (99 % agreement)"),
+    "chain_true_regions_probability": (list, "the same per chain"),
+    "truth_params": (list, "true parameters per true label"),
+    # the settings it ran with
+    "iterations": (int, "iterations per chain"),
+    "burn_in": (int, "burn-in iterations per chain"),
+    "anneal_iterations": (int, "tempered warm-up iterations (within the burn-in)"),
+    "n_chains": (int, "chains"),
+    "seed": (int, "the user's seed"),
+    "n_observations": (int, "observations fitted"),
+    "sampler": (str, "within-model moves"),
+    "prior": (dict, "the prior (preset name, parameters, caveat)"),
+    "max_u": (int, "most u change-point vectors"),
+    "max_v": (int, "most v change-point vectors"),
+    "split_map": (str, "parameters of born regions"),
+    "cp_prior": (str, "change-point prior"),
+    "drop_jacobian": (bool, "the paper's acceptance ratio without its Jacobian (wrong; for study)"),
+    "likelihood_power": (_NUMBER, "zeta of the coarsened posterior"),
+    "likelihood_power_suggestion": (dict, "the measured spatial correlation of per-pixel-fit residuals and the zeta it "
+                                          "suggests"),
+    "noise": (dict, "the noise model, its floor and scale range"),
+    "chain_seconds": (list, "seconds each chain sampled"),
+    "chain_threads": (list, "threads each chain ran on"),
+    "chain_resumed_from": (list, "iterations of the checkpoints each chain resumed from"),
+    "seconds": (_NUMBER, "seconds of the whole fit"),
+    "fit_id": (str, "digest identifying these results (later commands check it)"),
+    "figures": (dict, "figure name -> file in the fit folder"),
+    "maps": (str, "the per-pixel maps file"),
+    # the data set it was made from
+    "dataset": (str, "the data set folder"),
+    "dataset_sha256": (str, "digest of the data set's files"),
+    "channel": (str, "the colour channel fitted"),
+    "crop": (dict, "where the maps sit in the original frame (row0, col0)"),
+    "validation": (dict, "the cross-check the fit was made under: passed, errors, path, note"),
+}
+_TYPE_NAMES = {str: "a string", dict: "an object", list: "a list", float: "a number", int: "an integer",
+               bool: "true or false", _NUMBER: "a number"}
+
+
+def _type_name(kind) -> str:
+    return _TYPE_NAMES.get(kind, str(kind))
+
+
+def _has_type(value, kind) -> bool:
+    if isinstance(value, bool):         # JSON true/false is not a number
+        return kind is bool
+    if kind is int:
+        return isinstance(value, (int, np.integer))
+    return isinstance(value, kind if kind is not _NUMBER else (int, float, np.integer, np.floating))
+
+
+def results_digest(summary: dict) -> str:
+    """A short digest of a fit's results (models, regions, seed, settings): it identifies the
+    fit that a diagnosis or comparison was made from, so a report can tell a stale one."""
+    keys = ("model_posterior", "map_model", "regions", "iterations", "burn_in", "n_chains", "seed", "n_observations",
+            "likelihood_power", "prior")
+    text = json.dumps({key: summary.get(key) for key in keys}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def write_summary(path, summary: dict) -> None:
+    """Write ``summary`` as ``summary.json`` (strict JSON, atomically), after checking it against the schema.
+
+    Raises
+    ------
+    TypeError
+        If an entry is not in :data:`SUMMARY_FIELDS` or has another type: a programming error
+        (the writer and the schema disagree), never the user's.
+    """
+    for key, value in summary.items():
+        if key not in SUMMARY_FIELDS:
+            raise TypeError(f"summary entry {key!r} is not in rjfit.pipeline.fit_folder.SUMMARY_FIELDS; add it there")
+        kind = SUMMARY_FIELDS[key][0]
+        if value is not None and not _has_type(value, kind):
+            raise TypeError(f"summary entry {key!r} is {type(value).__name__}, the schema says {_type_name(kind)}")
+    write_json_atomic(path, summary)
+
+
+def publish_results(staging: Path, out_dir: Path) -> None:
+    """Move a finished fit's files from ``staging`` into ``out_dir``, replacing the previous fit's.
+
+    The previous ``summary.json`` goes first and the new one comes last: a folder without
+    ``summary.json`` is an incomplete fit, never a mixture of two. Previous result files
+    the new fit does not write are removed too. Every file is on disk (fsync) before the
+    new ``summary.json`` appears (see :func:`rjfit.io.publish`).
+    """
+    publish(staging, out_dir, manifest="summary.json", names=RESULT_FILES, remove=RESULT_FILES + DERIVED_RESULTS)
 
 
 def _again(fit_dir) -> str:
@@ -45,7 +165,7 @@ def _first_bad(key, items, good, kind) -> list:
     """A problem naming the first of ``items`` (name, value) that is not ``good``; [] if none."""
     for name, value in items:
         if not good(value):
-            return [f"'{key}' entry {name!r} is {_short(value)}, not {_TYPE_NAMES[kind]}"]
+            return [f"'{key}' entry {name!r} is {_short(value)}, not {_type_name(kind)}"]
     return []
 
 
@@ -56,7 +176,7 @@ def read_summary(fit_dir) -> dict:
     ----------
     fit_dir : path
         A folder ``rjfit fit`` wrote. No entry is required (a reader checks those it cannot
-        do without); each of :data:`SUMMARY_TYPES` that is there must have its type.
+        do without); each entry of :data:`SUMMARY_FIELDS` that is there must have its type.
 
     Raises
     ------
@@ -82,10 +202,10 @@ def read_summary(fit_dir) -> dict:
         raise DatasetError(f"{path}: not a summary `rjfit fit` wrote (a JSON {type(summary).__name__}, not an "
                            f"object); {_again(fit_dir)}")
     problems = []
-    for key, kind in SUMMARY_TYPES.items():
+    for key, (kind, _) in SUMMARY_FIELDS.items():
         value = summary.get(key)
-        if value is not None and not isinstance(value, kind):
-            problems.append(f"'{key}' is {_short(value)}, not {_TYPE_NAMES[kind]}")
+        if value is not None and not _has_type(value, kind):
+            problems.append(f"'{key}' is {_short(value)}, not {_type_name(kind)}")
     if isinstance(summary.get("regions"), list):
         problems += _first_bad("regions", enumerate(summary["regions"]), lambda v: isinstance(v, dict), dict)
     if isinstance(summary.get("warnings"), list):
@@ -134,8 +254,6 @@ def read_map_labels(fit_dir, mask) -> np.ndarray:
         If the file is not EXR, has no ``labels`` channel, another size than ``mask`` or, on
         the mask, a value that is not finite, not a whole number or out of range.
     """
-    from rjfit.data.exr import read_exr
-
     fit_dir, mask = Path(fit_dir), np.asarray(mask, dtype=bool)
     path = next((fit_dir / name for name in MAP_LABEL_FILES if (fit_dir / name).is_file()), None)
     if path is None:

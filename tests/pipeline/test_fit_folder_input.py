@@ -15,7 +15,8 @@ from click.testing import CliRunner
 
 from rjfit.cli import main
 from rjfit.data.exr import read_exr, write_exr
-from test_bad_input import HEIGHT, WIDTH, make_rjfit_folder
+
+from builders import HEIGHT, WIDTH, make_rjfit_folder
 
 
 @pytest.fixture(scope="module")

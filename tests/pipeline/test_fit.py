@@ -80,7 +80,7 @@ def test_an_interrupted_fit_leaves_the_previous_results_whole(tmp_path):
     (tmp_path / "report.html").write_text("report of the first fit")
     before = {path.relative_to(tmp_path): path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
 
-    def interrupt(summary, staging, prediction):
+    def interrupt(staging, summary):
         assert (staging / "labels.exr").is_file() and summary["seed"] == 2
         raise KeyboardInterrupt
 
@@ -126,7 +126,7 @@ def test_parameter_maps_at_the_true_parameters(tmp_path):
     per-pixel RMS weighted by the pixel's observation count, chi2_N / N over all N
     observations, is 1 within its Monte Carlo error (sd sqrt(2 / N); tolerance 5 sd)."""
     from rjfit.data.exr import read_exr, write_exr
-    from rjfit.pipeline.fit_dataset import write_parameter_maps
+    from rjfit.pipeline.fit import write_parameter_maps
 
     obs, labels, truth = sphere_stack(24, n_lights=8, seed=4)
     write_exr(tmp_path / "labels.exr", {"labels": labels.astype(np.float32)})

@@ -13,7 +13,12 @@ import json
 
 import numpy as np
 import pytest
-from test_bad_input import (
+
+from rjfit.data.diligent import crop_to_mask
+from rjfit.errors import DatasetError
+from rjfit.render.datasets import load_dataset
+
+from builders import (
     INTENSITIES,
     edit_description,
     make_ps_folder,
@@ -23,10 +28,6 @@ from test_bad_input import (
     sphere_geometry,
     write_png,
 )
-
-from rjfit.data.diligent import crop_to_mask
-from rjfit.errors import DatasetError
-from rjfit.render.datasets import load_dataset
 
 
 def dark_folder(folder):

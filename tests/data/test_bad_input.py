@@ -6,139 +6,31 @@ folder of 16-bit PNGs, or rjfit's own layout), breaks one thing, and checks the 
 from __future__ import annotations
 
 import json
-import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rjfit.data.diligent import load_diligent
 from rjfit.data.exr import write_exr
-from rjfit.data.formats import DATASET_FORMAT
 from rjfit.data.mesh import load_mesh
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.render.datasets import load_dataset
 
-HEIGHT, WIDTH = 8, 10
-DIRECTIONS = np.array([[0.0, 0.0, 1.0], [0.3, 0.3, 0.9], [-0.3, 0.2, 0.93], [0.2, -0.4, 0.89]])
-DIRECTIONS /= np.linalg.norm(DIRECTIONS, axis=1, keepdims=True)
-INTENSITIES = np.array([[1.0, 1.2, 1.5], [0.8, 1.0, 1.1], [1.3, 1.4, 2.0], [1.1, 0.9, 1.0]])
-
-
-def sphere_geometry():
-    """A disc mask and the unit normals of a sphere cap (x right, y up, z to the camera)."""
-    rows, cols = np.mgrid[0:HEIGHT, 0:WIDTH]
-    x, y = (cols - 4.5) / 4.5, -(rows - 3.5) / 4.5
-    mask = x * x + y * y < 0.8
-    normals = np.zeros((HEIGHT, WIDTH, 3))
-    normals[..., 0], normals[..., 1] = x, y
-    normals[..., 2] = np.sqrt(np.clip(1 - x * x - y * y, 0, None))
-    normals[~mask] = 0.0
-    return mask, normals
-
-
-MASK_PIXELS = int(sphere_geometry()[0].sum())
-
-
-def shading(mask, normals, seed=0):
-    """Raw 16-bit RGB images (L, H, W, 3): Lambertian shading times intensity, plus noise."""
-    rng = np.random.default_rng(seed)
-    cos = np.clip(np.einsum("hwc,lc->lhw", normals, DIRECTIONS), 0, None) * mask
-    raw = 20000.0 * cos[..., None] * INTENSITIES[:, None, None, :] + rng.integers(100, 300, cos.shape + (3,))
-    return np.clip(raw, 0, 65535).astype(np.uint16)
-
-
-def write_png(path, rgb):
-    import cv2
-
-    assert cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1]))
-
-
-def write_lines(path, rows):
-    Path(path).write_text("".join(" ".join(f"{v:.6g}" for v in row) + "\n" for row in rows))
-
-
-def make_ps_folder(folder, *, images="png", normals_name="Normal_gt.mat"):
-    """A valid DiLiGenT-style folder of four lights; returns it."""
-    import scipy.io
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    mask, normals = sphere_geometry()
-    raw = shading(mask, normals)
-    raw[0, 3, 4] = 65535  # one saturated observation
-    names = [f"{i + 1:03d}.{images}" for i in range(len(DIRECTIONS))]
-    for name, image in zip(names, raw):
-        if images == "png":
-            write_png(folder / name, image)
-        else:
-            write_exr(folder / name, {c: image[..., i].astype(np.float32) for i, c in enumerate("RGB")})
-    (folder / "filenames.txt").write_text("".join(name + "\n" for name in names))
-    write_lines(folder / "light_directions.txt", DIRECTIONS)
-    write_lines(folder / "light_intensities.txt", INTENSITIES)
-    write_png(folder / "mask.png", np.repeat((mask * 255).astype(np.uint8)[..., None], 3, axis=-1))
-    if normals_name.endswith(".mat"):
-        scipy.io.savemat(folder / normals_name, {"Normal_gt": normals})
-    else:
-        np.save(folder / normals_name, normals)
-    return folder
-
-
-def make_rjfit_folder(folder, *, lights=None, full=False):
-    """A valid rjfit-layout data set (dataset.json, EXR images, geometry.exr) of point lights.
-
-    ``full``: also what a rendered data set has: camera, reference intensity, two materials,
-    a mesh part per material, visibility.exr and truth_labels.exr (left half 0, right half 1).
-    """
-    folder = Path(folder)
-    mask, normals = sphere_geometry()
-    lights = lights or [{"kind": "point", "intensity": 10.0, "position": [0.0, 0.0, 5.0]},
-                        {"kind": "point", "intensity": 10.0, "position": [2.0, 1.0, 4.0]}]
-    images = []
-    for index in range(len(lights)):
-        name = f"images/light_{index:03d}.exr"
-        write_exr(folder / name, {c: np.full((HEIGHT, WIDTH), 0.5, np.float32) for c in "RGB"})
-        images.append(name)
-    channels = {f"{p}.{a}": normals[..., i] for p in "PN" for i, a in enumerate("XYZ")}
-    channels.update({"V.X": np.zeros((HEIGHT, WIDTH)), "V.Y": np.zeros((HEIGHT, WIDTH)),
-                     "V.Z": np.ones((HEIGHT, WIDTH)), "mask": mask.astype(np.float32)})
-    write_exr(folder / "geometry.exr", channels)
-    meta = {"format": DATASET_FORMAT, "lights": lights, "images": images, "resolution": [HEIGHT, WIDTH],
-            "geometry": "geometry.exr"}
-    if full:
-        import trimesh
-
-        (folder / "meshes").mkdir()
-        for part in range(2):
-            trimesh.creation.box().export(folder / f"meshes/part_{part:03d}.ply")
-        write_exr(folder / "visibility.exr", {f"light_{i:03d}": np.ones((HEIGHT, WIDTH)) for i in range(len(lights))})
-        labels = np.where(mask, (np.arange(WIDTH) >= WIDTH // 2)[None, :].astype(float), -1.0)
-        write_exr(folder / "truth_labels.exr", {"label": labels})
-        meta.update({
-            "camera": {"kind": "orthographic", "origin": [0, 0, 8], "target": [0, 0, 0], "up": [0, 1, 0],
-                       "half_width": 1.2},
-            "reference_intensity": 10.0,
-            "materials": [{"name": "left", "I0": 10.0, "kd": 0.5, "gamma": 8.0, "sigma2": 0.0},
-                          {"name": "right", "I0": 5.0, "kd": 0.9, "gamma": 20.0, "sigma2": 0.0}],
-            "meshes": [{"file": f"meshes/part_{part:03d}.ply", "material": part, "faces": 12} for part in range(2)],
-            "visibility": "visibility.exr", "truth_labels": "truth_labels.exr", "max_depth": 8, "saturation": None})
-    (folder / "dataset.json").write_text(json.dumps(meta))
-    return folder
-
-
-def edit_description(folder, edit):
-    """Apply ``edit(meta)`` to the folder's dataset.json (``edit`` may return a replacement)."""
-    path = Path(folder) / "dataset.json"
-    meta = json.loads(path.read_text())
-    replaced = edit(meta)
-    path.write_text(json.dumps(meta if replaced is None else replaced))
-    return path
-
-
-def raises(error, *parts):
-    """``pytest.raises`` whose message must contain each of ``parts`` (literal text), in order."""
-    return pytest.raises(error, match=".*".join(re.escape(str(part)) for part in parts))
-
+from builders import (
+    DIRECTIONS,
+    HEIGHT,
+    INTENSITIES,
+    MASK_PIXELS,
+    WIDTH,
+    edit_description,
+    make_ps_folder,
+    make_rjfit_folder,
+    raises,
+    shading,
+    sphere_geometry,
+    write_lines,
+    write_png,
+)
 
 # -- the unbroken folders load: every failure below is due to the one thing broken -----------------
 

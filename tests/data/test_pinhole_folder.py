@@ -13,11 +13,12 @@ import json
 
 import numpy as np
 import pytest
-from test_bad_input import HEIGHT, WIDTH, make_ps_folder
 
 from rjfit.data.diligent import crop_to_mask, load_diligent
 from rjfit.errors import DatasetError
 from rjfit.render.gate import closed_form_radiance, validate_dataset
+
+from builders import HEIGHT, WIDTH, make_ps_folder
 
 # A wide, off-centre pinhole: the view directions across the 10 x 8 frame differ by up to
 # about 45 deg, so a closed form that assumed v = (0, 0, 1) would be far off.
@@ -102,10 +103,11 @@ def write_glossy_pinhole_folder(folder, camera, size=28, seed=3):
     seen through ``camera``, as 16-bit PNGs with Gaussian noise of sd 30 counts: the images
     come from the closed form with the pinhole's per-pixel view directions."""
     import scipy.io
-    from test_bad_input import write_lines, write_png
 
     from rjfit.data.diligent import check_camera, view_directions
     from rjfit.data.lights import Light
+
+    from builders import write_lines, write_png
 
     folder.mkdir(parents=True)
     rng = np.random.default_rng(seed)

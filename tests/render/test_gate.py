@@ -98,7 +98,7 @@ def test_normal_map_data_is_checked_with_one_facet_per_pixel(tmp_path):
     pixel with the pixel's normal under the folder's directional lights (orthographic
     camera, v = (0, 0, 1)). The right conventions pass; a closed form that takes the light
     direction as the direction of travel (a sign slip) fails."""
-    from test_bad_input import make_ps_folder
+    from builders import make_ps_folder
 
     folder = make_ps_folder(tmp_path / "ps")
     result = validate_dataset(folder, tmp_path / "v", spp=1)

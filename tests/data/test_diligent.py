@@ -1,8 +1,6 @@
 """The measured DiLiGenT "ball" (../shared/data/diligent-ball), read by the photometric-stereo loader."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -10,7 +8,9 @@ from rjfit.data.dataset import Dataset
 from rjfit.data.diligent import crop_to_mask, is_diligent_folder, load_diligent
 from rjfit.render.datasets import load_dataset
 
-BALL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "diligent-ball"
+from builders import SHARED_DATA
+
+BALL = SHARED_DATA / "diligent-ball"
 MASK_PIXELS = 15_791  # stated in the data's README
 
 pytestmark = pytest.mark.skipif(not (BALL / "filenames.txt").is_file(),

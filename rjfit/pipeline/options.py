@@ -1,0 +1,186 @@
+"""Every option of a fit, declared once: :class:`FitOptions`.
+
+A field holds its default, its check and, for options the command line offers, its flag and
+help text (:func:`cli_option`): ``rjfit fit`` builds its click options from these fields, the
+Python API (:func:`rjfit.pipeline.fit.fit`, :func:`~rjfit.pipeline.fit.fit_datasets`) takes
+the same names as keyword arguments, and the summary records the options it ran with. Adding
+an option is one field here, plus the code that uses it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field, fields
+
+from rjfit.data.formats import CHANNELS
+from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
+from rjfit.sampler.priors import PRESETS
+
+__all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS"]
+
+EACH_CHANNEL = ("R", "G", "B")                 # what ``channel="each"`` fits, one fit per channel
+FIT_CHANNELS = CHANNELS + ("each",)
+
+
+@dataclass(frozen=True)
+class CliSpec:
+    """How a :class:`FitOptions` field appears on the command line.
+
+    ``kind`` is one of 'int', 'float', 'choice', 'flag', 'text', 'path' (a file), 'power' (a
+    number in (0, 1] or 'auto'); ``low`` is the smallest integer an 'int' takes.
+    """
+
+    flag: str
+    help: str
+    kind: str
+    choices: tuple = ()
+    low: int | None = None
+    show_default: bool = True
+
+
+def cli_option(default, flag: str, help: str, kind: str, **spec):
+    """A dataclass field with its command-line flag and help (``metadata["cli"]``)."""
+    return field(default=default, metadata={"cli": CliSpec(flag=flag, help=help, kind=kind, **spec)})
+
+
+def _likelihood_power_value(value):
+    if value == "auto":
+        return value
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"likelihood power (--likelihood-power) must be a number in (0, 1] or 'auto', got "
+                         f"{value!r}") from None
+    if not 0.0 < number <= 1.0:
+        raise ValueError(f"likelihood power (--likelihood-power) must lie in (0, 1], got {number}")
+    return number
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """The options of one fit (or of each fit of a batch). All are checked when it is built.
+
+    Raises
+    ------
+    ValueError
+        If an option is out of range, naming its command-line flag: ``burn_in`` not in [0, 1),
+        ``n_chains < 1``, ``iterations < 10``, an unknown ``prior``, ``noise``, ``channel``,
+        ``sampler``, ``split_map`` or ``cp_prior``, a ``likelihood_power`` that is neither
+        'auto' nor in (0, 1], ``anneal`` not in [0, 1], ``noise_floor`` not positive, or
+        ``max_u`` / ``max_v`` negative.
+    """
+
+    n_chains: int = cli_option(4, "--chains", "Chains from dispersed starts.", "int", low=1)
+    iterations: int = cli_option(4000, "--iterations", "Iterations per chain.", "int", low=10)
+    burn_in: float | None = cli_option(
+        None, "--burn-in", "Discarded fraction (default: 0.5 for synthetic data, 0.2 for measured, as in the paper).",
+        "float", show_default=False)
+    max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
+    max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)
+    sampler: str = cli_option("adaptive", "--sampler",
+                              "Within-model moves: adaptive blocks (default) or the paper's component-wise MH.",
+                              "choice", choices=("adaptive", "paper"))
+    prior: str = cli_option("default", "--prior", "Prior preset (paper: Table 1 synthetic, Table 3 real).",
+                            "choice", choices=PRESETS)
+    split_map: str = cli_option(
+        "conditional", "--split-map",
+        "Parameters of regions born by a split: drawn from a data-driven proposal (conditional), or a bijective "
+        "map: mean (|det| 2) or the paper's eq. 10 (|det| 3), Jacobian included.",
+        "choice", choices=("conditional", "mean", "paper"))
+    cp_prior: str = cli_option("smooth", "--cp-prior",
+                               "Change-point prior: random walk along the vector (smooth) or independent uniform "
+                               "per row.", "choice", choices=("smooth", "paper"))
+    drop_jacobian: bool = cli_option(False, "--drop-jacobian",
+                                     "Reproduce the paper's acceptance ratio without the split/merge Jacobian "
+                                     "(wrong; for study).", "flag")
+    jump_prob: float = 0.2
+    channel: str = cli_option(
+        "mean", "--channel",
+        "Colour channel fitted (luminance: CIE Y, sRGB primaries); each: R, G and B fitted separately, into "
+        "OUT/R, OUT/G and OUT/B (OUT/NAME/R, ... for several data sets).", "choice", choices=FIT_CHANNELS)
+    likelihood_power: float | str = cli_option(
+        1.0, "--likelihood-power",
+        "zeta in (0, 1] of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each observation "
+        "counts as zeta observations, so a BRDF misfit shared by neighbouring pixels of measured data does not split "
+        "a uniform material into regions. 'auto': zeta = ((1-rho)/(1+rho))^2 from the lag-1 spatial correlation rho "
+        "of per-pixel-fit residuals (about 1 for white noise). 1: the plain posterior.", "power")
+    noise: str = cli_option(
+        "constant", "--noise",
+        "Noise model y_i ~ N(mu_i, sigma_r^2 s_i^2), s_i known per observation: constant: s_i = 1 (homoscedastic per "
+        "region, the paper's); shot: s_i^2 = (m_i + c) / ybar (variance grows with the signal: photon plus read "
+        "noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: a multiplicative error). m_i: the "
+        "prediction of a separate Lambert + Blinn fit of each pixel; ybar: the mean observed value; c = NOISE_FLOOR * "
+        "ybar. Weighted least squares: the sampler is unchanged. A model the noise does not follow splits regions: "
+        "keep constant unless the noise is known to grow with the signal.", "choice", choices=NOISE_MODELS)
+    noise_floor: float = cli_option(
+        DEFAULT_FLOOR, "--noise-floor",
+        "c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, as a fraction "
+        "of the mean observed value. Unused for --noise constant.", "float")
+    anneal: float = 0.5
+    cp_thin: int = 10
+    seed: int = cli_option(0, "--seed", "Seed of every random draw.", "int", low=0)
+    checkpoint_every: int = cli_option(
+        2000, "--checkpoint-every",
+        "Iterations between a chain's checkpoints (OUT/checkpoints): a fit stopped by Ctrl-C, a crash or SIGKILL and "
+        "run again with the same command resumes there and gives the samples of an uninterrupted run.", "int", low=1)
+    threads: int | None = cli_option(
+        None, "--threads",
+        "Threads per chain for its large passes over the observations (default: the cores left to each chain that "
+        "runs at once, e.g. 2 for one chain on 2 cores, 1 for 4 chains; 1 on Dask). The samples are the same for any "
+        "number.", "int", low=1, show_default=False)
+    processes: int | None = None
+    figures: bool = True
+    progress: bool = True
+
+    def __post_init__(self):
+        if self.burn_in is not None and not 0.0 <= self.burn_in < 1.0:
+            raise ValueError(f"burn_in (--burn-in) is a fraction in [0, 1), got {self.burn_in}")
+        if self.n_chains < 1 or self.iterations < 10:
+            raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got "
+                             f"{self.n_chains}, {self.iterations}")
+        for name, what in (("prior", "prior"), ("noise", "noise model"), ("channel", "channel"),
+                           ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
+            spec = self.cli(name)
+            if getattr(self, name) not in spec.choices:
+                raise ValueError(f"unknown {what} {getattr(self, name)!r} ({spec.flag}): choose one of "
+                                 f"{', '.join(spec.choices)}")
+        object.__setattr__(self, "likelihood_power", _likelihood_power_value(self.likelihood_power))
+        if not 0.0 <= self.anneal <= 1.0:
+            raise ValueError(f"anneal is the fraction of the burn-in run tempered, in [0, 1], got {self.anneal}")
+        if not (math.isfinite(self.noise_floor) and self.noise_floor > 0):
+            raise ValueError(f"noise floor (--noise-floor) must be a positive number, got {self.noise_floor}")
+        if self.max_u < 0 or self.max_v < 0:
+            raise ValueError(f"max_u and max_v (--max-u, --max-v) must be >= 0, got {self.max_u}, {self.max_v}")
+
+    @classmethod
+    def cli(cls, name: str) -> CliSpec | None:
+        """The command-line spec of field ``name`` (None for options the command line does not offer)."""
+        return next(f.metadata.get("cli") for f in fields(cls) if f.name == name)
+
+    @classmethod
+    def cli_fields(cls):
+        """``(name, default, CliSpec)`` of every option the command line offers, in declaration order."""
+        return [(f.name, f.default, f.metadata["cli"]) for f in fields(cls) if "cli" in f.metadata]
+
+    @classmethod
+    def split(cls, keywords: dict) -> tuple[dict, dict]:
+        """``keywords`` split into (those that are fit options, the rest)."""
+        names = {f.name for f in fields(cls)}
+        return ({k: v for k, v in keywords.items() if k in names},
+                {k: v for k, v in keywords.items() if k not in names})
+
+    @classmethod
+    def build(cls, options: "FitOptions | None" = None, **changes) -> "FitOptions":
+        """``options`` (default: every default) with ``changes``; what the Python API's keyword arguments make."""
+        options = options if options is not None else cls()
+        return options.replace(**changes) if changes else options
+
+    def replace(self, **changes) -> "FitOptions":
+        """A copy with ``changes`` (checked like the original)."""
+        return dataclasses.replace(self, **changes)
+
+    def burn_in_for(self, measured: bool) -> float:
+        """The burn-in fraction: the option, or the paper's default for the data's kind (0.2 measured, 0.5 synthetic)."""
+        if self.burn_in is not None:
+            return self.burn_in
+        return 0.2 if measured else 0.5
