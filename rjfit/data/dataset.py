@@ -77,6 +77,16 @@ class Dataset:
         cast shadow, the background, the sensor's floor: no measurement of the surface's
         reflectance), never entering the likelihood. Set by the loaders from ``dark`` in
         ``dataset.json``, ``stack.json`` or a photometric-stereo folder's ``rjfit.json``.
+    response : {"linear", "sRGB", "unknown"}
+        How the stored values relate to radiance: ``linear`` (rendered data, linear counts),
+        ``sRGB`` (decoded by the loader: the images are linear) or ``unknown`` (raw camera codes,
+        not decoded: a later stage estimates the response, e.g.
+        :func:`rjfit.data.response.estimate_power_response`).
+    quantisation_variance : ndarray of float, shape (L, 3) or None
+        The variance of integer quantisation per light and colour channel, in the units of
+        ``images`` (one code step squared over 12, divided by the light's intensity squared):
+        a known noise floor; None for float or sRGB-decoded images. For ``response="unknown"``
+        it is in raw-code units (before any response is applied).
     """
 
     path: Path
@@ -93,6 +103,8 @@ class Dataset:
     saturation: float | None = None
     saturated: np.ndarray | None = None
     too_dark: np.ndarray | None = None
+    response: str = "linear"
+    quantisation_variance: np.ndarray | None = None
 
     @property
     def n_lights(self) -> int:

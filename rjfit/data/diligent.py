@@ -8,10 +8,13 @@ Uncalibrated Photometric Stereo", CVPR 2016)::
     FOLDER/light_intensities.txt  one RGB triple "r g b" (or one value) per line: relative intensities
     FOLDER/mask.png               object mask, non-zero on the object (8- or 16-bit, grey or RGB)
                                   in its colour channels; an alpha channel is not part of it
+                                  (another file of the folder with ``mask="NAME"``)
     FOLDER/Normal_gt.mat          normal map (H, W, 3), MATLAB variable ``Normal_gt``; or one of
                                   ``NORMAL_MAP_NAMES`` (.npy / .mat / .exr), or ``normals=`` given
     FOLDER/001.png ...            the images: 16-bit linear PNG or TIFF (read whole with OpenCV),
-                                  float EXR or TIFF, or sRGB-encoded 8/16-bit with ``encoded="sRGB"``
+                                  float EXR or TIFF; 8-bit (or 8-bit codes widened to 16 bits, with
+                                  ``bits=8``) only as declared: ``encoded="sRGB"``, ``encoded="linear"``
+                                  or ``response="unknown"`` (see :mod:`rjfit.data.codes`)
     FOLDER/rjfit.json             optional: how to read the folder, for the command line, e.g.
                                   ``{"encoded": "sRGB", "saturation": 250, "dark": 5}`` (keys: the options of
                                   :func:`load_diligent`; an argument given to it wins). Part of
@@ -34,7 +37,12 @@ So no depth map is needed.
 Units of the loaded images: for integer images, raw sensor counts divided by the light's
 intensity in that channel (``raw / intensity[l, c]``); for sRGB-encoded images, the decoded linear
 value in [0, 1] divided by the intensity; for float images, the stored value divided by the
-intensity. Every light is then a ``Light(kind="directional", intensity=1.0)``: its intensity has
+intensity. ``response="unknown"``: the raw codes, not decoded (``Dataset.response`` says so, and
+:func:`rjfit.data.response.estimate_power_response` estimates a power-law response), divided by
+the intensity, which must then be the same for every light (per channel): an intensity cannot be
+divided out of codes that are not linear in it. Integer codes read as linear or raw carry a
+known quantisation noise floor, ``Dataset.quantisation_variance`` (1/12 code squared, in these
+units). Every light is then a ``Light(kind="directional", intensity=1.0)``: its intensity has
 been divided out of its image.
 
 Saturation: an observation (pixel, light) is saturated when any channel's raw value is at or
@@ -54,6 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.checks import check_finite, check_lights_face_object, check_mask, check_unit_normals
+from rjfit.data.codes import BITS, ENCODINGS, QUANTISATION_VARIANCE_CODES, RESPONSES, read_codes, response_of
 from rjfit.data.dataset import Dataset
 from rjfit.data.lights import Light
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
@@ -70,9 +79,8 @@ MASK = "mask.png"
 LAYOUT_FILES = (FILENAMES, DIRECTIONS, INTENSITIES, MASK)
 NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "normal")
                          for ext in ("mat", "npy", "exr"))
-ENCODINGS = ("sRGB",)
 OPTIONS_FILE = "rjfit.json"
-_OPTIONS = ("saturation", "dark", "encoded", "normals", "crop", "camera")
+_OPTIONS = ("saturation", "dark", "encoded", "response", "bits", "mask", "normals", "crop", "camera")
 CAMERA_KINDS = ("orthographic", "perspective")
 _MAT_VARIABLES = ("Normal_gt", "normals", "normal", "N")
 
@@ -154,30 +162,14 @@ def _read_raw_image(path: Path) -> np.ndarray:
     return image[..., ::-1]  # OpenCV reads BGR
 
 
-def _check_depth(raw: np.ndarray, path: Path, encoded, reference) -> None:
-    """Refuse 8-bit data where a linear 16-bit stack is expected, and mixed kinds of images."""
-    kind = raw.dtype
-    floating = np.issubdtype(kind, np.floating)
-    if not floating and kind not in (np.uint8, np.uint16):
-        raise DatasetError(f"{path}: pixels are {kind}; expected 16-bit (or, with encoded='sRGB', 8-bit) "
-                           f"unsigned integers, or float")
-    if floating and encoded is not None:
-        raise DatasetError(f"{path}: float image, but encoded={encoded!r} was given; only integer images "
-                           f"are decoded")
-    if kind == np.uint8 and encoded is None:
-        raise DatasetError(
-            f"{path}: 8-bit image, but linear data must have 16 bits per channel (the DiLiGenT layout stores "
-            f"16-bit PNGs); the file may have been re-saved by a tool that drops the low byte (Pillow, "
-            f"imageio's default plugin). Use the original 16-bit file, or, if it is an sRGB-encoded 8-bit "
-            f"image, say so: write {{\"encoded\": \"sRGB\"}} to {OPTIONS_FILE} in its folder (or pass "
-            f"encoded='sRGB' to load_dataset)")
-    if kind == np.uint16 and encoded is None and raw.any() and not (raw & 0xFF).any():
-        raise DatasetError(f"{path}: 16-bit file holding 8-bit data (every value is a multiple of 256, the low "
-                           f"byte is always 0); it was probably converted from an 8-bit image. Use the original "
-                           f"16-bit file")
-    if reference is not None and kind != reference[0]:
-        raise DatasetError(f"{path}: pixels are {kind}, but {reference[1].name} holds {reference[0]}; every image "
-                           f"of a stack must have one type (one unit)")
+def _check_depth(raw: np.ndarray, path: Path, encoded, reference, response=None, bits=None):
+    """The image's codes as declared (:func:`rjfit.data.codes.read_codes`: undeclared 8-bit data and
+    8-bit codes in 16-bit files are refused), and its largest code; refuses mixed kinds of images."""
+    codes, max_code = read_codes(raw, path, encoded, response, bits)
+    if reference is not None and raw.dtype != reference[0]:
+        raise DatasetError(f"{path}: pixels are {raw.dtype}, but {reference[1].name} holds {reference[0]}; every "
+                           f"image of a stack must have one type (one unit)")
+    return codes, max_code
 
 
 def _read_mask(path: Path) -> np.ndarray:
@@ -297,7 +289,18 @@ def folder_options(folder) -> dict:
                            + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
     rules = {"saturation": (lambda v: v is None or (_is_number(v) and v > 0), "a raw value > 0, or null"),
              "dark": (lambda v: v is None or (_is_number(v) and v >= 0), "a raw value >= 0, or null"),
-             "encoded": (lambda v: v is None or v in ENCODINGS, f"null (linear data) or one of {list(ENCODINGS)}"),
+             "encoded": (lambda v: v is None or v in ENCODINGS,
+                         f"null (linear 16-bit or float data), \"linear\" (integer codes linear in radiance, 8-bit "
+                         f"allowed) or \"sRGB\" (sRGB-encoded integer codes, decoded)"),
+             "response": (lambda v: v is None or v in RESPONSES,
+                          "\"unknown\" (the camera response is not known: the images are read as raw codes and a "
+                          "later stage estimates it) or null (known: linear, or as \"encoded\" says)"),
+             "bits": (lambda v: v is None or (isinstance(v, int) and not isinstance(v, bool) and v in BITS),
+                      "8 (the integer files hold 8-bit codes; 16-bit files holding them widened by 257 or 256 are "
+                      "divided back), 16 (the files' 16 bits are real: no check for widened 8-bit data) or null "
+                      "(the files' own type)"),
+             "mask": (lambda v: v is None or _is_plain_name(v),
+                      "the file name of the object mask in this folder (no folder part), or null for mask.png"),
              "normals": (lambda v: v is None or (isinstance(v, str) and v), "a file name, or null"),
              "crop": (lambda v: isinstance(v, bool) or (isinstance(v, int) and v >= 0),
                       "true, false or a margin in pixels >= 0"),
@@ -309,6 +312,11 @@ def folder_options(folder) -> dict:
     if options.get("camera") is not None:
         check_camera(options["camera"], f"{path}: camera")
     return options
+
+
+def _is_plain_name(value) -> bool:
+    """A file name without a folder part: a mask elsewhere would escape the gate's fingerprint of the folder."""
+    return isinstance(value, str) and value not in ("", ".", "..") and "/" not in value and "\\" not in value
 
 
 def check_camera(camera, where: str) -> dict:
@@ -377,8 +385,8 @@ def _is_number(value) -> bool:
 _UNSET = object()
 
 
-def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, normals=_UNSET, crop=_UNSET,
-                  camera=_UNSET):
+def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, response=_UNSET, bits=_UNSET,
+                  mask=_UNSET, normals=_UNSET, crop=_UNSET, camera=_UNSET):
     """Load a photometric-stereo folder (DiLiGenT layout; see the module docstring) as a Dataset.
 
     Each option not given here is read from the folder's ``rjfit.json`` if it declares it
@@ -389,19 +397,29 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
     path : path-like
         The folder.
     saturation : float or None
-        Raw value (in the file's own code values, before decoding or dividing by the light's
+        Raw value (in the declared codes, before decoding or dividing by the light's
         intensity) at or above which a channel counts as clipped; an observation is saturated when
-        any of its channels is. None: the integer type's maximum (65535 for 16-bit, 255 for 8-bit),
-        and no threshold for float images.
+        any of its channels is. None: the largest code (65535 for 16-bit, 255 for 8-bit codes,
+        also with ``bits=8``), and no threshold for float images.
     dark : float or None
         Raw value (the file's own code values, like ``saturation``) at or below which an
         observation is too dark to measure the surface (a cast shadow, the background, the
         sensor's floor) when every channel is; such observations never enter the likelihood
         (``Dataset.too_dark``). None (default): no threshold; attached shadows (light behind
         the surface) are left out by the geometry in any case.
-    encoded : None or "sRGB"
-        None: the images are linear (16-bit integer or float). ``"sRGB"``: integer images are
-        sRGB-encoded and are decoded with ``colour.cctf_decoding(value / max_code, "sRGB")``.
+    encoded : None, "linear" or "sRGB"
+        None: the images are linear (16-bit integer or float). ``"linear"``: integer codes linear
+        in radiance, 8-bit ones included. ``"sRGB"``: integer images are sRGB-encoded and are
+        decoded with ``colour.cctf_decoding(value / max_code, "sRGB")``.
+    response : None or "unknown"
+        ``"unknown"``: the camera response is not known; integer images of any depth are read as
+        raw codes, not decoded, and ``Dataset.response`` is ``"unknown"`` (``encoded`` must be None).
+    bits : None, 8 or 16
+        Declared depth of the integer codes: 8 divides 16-bit files holding 8-bit codes (every
+        value a multiple of 257, or of 256) back to them; 16 reads 16-bit files as they are;
+        None refuses 16-bit files holding 8-bit codes (see :mod:`rjfit.data.codes`).
+    mask : str or None
+        File name of the object mask in the folder; None: ``mask.png``.
     normals : path-like or None
         The normal map, relative to the folder; None looks for ``NORMAL_MAP_NAMES``.
     crop : bool or int
@@ -418,12 +436,14 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
     Dataset
         ``images`` float32 (L, H, W, 3) in the units of the module docstring; directional lights of
         intensity 1; ``view_dirs`` from the camera; ``positions`` and ``visibility`` None; ``saturated``
-        (L, H, W) flags.
+        (L, H, W) flags; ``response`` (``"linear"``, ``"sRGB"`` or ``"unknown"``) and
+        ``quantisation_variance`` (L, 3) for integer codes read as linear or raw (else None).
 
     Raises
     ------
     DatasetFileNotFoundError
-        A layout file, the normal map or an image (a light without an image) is missing.
+        A layout file, the (named) mask, the normal map or an image (a light without an image) is
+        missing.
     DatasetError
         Any other problem: the message names the file (and line) and what is wrong.
     """
@@ -431,18 +451,21 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
     if not folder.is_dir():
         raise DatasetFileNotFoundError(f"{folder}: no such folder")
     declared = {**dict.fromkeys(_OPTIONS), "crop": False, **folder_options(folder)}
-    saturation, dark, encoded, normals, crop, camera = (
+    saturation, dark, encoded, response, bits, mask_name, normals, crop, camera = (
         declared[name] if given is _UNSET else given for name, given in
-        (("saturation", saturation), ("dark", dark), ("encoded", encoded), ("normals", normals), ("crop", crop),
-         ("camera", camera)))
+        (("saturation", saturation), ("dark", dark), ("encoded", encoded), ("response", response), ("bits", bits),
+         ("mask", mask), ("normals", normals), ("crop", crop), ("camera", camera)))
     camera = check_camera(camera, f"{folder}: camera")
-    if encoded is not None and encoded not in ENCODINGS:
-        raise DatasetError(f"{folder}: encoded must be None (linear data) or one of {ENCODINGS}, got {encoded!r}")
+    _check_reading(folder, encoded, response, bits)
 
     names_file = _require_file(folder / FILENAMES, "list of images")
     directions_file = _require_file(folder / DIRECTIONS, "light directions")
     intensities_file = _require_file(folder / INTENSITIES, "light intensities")
-    mask_file = _require_file(folder / MASK, "object mask")
+    mask_file = folder / (mask_name or MASK)
+    if mask_name is not None and not mask_file.is_file():
+        raise DatasetFileNotFoundError(f"{mask_file}: no such file (the object mask that mask={mask_name!r} names, "
+                                       f"in {OPTIONS_FILE} or as an argument)")
+    _require_file(mask_file, "object mask")
     normals_file = _find_normal_map(folder, normals)
 
     # Lights and images must pair up one to one.
@@ -495,6 +518,12 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
         index = int(np.argmax((intensities <= 0).any(axis=1)))
         raise DatasetError(f"{intensities_file} line {intensity_lines[index]}: light intensities must be positive, "
                            f"got {intensities[index].tolist()}")
+    if response == "unknown" and (intensities != intensities[0]).any():
+        index = int(np.argmax((intensities != intensities[0]).any(axis=1)))
+        raise DatasetError(f"{intensities_file} line {intensity_lines[index]}: intensity {intensities[index].tolist()} "
+                           f"differs from line {intensity_lines[0]}'s {intensities[0].tolist()}, but the response is "
+                           f"unknown: an intensity cannot be divided out of codes that are not linear in it (give "
+                           f"equal intensities, or declare the response)")
 
     # Mask and normals.
     mask = _read_mask(mask_file)
@@ -517,39 +546,16 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
 
     check_lights_face_object(lights, normal_map, None, view_dirs, mask, describe)
 
-    # Images: read whole, check, convert to linear, divide by the light's intensity.
     height, width = mask.shape
-    images = np.empty((len(lights), height, width, 3), dtype=np.float32)
-    saturated = np.zeros((len(lights), height, width), dtype=bool)
-    too_dark = None if dark is None else np.zeros((len(lights), height, width), dtype=bool)
-    reference = None
-    threshold_used = saturation
-    for index, image_file in enumerate(image_files):
-        raw = _read_raw_image(image_file)
-        if raw.shape[:2] != (height, width):
-            raise DatasetError(f"{image_file}: image is {_size(raw)}, but {mask_file.name} is {_size(mask)}; the "
-                               f"mask, the normal map and every image must have one size")
-        _check_depth(raw, image_file, encoded, reference)
-        reference = reference or (raw.dtype, image_file)
-        check_finite(raw, image_file)
-        integer = np.issubdtype(raw.dtype, np.integer)
-        threshold = saturation if saturation is not None else (np.iinfo(raw.dtype).max if integer else None)
-        if threshold is not None:
-            saturated[index] = (raw >= threshold).any(axis=-1)
-            threshold_used = threshold
-        if too_dark is not None:
-            too_dark[index] = (raw <= dark).all(axis=-1)
-        if integer and encoded == "sRGB":
-            import colour
-
-            linear = colour.cctf_decoding(raw / float(np.iinfo(raw.dtype).max), "sRGB")
-        else:
-            linear = raw
-        images[index] = linear / intensities[index]
-
-    if encoded == "sRGB":
+    images, saturated, too_dark, threshold_used, pixel_type, max_code = _read_images(
+        image_files, mask, mask_file, intensities, encoded, response, bits, saturation, dark)
+    dataset_response = response_of(encoded, response)
+    quantised = max_code is not None and dataset_response != "sRGB"
+    if dataset_response == "unknown":
+        units = "raw camera codes, response unknown (not linear in radiance) / light intensity (per channel)"
+    elif encoded == "sRGB":
         units = "sRGB-decoded linear value in [0, 1] / light intensity (per channel)"
-    elif np.issubdtype(reference[0], np.integer):
+    elif max_code is not None:
         units = "raw sensor counts / light intensity (per channel)"
     else:
         units = "stored float value / light intensity (per channel)"
@@ -565,8 +571,14 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
                    "axes": "x right, y up, z towards the camera; image rows top to bottom"},
         "resolution": [height, width],
         "units": units,
-        "pixel_type": str(reference[0]),
+        "pixel_type": pixel_type,
         "encoded": encoded,
+        "response": dataset_response,
+        "bits": None if max_code is None else int(max_code).bit_length(),
+        "quantisation": ({"step_raw": 1.0, "variance_raw": QUANTISATION_VARIANCE_CODES,
+                          "rule": "uniform rounding to integer codes: variance step^2 / 12 in raw codes; "
+                                  "Dataset.quantisation_variance holds it per light and channel in the images' "
+                                  "units"} if quantised else None),
         "images": [name for _, name in listed],
         "normal_map": normals_file.name,
         "mask": mask_file.name,
@@ -583,10 +595,62 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, norma
     }
     dataset = Dataset(path=folder, meta=meta, images=images, normals=normal_map, view_dirs=view_dirs,
                       positions=None, visibility=None, object_mask=mask, lights=lights, saturation=None,
-                      saturated=saturated, too_dark=too_dark)
+                      saturated=saturated, too_dark=too_dark, response=dataset_response,
+                      quantisation_variance=QUANTISATION_VARIANCE_CODES / intensities ** 2 if quantised else None)
     if crop is not False and crop is not None:
         dataset = crop_to_mask(dataset, margin=2 if crop is True else int(crop))
     return dataset
+
+
+def _check_reading(folder: Path, encoded, response, bits) -> None:
+    """The declared encoding, response and bit depth, checked alone and together (arguments bypass
+    :func:`folder_options`)."""
+    if encoded is not None and encoded not in ENCODINGS:
+        raise DatasetError(f"{folder}: encoded must be None (linear data) or one of {ENCODINGS}, got {encoded!r}")
+    if response is not None and response not in RESPONSES:
+        raise DatasetError(f"{folder}: response must be None (known) or one of {RESPONSES}, got {response!r}")
+    if bits is not None and bits not in BITS:
+        raise DatasetError(f"{folder}: bits must be None (the files' own type) or one of {BITS}, got {bits!r}")
+    if response == "unknown" and encoded is not None:
+        raise DatasetError(f"{folder}: response='unknown' and encoded={encoded!r} contradict each other; declare "
+                           f"one (encoded when the response is known, response='unknown' when it is not)")
+
+
+def _read_images(image_files, mask, mask_file, intensities, encoded, response, bits, saturation, dark):
+    """Read the stack whole: check, take the declared codes, flag clipped and dark observations, decode,
+    divide by the light's intensity.
+
+    Returns ``(images, saturated, too_dark, threshold_used, pixel_type, max_code)``: float32 (L, H, W, 3),
+    (L, H, W) flags, the saturation threshold applied (in codes), the files' pixel type and the largest
+    code of the declared depth (None for float images).
+    """
+    height, width = mask.shape
+    images = np.empty((len(image_files), height, width, 3), dtype=np.float32)
+    saturated = np.zeros((len(image_files), height, width), dtype=bool)
+    too_dark = None if dark is None else np.zeros((len(image_files), height, width), dtype=bool)
+    reference, threshold_used, max_code = None, saturation, None
+    for index, image_file in enumerate(image_files):
+        raw = _read_raw_image(image_file)
+        if raw.shape[:2] != (height, width):
+            raise DatasetError(f"{image_file}: image is {_size(raw)}, but {mask_file.name} is {_size(mask)}; the "
+                               f"mask, the normal map and every image must have one size")
+        codes, max_code = _check_depth(raw, image_file, encoded, reference, response, bits)
+        reference = reference or (raw.dtype, image_file)
+        check_finite(codes, image_file)
+        threshold = saturation if saturation is not None else max_code
+        if threshold is not None:
+            saturated[index] = (codes >= threshold).any(axis=-1)
+            threshold_used = threshold
+        if too_dark is not None:
+            too_dark[index] = (codes <= dark).all(axis=-1)
+        if max_code is not None and encoded == "sRGB":
+            import colour
+
+            linear = colour.cctf_decoding(codes / float(max_code), "sRGB")
+        else:
+            linear = codes
+        images[index] = linear / intensities[index]
+    return images, saturated, too_dark, threshold_used, str(reference[0]), max_code
 
 
 def _camera_meta(camera, height, width) -> dict:

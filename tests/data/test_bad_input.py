@@ -65,7 +65,7 @@ def test_srgb_encoded_eight_bit_is_decoded(tmp_path):
     expected = colour.cctf_decoding(codes / 255.0, "sRGB") / INTENSITIES[:, None, None, :]
     np.testing.assert_allclose(dataset.images, expected, rtol=1e-6, atol=1e-7)
     assert dataset.saturated[2, 0, 0] and dataset.meta["encoded"] == "sRGB"
-    with raises(DatasetError, "encoded must be None (linear data) or one of ('sRGB',), got 'gamma'"):
+    with raises(DatasetError, "encoded must be None (linear data) or one of ('sRGB', 'linear'), got 'gamma'"):
         load_diligent(folder, encoded="gamma")
     # the command line reads the folder's own declaration; an argument still wins over it
     (folder / "rjfit.json").write_text('{"encoded": "sRGB"}')
@@ -74,7 +74,7 @@ def test_srgb_encoded_eight_bit_is_decoded(tmp_path):
         load_diligent(folder, encoded=None)
     (folder / "rjfit.json").write_text('{"encoding": "sRGB"}')
     with raises(DatasetError, folder / "rjfit.json",
-                "keys among saturation, dark, encoded, normals, crop, camera; unknown: encoding"):
+                "keys among saturation, dark, encoded, response, bits, mask, normals, crop, camera; unknown: encoding"):
         load_dataset(folder)
     for text, message in (('{"crop": -40}', "crop is -40; it must be true, false or a margin in pixels >= 0"),
                           ('{"crop": "yes"}', "crop is 'yes'"), ('{"saturation": "250"}', "saturation is '250'"),
@@ -176,7 +176,7 @@ def test_eight_bit_where_sixteen_promised(tmp_path):
     write_png(folder / "002.png", np.full((HEIGHT, WIDTH, 3), 100, np.uint8))
     with raises(DatasetError, folder / "002.png", "8-bit image, but linear data must have 16 bits per channel"):
         load_dataset(folder)
-    with raises(DatasetError, "write {\"encoded\": \"sRGB\"} to rjfit.json in its folder"):
+    with raises(DatasetError, "write {\"encoded\": \"linear\"} to rjfit.json in its folder", "{\"encoded\": \"sRGB\"}"):
         load_dataset(folder)
     # 8-bit data widened to 16 bits (low byte always 0) is refused too.
     write_png(folder / "002.png", (np.full((HEIGHT, WIDTH, 3), 100, np.uint16) << 8))
