@@ -13,14 +13,13 @@ import json
 import numpy as np
 import pytest
 
-from conftest import SHARED_DATA
-from test_bad_input import HEIGHT, INTENSITIES, WIDTH, make_ps_folder, raises, write_lines, write_png
-
 from rjfit.data.codes import QUANTISATION_VARIANCE_CODES, channel_quantisation_variance, widening_factor
 from rjfit.data.diligent import load_diligent
 from rjfit.data.response import estimate_power_response
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.render.datasets import load_dataset
+
+from builders import HEIGHT, INTENSITIES, SHARED_DATA, WIDTH, make_ps_folder, raises, write_lines, write_png
 
 
 def eight_bit_folder(folder, options=None, *, equal_intensities=False, seed=0):
