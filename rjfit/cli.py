@@ -365,7 +365,7 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
     """Criticise a fit: find where simulation and data disagree, name the missing effect
     (only when the evidence is decisive), add it, refit and show the gap shrink."""
     from rjfit.diagnose.effects import ALL_EFFECTS
-    from rjfit.diagnose.report import gap_text, named_text
+    from rjfit.diagnose.document import gap_text, named_text
     from rjfit.pipeline.diagnose import diagnose_fit
 
     out_dir = out_dir or fit_dir / "diagnosis"

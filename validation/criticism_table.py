@@ -24,10 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rjfit.diagnose.hidden import render_hidden  # noqa: E402
 from rjfit.diagnose.workflow import diagnose  # noqa: E402
 from rjfit.io import write_json_atomic  # noqa: E402
 from rjfit.render.datasets import load_dataset
+from rjfit.render.hidden import render_hidden  # noqa: E402
 
 KINDS = ("clean", "ambient", "camera_response", "light_calibration", "interreflection", "cast_shadows", "fresnel",
          "fresnel_plugin", "masking", "ambient+light_calibration")

@@ -16,11 +16,13 @@ model is nested in each extension.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Param", "Effect", "MitsubaChange", "STAGES", "merge_changes"]
+from rjfit.render.scene_change import MitsubaChange
+
+__all__ = ["Param", "Effect", "STAGES"]
 
 STAGES = ("lobe", "direct", "indirect", "light", "ambient", "camera")
 
@@ -36,49 +38,6 @@ class Param:
     prior: object
     init: float
     null: float | None = None
-
-
-@dataclass
-class MitsubaChange:
-    """The Mitsuba side of an effect (or of several, merged).
-
-    bsdf_params : extra parameters of the plugin variant ``rjfit_blinn_ext`` (f0, mask_w)
-    extra       : extra scene entries (e.g. a ``constant`` emitter)
-    max_depth   : the path integrator's path length (None: the gate's default, direct only)
-    light_scales: per-light factors on the emitter intensities
-    post_process: images (L, H, W) -> images, applied to the path-traced stack
-    shadows     : whether occlusion stays in (Mitsuba always traces it; False marks effects
-                  whose closed form must then include visibility)
-    stochastic  : the change makes the path tracer's answer Monte Carlo noisy (the gate
-                  then tests agreement statistically, see ``rjfit.diagnose.mitsuba_ext.gate``)
-    """
-
-    bsdf_params: dict = field(default_factory=dict)
-    extra: dict = field(default_factory=dict)
-    max_depth: int | None = None
-    light_scales: np.ndarray | None = None
-    post_process: object = None
-    stochastic: bool = False
-    notes: list = field(default_factory=list)
-
-
-def merge_changes(changes) -> MitsubaChange:
-    merged = MitsubaChange()
-    for change in changes:
-        merged.bsdf_params.update(change.bsdf_params)
-        merged.extra.update(change.extra)
-        if change.max_depth is not None:
-            merged.max_depth = max(merged.max_depth or 0, change.max_depth)
-        if change.light_scales is not None:
-            merged.light_scales = (np.asarray(change.light_scales) if merged.light_scales is None
-                                   else merged.light_scales * np.asarray(change.light_scales))
-        if change.post_process is not None:
-            previous = merged.post_process
-            merged.post_process = change.post_process if previous is None else (
-                lambda images, a=previous, b=change.post_process: b(a(images)))
-        merged.stochastic |= change.stochastic
-        merged.notes += change.notes
-    return merged
 
 
 class Effect:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rjfit.diagnose.priors import LogitNormal, LogNormal, Normal
+from rjfit.model.priors import LogitNormal, LogNormal, Normal
 
 
 @pytest.mark.parametrize("prior, z", [(LogNormal(0.3, 1.2), 0.7), (LogitNormal(-1.0, 2.0), 1.3),
