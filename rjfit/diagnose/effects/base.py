@@ -50,13 +50,13 @@ class Effect:
     needs_mitsuba: bool = False
     # apply() changes an observation's terms through its own region's parameters and the
     # effect's only, so the refit's objective has no cross terms between two regions'
-    # parameters and its Hessian skips them (rjfit.diagnose.refit); False for an effect that
+    # parameters and its Hessian skips them (rjfit.diagnose.hessian); False for an effect that
     # couples regions (say, light one region sends to another at its fitted albedo)
     region_local: bool = True
     # An effect whose parameters act only through one value per light, ``u = B theta`` with
     # ``B = light_basis(ctx)`` (L, k) and an observation of light l depending on u[l] alone
     # (its priors Normal, so theta = z): the refit's Hessian is then taken over the L
-    # light values, whose pairs never meet (rjfit.diagnose.refit), and mapped back by B.
+    # light values, whose pairs never meet (rjfit.diagnose.hessian), and mapped back by B.
     # Such an effect defines ``light_basis`` and ``apply_light_values(terms, u, ctx)``.
     light_basis = None
 
