@@ -23,6 +23,7 @@ from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.refit import refit, standardised_residuals
+from rjfit.diagnose.simulate import simulate_fit
 from rjfit.io import publish, staging_dir, write_json_atomic
 
 __all__ = ["diagnose", "SearchSettings", "LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "PRIOR_CONFLICT_SD", "GAP_DEFINITION",
@@ -453,8 +454,6 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
 def _simulation(ctx, plain, current, sigma2_hat, settings, figure_dir) -> dict:
     """The Mitsuba posterior predictive of the plain and final models (``diagnosis.json``
     "simulation"), with its figures where ``settings.make_figures``."""
-    from rjfit.diagnose.simulate import simulate_fit
-
     seed, n_draws = settings.seed, settings.n_sim_draws
     sim = {"plain": simulate_fit(ctx, plain, sigma2_hat, n_draws=n_draws, seed=seed)}
     if current is not plain:
