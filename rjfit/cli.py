@@ -335,7 +335,7 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
 
 
 def _echo_diagnosis(result: dict, out_dir) -> None:
-    from rjfit.diagnose.report import gap_text, named_text
+    from rjfit.diagnose.document import gap_text, named_text
 
     click.echo(f"named effects: {named_text(result)}")
     if result["named_effects"] and result["search"]["stopped"].startswith("stopped after"):

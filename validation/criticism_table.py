@@ -1,6 +1,6 @@
 """Print the criticism table: hidden effect -> named effect, evidence, gap before and after.
 
-Renders every hidden-effect data set of ``rjfit.diagnose.hidden`` small (32 x 32, seeded),
+Renders every hidden-effect data set of ``rjfit.render.hidden`` small (32 x 32, seeded),
 runs the workflow on the truth segmentation with ALL candidates, and prints one row each;
 then runs it on the measured DiLiGenT ball (one material: label 0 on the mask), subsampled to
 keep the refits short (every 4th light, every 6th pixel of the mask's bounding box: adjacent
@@ -24,10 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rjfit.diagnose.hidden import render_hidden  # noqa: E402
 from rjfit.diagnose.workflow import diagnose  # noqa: E402
 from rjfit.io import write_json_atomic  # noqa: E402
 from rjfit.render.datasets import load_dataset
+from rjfit.render.hidden import render_hidden  # noqa: E402
 
 KINDS = ("clean", "ambient", "camera_response", "light_calibration", "interreflection", "cast_shadows", "fresnel",
          "fresnel_plugin", "masking", "ambient+light_calibration")

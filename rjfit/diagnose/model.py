@@ -1,4 +1,22 @@
-"""The extended closed form: eq. 2 with effects composed in stages (see effects/base.py)."""
+"""The extended closed form: eq. 2 with effects composed in stages (see effects/base.py).
+
+Eq. 2 itself is :mod:`rjfit.model.blinn`'s: Giesen's normalisation is its
+``blinn_normalisation``, and the lobe ``<h.n>^g`` is its ``log_cos_power`` bit for bit. What
+is written out here, and why:
+
+- ``log <h.n>`` is taken once per context (``ctx.feature``) and the lobe computed as
+  ``exp(g log <h.n>)`` from it, where ``log_cos_power(<h.n>, g)`` would take the logarithm
+  again at every one of a refit's thousands of evaluations. The values are the same bits
+  (the same exp of the same product where <h.n> > 0; exp(-inf) = 0 elsewhere, as the
+  ``where`` of ``log_cos_power`` gives for g > 0).
+- The direct term ``I0 (E max(<l.n>, 0)) (kd/pi + (1 - kd) spec)`` is eq. 2, but not
+  :func:`rjfit.model.blinn.radiance`: the lobe-stage effects (Fresnel, masking) change the
+  lobe between ``N(g) <h.n>^g`` and the BRDF's sum, which ``brdf`` does not let in, and
+  ``radiance`` multiplies in another order (``((I0 E) brdf) <l.n>``), which changes the last
+  bits of every prediction and so of every diagnosis. Both equalities are tested
+  (``tests/diagnose/test_diagnose_units.py``: the lobe bit for bit, the plain prediction to
+  rounding).
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -12,7 +12,7 @@ diagnostic k-hat. Then ``elpd_i = log sum_s w_s p(y_i | z_s) / sum_s w_s``.
 Why not ``az.loo``: it smooths one observation at a time in Python, about 2.4 s per 20,000
 observations, so minutes per model on a measured stack of a million observations. Here
 the sort, the Pareto fit and the smoothing run on blocks of observations as array
-operations. ``tests/test_psis.py`` checks the result against ``az.loo`` and ``az.psislw``.
+operations. ``tests/diagnose/test_psis.py`` checks the result against ``az.loo`` and ``az.psislw``.
 
 Two differences, both deliberate:
 

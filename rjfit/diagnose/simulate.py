@@ -24,9 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.diagnose.effects.base import merge_changes
 from rjfit.diagnose.gap import gap, gap_breakdown
-from rjfit.diagnose.mitsuba_ext import model_scene, render_model
+from rjfit.diagnose.scenes import model_scene
+from rjfit.render.effect_scenes import render_model
+from rjfit.render.scene_change import merge_changes
 
 __all__ = ["simulate_fit"]
 

@@ -163,7 +163,7 @@ def _listed_figures(sub: str, payload) -> list:
     if not isinstance(payload, dict):
         return []
     if sub == "diagnosis":
-        from rjfit.diagnose.report import listed_figures
+        from rjfit.diagnose.figures import listed_figures
 
         return listed_figures(payload)
     figures = payload.get("figures", ["segmentations.png"] if "rows" in payload else [])

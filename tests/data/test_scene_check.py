@@ -110,7 +110,7 @@ def test_a_scene_must_be_a_json_object(tmp_path):
 
 
 def test_built_in_and_derived_scenes_pass():
-    from rjfit.diagnose.hidden import backlit_sphere_definition
+    from rjfit.render.hidden import backlit_sphere_definition
 
     for path in sorted(SCENES_DIR.glob("*.json")):
         check_scene_definition(read_json(path), path)

@@ -1,6 +1,6 @@
 """The library of candidate missing effects (one module each); see ``base`` for the protocol."""
 from rjfit.diagnose.effects.ambient import Ambient
-from rjfit.diagnose.effects.base import STAGES, Effect, MitsubaChange, Param, merge_changes
+from rjfit.diagnose.effects.base import STAGES, Effect, Param
 from rjfit.diagnose.effects.calibration import LightCalibration
 from rjfit.diagnose.effects.camera import CameraGamma, CameraSRGB
 from rjfit.diagnose.effects.fresnel import Fresnel
@@ -8,7 +8,7 @@ from rjfit.diagnose.effects.interreflection import Interreflection
 from rjfit.diagnose.effects.masking import Masking
 from rjfit.diagnose.effects.shadows import CastShadows
 
-__all__ = ["Effect", "Param", "MitsubaChange", "merge_changes", "STAGES", "ALL_EFFECTS", "EFFECTS", "get_effect",
+__all__ = ["Effect", "Param", "STAGES", "ALL_EFFECTS", "EFFECTS", "get_effect",
            "Fresnel", "Masking", "Interreflection", "Ambient", "CastShadows", "CameraGamma", "CameraSRGB",
            "LightCalibration"]
 

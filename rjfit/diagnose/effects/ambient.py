@@ -16,9 +16,10 @@ import functools
 
 import numpy as np
 
-from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
-from rjfit.diagnose.priors import LogNormal
+from rjfit.diagnose.effects.base import Effect, Param
 from rjfit.model.blinn import blinn_normalisation
+from rjfit.model.priors import LogNormal
+from rjfit.render.scene_change import MitsubaChange
 
 _LOG_G = np.linspace(np.log(0.05), np.log(5000.0), 48)
 _COS_V = np.linspace(0.0, 1.0, 41)

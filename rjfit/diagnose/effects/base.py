@@ -16,11 +16,13 @@ model is nested in each extension.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Param", "Effect", "MitsubaChange", "STAGES", "merge_changes"]
+from rjfit.render.scene_change import MitsubaChange
+
+__all__ = ["Param", "Effect", "STAGES"]
 
 STAGES = ("lobe", "direct", "indirect", "light", "ambient", "camera")
 
@@ -38,49 +40,6 @@ class Param:
     null: float | None = None
 
 
-@dataclass
-class MitsubaChange:
-    """The Mitsuba side of an effect (or of several, merged).
-
-    bsdf_params : extra parameters of the plugin variant ``rjfit_blinn_ext`` (f0, mask_w)
-    extra       : extra scene entries (e.g. a ``constant`` emitter)
-    max_depth   : the path integrator's path length (None: the gate's default, direct only)
-    light_scales: per-light factors on the emitter intensities
-    post_process: images (L, H, W) -> images, applied to the path-traced stack
-    shadows     : whether occlusion stays in (Mitsuba always traces it; False marks effects
-                  whose closed form must then include visibility)
-    stochastic  : the change makes the path tracer's answer Monte Carlo noisy (the gate
-                  then tests agreement statistically, see ``rjfit.diagnose.mitsuba_ext.gate``)
-    """
-
-    bsdf_params: dict = field(default_factory=dict)
-    extra: dict = field(default_factory=dict)
-    max_depth: int | None = None
-    light_scales: np.ndarray | None = None
-    post_process: object = None
-    stochastic: bool = False
-    notes: list = field(default_factory=list)
-
-
-def merge_changes(changes) -> MitsubaChange:
-    merged = MitsubaChange()
-    for change in changes:
-        merged.bsdf_params.update(change.bsdf_params)
-        merged.extra.update(change.extra)
-        if change.max_depth is not None:
-            merged.max_depth = max(merged.max_depth or 0, change.max_depth)
-        if change.light_scales is not None:
-            merged.light_scales = (np.asarray(change.light_scales) if merged.light_scales is None
-                                   else merged.light_scales * np.asarray(change.light_scales))
-        if change.post_process is not None:
-            previous = merged.post_process
-            merged.post_process = change.post_process if previous is None else (
-                lambda images, a=previous, b=change.post_process: b(a(images)))
-        merged.stochastic |= change.stochastic
-        merged.notes += change.notes
-    return merged
-
-
 class Effect:
     """Base class of the candidate effects (each module under ``effects/`` defines one)."""
 
@@ -91,13 +50,13 @@ class Effect:
     needs_mitsuba: bool = False
     # apply() changes an observation's terms through its own region's parameters and the
     # effect's only, so the refit's objective has no cross terms between two regions'
-    # parameters and its Hessian skips them (rjfit.diagnose.refit); False for an effect that
+    # parameters and its Hessian skips them (rjfit.diagnose.hessian); False for an effect that
     # couples regions (say, light one region sends to another at its fitted albedo)
     region_local: bool = True
     # An effect whose parameters act only through one value per light, ``u = B theta`` with
     # ``B = light_basis(ctx)`` (L, k) and an observation of light l depending on u[l] alone
     # (its priors Normal, so theta = z): the refit's Hessian is then taken over the L
-    # light values, whose pairs never meet (rjfit.diagnose.refit), and mapped back by B.
+    # light values, whose pairs never meet (rjfit.diagnose.hessian), and mapped back by B.
     # Such an effect defines ``light_basis`` and ``apply_light_values(terms, u, ctx)``.
     light_basis = None
 

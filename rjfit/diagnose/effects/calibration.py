@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
-from rjfit.diagnose.priors import Normal
+from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.model.priors import Normal
+from rjfit.render.scene_change import MitsubaChange
 
 PRIOR_SCALE = 0.2
 

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
-from rjfit.diagnose.priors import LogNormal
+from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.model.priors import LogNormal
+from rjfit.render.scene_change import MitsubaChange
 
 
 def srgb_encode(x):

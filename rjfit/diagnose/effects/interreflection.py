@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
-from rjfit.diagnose.priors import LogNormal
+from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.diagnose.scenes import indirect_radiance
+from rjfit.model.priors import LogNormal
+from rjfit.render.scene_change import MitsubaChange
 
 INDIRECT_SPP = 32
 INDIRECT_DEPTH = 8
@@ -31,8 +33,6 @@ class Interreflection(Effect):
         return [Param("beta", LogNormal(loc=0.0, scale=1.0), init=1.0, null=0.0)]
 
     def prepare(self, ctx):
-        from rjfit.diagnose.mitsuba_ext import indirect_radiance
-
         region_params = ctx.features.get("fit_region_params")
         if region_params is None:
             raise RuntimeError("interreflection needs the current fit's region parameters in "

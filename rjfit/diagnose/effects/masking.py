@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
-from rjfit.diagnose.priors import LogitNormal
+from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.model.priors import LogitNormal
+from rjfit.render.scene_change import MitsubaChange
 
 
 def tangent(cos_theta):

@@ -17,23 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.diagnose.effects.base import Effect, MitsubaChange, Param
-from rjfit.diagnose.priors import LogitNormal
-
-
-def mitsuba_visibility(dataset):
-    """(L, H, W) shadow-ray visibility from the data set's scene, traced by Mitsuba."""
-    from rjfit.data.lights import Light
-    from rjfit.render.mitsuba_scene import activate, shadow_visibility, trace_pixels
-    from rjfit.render.render import scene_from_dataset_meta
-
-    activate()
-    meta = dataset.meta
-    scene = scene_from_dataset_meta(meta, dataset.path, lights=[])
-    traced = trace_pixels(scene, [entry["material"] for entry in meta["meshes"]])
-    shape = traced["hit"].shape
-    return np.stack([shadow_visibility(scene, traced["_interaction"], Light.from_json(entry), shape)
-                     for entry in meta["lights"]])
+from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.model.priors import LogitNormal
+from rjfit.render.effect_scenes import mitsuba_visibility
+from rjfit.render.scene_change import MitsubaChange
 
 
 class CastShadows(Effect):

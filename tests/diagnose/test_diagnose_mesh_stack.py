@@ -18,9 +18,9 @@ import pytest
 
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import get_effect
-from rjfit.diagnose.hidden import render_hidden
 from rjfit.diagnose.workflow import LOG_BF_THRESHOLD, diagnose
 from rjfit.render.datasets import load_dataset
+from rjfit.render.hidden import render_hidden
 
 CANDIDATES = ("cast_shadows", "interreflection")
 
@@ -65,8 +65,8 @@ def test_mesh_stack_features_equal_the_rendered_data_sets(scenes, tmp_path):
     rendered parts' exact boundary. (Rendering the stack's one mesh with one region's
     parameters, as before the mesh was cut by region, left 1.8 times the Monte Carlo error.)
     An OBJ copy of the mesh gives the same geometry."""
-    from rjfit.diagnose.effects.shadows import mitsuba_visibility
-    from rjfit.diagnose.mitsuba_ext import indirect_radiance
+    from rjfit.diagnose.scenes import indirect_radiance
+    from rjfit.render.effect_scenes import mitsuba_visibility
 
     rendered_dir, stack_dir = scenes["interreflection"]
     rendered, stack = load_dataset(rendered_dir), load_dataset(stack_dir)

@@ -1,4 +1,5 @@
-"""Data sets with one (or two) effects hidden in them, rendered with Mitsuba.
+"""Data sets with one (or two) effects hidden in them, rendered with Mitsuba: what the
+criticism (:mod:`rjfit.diagnose`) is tested and validated on.
 
 Where Mitsuba has a built-in for the effect, the data set uses it (not rjfit's extended
 closed form), so a test that names the effect cannot pass by construction:
@@ -32,14 +33,20 @@ from __future__ import annotations
 
 import json
 import math
+import tempfile
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 
+from rjfit.data.exr import read_exr
 from rjfit.io import write_json_atomic
+from rjfit.render.effect_scenes import trace_centre_rays
+from rjfit.render.ext_plugin import EXT_PLUGIN_NAME, register_ext
+from rjfit.render.mitsuba_scene import activate
+from rjfit.render.render import load_scene_definition, render_dataset, scene_from_dataset_meta
 
-__all__ = ["HIDDEN", "render_hidden", "backlit_sphere_definition"]
+__all__ = ["HIDDEN", "render_hidden", "backlit_sphere_definition", "hidden_post_process"]
 
 AMBIENT_RELATIVE = 0.03
 CALIBRATED_LIGHT = 3
@@ -52,8 +59,6 @@ AMBIENT_STREAM = 15        # purpose tag of the ambient image's path-tracing str
 
 def backlit_sphere_definition():
     """paper_sphere's sphere and materials with 5 of its front lights and 5 back lights."""
-    from rjfit.render.render import load_scene_definition
-
     scene = load_scene_definition("paper_sphere")
     scene["name"] = "backlit_sphere"
     front = scene["lights"][::2]
@@ -79,9 +84,6 @@ def _roughplastic(materials, reference_intensity):
 
 
 def _ext_plugin(materials, reference_intensity, **params):
-    from rjfit.diagnose.mitsuba_ext import EXT_PLUGIN_NAME, register_ext
-    from rjfit.render.mitsuba_scene import activate
-
     activate()
     register_ext()
 
@@ -98,12 +100,6 @@ def _ambient_image(scene, resolution, radiance, seed, spp=AMBIENT_SPP):
     samples in one wavefront) and added to each light's image; light transport is linear,
     so this is the image of the scene with both emitters, with far less Monte Carlo noise
     than rendering the environment again with every light."""
-    import tempfile
-
-    from rjfit.diagnose.mitsuba_ext import trace_centre_rays
-    from rjfit.render.mitsuba_scene import activate
-    from rjfit.render.render import render_dataset, scene_from_dataset_meta
-
     activate()
     with tempfile.TemporaryDirectory() as scratch:
         geometry = render_dataset(dict(scene, lights=scene["lights"][:1]), Path(scratch) / "g", resolution=resolution,
@@ -112,7 +108,7 @@ def _ambient_image(scene, resolution, radiance, seed, spp=AMBIENT_SPP):
         env = {"ambient": {"type": "constant", "radiance": {"type": "rgb", "value": [radiance] * 3}}}
         mitsuba_scene = scene_from_dataset_meta(meta, geometry, lights=[], max_depth=8, extra=env)
         image = trace_centre_rays(mitsuba_scene, spp=spp, seed=(seed, AMBIENT_STREAM))
-        mask = __import__("rjfit.data.exr", fromlist=["read_exr"]).read_exr(geometry / "geometry.exr")["mask"] > 0.5
+        mask = read_exr(geometry / "geometry.exr")["mask"] > 0.5
     return np.where(mask, image, 0.0)
 
 
@@ -122,8 +118,18 @@ def _edit_meta(path, edit):
     write_json_atomic(Path(path) / "dataset.json", meta)
 
 
-def _hidden_post(ambient_image, camera, images):
-    """The hidden effects applied to rendered radiance: ambient light, then an sRGB camera with noise after it."""
+def hidden_post_process(ambient_image, camera, images):
+    """The hidden effects applied to rendered radiance (``images`` (L, H, W, C)): ambient light,
+    then an sRGB camera with noise after it.
+
+    Parameters
+    ----------
+    ambient_image : ndarray (H, W) or None
+        What the environment adds to every image (:func:`render_hidden`'s ambient kind); None: none.
+    camera : (numpy.random.Generator, float) or None
+        The read noise's generator and variance, added after the sRGB encoding (white level
+        ``SRGB_WHITE`` times the brightest value); None: a linear camera, no noise added here.
+    """
     if ambient_image is not None:
         images = images + ambient_image[None, :, :, None]
     if camera is None:
@@ -138,8 +144,6 @@ def _hidden_post(ambient_image, camera, images):
 
 def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1):
     """Render the hidden-effect data set ``kind`` (see the module docstring) into ``out_dir``."""
-    from rjfit.render.render import load_scene_definition, render_dataset
-
     out_dir = Path(out_dir)
     kinds = set(kind.split("+"))
     unknown = kinds - set(HIDDEN)
@@ -162,7 +166,7 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
             options["noise_variance"] = 0.0
             camera = (rng, noise_variance)
         # ambient light reaches the sensor before its response curve: add it first
-        post = None if ambient_image is None and camera is None else partial(_hidden_post, ambient_image, camera)
+        post = None if ambient_image is None and camera is None else partial(hidden_post_process, ambient_image, camera)
         path = render_dataset(scene, out_dir, extra=extra, post_process=post, **options)
         if "light_calibration" in kinds:
             _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rjfit.diagnose.priors import LogitNormal, LogNormal, Normal
+from rjfit.model.priors import LogitNormal, LogNormal, Normal
 
 
 @pytest.mark.parametrize("prior, z", [(LogNormal(0.3, 1.2), 0.7), (LogitNormal(-1.0, 2.0), 1.3),
@@ -95,7 +95,8 @@ def test_laplace_evidence_agrees_with_importance_sampling(tmp_path):
     to within 0.5 nat, for the plain model and for one with an extra effect."""
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects import EFFECTS
-    from rjfit.diagnose.refit import evidence_by_importance_sampling, refit
+    from rjfit.diagnose.evidence import evidence_by_importance_sampling
+    from rjfit.diagnose.refit import refit
     from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
@@ -119,7 +120,8 @@ def test_the_hessian_skips_only_pairs_that_never_meet(tmp_path):
     that shares parameters across regions (light calibration) or not (Fresnel)."""
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects import EFFECTS
-    from rjfit.diagnose.refit import _fd_hessian, coupled_pairs, refit
+    from rjfit.diagnose.hessian import coupled_pairs, finite_difference_hessian
+    from rjfit.diagnose.refit import refit
     from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
@@ -127,11 +129,11 @@ def test_the_hessian_skips_only_pairs_that_never_meet(tmp_path):
     ctx = build_context(dataset, dataset.truth_labels)
     plain = refit(ctx, ())
     for fit in (plain, refit(ctx, (EFFECTS["fresnel"], EFFECTS["light_calibration"]), start=plain)):
-        problem = fit._cache["problem"]
+        problem = fit.objective
         coupled = coupled_pairs(problem)
         assert (~coupled).sum() == 16 * 4 * 3          # 4 x 4 parameters of each region with another's
         steps = np.minimum(0.05 / np.sqrt(np.diag(fit.hessian)), 0.05)
-        full, _, _ = _fd_hessian(problem.f, fit.z, steps)
+        full, _, _ = finite_difference_hessian(problem.f, fit.z, steps)
         correlation = np.abs(full) / np.sqrt(np.outer(np.diag(full), np.diag(full)))
         # rounding of f (about 1e-16 of |f|, over steps^2) gives 1e-7-sized correlations;
         # a real cross term between two regions would be of order 1 (kd-gamma: 0.9)
@@ -157,7 +159,8 @@ def test_a_coarsened_refit_weighs_the_likelihood_by_its_power(tmp_path):
     Laplace Hessian is zeta times the data's part plus the prior's, and its evidence still
     agrees with importance sampling of the same (tempered) target."""
     from rjfit.diagnose.context import build_context
-    from rjfit.diagnose.refit import evidence_by_importance_sampling, refit
+    from rjfit.diagnose.evidence import evidence_by_importance_sampling
+    from rjfit.diagnose.refit import refit
     from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
@@ -165,7 +168,7 @@ def test_a_coarsened_refit_weighs_the_likelihood_by_its_power(tmp_path):
     plain = refit(build_context(dataset, dataset.truth_labels))
     zeta = 0.25
     coarse = refit(build_context(dataset, dataset.truth_labels, likelihood_power=zeta))
-    problem = coarse._cache["problem"]
+    problem = coarse.objective
     z = coarse.z
     assert np.isclose(problem.f(z), -zeta * np.sum(problem.log_lik_pointwise(z)) - problem.log_prior(z), rtol=1e-12)
     # The priors are normal in the unconstrained coordinates: their Hessian is diag(1 / scale^2).
@@ -207,7 +210,7 @@ def test_a_refit_weighs_each_observation_by_the_noise_model_s_scale(tmp_path):
         for model, s in (("weighted", scale), ("constant", None)):
             ctx = replace(base, y=y, noise_scale=s, features={})
             fit = refit(ctx)
-            problem = fit._cache["problem"]
+            problem = fit.objective
             # the objective is exactly the weighted Gaussian log density (+ its -log s_i)
             residuals = y - predictions(fit, draws=False)
             s2 = fit.region_params()[ctx.region, 3]
@@ -240,16 +243,16 @@ def test_a_refit_weighs_each_observation_by_the_noise_model_s_scale(tmp_path):
 
 def test_hidden_ambient_is_added_before_the_camera_response():
     """With both hidden, ambient light enters the sensor's response curve (it was once dropped)."""
-    from rjfit.diagnose.hidden import _hidden_post
+    from rjfit.render.hidden import hidden_post_process
 
     rng = np.random.default_rng(0)
     images = rng.uniform(0.0, 10.0, (2, 4, 5, 1))
     ambient = rng.uniform(0.0, 1.0, (4, 5))
-    np.testing.assert_allclose(_hidden_post(ambient, None, images), images + ambient[None, :, :, None])
-    both = _hidden_post(ambient, (np.random.default_rng(1), 0.0), images)
-    camera_of_sum = _hidden_post(None, (np.random.default_rng(1), 0.0), images + ambient[None, :, :, None])
+    np.testing.assert_allclose(hidden_post_process(ambient, None, images), images + ambient[None, :, :, None])
+    both = hidden_post_process(ambient, (np.random.default_rng(1), 0.0), images)
+    camera_of_sum = hidden_post_process(None, (np.random.default_rng(1), 0.0), images + ambient[None, :, :, None])
     np.testing.assert_allclose(both, camera_of_sum)
-    assert not np.allclose(both, _hidden_post(None, (np.random.default_rng(1), 0.0), images))
+    assert not np.allclose(both, hidden_post_process(None, (np.random.default_rng(1), 0.0), images))
 
 
 def test_a_per_light_effect_is_differenced_over_its_light_values(tmp_path):
@@ -266,7 +269,8 @@ def test_a_per_light_effect_is_differenced_over_its_light_values(tmp_path):
     squares solve, formed from per-light sums, equal the dense Jacobian's J'J and J'r."""
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects import EFFECTS
-    from rjfit.diagnose.refit import _block_hessian, _fd_hessian, refit
+    from rjfit.diagnose.hessian import block_hessian, finite_difference_hessian
+    from rjfit.diagnose.refit import refit
     from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
@@ -274,13 +278,13 @@ def test_a_per_light_effect_is_differenced_over_its_light_values(tmp_path):
     ctx = build_context(dataset, dataset.truth_labels)
     plain = refit(ctx, ())
     fit = refit(ctx, (EFFECTS["fresnel"], EFFECTS["ambient"], EFFECTS["light_calibration"]), start=plain)
-    problem = fit._cache["problem"]
+    problem = fit.objective
     steps = np.minimum(0.05 / np.sqrt(np.diag(fit.hessian)), 0.05)
-    full, _, f_full = _fd_hessian(problem.f, fit.z, steps)
+    full, _, f_full = finite_difference_hessian(problem.f, fit.z, steps)
     evaluations = []
     pointwise = problem.log_lik_pointwise
     problem.log_lik_pointwise = lambda *args: evaluations.append(1) or pointwise(*args)
-    block, _, f_block = _block_hessian(problem, fit.z, steps)
+    block, _, f_block = block_hessian(problem, fit.z, steps)
     problem.log_lik_pointwise = pointwise
     scale = np.sqrt(np.outer(np.diag(full), np.diag(full)))
     assert np.abs(block - full).max() / scale.max() < 1e-5
@@ -317,18 +321,19 @@ def test_a_fit_s_loo_and_mean_prediction_are_computed_once_and_keep_no_draw_arra
     from concurrent.futures import ThreadPoolExecutor
 
     from rjfit.diagnose.context import build_context
-    from rjfit.diagnose.refit import posterior_mean_prediction, predictions, psis_loo, refit
+    from rjfit.diagnose.loo import refit_loo
+    from rjfit.diagnose.refit import posterior_mean_prediction, predictions, refit
     from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
     dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=24))
     fit = refit(build_context(dataset, dataset.truth_labels), (), n_draws=20)
-    problem = fit._cache["problem"]
+    problem = fit.objective
     calls = []
     evaluate = problem.log_lik_pointwise
     problem.log_lik_pointwise = lambda z: calls.append(1) or evaluate(z)
     with ThreadPoolExecutor(max_workers=4) as pool:
-        results = list(pool.map(lambda _: psis_loo(fit), range(4)))
+        results = list(pool.map(lambda _: refit_loo(fit), range(4)))
     assert len(calls) == len(fit.draws)
     assert all(result is results[0] for result in results)
     n_obs = problem.ctx.y.size
@@ -345,9 +350,9 @@ def test_loo_difference_reports_the_share_of_observations_with_an_unreliable_k_h
 
     from rjfit.diagnose.context import build_context
     from rjfit.diagnose.effects import EFFECTS
+    from rjfit.diagnose.loo import loo_difference, refit_loo
     from rjfit.diagnose.psis import good_k_threshold
-    from rjfit.diagnose.refit import psis_loo, refit
-    from rjfit.diagnose.workflow import _loo_difference
+    from rjfit.diagnose.refit import refit
     from rjfit.render.datasets import load_dataset
     from rjfit.render.render import render_dataset
 
@@ -362,11 +367,11 @@ def test_loo_difference_reports_the_share_of_observations_with_an_unreliable_k_h
     ctx = build_context(dataset, dataset.truth_labels)
     plain = refit(ctx, ())
     fresnel = refit(ctx, (EFFECTS["fresnel"],), start=plain)
-    delta, se, max_khat, unreliable = _loo_difference(fresnel, plain)
-    khat = np.maximum(psis_loo(fresnel).pareto_k, psis_loo(plain).pareto_k)
+    delta, se, max_khat, unreliable = loo_difference(fresnel, plain)
+    khat = np.maximum(refit_loo(fresnel).pareto_k, refit_loo(plain).pareto_k)
     assert max_khat == khat.max()
     assert unreliable == np.mean(khat > 0.5)
-    assert np.isclose(delta, psis_loo(fresnel).elpd - psis_loo(plain).elpd)
+    assert np.isclose(delta, refit_loo(fresnel).elpd - refit_loo(plain).elpd)
 
 
 def test_a_bounded_logit_normal_stays_within_its_bounds():
@@ -388,9 +393,9 @@ def test_prior_data_conflicts_are_the_effect_parameters_beyond_3_prior_sd_away_f
     stands in for another effect); a parameter whose null is only a limit is flagged either way."""
     from types import SimpleNamespace
 
+    from rjfit.diagnose.candidates import PRIOR_CONFLICT_SD, prior_conflicts
+    from rjfit.diagnose.document import candidate_line, prior_conflict_text
     from rjfit.diagnose.effects.base import Param
-    from rjfit.diagnose.report import candidate_line, prior_conflict_text
-    from rjfit.diagnose.workflow import PRIOR_CONFLICT_SD, _prior_conflicts
 
     fresnel = [Param("F0", LogitNormal(-1.0, 2.0), init=0.5, null=1.0),          # null at z = +inf
                Param("far_side", LogitNormal(-1.0, 2.0), init=0.5, null=1.0),
@@ -403,22 +408,20 @@ def test_prior_data_conflicts_are_the_effect_parameters_beyond_3_prior_sd_away_f
                   1.0 + 0.5 * 2.5,                  # 2.5 sd: not flagged
                   -4.0,                             # 4 sd, null only a limit: flagged
                   -4.6 - 2.0 * 5.0])                # ambient 5 sd towards its null 0: not flagged
-    problem = SimpleNamespace(ctx=SimpleNamespace(n_regions=1), effects=[SimpleNamespace(name="fresnel"),
-                              SimpleNamespace(name="ambient")], effect_params=[fresnel, ambient])
-    fit = SimpleNamespace(z=z, _cache={"problem": problem})
-    conflicts = _prior_conflicts(fit, "fresnel")
+    effects = [SimpleNamespace(name="fresnel"), SimpleNamespace(name="ambient")]
+    conflicts = prior_conflicts(z, 1, effects, [fresnel, ambient], "fresnel")
     assert PRIOR_CONFLICT_SD == 3.0
     assert [c["param"] for c in conflicts] == ["fresnel.F0", "fresnel.limit_only"]
     assert np.allclose([c["prior_sd_from_centre"] for c in conflicts], [3.5, 4.0])
     assert np.isclose(conflicts[0]["map"], fresnel[0].prior.to_constrained(z[4]))
-    assert _prior_conflicts(fit, "ambient") == []
+    assert prior_conflicts(z, 1, effects, [fresnel, ambient], "ambient") == []
     row = {"step": 0, "effect": "fresnel", "log_bayes_factor": 12.0, "loo_skipped": "x", "prior_conflict": conflicts}
     assert prior_conflict_text(conflicts[0]) in candidate_line(row)
     assert "3.5 prior sd" in candidate_line(row)
 
 
 def test_diagnosis_md_warns_of_prior_conflicts_and_unreliable_loo():
-    from rjfit.diagnose.report import markdown
+    from rjfit.diagnose.document import markdown
 
     conflict = {"param": "fresnel.F0", "map": 0.0101, "prior_sd_from_centre": 4.2}
     row = {"step": 0, "effect": "fresnel", "kind": "Fresnel reflection", "log_bayes_factor": 50.0,
@@ -454,3 +457,38 @@ def test_compiled_shadowing_masking_equals_the_numpy_smith_terms_bit_for_bit():
     a = 1.0 / np.maximum(alpha * tan_v, 1e-12)
     assert (a < 1.6).sum() > 1000 and (a >= 1.6).sum() > 1000       # both branches exercised
     np.testing.assert_array_equal(shadowing_masking(tan_v, tan_l, alpha_region, region), expected)
+
+
+def test_the_plain_prediction_is_eq_2_of_the_model_layer():
+    """The extended closed form with no effect is rjfit.model.blinn's eq. 2: its lobe N(g) <h.n>^g
+    (from log <h.n> cached per context) equals blinn_normalisation times log_cos_power to the last
+    bit, over <h.n> from negative (lobe 0) through 0 to 1 and exponents from 0.4 to 900; its
+    prediction equals radiance() to rounding (rtol 1e-14: the same products in another order,
+    a few ulps; rjfit/diagnose/model.py says why it is written out). 4,000 random observations,
+    no rendering: a fraction of a second."""
+    from types import SimpleNamespace
+
+    from rjfit.diagnose.context import Context
+    from rjfit.diagnose.model import predict
+    from rjfit.model.blinn import blinn_normalisation, log_cos_power, radiance
+
+    rng = np.random.default_rng(7)
+    n = 4000
+    region = rng.integers(0, 3, n)
+    cos_hn, cos_ln = rng.uniform(-0.2, 1.0, n), rng.uniform(-0.2, 1.0, n)
+    cos_hn[:5] = (0.0, 1.0, -0.0, 1e-300, 0.5)
+    irradiance = rng.uniform(0.5, 2.0, n)
+    params = np.array([[50.0, 0.3, 12.0, 1.0], [20.0, 0.8, 0.4, 1.0], [80.0, 0.05, 900.0, 1.0]])
+    ctx = Context(dataset=SimpleNamespace(), labels=np.zeros((40, 100), int), n_regions=3, region=region,
+                  light=np.zeros(n, int), pixel=np.arange(n), y=np.zeros(n), cos_ln=cos_ln, cos_hn=cos_hn,
+                  irradiance=irradiance, cos_vn=None, cos_hv=None, valid=np.ones((1, 40, 100), bool))
+    lobes = []
+    recorder = SimpleNamespace(stage="lobe", apply=lambda terms, theta, features, ctx: lobes.append(terms["spec"].copy()))
+    mu = predict(ctx, [recorder], params, [np.zeros(0)], [None])
+    gamma = params[region, 2]
+    expected_lobe = blinn_normalisation(params[:, 2])[region] * log_cos_power(cos_hn, gamma)
+    assert (expected_lobe == 0).sum() > 100 and (expected_lobe > 0).sum() > 1000      # both branches
+    np.testing.assert_array_equal(lobes[0], expected_lobe)
+    expected = radiance(params[region, 0], params[region, 1], gamma, cos_ln, cos_hn, irradiance)
+    np.testing.assert_allclose(mu, expected, rtol=1e-14, atol=0)
+    np.testing.assert_array_equal(predict(ctx, [], params, [], []), mu)

@@ -4,19 +4,19 @@ For every effect: Mitsuba renders the data set's scene WITH the effect's change;
 extended closed form must pass the gate and the plain closed form (without the effect) must
 fail it, on the same path-traced stack. Deterministic changes use rjfit.render.gate's thresholds
 (median relative error <= 1e-4, p99 <= 1e-3); Monte Carlo ones (ambient, interreflection)
-the statistical criterion of rjfit.diagnose.mitsuba_ext.gate.
+the statistical criterion of rjfit.diagnose.gate.gate.
 """
 from __future__ import annotations
 
 import pytest
 
 from rjfit.diagnose.effects import EFFECTS
-from rjfit.diagnose.mitsuba_ext import gate
+from rjfit.diagnose.gate import gate
 
 
 @pytest.fixture(scope="module")
 def scenes(tmp_path_factory):
-    from rjfit.diagnose.hidden import backlit_sphere_definition
+    from rjfit.render.hidden import backlit_sphere_definition
     from rjfit.render.render import load_scene_definition, render_dataset
 
     root = tmp_path_factory.mktemp("gate")

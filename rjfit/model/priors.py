@@ -1,15 +1,22 @@
-"""Priors of the criticism refits: stated on the constrained value, with the bijection to an
-unconstrained coordinate and its log-Jacobian.
+"""Priors Gaussian in an unconstrained coordinate: stated on the constrained value, with the
+bijection to the unconstrained coordinate and its log-Jacobian.
 
-Every prior here is Gaussian in its unconstrained coordinate ``z`` (log-normal for positive
-values, logit-normal for values in (0, 1), normal for real values). So the density of ``z`` is
+This is THE place for priors of that family (log-normal for positive values, logit-normal for
+values in an interval, normal for real values). The criticism refits
+(:mod:`rjfit.diagnose`) state every parameter's prior with it: their Laplace evidence needs a
+prior that is Gaussian in the coordinate the MAP and the Hessian are taken in. The fit's
+region priors (:mod:`rjfit.sampler.priors`, ``ParamPrior`` kinds lognormal / uniform / beta /
+invgamma) are another family, for the reasons listed in
+:func:`rjfit.diagnose.region_priors.region_priors` and ``docs/criticism.md``.
+
+Every prior here is Gaussian in its unconstrained coordinate ``z``. So the density of ``z`` is
 
     log p_z(z) = log p_theta(theta(z)) + log |d theta / d z|    (= a normal log-density in z),
 
-which is what the refit's posterior and its Laplace evidence use: the MAP and the Hessian are
+which is what a refit's posterior and its Laplace evidence use: the MAP and the Hessian are
 taken in ``z``, where the posterior is closest to Gaussian, and the Jacobian term makes the
 evidence the same number it would be in the constrained coordinates (evidence does not depend
-on the parametrisation). ``tests/test_diagnose_units.py`` checks the identity above.
+on the parametrisation). ``tests/diagnose/test_diagnose_units.py`` checks the identity above.
 """
 from __future__ import annotations
 

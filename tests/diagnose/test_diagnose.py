@@ -18,22 +18,18 @@ import json
 import numpy as np
 import pytest
 
-from rjfit.diagnose.hidden import render_hidden
 from rjfit.diagnose.workflow import LOG_BF_THRESHOLD, diagnose
 from rjfit.render.datasets import load_dataset
+from rjfit.render.hidden import render_hidden
+
+from builders import hidden_data_sets, truth_fit_folder
 
 CAMERA = {"camera_gamma", "camera_srgb"}
 
 
 @pytest.fixture(scope="module")
 def hidden(tmp_path_factory):
-    cache = {}
-
-    def get(kind):
-        if kind not in cache:
-            cache[kind] = render_hidden(kind, tmp_path_factory.mktemp(kind.replace("+", "_")) / "dataset", resolution=32)
-        return cache[kind]
-    return get
+    return hidden_data_sets(tmp_path_factory, resolution=32)
 
 
 def _run(path, out, **options):
@@ -69,7 +65,7 @@ def test_hidden_effect_is_named_and_gap_shrinks(hidden, tmp_path, kind, expected
     assert all("log_bayes_factor" in c or "error" in c for c in on_disk["candidates"])
     if kind == "light_calibration":        # and it finds the light that is 20 % off
         from rjfit.diagnose.effects.calibration import light_scales
-        from rjfit.diagnose.hidden import CALIBRATED_LIGHT, CALIBRATION_ERROR
+        from rjfit.render.hidden import CALIBRATED_LIGHT, CALIBRATION_ERROR
 
         theta = [v["map"] for v in result["steps"][0]["effect_params"].values()]
         scales = light_scales(theta, len(theta) + 1)
@@ -78,7 +74,7 @@ def test_hidden_effect_is_named_and_gap_shrinks(hidden, tmp_path, kind, expected
         # 0.02 allows some 6 sd (measured: 1.2001 against 1.2)
         assert abs(ratio - CALIBRATION_ERROR) < 0.02, ratio
     if kind == "ambient":                  # and its strength (relative to the reference intensity)
-        from rjfit.diagnose.hidden import AMBIENT_RELATIVE
+        from rjfit.render.hidden import AMBIENT_RELATIVE
 
         ambient = result["steps"][0]["effect_params"]["ambient.ambient"]
         # within 4 posterior sd (Laplace; measured: 0.02985 +- 0.00011 against 0.03, z -1.3)
@@ -90,13 +86,8 @@ def test_clean_data_names_nothing_via_cli(hidden, tmp_path):
     from click.testing import CliRunner
 
     from rjfit.cli import main
-    from rjfit.data.exr import write_exr
 
-    path = hidden("clean")
-    fit_dir = tmp_path / "fit"
-    fit_dir.mkdir()
-    (fit_dir / "summary.json").write_text(json.dumps({"dataset": str(path)}))
-    write_exr(fit_dir / "map_labels.exr", {"labels": load_dataset(path).truth_labels.astype(float)})
+    fit_dir = truth_fit_folder(hidden("clean"), tmp_path / "fit")
     outcome = CliRunner().invoke(main, ["diagnose", str(fit_dir), "--out", str(tmp_path / "out"), "--no-simulate"])
     assert outcome.exit_code == 0, outcome.output
     result = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
@@ -169,16 +160,16 @@ def test_a_candidate_that_fails_on_a_worker_is_reported_and_the_search_goes_on(h
     """A refit that raises on a worker thread becomes that candidate's row (type and message),
     the other candidates are scored and the hidden effect is still named; with RJFIT_DEBUG
     set the error is raised instead."""
-    import rjfit.diagnose.workflow as workflow
+    import rjfit.diagnose.candidates as candidates
 
-    real_refit = workflow.refit
+    real_refit = candidates.refit
 
     def refit_failing_for_fresnel(ctx, effects=(), **options):
         if any(effect.name == "fresnel" for effect in effects):
             raise FloatingPointError("refit diverged (test)")
         return real_refit(ctx, effects, **options)
 
-    monkeypatch.setattr(workflow, "refit", refit_failing_for_fresnel)
+    monkeypatch.setattr(candidates, "refit", refit_failing_for_fresnel)
     monkeypatch.delenv("RJFIT_DEBUG", raising=False)
     path = hidden("ambient")
     result = _run(path, tmp_path / "out", max_steps=1, simulate=False, make_figures=False, jobs=2)

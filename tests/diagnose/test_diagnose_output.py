@@ -11,39 +11,24 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from rjfit.cli import main
-from rjfit.data.exr import write_exr
-from rjfit.diagnose.hidden import render_hidden
-from rjfit.diagnose.report import gap_text
+from rjfit.diagnose.document import gap_text
 from rjfit.render.datasets import load_dataset
 
-BALL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "diligent-ball"
+from builders import SHARED_DATA, hidden_data_sets, truth_fit_folder
+
+BALL = SHARED_DATA / "diligent-ball"
 NUMBER = r"-?\d+(?:\.\d+)?(?:e[+-]?\d+)?"
 
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
-    cache = {}
-
-    def get(kind):
-        if kind not in cache:
-            cache[kind] = render_hidden(kind, tmp_path_factory.mktemp(kind) / "dataset", resolution=32)
-        return cache[kind]
-    return get
-
-
-def _fit_folder(dataset_path, folder: Path) -> Path:
-    """A fit folder as ``rjfit fit`` leaves it for diagnose: summary.json + map_labels.exr."""
-    folder.mkdir()
-    (folder / "summary.json").write_text(json.dumps({"dataset": str(dataset_path)}))
-    write_exr(folder / "map_labels.exr", {"labels": load_dataset(dataset_path).truth_labels.astype(float)})
-    return folder
+    return hidden_data_sets(tmp_path_factory, resolution=32)
 
 
 def _diagnose(fit_dir, out_dir, *options):
@@ -55,7 +40,7 @@ def test_printed_gaps_are_those_of_diagnosis_json(rendered, tmp_path):
     """Interreflection hidden in the dented plaster: it is named, and its step line, the
     summary and diagnosis.json give the same gaps (they used to differ: 2.466 -> 0.409 printed,
     2.383 -> 0.375 written, the printed ones from the plain model's noise estimate)."""
-    fit_dir = _fit_folder(rendered("interreflection"), tmp_path / "fit")
+    fit_dir = truth_fit_folder(rendered("interreflection"), tmp_path / "fit")
     outcome = _diagnose(fit_dir, tmp_path / "out", "--max-steps", "2")
     assert outcome.exit_code == 0, outcome.output
     output = outcome.output
@@ -78,7 +63,7 @@ def test_printed_gaps_are_those_of_diagnosis_json(rendered, tmp_path):
 
 
 def test_candidates_without_loo_say_skipped_not_nan(rendered, tmp_path):
-    fit_dir = _fit_folder(rendered("interreflection"), tmp_path / "fit")
+    fit_dir = truth_fit_folder(rendered("interreflection"), tmp_path / "fit")
     outcome = _diagnose(fit_dir, tmp_path / "out", "--max-steps", "1")
     assert outcome.exit_code == 0, outcome.output
     assert "nan" not in outcome.output.lower(), outcome.output
@@ -96,7 +81,7 @@ def test_candidates_without_loo_say_skipped_not_nan(rendered, tmp_path):
 
 
 def test_max_steps_zero_says_the_search_was_skipped(rendered, tmp_path):
-    fit_dir = _fit_folder(rendered("interreflection"), tmp_path / "fit")
+    fit_dir = truth_fit_folder(rendered("interreflection"), tmp_path / "fit")
     outcome = _diagnose(fit_dir, tmp_path / "out", "--max-steps", "0")
     assert outcome.exit_code == 0, outcome.output
     assert "no missing effect" not in outcome.output, outcome.output

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from rjfit.diagnose import report as diagnosis_report
-from rjfit.diagnose.hidden import render_hidden
+from rjfit.diagnose import document, figures
 from rjfit.diagnose.workflow import diagnose
 from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
+from rjfit.render.hidden import render_hidden
 
 QUICK = dict(candidates=["ambient", "fresnel"], max_steps=1, simulate=False)
 
@@ -37,7 +37,7 @@ def _report(tmp_path, diagnosis_dir) -> str:
 def test_a_new_diagnosis_leaves_no_figure_of_the_previous_one(ambient, tmp_path):
     out = tmp_path / "diagnosis"
     first = diagnose(ambient, ambient.truth_labels, out, **QUICK)
-    first_figures = diagnosis_report.listed_figures(first)
+    first_figures = figures.listed_figures(first)
     assert first["named_effects"] == ["ambient"] and "signatures_step1.png" in first_figures
     assert {path.name for path in out.glob("*.png")} == set(first_figures)
     (out / "my_notes.png").write_bytes((out / first_figures[0]).read_bytes())      # not diagnose's
@@ -47,7 +47,7 @@ def test_a_new_diagnosis_leaves_no_figure_of_the_previous_one(ambient, tmp_path)
 
     # the same folder, another search: the plain model's gap only, no figure at all
     second = diagnose(ambient, ambient.truth_labels, out, max_steps=0, simulate=False)
-    assert diagnosis_report.listed_figures(second) == []
+    assert figures.listed_figures(second) == []
     assert sorted(path.name for path in out.iterdir()) == ["diagnosis.json", "diagnosis.md", "my_notes.png"]
     html = _report(tmp_path, out)
     assert "data:image/png" not in html and "search skipped: max_steps is 0" in html
@@ -64,11 +64,11 @@ def test_an_interrupted_diagnosis_leaves_the_previous_one_whole(ambient, tmp_pat
     def interrupt(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(diagnosis_report, interrupted, interrupt)
+    monkeypatch.setattr(figures if interrupted == "signature_figure" else document, interrupted, interrupt)
     with pytest.raises(KeyboardInterrupt):
         diagnose(ambient, ambient.truth_labels, out, seed=1, candidates=["ambient"], max_steps=1, simulate=False)
     assert _snapshot(out) == before
     assert not list(out.glob(".*")), "a staging folder or temporary file stayed behind"
     monkeypatch.undo()
     result = json.loads((out / "diagnosis.json").read_text())
-    assert result["seed"] == 0 and (out / "diagnosis.md").read_text() == diagnosis_report.markdown(result)
+    assert result["seed"] == 0 and (out / "diagnosis.md").read_text() == document.markdown(result)

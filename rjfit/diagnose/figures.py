@@ -1,0 +1,127 @@
+"""The figures of a diagnosis (PNG files in its folder), and which ones a ``diagnosis.json`` names.
+
+The text of ``diagnosis.md`` and the terminal lines are :mod:`rjfit.diagnose.document`'s.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rjfit.plotting import map_figure as _map_figure
+from rjfit.plotting import pyplot, zoom_to_object
+from rjfit.plotting import save_figure as _save_figure
+
+__all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure",
+           "signature_figure", "per_image_figure", "listed_figures"]
+
+
+def _plt():
+    return pyplot()
+
+
+def save_figure(figure, path):
+    return _save_figure(figure, path).name
+
+
+def residual_pair_figure(path, before, after, title_before, title_after, label="mean standardised residual"):
+    plt = _plt()
+    limit = float(np.nanpercentile(np.abs(np.concatenate([before[np.isfinite(before)], after[np.isfinite(after)]])), 99))
+    limit = max(limit, 1e-6)
+    figure, axes = plt.subplots(1, 2, figsize=(8.4, 3.8))
+    for axis, image, title in zip(axes, (before, after), (title_before, title_after)):
+        shown = axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        zoom_to_object(axis, np.isfinite(before) | np.isfinite(after))
+        axis.set_title(title, fontsize=9)
+        axis.axis("off")
+    figure.colorbar(shown, ax=axes, fraction=0.046, label=label)
+    return save_figure(figure, path)
+
+
+def per_light_figure(path, before, after, title):
+    plt = _plt()
+    lights = np.arange(len(before))
+    figure, axis = plt.subplots(figsize=(6.4, 3.2))
+    b = np.array([np.nan if v is None else v for v in before], dtype=float)
+    a = np.array([np.nan if v is None else v for v in after], dtype=float)
+    axis.bar(lights - 0.2, b, 0.4, label="before")
+    axis.bar(lights + 0.2, a, 0.4, label="after")
+    axis.set_xlabel("light")
+    axis.set_ylabel("gap")
+    axis.set_title(title, fontsize=9)
+    axis.legend(fontsize=8)
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+def posterior_figure(path, panels):
+    """``panels``: list of (name, before draws or None, after draws)."""
+    plt = _plt()
+    n = max(len(panels), 1)
+    cols = min(n, 4)
+    rows = int(np.ceil(n / cols))
+    figure, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 2.4 * rows), squeeze=False)
+    for axis in axes.ravel()[n:]:
+        axis.axis("off")
+    for axis, (name, before, after) in zip(axes.ravel(), panels):
+        if before is not None:
+            axis.hist(before, bins=25, alpha=0.6, density=True, label="before")
+        axis.hist(after, bins=25, alpha=0.6, density=True, label="after")
+        axis.set_title(name, fontsize=8)
+        axis.tick_params(labelsize=7)
+    axes.ravel()[0].legend(fontsize=7)
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None):
+    return _map_figure(path, image, title, cmap=cmap, vmin=vmin, vmax=vmax).name
+
+
+def signature_figure(path, residual, panels, title):
+    """The mean standardised residual map next to candidate signature maps (same colours)."""
+    plt = _plt()
+    finite = residual[np.isfinite(residual)]
+    limit = max(float(np.percentile(np.abs(finite), 99)) if finite.size else 1.0, 1e-6)
+    figure, axes = plt.subplots(1, len(panels) + 1, figsize=(2.3 * (len(panels) + 1), 2.8), squeeze=False)
+    for axis, (label, image) in zip(axes[0], [("residual", residual)] + list(panels)):
+        axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        zoom_to_object(axis, np.isfinite(residual))
+        axis.set_title(label, fontsize=7)
+        axis.axis("off")
+    figure.suptitle(title, fontsize=8)
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+def per_image_figure(path, stack, title):
+    """One panel per light of an (L, H, W) ``stack`` of standardised residuals (one colour range)."""
+    plt = _plt()
+    L = stack.shape[0]
+    cols = min(L, 5)
+    rows = int(math.ceil(L / cols))
+    limit = max(float(np.nanpercentile(np.abs(stack), 99)), 1e-6)
+    figure, axes = plt.subplots(rows, cols, figsize=(2.0 * cols, 2.0 * rows + 0.4), squeeze=False)
+    for i, axis in enumerate(axes.ravel()):
+        axis.axis("off")
+        if i < L:
+            axis.imshow(stack[i], cmap="RdBu_r", vmin=-limit, vmax=limit)
+            zoom_to_object(axis, np.isfinite(stack).any(axis=0))
+            axis.set_title(f"light {i}", fontsize=7)
+    figure.suptitle(title + f" (colour range +-{limit:.2g})", fontsize=9)
+    return save_figure(figure, path)
+
+
+def listed_figures(result: dict) -> list[str]:
+    """The figures a diagnosis made, as ``diagnosis.json`` names them (file names in its folder):
+    each step's, the signature panels, the Mitsuba simulation's; in that order, each once.
+
+    The files of one diagnosis are those its ``diagnosis.json`` names: ``rjfit report`` embeds
+    these and no others, and a new diagnosis removes them before it publishes its own.
+    """
+    names = []
+    for step in result.get("steps") or []:
+        names += list((step.get("figures") or {}).values())
+    names += list(result.get("signature_figures") or [])
+    names += list(((result.get("simulation") or {}).get("figures") or {}).values())
+    return list(dict.fromkeys(name for name in names if isinstance(name, str) and name))

@@ -1,0 +1,44 @@
+"""PSIS-LOO of a refit's Laplace draws, and the difference between two refits' LOO: the
+second opinion beside the Laplace evidence (:mod:`rjfit.diagnose.psis` is the estimator)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rjfit.diagnose.psis import good_k_threshold, psis_loo
+
+__all__ = ["pointwise_log_lik", "refit_loo", "loo_difference"]
+
+
+def pointwise_log_lik(fit):
+    """(S, N) log-likelihood of every observation under every draw of ``fit`` (a
+    :class:`rjfit.diagnose.refit.FitResult`; not cached: S N floats)."""
+    objective = fit.objective
+    return np.stack([objective.log_lik_pointwise(d) for d in fit.draws])
+
+
+def refit_loo(fit):
+    """PSIS-LOO on ``fit``'s Laplace draws: a :class:`rjfit.diagnose.psis.LooResult` (elpd, se,
+    pointwise elpd, pointwise k-hat), computed once per fit.
+
+    :func:`rjfit.diagnose.psis.psis_loo` (ArviZ's estimator, vectorised); a coarsened refit's
+    draws leave an observation out with its likelihood to the refit's power. Only the result
+    is kept: the (S, N) pointwise log-likelihood it is computed from is dropped at once, so a
+    diagnosis holds one such array per candidate refitting at that moment, not one per fit.
+    """
+    return fit.cached("loo", lambda fit: psis_loo(pointwise_log_lik(fit), likelihood_power=fit.objective.zeta))
+
+
+def loo_difference(candidate, current):
+    """``(delta ELPD, its SE, max k-hat, fraction of observations with an unreliable k-hat)`` of
+    the refit ``candidate`` over the refit ``current`` (same observations).
+
+    An observation is unreliable where either model's k-hat exceeds the threshold for the
+    number of draws (:func:`rjfit.diagnose.psis.good_k_threshold`, 0.5 for 100): there its
+    importance weights have too heavy a tail for the estimate to converge."""
+    loo_c, loo_0 = refit_loo(candidate), refit_loo(current)
+    diff = loo_c.pointwise - loo_0.pointwise
+    khat = np.maximum(loo_c.pareto_k, loo_0.pareto_k)
+    bad = float(np.mean(khat > good_k_threshold(min(len(candidate.draws), len(current.draws)))))
+    return float(diff.sum()), float(math.sqrt(diff.size * np.var(diff))), float(khat.max()), bad

@@ -1,0 +1,42 @@
+"""A context's fitted model in Mitsuba: the scene to render it on and the indirect-light feature.
+
+The rendering is the render layer's (:mod:`rjfit.render.effect_scenes`); what is per context
+stays here: the data set and segmentation it renders, the mesh cut by region (once per
+context, cached in ``ctx.features``), the diagnosis' seed, and the Monte Carlo error kept
+beside the feature.
+"""
+from __future__ import annotations
+
+from rjfit.render.effect_scenes import materials_for_parts, region_materials, region_parts, render_indirect
+
+__all__ = ["model_scene", "indirect_radiance"]
+
+
+def model_scene(ctx, region_params):
+    """The data set to render the fitted model on, and its materials (``{I0, kd, gamma}``).
+
+    A rendered data set's mesh parts are its materials:
+    :func:`rjfit.render.effect_scenes.materials_for_parts`. A data set without materials (a
+    measured mesh stack: one mesh) is cut into one part per fit region
+    (:func:`rjfit.render.effect_scenes.region_parts`, once per context), each region's
+    parameters its material.
+    """
+    if ctx.dataset.meta.get("materials") is not None:
+        return ctx.dataset, materials_for_parts(ctx.dataset, ctx.labels, region_params)
+    dataset, _ = ctx.feature("region_parts", lambda: region_parts(ctx.dataset, ctx.labels))
+    return dataset, region_materials(region_params)
+
+
+def indirect_radiance(ctx, region_params, *, spp=32, max_depth=8, seed=None, batches=8):
+    """Mitsuba's indirect radiance of the fitted model per light: path(max_depth) - path(2).
+
+    ``seed`` defaults to the diagnosis' seed (``ctx.seed``).
+
+    Returns the (L, H, W) mean; its Monte Carlo standard error (from ``batches`` independent
+    batches) is kept in ``ctx.features["indirect_se"]``.
+    """
+    dataset, materials = model_scene(ctx, region_params)
+    indirect, se = render_indirect(dataset, materials, seed=ctx.seed if seed is None else seed, spp=spp,
+                                   max_depth=max_depth, batches=batches)
+    ctx.features["indirect_se"] = se
+    return indirect
