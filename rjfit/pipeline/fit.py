@@ -42,9 +42,10 @@ from rjfit.data.coarsen import misfit_warning, suggest_likelihood_power
 from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS, describe_noise, noise_scale
 from rjfit.io import publish, staging_dir, write_json_atomic
 from rjfit.posterior import summary as post
-from rjfit.sampler.changepoints import model_number
-from rjfit.sampler.likelihood import Problem
+from rjfit.sampler.forward import Problem
+from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import PRESETS, make_prior
+from rjfit.sampler.regions.changepoint_grid import model_number
 from rjfit.sampler.runner import ChainSpec, run_chains
 from rjfit.sampler.state import SamplerConfig
 
@@ -112,7 +113,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     likelihood_power : float or 'auto'
         zeta in (0, 1]: the coarsened posterior (likelihood ** zeta; Miller and Dunson, JASA
         2019) for a model known to miss part of measured data; see
-        :class:`rjfit.sampler.likelihood.Problem`. 1 (default): the plain posterior.
+        :class:`rjfit.sampler.forward.Problem`. 1 (default): the plain posterior.
         'auto': the effective fraction of independent observations, from the spatial
         correlation of per-pixel-fit residuals (:func:`rjfit.data.coarsen.suggest_likelihood_power`).
     noise : {'constant', 'shot', 'relative'}
@@ -164,7 +165,7 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
         Before any chain runs: if ``burn_in`` is not in [0, 1) or leaves no iteration to
         keep; ``n_chains < 1`` or ``iterations < 10``; ``prior`` or ``noise`` is unknown;
         ``likelihood_power`` is neither ``'auto'`` nor a number in (0, 1] (the range is
-        checked by :class:`rjfit.sampler.likelihood.Problem`); ``'auto'`` cannot be measured
+        checked by :class:`rjfit.sampler.forward.Problem`); ``'auto'`` cannot be measured
         (no two adjacent pixels under one light have a residual); ``truth_labels`` does not
         have the images' shape (H, W); ``noise_floor`` is not positive and finite for the
         'shot' / 'relative' models (:func:`rjfit.data.noise.noise_scale`); the observations are
@@ -214,12 +215,12 @@ def fit(observations, out_dir, *, truth_labels=None, truth_params=None, seed: in
     # at least ~50 change-point snapshots after burn-in, so a short run still has its MAP labels
     cp_thin = max(1, min(cp_thin, (iterations - burn) // 50))
     fixed = fixed_segmentation is not None
-    config = SamplerConfig(max_u=max_u, max_v=max_v, sampler=sampler, split_map=split_map, cp_prior=cp_prior,
-                           drop_jacobian=drop_jacobian, burn_in=burn, jump_prob=jump_prob,
-                           anneal=int(round(anneal * burn)),
-                           # reproducing the paper's omission: every jump must use its map
-                           free_jump_prob=0.0 if drop_jacobian else SamplerConfig.free_jump_prob,
-                           update_changepoints=not fixed, jumps=not fixed)
+    config = SamplerConfig.from_flat(max_u=max_u, max_v=max_v, sampler=sampler, split_map=split_map,
+                                     cp_prior=cp_prior, drop_jacobian=drop_jacobian, burn_in=burn, jump_prob=jump_prob,
+                                     anneal=int(round(anneal * burn)),
+                                     # reproducing the paper's omission: every jump must use its map
+                                     free_jump_prob=0.0 if drop_jacobian else BirthDeathSettings.free_prob,
+                                     update_changepoints=not fixed, jumps=not fixed)
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
     specs = []
