@@ -32,8 +32,8 @@ NAMES = ("I0", "kd", "gamma", "sigma2")
 
 def fit_one(size, seed, iterations, sampled=False):
     from rjfit.data.synthetic import sphere_stack
-    from rjfit.sampler.kernel import ChainContext, initial_state, step
     from rjfit.sampler.forward import Problem
+    from rjfit.sampler.kernel import ChainContext, initial_state, step
     from rjfit.sampler.priors import make_prior
     from rjfit.sampler.state import SamplerConfig
 

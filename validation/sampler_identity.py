@@ -14,6 +14,10 @@ tree), then compare::
     PYTHONPATH=$PWD .venv/bin/python validation/sampler_identity.py run new.npz
     .venv/bin/python validation/sampler_identity.py compare old.npz new.npz
 
+Mode ``compare-fit`` compares two ``rjfit fit`` output folders of the same data, seed and
+options: ``summary.json`` without its timing fields (:data:`TIMING_KEYS`), every variable
+of every group of ``chains.nc`` and every array of ``changepoints.npz``.
+
 It only uses names that both the start commit of issue 25's sampler restructuring and
 later code have (``rjfit.sampler``'s package exports), and builds the configuration with
 ``SamplerConfig.from_flat`` where it exists (the flat keyword names), else with the flat
@@ -32,23 +36,23 @@ import numpy as np
 ITERATIONS, BURN, ANNEAL = 1000, 300, 150
 CASES = {
     # the default path of `rjfit fit`: dispersed starts (a random model in {0, 1}^2), annealed warm-up
-    "default": (dict(), {}, None),
-    "paper_sampler": (dict(sampler="paper"), {}, None),
-    "split_mean": (dict(split_map="mean"), {}, None),
-    "split_mean_drop_jacobian": (dict(split_map="mean", drop_jacobian=True, free_jump_prob=0.0), {}, None),
-    "split_paper_drop_jacobian": (dict(split_map="paper", drop_jacobian=True, free_jump_prob=0.0), {}, None),
-    "cp_prior_paper": (dict(cp_prior="paper"), {}, None),
-    "likelihood_power": (dict(), {"likelihood_power": 0.3}, None),
-    "shot_noise": (dict(), {"noise": "shot"}, None),
-    "fixed_segmentation": (dict(update_changepoints=False, jumps=False), {}, "quadrants"),
+    "default": ({}, {}, None),
+    "paper_sampler": ({"sampler": "paper"}, {}, None),
+    "split_mean": ({"split_map": "mean"}, {}, None),
+    "split_mean_drop_jacobian": ({"split_map": "mean", "drop_jacobian": True, "free_jump_prob": 0.0}, {}, None),
+    "split_paper_drop_jacobian": ({"split_map": "paper", "drop_jacobian": True, "free_jump_prob": 0.0}, {}, None),
+    "cp_prior_paper": ({"cp_prior": "paper"}, {}, None),
+    "likelihood_power": ({}, {"likelihood_power": 0.3}, None),
+    "shot_noise": ({}, {"noise": "shot"}, None),
+    "fixed_segmentation": ({"update_changepoints": False, "jumps": False}, {}, "quadrants"),
     # every structure move often: births/deaths (both kinds), block shifts, vector redraws
-    "busy_moves": (dict(jump_prob=0.7, block_prob=0.4, vector_prob=0.7, cp_uniform_prob=0.3, gamma_move="rw",
-                        refresh_every=50), {}, None),
-    "paper_full_recompute": (dict(sampler="paper", full_recompute=True, max_u=1, max_v=1), {}, None),
+    "busy_moves": ({"jump_prob": 0.7, "block_prob": 0.4, "vector_prob": 0.7, "cp_uniform_prob": 0.3, "gamma_move": "rw",
+                    "refresh_every": 50}, {}, None),
+    "paper_full_recompute": ({"sampler": "paper", "full_recompute": True, "max_u": 1, "max_v": 1}, {}, None),
     # a weak likelihood: births and deaths of both kinds are accepted often
-    "weak_likelihood": (dict(jump_prob=0.5), {"likelihood_power": 0.002}, None),
+    "weak_likelihood": ({"jump_prob": 0.5}, {"likelihood_power": 0.002}, None),
     # over the compiled passes' PARALLEL_MIN_OBS: the large passes run in pieces on two threads
-    "large_two_threads": (dict(), {"size": 96, "threads": 2}, None),
+    "large_two_threads": ({}, {"size": 96, "threads": 2}, None),
 }
 
 
@@ -123,6 +127,48 @@ def compare(first, second) -> int:
     return 1 if differ else 0
 
 
+#: summary.json fields that hold wall-clock measurements, left out of ``compare-fit``
+TIMING_KEYS = ("seconds", "chain_seconds")
+
+
+def compare_fit(first, second) -> int:
+    import json
+    from pathlib import Path
+
+    import arviz as az
+
+    first, second = Path(first), Path(second)
+    differ = []
+    summaries = [json.loads((d / "summary.json").read_text()) for d in (first, second)]
+    for summary in summaries:
+        for key in TIMING_KEYS:
+            summary.pop(key, None)
+    keys = sorted(set(summaries[0]) | set(summaries[1]))
+    differ += [f"summary.json:{key}" for key in keys if summaries[0].get(key) != summaries[1].get(key)]
+    data = [az.from_netcdf(str(d / "chains.nc")) for d in (first, second)]
+    n_variables = 0
+    for group in sorted(set(data[0].groups()) | set(data[1].groups())):
+        sets = [getattr(d, group, None) for d in data]
+        if any(s is None for s in sets):
+            differ.append(f"chains.nc:{group} (in one file only)")
+            continue
+        for name in sorted(set(sets[0].data_vars) | set(sets[1].data_vars)):
+            n_variables += 1
+            if name not in sets[0] or name not in sets[1] or not np.array_equal(
+                    sets[0][name].values, sets[1][name].values, equal_nan=sets[0][name].dtype.kind == "f"):
+                differ.append(f"chains.nc:{group}/{name}")
+    npz = [np.load(d / "changepoints.npz") for d in (first, second)]
+    names = sorted(set(npz[0].files) | set(npz[1].files))
+    differ += [f"changepoints.npz:{name}" for name in names
+               if name not in npz[0].files or name not in npz[1].files
+               or not np.array_equal(npz[0][name], npz[1][name], equal_nan=True)]
+    for item in differ:
+        print(f"DIFFERENT {item}")
+    print(f"summary.json: {len(keys)} fields (timing {', '.join(TIMING_KEYS)} left out); chains.nc: {n_variables} "
+          f"variables; changepoints.npz: {len(names)} arrays; {len(differ)} different")
+    return 1 if differ else 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="mode", required=True)
@@ -136,9 +182,14 @@ def main(argv=None) -> int:
     compare_parser = sub.add_parser("compare", help="compare two .npz files array by array")
     compare_parser.add_argument("first")
     compare_parser.add_argument("second")
+    fit_parser = sub.add_parser("compare-fit", help="compare two `rjfit fit` output folders")
+    fit_parser.add_argument("first")
+    fit_parser.add_argument("second")
     args = parser.parse_args(argv)
     if args.mode == "compare":
         return compare(args.first, args.second)
+    if args.mode == "compare-fit":
+        return compare_fit(args.first, args.second)
     cases = [c for c in args.cases.split(",") if c]
     unknown = [c for c in cases if c not in CASES]
     if unknown:

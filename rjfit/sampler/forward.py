@@ -123,7 +123,7 @@ class Problem:
         return np.divide(self.C, np.pi, dtype=np.float64)
 
     @classmethod
-    def from_observations(cls, obs: Observations, likelihood_power: float = 1.0, noise_scale=None) -> "Problem":
+    def from_observations(cls, obs: Observations, likelihood_power: float = 1.0, noise_scale=None) -> Problem:
         """The plain forward model's problem: :meth:`LambertBlinnPhong.problem` (see there)."""
         return LambertBlinnPhong().problem(obs, likelihood_power=likelihood_power, noise_scale=noise_scale)
 

@@ -25,7 +25,8 @@ from rjfit.sampler.forward import Problem
 from rjfit.sampler.passes import sums
 
 __all__ = ["STAT_N", "STAT_YY", "STAT_YA", "STAT_AA", "STAT_YB", "STAT_AB", "STAT_BB", "LOG_2PI", "region_stats",
-           "log_likelihood_from_stats", "oracle_log_likelihood", "ab_from_theta", "b_terms", "index_dtype", "RegionData", "label_runs"]
+           "log_likelihood_from_stats", "oracle_log_likelihood", "ab_from_theta", "b_terms", "index_dtype",
+           "RegionData", "label_runs"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -90,7 +91,7 @@ class RegionData:
     newton_memo: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def gather(cls, problem: Problem, idx) -> "RegionData":
+    def gather(cls, problem: Problem, idx) -> RegionData:
         idx = np.asarray(idx)
         return cls(gathered_idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx],
                    runs=(np.zeros(1, np.int64), np.full(1, idx.size, np.int64)), weight=problem.likelihood_power)
@@ -122,7 +123,7 @@ class RegionData:
     def n(self) -> int:
         return int(np.sum(self.runs[1] - self.runs[0]))
 
-    def thinned(self, every: int) -> "RegionData":
+    def thinned(self, every: int) -> RegionData:
         """Every ``every``-th observation gathered into contiguous arrays of its own, sums scaled by ``every``.
 
         Contiguous: the compiled passes vectorise only over contiguous arrays.

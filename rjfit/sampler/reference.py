@@ -56,7 +56,7 @@ def _b_terms_of(problem: Problem, idx, gamma):
 
 
 def b_sums(problem: Problem, idx, gamma: float) -> np.ndarray:
-    """Twin of :meth:`RegionData.b_sums <rjfit.sampler.likelihood.RegionData.b_sums>`: ``(SyB, SAB, SBB)`` by ``math.fsum``."""
+    """Twin of :meth:`RegionData.b_sums <rjfit.sampler.likelihood.RegionData.b_sums>`: ``(SyB, SAB, SBB)``, by fsum."""
     return problem.likelihood_power * np.array([math.fsum(t) for t in _b_terms_of(problem, idx, gamma)])
 
 

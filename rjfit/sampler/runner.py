@@ -90,7 +90,7 @@ class ChainRecord:
     threads: int = 1                # Numba threads it ran on (its samples do not depend on them; its seconds do)
     nan_rejected: dict = dataclasses.field(default_factory=dict)   # per move kind: proposals rejected for a NaN ratio
 
-    def truncated(self, t: int) -> "ChainRecord":
+    def truncated(self, t: int) -> ChainRecord:
         keep = self.cp_iteration < t
         return ChainRecord(self.n_u[:t], self.n_v[:t], self.theta[:t], self.log_lik[:t], self.log_post[:t],
                            self.exact_truth[:t], self.true_regions[:t], self.object_regions[:t], self.cp_iteration[keep],

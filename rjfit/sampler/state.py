@@ -210,7 +210,7 @@ class SamplerConfig:
     kernel: KernelSettings = field(default_factory=KernelSettings)
 
     @classmethod
-    def from_flat(cls, **options) -> "SamplerConfig":
+    def from_flat(cls, **options) -> SamplerConfig:
         """The config from flat option names (``max_u=2, sampler='paper', burn_in=500, ...``; see :data:`FLAT_OPTIONS`).
 
         Options left out keep their settings' defaults.

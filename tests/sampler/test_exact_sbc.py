@@ -13,6 +13,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from builders import tiny_problem
 from scipy import stats
 from threadpoolctl import threadpool_limits
 
@@ -26,8 +27,6 @@ from rjfit.sampler.moves import within
 from rjfit.sampler.moves.gamma import newton_log_gamma
 from rjfit.sampler.priors import ParamPrior
 from rjfit.sampler.state import SamplerConfig
-
-from builders import tiny_problem
 
 REPLICATES, DRAWS, THIN, BURN = 100, 19, 20, 200
 

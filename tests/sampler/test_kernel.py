@@ -1,4 +1,4 @@
-"""The kernel's parts: the one accept step, a pure step (the chain's context changes no draw), the region model's records."""
+"""The kernel's parts: the one accept step, a pure step (a chain's context changes no draw), the region records."""
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
@@ -68,7 +68,7 @@ def test_nan_ratios_are_counted_in_the_chain_record(small):
     Each is a rejection (the chain stays put, as ``nan < x`` would have decided) and the
     record counts it per move kind.
     """
-    problem, prior, labels = small
+    problem, prior, _ = small
     narrow = ParamPrior("uniform", 1e-9, 2e-9)        # far below the data's noise variance
     prior = type(prior)(params=prior.params[:3] + (narrow,))
     config = SamplerConfig.from_flat(max_u=1, max_v=1, update_changepoints=False, jumps=False)

@@ -2,8 +2,8 @@
 import math
 
 import numpy as np
-from numba import njit
 import pytest
+from numba import njit
 from scipy.stats import chi2
 
 from rjfit.data.synthetic import sphere_stack
@@ -187,11 +187,11 @@ def test_per_pixel_two_cases_equal_reference(problem, axis):
     np.testing.assert_allclose(right, expected_right, rtol=1e-11, atol=1e-8)
     np.testing.assert_allclose(left, expected_left, rtol=1e-11, atol=1e-8)
     # line r's log-likelihood with the element in cell j: pixels t < j in the base case, t >= j in the other
-    cells = cells.cell_log_lik(right, left, cps.shape[0], size, 0.6)
+    by_cell = cells.cell_log_lik(right, left, cps.shape[0], size, 0.6)
     right_2d, left_2d = right.reshape(-1, size), left.reshape(-1, size)
     for j in (0, 1, size // 2, size):
         expected = 0.6 * (right_2d[:, :j].sum(axis=1) + left_2d[:, j:].sum(axis=1))
-        np.testing.assert_allclose(cells[:, j], expected, rtol=1e-11, atol=1e-8)
+        np.testing.assert_allclose(by_cell[:, j], expected, rtol=1e-11, atol=1e-8)
 
 
 @pytest.mark.parametrize("axis", ["u", "v"])
@@ -237,15 +237,15 @@ def test_backward_sampler_draws_paths_with_the_probability_it_reports():
     offsets = np.arange(-(n_cells - 1), n_cells)
     log_kernel = -0.5 * offsets ** 2 / 1.5
     alpha, _ = paths.forward_filter(log_emit, np.exp(log_kernel), n_cells - 1)
-    paths = [np.array(p) for p in np.ndindex(*(n_cells,) * n_lines)]
-    probs = np.exp([paths.cell_path_log_prob(alpha, p, log_kernel) for p in paths])
+    every_path = [np.array(p) for p in np.ndindex(*(n_cells,) * n_lines)]
+    probs = np.exp([paths.cell_path_log_prob(alpha, p, log_kernel) for p in every_path])
     assert probs.sum() == pytest.approx(1.0, abs=1e-12)
     python_logits = reference.cell_step_logits(log_kernel)
-    for p in paths[::7]:
-        assert paths.cell_path_log_prob(alpha, p, log_kernel) == pytest.approx(reference.path_log_prob(alpha, p, python_logits),
-                                                                             abs=1e-12)
+    for p in every_path[::7]:
+        assert paths.cell_path_log_prob(alpha, p, log_kernel) == pytest.approx(
+            reference.path_log_prob(alpha, p, python_logits), abs=1e-12)
     n_draws = 20000
-    counts = np.zeros(len(paths))
+    counts = np.zeros(len(every_path))
     for _ in range(n_draws):
         path = paths.cell_backward_sample(alpha, log_kernel, rng.random(n_lines))
         counts[np.ravel_multi_index(tuple(path), (n_cells,) * n_lines)] += 1

@@ -1,6 +1,8 @@
 """The one Metropolis-Hastings accept step that every move of the kernel uses."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["accept"]
@@ -34,7 +36,7 @@ def accept(log_u, log_ratio, info, kind: str):
         if nan.any():
             info.count_nan(kind, int(np.count_nonzero(nan)))
         return log_u < log_ratio          # False where NaN
-    if log_ratio != log_ratio:            # NaN: a rejection, and seen
+    if math.isnan(log_ratio):             # a rejection, and seen
         info.count_nan(kind)
         return False
     return log_u < log_ratio

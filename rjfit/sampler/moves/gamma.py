@@ -119,9 +119,9 @@ def log_q_log_gamma(ell_to, ell_from, newton, rw_sd):
 
 
 def move_gamma_newton(work, r, rng, prior, problem, scale, rw_sd, info):
-    """Gamma move with a Newton proposal of log gamma, (a, b) redrawn from their conditional given it (kind 'gamma_newton').
+    """Gamma move with a Newton proposal of log gamma, (a, b) redrawn from their conditional given it.
 
-    The proposal's mean and sd come from the curvature of the profile log-likelihood at the
+    Kind 'gamma_newton'. The proposal's mean and sd come from the curvature of the profile log-likelihood at the
     current gamma (:func:`newton_log_gamma`), so one move crosses the posterior's width
     and follows the kd-gamma ridge; the reverse density is the same rule at the proposed
     gamma, so the ratio is exact. Where the profile is not concave the rule is a random

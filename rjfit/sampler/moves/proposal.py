@@ -43,6 +43,6 @@ class Proposal(NamedTuple):
     shift: tuple | None = None
 
     @classmethod
-    def invalid(cls, layout, labels=None) -> "Proposal":
+    def invalid(cls, layout, labels=None) -> Proposal:
         """A proposal that can only be rejected (log ratio -inf)."""
         return cls(layout, None, labels, None, None, -np.inf)

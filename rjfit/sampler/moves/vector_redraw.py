@@ -50,7 +50,7 @@ class VectorSettings:
 
 
 def vector_cells(lower, upper, size):
-    """Width (L, size + 1) of each likelihood cell of an element inside its gap (lower, upper), and the cells' lower ends.
+    """Width (L, size + 1) of each likelihood cell of an element inside its gap (lower, upper), and their lower ends.
 
     An element ``x`` is left of the pixel with along-line index ``t`` when ``x < t + 0.5``, so
     the likelihood depends on x only through its cell ``j``: [j - 0.5, j + 0.5), widened to

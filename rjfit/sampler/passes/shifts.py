@@ -23,7 +23,7 @@ __all__ = ["element_shift", "obs_log_density_delta", "shift_stats"]
 
 @njit(cache=True, nogil=True)
 def element_shift(x_old, x_new, lines, size, offsets, step_label):
-    """``(starts, ends, delta)`` of :func:`rjfit.sampler.moves.sweeps.element_shift`, compiled (a sweep's numpy took 47 us).
+    """``(starts, ends, delta)`` of :func:`rjfit.sampler.moves.sweeps.element_shift` (compiled: NumPy took 47 us).
 
     Line ``lines[j]``'s pixels t with ``min < t + 0.5 <= max`` of its two positions change
     side; ``offsets`` maps ``line * size + t`` to the first of that pixel's observations.

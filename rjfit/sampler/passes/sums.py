@@ -273,7 +273,7 @@ def _stats_range(y, C, log_cos_hn, lo, hi, gamma):
 
 @njit(cache=True, nogil=True)
 def region_stats_runs(y, C, log_cos_hn, offsets, starts, ends, gammas):
-    """Unscaled sufficient statistics (R, 7) of every region from its runs (:func:`rjfit.sampler.likelihood.label_runs`).
+    """Unscaled sufficient statistics (R, 7) of every region from its runs (``likelihood.label_runs``).
 
     Each run is one vectorised pass that reads the problem's arrays in place; region r's
     runs ``offsets[r] .. offsets[r + 1] - 1`` are summed at its exponent ``gammas[r]``.

@@ -47,18 +47,22 @@ What a second model needs (free-form materials with a Potts prior, issue 27)
   the pixel labels repeated per observation (``np.repeat(pixel_labels.ravel(),
   np.diff(problem.pixel_start))``, as :func:`~rjfit.sampler.regions.changepoint_grid.obs_region_labels`
   does).
-- :meth:`log_prior`: the Potts energy (times its strength) minus its log normaliser where
-  the strength is sampled, plus the prior over K and the label permutation convention.
+- :meth:`log_prior`: the Potts energy times its strength, plus the prior over K with the
+  labels' exchangeability settled (materials numbered in a canonical order, or a 1/K!
+  factor). The Potts normaliser depends on the strength and K only: with both fixed it is
+  a constant; a sampled strength needs a move that avoids it (an exchange algorithm,
+  Murray, Ghahramani and MacKay 2006) or a stated approximation.
 - :meth:`structure_moves`: Swendsen-Wang-type cluster moves (bonds between equal
   neighbours, clusters relabelled given the materials' parameters), split/merge of
   materials for K (their parameters proposed afresh from their data with
   :mod:`rjfit.sampler.moves.region_proposals`, as the change-point births do), a compiled
   pass for the label sweeps beside :mod:`rjfit.sampler.passes` and the observation terms
   moved between statistics like :func:`rjfit.sampler.passes.shifts.shift_stats`.
-- Records: ``key_names = ("n_materials",)``; ``snapshot`` the (H, W) labels (int16, -1
-  padding is not needed), and fields of that name in
-  :class:`~rjfit.sampler.runner.ChainRecord` (today's records hold the change-point names
-  ``n_u``, ``n_v``, ``cp_u``, ``cp_v``).
+- Records: ``key_names = ("n_materials",)`` and ``snapshot`` = ``{"labels": (H, W)}``
+  (the recorder keeps snapshots as float32 arrays with NaN padding, exact for label
+  values), with fields of those names in :class:`~rjfit.sampler.runner.ChainRecord` (today
+  it holds the change-point names ``n_u``, ``n_v``, ``cp_u``, ``cp_v``, which the posterior
+  summaries read).
 - Its settings as fields of its dataclass, like :class:`~rjfit.sampler.regions.changepoints.ChangepointRegions`,
   so that ``SamplerConfig(regions=MaterialRegions(...))`` selects it.
 """

@@ -141,7 +141,7 @@ class Changepoints(NamedTuple):
     v: np.ndarray
 
     @classmethod
-    def from_arrays(cls, u, v, image_shape) -> "Changepoints":
+    def from_arrays(cls, u, v, image_shape) -> Changepoints:
         """From any arrays of u and v elements (reshaped to one row per line, each line sorted)."""
         height, width = image_shape
         return cls(np.sort(np.asarray(u, float).reshape(height, -1), axis=1),
@@ -168,7 +168,7 @@ class Changepoints(NamedTuple):
         """Region of every observation of ``problem`` (:func:`obs_region_labels`)."""
         return obs_region_labels(self.u, self.v, problem.row, problem.col, pixel_start=problem.pixel_start)
 
-    def with_axis(self, axis: str, cps) -> "Changepoints":
+    def with_axis(self, axis: str, cps) -> Changepoints:
         """This layout with the ``axis`` ('u' or 'v') vectors replaced by ``cps``."""
         return Changepoints(cps, self.v) if axis == "u" else Changepoints(self.u, cps)
 
