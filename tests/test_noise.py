@@ -12,8 +12,8 @@ from rjfit.model.blinn import radiance
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.likelihood import RegionData, log_likelihood_from_stats, oracle_log_likelihood, region_stats
-from rjfit.sampler.regions.changepoint_grid import obs_region_labels
 from rjfit.sampler.priors import make_prior
+from rjfit.sampler.regions.changepoint_grid import obs_region_labels
 from rjfit.sampler.state import SamplerConfig
 
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 from rjfit.sampler.priors import PARAM_NAMES
+from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
