@@ -132,11 +132,14 @@ class Effect(ABC):
     """One effect with global parameters inside the likelihood (issue 26): parameters -> columns + log-Jacobian.
 
     An effect changes what the sampler's columns are, never the region structure: it maps
-    the untransformed columns of a :class:`Problem` (``y``, ``C``, ``log_cos_hn``, in the
-    problem's sorted order) and its parameters to transformed columns, and gives the
-    log-Jacobian of the transformation of ``y`` (0 when ``y`` is not transformed), summed
-    over observations and weighted by the likelihood power like every log density. No
-    effect is implemented yet; this is the contract a first one fulfils.
+    the columns of a :class:`Problem` (``y``, ``C``, ``log_cos_hn``, in the problem's sorted
+    order; as the effects listed before it left them) and its parameters to transformed
+    columns, and gives the log-Jacobian of the transformation of ``y`` (0 when ``y`` is not
+    transformed), summed over observations and weighted by the likelihood power like every
+    log density. An index the Problem does not hold (the light of each observation, for
+    per-light gains) the effect keeps itself, in the problem's sorted order: the forward
+    model that builds the problem builds it too. No effect is implemented yet; this is the
+    contract a first one fulfils.
 
     Attributes
     ----------
