@@ -32,7 +32,7 @@ def _layer(module: str):
 def _imports():
     """{module: [(imported module or name, line)]} of every rjfit import in rjfit/, at any depth.
 
-    ``from rjfit.sampler import jit`` imports the module ``rjfit.sampler.jit``;
+    ``from rjfit.sampler import passes`` imports the module ``rjfit.sampler.passes``;
     ``from rjfit.data.dataset import Dataset`` the module ``rjfit.data.dataset``.
     """
     paths = sorted(PACKAGE.rglob("*.py"))

@@ -13,7 +13,7 @@ import numpy as np
 
 from rjfit.data.synthetic import sphere_stack
 from rjfit.pipeline.distributed import dask_client, dask_map
-from rjfit.sampler.likelihood import Problem
+from rjfit.sampler.forward import Problem
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.runner import ChainSpec, run_chain
 from rjfit.sampler.state import SamplerConfig
@@ -28,7 +28,7 @@ def main():
     observations, labels, _ = sphere_stack(args.size, n_lights=10, seed=0)
     problem = Problem.from_observations(observations)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
-    config = SamplerConfig(max_u=3, max_v=3, burn_in=args.iterations // 2)
+    config = SamplerConfig.from_flat(max_u=3, max_v=3, burn_in=args.iterations // 2)
     specs = [ChainSpec(problem=problem, prior=prior, config=config, seed=7, chain=c, n_chains=args.chains,
                        iterations=args.iterations, truth_labels=labels) for c in range(args.chains)]
     started = time.perf_counter()

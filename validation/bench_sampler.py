@@ -43,18 +43,19 @@ def _observations(args):
 
 
 def run_one(problem, prior, config, iterations, seed, start_theta):
-    from rjfit.sampler.kernel import initial_state, step
+    from rjfit.sampler.kernel import ChainContext, initial_state, step
 
     rng = np.random.default_rng(seed)
     height, width = problem.image_shape
     state = initial_state(problem, prior, config, rng,
                           changepoints=(np.full(height, width / 2.0), np.full(width, height / 2.0)), theta=start_theta)
     draws = np.empty((iterations, state.n_regions, 4))
-    burn = config.burn_in
+    burn = config.kernel.burn_in
+    context = ChainContext()         # what the chain's steps reuse, as run_chain keeps it
     t0 = time.perf_counter()
     t_burn = t0
     for t in range(iterations):
-        state, _ = step(state, rng, problem, prior, config)
+        state, _ = step(state, rng, problem, prior, config, context)
         # segmentation sampled: parameters are kept in the start's model only (NaN elsewhere)
         draws[t] = state.theta if state.n_regions == draws.shape[1] else np.nan
         if t + 1 == burn:
@@ -68,7 +69,7 @@ def _parallel_chain(problem, prior, iterations, seed, start, threads):
     from rjfit.sampler.state import SamplerConfig
 
     with threadpool_limits(1), numba_threads(threads):
-        config = SamplerConfig(burn_in=iterations // 2, sampler="adaptive", max_u=3, max_v=3)
+        config = SamplerConfig.from_flat(burn_in=iterations // 2, sampler="adaptive", max_u=3, max_v=3)
         _, total_s, _ = run_one(problem, prior, config, iterations, seed, start)
     return total_s
 
@@ -130,7 +131,7 @@ def main(argv=None):
                         help="iterations of the --parallel-chains chains together (each runs its share)")
     args = parser.parse_args(argv)
 
-    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.forward import Problem
     from rjfit.sampler.priors import make_prior
     from rjfit.sampler.state import SamplerConfig
 
@@ -155,7 +156,7 @@ def main(argv=None):
             if iterations <= 0:
                 continue
             burn = int(args.burn_in * iterations)
-            config = SamplerConfig(burn_in=burn, **options)
+            config = SamplerConfig.from_flat(burn_in=burn, **options)
             draws, total_s, sampling_s = run_one(problem, prior, config, iterations, args.seed, start)
             ess = ess_figures(draws, burn)
             means = draws[burn:].mean(axis=0)

@@ -48,7 +48,7 @@ def render_only(size: int, folder: Path, variant: str) -> dict:
 
 def one_size(size: int, iterations: int, folder: Path, variant: str = "auto") -> dict:
     from rjfit.render.datasets import load_dataset
-    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.forward import Problem
     from rjfit.sampler.priors import make_prior
     from rjfit.sampler.runner import ChainSpec, run_chain
     from rjfit.sampler.state import SamplerConfig
@@ -62,7 +62,7 @@ def one_size(size: int, iterations: int, folder: Path, variant: str = "auto") ->
     n_obs, n_lights = int(observations.n_obs), int(observations.n_lights)
     del dataset, observations       # the sampler needs only the Problem's compact arrays
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
-    config = SamplerConfig(max_u=3, max_v=3, burn_in=iterations // 2)
+    config = SamplerConfig.from_flat(max_u=3, max_v=3, burn_in=iterations // 2)
     spec = ChainSpec(problem=problem, prior=prior, config=config, seed=0, chain=0, n_chains=1, iterations=iterations,
                      cp_thin=10)
     started = time.perf_counter()

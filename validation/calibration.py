@@ -32,8 +32,8 @@ NAMES = ("I0", "kd", "gamma", "sigma2")
 
 def fit_one(size, seed, iterations, sampled=False):
     from rjfit.data.synthetic import sphere_stack
-    from rjfit.sampler.kernel import initial_state, step
-    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.forward import Problem
+    from rjfit.sampler.kernel import ChainContext, initial_state, step
     from rjfit.sampler.priors import make_prior
     from rjfit.sampler.state import SamplerConfig
 
@@ -42,16 +42,17 @@ def fit_one(size, seed, iterations, sampled=False):
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     burn = iterations // 2
     fixed = {} if sampled else dict(update_changepoints=False, jumps=False)
-    config = SamplerConfig(max_u=3 if sampled else 1, max_v=3 if sampled else 1, burn_in=burn, **fixed)
+    config = SamplerConfig.from_flat(max_u=3 if sampled else 1, max_v=3 if sampled else 1, burn_in=burn, **fixed)
     rng = np.random.default_rng(10_000 + seed)
     height, width = problem.image_shape
     state = initial_state(problem, prior, config, rng,
                           changepoints=(np.full(height, width / 2.0), np.full(width, height / 2.0)))
     draws = np.full((iterations - burn, 4, 4), np.nan)
+    context = ChainContext()
     with threadpool_limits(1):
         for t in range(iterations):
-            state, _ = step(state, rng, problem, prior, config)
-            if t >= burn and state.u.shape[1] == 1 and state.v.shape[1] == 1:     # in the true model
+            state, _ = step(state, rng, problem, prior, config, context)
+            if t >= burn and state.layout.model_key == (1, 1):     # in the true model
                 draws[t - burn] = state.theta
     draws = draws[np.all(np.isfinite(draws), axis=(1, 2))]
     truth = np.array([[region[name] for name in NAMES] for region in truth])

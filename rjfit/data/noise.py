@@ -4,7 +4,7 @@ rjfit's likelihood (paper, eq. 1) is ``y_i ~ N(mu_i, sigma_r^2 s_i^2)``: ``sigma
 region's variance parameter (sampled) and ``s_i > 0`` a known, fixed scale per observation.
 With ``s_i = 1`` (``noise='constant'``, the default and the paper's model) the noise is
 homoscedastic per region. Any other known ``s`` is weighted least squares: dividing ``y_i``
-and ``E <l.n>`` of every observation by ``s_i`` when the :class:`rjfit.sampler.likelihood.Problem`
+and ``E <l.n>`` of every observation by ``s_i`` when the :class:`rjfit.sampler.forward.Problem`
 is built gives exactly this density, up to the constant ``-sum(log s_i)`` (times the
 likelihood power), which is the same for every segmentation and parameter value. The
 sampler itself is unchanged.

@@ -46,9 +46,10 @@ from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import publish_results, results_digest, write_summary
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import summary as post
-from rjfit.sampler.changepoints import model_number
-from rjfit.sampler.likelihood import Problem
+from rjfit.sampler.forward import Problem
+from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
+from rjfit.sampler.regions.changepoint_grid import model_number
 from rjfit.sampler.runner import ChainSpec, run_chains
 from rjfit.sampler.state import SamplerConfig
 
@@ -184,12 +185,13 @@ def burn_in_iterations(options: FitOptions) -> int:
 def sampler_config(options: FitOptions, *, fixed: bool = False) -> SamplerConfig:
     """The kernel's settings from the fit's options; ``fixed``: the segmentation does not move."""
     burn = burn_in_iterations(options)
-    return SamplerConfig(max_u=options.max_u, max_v=options.max_v, sampler=options.sampler,
-                         split_map=options.split_map, cp_prior=options.cp_prior, drop_jacobian=options.drop_jacobian,
-                         burn_in=burn, jump_prob=options.jump_prob, anneal=int(round(options.anneal * burn)),
-                         # reproducing the paper's omission: every jump must use its map
-                         free_jump_prob=0.0 if options.drop_jacobian else SamplerConfig.free_jump_prob,
-                         update_changepoints=not fixed, jumps=not fixed)
+    return SamplerConfig.from_flat(max_u=options.max_u, max_v=options.max_v, sampler=options.sampler,
+                                   split_map=options.split_map, cp_prior=options.cp_prior,
+                                   drop_jacobian=options.drop_jacobian, burn_in=burn, jump_prob=options.jump_prob,
+                                   anneal=int(round(options.anneal * burn)),
+                                   # reproducing the paper's omission: every jump must use its map
+                                   free_jump_prob=0.0 if options.drop_jacobian else BirthDeathSettings.free_prob,
+                                   update_changepoints=not fixed, jumps=not fixed)
 
 
 def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, truth_labels, start, fixed_segmentation):

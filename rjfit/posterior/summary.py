@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from rjfit.sampler.changepoints import pixel_region_labels
 from rjfit.sampler.priors import PARAM_NAMES
+from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
@@ -240,7 +240,7 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
         If no change-point snapshot lies after ``burn_in``.
     """
     from rjfit.model.blinn import blinn_normalisation
-    from rjfit.sampler.changepoints import obs_region_labels
+    from rjfit.sampler.regions.changepoint_grid import obs_region_labels
 
     kept = [(rec, s) for rec in records for s in np.flatnonzero(rec.cp_iteration >= burn_in)]
     if not kept:
@@ -334,7 +334,7 @@ def true_regions_probability(records, burn_in: int) -> float | None:
     """Posterior probability that the object's pixels fall into exactly the true regions (None without truth).
 
     One region per true region, and the optimal one-to-one matching agrees on at least 99 %
-    of the observed object pixels (see :meth:`rjfit.sampler.runner._Recorder.exact`): a
+    of the observed object pixels (see :meth:`rjfit.sampler.runner.ChainRecorder.exact`): a
     few rim pixels whose grazing observations cannot tell two regions apart do not count
     against it, an extra region holding object pixels or a misplaced boundary does.
     """

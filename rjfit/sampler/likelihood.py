@@ -20,21 +20,16 @@ from functools import cached_property
 
 import numpy as np
 
-from rjfit.data.observations import Observations
 from rjfit.model.blinn import blinn_normalisation, radiance
-from rjfit.sampler import jit
+from rjfit.sampler.forward import Problem
+from rjfit.sampler.passes import sums
 
-__all__ = ["Problem", "STAT_N", "region_stats", "stat_terms", "log_likelihood_from_stats",
-           "oracle_log_likelihood", "region_stats_numpy", "ab_from_theta", "theta_from_ab", "b_terms", "index_dtype", "RegionData", "label_runs",
-           "CHUNK"]
+__all__ = ["STAT_N", "STAT_YY", "STAT_YA", "STAT_AA", "STAT_YB", "STAT_AB", "STAT_BB", "LOG_2PI", "region_stats",
+           "log_likelihood_from_stats", "oracle_log_likelihood", "ab_from_theta", "b_terms", "index_dtype",
+           "RegionData", "label_runs"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
 LOG_2PI = float(np.log(2.0 * np.pi))
-
-
-# Observations are processed in chunks of this many: the float64 temporaries of a chunk stay
-# in cache, and memory does not grow with the image (2048 x 2048 x 18 lights is 28M rows).
-CHUNK = 1 << 17
 
 
 def index_dtype(n_max: int):
@@ -45,168 +40,12 @@ def index_dtype(n_max: int):
     return np.int64
 
 
-@dataclass(frozen=True, eq=False)
-class Problem:
-    """Observations prepared for the sampler: sorted by pixel, with the constant per-observation terms.
-
-    Built with :meth:`from_observations`. Arrays are flat over observations sorted by flat
-    pixel index (row-major), so the observations of a run of pixels in one row are one
-    contiguous slice; ``colmajor_order`` gives the same for a run of pixels in one column.
-
-    Storage is compact (about 25 bytes per observation): ``y``, ``C`` = E <l.n> and
-    ``log_cos_hn`` are float32, which loses nothing the data had (images are float32 EXR
-    or 16-bit PNG, geometry float32 EXR); ``A`` = C / pi is not stored but derived where
-    needed; index arrays use the smallest integer type that holds them. Every sum over
-    observations is accumulated in float64 (see :func:`region_stats`): SSR is a difference
-    of sums about 1e5 times larger than itself, so float32 accumulation would lose it.
-
-    ``likelihood_power`` (zeta, 0 < zeta <= 1) raises the likelihood to that power, the
-    coarsened posterior of Miller and Dunson ("Robust Bayesian inference via coarsening",
-    JASA 2019): each observation counts as zeta observations. For a model known to miss
-    part of the data (a measured surface whose BRDF is not exactly Lambert + Blinn-Phong),
-    with hundreds of thousands of observations, the plain posterior splits a uniform
-    material into regions that absorb the misfit; coarsening asks only for agreement up
-    to a discrepancy of about 1 / (zeta n) per observation. Every sufficient statistic
-    (the count included) and every per-observation log density is scaled by zeta, so all
-    moves, conditionals and the oracle see the same tempered likelihood.
-
-    ``noise_scale`` (float32, or None for homoscedastic noise) holds known per-observation
-    noise scales ``s_i``: the likelihood is then ``y_i ~ N(mu_i, sigma_r^2 s_i^2)`` (see
-    :mod:`rjfit.data.noise`). That is weighted least squares, so ``y`` and ``C`` are stored
-    divided by ``s_i`` and every statistic and move is unchanged; the density's remaining
-    factor, the constant ``-zeta sum(log s_i)`` (:attr:`log_likelihood_constant`), is the
-    same for every segmentation and parameter value, so the sampler leaves it out of
-    ``ChainState.log_lik`` and the chain records add it.
-    """
-
-    image_shape: tuple
-    y: np.ndarray                  # float32
-    C: np.ndarray                  # float32, E <l.n>
-    log_cos_hn: np.ndarray         # float32
-    row: np.ndarray                # int16 (int32 for images over 32767 pixels)
-    col: np.ndarray
-    pixel: np.ndarray              # int32
-    pixel_start: np.ndarray        # (H*W + 1,) first observation of each row-major pixel
-    colmajor_order: np.ndarray     # observation indices sorted by (col, row)
-    colmajor_start: np.ndarray     # (W*H + 1,) offsets into colmajor_order per c*H + r
-    object_mask: np.ndarray
-    likelihood_power: float = 1.0  # zeta of the coarsened posterior; 1: the plain likelihood
-    noise_scale: np.ndarray | None = None   # float32 s_i (y and C are stored divided by it); None: all 1
-
-    @cached_property
-    def log_likelihood_constant(self) -> float:
-        """``-zeta * sum(log s_i)`` (0 for homoscedastic noise), from the stored float32 scales."""
-        if self.noise_scale is None:
-            return 0.0
-        total = 0.0
-        for start in range(0, self.n_obs, CHUNK):
-            total += float(np.sum(np.log(self.noise_scale[start:start + CHUNK].astype(np.float64))))
-        return -self.likelihood_power * total
-
-    @property
-    def n_obs(self) -> int:
-        return int(self.y.shape[0])
-
-    @property
-    def height(self) -> int:
-        return int(self.image_shape[0])
-
-    @property
-    def width(self) -> int:
-        return int(self.image_shape[1])
-
-    @property
-    def A(self) -> np.ndarray:
-        """``E <l.n> / pi`` per observation (float64, computed on each call: not stored)."""
-        return np.divide(self.C, np.pi, dtype=np.float64)
-
-    @classmethod
-    def from_observations(cls, obs: Observations, likelihood_power: float = 1.0, noise_scale=None) -> "Problem":
-        """Sort, compact and (optionally) weight the observations.
-
-        Parameters
-        ----------
-        obs : Observations
-        likelihood_power : float
-            zeta in (0, 1].
-        noise_scale : array_like (N,), optional
-            Known noise scales ``s_i > 0`` in the order of ``obs`` (see :mod:`rjfit.data.noise`);
-            None: homoscedastic noise (every ``s_i = 1``).
-
-        Raises
-        ------
-        ValueError
-            For a likelihood power outside (0, 1], no observation, ``<l.n> <= 0``, or a
-            noise scale of the wrong shape or not finite and positive.
-        """
-        if not 0.0 < likelihood_power <= 1.0:
-            raise ValueError(f"likelihood_power must lie in (0, 1], got {likelihood_power}")
-        if obs.n_obs == 0:
-            raise ValueError("no valid observation: nothing to fit (check the object mask and validity thresholds)")
-        if np.any(obs.cos_ln <= 0):
-            raise ValueError("observations with <l.n> <= 0 are not valid: filter them with valid_observation_mask")
-        if noise_scale is not None:
-            noise_scale = np.asarray(noise_scale, dtype=np.float64)
-            if noise_scale.shape != (obs.n_obs,):
-                raise ValueError(f"noise_scale must have one value per observation ({obs.n_obs},), "
-                                 f"got shape {noise_scale.shape}")
-            if not np.all(np.isfinite(noise_scale)) or np.any(noise_scale <= 0):
-                raise ValueError("noise_scale must be finite and positive for every observation")
-        height, width = obs.image_shape
-        n_obs, n_pix = obs.n_obs, height * width
-        # int32 unless an image or stack outgrows it (never int8/int16: offsets are summed)
-        obs_dtype, pix_dtype = (np.int32 if n < np.iinfo(np.int32).max else np.int64 for n in (n_obs, n_pix))
-        order = np.argsort(obs.pixel, kind="stable").astype(obs_dtype)
-        pixel = np.asarray(obs.pixel)[order].astype(pix_dtype)
-        # float32 storage: the inputs (float32 EXR, 16-bit PNG, float32 geometry) carry no more.
-        y = np.asarray(obs.y)[order].astype(np.float32)
-        C = (np.asarray(obs.irradiance, float)[order] * np.asarray(obs.cos_ln, float)[order]).astype(np.float32)
-        # <h.n> of a valid observation is positive; the floor only keeps log finite.
-        log_cos_hn = np.log(np.clip(np.asarray(obs.cos_hn, float)[order], 1e-300, None)).astype(np.float32)
-        scale = None
-        if noise_scale is not None:
-            # weighted least squares: y / s and C / s, with the stored float32 s (so the
-            # oracle, which multiplies back, and the constant see the same numbers)
-            scale = noise_scale[order].astype(np.float32)
-            s64 = scale.astype(np.float64)
-            y = (np.asarray(obs.y, float)[order] / s64).astype(np.float32)
-            C = (np.asarray(obs.irradiance, float)[order] * np.asarray(obs.cos_ln, float)[order] / s64
-                 ).astype(np.float32)
-            del s64
-        del order
-        line_dtype = np.int16 if max(height, width) <= np.iinfo(np.int16).max else np.int32
-        row, col = (pixel // width).astype(line_dtype), (pixel % width).astype(line_dtype)
-        pixel_start = np.searchsorted(pixel, np.arange(n_pix + 1)).astype(obs_dtype)
-        colmajor_key = col.astype(pix_dtype) * height + row
-        colmajor_order = np.argsort(colmajor_key, kind="stable").astype(obs_dtype)
-        colmajor_start = np.searchsorted(colmajor_key[colmajor_order], np.arange(n_pix + 1)).astype(obs_dtype)
-        return cls(image_shape=(int(height), int(width)), y=y, C=C, log_cos_hn=log_cos_hn, row=row, col=col,
-                   pixel=pixel, pixel_start=pixel_start, colmajor_order=colmajor_order,
-                   colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool),
-                   likelihood_power=float(likelihood_power), noise_scale=scale)
-
-
 def b_terms(C, log_cos_hn, gamma):
     """``B = C <h.n>^gamma`` in float64 from float32 (or float64) inputs."""
     B = np.multiply(log_cos_hn, gamma, dtype=np.float64)
     np.exp(B, out=B)
     B *= C
     return B
-
-
-def _stat_columns(problem: Problem, idx, gamma_per_obs):
-    """The six weighted per-observation terms (Syy .. SBB) of observations ``idx``, float64."""
-    y = problem.y[idx].astype(np.float64)
-    C = problem.C[idx].astype(np.float64)
-    B = b_terms(C, problem.log_cos_hn[idx], gamma_per_obs)
-    A = np.divide(C, np.pi, out=C)
-    return y * y, y * A, A * A, y * B, A * B, B * B
-
-
-def stat_terms(problem: Problem, idx, gamma_per_obs):
-    """The seven per-observation terms (N, 7), float64, of observations ``idx`` at exponents ``gamma_per_obs``."""
-    columns = _stat_columns(problem, idx, gamma_per_obs)
-    return problem.likelihood_power * np.stack([np.ones_like(columns[0]), *columns], axis=1)
 
 
 def label_runs(labels, n_regions: int):
@@ -238,7 +77,7 @@ class RegionData:
     :meth:`split` makes every region of a labelling as runs of the problem's own arrays,
     read in place; :meth:`gather` copies chosen observations into arrays of their own (one
     run, ``gathered_idx`` their indices in the problem). Each sum is one compiled pass over
-    the runs (:mod:`rjfit.sampler.jit`), every product and sum in float64 without a float64
+    the runs (:mod:`rjfit.sampler.passes.sums`), every product and sum in float64 without a float64
     copy; the gamma-free sums ``(n, Syy, SyA, SAA)`` (:attr:`fixed`) are computed on first
     use only, since the within-model moves never need them.
     """
@@ -252,7 +91,7 @@ class RegionData:
     newton_memo: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def gather(cls, problem: Problem, idx) -> "RegionData":
+    def gather(cls, problem: Problem, idx) -> RegionData:
         idx = np.asarray(idx)
         return cls(gathered_idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx],
                    runs=(np.zeros(1, np.int64), np.full(1, idx.size, np.int64)), weight=problem.likelihood_power)
@@ -272,7 +111,7 @@ class RegionData:
 
     def positions(self, every: int = 1) -> np.ndarray:
         """Every ``every``-th of the region's observations, as positions in its arrays."""
-        return jit.run_indices(*self.runs, every)
+        return sums.run_indices(*self.runs, every)
 
     @cached_property
     def idx(self) -> np.ndarray:
@@ -284,7 +123,7 @@ class RegionData:
     def n(self) -> int:
         return int(np.sum(self.runs[1] - self.runs[0]))
 
-    def thinned(self, every: int) -> "RegionData":
+    def thinned(self, every: int) -> RegionData:
         """Every ``every``-th observation gathered into contiguous arrays of its own, sums scaled by ``every``.
 
         Contiguous: the compiled passes vectorise only over contiguous arrays.
@@ -298,12 +137,12 @@ class RegionData:
     @cached_property
     def fixed(self) -> np.ndarray:
         """``(n, Syy, SyA, SAA)`` in float64."""
-        yy, yc, cc = jit.fixed_sums(self.y, self.C, *self.runs)
+        yy, yc, cc = sums.fixed_sums(self.y, self.C, *self.runs)
         return self.weight * np.array([self.n, yy, yc / np.pi, cc / np.pi ** 2])
 
     def b_sums(self, gamma: float) -> np.ndarray:
-        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.jit.b_sums`)."""
-        return self.weight * jit.b_sums(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma))
+        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.passes.sums.b_sums`)."""
+        return self.weight * sums.b_sums(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma))
 
     def b_sums_newton(self, gamma: float) -> np.ndarray:
         """:meth:`b_sums` and their weightings by ``log <h.n>`` and its square (9,); the last two gammas asked are memoised.
@@ -314,7 +153,7 @@ class RegionData:
         gamma = float(gamma)
         hit = self.newton_memo.get(gamma)
         if hit is None:
-            hit = self.weight * jit.b_sums_newton(self.y, self.C, self.log_cos_hn, *self.runs, gamma)
+            hit = self.weight * sums.b_sums_newton(self.y, self.C, self.log_cos_hn, *self.runs, gamma)
             if len(self.newton_memo) >= 2:
                 self.newton_memo.pop(next(iter(self.newton_memo)))
             self.newton_memo[gamma] = hit
@@ -327,7 +166,7 @@ class RegionData:
     def stats_at_many(self, gammas) -> np.ndarray:
         """:meth:`stats_at` at each of ``gammas``: (G, 7), the passes in one compiled call."""
         gammas = np.ascontiguousarray(gammas, dtype=float)
-        b_sums = self.weight * jit.b_sums_many(self.y, self.C, self.log_cos_hn, *self.runs, gammas)
+        b_sums = self.weight * sums.b_sums_many(self.y, self.C, self.log_cos_hn, *self.runs, gammas)
         return np.hstack([np.broadcast_to(self.fixed, (gammas.size, self.fixed.size)), b_sums])
 
 
@@ -340,22 +179,8 @@ def region_stats(problem: Problem, labels, gammas, n_regions: int):
     if labels.size and (int(labels.min()) < 0 or int(labels.max()) >= n_regions or gammas.size < n_regions):
         raise ValueError(f"labels must lie in [0, {n_regions}) with a gamma per region")
     offsets, starts, ends = label_runs(labels, int(n_regions))
-    return problem.likelihood_power * jit.region_stats_runs(problem.y, problem.C, problem.log_cos_hn, offsets, starts,
+    return problem.likelihood_power * sums.region_stats_runs(problem.y, problem.C, problem.log_cos_hn, offsets, starts,
                                                             ends, gammas)
-
-
-def region_stats_numpy(problem: Problem, labels, gammas, n_regions: int):
-    """:func:`region_stats` in plain NumPy (chunked bincounts): the test oracle of the compiled pass."""
-    labels = np.asarray(labels)
-    gammas = np.asarray(gammas, float)
-    out = np.zeros((n_regions, 7))
-    for start in range(0, problem.n_obs, CHUNK):
-        chunk = slice(start, start + CHUNK)
-        lab = labels[chunk].astype(np.intp)
-        out[:, STAT_N] += np.bincount(lab, minlength=n_regions)[:n_regions]
-        for k, weights in enumerate(_stat_columns(problem, chunk, gammas[lab]), start=STAT_YY):
-            out[:, k] += np.bincount(lab, weights=weights, minlength=n_regions)[:n_regions]
-    return out * problem.likelihood_power
 
 
 def ab_from_theta(theta):
@@ -363,12 +188,6 @@ def ab_from_theta(theta):
     theta = np.asarray(theta, float)
     I0, kd, g = theta[..., 0], theta[..., 1], theta[..., 2]
     return I0 * kd, I0 * (1.0 - kd) * blinn_normalisation(g)
-
-
-def theta_from_ab(a, b, g):
-    """Inverse of :func:`ab_from_theta` at fixed g: ``I0 = a + b / N(g)``, ``kd = a / I0``."""
-    I0 = a + b / blinn_normalisation(g)
-    return I0, a / I0
 
 
 def log_likelihood_from_stats(stats, theta):

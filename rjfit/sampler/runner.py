@@ -6,7 +6,7 @@ in each checkpoint, so a chain resumed from its last checkpoint draws exactly th
 an uninterrupted run would have drawn and yields identical samples.
 
 Threads: a chain runs the large passes over observations on ``threads`` Numba threads
-(:mod:`rjfit.sampler.jit`); :func:`run_chains` gives each chain the cores its parallel
+(:mod:`rjfit.sampler.passes`); :func:`run_chains` gives each chain the cores its parallel
 chains leave free. The samples do not depend on the number of threads.
 
 Checkpoints are pickles written atomically (temporary file in the same folder, then
@@ -31,14 +31,14 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from rjfit.sampler.changepoints import n_regions
-from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.likelihood import Problem
+from rjfit.sampler.forward import Problem
+from rjfit.sampler.kernel import ChainContext, initial_state, log_posterior, step
 from rjfit.sampler.state import ChainState, SamplerConfig
 
-__all__ = ["ChainSpec", "ChainRecord", "run_chain", "run_chains", "chain_rngs", "atomic_write_bytes", "run_fingerprint"]
+__all__ = ["ChainSpec", "ChainRecord", "ChainRecorder", "run_chain", "run_chains", "chain_rngs", "atomic_write_bytes",
+           "run_fingerprint", "available_cores", "default_threads", "numba_threads", "TRUE_REGIONS_AGREEMENT"]
 
-CHECKPOINT_VERSION = 3
+CHECKPOINT_VERSION = 4
 TRUE_REGIONS_AGREEMENT = 0.99
 
 
@@ -57,14 +57,19 @@ class ChainSpec:
     checkpoint_every: int = 1000
     cp_thin: int = 10
     truth_labels: np.ndarray | None = None
-    start: dict | None = None          # keyword arguments of initial_state (model, changepoints, theta)
+    start: dict | None = None          # keyword arguments of initial_state (theta; change points: model, changepoints)
     progress: bool = False
     stop_after: int | None = None      # testing: return after this many iterations (simulates a crash)
 
 
 @dataclass
 class ChainRecord:
-    """The trace of one chain (per iteration unless noted)."""
+    """The trace of one chain (per iteration unless noted).
+
+    The model keys (``n_u``, ``n_v``) and layout snapshots (``cp_u``, ``cp_v``) are the
+    change-point region model's (:attr:`RegionModel.key_names
+    <rjfit.sampler.regions.base.RegionModel.key_names>`, :meth:`~rjfit.sampler.regions.base.RegionModel.snapshot`).
+    """
 
     n_u: np.ndarray                 # (T,) int
     n_v: np.ndarray                 # (T,) int
@@ -83,13 +88,14 @@ class ChainRecord:
     iterations_done: int
     resumed_from: tuple = ()        # iterations of the checkpoints this chain resumed from, in order
     threads: int = 1                # Numba threads it ran on (its samples do not depend on them; its seconds do)
+    nan_rejected: dict = dataclasses.field(default_factory=dict)   # per move kind: proposals rejected for a NaN ratio
 
-    def truncated(self, t: int) -> "ChainRecord":
+    def truncated(self, t: int) -> ChainRecord:
         keep = self.cp_iteration < t
         return ChainRecord(self.n_u[:t], self.n_v[:t], self.theta[:t], self.log_lik[:t], self.log_post[:t],
                            self.exact_truth[:t], self.true_regions[:t], self.object_regions[:t], self.cp_iteration[keep],
-                           self.cp_u[keep], self.cp_v[keep], dict(self.accepted), dict(self.proposed), self.seconds, min(t, self.iterations_done),
-                           self.resumed_from, self.threads)
+                           self.cp_u[keep], self.cp_v[keep], dict(self.accepted), dict(self.proposed), self.seconds,
+                           min(t, self.iterations_done), self.resumed_from, self.threads, dict(self.nan_rejected))
 
 
 def chain_rngs(seed: int, n_chains: int):
@@ -104,12 +110,19 @@ def atomic_write_bytes(path: str, data: bytes) -> None:
     write_bytes_atomic(path, data)
 
 
-class _Recorder:
+class ChainRecorder:
+    """What :func:`run_chain` keeps of each draw (pickled in checkpoints); :meth:`result` is the :class:`ChainRecord`.
+
+    The per-draw model key and the thinned layout snapshots are what the region model
+    names (:attr:`~rjfit.sampler.regions.base.RegionModel.key_names`,
+    :meth:`~rjfit.sampler.regions.base.RegionModel.snapshot`).
+    """
+
     def __init__(self, spec: ChainSpec):
-        problem, config, T = spec.problem, spec.config, spec.iterations
-        self.r_max = n_regions(config.max_u, config.max_v)
-        self.n_u = np.zeros(T, np.int16)
-        self.n_v = np.zeros(T, np.int16)
+        problem, T = spec.problem, spec.iterations
+        self.regions = spec.config.regions
+        self.r_max = self.regions.max_regions
+        self.keys = {name: np.zeros(T, np.int16) for name in self.regions.key_names}
         self.theta = np.full((T, self.r_max, 4), np.nan)
         self.log_lik = np.zeros(T)
         self.log_post = np.zeros(T)
@@ -118,9 +131,9 @@ class _Recorder:
         self.object_regions = np.zeros(T, np.int16)
         n_snap = (T + spec.cp_thin - 1) // spec.cp_thin
         self.cp_iteration = np.arange(0, T, spec.cp_thin)[:n_snap]
-        self.cp_u = np.full((n_snap, problem.height, config.max_u), np.nan, np.float32)
-        self.cp_v = np.full((n_snap, problem.width, config.max_v), np.nan, np.float32)
-        self.accepted, self.proposed = {}, {}
+        self.snapshots = {name: np.full((n_snap, *shape), np.nan, np.float32)
+                          for name, shape in self.regions.snapshot_shapes(problem).items()}
+        self.accepted, self.proposed, self.nan_rejected = {}, {}, {}
         self.seconds = 0.0
         self.resumed_from = ()
         self.cp_thin = spec.cp_thin
@@ -172,20 +185,31 @@ class _Recorder:
     def record(self, t: int, state: ChainState, log_post: float, log_lik_constant: float = 0.0):
         """Store draw ``t``; ``log_lik_constant`` (the Problem's known-noise-scale term) is added
         to the recorded log-likelihood and log-posterior, so they are the full densities."""
-        self.n_u[t], self.n_v[t] = state.n_u, state.n_v
+        for name, value in zip(self.regions.key_names, state.layout.model_key):
+            self.keys[name][t] = value
         self.theta[t, :state.n_regions] = state.theta
         self.log_lik[t] = state.total_log_lik + log_lik_constant
         self.log_post[t] = log_post + log_lik_constant
         self.exact_truth[t], self.true_regions[t], self.object_regions[t] = self.exact(state.labels)
         if t % self.cp_thin == 0:
             s = t // self.cp_thin
-            self.cp_u[s, :, :state.n_u] = state.u
-            self.cp_v[s, :, :state.n_v] = state.v
+            for name, values in self.regions.snapshot(state.layout).items():
+                self.snapshots[name][s][tuple(slice(0, n) for n in values.shape)] = values
+
+    def add_counts(self, info) -> None:
+        """Add one step's acceptance and NaN-rejection counts (:class:`~rjfit.sampler.state.StepInfo`)."""
+        for key, value in info.accepted.items():
+            self.accepted[key] = self.accepted.get(key, 0) + value
+            self.proposed[key] = self.proposed.get(key, 0) + info.proposed[key]
+        for key, value in info.nan_rejected.items():
+            self.nan_rejected[key] = self.nan_rejected.get(key, 0) + value
 
     def result(self, done: int) -> ChainRecord:
-        rec = ChainRecord(self.n_u, self.n_v, self.theta, self.log_lik, self.log_post, self.exact_truth, self.true_regions,
-                          self.object_regions, self.cp_iteration, self.cp_u, self.cp_v, self.accepted, self.proposed, self.seconds, done,
-                          tuple(getattr(self, "resumed_from", ())))
+        rec = ChainRecord(theta=self.theta, log_lik=self.log_lik, log_post=self.log_post, exact_truth=self.exact_truth,
+                          true_regions=self.true_regions, object_regions=self.object_regions,
+                          cp_iteration=self.cp_iteration, accepted=self.accepted, proposed=self.proposed,
+                          seconds=self.seconds, iterations_done=done, resumed_from=tuple(self.resumed_from),
+                          nan_rejected=self.nan_rejected, **self.keys, **self.snapshots)
         return rec.truncated(done)
 
 
@@ -231,7 +255,7 @@ def run_fingerprint(spec: ChainSpec) -> dict:
     """
     problem = spec.problem
     sampler_dir = Path(__file__).resolve().parent
-    code = [path.read_bytes() for path in sorted(sampler_dir.glob("*.py"))]
+    code = [path.read_bytes() for path in sorted(sampler_dir.rglob("*.py"))]
     data = [getattr(problem, name) for name in ("y", "C", "log_cos_hn", "pixel")]
     return {"data": _digest(*data, problem.image_shape, float(problem.likelihood_power)),
             "prior": _digest(spec.prior), "config": _digest(spec.config),
@@ -310,13 +334,11 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
     """
     from threadpoolctl import threadpool_limits
 
-    from rjfit.sampler.moves import log_posterior
-
     problem, prior, config = spec.problem, spec.prior, spec.config
     # BLAS threads only add overhead to these small dot products
     with threadpool_limits(1), numba_threads(threads) as threads_used:
         rng = chain_rngs(spec.seed, spec.n_chains)[spec.chain]
-        recorder = _Recorder(spec)
+        recorder = ChainRecorder(spec)
         start_t = 0
         fingerprint = run_fingerprint(spec) if spec.checkpoint_path else None
         if spec.checkpoint_path and os.path.exists(spec.checkpoint_path):
@@ -326,7 +348,7 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
             recorder = payload["recorder"]
             start_t = payload["t"]
             # recorded, so that a resume can be told from a restart (both give the same samples)
-            recorder.resumed_from = tuple(getattr(recorder, "resumed_from", ())) + (start_t,)
+            recorder.resumed_from = tuple(recorder.resumed_from) + (start_t,)
             if spec.progress:     # say so: a resumed fit and a fresh one look alike otherwise
                 print(f"chain {spec.chain}: resumed from its checkpoint at iteration {start_t} of {spec.iterations}",
                       file=sys.stderr, flush=True)
@@ -337,16 +359,14 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
             from tqdm import tqdm
             bar = tqdm(total=spec.iterations, initial=start_t, position=spec.chain, desc=f"chain {spec.chain}",
                        leave=False, mininterval=1.0, disable=None)    # None: off when stderr is a log file, not a terminal
+        context = ChainContext()       # what the chain's steps reuse (never saved: rebuilt on resume)
         t0 = time.perf_counter()
         seconds_before = recorder.seconds
         t = start_t
         for t in range(start_t, spec.iterations):
-            state, info = step(state, rng, problem, prior, config)
-            for key, value in info.accepted.items():
-                recorder.accepted[key] = recorder.accepted.get(key, 0) + value
-                recorder.proposed[key] = recorder.proposed.get(key, 0) + info.proposed[key]
-            recorder.record(t, state, log_posterior(problem, prior, state.u, state.v, state.theta, state.log_lik, config),
-                            problem.log_likelihood_constant)
+            state, info = step(state, rng, problem, prior, config, context)
+            recorder.add_counts(info)
+            recorder.record(t, state, log_posterior(problem, prior, state, config), problem.log_likelihood_constant)
             if bar is not None:
                 bar.update(1)
             done = t + 1

@@ -9,10 +9,11 @@ from threadpoolctl import threadpool_limits
 from rjfit.data.noise import noise_scale, reference_signal, weighted_observations
 from rjfit.data.synthetic import sphere_stack
 from rjfit.model.blinn import radiance
-from rjfit.sampler.changepoints import obs_region_labels
+from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.likelihood import Problem, RegionData, log_likelihood_from_stats, oracle_log_likelihood, region_stats
+from rjfit.sampler.likelihood import RegionData, log_likelihood_from_stats, oracle_log_likelihood, region_stats
 from rjfit.sampler.priors import make_prior
+from rjfit.sampler.regions.changepoint_grid import obs_region_labels
 from rjfit.sampler.state import SamplerConfig
 
 
@@ -117,7 +118,7 @@ def test_noise_scale_rejects_bad_input(stack, kwargs, match):
 def _posterior(problem, seed, iterations=1200, burn=400):
     height, width = problem.image_shape
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
-    config = SamplerConfig(max_u=1, max_v=1, burn_in=burn, update_changepoints=False, jumps=False)
+    config = SamplerConfig.from_flat(max_u=1, max_v=1, burn_in=burn, update_changepoints=False, jumps=False)
     rng = np.random.default_rng(seed)
     state = initial_state(problem, prior, config, rng, changepoints=_quadrant_changepoints(height, width))
     draws = []

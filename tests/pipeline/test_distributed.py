@@ -9,7 +9,7 @@ import pytest
 
 from rjfit.data.synthetic import sphere_stack
 from rjfit.pipeline.distributed import dask_client, dask_map
-from rjfit.sampler.likelihood import Problem
+from rjfit.sampler.forward import Problem
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.runner import ChainSpec, run_chain
 from rjfit.sampler.state import SamplerConfig
@@ -23,7 +23,7 @@ def _specs(folder=None, n_chains=2):
     observations, labels, _ = sphere_stack(16, n_lights=5, seed=2)
     problem = Problem.from_observations(observations)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
-    config = SamplerConfig(max_u=2, max_v=2, burn_in=200, jump_prob=0.5)
+    config = SamplerConfig.from_flat(max_u=2, max_v=2, burn_in=200, jump_prob=0.5)
     return [ChainSpec(problem=problem, prior=prior, config=config, seed=11, chain=c, n_chains=n_chains,
                       iterations=ITERATIONS, checkpoint_path=None if folder is None else str(folder / f"chain_{c}.pkl"),
                       checkpoint_every=50, cp_thin=10, truth_labels=labels) for c in range(n_chains)]

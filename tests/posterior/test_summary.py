@@ -68,20 +68,20 @@ def test_one_chain_is_flagged():
 
 def _recorder_on_a_small_sphere():
     from rjfit.data.synthetic import sphere_stack
-    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.forward import Problem
     from rjfit.sampler.priors import make_prior
-    from rjfit.sampler.runner import ChainSpec, _Recorder
+    from rjfit.sampler.runner import ChainRecorder, ChainSpec
     from rjfit.sampler.state import SamplerConfig
 
     obs, truth, _ = sphere_stack(24, n_lights=4, seed=1)
     problem = Problem.from_observations(obs)
-    spec = ChainSpec(problem=problem, prior=make_prior("default"), config=SamplerConfig(max_u=2, max_v=2), seed=0,
+    spec = ChainSpec(problem=problem, prior=make_prior("default"), config=SamplerConfig.from_flat(max_u=2, max_v=2), seed=0,
                      chain=0, n_chains=1, iterations=10, cp_thin=1, truth_labels=truth)
-    return _Recorder(spec), problem, truth
+    return ChainRecorder(spec), problem, truth
 
 
 def test_truth_flags_of_labellings_with_known_answers():
-    """_Recorder.exact: exact partition, 'true regions' (one region per true region and
+    """ChainRecorder.exact: exact partition, 'true regions' (one region per true region and
     >= 99 % agreement after matching) and the count of regions holding object pixels."""
     from rjfit.sampler.runner import TRUE_REGIONS_AGREEMENT
 
@@ -233,7 +233,7 @@ def test_posterior_mean_prediction_at_the_truth_is_the_noise_free_radiance():
     from rjfit.data.synthetic import sphere_stack
     from rjfit.model.blinn import radiance
     from rjfit.posterior.summary import posterior_mean_prediction
-    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.forward import Problem
 
     obs, labels, truth = sphere_stack(24, n_lights=8, seed=4)
     problem = Problem.from_observations(obs)
@@ -258,7 +258,7 @@ def test_posterior_mean_prediction_averages_each_chain_s_own_segmentation():
     """Two chains in different modes: the prediction is the mean of each chain's own, not radiance at mixed means."""
     from rjfit.data.synthetic import sphere_stack
     from rjfit.posterior.summary import posterior_mean_prediction
-    from rjfit.sampler.likelihood import Problem
+    from rjfit.sampler.forward import Problem
 
     obs, _, _ = sphere_stack(16, n_lights=6, seed=2)
     problem = Problem.from_observations(obs)

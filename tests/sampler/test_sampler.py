@@ -5,17 +5,27 @@ from scipy import integrate
 from threadpoolctl import threadpool_limits
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.sampler.changepoints import (
+from rjfit.sampler.forward import Problem
+from rjfit.sampler.kernel import anneal_power, initial_state, make_state, step
+from rjfit.sampler.likelihood import RegionData, oracle_log_likelihood, region_stats
+from rjfit.sampler.moves.birth_death import birth_probability, propose_birth, propose_death
+from rjfit.sampler.moves.birth_death_free import propose_birth_free, propose_death_free
+from rjfit.sampler.moves.region_proposals import (
+    LAPLACE_COARSE_OBS,
+    laplace_log_gamma,
+    sigma2_prior_as_invgamma,
+    ssr_min,
+)
+from rjfit.sampler.priors import ParamPrior, Prior, make_prior
+from rjfit.sampler.regions.changepoint_grid import (
+    Changepoints,
     log_prior_changepoints,
     model_from_number,
     model_number,
     obs_region_labels,
     pixel_region_labels,
 )
-from rjfit.sampler.kernel import initial_state, make_state, step
-from rjfit.sampler.likelihood import Problem, oracle_log_likelihood, region_stats
-from rjfit.sampler.priors import ParamPrior, Prior, make_prior
-from rjfit.sampler.state import SamplerConfig
+from rjfit.sampler.state import ChainState, SamplerConfig, Work
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +48,7 @@ def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(sm
         scale = None if noise is None else noise_scale(obs, noise, 0.05)
         problem = Problem.from_observations(obs, likelihood_power=likelihood_power, noise_scale=scale)
     # refresh_every=0: no periodic recompute, so drift of the incremental updates would show.
-    config = SamplerConfig(max_u=2, max_v=2, sampler=sampler, burn_in=100, jump_prob=0.7, cp_uniform_prob=0.3,
+    config = SamplerConfig.from_flat(max_u=2, max_v=2, sampler=sampler, burn_in=100, jump_prob=0.7, cp_uniform_prob=0.3,
                            refresh_every=0, split_scale=0.5)
     rng = np.random.default_rng(11)
     state = initial_state(problem, prior, config, rng, model=(1, 1))
@@ -50,9 +60,9 @@ def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(sm
                 # Force a birth or death (accepted whatever its ratio) so that the incremental
                 # bookkeeping is exercised across changes of dimension.
                 state = _forced_jump(state, rng, problem, prior, config)
-            models.add((state.n_u, state.n_v))
+            models.add(state.layout.model_key)
             if t % 50 == 49:
-                labels = obs_region_labels(state.u, state.v, problem.row, problem.col)
+                labels = obs_region_labels(state.layout.u, state.layout.v, problem.row, problem.col)
                 np.testing.assert_array_equal(state.labels, labels)
                 # the oracle includes the known noise scales' constant; the chain's statistics leave it out
                 oracle = oracle_log_likelihood(problem, state.labels, state.theta)
@@ -64,30 +74,22 @@ def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(sm
 
 
 def _forced_jump(state, rng, problem, prior, config):
-    from rjfit.sampler.moves import (
-        Work,
-        birth_probability,
-        propose_birth,
-        propose_birth_free,
-        propose_death,
-        propose_death_free,
-    )
-    from rjfit.sampler.state import ChainState
-
+    regions = config.regions
     for _ in range(100):      # retry until the proposal is a valid state
         axis = "u" if rng.random() < 0.5 else "v"
-        n = state.n_u if axis == "u" else state.n_v
-        birth = rng.random() < birth_probability(n, config.max_u if axis == "u" else config.max_v)
+        n, n_max = (state.layout.n_u, regions.max_u) if axis == "u" else (state.layout.n_v, regions.max_v)
+        birth = rng.random() < birth_probability(n, n_max)
         free = rng.random() < 0.5
-        work = Work(u=state.u, v=state.v, theta=state.theta.copy(), stats=state.stats.copy(),
+        work = Work(layout=state.layout, theta=state.theta.copy(), stats=state.stats.copy(),
                     log_lik=state.log_lik.copy(), labels=state.labels)
         propose = (propose_birth_free if birth else propose_death_free) if free else (propose_birth if birth
                                                                                        else propose_death)
-        u, v, theta, labels, stats, log_lik, log_ratio = propose(work, rng, problem, prior, config, axis)
-        if np.isfinite(log_ratio):
+        proposal = propose(work, rng, problem, prior, regions.birth_death, regions.proposals, regions.prior, n_max,
+                           axis)
+        if np.isfinite(proposal.log_ratio):
             break
-    return ChainState(u=u, v=v, theta=theta, stats=stats, log_lik=log_lik, labels=labels,
-                      log_g_scale=state.log_g_scale, iteration=state.iteration)
+    return ChainState(layout=proposal.layout, theta=proposal.theta, stats=proposal.stats, log_lik=proposal.log_lik,
+                      labels=proposal.labels, log_g_scale=state.log_g_scale, iteration=state.iteration)
 
 
 def test_region_of_pixel_counts_change_points_left_and_above():
@@ -133,27 +135,26 @@ def test_phi_density_includes_the_transform_jacobian(param, slot):
 def test_make_state_rejects_wrong_region_count(small):
     problem = small[0]
     with pytest.raises(ValueError, match="regions"):
-        make_state(problem, np.zeros((problem.height, 1)), np.zeros((problem.width, 0)), np.ones((3, 4)) * 0.5)
+        make_state(problem, Changepoints(np.zeros((problem.height, 1)), np.zeros((problem.width, 0))),
+                   np.ones((3, 4)) * 0.5)
 
 
 def test_config_rejects_unknown_sampler():
     with pytest.raises(ValueError, match="sampler"):
-        SamplerConfig(sampler="nuts")
+        SamplerConfig.from_flat(sampler="nuts")
 
 
 def test_annealed_warm_up_tempers_then_hands_over_the_plain_likelihood(small):
     """During the warm-up the cached statistics are the tempered ones; after it, the plain ones (oracle)."""
-    from rjfit.sampler.kernel import anneal_power
-
     problem, prior, _, _ = small
-    config = SamplerConfig(max_u=2, max_v=2, burn_in=40, anneal=30, jump_prob=0.5, refresh_every=0)
+    config = SamplerConfig.from_flat(max_u=2, max_v=2, burn_in=40, anneal=30, jump_prob=0.5, refresh_every=0)
     rng = np.random.default_rng(5)
     state = initial_state(problem, prior, config, rng, model=(1, 1))
-    assert anneal_power(config, 0) == pytest.approx(1e-3) and anneal_power(config, 30) == 1.0
+    assert anneal_power(config.kernel, 0) == pytest.approx(1e-3) and anneal_power(config.kernel, 30) == 1.0
     with threadpool_limits(1):
         for t in range(45):
             state, _ = step(state, rng, problem, prior, config)
-            power = anneal_power(config, t)
+            power = anneal_power(config.kernel, t)
             fresh = region_stats(problem, state.labels, state.theta[:, 2], state.n_regions)
             np.testing.assert_allclose(state.stats, power * fresh, rtol=1e-9, atol=1e-8 * power)
     assert state.total_log_lik == pytest.approx(oracle_log_likelihood(problem, state.labels, state.theta),
@@ -169,22 +170,19 @@ def test_laplace_fit_of_a_large_region_finds_the_full_data_mode(region):
     # mean must agree within 0.2 sd; the sd is the curvature at that point (within 5 %).
     import math
 
-    from rjfit.sampler.likelihood import RegionData
-    from rjfit.sampler.moves import LAPLACE_COARSE_OBS, _laplace_log_gamma, _sigma2_prior_as_invgamma, _ssr_min
-
     obs, truth_labels, _ = sphere_stack(128, seed=3)
     problem = Problem.from_observations(obs)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     labels = truth_labels.ravel()[problem.pixel]
     data = RegionData.gather(problem, np.flatnonzero(labels == region))
     assert data.n >= 2 * LAPLACE_COARSE_OBS          # the thinned path is the one under test
-    mean, sd = _laplace_log_gamma(data, prior)
+    mean, sd = laplace_log_gamma(data, prior)
 
-    a0, b0 = _sigma2_prior_as_invgamma(prior)
+    a0, b0 = sigma2_prior_as_invgamma(prior)
     k = 0.5 * data.n * data.weight - 1.0 + a0
 
     def h(ell):
-        ssr, det = _ssr_min(data.stats_at(math.exp(ell)))[:2]
+        ssr, det = ssr_min(data.stats_at(math.exp(ell)))[:2]
         return -k * math.log(0.5 * ssr + b0) - 0.5 * math.log(det) + prior.params[2].logpdf_scalar(math.exp(ell)) + ell
 
     grid = mean + sd * np.linspace(-3.0, 3.0, 61)

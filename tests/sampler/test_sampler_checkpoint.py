@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.sampler.likelihood import Problem
+from rjfit.sampler.forward import Problem
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.runner import ChainSpec, run_chain
 from rjfit.sampler.state import SamplerConfig
@@ -22,7 +22,7 @@ def _spec(checkpoint_path=None, **kwargs):
     obs, labels, _ = sphere_stack(16, n_lights=5, seed=2)
     problem = Problem.from_observations(obs)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
-    config = SamplerConfig(max_u=2, max_v=2, burn_in=100, jump_prob=0.5, split_scale=0.5)
+    config = SamplerConfig.from_flat(max_u=2, max_v=2, burn_in=100, jump_prob=0.5, split_scale=0.5)
     return ChainSpec(problem=problem, prior=prior, config=config, seed=123, chain=1, n_chains=3,
                      iterations=ITERATIONS, checkpoint_path=checkpoint_path, checkpoint_every=25, cp_thin=5,
                      truth_labels=labels, **kwargs)
@@ -112,7 +112,7 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
     with pytest.raises(ValueError, match=r"chain\.pkl belongs to another run \(its chain differs"):
         run_chain(other_seed)
     other_config = _spec(path)
-    other_config.config = SamplerConfig(max_u=2, max_v=2, burn_in=100, jump_prob=0.3, split_scale=0.5)
+    other_config.config = SamplerConfig.from_flat(max_u=2, max_v=2, burn_in=100, jump_prob=0.3, split_scale=0.5)
     with pytest.raises(ValueError, match="its config differs"):
         run_chain(other_config)
     other_data = _spec(path)
@@ -142,19 +142,19 @@ def test_run_fingerprint_depends_on_content_not_on_print_options():
 
 
 def test_a_chain_gives_the_same_samples_on_one_thread_and_on_two():
-    """Threads within a chain cut its large passes into fixed pieces (rjfit.sampler.jit), so the
+    """Threads within a chain cut its large passes into fixed pieces (rjfit.sampler.passes.sums), so the
     samples do not depend on the number of threads: checked on a problem large enough for them."""
     import numba
 
-    from rjfit.sampler import jit
+    from rjfit.sampler.passes import sums
 
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("Numba has one thread here: nothing to compare")
     obs, labels, _ = sphere_stack(96, n_lights=10, seed=2)
     problem = Problem.from_observations(obs)
-    assert problem.n_obs >= jit.PARALLEL_MIN_OBS
+    assert problem.n_obs >= sums.PARALLEL_MIN_OBS
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
-    config = SamplerConfig(max_u=2, max_v=2, burn_in=40, jump_prob=0.5)
+    config = SamplerConfig.from_flat(max_u=2, max_v=2, burn_in=40, jump_prob=0.5)
     spec = ChainSpec(problem=problem, prior=prior, config=config, seed=5, chain=0, n_chains=2, iterations=80,
                      cp_thin=5, truth_labels=labels)
     one, two = run_chain(spec, threads=1), run_chain(spec, threads=2)

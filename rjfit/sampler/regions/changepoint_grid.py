@@ -28,19 +28,25 @@ normalisers, a proper prior all the same (finite for every model), and the sampl
 only ratios. Boundaries of real regions are continuous curves, so this prior puts its mass
 where they are, and extra vectors pay for their freedom.
 
+The layout of a chain state (:class:`Changepoints`) is the pair (u, v); the prior of the
+elements, with its settings, is :class:`ChangepointPrior`.
+
 Model numbers. Models are named ``(n_u, n_v)``; the paper's model number is reported as
 ``m = n_u * (max_v + 1) + n_v + 1`` (1-based, n_v fastest). This convention is ours: the
 paper's exact numbering could not be read in the session that wrote this module.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import NamedTuple
+
 import numpy as np
 from scipy.special import gammaln
 
 from rjfit.sampler.likelihood import index_dtype
 
-__all__ = ["model_number", "model_from_number", "obs_region_labels", "pixel_region_labels",
-           "log_prior_changepoints", "log_prior_cp_state", "smooth_line_terms", "n_regions"]
+__all__ = ["Changepoints", "ChangepointPrior", "model_number", "model_from_number", "obs_region_labels",
+           "pixel_region_labels", "log_prior_changepoints", "log_prior_cp_state", "n_regions"]
 
 
 def n_regions(n_u: int, n_v: int) -> int:
@@ -83,7 +89,7 @@ def obs_region_labels(u, v, row, col, n_v=None, pixel_start=None):
     row, col : int arrays (N,)
     pixel_start : int array (H * W + 1,), optional
         When the observations are stored pixel by pixel in row-major order (a
-        :class:`rjfit.sampler.likelihood.Problem`), the first observation of each pixel: the
+        :class:`rjfit.sampler.forward.Problem`), the first observation of each pixel: the
         pixel labels are then repeated per pixel instead of gathered by (row, col), four
         times faster.
     """
@@ -116,19 +122,6 @@ def _log_normal(d, sd):
     return -0.5 * (d / sd) ** 2 - np.log(sd) - 0.5 * np.log(2 * np.pi)
 
 
-def smooth_line_terms(rows, above, below, sd):
-    """Smooth-prior terms touching given lines: sum over ranks of log N to the line above and below.
-
-    ``rows``, ``above``, ``below``: (n_lines, n) sorted elements of the lines and their
-    neighbours (NaN rows where a neighbour does not exist).
-    """
-    out = np.zeros(rows.shape[0])
-    for nb in (above, below):
-        have = np.isfinite(nb[:, 0]) if nb.shape[1] else np.zeros(rows.shape[0], bool)
-        out += np.where(have, np.sum(_log_normal(rows - np.nan_to_num(nb), sd), axis=1), 0.0)
-    return out
-
-
 def log_prior_cp_state(u, v, image_shape, cp_prior: str = "paper", sd: float = 2.0) -> float:
     """Log prior density of sorted change points ``u`` (H, n_u), ``v`` (W, n_v)."""
     height, width = image_shape
@@ -139,3 +132,66 @@ def log_prior_cp_state(u, v, image_shape, cp_prior: str = "paper", sd: float = 2
         if cps.shape[1]:
             total += -cps.shape[1] * np.log(size + 2.0) + float(np.sum(_log_normal(np.diff(cps, axis=0), sd)))
     return total
+
+
+class Changepoints(NamedTuple):
+    """The layout of the change-point region model: u (H, n_u) and v (W, n_v), each line's elements sorted."""
+
+    u: np.ndarray
+    v: np.ndarray
+
+    @classmethod
+    def from_arrays(cls, u, v, image_shape) -> Changepoints:
+        """From any arrays of u and v elements (reshaped to one row per line, each line sorted)."""
+        height, width = image_shape
+        return cls(np.sort(np.asarray(u, float).reshape(height, -1), axis=1),
+                   np.sort(np.asarray(v, float).reshape(width, -1), axis=1))
+
+    @property
+    def n_u(self) -> int:
+        return int(self.u.shape[1])
+
+    @property
+    def n_v(self) -> int:
+        return int(self.v.shape[1])
+
+    @property
+    def n_regions(self) -> int:
+        return n_regions(self.u.shape[1], self.v.shape[1])
+
+    @property
+    def model_key(self) -> tuple[int, int]:
+        """``(n_u, n_v)``: the model this layout belongs to."""
+        return self.n_u, self.n_v
+
+    def labels(self, problem) -> np.ndarray:
+        """Region of every observation of ``problem`` (:func:`obs_region_labels`)."""
+        return obs_region_labels(self.u, self.v, problem.row, problem.col, pixel_start=problem.pixel_start)
+
+    def with_axis(self, axis: str, cps) -> Changepoints:
+        """This layout with the ``axis`` ('u' or 'v') vectors replaced by ``cps``."""
+        return Changepoints(cps, self.v) if axis == "u" else Changepoints(self.u, cps)
+
+
+@dataclass(frozen=True)
+class ChangepointPrior:
+    """The prior of change-point elements (see the module docstring).
+
+    Attributes
+    ----------
+    kind : {'smooth', 'paper'}
+        'paper': iid uniform elements; 'smooth' (default): a random walk along each vector
+        with step sd ``smooth_sd`` pixels.
+    smooth_sd : float
+    """
+
+    kind: str = "smooth"
+    smooth_sd: float = 2.0
+
+    def __post_init__(self):
+        if self.kind not in ("smooth", "paper"):
+            raise ValueError(f"cp_prior must be 'smooth' or 'paper', got {self.kind!r}")
+
+    def log_density(self, u, v, image_shape) -> float:
+        """Log prior density of sorted change points (:func:`log_prior_cp_state`)."""
+        return log_prior_cp_state(u, v, image_shape, self.kind, self.smooth_sd)

@@ -1,24 +1,20 @@
-"""The compiled loops (rjfit.sampler.jit) against plain NumPy references of the same quantities."""
+"""The compiled passes (rjfit.sampler.passes) against their NumPy references (rjfit.sampler.reference)."""
 import math
 
 import numpy as np
 import pytest
 from numba import njit
-from scipy.signal import fftconvolve
 from scipy.stats import chi2
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.sampler import jit
-from rjfit.sampler.likelihood import (
-    LOG_2PI,
-    Problem,
-    RegionData,
-    ab_from_theta,
-    b_terms,
-    region_stats,
-    region_stats_numpy,
-)
-from rjfit.sampler.moves import _cell_step_logits, _path_log_prob
+from rjfit.sampler import reference
+from rjfit.sampler.forward import Problem
+from rjfit.sampler.likelihood import RegionData, b_terms, region_stats
+from rjfit.sampler.moves.birth_death_free import rank_transitions
+from rjfit.sampler.moves.gamma import newton_log_gamma
+from rjfit.sampler.passes import cells, paths, shifts, special, sums
+from rjfit.sampler.regions.changepoint_grid import obs_region_labels
+from rjfit.sampler.runner import numba_threads
 
 
 @pytest.fixture(scope="module")
@@ -31,14 +27,6 @@ def _labels(problem, rng, n_regions):
     return rng.integers(0, n_regions, problem.n_obs).astype(np.int8)
 
 
-def _log_density(problem, idx, theta_obs):
-    a, b = ab_from_theta(theta_obs)
-    C = problem.C[idx].astype(float)
-    mu = a / math.pi * C + b * b_terms(C, problem.log_cos_hn[idx], theta_obs[:, 2])
-    s2 = theta_obs[:, 3]
-    return -0.5 * (LOG_2PI + np.log(s2)) - 0.5 * (problem.y[idx] - mu) ** 2 / s2
-
-
 THETA = np.array([[100.0, 0.5, 5.0, 0.1], [90.0, 0.9, 10.0, 0.2], [110.0, 0.6, 2.0, 0.15], [95.0, 0.4, 1.0, 0.1],
                   [100.0, 0.3, 30.0, 0.3], [80.0, 0.7, 7.0, 0.05]])
 
@@ -46,8 +34,8 @@ THETA = np.array([[100.0, 0.5, 5.0, 0.1], [90.0, 0.9, 10.0, 0.2], [110.0, 0.6, 2
 def test_region_stats_equal_numpy_reference(problem):
     labels = _labels(problem, np.random.default_rng(0), 6)
     fast = region_stats(problem, labels, THETA[:, 2], 6)
-    reference = region_stats_numpy(problem, labels, THETA[:, 2], 6)
-    np.testing.assert_allclose(fast, reference, rtol=1e-12)
+    expected = reference.region_stats(problem, labels, THETA[:, 2], 6)
+    np.testing.assert_allclose(fast, expected, rtol=1e-12)
 
 
 def test_region_stats_reject_labels_outside_the_regions(problem):
@@ -60,7 +48,7 @@ def test_region_stats_reject_labels_outside_the_regions(problem):
 def _fast_exp_of(x):
     out = np.empty_like(x)
     for i in range(x.size):
-        out[i] = jit.fast_exp(x[i])
+        out[i] = special.fast_exp(x[i])
     return out
 
 
@@ -80,10 +68,7 @@ def test_b_sums_equal_numpy_reference(problem):
     idx = np.arange(0, problem.n_obs, 3)
     data = RegionData.gather(problem, idx)
     for gamma in (0.3, 5.0, 80.0):
-        B = b_terms(problem.C[idx].astype(float), problem.log_cos_hn[idx], gamma)
-        y, A = problem.y[idx].astype(float), problem.C[idx].astype(float) / math.pi
-        reference = 0.6 * np.array([math.fsum(y * B), math.fsum(A * B), math.fsum(B * B)])
-        np.testing.assert_allclose(data.b_sums(gamma), reference, rtol=1e-12)
+        np.testing.assert_allclose(data.b_sums(gamma), reference.b_sums(problem, idx, gamma), rtol=1e-12)
     gammas = np.array([0.3, 5.0, 80.0])
     np.testing.assert_array_equal(data.stats_at_many(gammas), np.stack([data.stats_at(g) for g in gammas]))
 
@@ -91,19 +76,14 @@ def test_b_sums_equal_numpy_reference(problem):
 def test_b_sums_newton_equal_numpy_reference(problem):
     idx = np.arange(1, problem.n_obs, 2)
     data = RegionData.gather(problem, idx)
-    y, A = problem.y[idx].astype(float), problem.C[idx].astype(float) / math.pi
-    lh = problem.log_cos_hn[idx].astype(float)
     for gamma in (0.3, 5.0, 80.0):
-        B = b_terms(problem.C[idx].astype(float), problem.log_cos_hn[idx], gamma)
-        reference = 0.6 * np.array([math.fsum(term * w) for w in (1.0, lh, lh * lh) for term in (y * B, A * B, B * B)])
-        np.testing.assert_allclose(data.b_sums_newton(gamma), reference, rtol=1e-11, atol=1e-9 * abs(reference).max())
+        expected = reference.b_sums_newton(problem, idx, gamma)
+        np.testing.assert_allclose(data.b_sums_newton(gamma), expected, rtol=1e-11, atol=1e-9 * abs(expected).max())
         assert data.b_sums_newton(gamma) is data.b_sums_newton(gamma)      # memoised: no second pass
 
 
 def test_newton_rule_matches_finite_differences_of_the_profile(problem):
     """The Newton proposal's mean and sd from the closed-form derivatives of -SSR_min / (2 sigma^2)."""
-    from rjfit.sampler.moves import _newton_log_gamma
-
     data = RegionData.gather(problem, np.arange(problem.n_obs))
     s2 = 0.3
 
@@ -117,7 +97,7 @@ def test_newton_rule_matches_finite_differences_of_the_profile(problem):
         ell, step = math.log(gamma), 1e-3
         h0, hp, hm = profile(ell), profile(ell + step), profile(ell - step)
         d1, d2 = (hp - hm) / (2 * step), (hp - 2 * h0 + hm) / step ** 2
-        mean, sd = _newton_log_gamma(data.stats_at(gamma), data.b_sums_newton(gamma), gamma, s2, 1.0)
+        mean, sd = newton_log_gamma(data.stats_at(gamma), data.b_sums_newton(gamma), gamma, s2, 1.0)
         # central differences: error O(step^2) relative, far below the 1e-4 asked
         assert mean == pytest.approx(ell - d1 / d2, rel=1e-4, abs=1e-6)
         assert sd == pytest.approx(1.0 / math.sqrt(-d2), rel=1e-4)
@@ -136,17 +116,17 @@ def test_element_move_delta_and_shift_equal_reference(problem, axis):
     offsets = problem.pixel_start if axis == "u" else problem.colmajor_start
     starts, ends = offsets[lines * size + lo], offsets[lines * size + hi]
     use_order = axis == "v"
-    d_ll = jit.obs_log_density_delta(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order,
+    d_ll = shifts.obs_log_density_delta(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order,
                                      starts, ends, labels, delta, THETA)
     for j in range(lines.size):
         span = np.arange(starts[j], ends[j])
         idx = problem.colmajor_order[span] if use_order else span
-        expected = np.sum(_log_density(problem, idx, THETA[labels[idx] + delta[j]])
-                          - _log_density(problem, idx, THETA[labels[idx]]))
+        expected = np.sum(reference.obs_log_density(problem, idx, THETA[labels[idx] + delta[j]])
+                          - reference.obs_log_density(problem, idx, THETA[labels[idx]]))
         assert d_ll[j] == pytest.approx(expected, rel=1e-10, abs=1e-9)
     stats = region_stats(problem, labels, THETA[:, 2], 6)
     moved = labels.copy()
-    jit.shift_stats(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order, starts, ends, moved,
+    shifts.shift_stats(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order, starts, ends, moved,
                     delta, THETA[:, 2].copy(), stats, problem.likelihood_power)
     expected_labels = labels.copy()
     for j in range(lines.size):
@@ -154,7 +134,7 @@ def test_element_move_delta_and_shift_equal_reference(problem, axis):
         idx = problem.colmajor_order[span] if use_order else span
         expected_labels[idx] += delta[j]
     np.testing.assert_array_equal(moved, expected_labels)
-    np.testing.assert_allclose(stats, region_stats_numpy(problem, expected_labels, THETA[:, 2], 6),
+    np.testing.assert_allclose(stats, reference.region_stats(problem, expected_labels, THETA[:, 2], 6),
                                rtol=1e-9, atol=1e-9)
 
 
@@ -169,7 +149,7 @@ def test_element_shift_equals_reference(problem, axis):
     x_old = rng.uniform(-1.0, size + 1.0, lines.size)
     x_new = np.where(rng.random(lines.size) < 0.3, x_old, rng.uniform(-3.0, size + 3.0, lines.size))
     x_new[:3] = [-1.0, size + 1.0, np.floor(x_old[2]) + 0.5]             # the edges and a pixel centre
-    starts, ends, delta = jit.element_shift(x_old, x_new, lines, size, offsets, 3)
+    starts, ends, delta = shifts.element_shift(x_old, x_new, lines, size, offsets, 3)
     for j, line in enumerate(lines):
         changed = [t for t in range(size) if min(x_old[j], x_new[j]) < t + 0.5 <= max(x_old[j], x_new[j])]
         expected = np.arange(offsets[line * size + changed[0]], offsets[line * size + changed[-1] + 1]) if changed \
@@ -180,8 +160,6 @@ def test_element_shift_equals_reference(problem, axis):
 
 def _changepoint_labels(problem, rng, n_u, n_v):
     """Labels of a random (n_u, n_v) model whose vectors wander across the image."""
-    from rjfit.sampler.changepoints import obs_region_labels
-
     height, width = problem.image_shape
     u = np.sort(rng.uniform(-1.0, width + 1.0, (height, n_u)), axis=1)
     v = np.sort(rng.uniform(-1.0, height + 1.0, (width, n_v)), axis=1)
@@ -199,21 +177,21 @@ def test_per_pixel_two_cases_equal_reference(problem, axis):
     line_of, along_of = (problem.row, problem.col) if axis == "u" else (problem.col, problem.row)
     x_old = np.ascontiguousarray(cps[:, k])
     right, left = np.zeros(cps.shape[0] * size), np.zeros(cps.shape[0] * size)
-    jit.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, line_of, along_of, labels, x_old, step, THETA,
+    cells.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, line_of, along_of, labels, x_old, step, THETA,
                             size, right, left)
     idx = np.arange(problem.n_obs)
     base = labels.astype(np.int64) - np.where(x_old[line_of] < along_of + 0.5, step, 0)
     key = line_of.astype(np.int64) * size + along_of
-    expected_right = np.bincount(key, _log_density(problem, idx, THETA[base]), minlength=right.size)
-    expected_left = np.bincount(key, _log_density(problem, idx, THETA[base + step]), minlength=left.size)
+    expected_right = np.bincount(key, reference.obs_log_density(problem, idx, THETA[base]), minlength=right.size)
+    expected_left = np.bincount(key, reference.obs_log_density(problem, idx, THETA[base + step]), minlength=left.size)
     np.testing.assert_allclose(right, expected_right, rtol=1e-11, atol=1e-8)
     np.testing.assert_allclose(left, expected_left, rtol=1e-11, atol=1e-8)
     # line r's log-likelihood with the element in cell j: pixels t < j in the base case, t >= j in the other
-    cells = jit.cell_log_lik(right, left, cps.shape[0], size, 0.6)
+    by_cell = cells.cell_log_lik(right, left, cps.shape[0], size, 0.6)
     right_2d, left_2d = right.reshape(-1, size), left.reshape(-1, size)
     for j in (0, 1, size // 2, size):
         expected = 0.6 * (right_2d[:, :j].sum(axis=1) + left_2d[:, j:].sum(axis=1))
-        np.testing.assert_allclose(cells[:, j], expected, rtol=1e-11, atol=1e-8)
+        np.testing.assert_allclose(by_cell[:, j], expected, rtol=1e-11, atol=1e-8)
 
 
 @pytest.mark.parametrize("axis", ["u", "v"])
@@ -226,33 +204,16 @@ def test_removal_sums_equal_reference(problem, axis):
     step = (n_v + 1) if axis == "u" else 1
     n_lines = problem.height if axis == "u" else problem.width
     line_of = problem.row if axis == "u" else problem.col
-    sums = np.zeros((3, n_lines * (n_axis + 1)))
-    jit.removal_sums(problem.y, problem.C, problem.log_cos_hn, line_of, labels, THETA, n_axis, n_v, step, axis == "u",
-                     sums)
+    totals = np.zeros((3, n_lines * (n_axis + 1)))
+    cells.removal_sums(problem.y, problem.C, problem.log_cos_hn, line_of, labels, THETA, n_axis, n_v, step, axis == "u",
+                       totals)
     lab = labels.astype(np.int64)
     column = lab // (n_v + 1) if axis == "u" else lab % (n_v + 1)
     key = line_of.astype(np.int64) * (n_axis + 1) + column
     idx = np.arange(problem.n_obs)
     for case, region in enumerate([lab, np.where(column > 0, lab - step, lab), np.where(column < n_axis, lab + step, lab)]):
-        expected = np.bincount(key, _log_density(problem, idx, THETA[region]), minlength=sums.shape[1])
-        np.testing.assert_allclose(sums[case], expected, rtol=1e-11, atol=1e-8)
-
-
-def _forward_filter_fft(log_emit, log_kernel):
-    """The FFT forward filter this module replaced (reference)."""
-    n_cells = log_emit.shape[1]
-    kernel = np.exp(log_kernel)
-    alpha = np.empty_like(log_emit)
-    previous = None
-    for r in range(log_emit.shape[0]):
-        a = log_emit[r].copy()
-        if previous is not None:
-            a += np.log(np.maximum(fftconvolve(previous, kernel)[n_cells - 1: 2 * n_cells - 1], 1e-300))
-        top = np.max(a)
-        linear = np.exp(a - top)
-        alpha[r] = a - top - np.log(linear.sum())
-        previous = linear / linear.sum()
-    return alpha
+        expected = np.bincount(key, reference.obs_log_density(problem, idx, THETA[region]), minlength=totals.shape[1])
+        np.testing.assert_allclose(totals[case], expected, rtol=1e-11, atol=1e-8)
 
 
 def test_forward_filter_equals_fft_reference():
@@ -261,10 +222,10 @@ def test_forward_filter_equals_fft_reference():
     log_emit = rng.normal(0.0, 3.0, (12, size + 1))
     offsets = np.arange(-size, size + 1)
     log_kernel = -0.5 * offsets ** 2 / (2.0 ** 2 + 1.0 / 12.0)
-    alpha, ok = jit.forward_filter(log_emit, np.exp(log_kernel), size)
+    alpha, ok = paths.forward_filter(log_emit, np.exp(log_kernel), size)
     assert ok
-    np.testing.assert_allclose(alpha, _forward_filter_fft(log_emit, log_kernel), atol=1e-9)
-    independent, ok = jit.forward_filter(log_emit, np.zeros(0), 0)
+    np.testing.assert_allclose(alpha, reference.forward_filter(log_emit, log_kernel), atol=1e-9)
+    independent, ok = paths.forward_filter(log_emit, np.zeros(0), 0)
     np.testing.assert_allclose(independent, log_emit - np.logaddexp.reduce(log_emit, axis=1, keepdims=True), atol=1e-12)
 
 
@@ -275,18 +236,18 @@ def test_backward_sampler_draws_paths_with_the_probability_it_reports():
     log_emit = rng.normal(0.0, 1.0, (n_lines, n_cells))
     offsets = np.arange(-(n_cells - 1), n_cells)
     log_kernel = -0.5 * offsets ** 2 / 1.5
-    alpha, _ = jit.forward_filter(log_emit, np.exp(log_kernel), n_cells - 1)
-    paths = [np.array(p) for p in np.ndindex(*(n_cells,) * n_lines)]
-    probs = np.exp([jit.cell_path_log_prob(alpha, p, log_kernel) for p in paths])
+    alpha, _ = paths.forward_filter(log_emit, np.exp(log_kernel), n_cells - 1)
+    every_path = [np.array(p) for p in np.ndindex(*(n_cells,) * n_lines)]
+    probs = np.exp([paths.cell_path_log_prob(alpha, p, log_kernel) for p in every_path])
     assert probs.sum() == pytest.approx(1.0, abs=1e-12)
-    python_logits = _cell_step_logits(log_kernel)
-    for p in paths[::7]:
-        assert jit.cell_path_log_prob(alpha, p, log_kernel) == pytest.approx(_path_log_prob(alpha, p, python_logits),
-                                                                             abs=1e-12)
+    python_logits = reference.cell_step_logits(log_kernel)
+    for p in every_path[::7]:
+        assert paths.cell_path_log_prob(alpha, p, log_kernel) == pytest.approx(
+            reference.path_log_prob(alpha, p, python_logits), abs=1e-12)
     n_draws = 20000
-    counts = np.zeros(len(paths))
+    counts = np.zeros(len(every_path))
     for _ in range(n_draws):
-        path = jit.cell_backward_sample(alpha, log_kernel, rng.random(n_lines))
+        path = paths.cell_backward_sample(alpha, log_kernel, rng.random(n_lines))
         counts[np.ravel_multi_index(tuple(path), (n_cells,) * n_lines)] += 1
     expected = n_draws * probs
     keep = expected >= 5                     # paths expected fewer than 5 times are pooled into one bin
@@ -302,18 +263,18 @@ def test_split_into_runs_equals_one_gather_per_region(problem):
     labels = _labels(problem, np.random.default_rng(5), 6)
     labels[labels == 4] = 3                      # an empty region too
     for r, data in enumerate(RegionData.split(problem, labels, 6)):
-        reference = RegionData.gather(problem, np.flatnonzero(labels == r))
-        np.testing.assert_array_equal(data.idx, reference.idx, err_msg=f"region {r}")
+        whole = RegionData.gather(problem, np.flatnonzero(labels == r))
+        np.testing.assert_array_equal(data.idx, whole.idx, err_msg=f"region {r}")
         for every in (2, 7):
-            np.testing.assert_array_equal(jit.run_indices(*data.runs, every), reference.idx[::every])
-        assert data.n == reference.n and data.weight == reference.weight
+            np.testing.assert_array_equal(sums.run_indices(*data.runs, every), whole.idx[::every])
+        assert data.n == whole.n and data.weight == whole.weight
         gathered = data.thinned(1)
         for name in ("y", "C", "log_cos_hn"):
-            np.testing.assert_array_equal(getattr(gathered, name), getattr(reference, name), err_msg=f"region {r} {name}")
-        np.testing.assert_allclose(data.fixed, reference.fixed, rtol=1e-12, err_msg=f"region {r}")
+            np.testing.assert_array_equal(getattr(gathered, name), getattr(whole, name), err_msg=f"region {r} {name}")
+        np.testing.assert_allclose(data.fixed, whole.fixed, rtol=1e-12, err_msg=f"region {r}")
         for gamma in (0.5, 10.0, 300.0):
-            np.testing.assert_allclose(data.b_sums(gamma), reference.b_sums(gamma), rtol=1e-12, atol=0)
-            np.testing.assert_allclose(data.b_sums_newton(gamma), reference.b_sums_newton(gamma), rtol=1e-12, atol=0)
+            np.testing.assert_allclose(data.b_sums(gamma), whole.b_sums(gamma), rtol=1e-12, atol=0)
+            np.testing.assert_allclose(data.b_sums_newton(gamma), whole.b_sums_newton(gamma), rtol=1e-12, atol=0)
     with pytest.raises(ValueError, match="labels must lie"):
         RegionData.split(problem, labels, 3)
 
@@ -324,51 +285,47 @@ def test_normal_cdf_and_quantile_equal_scipy():
     # quantile over both tails and the centre; the CDF down to 1e-300 (erfc's own accuracy there)
     p = np.concatenate([np.geomspace(1e-300, 0.5, 500), 1.0 - np.geomspace(1e-16, 0.5, 500),
                         np.random.default_rng(0).random(500)])
-    mine = np.array([jit.ndtri(v) for v in p])
+    mine = np.array([special.ndtri(v) for v in p])
     np.testing.assert_allclose(mine, ndtri(p), rtol=1e-12, atol=1e-15)
     x = np.linspace(-37.0, 9.0, 2001)
-    np.testing.assert_allclose([jit.ndtr(v) for v in x], ndtr(x), rtol=1e-12)
-    assert jit.ndtri(0.0) == -np.inf and jit.ndtri(1.0) == np.inf
+    np.testing.assert_allclose([special.ndtr(v) for v in x], ndtr(x), rtol=1e-12)
+    assert special.ndtri(0.0) == -np.inf and special.ndtri(1.0) == np.inf
 
 
 @pytest.mark.parametrize("sd", [None, 0.3, 2.0])
 def test_within_cell_draw_and_density_equal_the_reference(sd):
-    from rjfit.sampler.moves import _draw_within_cells, _within_cell_log_density
-
     rng = np.random.default_rng(11)
     n_lines = 300
     # cells of width 0.2-1 that wander along the lines, with jumps far beyond the step sd
     # (the reference's uniform fallback) and cells wholly above or below the next line
     lo = np.cumsum(rng.normal(0.0, 0.7, n_lines)) + np.where(rng.random(n_lines) < 0.05, 25.0, 0.0)
     hi = lo + rng.uniform(0.2, 1.0, n_lines)
-    reference = _draw_within_cells(lo, hi, sd, np.random.default_rng(5))
+    expected = reference.draw_within_cells(lo, hi, sd, np.random.default_rng(5))
     step_sd = -1.0 if sd is None else sd
-    compiled = jit.within_cells_draw(lo, hi, step_sd, np.random.default_rng(5).random(n_lines)[::-1].copy())
-    np.testing.assert_allclose(compiled, reference, rtol=0, atol=1e-9)
+    compiled = paths.within_cells_draw(lo, hi, step_sd, np.random.default_rng(5).random(n_lines)[::-1].copy())
+    np.testing.assert_allclose(compiled, expected, rtol=0, atol=1e-9)
     assert np.all((compiled >= lo) & (compiled < hi))
     for x in (compiled, lo + 0.5 * (hi - lo)):
-        expected = float(np.sum(_within_cell_log_density(x, x[1:], lo, hi, sd)))
-        assert abs(jit.within_cells_log_density(x, lo, hi, step_sd) - expected) < 1e-9 * max(1.0, abs(expected))
+        density = float(np.sum(reference.within_cell_log_density(x, x[1:], lo, hi, sd)))
+        assert abs(paths.within_cells_log_density(x, lo, hi, step_sd) - density) < 1e-9 * max(1.0, abs(density))
 
 
 def test_rank_chain_compiled_twins_equal_the_reference():
     """Forward alphas, path probabilities and backward draws of the removed-rank chain against
-    moves._rank_chain / _path_log_prob / _backward_sample (the same uniforms, last line first)."""
-    from rjfit.sampler.moves import _backward_sample, _rank_chain, _rank_transitions
-
+    reference.rank_chain / path_log_prob / backward_sample (the same uniforms, last line first)."""
     rng = np.random.default_rng(11)
     for n in (1, 2, 3):
         log_emit = rng.normal(0.0, 3.0, (40, n))
         log_emit[5, 0] = -np.inf if n > 1 else log_emit[5, 0]      # a rank that cannot be removed there
-        alpha_ref, logits = _rank_chain(log_emit)
-        log_t = _rank_transitions(*log_emit.shape)
-        alpha = jit.rank_forward(log_emit, log_t)
+        log_t = rank_transitions(*log_emit.shape)
+        alpha_ref, logits = reference.rank_chain(log_emit, log_t)
+        alpha = paths.rank_forward(log_emit, log_t)
         np.testing.assert_allclose(alpha, alpha_ref, atol=1e-12)
         for seed in range(20):
-            reference = _backward_sample(alpha_ref, logits, np.random.default_rng(seed))
-            path = jit.rank_backward_sample(alpha, log_t, np.random.default_rng(seed).random(40))
-            np.testing.assert_array_equal(path, reference)
-            assert jit.rank_path_log_prob(alpha, path, log_t) == pytest.approx(_path_log_prob(alpha_ref, path, logits),
+            expected = reference.backward_sample(alpha_ref, logits, np.random.default_rng(seed))
+            path = paths.rank_backward_sample(alpha, log_t, np.random.default_rng(seed).random(40))
+            np.testing.assert_array_equal(path, expected)
+            assert paths.rank_path_log_prob(alpha, path, log_t) == pytest.approx(reference.path_log_prob(alpha_ref, path, logits),
                                                                                abs=1e-10)
 
 
@@ -383,10 +340,10 @@ def _two_threads():
 
 @pytest.fixture(scope="module")
 def large_problem():
-    """40,326 observations: over jit.PARALLEL_MIN_OBS, so the passes run in pieces."""
+    """40,326 observations: over sums.PARALLEL_MIN_OBS, so the passes run in pieces."""
     obs, _, _ = sphere_stack(96, n_lights=10, seed=3)
     problem = Problem.from_observations(obs, likelihood_power=0.6)
-    assert problem.n_obs >= jit.PARALLEL_MIN_OBS
+    assert problem.n_obs >= sums.PARALLEL_MIN_OBS
     return problem
 
 
@@ -395,16 +352,16 @@ def test_split_runs_cuts_the_runs_into_equal_parts_in_order():
     lengths = rng.integers(0, 900, 200)
     starts = np.cumsum(np.r_[0, lengths[:-1] + rng.integers(0, 50, 199)])
     ends = starts + lengths
-    pieces_start, pieces_end, offsets = jit.split_runs(starts, ends)
+    pieces_start, pieces_end, offsets = sums.split_runs(starts, ends)
     total = int(lengths.sum())
-    assert total >= jit.PARALLEL_MIN_OBS and offsets.size == jit.PARTS + 1 and offsets[-1] == pieces_start.size
+    assert total >= sums.PARALLEL_MIN_OBS and offsets.size == sums.PARTS + 1 and offsets[-1] == pieces_start.size
     # the pieces are the runs' observations, in order, each once
     indices = np.concatenate([np.arange(a, b) for a, b in zip(starts, ends)])
     np.testing.assert_array_equal(np.concatenate([np.arange(a, b) for a, b in zip(pieces_start, pieces_end)]), indices)
     part_sizes = [int(np.sum(pieces_end[a:b] - pieces_start[a:b])) for a, b in zip(offsets[:-1], offsets[1:])]
     assert max(part_sizes) - min(part_sizes) <= 1 and sum(part_sizes) == total
     # below the threshold: one part, the runs themselves
-    small_start, small_end, small_offsets = jit.split_runs(starts[:10], ends[:10])
+    small_start, small_end, small_offsets = sums.split_runs(starts[:10], ends[:10])
     assert list(small_offsets) == [0, 10]
     np.testing.assert_array_equal(small_start, starts[:10])
 
@@ -418,19 +375,17 @@ def test_pixel_cuts_keep_each_pixel_whole_in_one_piece():
     pixel = np.repeat(np.arange(per_pixel.size), per_pixel)
     line_of, along_of = pixel // 97, pixel % 97
     n = pixel.size
-    bounds = jit.pixel_cuts(line_of, along_of)
-    assert bounds.size == jit.PARTS + 1 and bounds[0] == 0 and bounds[-1] == n
+    bounds = cells.pixel_cuts(line_of, along_of)
+    assert bounds.size == sums.PARTS + 1 and bounds[0] == 0 and bounds[-1] == n
     assert np.all(np.diff(bounds) >= 0)
     inner = bounds[1:-1]
     assert np.all(pixel[inner] != pixel[inner - 1]), "a cut splits a pixel between two pieces"
-    assert np.all(np.diff(bounds) <= n // jit.PARTS + per_pixel.max())
+    assert np.all(np.diff(bounds) <= n // sums.PARTS + per_pixel.max())
 
 
 def test_passes_in_pieces_equal_the_reference_and_do_not_depend_on_the_threads(large_problem):
     """b_sums, b_sums_newton and the per-pixel sums over more than PARALLEL_MIN_OBS observations:
     the NumPy reference's values, and the same bits on one thread and on two."""
-    from rjfit.sampler.runner import numba_threads
-
     _two_threads()
     problem = large_problem
     idx = np.arange(problem.n_obs)
@@ -444,10 +399,10 @@ def test_passes_in_pieces_equal_the_reference_and_do_not_depend_on_the_threads(l
 
     def passes():
         right, left = np.zeros(height * width), np.zeros(height * width)
-        jit.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, problem.row, problem.col, labels, x_old,
+        cells.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, problem.row, problem.col, labels, x_old,
                                 2, THETA, width, right, left)
-        return ([jit.b_sums(data.y, data.C, data.log_cos_hn, *data.runs, g) for g in (0.3, 80.0)]
-                + [jit.b_sums_newton(data.y, data.C, data.log_cos_hn, *data.runs, g) for g in (0.3, 80.0)]
+        return ([sums.b_sums(data.y, data.C, data.log_cos_hn, *data.runs, g) for g in (0.3, 80.0)]
+                + [sums.b_sums_newton(data.y, data.C, data.log_cos_hn, *data.runs, g) for g in (0.3, 80.0)]
                 + [right, left])
 
     with numba_threads(1):
@@ -465,5 +420,5 @@ def test_passes_in_pieces_equal_the_reference_and_do_not_depend_on_the_threads(l
     base = labels.astype(np.int64) - np.where(x_old[problem.row] < problem.col + 0.5, 2, 0)
     key = problem.row.astype(np.int64) * width + problem.col
     for case, shift in ((one[4], 0), (one[5], 2)):       # right of the element, left of it
-        expected = np.bincount(key, _log_density(problem, idx, THETA[base + shift]), minlength=height * width)
+        expected = np.bincount(key, reference.obs_log_density(problem, idx, THETA[base + shift]), minlength=height * width)
         np.testing.assert_allclose(case, expected, rtol=1e-11, atol=1e-8)

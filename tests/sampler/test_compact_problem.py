@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.sampler import likelihood
+from rjfit.sampler import forward
+from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import make_state
-from rjfit.sampler.likelihood import Problem, RegionData, region_stats
+from rjfit.sampler.likelihood import RegionData, region_stats
+from rjfit.sampler.regions.changepoint_grid import Changepoints
 
 
 @pytest.fixture(scope="module")
@@ -38,17 +40,17 @@ def test_problem_arrays_are_compact(offset_problem):
     assert not any(hasattr(p, name) for name in ("yy", "yA", "AA", "observations"))
     assert p.A.dtype == np.float64
     u, v = np.full((p.height, 1), p.width / 2.0), np.full((p.width, 1), p.height / 2.0)
-    state = make_state(p, u, v, np.tile([100.0, 0.5, 5.0, 0.1], (4, 1)))
+    state = make_state(p, Changepoints(u, v), np.tile([100.0, 0.5, 5.0, 0.1], (4, 1)))
     assert state.labels.dtype == np.int8
 
 
-@pytest.mark.parametrize("chunk", [likelihood.CHUNK, 37])
+@pytest.mark.parametrize("chunk", [forward.CHUNK, 37])
 def test_region_sums_are_float64_accurate(offset_problem, monkeypatch, chunk):
-    monkeypatch.setattr(likelihood, "CHUNK", chunk)
+    monkeypatch.setattr(forward, "CHUNK", chunk)
     p = offset_problem
     u, v = np.full((p.height, 1), p.width / 2.0), np.full((p.width, 1), p.height / 2.0)
     gammas = np.array([5.0, 10.0, 5.0, 1.0])
-    labels = make_state(p, u, v, np.column_stack([np.full(4, 100.0), np.full(4, 0.5), gammas,
+    labels = make_state(p, Changepoints(u, v), np.column_stack([np.full(4, 100.0), np.full(4, 0.5), gammas,
                                                   np.full(4, 0.1)])).labels
     reference = _reference_stats(p, labels, gammas, 4)
     np.testing.assert_allclose(region_stats(p, labels, gammas, 4), reference, rtol=1e-12, atol=0)
@@ -69,7 +71,7 @@ def test_weighted_problem_stays_compact_and_float64_accurate(offset_problem):
     np.testing.assert_allclose(p.C.astype(np.float64) * p.noise_scale, offset_problem.C, rtol=2e-7)
     u, v = np.full((p.height, 1), p.width / 2.0), np.full((p.width, 1), p.height / 2.0)
     gammas = np.array([5.0, 10.0, 5.0, 1.0])
-    labels = make_state(p, u, v, np.column_stack([np.full(4, 100.0), np.full(4, 0.5), gammas,
+    labels = make_state(p, Changepoints(u, v), np.column_stack([np.full(4, 100.0), np.full(4, 0.5), gammas,
                                                   np.full(4, 0.1)])).labels
     np.testing.assert_allclose(region_stats(p, labels, gammas, 4), _reference_stats(p, labels, gammas, 4),
                                rtol=1e-12, atol=0)

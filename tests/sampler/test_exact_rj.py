@@ -20,40 +20,20 @@ p < 1e-6, and must instead match the posterior that dropping the Jacobian actual
 """
 import numpy as np
 import pytest
+from builders import TINY_SIGMA2_PRIOR, tiny_problem
 from scipy import stats
 from scipy.special import gammaln
 from threadpoolctl import threadpool_limits
 
-from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
-from rjfit.sampler.changepoints import pixel_region_labels
+from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.likelihood import Problem
-from rjfit.sampler.priors import ParamPrior, Prior
+from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 from rjfit.sampler.state import SamplerConfig
 
 LEVEL = 1e-3
 INTERVALS = np.array([1.5, 1.0, 1.5]) / 4.0   # probabilities of the three intervals of [-1, 3]
-ALPHA, BETA = 3.0, 0.6                          # inverse-gamma prior of sigma^2
-
-
-def tiny_problem(seed=5):
-    rng = np.random.default_rng(seed)
-    H, W, L = 2, 2, 3
-    pixel = np.repeat(np.arange(H * W), L)
-    light = np.tile(np.arange(L), H * W).astype(np.int32)
-    cos_ln = rng.uniform(0.3, 1.0, pixel.size)
-    cos_hn = rng.uniform(0.6, 1.0, pixel.size)
-    irradiance = rng.uniform(0.5, 1.5, pixel.size)
-    col = pixel % W
-    truth = np.array([[10.0, 0.75, 4.0, 0.3], [10.0, 0.3, 15.0, 0.3]])[col]
-    mu = radiance(truth[:, 0], truth[:, 1], truth[:, 2], cos_ln, cos_hn, irradiance)
-    y = mu + rng.normal(0, np.sqrt(0.3), pixel.size)
-    obs = Observations(image_shape=(H, W), n_lights=L, pixel=pixel.astype(np.int64), light=light, y=y,
-                       cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irradiance, object_mask=np.ones((H, W), bool))
-    prior = Prior(params=(ParamPrior("lognormal", np.log(10.0), 0.3), ParamPrior("uniform", 0.0, 1.0),
-                          ParamPrior("lognormal", np.log(8.0), 0.6), ParamPrior("invgamma", ALPHA, BETA)))
-    return obs, prior
+ALPHA, BETA = TINY_SIGMA2_PRIOR                 # inverse-gamma prior of sigma^2 (tiny_problem's)
 
 
 class Quadrature:
@@ -185,9 +165,9 @@ def run(problem, prior, config, iterations, seed):
     with threadpool_limits(1):
         for t in range(iterations):
             state, _ = step(state, rng, problem, prior, config)
-            models[t] = state.n_u, state.n_v
-            if state.n_u:
-                x = state.u[0, 0]
+            models[t] = state.layout.model_key
+            if state.layout.n_u:
+                x = state.layout.u[0, 0]
                 u0[t] = 0 if x < 0.5 else (1 if x < 1.5 else 2)
             theta[t] = state.theta[0]
     return models, u0, theta
@@ -241,7 +221,7 @@ def _model_and_cp_tests(models, u0, exact):
                                                            ("mean", "paper", 12000), ("paper", "paper", 12000)])
 def test_model_and_changepoint_frequencies_match_exact_posterior(setup, split_map, cp_prior, iterations):
     exact = exact_posterior(setup[3], cp_prior=cp_prior)
-    config = SamplerConfig(max_u=1, max_v=1, split_map=split_map, split_scale=0.6, jump_prob=1.0, cp_step=1.0,
+    config = SamplerConfig.from_flat(max_u=1, max_v=1, split_map=split_map, split_scale=0.6, jump_prob=1.0, cp_step=1.0,
                            cp_uniform_prob=0.3, burn_in=0, cp_prior=cp_prior, cp_smooth_sd=SMOOTH_SD)
     p_model, p_u, details = _model_and_cp_tests(*_chain(setup, config, iterations, 1), exact)
     print(split_map, cp_prior, details)
@@ -253,7 +233,7 @@ def test_model_and_changepoint_frequencies_match_exact_posterior(setup, split_ma
 def test_paper_map_without_jacobian_gives_a_different_wrong_model_posterior(setup):
     # free_jump_prob 0: every jump uses the paper's map (the rank-free pair is exact and
     # would pull the chain part of the way back to the true posterior)
-    config = SamplerConfig(max_u=1, max_v=1, split_map="paper", drop_jacobian=True, split_scale=0.6, jump_prob=1.0,
+    config = SamplerConfig.from_flat(max_u=1, max_v=1, split_map="paper", drop_jacobian=True, split_scale=0.6, jump_prob=1.0,
                            cp_step=1.0, cp_uniform_prob=0.3, burn_in=0, cp_prior="paper", free_jump_prob=0.0)
     models, u0 = _chain(setup, config, 12000, 2)
     p_model, _, details = _model_and_cp_tests(models, u0, exact_posterior(setup[3]))
@@ -279,7 +259,7 @@ def test_parameter_marginals_match_quadrature_ks(setup, pixels):
     keep = np.isin(obs.pixel, pixels)
     sub = obs.subset(keep)
     problem = Problem.from_observations(sub)
-    config = SamplerConfig(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=500)
+    config = SamplerConfig.from_flat(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=500)
     _, _, theta = run(problem, prior, config, 20000, 3)
     theta = theta[1000:]
     cdfs = quad.marginal_cdfs(pixels)
@@ -330,7 +310,7 @@ def test_free_rank_birth_death_match_exact_posterior(setup, free_jump_prob):
     """
     obs, prior, problem, quad = setup
     exact = exact_posterior_u_only(quad)
-    config = SamplerConfig(max_u=2, max_v=0, jump_prob=1.0, free_jump_prob=free_jump_prob, cp_step=1.0,
+    config = SamplerConfig.from_flat(max_u=2, max_v=0, jump_prob=1.0, free_jump_prob=free_jump_prob, cp_step=1.0,
                            cp_uniform_prob=0.3, burn_in=0, cp_prior="paper")
     rng = np.random.default_rng(7)
     state = initial_state(problem, prior, config, rng, model=(0, 0))
@@ -341,9 +321,9 @@ def test_free_rank_birth_death_match_exact_posterior(setup, free_jump_prob):
     with threadpool_limits(1):
         for t in range(iterations):
             state, _ = step(state, rng, problem, prior, config)
-            n_u[t] = state.n_u
-            if state.n_u == 2:
-                cells = tuple(int(np.searchsorted([0.5, 1.5], x, side="right")) for x in state.u[0])
+            n_u[t] = state.layout.n_u
+            if state.layout.n_u == 2:
+                cells = tuple(int(np.searchsorted([0.5, 1.5], x, side="right")) for x in state.layout.u[0])
                 pair[t] = pairs.index(cells)
     burn = iterations // 10
     n_u, pair = n_u[burn:], pair[burn:]
@@ -370,7 +350,7 @@ def test_coarsened_posterior_matches_exact_tempered_posterior(setup):
     tempered = exact_posterior(Quadrature(obs, prior, likelihood_power=zeta))
     plain = exact_posterior(quad)
     problem = Problem.from_observations(obs, likelihood_power=zeta)
-    config = SamplerConfig(max_u=1, max_v=1, jump_prob=1.0, cp_step=1.0, cp_uniform_prob=0.3, burn_in=0,
+    config = SamplerConfig.from_flat(max_u=1, max_v=1, jump_prob=1.0, cp_step=1.0, cp_uniform_prob=0.3, burn_in=0,
                            cp_prior="paper")
     models, u0, _ = run(problem, prior, config, 12000, 4)
     p_model, p_u, details = _model_and_cp_tests(models[1200:], u0[1200:], tempered)

@@ -13,14 +13,19 @@ import dataclasses
 
 import numpy as np
 import pytest
+from builders import tiny_problem
 from scipy import stats
 from test_exact_rj import tiny_problem
 from threadpoolctl import threadpool_limits
 
 from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
+from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.likelihood import Problem
+from rjfit.sampler.likelihood import RegionData
+from rjfit.sampler.moves import gamma as gamma_moves
+from rjfit.sampler.moves import within
+from rjfit.sampler.moves.gamma import newton_log_gamma
 from rjfit.sampler.priors import ParamPrior
 from rjfit.sampler.state import SamplerConfig
 
@@ -30,7 +35,7 @@ REPLICATES, DRAWS, THIN, BURN = 100, 19, 20, 200
 def test_sbc_ranks_are_uniform_for_a_fixed_segmentation():
     base, prior = tiny_problem()
     rng = np.random.default_rng(2024)
-    config = SamplerConfig(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=BURN // 2)
+    config = SamplerConfig.from_flat(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=BURN // 2)
     ranks = np.zeros((REPLICATES, 4), int)
     with threadpool_limits(1):
         for i in range(REPLICATES):
@@ -71,8 +76,6 @@ def _newton_sbc(replicates=150, draws=19, thin=20, burn=300, seed=77):
     and the fraction of replicates whose final state had a valid Newton rule (the
     branch under test, not its random-walk fallback).
     """
-    from rjfit.sampler.moves import _newton_log_gamma
-
     _, prior = tiny_problem()
     rng = np.random.default_rng(seed)
     H, W, L = 8, 8, 8
@@ -81,7 +84,7 @@ def _newton_sbc(replicates=150, draws=19, thin=20, burn=300, seed=77):
                         y=np.zeros(pixel.size), cos_ln=rng.uniform(0.2, 1.0, pixel.size),
                         cos_hn=rng.uniform(0.75, 1.0, pixel.size), irradiance=rng.uniform(0.5, 1.5, pixel.size),
                         object_mask=np.ones((H, W), bool))
-    config = SamplerConfig(max_u=0, max_v=0, update_changepoints=False, jumps=False, small_region_obs=0)
+    config = SamplerConfig.from_flat(max_u=0, max_v=0, update_changepoints=False, jumps=False, small_region_obs=0)
     ranks, newton_valid = np.zeros((replicates, 4), int), 0
     with threadpool_limits(1):
         for i in range(replicates):
@@ -89,13 +92,11 @@ def _newton_sbc(replicates=150, draws=19, thin=20, burn=300, seed=77):
             ranks[i], state = _rank_of_truth(theta, problem, prior, config, rng, burn, draws, thin)
             g = state.theta[0, 2]
             sums = _region_sums(problem, g)
-            newton_valid += _newton_log_gamma(state.stats[0], sums, g, state.theta[0, 3], 1.0) is not None
+            newton_valid += newton_log_gamma(state.stats[0], sums, g, state.theta[0, 3], 1.0) is not None
     return ranks, newton_valid / replicates
 
 
 def _region_sums(problem, g):
-    from rjfit.sampler.likelihood import RegionData
-
     return RegionData.gather(problem, np.arange(problem.n_obs)).b_sums_newton(g)
 
 
@@ -124,9 +125,7 @@ def test_sbc_newton_without_reverse_density_fails(monkeypatch):
     Without it the move targets roughly the posterior times the proposal, too narrow a
     distribution of gamma and kd, and their ranks pile up in the middle bins.
     """
-    from rjfit.sampler import moves
-
-    monkeypatch.setattr(moves, "_log_q_log_gamma", lambda *args: 0.0)
+    monkeypatch.setattr(gamma_moves, "log_q_log_gamma", lambda *args: 0.0)
     ranks, _ = _newton_sbc()
     assert min(_rank_p_values(ranks)) < 1e-3
 
@@ -146,7 +145,7 @@ def _conditional_moves_sbc(sigma2_prior, seed=2024):
     if SIGMA2_PRIORS[sigma2_prior] is not None:
         prior = dataclasses.replace(prior, params=prior.params[:3] + (SIGMA2_PRIORS[sigma2_prior],))
     rng = np.random.default_rng(seed)
-    config = SamplerConfig(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=BURN // 2,
+    config = SamplerConfig.from_flat(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=BURN // 2,
                            small_region_obs=0)
     ranks = np.zeros((REPLICATES, 4), int)
     with threadpool_limits(1):
@@ -164,13 +163,11 @@ def test_sbc_of_the_conditional_moves_for_each_kind_of_sigma2_prior(sigma2_prior
 
 def test_sbc_detects_a_sigma2_move_without_its_prior_ratio(monkeypatch):
     """Negative control: the sigma^2 move accepting every proposal from the likelihood alone."""
-    from rjfit.sampler import moves
-
-    original = moves._move_sigma2
+    original = within.move_sigma2
     flat = ParamPrior("uniform", 0.0, 1e9)
 
-    def without_prior_ratio(work, r, rng, prior):
-        return original(work, r, rng, dataclasses.replace(prior, params=prior.params[:3] + (flat,)))
+    def without_prior_ratio(work, r, rng, prior, info):
+        return original(work, r, rng, dataclasses.replace(prior, params=prior.params[:3] + (flat,)), info)
 
-    monkeypatch.setattr(moves, "_move_sigma2", without_prior_ratio)
+    monkeypatch.setattr(within, "move_sigma2", without_prior_ratio)
     assert min(_conditional_moves_sbc("lognormal")) < 1e-3

@@ -7,7 +7,7 @@ conditional over the 16 cell pairs is the likelihood times the prior mass of the
 cells, computed by quadrature for the 'smooth' prior (x0 uniform, x1 - x0 normal) and
 as the product of the cell widths for the 'paper' prior. Frequencies from the move alone
 are compared by a chi-square test scaled by the effective sample size at level 0.001
-(fixed seed), as in tests/test_exact_rj.py.
+(fixed seed), as in tests/sampler/test_exact_rj.py.
 """
 import numpy as np
 import pytest
@@ -15,11 +15,11 @@ from scipy import integrate, stats
 
 from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
+from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import make_state
-from rjfit.sampler.likelihood import Problem
-from rjfit.sampler.moves import Work, accept_vector_redraw, propose_vector_redraw
-from rjfit.sampler.priors import make_prior
-from rjfit.sampler.state import SamplerConfig
+from rjfit.sampler.moves.vector_redraw import accept_vector_redraw, propose_vector_redraw
+from rjfit.sampler.regions.changepoint_grid import ChangepointPrior, Changepoints
+from rjfit.sampler.state import Work
 
 LEVEL = 1e-3
 EDGES = np.array([-1.0, 0.5, 1.5, 2.5, 4.0])
@@ -39,7 +39,7 @@ def small_problem(height, width, boundary, seed=0, n_lights=3, noise=0.05):
     obs = Observations(image_shape=(height, width), n_lights=n_lights, pixel=pixel.astype(np.int64), light=light, y=y,
                        cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irradiance, object_mask=np.ones((height, width), bool))
     problem = Problem.from_observations(obs)
-    return problem, make_prior("default", y=problem.y, diffuse_scale=problem.A), theta
+    return problem, theta
 
 
 def _cell(x):
@@ -52,7 +52,7 @@ def exact_cell_pairs(problem, theta, cp_prior):
     for j0 in range(4):
         for j1 in range(4):
             u = np.array([[0.5 * (EDGES[j0] + EDGES[j0 + 1])], [0.5 * (EDGES[j1] + EDGES[j1 + 1])]])
-            log_lik = make_state(problem, u, np.zeros((3, 0)), theta).total_log_lik
+            log_lik = make_state(problem, Changepoints(u, np.zeros((3, 0))), theta).total_log_lik
             if cp_prior == "paper":
                 mass = np.diff(EDGES)[j0] * np.diff(EDGES)[j1]
             else:
@@ -64,17 +64,27 @@ def exact_cell_pairs(problem, theta, cp_prior):
     return p / p.sum()
 
 
-def run_redraws(problem, prior, theta, config, iterations, seed):
+def _work(state):
+    return Work(layout=state.layout, theta=state.theta, stats=state.stats, log_lik=state.log_lik, labels=state.labels)
+
+
+def _redraw(work, rng, problem, cp_prior):
+    """One vector redraw of the u vector, tested and (if accepted) applied; returns its log ratio (-inf: no path)."""
+    proposal = propose_vector_redraw(work, rng, problem, cp_prior, "u")
+    if proposal is None:
+        return -np.inf
+    if np.log(rng.random()) < proposal.log_ratio:
+        accept_vector_redraw(work, problem, "u", proposal)
+    return proposal.log_ratio
+
+
+def run_redraws(problem, theta, cp_prior, iterations, seed):
     rng = np.random.default_rng(seed)
-    state = make_state(problem, np.array([[2.0], [2.0]]), np.zeros((3, 0)), theta)
-    work = Work(u=state.u, v=state.v, theta=state.theta, stats=state.stats, log_lik=state.log_lik, labels=state.labels)
+    work = _work(make_state(problem, Changepoints(np.array([[2.0], [2.0]]), np.zeros((3, 0))), theta))
     cells, log_ratios = np.zeros((iterations, 2), int), []
     for t in range(iterations):
-        cps, shift, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, "u")
-        log_ratios.append(log_ratio)
-        if shift is not None and np.log(rng.random()) < log_ratio:
-            accept_vector_redraw(work, problem, "u", cps, shift)
-        cells[t] = _cell(work.u[:, 0])
+        log_ratios.append(_redraw(work, rng, problem, cp_prior))
+        cells[t] = _cell(work.layout.u[:, 0])
     return cells[:, 0] * 4 + cells[:, 1], np.array(log_ratios)
 
 
@@ -82,11 +92,10 @@ def run_redraws(problem, prior, theta, config, iterations, seed):
 def test_vector_redraw_samples_the_exact_conditional(cp_prior):
     import arviz as az
 
-    problem, prior, theta = small_problem(2, 3, boundary=2)
+    problem, theta = small_problem(2, 3, boundary=2)
     exact = exact_cell_pairs(problem, theta, cp_prior).ravel()
     assert np.sort(exact)[-1] < 0.9, "the conditional should spread over several cells for the test to bite"
-    config = SamplerConfig(max_u=1, max_v=0, cp_prior=cp_prior, cp_smooth_sd=SMOOTH_SD)
-    draws, log_ratios = run_redraws(problem, prior, theta, config, 6000, seed=11)
+    draws, log_ratios = run_redraws(problem, theta, ChangepointPrior(cp_prior, SMOOTH_SD), 6000, seed=11)
     # cells of exact probability <= 1e-4 (an expected count below 1) are pooled into one bin,
     # so draws landing there still count; a cell of probability 0 must never be drawn
     assert not np.any(np.isin(draws, np.flatnonzero(exact == 0))), "a draw landed in an impossible cell"
@@ -111,19 +120,16 @@ def test_vector_redraw_carries_a_misplaced_vector_to_the_boundary():
     Element-wise steps of 2 pixels would need many sweeps, each crossing pixels whose
     likelihood opposes it; the redraw proposes the whole path from the conditional.
     """
-    problem, prior, theta = small_problem(24, 24, boundary=16, seed=3, n_lights=4, noise=1e-4)
+    problem, theta = small_problem(24, 24, boundary=16, seed=3, n_lights=4, noise=1e-4)
     rng = np.random.default_rng(4)
-    state = make_state(problem, np.full((24, 1), 3.2), np.zeros((24, 0)), theta)
-    work = Work(u=state.u, v=state.v, theta=state.theta, stats=state.stats, log_lik=state.log_lik, labels=state.labels)
-    config = SamplerConfig(max_u=1, max_v=0)
+    work = _work(make_state(problem, Changepoints(np.full((24, 1), 3.2), np.zeros((24, 0))), theta))
     for _ in range(5):
-        cps, shift, log_ratio = propose_vector_redraw(work, rng, problem, prior, config, "u")
-        if shift is not None and np.log(rng.random()) < log_ratio:
-            accept_vector_redraw(work, problem, "u", cps, shift)
-    at_boundary = (work.u[:, 0] > 15.5) & (work.u[:, 0] < 16.5)
-    assert np.all(at_boundary), np.round(work.u[:, 0], 2)
+        _redraw(work, rng, problem, ChangepointPrior())      # the default smooth prior
+    u = work.layout.u
+    at_boundary = (u[:, 0] > 15.5) & (u[:, 0] < 16.5)
+    assert np.all(at_boundary), np.round(u[:, 0], 2)
     # the accepted redraws moved labels and statistics incrementally: they equal a fresh computation
-    fresh = make_state(problem, work.u, work.v, work.theta)
+    fresh = make_state(problem, work.layout, work.theta)
     np.testing.assert_array_equal(work.labels, fresh.labels)
     np.testing.assert_allclose(work.stats, fresh.stats, rtol=1e-10, atol=1e-9)
     assert float(np.sum(work.log_lik)) == pytest.approx(fresh.total_log_lik, rel=1e-12)

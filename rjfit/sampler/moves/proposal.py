@@ -1,0 +1,48 @@
+"""What a structure move proposes: the new state's parts and the log acceptance ratio."""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["Proposal"]
+
+
+class Proposal(NamedTuple):
+    """A proposed state (its parts) and the log acceptance ratio of the move that made it.
+
+    ``log_ratio`` is complete: target ratio, the move's proposal densities both ways and its
+    Jacobian. ``-inf`` marks an invalid proposal (outside the support, or a draw that could
+    not be made): it is tested like any other (its uniform drawn) and rejected; the parts
+    an invalid proposal did not get to build are None. Accepting a full proposal makes its
+    parts the current state (:meth:`rjfit.sampler.state.Work.take`). An incremental one (the
+    vector redraw) carries the parameters unchanged and, instead of labels and statistics,
+    the observations that change region (``shift``), which its move applies in place.
+
+    Attributes
+    ----------
+    layout : object
+        The region model's new structure (change points: ``Changepoints(u, v)``).
+    theta : ndarray (R, 4) or None
+    labels : ndarray (N,) or None
+        Region of each observation under ``layout``.
+    stats : ndarray (R, 7) or None
+    log_lik : ndarray (R,) or None
+    log_ratio : float
+    shift : tuple or None
+        ``(starts, ends, delta)`` of :func:`rjfit.sampler.moves.sweeps.element_shift`
+        (incremental proposals only).
+    """
+
+    layout: object
+    theta: np.ndarray | None
+    labels: np.ndarray | None
+    stats: np.ndarray | None
+    log_lik: np.ndarray | None
+    log_ratio: float
+    shift: tuple | None = None
+
+    @classmethod
+    def invalid(cls, layout, labels=None) -> Proposal:
+        """A proposal that can only be rejected (log ratio -inf)."""
+        return cls(layout, None, labels, None, None, -np.inf)

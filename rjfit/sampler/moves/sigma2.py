@@ -1,0 +1,34 @@
+"""The sigma^2 move: an independence proposal from the likelihood's inverse gamma, corrected by the prior."""
+from __future__ import annotations
+
+import math
+
+from rjfit.sampler.likelihood import LOG_2PI, STAT_N
+from rjfit.sampler.moves.accept import accept
+from rjfit.sampler.moves.region_terms import region_log_lik, set_region
+
+__all__ = ["move_sigma2"]
+
+
+def move_sigma2(work, r, rng, prior, info):
+    """Redraw region r's sigma^2 from ``InvGamma(n/2 - 1, SSR/2)`` (kind 'sigma2').
+
+    That proposal is proportional to the likelihood in sigma^2, so the acceptance ratio is
+    the prior's ratio alone. Returns whether it accepted, or None for a region with fewer
+    than 3 observations or no positive residual (the proposal does not exist).
+    """
+    I0, kd, g, s2 = work.theta[r]
+    stats_r = work.stats[r]
+    n = stats_r[STAT_N]
+    if n < 3:
+        return None
+    ssr = -2.0 * s2 * (region_log_lik(stats_r, I0, kd, g, s2) + 0.5 * n * (LOG_2PI + math.log(s2)))
+    if not ssr > 0:
+        return None
+    # Independence proposal proportional to the likelihood in sigma^2: InvGamma(n/2 - 1, ssr/2).
+    s2_new = 0.5 * ssr / rng.gamma(0.5 * n - 1.0)
+    log_alpha = prior.params[3].logpdf_scalar(s2_new) - prior.params[3].logpdf_scalar(s2)
+    if accept(math.log(rng.random()), log_alpha, info, "sigma2"):
+        set_region(work, r, (I0, kd, g, s2_new))
+        return True
+    return False

@@ -1,0 +1,63 @@
+"""Per-observation Gaussian log densities, the building block of the change-point passes.
+
+:func:`coefficients` turns the region parameters into the per-region constants of the log
+density once per pass, so the per-observation work is one exponential;
+:func:`log_densities_into` evaluates a run of observations of one region in a loop that
+vectorises (no gather by label), which is why the passes that need densities of many
+regions first cut their observations into runs of one region (:func:`run_end`).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from rjfit.sampler.passes.special import INV_PI, LOG_2PI, fast_exp
+
+__all__ = ["coefficients", "log_density", "log_densities_into", "run_end"]
+
+
+@njit(cache=True, nogil=True)
+def coefficients(theta):
+    """Per-region constants of the log density, (R, 5): ``a / pi, b, gamma, log-normaliser, 1 / (2 sigma^2)``.
+
+    Computed once per call of a pass, so the per-observation work is one ``exp``.
+    """
+    out = np.empty((theta.shape[0], 5))
+    for r in range(theta.shape[0]):
+        I0, kd, g, s2 = theta[r, 0], theta[r, 1], theta[r, 2], theta[r, 3]
+        # Giesen's normalisation, as rjfit.model.blinn.blinn_normalisation (not callable from Numba)
+        norm = (g + 2.0) * (g + 4.0) / (8.0 * math.pi * (2.0 ** (-g / 2.0) + g))
+        out[r, 0] = I0 * kd * INV_PI
+        out[r, 1] = I0 * (1.0 - kd) * norm
+        out[r, 2] = g
+        out[r, 3] = -0.5 * (LOG_2PI + math.log(s2))
+        out[r, 4] = 0.5 / s2
+    return out
+
+
+@njit(cache=True, nogil=True)
+def log_density(yv, c, lh, coef, r):
+    """Gaussian log density of one observation in region ``r`` (``coef`` from :func:`coefficients`)."""
+    resid = yv - coef[r, 0] * c - coef[r, 1] * c * math.exp(coef[r, 2] * lh)
+    return coef[r, 3] - coef[r, 4] * resid * resid
+
+
+@njit(inline="always")
+def run_end(values, lo, m):
+    """End of the run of equal values that starts at ``lo``: ``values[lo:hi]`` all equal, ``hi <= m``."""
+    hi = lo + 1
+    while hi < m and values[hi] == values[lo]:
+        hi += 1
+    return hi
+
+
+@njit(cache=True, nogil=True, fastmath={"contract"})
+def log_densities_into(y, C, log_cos_hn, coef, r, out):
+    """``out[k]``: the log density of observation k in region ``r`` (one region: no gather, so it vectorises)."""
+    ca, cb, g, c0, c1 = coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3], coef[r, 4]
+    for k in range(out.shape[0]):
+        c = np.float64(C[k])
+        resid = np.float64(y[k]) - ca * c - cb * c * fast_exp(g * np.float64(log_cos_hn[k]))
+        out[k] = c0 - c1 * resid * resid
