@@ -209,7 +209,8 @@ def _click_option(name, default, spec):
         return click.option(spec.flag, name, is_flag=True, help=spec.help)
     types = {"int": click.IntRange(min=spec.low) if spec.low is not None else int, "float": float,
              "choice": click.Choice(spec.choices), "text": str,
-             "power": click.STRING, "path": click.Path(dir_okay=False, path_type=Path)}
+             "power": click.STRING, "path": click.Path(dir_okay=False, path_type=Path),
+             "dir": click.Path(file_okay=False, path_type=Path)}
     default = "1" if spec.kind == "power" and default == 1.0 else default
     return click.option(spec.flag, name, type=types[spec.kind], default=default, help=spec.help,
                         show_default=spec.show_default and default is not None)

@@ -1,7 +1,9 @@
 """The cross-check gate for an extended model: Mitsuba with the effects' changes against the
 extended closed form (:func:`rjfit.diagnose.model.predict`), on the data set's own pixel-centre
 rays. The rendering is the render layer's (:mod:`rjfit.render.effect_scenes`); the closed form,
-its context and the effects are the criticism's, so the gate lives here.
+its context and the effects are the criticism's, so the gate lives here. The same path-traced
+stack is also compared with the closed form the FIT samples with the effects inside its
+likelihood (:func:`rjfit.diagnose.model.fit_prediction`, issue 26): ``result["fit"]``.
 """
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ import time
 import numpy as np
 
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.model import order_effects, predict
+from rjfit.diagnose.model import fit_prediction, order_effects, predict
 from rjfit.render.datasets import load_dataset
 from rjfit.render.effect_scenes import render_model
 from rjfit.render.gate import MEDIAN_TOLERANCE, P99_TOLERANCE
@@ -66,7 +68,9 @@ def gate(dataset_dir, effects=(), thetas=(), *, materials=None, spp=64, batches=
 
     The same path-traced stack is also compared with a REFERENCE closed form that includes only
     ``reference_effects`` (default none: the plain eq. 2), which must fail where the effect
-    matters. Returns ``{"extended": verdict, "reference": verdict, ...}``.
+    matters, and with the fit's forward model with the effects (``"fit"``: the mean the fit's
+    likelihood has, :func:`rjfit.diagnose.model.fit_prediction`). Returns ``{"extended":
+    verdict, "reference": verdict, "fit": verdict, ...}``.
     """
     started = time.perf_counter()
     dataset = load_dataset(dataset_dir)
@@ -110,6 +114,9 @@ def gate(dataset_dir, effects=(), thetas=(), *, materials=None, spp=64, batches=
               "extended": _verdict(path, closed_form(None), se, stochastic),
               "reference_effects": list(reference_effects),
               "reference": _verdict(path, closed_form(tuple(reference_effects)), se, stochastic)}
+    if ordered:
+        fitted = fit_prediction(ctx, ordered, region_params, [theta_of[e.name] for e in ordered])
+        result["fit"] = _verdict(path, fitted, se, stochastic)
     result["passed"] = result["extended"]["passed"]
     result["seconds"] = round(time.perf_counter() - started, 3)
     return result

@@ -16,15 +16,25 @@ is written out here, and why:
   bits of every prediction and so of every diagnosis. Both equalities are tested
   (``tests/diagnose/test_diagnose_units.py``: the lobe bit for bit, the plain prediction to
   rounding).
+
+:func:`fit_prediction` is the same mean as the FIT computes it with the effects inside its
+likelihood (issue 26): the sampler's forward model (:mod:`rjfit.sampler.forward`, built by
+each effect's ``sampler_effect``) transforms the problem, and the mean is ``f(offset + a A +
+b B(gamma))`` on the data's scale. It equals :func:`predict` to float32 rounding
+(``tests/diagnose/test_effects_in_fit.py``, per effect); the gate
+(:func:`rjfit.diagnose.gate.gate`) checks it against Mitsuba as well.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from rjfit.data.observations import Observations
 from rjfit.diagnose.effects.base import STAGES
 from rjfit.model.blinn import blinn_normalisation
+from rjfit.sampler.forward import LambertBlinnPhong, transformed
+from rjfit.sampler.likelihood import ab_from_theta, lobe_column
 
-__all__ = ["predict", "order_effects", "REGION_PARAMS"]
+__all__ = ["predict", "fit_prediction", "order_effects", "REGION_PARAMS"]
 
 REGION_PARAMS = ("I0", "kd", "gamma", "sigma2")
 
@@ -81,3 +91,34 @@ def predict(ctx, effects, region_params, effect_thetas, features):
     run("ambient")
     run("camera")
     return terms["mu"]
+
+
+def fit_prediction(ctx, effects, region_params, effect_thetas):
+    """Expected value of every observation of ``ctx`` as the fit's forward model computes it.
+
+    The arguments as :func:`predict`'s (without features: each effect's ``sampler_effect``
+    computes its own). The fit's problem of the context's observations (with the context's
+    noise scales) is transformed at the effects' parameters; the mean ``a A + b B(gamma)``
+    of the transformed problem, times the noise scale, goes through the camera response
+    with the known offsets (:meth:`rjfit.sampler.forward.Columns.data_scale`). The data do
+    not enter a mean: the problem is built with every value 1 (a camera's inverse needs
+    positive values).
+    """
+    ones = np.ones(ctx.n_obs)
+    observations = Observations(image_shape=ctx.image_shape, n_lights=ctx.n_lights, pixel=ctx.pixel, light=ctx.light,
+                                y=ones, cos_ln=ctx.cos_ln, cos_hn=ctx.cos_hn, irradiance=ctx.irradiance,
+                                object_mask=ctx.labels >= 0)
+    model = LambertBlinnPhong([effect.sampler_effect(ctx) for effect in effects])
+    problem = model.problem(observations, noise_scale=ctx.noise_scale)
+    theta_of = {effect.name: np.atleast_1d(np.asarray(theta, dtype=float)) for effect, theta in zip(effects, effect_thetas)}
+    z = np.concatenate([[float(p.prior.to_unconstrained(v)) for p, v in zip(e.params, theta_of[e.name])]
+                        for e in problem.effects.effects])
+    draw, _ = transformed(problem, z)
+    order = np.argsort(ctx.pixel, kind="stable")      # the problem's order (sorted by pixel)
+    theta = np.asarray(region_params, dtype=float)[ctx.region[order]]
+    a, b = ab_from_theta(theta)
+    mean = a * draw.C.astype(np.float64) / np.pi + b * lobe_column(draw, slice(None), theta[:, 2])
+    scale = 1.0 if problem.effects.scale is None else problem.effects.scale
+    out = np.empty(ctx.n_obs)
+    out[order] = problem.effects.columns(z).data_scale(mean * scale)
+    return out

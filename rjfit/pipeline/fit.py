@@ -46,7 +46,8 @@ from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import publish_results, results_digest, write_summary
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import summary as post
-from rjfit.sampler.forward import Problem
+from rjfit.posterior.effects import effect_summaries
+from rjfit.sampler.forward import LambertBlinnPhong, Problem
 from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.regions.changepoint_grid import model_number
@@ -74,7 +75,7 @@ class FitSource:
 
 def fit(observations, out_dir, options: FitOptions | None = None, *, truth_labels=None, truth_params=None,
         start=None, fixed_segmentation=None, chain_runner=None, source: FitSource | None = None,
-        before_publish=None, **option_keywords) -> dict:
+        before_publish=None, effects=(), effect_source=None, **option_keywords) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
 
     Parameters
@@ -101,6 +102,11 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     before_publish : callable, optional
         ``before_publish(staging_dir, summary)``, called once every result is staged and
         before it replaces the folder's previous results (tests use it to interrupt a fit there).
+    effects : sequence of rjfit.sampler.forward.Effect, optional
+        Effects sampled with the regions, their features in the order of ``observations``
+        (:func:`rjfit.pipeline.fit_effects.fit_effects` builds them from the data set for
+        ``options.effects`` and ``options.effects_from``); ``effect_source`` says where each
+        one's features came from (recorded in the summary).
 
     Returns
     -------
@@ -116,16 +122,20 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         ``likelihood_power='auto'`` that cannot be measured (no two adjacent pixels under one
         light have a residual); ``truth_labels`` not of the images' shape (H, W); unusable
         observations (none, some with ``<l.n> <= 0``, or a mean value that is not positive
-        under the 'shot' / 'relative' noise models); or a burn-in that leaves no iteration.
+        under the 'shot' / 'relative' noise models); a burn-in that leaves no iteration; or
+        effects named in the options but not given (they need the data set: ``fit_dataset``).
         While the chains start: if a ``start`` entry does not fit ``max_u``/``max_v``, or a
         checkpoint in ``out_dir/checkpoints`` is unreadable, of another checkpoint version or
         of another run (the message says to delete it).
     """
     options = FitOptions.build(options, **option_keywords)
+    if (options.effects or options.effects_from is not None) and not effects:
+        raise ValueError("effects (--effects, --effects-from) need the data set's geometry: fit the data set "
+                         "(rjfit fit DATASET, rjfit.pipeline.fit_dataset.fit_dataset), or pass effects=")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    problem, suggestion, noise_record = prepare_problem(observations, options)
+    problem, suggestion, noise_record = prepare_problem(observations, options, effects)
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
     prior = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A)
@@ -134,6 +144,9 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
     result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels)
+    if problem.effects is not None:
+        result.summary["effects"] = effect_summaries(records, config.burn_in, problem.effects, effect_source)
+        result.summary["warnings"] += effect_warnings(result.summary["effects"])
     if truth_params is not None:
         result.summary["truth_params"] = truth_params
     write_results(out_dir, result, records, observations, options, source, before_publish, started)
@@ -147,9 +160,23 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     return result.summary
 
 
-def prepare_problem(observations, options: FitOptions):
+def effect_warnings(effects) -> list:
+    """A warning per effect parameter whose chains disagree (R-hat > 1.1) or have few effective draws (< 100)."""
+    out = []
+    for effect in effects:
+        for param in effect["parameters"]:
+            rhat, ess = param.get("rhat"), param.get("ess_bulk")
+            if (rhat is not None and rhat > 1.1) or (ess is not None and ess < 100):
+                out.append(f"effect {effect['name']}: its parameter {param['name']} has R-hat "
+                           f"{'n/a' if rhat is None else f'{rhat:.3f}'} and bulk ESS "
+                           f"{'n/a' if ess is None else f'{ess:.0f}'}: its posterior summary is uncertain; run longer")
+    return out
+
+
+def prepare_problem(observations, options: FitOptions, effects=()):
     """The sampler's :class:`~rjfit.sampler.likelihood.Problem` of ``observations`` under the
-    options' noise model and likelihood power; with the measured power suggestion and the
+    options' noise model and likelihood power (with ``effects``: the forward model's, see
+    :class:`rjfit.sampler.forward.LambertBlinnPhong`); with the measured power suggestion and the
     noise model's record.
 
     The suggestion is measured always (a fraction of a second): a misfit shared by
@@ -163,7 +190,10 @@ def prepare_problem(observations, options: FitOptions):
             raise
         suggestion = None      # too few adjacent pixels to measure it
     power = suggestion["likelihood_power"] if options.likelihood_power == "auto" else options.likelihood_power
-    problem = Problem.from_observations(observations, likelihood_power=float(power), noise_scale=scale)
+    if effects:
+        problem = LambertBlinnPhong(effects).problem(observations, likelihood_power=float(power), noise_scale=scale)
+    else:
+        problem = Problem.from_observations(observations, likelihood_power=float(power), noise_scale=scale)
     return problem, suggestion, describe_noise(options.noise, options.noise_floor, scale)
 
 
@@ -188,7 +218,7 @@ def sampler_config(options: FitOptions, *, fixed: bool = False) -> SamplerConfig
     return SamplerConfig.from_flat(max_u=options.max_u, max_v=options.max_v, sampler=options.sampler,
                                    split_map=options.split_map, cp_prior=options.cp_prior,
                                    drop_jacobian=options.drop_jacobian, burn_in=burn, jump_prob=options.jump_prob,
-                                   anneal=int(round(options.anneal * burn)),
+                                   anneal=int(round(options.anneal * burn)), effect_every=options.effect_every,
                                    # reproducing the paper's omission: every jump must use its map
                                    free_jump_prob=0.0 if options.drop_jacobian else BirthDeathSettings.free_prob,
                                    update_changepoints=not fixed, jumps=not fixed)
@@ -293,7 +323,8 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
     with staging_dir(out_dir) as staging:
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)})
         summary["fit_id"] = results_digest(summary)
-        idata = post.to_inference_data(records, burn, max_v)
+        effect_names = () if result.problem.effects is None else result.problem.effects.names
+        idata = post.to_inference_data(records, burn, max_v, effect_names)
         idata.posterior.attrs.update({
             "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
             "regions": f"region r of a draw is cell r of its model (n_u, n_v); slots past (n_u + 1)(n_v + 1) "

@@ -13,6 +13,7 @@ from pathlib import Path
 from rjfit.data.dataset import read_validation_result
 from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.pipeline.fit import FitSource, fit
+from rjfit.pipeline.fit_effects import fit_effects
 from rjfit.pipeline.options import EACH_CHANNEL, FitOptions
 from rjfit.render.datasets import load_dataset
 from rjfit.render.gate import require_validated
@@ -87,8 +88,11 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
         f"are not trustworthy",)
     source = FitSource(entries=entries, warnings=warnings, exclusion_counts=dataset.exclusion_counts(options.channel),
                        object_mask=dataset.object_mask, n_lights=dataset.n_lights)
-    return fit(dataset.observations(options.channel), out_dir, options, truth_labels=dataset.truth_labels,
-               truth_params=dataset.truth_params, chain_runner=chain_runner, source=source)
+    observations = dataset.observations(options.channel)
+    effects, effect_source = fit_effects(dataset, observations, options)
+    return fit(observations, out_dir, options, truth_labels=dataset.truth_labels,
+               truth_params=dataset.truth_params, chain_runner=chain_runner, source=source, effects=effects,
+               effect_source=effect_source)
 
 
 def check_validation_file(dataset_dir, validation_path=None) -> None:

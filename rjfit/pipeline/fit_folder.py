@@ -50,7 +50,10 @@ SUMMARY_FIELDS = {
     "ess_bulk_min": (_NUMBER, "smallest bulk ESS"),
     "ess_tail_min": (_NUMBER, "smallest tail ESS"),
     "diagnostics": (dict, "R-hat and ESS per parameter, and their extremes"),
-    "acceptance": (dict, "acceptance rate of each move kind"),
+    "acceptance": (dict, "acceptance rate of each move kind (effect_NAME: each effect's move)"),
+    "effects": (list, "per effect sampled with the regions (--effects): name, stage, and per parameter its prior and "
+                      "posterior mean, sd, 95 % interval (constrained), R-hat and bulk ESS; per-light gains per light; "
+                      "where its features came from"),
     "warnings": (list, "what a reader must know before trusting the numbers, one sentence each"),
     # against the truth (synthetic data only)
     "label_accuracy": (_NUMBER, "share of object pixels whose MAP label matches the truth after matching"),
@@ -115,7 +118,10 @@ def results_digest(summary: dict) -> str:
     fit that a diagnosis or comparison was made from, so a report can tell a stale one."""
     keys = ("model_posterior", "map_model", "regions", "iterations", "burn_in", "n_chains", "seed", "n_observations",
             "likelihood_power", "prior")
-    text = json.dumps({key: summary.get(key) for key in keys}, sort_keys=True, default=str)
+    digested = {key: summary.get(key) for key in keys}
+    if "effects" in summary:        # a fit with effects (a plain fit's digest is what it always was)
+        digested["effects"] = summary["effects"]
+    text = json.dumps(digested, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

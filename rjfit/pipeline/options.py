@@ -12,8 +12,11 @@ import dataclasses
 import math
 from dataclasses import dataclass, field, fields
 
+from pathlib import Path
+
 from rjfit.data.formats import CHANNELS
 from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
+from rjfit.diagnose.effects import EFFECTS
 from rjfit.sampler.priors import PRESETS
 
 __all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS"]
@@ -26,8 +29,8 @@ FIT_CHANNELS = CHANNELS + ("each",)
 class CliSpec:
     """How a :class:`FitOptions` field appears on the command line.
 
-    ``kind`` is one of 'int', 'float', 'choice', 'flag', 'text', 'path' (a file), 'power' (a
-    number in (0, 1] or 'auto'); ``low`` is the smallest integer an 'int' takes.
+    ``kind`` is one of 'int', 'float', 'choice', 'flag', 'text', 'path' (a file), 'dir' (a
+    folder), 'power' (a number in (0, 1] or 'auto'); ``low`` is the smallest integer an 'int' takes.
     """
 
     flag: str
@@ -41,6 +44,16 @@ class CliSpec:
 def cli_option(default, flag: str, help: str, kind: str, **spec):
     """A dataclass field with its command-line flag and help (``metadata["cli"]``)."""
     return field(default=default, metadata={"cli": CliSpec(flag=flag, help=help, kind=kind, **spec)})
+
+
+def _effect_names(value) -> tuple:
+    """``effects`` as a tuple of library names: from 'a,b' (the command line) or a sequence."""
+    names = [n.strip() for n in value.split(",")] if isinstance(value, str) else [str(n) for n in value]
+    names = tuple(dict.fromkeys(n for n in names if n))
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {', '.join(unknown)} (--effects): choose from {', '.join(sorted(EFFECTS))}")
+    return names
 
 
 def _likelihood_power_value(value):
@@ -66,8 +79,9 @@ class FitOptions:
         If an option is out of range, naming its command-line flag: ``burn_in`` not in [0, 1),
         ``n_chains < 1``, ``iterations < 10``, an unknown ``prior``, ``noise``, ``channel``,
         ``sampler``, ``split_map`` or ``cp_prior``, a ``likelihood_power`` that is neither
-        'auto' nor in (0, 1], ``anneal`` not in [0, 1], ``noise_floor`` not positive, or
-        ``max_u`` / ``max_v`` negative.
+        'auto' nor in (0, 1], ``anneal`` not in [0, 1], ``noise_floor`` not positive,
+        ``max_u`` / ``max_v`` negative, an effect the library does not know, or
+        ``effect_every`` below 1.
     """
 
     n_chains: int = cli_option(4, "--chains", "Chains from dispersed starts.", "int", low=1)
@@ -116,6 +130,19 @@ class FitOptions:
         DEFAULT_FLOOR, "--noise-floor",
         "c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, as a fraction "
         "of the mean observed value. Unused for --noise constant.", "float")
+    effects: tuple = cli_option(
+        (), "--effects",
+        "Effects sampled jointly with the segmentation and the region BRDFs, comma-separated names of the criticism's "
+        "library (ambient, camera_gamma, camera_srgb, cast_shadows, fresnel, interreflection, light_calibration, "
+        "masking), each with the library's priors; see docs/sampler.md. Interreflection needs --effects-from.",
+        "text", show_default=False)
+    effects_from: Path | None = cli_option(
+        None, "--effects-from",
+        "A diagnosis folder (rjfit diagnose --out): the effects it named are sampled too, and the fit it diagnosed "
+        "gives the region parameters at which interreflection's Mitsuba feature is rendered.", "dir",
+        show_default=False)
+    effect_every: int = cli_option(1, "--effect-every", "Iterations between the effects' moves (one move per effect).",
+                                   "int", low=1)
     anneal: float = 0.5
     cp_thin: int = 10
     seed: int = cli_option(0, "--seed", "Seed of every random draw.", "int", low=0)
@@ -145,6 +172,11 @@ class FitOptions:
                 raise ValueError(f"unknown {what} {getattr(self, name)!r} ({spec.flag}): choose one of "
                                  f"{', '.join(spec.choices)}")
         object.__setattr__(self, "likelihood_power", _likelihood_power_value(self.likelihood_power))
+        object.__setattr__(self, "effects", _effect_names(self.effects))
+        if self.effects_from is not None:
+            object.__setattr__(self, "effects_from", Path(self.effects_from))
+        if self.effect_every < 1:
+            raise ValueError(f"effect_every (--effect-every) must be >= 1, got {self.effect_every}")
         if not 0.0 <= self.anneal <= 1.0:
             raise ValueError(f"anneal is the fraction of the burn-in run tempered, in [0, 1], got {self.anneal}")
         if not (math.isfinite(self.noise_floor) and self.noise_floor > 0):

@@ -101,6 +101,33 @@ def _chain_region_tables(summary: dict) -> str:
     return "".join(parts)
 
 
+def _effects_table(summary: dict) -> str:
+    """The effects sampled with the regions (``summary["effects"]``): each parameter's posterior, and per-light gains."""
+    effects = [e for e in (summary.get("effects") or []) if isinstance(e, dict)]
+    if not effects:
+        return ""
+    rows = []
+    for effect in effects:
+        for param in effect.get("parameters") or []:
+            cells = [html.escape(str(effect.get("name"))), html.escape(str(param.get("name"))), _fmt(param.get("mean")),
+                     _fmt(param.get("sd")), f"{_fmt(param.get('q2.5'))} &ndash; {_fmt(param.get('q97.5'))}",
+                     _fmt(param.get("rhat")), _fmt(param.get("ess_bulk")), html.escape(str(param.get("prior")))]
+            rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+        for light, gain in enumerate(effect.get("light_gains") or []):
+            rows.append(f"<tr><td>{html.escape(str(effect.get('name')))}</td><td>gain of light {light}</td>"
+                        f"<td>{_fmt(gain.get('mean'))}</td><td>{_fmt(gain.get('sd'))}</td>"
+                        f"<td>{_fmt(gain.get('q2.5'))} &ndash; {_fmt(gain.get('q97.5'))}</td>"
+                        f"<td>{_fmt(gain.get('rhat'))}</td><td>{_fmt(gain.get('ess_bulk'))}</td><td></td></tr>")
+    notes = "".join(f"<li>{html.escape(e['name'])}: {html.escape(str(e['source']))}</li>"
+                    for e in effects if e.get("source"))
+    return ("<h2>Effects sampled with the regions</h2><p>Posterior of each effect parameter (constrained), sampled "
+            "jointly with the segmentation and the region parameters (rjfit fit --effects). With a camera response "
+            "the fit's noise is on the linearised scale (docs/sampler.md).</p>"
+            "<table><tr><th>effect</th><th>parameter</th><th>mean</th><th>sd</th><th>95 % interval</th>"
+            f"<th>R-hat</th><th>bulk ESS</th><th>prior</th></tr>{''.join(rows)}</table>"
+            + (f"<ul>{notes}</ul>" if notes else ""))
+
+
 def _key_values(payload: dict, keys) -> str:
     rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{_fmt(payload.get(k))}</td></tr>" for k in keys if k in payload)
     return f"<table>{rows}</table>"
@@ -241,6 +268,7 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
         parts.append(f"<table><tr><th>model (n_u, n_v)</th><th>posterior</th></tr>{rows}</table>")
     parts.append("<h2>Region parameters</h2>" + _region_table(summary))
     parts.append(_chain_region_tables(summary))
+    parts.append(_effects_table(summary))
     # what the numbers above were computed with: two fits of one data set can differ in these
     noise = summary.get("noise") or {}
     settings = {"channel": summary.get("channel"), "chains": summary.get("n_chains"),

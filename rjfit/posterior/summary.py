@@ -246,6 +246,20 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
     if not kept:
         raise ValueError("no change-point snapshot after burn-in: run more iterations (or keep snapshots more often)")
     picks = np.unique(np.linspace(0, len(kept) - 1, min(max_draws, len(kept))).round().astype(int))
+    if problem.effects is not None:      # each draw on the problem transformed at its effect parameters
+        from rjfit.posterior.effects import effects_prediction
+
+        def picks_of(_):
+            out = []
+            for index in picks:
+                rec, s = kept[index]
+                t = rec.cp_iteration[s]
+                n_u, n_v = int(rec.n_u[t]), int(rec.n_v[t])
+                out.append((rec, t, obs_region_labels(rec.cp_u[s, :, :n_u].astype(float),
+                                                      rec.cp_v[s, :, :n_v].astype(float), problem.row, problem.col,
+                                                      pixel_start=problem.pixel_start)))
+            return out
+        return effects_prediction(records, burn_in, problem, picks_of)
     C = problem.C.astype(np.float64)
     log_cos_hn = problem.log_cos_hn.astype(np.float64)
     mu_sum = np.zeros(problem.n_obs)
@@ -350,12 +364,13 @@ def object_region_count_probability(records, burn_in: int, n_regions: int) -> fl
     return float(np.mean(counts == n_regions))
 
 
-def to_inference_data(records, burn_in: int, max_v: int):
+def to_inference_data(records, burn_in: int, max_v: int, effect_names=()):
     """ArviZ InferenceData of the full chains (warm-up included as ``warmup_posterior``).
 
     ``posterior.theta`` has dims (chain, draw, region, parameter), NaN where a region does
     not exist in the draw's model; ``n_u``, ``n_v``, ``model_number`` and ``log_lik`` are
-    per draw.
+    per draw. A fit with effects adds ``effects`` (chain, draw, effect_parameter), each
+    parameter constrained and named ``effect.parameter`` (``effect_names``).
     """
     az = _arviz()
 
@@ -367,11 +382,15 @@ def to_inference_data(records, burn_in: int, max_v: int):
     n_u, n_v = stack("n_u").astype(np.int64), stack("n_v").astype(np.int64)
     data = {"theta": stack("theta"), "n_u": n_u, "n_v": n_v,
             "model_number": n_u * (max_v + 1) + n_v + 1, "log_lik": stack("log_lik"), "log_post": stack("log_post")}
-    posterior = {k: v[:, burn_in:] for k, v in data.items()}
-    warmup = {k: v[:, :burn_in] for k, v in data.items()}
     r_max = data["theta"].shape[2]
     coords = {"region": np.arange(r_max), "parameter": list(PARAM_NAMES)}
     dims = {"theta": ["region", "parameter"]}
+    if effect_names:        # the effects sampled with the regions: one column per parameter, constrained
+        data["effects"] = stack("effects")
+        coords["effect_parameter"] = list(effect_names)
+        dims["effects"] = ["effect_parameter"]
+    posterior = {k: v[:, burn_in:] for k, v in data.items()}
+    warmup = {k: v[:, :burn_in] for k, v in data.items()}
     stats = {"exact_truth": stack("exact_truth")[:, burn_in:], "true_regions": stack("true_regions")[:, burn_in:],
              "object_regions": stack("object_regions")[:, burn_in:]}
     return az.from_dict(posterior=posterior, warmup_posterior=warmup, sample_stats=stats, coords=coords, dims=dims,

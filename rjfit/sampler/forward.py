@@ -12,21 +12,32 @@ per-region variance. From three per-observation columns, ``y``, ``C = E <l.n>`` 
 (:mod:`rjfit.sampler.likelihood`), so every move of the sampler is cheap. A forward model
 turns observations into those columns: sorted by pixel, compacted (:class:`Problem`).
 
-Extension points (effects with global parameters inside the likelihood, issue 26). An
-:class:`Effect` is "parameters -> transformed columns + a log-Jacobian constant": a per-light
-gain scales ``C`` of that light's observations; a camera response ``f`` replaces ``y`` by
-``f^-1(y)`` and adds ``sum log |(f^-1)'(y_i)|``; a known additive feature ``F_i`` times a weight
-``w`` replaces ``y`` by ``y - w F_i`` (Jacobian 1). A forward model with effects keeps the
-untransformed problem (and whatever per-observation index its effects need, such as the
-light of each observation, in the problem's sorted order) and builds, for any effect
-parameters, the transformed :class:`Problem` and the constant
-(:meth:`ForwardModel.transformed`). A global move then proposes new effect parameters,
-recomputes every region's statistics on the transformed problem
-(:func:`rjfit.sampler.likelihood.region_stats`), and accepts by the full log-likelihood plus
-the log-Jacobian plus the effect's log prior. Effects whose mean is not linear in (a, b)
-given gamma (a second lobe) do not fit this seam: they need a new family of statistics.
+Effects with global parameters inside the likelihood (issue 26). An :class:`Effect` changes
+the columns, never the region structure, at given parameters: a per-light gain or a
+shadowing factor scales ``C``; a camera response ``f`` replaces ``y`` by ``f^-1(y)`` and adds
+``sum log |(f^-1)'(y_i)|`` (the log-Jacobian); a known additive feature ``F_i`` (indirect
+light) times a weight replaces ``y`` by ``y - w F_i``; a Fresnel factor scales the lobe's own
+``C`` (``CB``); masking and ambient light make the lobe column gamma-dependent per
+observation (:mod:`rjfit.sampler.passes.lobe`). With effects the mean stays linear in
+(a, b) given gamma,
 
-Only the plain model, :class:`LambertBlinnPhong` (no effects), exists today.
+    mu_i = a A_i + b B_i(gamma),   A_i = C_i / pi,
+    B_i(gamma) = CB_i <h.n>_i^gamma M_i(gamma) + amb_i alb(gamma, v_i) / N(gamma),
+
+so every statistic and move of the region sampler serves them unchanged. A forward model
+with effects (:class:`LambertBlinnPhong` with ``effects``) builds the untransformed problem
+with an :class:`EffectData` (the raw values and the effects, their per-observation features
+in the problem's order); :func:`transformed` builds, for any effect parameters, the
+transformed :class:`Problem` and the log-Jacobian. The kernel's effect move
+(:mod:`rjfit.sampler.moves.effects`) proposes the parameters and accepts by the full
+log-likelihood of the transformed problem plus the log-Jacobian, the effects' log prior
+and the proposal densities. Effects whose mean is not linear in (a, b) given gamma (a
+second lobe) do not fit: they need a new family of statistics.
+
+The noise: the criticism writes a camera response as ``y = f(mu) + e`` (noise after the
+response); the fit, which needs the sufficient statistics of a Gaussian linear in (a, b),
+writes ``f^-1(y) = mu + e`` (noise on the linearised scale). Both have the mean ``f(mu)``
+to first order in the noise; the fit's density of ``y`` carries the Jacobian.
 """
 from __future__ import annotations
 
@@ -37,8 +48,11 @@ from functools import cached_property
 import numpy as np
 
 from rjfit.data.observations import Observations
+from rjfit.model.effects import STAGES
+from rjfit.sampler.passes.lobe import LobeTerms
 
-__all__ = ["Problem", "ForwardModel", "Effect", "LambertBlinnPhong", "CHUNK"]
+__all__ = ["Problem", "ForwardModel", "Effect", "EffectParam", "EffectData", "Columns", "LambertBlinnPhong",
+           "transformed", "CHUNK"]
 
 # Observations are processed in chunks of this many: the float64 temporaries of a chunk stay
 # in cache, and memory does not grow with the image (2048 x 2048 x 18 lights is 28M rows).
@@ -79,6 +93,11 @@ class Problem:
     factor, the constant ``-zeta sum(log s_i)`` (:attr:`log_likelihood_constant`), is the
     same for every segmentation and parameter value, so the sampler leaves it out of
     ``ChainState.log_lik`` and the chain records add it.
+
+    ``lobe`` (a :class:`~rjfit.sampler.passes.lobe.LobeTerms`, or None for the plain lobe
+    ``C <h.n>^gamma``) holds the lobe column's own terms of a problem with effects applied;
+    ``effects`` (an :class:`EffectData`, or None) the forward model's effects with the
+    untransformed data they start from (:func:`transformed`).
     """
 
     image_shape: tuple
@@ -94,6 +113,8 @@ class Problem:
     object_mask: np.ndarray
     likelihood_power: float = 1.0  # zeta of the coarsened posterior; 1: the plain likelihood
     noise_scale: np.ndarray | None = None   # float32 s_i (y and C are stored divided by it); None: all 1
+    lobe: LobeTerms | None = None          # the lobe column's terms with effects applied; None: C <h.n>^gamma
+    effects: EffectData | None = None      # the effects sampled with the regions, and their raw data
 
     @cached_property
     def log_likelihood_constant(self) -> float:
@@ -128,47 +149,206 @@ class Problem:
         return LambertBlinnPhong().problem(obs, likelihood_power=likelihood_power, noise_scale=noise_scale)
 
 
-class Effect(ABC):
-    """One effect with global parameters inside the likelihood (issue 26): parameters -> columns + log-Jacobian.
+@dataclass(frozen=True)
+class EffectParam:
+    """One scalar parameter of an effect: its prior (Gaussian in an unconstrained coordinate,
+    :mod:`rjfit.model.priors`) and the constrained value chains start near."""
 
-    An effect changes what the sampler's columns are, never the region structure: it maps
-    the columns of a :class:`Problem` (``y``, ``C``, ``log_cos_hn``, in the problem's sorted
-    order; as the effects listed before it left them) and its parameters to transformed
-    columns, and gives the log-Jacobian of the transformation of ``y`` (0 when ``y`` is not
-    transformed), summed over observations and weighted by the likelihood power like every
-    log density. An index the Problem does not hold (the light of each observation, for
-    per-light gains) the effect keeps itself, in the problem's sorted order: the forward
-    model that builds the problem builds it too. No effect is implemented yet; this is the
-    contract a first one fulfils.
+    name: str
+    prior: object
+    init: float
+
+
+class Effect(ABC):
+    """One effect with global parameters inside the likelihood: parameters -> transformed columns.
+
+    An effect changes the :class:`Columns` (float64, in the problem's order) in place at its
+    constrained parameters (:meth:`apply`), in the order of its ``stage``
+    (:data:`rjfit.model.effects.STAGES`, the criticism's order). A per-observation feature
+    the problem does not hold (a visibility, a view angle) the effect keeps itself, in the
+    order of the observations it was built from; :meth:`in_order` returns it in the
+    problem's order. Subclasses are frozen dataclasses (a chain's checkpoint digests them).
 
     Attributes
     ----------
     name : str
-        The effect's name (``summary.json`` records it with its posterior).
-    n_params : int
-        Number of global parameters.
+        The effect's name (as the criticism's library names it).
+    stage : str
+        One of :data:`~rjfit.model.effects.STAGES`.
+    params : tuple of EffectParam
     """
 
-    name: str = ""
-    n_params: int = 0
+    name: str
+    stage: str
+    params: tuple
+
+    @property
+    def n_params(self) -> int:
+        return len(self.params)
 
     @abstractmethod
-    def log_prior(self, params) -> float:
-        """Log prior density of the effect's parameters (-inf outside their support)."""
+    def apply(self, columns: Columns, theta) -> None:
+        """Change ``columns`` in place at constrained parameters ``theta``."""
 
-    @abstractmethod
-    def transform(self, problem: Problem, params) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(y, C, log_jacobian)``: the transformed float32 columns and the log-Jacobian constant."""
+    def in_order(self, order) -> Effect:
+        """This effect with its per-observation features taken at ``order`` (default: no feature, itself)."""
+        return self
+
+
+@dataclass
+class Columns:
+    """The columns while effects are applied (float64, the problem's order, before the noise scales).
+
+    The model is ``f(offset + a A + b B(gamma))`` on the data's scale with ``A = C / pi`` and
+    ``B`` as in the module docstring; ``y`` holds ``f^-1`` of the data once the camera stage
+    ran (the raw data before), ``log_jacobian`` the sum of ``log |(f^-1)'(y_i)|``, ``light``
+    the light of each observation (for per-light effects), ``curve`` the response ``f`` (None:
+    linear).
+    """
+
+    y: np.ndarray
+    C: np.ndarray
+    CB: np.ndarray
+    light: np.ndarray
+    offset: np.ndarray | None = None
+    mask_w: float = 0.0
+    tan: tuple | None = None            # (tan v, tan l) of masking
+    ambient: float | None = None        # ambient radiance a of the ambient stage
+    ambient_terms: tuple | None = None  # (column j, weight fy, table, grid) of the albedo interpolation
+    log_jacobian: float = 0.0
+    curve: object = None
+
+    def scale(self, factor) -> None:
+        """Multiply the direct and indirect light (``C``, ``CB`` and the offset) by per-observation ``factor``."""
+        self.C = self.C * factor
+        self.CB = self.CB * factor
+        if self.offset is not None:
+            self.offset = self.offset * factor
+
+    def add_offset(self, values) -> None:
+        """Add known light (on the linear scale, before the light stage) to every observation's mean."""
+        self.offset = values if self.offset is None else self.offset + values
+
+    def data_scale(self, mean):
+        """``f(offset + mean)``: a mean on the linearised scale (before noise scales) on the data's scale."""
+        mean = mean if self.offset is None else mean + self.offset
+        return mean if self.curve is None else self.curve(mean)
+
+
+@dataclass(frozen=True, eq=False)
+class EffectData:
+    """A forward model's effects and the untransformed data they start from (in the problem's order).
+
+    ``effects`` are in stage order with their features in the problem's order; ``y`` and
+    ``C`` are the raw float64 values and ``E <l.n>``; ``light`` the light of each observation;
+    ``scale`` the known noise scales (float64 of the problem's float32 ones; None: all 1).
+    Parameters of all effects are one flat vector ``z`` in their unconstrained coordinates,
+    effect after effect.
+    """
+
+    effects: tuple
+    y: np.ndarray
+    C: np.ndarray
+    light: np.ndarray
+    scale: np.ndarray | None = None
+
+    @property
+    def n_params(self) -> int:
+        return sum(effect.n_params for effect in self.effects)
+
+    @property
+    def names(self) -> list:
+        """``effect.param`` of every parameter, in the order of ``z``."""
+        return [f"{effect.name}.{param.name}" for effect in self.effects for param in effect.params]
+
+    def blocks(self) -> list:
+        """Each effect's slice of ``z``."""
+        out, start = [], 0
+        for effect in self.effects:
+            out.append(slice(start, start + effect.n_params))
+            start += effect.n_params
+        return out
+
+    def priors(self) -> list:
+        return [param.prior for effect in self.effects for param in effect.params]
+
+    def constrained(self, z) -> np.ndarray:
+        """The constrained parameters of unconstrained ``z`` (flat)."""
+        return np.array([float(prior.to_constrained(value))
+                         for prior, value in zip(self.priors(), np.asarray(z, float))])
+
+    def initial_z(self) -> np.ndarray:
+        """Each parameter's ``init`` in the unconstrained coordinates."""
+        return np.array([float(p.prior.to_unconstrained(p.init)) for e in self.effects for p in e.params])
+
+    def log_prior(self, z) -> float:
+        """Log prior density of ``z`` (each parameter Gaussian in its unconstrained coordinate)."""
+        return float(sum(float(prior.log_prob_unconstrained(value)) for prior, value in zip(self.priors(), z)))
+
+    def columns(self, z) -> Columns:
+        """The :class:`Columns` with every effect applied at unconstrained ``z``.
+
+        Raises
+        ------
+        ValueError
+            If ``z`` does not hold one value per parameter.
+        """
+        z = np.asarray(z, dtype=float)
+        if z.shape != (self.n_params,):
+            raise ValueError(f"{z.size} effect parameters for effects taking {self.n_params} "
+                             f"({', '.join(self.names)})")
+        theta = self.constrained(z)
+        columns = Columns(y=self.y, C=self.C, CB=self.C, light=self.light)
+        for effect, block in zip(self.effects, self.blocks()):
+            effect.apply(columns, theta[block])
+        return columns
+
+
+def transformed(problem: Problem, z) -> tuple[Problem, float]:
+    """``(problem with its effects applied at unconstrained z, log-Jacobian)``.
+
+    The log-Jacobian is ``sum_i log |(f^-1)'(y_i)|`` of a camera response, at likelihood
+    power 1 (the caller weighs it by the power, as every log density). The new columns are
+    float32, like the problem's own; the noise scales divide ``y`` (after the offset), ``C``,
+    ``CB`` and the ambient radiance.
+
+    Raises
+    ------
+    ValueError
+        If ``problem`` has no effects, or ``z`` is of the wrong length.
+    """
+    data = problem.effects
+    if data is None:
+        raise ValueError("the problem has no effects to apply")
+    columns = data.columns(z)
+    y = columns.y if columns.offset is None else columns.y - columns.offset
+    C, CB = columns.C, columns.CB
+    inverse_scale = None if data.scale is None else 1.0 / data.scale
+    if inverse_scale is not None:
+        y, C, CB = y * inverse_scale, C * inverse_scale, CB * inverse_scale
+    lobe = _lobe_terms(columns, CB, inverse_scale)
+    return replace(problem, y=y.astype(np.float32), C=C.astype(np.float32), lobe=lobe), float(columns.log_jacobian)
+
+
+def _lobe_terms(columns: Columns, CB, inverse_scale) -> LobeTerms:
+    empty = np.zeros(0, np.float32)
+    tan_v, tan_l = (empty, empty) if columns.tan is None else (np.asarray(t, np.float32) for t in columns.tan)
+    amb, amb_j, amb_fy, table, grid = empty, np.zeros(0, np.int32), empty, np.zeros((2, 2)), np.array([0.0, 1.0, 1.0])
+    if columns.ambient is not None:
+        amb_j, amb_fy, table, grid = columns.ambient_terms
+        amb = np.full(CB.shape, columns.ambient) if inverse_scale is None else columns.ambient * inverse_scale
+        amb = amb.astype(np.float32)
+    return LobeTerms(cb=CB.astype(np.float32), mask_w=float(columns.mask_w), tan_v=tan_v, tan_l=tan_l, amb=amb,
+                     amb_j=np.asarray(amb_j, np.int32), amb_fy=np.asarray(amb_fy, np.float32),
+                     table=np.asarray(table, float), grid=np.asarray(grid, float))
 
 
 class ForwardModel(ABC):
     """The BRDF family plus effects: builds the :class:`Problem` the region sampler runs on.
 
-    Subclasses implement :meth:`problem` (observations -> sorted, compacted columns). A model
-    with effects lists them in :attr:`effects` and inherits :meth:`transformed`, which
-    applies them in order for given parameters; a global move of the kernel (not written
-    yet) proposes the parameters and compares the full log-likelihoods of the two
-    transformed problems plus their log-Jacobians and the effects' log priors.
+    Subclasses implement :meth:`problem` (observations -> sorted, compacted columns; with
+    effects, the problem carries them in an :class:`EffectData`, and :func:`transformed`
+    applies them at given parameters).
     """
 
     effects: tuple = ()
@@ -177,33 +357,30 @@ class ForwardModel(ABC):
     def problem(self, observations: Observations, *, likelihood_power: float = 1.0, noise_scale=None) -> Problem:
         """The untransformed :class:`Problem` of ``observations``."""
 
-    def transformed(self, problem: Problem, effect_params=()) -> tuple[Problem, float]:
-        """``(problem with every effect applied, total log-Jacobian)`` for one parameter vector per effect.
-
-        Raises
-        ------
-        ValueError
-            If ``effect_params`` does not hold one parameter vector of the right length per effect.
-        """
-        effect_params = list(effect_params)
-        if len(effect_params) != len(self.effects):
-            raise ValueError(f"{len(effect_params)} effect parameter vectors for {len(self.effects)} effects")
-        log_jacobian = 0.0
-        for effect, params in zip(self.effects, effect_params):
-            if np.size(params) != effect.n_params:
-                raise ValueError(f"effect {effect.name!r} takes {effect.n_params} parameters, got {np.size(params)}")
-            y, C, log_jac = effect.transform(problem, params)
-            problem = _with_columns(problem, y, C)
-            log_jacobian += log_jac
-        return problem, log_jacobian
-
-
-def _with_columns(problem: Problem, y, C) -> Problem:
-    return replace(problem, y=np.asarray(y, np.float32), C=np.asarray(C, np.float32))
-
 
 class LambertBlinnPhong(ForwardModel):
-    """The paper's model (eq. 2): Lambert plus energy-normalised Blinn-Phong, no effects."""
+    """The paper's model (eq. 2): Lambert plus energy-normalised Blinn-Phong, with ``effects`` (none: the paper's).
+
+    ``effects``: :class:`Effect` objects whose features are in the order of the observations
+    the problem is built from; they are applied in stage order.
+
+    Raises
+    ------
+    ValueError
+        For an effect of an unknown stage, two effects of one name, or two camera responses.
+    """
+
+    def __init__(self, effects=()):
+        unknown = [e.stage for e in effects if e.stage not in STAGES]
+        if unknown:
+            raise ValueError(f"effect stages {unknown}: choose from {', '.join(STAGES)}")
+        names = [e.name for e in effects]
+        if len(set(names)) != len(names):
+            raise ValueError(f"an effect is named twice: {names}")
+        cameras = [e.name for e in effects if e.stage == "camera"]
+        if len(cameras) > 1:        # two curves would need their inverses in reverse order: one response per camera
+            raise ValueError(f"one camera response per fit, got {', '.join(cameras)}")
+        self.effects = tuple(sorted(effects, key=lambda e: STAGES.index(e.stage)))
 
     def problem(self, observations: Observations, *, likelihood_power: float = 1.0, noise_scale=None) -> Problem:
         """Sort, compact and (optionally) weight the observations.
@@ -244,6 +421,13 @@ class LambertBlinnPhong(ForwardModel):
         order = np.argsort(obs.pixel, kind="stable").astype(obs_dtype)
         pixel = np.asarray(obs.pixel)[order].astype(pix_dtype)
         y, C, log_cos_hn, scale = _columns(obs, order, noise_scale)
+        effects = None
+        if self.effects:
+            effects = EffectData(effects=tuple(e.in_order(order) for e in self.effects),
+                                 y=np.asarray(obs.y, float)[order],
+                                 C=np.asarray(obs.irradiance, float)[order] * np.asarray(obs.cos_ln, float)[order],
+                                 light=np.asarray(obs.light)[order].astype(np.int32),
+                                 scale=None if scale is None else scale.astype(np.float64))
         del order
         line_dtype = np.int16 if max(height, width) <= np.iinfo(np.int16).max else np.int32
         row, col = (pixel // width).astype(line_dtype), (pixel % width).astype(line_dtype)
@@ -254,7 +438,7 @@ class LambertBlinnPhong(ForwardModel):
         return Problem(image_shape=(int(height), int(width)), y=y, C=C, log_cos_hn=log_cos_hn, row=row, col=col,
                        pixel=pixel, pixel_start=pixel_start, colmajor_order=colmajor_order,
                        colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool),
-                       likelihood_power=float(likelihood_power), noise_scale=scale)
+                       likelihood_power=float(likelihood_power), noise_scale=scale, effects=effects)
 
 
 def _columns(obs: Observations, order, noise_scale):

@@ -6,7 +6,12 @@ posterior invariant, so their composition does too:
 1. within-region moves for every region (``config.within``; :mod:`rjfit.sampler.moves.within`);
 2. the region model's structure moves (``config.regions``; for the paper's change points:
    element sweeps, block shift, whole-vector redraw, birth/death,
-   :mod:`rjfit.sampler.regions.changepoints`).
+   :mod:`rjfit.sampler.regions.changepoints`);
+3. for a problem with effects (``problem.effects``), the effect move
+   (:mod:`rjfit.sampler.moves.effects`): each effect's global parameters, with every region's
+   amplitudes redrawn given them. Moves 1 and 2 then run on the problem transformed at the
+   state's effect parameters (:func:`rjfit.sampler.forward.transformed`), which the chain's
+   context keeps between steps.
 
 During the first ``config.kernel.burn_in`` iterations the gamma random-walk width adapts
 (Robbins-Monro on its log towards ``config.within.target_accept``); afterwards it is
@@ -23,13 +28,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rjfit.sampler.forward import Problem
+from rjfit.sampler.forward import Problem, transformed
 from rjfit.sampler.likelihood import log_likelihood_from_stats, region_stats
+from rjfit.sampler.moves.effects import initial_effect_state, move_effects
 from rjfit.sampler.moves.within import adapt_log_g_scale, update_regions
 from rjfit.sampler.priors import to_phi
 from rjfit.sampler.state import ChainState, KernelSettings, SamplerConfig, StepInfo, Work
 
-__all__ = ["ChainContext", "make_state", "refresh", "step", "initial_state", "log_posterior", "anneal_power"]
+__all__ = ["ChainContext", "make_state", "refresh", "step", "initial_state", "log_posterior", "anneal_power",
+           "effect_log_likelihood"]
 
 
 @dataclass
@@ -41,13 +48,29 @@ class ChainContext:
     moves' sums). Those depend only on the labels and the likelihood power, and a step whose
     structure moves leave the labels alone hands them on to the next step through this
     object, keyed by the labels array's identity (a state's arrays are never written to, so
-    the same array means the same labels). A fresh context gives the same draws.
+    the same array means the same labels). For a problem with effects it also keeps the
+    problem transformed at the state's effect parameters, keyed by their array's identity.
+    A fresh context gives the same draws.
     """
 
     labels: np.ndarray | None = None
     power: float | None = None
     y: np.ndarray | None = None
     region_index: dict = field(default_factory=dict)
+    effect_z: np.ndarray | None = None
+    effect_problem: Problem | None = None
+
+    def transformed_problem(self, problem: Problem, effects) -> Problem:
+        """``problem`` transformed at the effect parameters of ``effects`` (an ``EffectState``), kept for the next step."""
+        if self.effect_z is not effects.z or self.effect_problem is None \
+                or self.effect_problem.effects is not problem.effects \
+                or self.effect_problem.likelihood_power != problem.likelihood_power:
+            self.effect_z, self.effect_problem = effects.z, transformed(problem, effects.z)[0]
+        return self.effect_problem
+
+    def keep_transformed(self, effects, problem: Problem) -> None:
+        """Remember ``problem`` as the transformation at ``effects.z`` (after an effect move)."""
+        self.effect_z, self.effect_problem = effects.z, problem
 
     def region_index_for(self, problem: Problem, labels) -> dict:
         """The region index (filled on first use by :meth:`Work.region_data`) of ``labels`` in ``problem``.
@@ -84,9 +107,27 @@ def refresh(problem: Problem, state: ChainState) -> ChainState:
 
 
 def log_posterior(problem: Problem, prior, state: ChainState, config: SamplerConfig) -> float:
-    """Log joint density (up to the constant model prior): likelihood, phi-space prior, layout prior."""
-    return float(np.sum(state.log_lik) + np.sum(prior.logpdf_phi(to_phi(state.theta)))
-                 + config.regions.log_prior(problem, state.layout))
+    """Log joint density (up to the constant model prior): likelihood, phi-space prior, layout prior, effects' prior.
+
+    For a problem with effects, ``state.log_lik`` is on the transformed problem; the
+    log-Jacobian is left out here (:func:`effect_log_likelihood`).
+    """
+    total = float(np.sum(state.log_lik) + np.sum(prior.logpdf_phi(to_phi(state.theta)))
+                  + config.regions.log_prior(problem, state.layout))
+    if state.effects is not None:
+        total += problem.effects.log_prior(state.effects.z)
+    return total
+
+
+def effect_log_likelihood(problem: Problem, state: ChainState) -> float:
+    """What the effects add to the log-likelihood of the raw data beside ``state.log_lik``: the
+    transformation's log-Jacobian times the likelihood power (0 without effects).
+
+    :func:`log_posterior` leaves it out like the noise scales' constant; a chain's records add both.
+    """
+    if state.effects is None:
+        return 0.0
+    return problem.likelihood_power * state.effects.log_jacobian
 
 
 def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=None, **layout_start) -> ChainState:
@@ -101,6 +142,10 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=
     **layout_start
         The region model's start (change points: ``model=(n_u, n_v)`` or
         ``changepoints=(u, v)``; :meth:`~rjfit.sampler.regions.changepoints.ChangepointRegions.initial_layout`).
+
+    A problem with effects starts its effect parameters near their starting values
+    (:func:`rjfit.sampler.moves.effects.initial_effect_state`, drawn after the rest), and its
+    statistics are those of the problem transformed there.
     """
     layout = config.regions.initial_layout(problem, rng, **layout_start)
     R = layout.n_regions
@@ -112,7 +157,10 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=
             theta = np.stack([i0_centre * np.exp(rng.normal(0.0, 0.3, R)), rng.uniform(0.2, 0.8, R),
                               np.exp(rng.uniform(np.log(2.0), np.log(30.0), R)),
                               np.full(R, 0.1 * np.var(problem.y, dtype=np.float64) + 1e-12)], axis=1)
-    return make_state(problem, layout, theta)
+    if problem.effects is None:
+        return make_state(problem, layout, theta)
+    effects, effect_problem = initial_effect_state(problem, rng, config.effects)
+    return replace(make_state(effect_problem, layout, theta), effects=effects)
 
 
 def anneal_power(settings: KernelSettings, iteration: int) -> float:
@@ -143,6 +191,9 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
     factor = anneal_power(config.kernel, state.iteration)
     previous = anneal_power(config.kernel, state.iteration - 1) if state.iteration > 0 else 1.0
     stats = state.stats if factor == previous else state.stats * (factor / previous)
+    base = problem
+    if problem.effects is not None:
+        problem = context.transformed_problem(problem, state.effects)
     if factor != 1.0:
         problem = replace(problem, likelihood_power=problem.likelihood_power * factor)
     log_lik = state.log_lik if factor == previous else log_likelihood_from_stats(stats, state.theta)
@@ -158,8 +209,17 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
     # 2. the region model's structure moves
     config.regions.structure_moves(work, rng, problem, prior, info)
 
+    # 3. the effects' global parameters
+    effects = state.effects
+    if base.effects is not None:
+        effects, problem = move_effects(work, effects, rng, prior, problem, config.effects,
+                                        config.within.min_obs_conditional, state.iteration, config.kernel.burn_in, info)
+        context.keep_transformed(effects, problem if factor == 1.0 else replace(problem,
+                                                                                 likelihood_power=base.likelihood_power))
+
     new_state = ChainState(layout=work.layout, theta=work.theta, stats=work.stats, log_lik=work.log_lik,
-                           labels=work.labels, log_g_scale=float(log_g_scale), iteration=state.iteration + 1)
+                           labels=work.labels, log_g_scale=float(log_g_scale), iteration=state.iteration + 1,
+                           effects=effects)
     if config.kernel.refresh_every and new_state.iteration % config.kernel.refresh_every == 0:
         new_state = refresh(problem, new_state)
     return new_state, info

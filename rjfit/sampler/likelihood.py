@@ -12,6 +12,10 @@ change of g needs the region's observations again (the B sums).
 
 :func:`oracle_log_likelihood` evaluates eq. 1-2 directly from the observations with
 :func:`rjfit.model.blinn.radiance`; it is the test oracle of the incremental bookkeeping.
+
+A problem with effects (:mod:`rjfit.sampler.forward`) has a lobe column of its own
+(``Problem.lobe``): ``B`` is then :func:`lobe_column`'s, and every pass is handed the lobe
+terms (:mod:`rjfit.sampler.passes.lobe`).
 """
 from __future__ import annotations
 
@@ -21,12 +25,13 @@ from functools import cached_property
 import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation, radiance
+from rjfit.model.effects import beckmann_alpha, smith_g1_tan
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.passes import sums
 
 __all__ = ["STAT_N", "STAT_YY", "STAT_YA", "STAT_AA", "STAT_YB", "STAT_AB", "STAT_BB", "LOG_2PI", "region_stats",
            "log_likelihood_from_stats", "oracle_log_likelihood", "ab_from_theta", "b_terms", "index_dtype",
-           "RegionData", "label_runs"]
+           "RegionData", "label_runs", "lobe_column"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -45,6 +50,33 @@ def b_terms(C, log_cos_hn, gamma):
     B = np.multiply(log_cos_hn, gamma, dtype=np.float64)
     np.exp(B, out=B)
     B *= C
+    return B
+
+
+def lobe_column(problem: Problem, idx, gamma_per_obs) -> np.ndarray:
+    """The lobe column ``B`` of observations ``idx`` at their exponents, float64 (NumPy).
+
+    ``C <h.n>^gamma`` (:func:`b_terms`) for the plain model; with effects, the lobe terms of
+    :mod:`rjfit.sampler.passes.lobe` (the compiled passes' twin).
+    """
+    lobe = problem.lobe
+    if lobe is None:
+        return b_terms(problem.C[idx], problem.log_cos_hn[idx], gamma_per_obs)
+    gamma = np.broadcast_to(np.asarray(gamma_per_obs, dtype=float), problem.log_cos_hn[idx].shape)
+    B = b_terms(lobe.cb[idx].astype(np.float64), problem.log_cos_hn[idx], gamma)
+    if lobe.mask_w != 0.0:
+        alpha = beckmann_alpha(gamma)
+        g = smith_g1_tan(lobe.tan_v[idx].astype(float), alpha) * smith_g1_tan(lobe.tan_l[idx].astype(float), alpha)
+        B *= (1.0 - lobe.mask_w) + lobe.mask_w * g
+    if lobe.amb.size:
+        low, high, step = lobe.grid
+        x = (np.clip(np.log(gamma), low, high) - low) / step
+        i = np.minimum(x.astype(int), lobe.table.shape[0] - 2)
+        fx = x - i
+        j, fy = lobe.amb_j[idx], lobe.amb_fy[idx].astype(float)
+        row_j = (1.0 - fx) * lobe.table[i, j] + fx * lobe.table[i + 1, j]
+        row_next = (1.0 - fx) * lobe.table[i, j + 1] + fx * lobe.table[i + 1, j + 1]
+        B += lobe.amb[idx].astype(float) * ((1.0 - fy) * row_j + fy * row_next) / blinn_normalisation(gamma)
     return B
 
 
@@ -88,13 +120,15 @@ class RegionData:
     runs: tuple                    # (starts, ends), int64
     weight: float = 1.0            # the Problem's likelihood power: every sum is scaled by it
     gathered_idx: np.ndarray | None = None
+    lobe: object = None            # the Problem's lobe terms (rjfit.sampler.passes.lobe), None for the plain model
     newton_memo: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def gather(cls, problem: Problem, idx) -> RegionData:
         idx = np.asarray(idx)
         return cls(gathered_idx=idx, y=problem.y[idx], C=problem.C[idx], log_cos_hn=problem.log_cos_hn[idx],
-                   runs=(np.zeros(1, np.int64), np.full(1, idx.size, np.int64)), weight=problem.likelihood_power)
+                   runs=(np.zeros(1, np.int64), np.full(1, idx.size, np.int64)), weight=problem.likelihood_power,
+                   lobe=None if problem.lobe is None else problem.lobe.take(idx))
 
     @classmethod
     def split(cls, problem: Problem, labels, n_regions: int) -> list:
@@ -106,7 +140,7 @@ class RegionData:
             raise ValueError(f"labels must lie in [0, {n_regions})")
         offsets, starts, ends = label_runs(labels, int(n_regions))
         return [cls(y=problem.y, C=problem.C, log_cos_hn=problem.log_cos_hn, weight=problem.likelihood_power,
-                    runs=(starts[a:b], ends[a:b]))
+                    runs=(starts[a:b], ends[a:b]), lobe=problem.lobe)
                 for a, b in zip(offsets[:-1], offsets[1:])]
 
     def positions(self, every: int = 1) -> np.ndarray:
@@ -132,7 +166,8 @@ class RegionData:
         return RegionData(gathered_idx=take if self.gathered_idx is None else self.gathered_idx[take],
                           y=self.y[take], C=self.C[take], log_cos_hn=self.log_cos_hn[take],
                           runs=(np.zeros(1, np.int64), np.full(1, take.size, np.int64)),
-                          weight=self.weight * self.n / max(take.size, 1))
+                          weight=self.weight * self.n / max(take.size, 1),
+                          lobe=None if self.lobe is None else self.lobe.take(take))
 
     @cached_property
     def fixed(self) -> np.ndarray:
@@ -142,7 +177,7 @@ class RegionData:
 
     def b_sums(self, gamma: float) -> np.ndarray:
         """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.passes.sums.b_sums`)."""
-        return self.weight * sums.b_sums(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma))
+        return self.weight * sums.b_sums(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma), self.lobe)
 
     def b_sums_newton(self, gamma: float) -> np.ndarray:
         """:meth:`b_sums` and their weightings by ``log <h.n>`` and its square (9,); the last two gammas asked are memoised.
@@ -153,7 +188,7 @@ class RegionData:
         gamma = float(gamma)
         hit = self.newton_memo.get(gamma)
         if hit is None:
-            hit = self.weight * sums.b_sums_newton(self.y, self.C, self.log_cos_hn, *self.runs, gamma)
+            hit = self.weight * sums.b_sums_newton(self.y, self.C, self.log_cos_hn, *self.runs, gamma, self.lobe)
             if len(self.newton_memo) >= 2:
                 self.newton_memo.pop(next(iter(self.newton_memo)))
             self.newton_memo[gamma] = hit
@@ -166,7 +201,7 @@ class RegionData:
     def stats_at_many(self, gammas) -> np.ndarray:
         """:meth:`stats_at` at each of ``gammas``: (G, 7), the passes in one compiled call."""
         gammas = np.ascontiguousarray(gammas, dtype=float)
-        b_sums = self.weight * sums.b_sums_many(self.y, self.C, self.log_cos_hn, *self.runs, gammas)
+        b_sums = self.weight * sums.b_sums_many(self.y, self.C, self.log_cos_hn, *self.runs, gammas, self.lobe)
         return np.hstack([np.broadcast_to(self.fixed, (gammas.size, self.fixed.size)), b_sums])
 
 
@@ -180,7 +215,7 @@ def region_stats(problem: Problem, labels, gammas, n_regions: int):
         raise ValueError(f"labels must lie in [0, {n_regions}) with a gamma per region")
     offsets, starts, ends = label_runs(labels, int(n_regions))
     return problem.likelihood_power * sums.region_stats_runs(problem.y, problem.C, problem.log_cos_hn, offsets, starts,
-                                                            ends, gammas)
+                                                            ends, gammas, problem.lobe)
 
 
 def ab_from_theta(theta):
@@ -213,6 +248,8 @@ def oracle_log_likelihood(problem: Problem, labels, theta) -> float:
     With known noise scales it undoes the weighting (``y s``, ``C s``) and evaluates the
     heteroscedastic density ``N(y; mu, sigma^2 s^2)`` term by term, so it includes the
     constant :attr:`Problem.log_likelihood_constant` that the sampler's statistics leave out.
+    A problem with effects' lobe terms: the mean is ``a A + b B`` with :func:`lobe_column`'s B
+    (in the units of the transformed problem; the noise-scale weighting is undone as above).
     """
     theta = np.asarray(theta, float)[np.asarray(labels)]
     C = problem.C.astype(np.float64)
@@ -223,7 +260,14 @@ def oracle_log_likelihood(problem: Problem, labels, theta) -> float:
         C *= s
         y *= s
         var *= s * s
-    cos_hn = np.exp(problem.log_cos_hn.astype(np.float64))
-    mu = radiance(theta[:, 0], theta[:, 1], theta[:, 2], C, cos_hn, 1.0)
+    if problem.lobe is None:
+        cos_hn = np.exp(problem.log_cos_hn.astype(np.float64))
+        mu = radiance(theta[:, 0], theta[:, 1], theta[:, 2], C, cos_hn, 1.0)
+    else:
+        a, b = ab_from_theta(theta)
+        B = lobe_column(problem, slice(None), theta[:, 2])
+        if problem.noise_scale is not None:
+            B *= problem.noise_scale.astype(np.float64)
+        mu = a * C / np.pi + b * B
     resid = y - mu
     return problem.likelihood_power * float(np.sum(-0.5 * (LOG_2PI + np.log(var)) - 0.5 * resid * resid / var))

@@ -4,7 +4,8 @@ Each function here is the twin of a pass in :mod:`rjfit.sampler.passes` (or of w
 move computes with one), written for clarity over speed: per-observation arrays in
 float64, ``math.fsum`` for exact sums, Python loops along the lines. Where a pass draws
 random numbers the twin takes a generator and consumes it in the order the move feeds
-the pass its uniforms, so the two draw the same values from the same seed.
+the pass its uniforms, so the two draw the same values from the same seed. A problem with effects' lobe terms gets
+its lobe column from :func:`rjfit.sampler.likelihood.lobe_column`.
 ``tests/sampler/test_passes.py`` holds the comparisons. The sampler itself never calls this
 module.
 """
@@ -17,7 +18,7 @@ from scipy.signal import fftconvolve
 from scipy.special import ndtr, ndtri
 
 from rjfit.sampler.forward import CHUNK, Problem
-from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YY, ab_from_theta, b_terms
+from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YY, ab_from_theta, lobe_column
 
 __all__ = ["region_stats", "b_sums", "b_sums_newton", "obs_log_density", "forward_filter", "cell_step_logits",
            "path_log_prob", "backward_sample", "normal_mass", "within_cell_log_density", "draw_within_cells",
@@ -30,7 +31,7 @@ def _stat_columns(problem: Problem, idx, gamma_per_obs):
     """The six per-observation terms (Syy .. SBB) of observations ``idx``, float64, unweighted."""
     y = problem.y[idx].astype(np.float64)
     C = problem.C[idx].astype(np.float64)
-    B = b_terms(C, problem.log_cos_hn[idx], gamma_per_obs)
+    B = lobe_column(problem, idx, gamma_per_obs)
     A = np.divide(C, np.pi, out=C)
     return y * y, y * A, A * A, y * B, A * B, B * B
 
@@ -51,7 +52,7 @@ def region_stats(problem: Problem, labels, gammas, n_regions: int):
 
 def _b_terms_of(problem: Problem, idx, gamma):
     y, C = problem.y[idx].astype(float), problem.C[idx].astype(float)
-    B = b_terms(C, problem.log_cos_hn[idx], gamma)
+    B = lobe_column(problem, idx, gamma)
     return y * B, C / math.pi * B, B * B
 
 
@@ -76,7 +77,7 @@ def obs_log_density(problem: Problem, idx, theta_obs) -> np.ndarray:
     """
     a, b = ab_from_theta(theta_obs)
     C = problem.C[idx].astype(float)
-    mu = a / math.pi * C + b * b_terms(C, problem.log_cos_hn[idx], theta_obs[:, 2])
+    mu = a / math.pi * C + b * lobe_column(problem, idx, theta_obs[:, 2])
     s2 = theta_obs[:, 3]
     return -0.5 * (LOG_2PI + np.log(s2)) - 0.5 * (problem.y[idx] - mu) ** 2 / s2
 

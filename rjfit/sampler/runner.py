@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import ChainContext, initial_state, log_posterior, step
+from rjfit.sampler.kernel import ChainContext, effect_log_likelihood, initial_state, log_posterior, step
 from rjfit.sampler.state import ChainState, SamplerConfig
 
 __all__ = ["ChainSpec", "ChainRecord", "ChainRecorder", "run_chain", "run_chains", "chain_rngs", "atomic_write_bytes",
@@ -89,13 +89,15 @@ class ChainRecord:
     resumed_from: tuple = ()        # iterations of the checkpoints this chain resumed from, in order
     threads: int = 1                # Numba threads it ran on (its samples do not depend on them; its seconds do)
     nan_rejected: dict = dataclasses.field(default_factory=dict)   # per move kind: proposals rejected for a NaN ratio
+    effects: np.ndarray | None = None   # (T, K) constrained effect parameters (EffectData.names); None: no effects
 
     def truncated(self, t: int) -> ChainRecord:
         keep = self.cp_iteration < t
         return ChainRecord(self.n_u[:t], self.n_v[:t], self.theta[:t], self.log_lik[:t], self.log_post[:t],
                            self.exact_truth[:t], self.true_regions[:t], self.object_regions[:t], self.cp_iteration[keep],
                            self.cp_u[keep], self.cp_v[keep], dict(self.accepted), dict(self.proposed), self.seconds,
-                           min(t, self.iterations_done), self.resumed_from, self.threads, dict(self.nan_rejected))
+                           min(t, self.iterations_done), self.resumed_from, self.threads, dict(self.nan_rejected),
+                           None if self.effects is None else self.effects[:t])
 
 
 def chain_rngs(seed: int, n_chains: int):
@@ -138,6 +140,9 @@ class ChainRecorder:
         self.resumed_from = ()
         self.cp_thin = spec.cp_thin
         self._exact_memo = (None, -1)
+        # the effects' priors hold their transforms to the constrained values (small: checkpoints pickle them)
+        self.effect_priors = None if problem.effects is None else problem.effects.priors()
+        self.effects = None if problem.effects is None else np.full((T, problem.effects.n_params), np.nan)
         self._truth_setup(spec)
 
     def _truth_setup(self, spec):
@@ -191,6 +196,8 @@ class ChainRecorder:
         self.log_lik[t] = state.total_log_lik + log_lik_constant
         self.log_post[t] = log_post + log_lik_constant
         self.exact_truth[t], self.true_regions[t], self.object_regions[t] = self.exact(state.labels)
+        if state.effects is not None:
+            self.effects[t] = [float(prior.to_constrained(z)) for prior, z in zip(self.effect_priors, state.effects.z)]
         if t % self.cp_thin == 0:
             s = t // self.cp_thin
             for name, values in self.regions.snapshot(state.layout).items():
@@ -209,7 +216,7 @@ class ChainRecorder:
                           true_regions=self.true_regions, object_regions=self.object_regions,
                           cp_iteration=self.cp_iteration, accepted=self.accepted, proposed=self.proposed,
                           seconds=self.seconds, iterations_done=done, resumed_from=tuple(self.resumed_from),
-                          nan_rejected=self.nan_rejected, **self.keys, **self.snapshots)
+                          nan_rejected=self.nan_rejected, effects=self.effects, **self.keys, **self.snapshots)
         return rec.truncated(done)
 
 
@@ -257,6 +264,8 @@ def run_fingerprint(spec: ChainSpec) -> dict:
     sampler_dir = Path(__file__).resolve().parent
     code = [path.read_bytes() for path in sorted(sampler_dir.rglob("*.py"))]
     data = [getattr(problem, name) for name in ("y", "C", "log_cos_hn", "pixel")]
+    if problem.effects is not None:     # the effects and their features are part of the model fitted
+        data.append(problem.effects)
     return {"data": _digest(*data, problem.image_shape, float(problem.likelihood_power)),
             "prior": _digest(spec.prior), "config": _digest(spec.config),
             "chain": _digest(spec.seed, spec.chain, spec.n_chains, spec.iterations, spec.cp_thin, spec.start),
@@ -366,7 +375,10 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
         for t in range(start_t, spec.iterations):
             state, info = step(state, rng, problem, prior, config, context)
             recorder.add_counts(info)
-            recorder.record(t, state, log_posterior(problem, prior, state, config), problem.log_likelihood_constant)
+            constant = problem.log_likelihood_constant
+            if state.effects is not None:      # the raw data's log-likelihood: with the effects' log-Jacobian
+                constant += effect_log_likelihood(problem, state)
+            recorder.record(t, state, log_posterior(problem, prior, state, config), constant)
             if bar is not None:
                 bar.update(1)
             done = t + 1

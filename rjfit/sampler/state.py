@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rjfit.sampler.likelihood import RegionData
+from rjfit.sampler.moves.effects import EffectSettings
 from rjfit.sampler.moves.within import WithinSettings
 from rjfit.sampler.regions.base import RegionModel
 from rjfit.sampler.regions.changepoints import ChangepointRegions
@@ -50,6 +51,10 @@ class ChainState:
         Log of the global multiplier of the gamma random-walk width (adapted in burn-in only).
     iteration : int
         Number of completed steps.
+    effects : EffectState or None
+        The effect parameters of a problem with effects (:mod:`rjfit.sampler.moves.effects`);
+        None for the plain model. ``stats`` and ``log_lik`` are then those of the problem
+        transformed at its parameters.
     """
 
     layout: object
@@ -59,6 +64,7 @@ class ChainState:
     labels: np.ndarray
     log_g_scale: float = 0.0
     iteration: int = 0
+    effects: object = None
 
     @property
     def n_regions(self) -> int:
@@ -187,6 +193,8 @@ FLAT_OPTIONS = {
     "full_recompute": ["within.full_recompute"],
     "burn_in": ["kernel.burn_in"], "anneal": ["kernel.anneal"], "anneal_start": ["kernel.anneal_start"],
     "refresh_every": ["kernel.refresh_every"],
+    "effect_every": ["effects.every"], "effect_target_accept": ["effects.target_accept"],
+    "effect_curvature_every": ["effects.curvature_every"], "effect_jitter": ["effects.jitter"],
 }
 
 
@@ -203,11 +211,14 @@ class SamplerConfig:
         The within-region moves (:mod:`rjfit.sampler.moves.within`).
     kernel : KernelSettings
         Burn-in, annealed warm-up, refresh of the cached statistics.
+    effects : EffectSettings
+        The effect move (:mod:`rjfit.sampler.moves.effects`), for a problem with effects.
     """
 
     regions: RegionModel = field(default_factory=ChangepointRegions)
     within: WithinSettings = field(default_factory=WithinSettings)
     kernel: KernelSettings = field(default_factory=KernelSettings)
+    effects: EffectSettings = field(default_factory=EffectSettings)
 
     @classmethod
     def from_flat(cls, **options) -> SamplerConfig:

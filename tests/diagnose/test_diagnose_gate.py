@@ -2,7 +2,8 @@
 
 For every effect: Mitsuba renders the data set's scene WITH the effect's change; the
 extended closed form must pass the gate and the plain closed form (without the effect) must
-fail it, on the same path-traced stack. Deterministic changes use rjfit.render.gate's thresholds
+fail it, on the same path-traced stack; so must the closed form the fit samples with the
+effect inside its likelihood (issue 26). Deterministic changes use rjfit.render.gate's thresholds
 (median relative error <= 1e-4, p99 <= 1e-3); Monte Carlo ones (ambient, interreflection)
 the statistical criterion of rjfit.diagnose.gate.gate.
 """
@@ -42,3 +43,4 @@ def test_extended_model_passes_gate_and_plain_fails(scenes, scene, effects, thet
     result = gate(scenes[scene], [EFFECTS[name] for name in effects], thetas, reference_effects=reference, **options)
     assert result["extended"]["passed"], result["extended"]
     assert not result["reference"]["passed"], result["reference"]
+    assert result["fit"]["passed"], result["fit"]

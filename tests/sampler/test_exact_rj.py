@@ -123,12 +123,13 @@ def _interval_pair_log_weight(a, b, cp_prior):
     return float(np.log(value))
 
 
-def exact_posterior(quad, jacobian_power=None, cp_prior="paper"):
+def exact_posterior(quad, jacobian_power=None, cp_prior="paper", log_norm=False):
     """Exact posterior over (model, u interval of row 0) and over models.
 
     ``jacobian_power``: if given, weight each model by 3^(-4 * splits) with ``splits`` the
     number of region splits needed to reach it from (0, 0): the posterior that a chain
     dropping the paper map's Jacobian (|det| = 3 per component) targets instead.
+    ``log_norm``: also return the log of the normaliser (the data's evidence), as a pair.
     """
     H = W = 2
     joint = {}
@@ -152,8 +153,9 @@ def exact_posterior(quad, jacobian_power=None, cp_prior="paper"):
                     joint[key] = np.logaddexp(joint.get(key, -np.inf), log_w)
     keys = sorted(joint)
     log_w = np.array([joint[k] for k in keys])
-    prob = np.exp(log_w - np.logaddexp.reduce(log_w))
-    return dict(zip(keys, prob))
+    norm = np.logaddexp.reduce(log_w)
+    prob = dict(zip(keys, np.exp(log_w - norm)))
+    return (prob, float(norm)) if log_norm else prob
 
 
 def run(problem, prior, config, iterations, seed):

@@ -1,4 +1,8 @@
-"""The compiled passes (rjfit.sampler.passes) against their NumPy references (rjfit.sampler.reference)."""
+"""The compiled passes (rjfit.sampler.passes) against their NumPy references (rjfit.sampler.reference).
+
+Each pass is handed the problem's lobe terms (None here; ``test_effect_passes.py`` runs the
+same tests on a problem with effects).
+"""
 import math
 
 import numpy as np
@@ -117,7 +121,7 @@ def test_element_move_delta_and_shift_equal_reference(problem, axis):
     starts, ends = offsets[lines * size + lo], offsets[lines * size + hi]
     use_order = axis == "v"
     d_ll = shifts.obs_log_density_delta(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order,
-                                     starts, ends, labels, delta, THETA)
+                                        starts, ends, labels, delta, THETA, problem.lobe)
     for j in range(lines.size):
         span = np.arange(starts[j], ends[j])
         idx = problem.colmajor_order[span] if use_order else span
@@ -127,7 +131,7 @@ def test_element_move_delta_and_shift_equal_reference(problem, axis):
     stats = region_stats(problem, labels, THETA[:, 2], 6)
     moved = labels.copy()
     shifts.shift_stats(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, use_order, starts, ends, moved,
-                    delta, THETA[:, 2].copy(), stats, problem.likelihood_power)
+                       delta, THETA[:, 2].copy(), stats, problem.likelihood_power, problem.lobe)
     expected_labels = labels.copy()
     for j in range(lines.size):
         span = np.arange(starts[j], ends[j])
@@ -178,7 +182,7 @@ def test_per_pixel_two_cases_equal_reference(problem, axis):
     x_old = np.ascontiguousarray(cps[:, k])
     right, left = np.zeros(cps.shape[0] * size), np.zeros(cps.shape[0] * size)
     cells.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, line_of, along_of, labels, x_old, step, THETA,
-                            size, right, left)
+                              size, right, left, problem.lobe)
     idx = np.arange(problem.n_obs)
     base = labels.astype(np.int64) - np.where(x_old[line_of] < along_of + 0.5, step, 0)
     key = line_of.astype(np.int64) * size + along_of
@@ -206,7 +210,7 @@ def test_removal_sums_equal_reference(problem, axis):
     line_of = problem.row if axis == "u" else problem.col
     totals = np.zeros((3, n_lines * (n_axis + 1)))
     cells.removal_sums(problem.y, problem.C, problem.log_cos_hn, line_of, labels, THETA, n_axis, n_v, step, axis == "u",
-                       totals)
+                       totals, problem.lobe)
     lab = labels.astype(np.int64)
     column = lab // (n_v + 1) if axis == "u" else lab % (n_v + 1)
     key = line_of.astype(np.int64) * (n_axis + 1) + column

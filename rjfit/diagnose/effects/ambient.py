@@ -12,71 +12,17 @@ uniform in phi) and interpolated; exact for a convex object, where nothing occlu
 """
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from rjfit.diagnose.effects.base import Effect, Param
-from rjfit.model.blinn import blinn_normalisation
+from rjfit.model.effects import (ALBEDO_COS_V, ALBEDO_LOG_GAMMA, albedo_rows, albedo_table, cos_v_weights, gamma_weights, lobe_albedo,
+                                 lobe_albedo_quadrature)
 from rjfit.model.priors import LogNormal
 from rjfit.render.scene_change import MitsubaChange
+from rjfit.sampler.effects import AmbientLight
 
-_LOG_G = np.linspace(np.log(0.05), np.log(5000.0), 48)
-_COS_V = np.linspace(0.0, 1.0, 41)
-
-
-def lobe_albedo_quadrature(gamma, cos_v, n_u=64, n_phi=96):
-    """``A_g`` at one gamma for an array of cos theta_v, by quadrature (module docstring)."""
-    cos_v = np.atleast_1d(np.asarray(cos_v, dtype=float))
-    nodes, weights = np.polynomial.legendre.leggauss(n_u)
-    u = 0.5 * (nodes + 1.0)
-    wu = 0.5 * weights
-    phi = (np.arange(n_phi) + 0.5) * (2.0 * np.pi / n_phi)
-    cos_h = u ** (1.0 / (gamma + 1.0))
-    sin_h = np.sqrt(np.maximum(1.0 - cos_h ** 2, 0.0))
-    sin_v = np.sqrt(np.maximum(1.0 - cos_v ** 2, 0.0))[:, None, None]
-    cv = cos_v[:, None, None]
-    v_dot_h = sin_v * sin_h[None, :, None] * np.cos(phi)[None, None] + cv * cos_h[None, :, None]
-    cos_i = 2.0 * v_dot_h * cos_h[None, :, None] - cv
-    integrand = np.where((v_dot_h > 0) & (cos_i > 0), cos_i * 4.0 * v_dot_h, 0.0)
-    total = np.einsum("u,vup->v", wu, integrand) * (2.0 * np.pi / n_phi)
-    return blinn_normalisation(gamma) / (gamma + 1.0) * total
-
-
-@functools.lru_cache(maxsize=1)
-def _table():
-    return np.stack([lobe_albedo_quadrature(float(np.exp(lg)), _COS_V, n_u=48, n_phi=64) for lg in _LOG_G])
-
-
-def lobe_albedo(gamma, cos_v):
-    """``A_g(theta_v)``, bilinear in (log gamma, cos theta_v) from the table (vectorised)."""
-    table = _table()
-    gamma, cos_v = np.broadcast_arrays(np.asarray(gamma, dtype=float), np.asarray(cos_v, dtype=float))
-    i, fx = gamma_weights(gamma)
-    j, fy = cos_v_weights(cos_v)
-    return ((1 - fx) * (1 - fy) * table[i, j] + fx * (1 - fy) * table[i + 1, j]
-            + (1 - fx) * fy * table[i, j + 1] + fx * fy * table[i + 1, j + 1])
-
-
-def gamma_weights(gamma):
-    """The table row ``i`` below each gamma (linear in log gamma, clipped to the table) and the weight ``fx`` of row ``i + 1``."""
-    x = (np.clip(np.log(np.asarray(gamma, dtype=float)), _LOG_G[0], _LOG_G[-1]) - _LOG_G[0]) / (_LOG_G[1] - _LOG_G[0])
-    i = np.minimum(x.astype(int), _LOG_G.size - 2)
-    return i, x - i
-
-
-def cos_v_weights(cos_v):
-    """The table column ``j`` below each cos theta_v and the weight ``fy`` of column ``j + 1``."""
-    y = np.clip(np.asarray(cos_v, dtype=float), 0.0, 1.0) / (_COS_V[1] - _COS_V[0])
-    j = np.minimum(y.astype(int), _COS_V.size - 2)
-    return j, y - j
-
-
-def albedo_rows(gammas):
-    """The table interpolated at each of ``gammas`` (linear in log gamma): (len(gammas), n_cos_v)."""
-    table = _table()
-    i, fx = gamma_weights(gammas)
-    return (1 - fx[:, None]) * table[i] + fx[:, None] * table[i + 1]
+__all__ = ["Ambient", "lobe_albedo", "lobe_albedo_quadrature", "albedo_rows", "albedo_table", "gamma_weights",
+           "cos_v_weights"]
 
 
 class Ambient(Effect):
@@ -93,7 +39,7 @@ class Ambient(Effect):
         # observation, so a refit's evaluation interpolates in gamma once per region (a row of
         # the table) and gathers from those rows (as lobe_albedo, 15x faster on the ball)
         j, fy = cos_v_weights(ctx.cos_vn)
-        return ctx.region * _COS_V.size + j, fy
+        return ctx.region * ALBEDO_COS_V.size + j, fy
 
     def apply(self, terms, theta, features, ctx):
         kd = terms["kd"]
@@ -107,3 +53,10 @@ class Ambient(Effect):
         return MitsubaChange(extra={"ambient": {"type": "constant", "radiance": {"type": "rgb", "value": [radiance] * 3}}},
                              stochastic=True,
                              notes=["exact for a convex object: nothing occludes the environment"])
+
+    def sampler_effect(self, ctx):
+        """``A += a`` and the lobe's ambient term (:class:`rjfit.sampler.effects.AmbientLight`)."""
+        column, weight = cos_v_weights(ctx.cos_vn)
+        grid = np.array([ALBEDO_LOG_GAMMA[0], ALBEDO_LOG_GAMMA[-1], ALBEDO_LOG_GAMMA[1] - ALBEDO_LOG_GAMMA[0]])
+        return AmbientLight(params=self.fit_params(ctx), column=column.astype(np.int32), weight=weight,
+                            table=albedo_table(), grid=grid)

@@ -13,6 +13,12 @@ Stages (the order :func:`rjfit.diagnose.model.predict` applies them in)::
 with ``mu = I0 E (kd/pi + (1 - kd) N(g) <h.n>^g spec) <l.n>`` in between (eq. 2). At the
 effect's null value (``Param.null``) every factor is 1 and every added term 0: the plain
 model is nested in each extension.
+
+Each effect also says how it enters the FIT (issue 26): :meth:`Effect.sampler_effect` builds
+the :class:`rjfit.sampler.forward.Effect` the fit samples with the regions, with this
+library's priors and starting values and the features of the context's observations (see
+:mod:`rjfit.sampler.effects`). The fit's closed form equals :func:`rjfit.diagnose.model.predict`
+for the same parameters (``tests/diagnose/test_effects_in_fit.py``).
 """
 from __future__ import annotations
 
@@ -20,11 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rjfit.model.effects import STAGES
 from rjfit.render.scene_change import MitsubaChange
+from rjfit.sampler.forward import EffectParam
 
 __all__ = ["Param", "Effect", "STAGES"]
-
-STAGES = ("lobe", "direct", "indirect", "light", "ambient", "camera")
 
 
 @dataclass(frozen=True)
@@ -80,6 +86,15 @@ class Effect:
 
     def apply(self, terms: dict, theta: np.ndarray, features, ctx) -> None:
         """Extend the model in ``terms`` (in place) at constrained parameters ``theta``."""
+        raise NotImplementedError
+
+    # -- inside the fit ----------------------------------------------------------------
+    def fit_params(self, ctx) -> tuple:
+        """The parameters as the fit takes them: name, this library's prior, starting value."""
+        return tuple(EffectParam(p.name, p.prior, float(p.init)) for p in self.params(ctx))
+
+    def sampler_effect(self, ctx):
+        """The :class:`rjfit.sampler.forward.Effect` the fit samples, its features in the order of ``ctx``'s observations."""
         raise NotImplementedError
 
     # -- signature ---------------------------------------------------------------------

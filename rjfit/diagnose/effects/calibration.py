@@ -13,24 +13,14 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.model.effects import helmert_basis, light_scales
 from rjfit.model.priors import Normal
 from rjfit.render.scene_change import MitsubaChange
+from rjfit.sampler.effects import LightGains
+
+__all__ = ["LightCalibration", "helmert_basis", "light_scales", "PRIOR_SCALE"]
 
 PRIOR_SCALE = 0.2
-
-
-def helmert_basis(n):
-    """(n, n-1) orthonormal columns, each orthogonal to the ones vector."""
-    basis = np.zeros((n, n - 1))
-    for j in range(1, n):
-        basis[:j, j - 1] = 1.0
-        basis[j, j - 1] = -j
-        basis[:, j - 1] /= np.sqrt(j * (j + 1))
-    return basis
-
-
-def light_scales(theta, n_lights):
-    return np.exp(helmert_basis(n_lights) @ np.asarray(theta, dtype=float))
 
 
 class LightCalibration(Effect):
@@ -66,3 +56,7 @@ class LightCalibration(Effect):
 
     def mitsuba_change(self, theta, ctx):
         return MitsubaChange(light_scales=light_scales(theta, ctx.n_lights))
+
+    def sampler_effect(self, ctx):
+        """Per-light gains on C (:class:`rjfit.sampler.effects.LightGains`)."""
+        return LightGains(params=self.fit_params(ctx), n_lights=ctx.n_lights)

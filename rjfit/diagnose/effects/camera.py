@@ -15,14 +15,12 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.model.effects import srgb_encode
 from rjfit.model.priors import LogNormal
 from rjfit.render.scene_change import MitsubaChange
+from rjfit.sampler.effects import CameraCurve
 
-
-def srgb_encode(x):
-    """IEC 61966-2-1 sRGB encoding, extended linearly below 0 (as colour-science does)."""
-    x = np.asarray(x, dtype=float)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1.0 / 2.4) - 0.055)
+__all__ = ["CameraGamma", "CameraSRGB", "srgb_encode"]
 
 
 class CameraGamma(Effect):
@@ -47,6 +45,10 @@ class CameraGamma(Effect):
         white = ctx.white_level
         return MitsubaChange(post_process=lambda images: self.curve(images, theta, white))
 
+    def sampler_effect(self, ctx):
+        """The data linearised by the curve's inverse, with its log-Jacobian (:class:`rjfit.sampler.effects.CameraCurve`)."""
+        return CameraCurve(params=self.fit_params(ctx), curve_kind="gamma", white_level=ctx.white_level, name=self.name)
+
 
 class CameraSRGB(Effect):
     name = "camera_srgb"
@@ -70,3 +72,7 @@ class CameraSRGB(Effect):
     def mitsuba_change(self, theta, ctx):
         white = ctx.white_level
         return MitsubaChange(post_process=lambda images: self.curve(images, theta, white))
+
+    def sampler_effect(self, ctx):
+        """The data linearised by the curve's inverse, with its log-Jacobian (:class:`rjfit.sampler.effects.CameraCurve`)."""
+        return CameraCurve(params=self.fit_params(ctx), curve_kind="srgb", white_level=ctx.white_level, name=self.name)

@@ -13,18 +13,16 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.model.effects import schlick_ratio
 from rjfit.model.priors import LogitNormal
 from rjfit.render.scene_change import MitsubaChange
+from rjfit.sampler.effects import LobeFactor
 
+__all__ = ["Fresnel", "schlick_ratio", "F0_MIN"]
 
 # The smallest normal-incidence reflectance of a real dielectric is about 0.02 (water, n = 1.33;
 # ((n - 1) / (n + 1))^2); 0.01 (n = 1.22) stays below every coating, paint binder and glass.
 F0_MIN = 0.01
-
-
-def schlick_ratio(cos_hv, f0):
-    """``F(<h.v>) / F0`` of Schlick's approximation."""
-    return 1.0 + (1.0 / f0 - 1.0) * (1.0 - np.clip(cos_hv, 0.0, 1.0)) ** 5
 
 
 class Fresnel(Effect):
@@ -51,3 +49,7 @@ class Fresnel(Effect):
 
     def mitsuba_change(self, theta, ctx=None):
         return MitsubaChange(bsdf_params={"f0": float(theta[0])})
+
+    def sampler_effect(self, ctx):
+        """A factor on the lobe's C only (:class:`rjfit.sampler.effects.LobeFactor`)."""
+        return LobeFactor(params=self.fit_params(ctx), fresnel_term=self.prepare(ctx))

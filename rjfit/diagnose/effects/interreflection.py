@@ -17,6 +17,7 @@ from rjfit.diagnose.effects.base import Effect, Param
 from rjfit.diagnose.scenes import indirect_radiance
 from rjfit.model.priors import LogNormal
 from rjfit.render.scene_change import MitsubaChange
+from rjfit.sampler.effects import IndirectLight
 
 INDIRECT_SPP = 32
 INDIRECT_DEPTH = 8
@@ -48,3 +49,8 @@ class Interreflection(Effect):
 
     def mitsuba_change(self, theta, ctx=None):
         return MitsubaChange(max_depth=INDIRECT_DEPTH, stochastic=True)
+
+    def sampler_effect(self, ctx):
+        """A known offset ``beta F`` (:class:`rjfit.sampler.effects.IndirectLight`): F the indirect light of the
+        fitted model whose region parameters ``ctx.features['fit_region_params']`` holds, a fixed feature of the fit."""
+        return IndirectLight(params=self.fit_params(ctx), feature=self.prepare(ctx))

@@ -13,35 +13,12 @@ import numpy as np
 from numba import njit
 
 from rjfit.diagnose.effects.base import Effect, Param
+from rjfit.model.effects import beckmann_alpha, g1_tan, smith_g1, smith_g1_tan, tangent
 from rjfit.model.priors import LogitNormal
 from rjfit.render.scene_change import MitsubaChange
+from rjfit.sampler.effects import LobeMasking
 
-
-def tangent(cos_theta):
-    """tan theta from cos theta, cos clipped to [1e-6, 1] (grazing angles stay finite)."""
-    cos_theta = np.clip(cos_theta, 1e-6, 1.0)
-    return np.sqrt(np.maximum(1.0 - cos_theta ** 2, 0.0)) / cos_theta
-
-
-def smith_g1(cos_theta, alpha):
-    """Walter et al. (2007) rational approximation of Beckmann's Smith G1."""
-    return smith_g1_tan(tangent(cos_theta), alpha)
-
-
-def smith_g1_tan(tan_theta, alpha):
-    """:func:`smith_g1` from tan theta (:func:`tangent`), which a refit computes once per observation."""
-    a = 1.0 / np.maximum(alpha * tan_theta, 1e-12)
-    g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
-    return np.where(a >= 1.6, 1.0, g)
-
-
-@njit(inline="always")
-def _g1_tan(tan_theta, alpha):
-    # the same operations, in the same order, as smith_g1_tan: the same bits
-    a = 1.0 / max(alpha * tan_theta, 1e-12)
-    if a >= 1.6:
-        return 1.0
-    return (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
+__all__ = ["Masking", "shadowing_masking", "smith_g1", "smith_g1_tan", "tangent", "beckmann_alpha"]
 
 
 @njit(cache=True, nogil=True)
@@ -57,12 +34,8 @@ def shadowing_masking(tan_v, tan_l, alpha_region, region):
     out = np.empty(tan_v.size)
     for i in range(tan_v.size):
         alpha = alpha_region[region[i]]
-        out[i] = _g1_tan(tan_v[i], alpha) * _g1_tan(tan_l[i], alpha)
+        out[i] = g1_tan(tan_v[i], alpha) * g1_tan(tan_l[i], alpha)
     return out
-
-
-def beckmann_alpha(gamma):
-    return np.sqrt(2.0 / (np.asarray(gamma, dtype=float) + 2.0))
 
 
 class Masking(Effect):
@@ -86,3 +59,8 @@ class Masking(Effect):
 
     def mitsuba_change(self, theta, ctx=None):
         return MitsubaChange(bsdf_params={"mask_w": float(theta[0])})
+
+    def sampler_effect(self, ctx):
+        """A gamma-dependent lobe factor (:class:`rjfit.sampler.effects.LobeMasking`)."""
+        tan_v, tan_l = self.prepare(ctx)
+        return LobeMasking(params=self.fit_params(ctx), tan_v=tan_v, tan_l=tan_l)

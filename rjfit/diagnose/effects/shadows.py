@@ -21,6 +21,7 @@ from rjfit.diagnose.effects.base import Effect, Param
 from rjfit.model.priors import LogitNormal
 from rjfit.render.effect_scenes import mitsuba_visibility
 from rjfit.render.scene_change import MitsubaChange
+from rjfit.sampler.effects import DirectFactor
 
 
 class CastShadows(Effect):
@@ -49,3 +50,7 @@ class CastShadows(Effect):
 
     def mitsuba_change(self, theta, ctx=None):
         return MitsubaChange(notes=["Mitsuba traces occlusion always; the closed form matches it at w = 1"])
+
+    def sampler_effect(self, ctx):
+        """A factor on the direct light's C (:class:`rjfit.sampler.effects.DirectFactor`), Mitsuba's visibility."""
+        return DirectFactor(params=self.fit_params(ctx), visibility=self.prepare(ctx))

@@ -39,7 +39,7 @@ def removal_log_emit(problem, labels, theta, n, n_v, axis):
     step = (n_v + 1) if axis == "u" else 1
     sums = np.zeros((3, n_lines * (n + 1)))   # current labels, column's pixels moved down, moved up
     cells.removal_sums(problem.y, problem.C, problem.log_cos_hn, problem.row if axis == "u" else problem.col, labels,
-                       np.ascontiguousarray(theta, dtype=float), n, n_v, step, axis == "u", sums)
+                       np.ascontiguousarray(theta, dtype=float), n, n_v, step, axis == "u", sums, problem.lobe)
     sums *= problem.likelihood_power
     current, down, up = (x.reshape(n_lines, n + 1) for x in sums)
     return np.maximum(down[:, 1:] - current[:, 1:], up[:, :-1] - current[:, :-1])

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from rjfit.sampler.likelihood import LOG_2PI, ab_from_theta, b_terms
+from rjfit.sampler.likelihood import LOG_2PI, ab_from_theta, lobe_column
 from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.moves.region_terms import region_log_lik, set_region, stats_at_gamma
 
@@ -22,7 +22,7 @@ def full_pass_log_lik(work, problem, theta):
     """Total log-likelihood by one pass over every observation (the paper's way)."""
     t = theta[work.labels]
     a, b = ab_from_theta(t)
-    mu = a * problem.A + b * b_terms(problem.C, problem.log_cos_hn, t[:, 2])
+    mu = a * problem.A + b * lobe_column(problem, slice(None), t[:, 2])
     resid = problem.y - mu
     return problem.likelihood_power * float(np.sum(-0.5 * (LOG_2PI + np.log(t[:, 3])) - 0.5 * resid * resid / t[:, 3]))
 

@@ -83,7 +83,7 @@ def sweep_changepoints(work, rng, problem, settings: SweepSettings, cp_prior, ax
     log_u = np.log(rng.random(n_lines))
     d_ll = problem.likelihood_power * shifts.obs_log_density_delta(
         problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, axis == "v", starts, ends, work.labels,
-        delta, work.theta)
+        delta, work.theta, problem.lobe)
     # a proposal outside [-1, size + 1] (not ``inside``) has zero density: -inf, never accepted
     accepted = accept(log_u, np.where(inside, d_ll + log_q_ratio, -np.inf), info, f"cp_{axis}")
     info.count(f"cp_{axis}", accepted, n_lines)
@@ -122,6 +122,6 @@ def apply_shift(work, problem, axis, starts, ends, delta):
         work.labels_owned = True
     shifts.shift_stats(problem.y, problem.C, problem.log_cos_hn, problem.colmajor_order, axis == "v", starts[moved],
                        ends[moved], work.labels, delta[moved], np.ascontiguousarray(work.theta[:, 2]), work.stats,
-                       problem.likelihood_power)
+                       problem.likelihood_power, problem.lobe)
     work.region_index = None
     work.log_lik = log_likelihood_from_stats(work.stats, work.theta)

@@ -118,7 +118,8 @@ def propose_vector_redraw(work, rng, problem, cp_prior, axis: str) -> Proposal |
     per_pixel = [np.zeros(n_lines * size), np.zeros(n_lines * size)]
     line_of, along_of = (problem.row, problem.col) if axis == "u" else (problem.col, problem.row)
     cells.per_pixel_two_cases(problem.y, problem.C, problem.log_cos_hn, line_of, along_of, work.labels,
-                              np.ascontiguousarray(x_old), step_label, work.theta, size, per_pixel[0], per_pixel[1])
+                              np.ascontiguousarray(x_old), step_label, work.theta, size, per_pixel[0], per_pixel[1],
+                              problem.lobe)
     log_lik_cell = cells.cell_log_lik(per_pixel[0], per_pixel[1], n_lines, size, problem.likelihood_power)  # (L, S+1)
     widths, cell_lo = vector_cells(lower, upper, size)
     with np.errstate(divide="ignore"):

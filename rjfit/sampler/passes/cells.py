@@ -8,7 +8,8 @@ regions and keys (scalar), the densities over runs of one region (vectorised,
 :func:`rjfit.sampler.passes.densities.log_densities_into`), the sums per key and their
 scatter (scalar). The per-pixel pass runs in :data:`~rjfit.sampler.passes.sums.PARTS`
 pieces on the chain's threads for large problems, each cut at a pixel's first observation
-(:func:`pixel_cuts`).
+(:func:`pixel_cuts`). Both take the problem's lobe terms last (None for the plain model:
+:mod:`rjfit.sampler.passes.lobe`).
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import numpy as np
 from numba import njit, prange
 
 from rjfit.sampler.passes.densities import coefficients, log_densities_into, run_end
+from rjfit.sampler.passes.lobe import lobe_rows
 from rjfit.sampler.passes.sums import BLOCK, PARALLEL_MIN_OBS, PARTS
 
 __all__ = ["per_pixel_two_cases", "pixel_cuts", "cell_log_lik", "removal_sums"]
@@ -23,7 +25,7 @@ __all__ = ["per_pixel_two_cases", "pixel_cuts", "cell_log_lik", "removal_sums"]
 
 @njit(cache=True, nogil=True)
 def _per_pixel_range(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, coef, size,
-                     right_case, left_case, lo, hi):
+                     right_case, left_case, lo, hi, ext, rows):
     """:func:`per_pixel_two_cases` of observations ``lo .. hi - 1``."""
     base_of = np.empty(BLOCK, np.int64)
     keys = np.empty(BLOCK, np.int64)
@@ -43,9 +45,10 @@ def _per_pixel_range(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_la
         while first < m:
             base = base_of[first]
             last = run_end(base_of, first, m)
-            log_densities_into(ys[first:last], cs[first:last], ls[first:last], coef, base, right_density[first:last])
+            log_densities_into(ys[first:last], cs[first:last], ls[first:last], coef, base, right_density[first:last],
+                               ext, rows, start + first)
             log_densities_into(ys[first:last], cs[first:last], ls[first:last], coef, base + step_label,
-                                left_density[first:last])
+                               left_density[first:last], ext, rows, start + first)
             first = last
         # a pixel's observations are consecutive (sorted by pixel): sum them in registers and
         # write each pixel's two sums once, not once per observation
@@ -66,16 +69,16 @@ def _per_pixel_range(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_la
 
 @njit(cache=True, nogil=True, parallel=True)
 def _per_pixel_parts(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, coef, size,
-                     right_case, left_case, bounds):
+                     right_case, left_case, bounds, ext, rows):
     # parts start at a pixel's first observation, so no two parts write the same entry
     for p in prange(bounds.shape[0] - 1):
         _per_pixel_range(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, coef, size,
-                         right_case, left_case, bounds[p], bounds[p + 1])
+                         right_case, left_case, bounds[p], bounds[p + 1], ext, rows)
 
 
 @njit(cache=True, nogil=True)
 def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, theta, size,
-                        right_case, left_case):
+                        right_case, left_case, ext=None):
     """Per-pixel log-likelihood sums with one vector's element right of the pixel and left of it.
 
     For observation ``i`` on line ``line_of[i]`` at ``along_of[i]``, the base
@@ -92,13 +95,14 @@ def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step
     observation.
     """
     coef = coefficients(theta)
+    rows = lobe_rows(ext, coef[:, 2])
     n = y.shape[0]
     if n < PARALLEL_MIN_OBS:
         _per_pixel_range(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, coef, size,
-                         right_case, left_case, 0, n)
+                         right_case, left_case, 0, n, ext, rows)
         return
     _per_pixel_parts(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, coef, size,
-                     right_case, left_case, pixel_cuts(line_of, along_of))
+                     right_case, left_case, pixel_cuts(line_of, along_of), ext, rows)
 
 
 @njit(cache=True, nogil=True)
@@ -145,7 +149,7 @@ def cell_log_lik(right_case, left_case, n_lines, size, power):
 
 
 @njit(cache=True, nogil=True)
-def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u, sums):
+def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u, sums, ext=None):
     """Per (line, column) log-likelihood sums: as labelled, moved one column down, moved one column up.
 
     ``sums`` (3, L * (n + 1)) accumulates; column = the observation's region index along the
@@ -154,6 +158,7 @@ def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u,
     :func:`per_pixel_two_cases` (the densities over runs of one label, vectorised).
     """
     coef = coefficients(theta)
+    rows = lobe_rows(ext, coef[:, 2])
     total = y.shape[0]
     # a label's column from a table: an integer division per observation costs more than its exps
     column_of = np.empty(theta.shape[0], np.int64)
@@ -177,13 +182,15 @@ def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u,
             column = column_of[lab]
             # as labelled, moved one column down, moved one column up; at the edges a move keeps
             # the observations where they are, so their densities are copied, not recomputed
-            log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab, density[0, lo:hi])
+            log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab, density[0, lo:hi], ext, rows, start + lo)
             if column > 0:
-                log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab - step, density[1, lo:hi])
+                log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab - step, density[1, lo:hi], ext, rows,
+                                   start + lo)
             else:
                 density[1, lo:hi] = density[0, lo:hi]
             if column < n:
-                log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab + step, density[2, lo:hi])
+                log_densities_into(ys[lo:hi], cs[lo:hi], ls[lo:hi], coef, lab + step, density[2, lo:hi], ext, rows,
+                                   start + lo)
             else:
                 density[2, lo:hi] = density[0, lo:hi]
             lo = hi

@@ -4,7 +4,10 @@
 density once per pass, so the per-observation work is one exponential;
 :func:`log_densities_into` evaluates a run of observations of one region in a loop that
 vectorises (no gather by label), which is why the passes that need densities of many
-regions first cut their observations into runs of one region (:func:`run_end`).
+regions first cut their observations into runs of one region (:func:`run_end`). With an
+effects' lobe terms ``ext`` (:mod:`rjfit.sampler.passes.lobe`; None for the plain model) the
+lobe column is evaluated per observation from them, with the regions' ``rows``
+(:func:`~rjfit.sampler.passes.lobe.lobe_rows`).
 """
 from __future__ import annotations
 
@@ -13,9 +16,10 @@ import math
 import numpy as np
 from numba import njit
 
+from rjfit.sampler.passes.lobe import lobe_value
 from rjfit.sampler.passes.special import INV_PI, LOG_2PI, fast_exp
 
-__all__ = ["coefficients", "log_density", "log_densities_into", "run_end"]
+__all__ = ["coefficients", "log_density", "log_density_lobe", "log_densities_into", "run_end"]
 
 
 @njit(cache=True, nogil=True)
@@ -44,6 +48,13 @@ def log_density(yv, c, lh, coef, r):
     return coef[r, 3] - coef[r, 4] * resid * resid
 
 
+@njit(cache=True, nogil=True)
+def log_density_lobe(yv, c, lh, coef, r, ext, i, rows):
+    """:func:`log_density` of observation ``i`` with effects' lobe terms."""
+    resid = yv - coef[r, 0] * c - coef[r, 1] * lobe_value(ext, i, coef[r, 2], lh, rows[r])
+    return coef[r, 3] - coef[r, 4] * resid * resid
+
+
 @njit(inline="always")
 def run_end(values, lo, m):
     """End of the run of equal values that starts at ``lo``: ``values[lo:hi]`` all equal, ``hi <= m``."""
@@ -54,9 +65,19 @@ def run_end(values, lo, m):
 
 
 @njit(cache=True, nogil=True, fastmath={"contract"})
-def log_densities_into(y, C, log_cos_hn, coef, r, out):
-    """``out[k]``: the log density of observation k in region ``r`` (one region: no gather, so it vectorises)."""
+def log_densities_into(y, C, log_cos_hn, coef, r, out, ext=None, rows=None, offset=0):
+    """``out[k]``: the log density of observation k in region ``r`` (one region: no gather, so it vectorises).
+
+    With lobe terms ``ext``, observation k of the slices is ``offset + k`` of the problem.
+    """
     ca, cb, g, c0, c1 = coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3], coef[r, 4]
+    if ext is not None:
+        row = rows[r]
+        for k in range(out.shape[0]):
+            b = lobe_value(ext, offset + k, g, np.float64(log_cos_hn[k]), row)
+            resid = np.float64(y[k]) - ca * np.float64(C[k]) - cb * b
+            out[k] = c0 - c1 * resid * resid
+        return
     for k in range(out.shape[0]):
         c = np.float64(C[k])
         resid = np.float64(y[k]) - ca * c - cb * c * fast_exp(g * np.float64(log_cos_hn[k]))

@@ -6,7 +6,8 @@ position change side, so their observations' label moves by the vector's label s
 those observations (the sweep's acceptance ratio), and :func:`shift_stats` relabels them
 and moves their terms between the regions' statistics when the move is accepted. The
 element sweeps and the vector redraw use them (:mod:`rjfit.sampler.moves.sweeps`,
-:mod:`rjfit.sampler.moves.vector_redraw`).
+:mod:`rjfit.sampler.moves.vector_redraw`). Both take the problem's lobe terms last (None for
+the plain model: :mod:`rjfit.sampler.passes.lobe`).
 """
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import math
 import numpy as np
 from numba import njit
 
-from rjfit.sampler.passes.densities import coefficients, log_density
+from rjfit.sampler.passes.densities import coefficients, log_density, log_density_lobe
+from rjfit.sampler.passes.lobe import lobe_rows, lobe_value
 from rjfit.sampler.passes.special import INV_PI
 
 __all__ = ["element_shift", "obs_log_density_delta", "shift_stats"]
@@ -42,7 +44,7 @@ def element_shift(x_old, x_new, lines, size, offsets, step_label):
 
 
 @njit(cache=True, nogil=True)
-def obs_log_density_delta(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta, theta):
+def obs_log_density_delta(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta, theta, ext=None):
     """Per line j: sum over observations ``p in [starts[j], ends[j])`` of log p(y | new) - log p(y | old).
 
     Observation ``i = order[p]`` if ``use_order`` (columns: ``colmajor_order``) else ``p``
@@ -54,13 +56,18 @@ def obs_log_density_delta(y, C, log_cos_hn, order, use_order, starts, ends, labe
     n_lines = starts.shape[0]
     out = np.zeros(n_lines)
     coef = coefficients(theta)
+    rows = lobe_rows(ext, coef[:, 2])
     for j in range(n_lines):
         total = 0.0
         for p in range(starts[j], ends[j]):
             i = order[p] if use_order else p
             yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
             r = labels[i]
-            total += log_density(yv, c, lh, coef, r + delta[j]) - log_density(yv, c, lh, coef, r)
+            if ext is not None:
+                total += (log_density_lobe(yv, c, lh, coef, r + delta[j], ext, i, rows)
+                          - log_density_lobe(yv, c, lh, coef, r, ext, i, rows))
+            else:
+                total += log_density(yv, c, lh, coef, r + delta[j]) - log_density(yv, c, lh, coef, r)
         out[j] = total
     return out
 
@@ -79,13 +86,26 @@ def _add_terms(stats, r, sign, yv, c, a, lh, gamma):
 
 
 @njit(cache=True, nogil=True)
-def shift_stats(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta, gammas, stats, weight):
+def _add_terms_lobe(stats, r, sign, yv, a, b):
+    """:func:`_add_terms` with the lobe term ``b`` given (effects' lobe terms)."""
+    stats[r, 0] += sign
+    stats[r, 1] += sign * yv * yv
+    stats[r, 2] += sign * yv * a
+    stats[r, 3] += sign * a * a
+    stats[r, 4] += sign * yv * b
+    stats[r, 5] += sign * a * b
+    stats[r, 6] += sign * b * b
+
+
+@njit(cache=True, nogil=True)
+def shift_stats(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta, gammas, stats, weight, ext=None):
     """Apply accepted element moves: relabel observations of lines j and move their terms between regions.
 
     ``stats`` (R, 7) is updated in place by ``weight`` (the likelihood power) times the
     terms of each moved observation, subtracted from its old region and added to its new
     one; ``labels`` is updated in place.
     """
+    rows = lobe_rows(ext, gammas)
     for j in range(starts.shape[0]):
         for p in range(starts[j], ends[j]):
             i = order[p] if use_order else p
@@ -94,6 +114,10 @@ def shift_stats(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta,
             a = c * INV_PI
             r_old = np.int64(labels[i])
             r_new = r_old + delta[j]
-            _add_terms(stats, r_old, -weight, yv, c, a, lh, gammas[r_old])
-            _add_terms(stats, r_new, weight, yv, c, a, lh, gammas[r_new])
+            if ext is not None:
+                _add_terms_lobe(stats, r_old, -weight, yv, a, lobe_value(ext, i, gammas[r_old], lh, rows[r_old]))
+                _add_terms_lobe(stats, r_new, weight, yv, a, lobe_value(ext, i, gammas[r_new], lh, rows[r_new]))
+            else:
+                _add_terms(stats, r_old, -weight, yv, c, a, lh, gammas[r_old])
+                _add_terms(stats, r_new, weight, yv, c, a, lh, gammas[r_new])
             labels[i] = r_new

@@ -12,12 +12,17 @@ Threads within one chain: :func:`b_sums` and :func:`b_sums_newton` cut a pass of
 Numba threads. The pieces do not depend on the number of threads, so neither does any
 sum, to the last bit. The NumPy reference of the statistics is
 :func:`rjfit.sampler.reference.region_stats_numpy`.
+
+Every pass takes the problem's lobe terms ``ext`` last (:mod:`rjfit.sampler.passes.lobe`):
+None for the plain model, whose code the branches on it leave as it was (pruned at compile
+time); a :class:`~rjfit.sampler.passes.lobe.LobeTerms` for a problem with effects.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
 
+from rjfit.sampler.passes.lobe import lobe_row, lobe_rows, lobe_value
 from rjfit.sampler.passes.special import INV_PI, fast_exp
 
 __all__ = ["BLOCK", "PARTS", "PARALLEL_MIN_OBS", "split_runs", "b_sums", "b_sums_many", "b_sums_newton", "fixed_sums",
@@ -34,8 +39,29 @@ PARALLEL_MIN_OBS = 32768  # below this a pass runs whole (about 45 us; threads w
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _b_sums_range(y, C, log_cos_hn, lo, hi, gamma):
+def _b_sums_range_lobe(y, C, log_cos_hn, lo, hi, gamma, ext, row):
+    """:func:`_b_sums_range` with effects' lobe terms (scalar: the terms gather by view angle)."""
+    yb = cb = bb = 0.0
+    for start in range(lo, hi, BLOCK):
+        m = min(BLOCK, hi - start)
+        pyb = pcb = pbb = 0.0
+        for k in range(m):
+            i = start + k
+            b = lobe_value(ext, i, gamma, np.float64(log_cos_hn[i]), row)
+            pyb += np.float64(y[i]) * b
+            pcb += np.float64(C[i]) * b
+            pbb += b * b
+        yb += pyb
+        cb += pcb
+        bb += pbb
+    return yb, cb, bb
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _b_sums_range(y, C, log_cos_hn, lo, hi, gamma, ext, row):
     """Unscaled ``(SyB, SCB, SBB)`` of observations ``lo .. hi - 1`` (see :func:`b_sums`)."""
+    if ext is not None:
+        return _b_sums_range_lobe(y, C, log_cos_hn, lo, hi, gamma, ext, row)
     yb = cb = bb = 0.0
     for start in range(lo, hi, BLOCK):
         # views indexed from 0: no negative-index wraparound in the loop, which then vectorises
@@ -94,24 +120,24 @@ def split_runs(starts, ends):
 
 
 @njit(cache=True, nogil=True)
-def b_sums(y, C, log_cos_hn, starts, ends, gamma):
+def b_sums(y, C, log_cos_hn, starts, ends, gamma, ext=None):
     """``(SyB, SAB, SBB)`` (unscaled, float64) of the observations in the runs ``[starts[k], ends[k])``.
 
     ``B = C <h.n>^gamma`` with the power from :func:`fast_exp`, fused with the sums: one
     vectorised pass per run that reads the float32 arrays once; in :data:`PARTS` pieces on
     the chain's threads when the runs hold :data:`PARALLEL_MIN_OBS` observations or more.
     """
-    out = _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, False)
+    out = _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, False, ext)
     out[1] *= INV_PI
     return out
 
 
 @njit(cache=True, nogil=True)
-def b_sums_many(y, C, log_cos_hn, starts, ends, gammas):
+def b_sums_many(y, C, log_cos_hn, starts, ends, gammas, ext=None):
     """:func:`b_sums` at each of ``gammas``: (G, 3)."""
     out = np.empty((gammas.shape[0], 3))
     for q in range(gammas.shape[0]):
-        out[q] = b_sums(y, C, log_cos_hn, starts, ends, gammas[q])
+        out[q] = b_sums(y, C, log_cos_hn, starts, ends, gammas[q], ext)
     return out
 
 
@@ -130,7 +156,7 @@ def _log_moments(first, second, log_cos_hn):
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _b_sums_newton_range(y, C, log_cos_hn, lo, hi, gamma, out, powers):
+def _b_sums_newton_range(y, C, log_cos_hn, lo, hi, gamma, out, powers, ext, row):
     """Add the nine unscaled sums of :func:`b_sums_newton` of observations ``lo .. hi - 1`` to ``out``.
 
     Per block: the B terms into ``powers`` (one vectorised loop with the exps), then one
@@ -141,8 +167,12 @@ def _b_sums_newton_range(y, C, log_cos_hn, lo, hi, gamma, out, powers):
         m = min(BLOCK, hi - start)
         ys, cs, ls = y[start:start + m], C[start:start + m], log_cos_hn[start:start + m]   # as in b_sums
         bs = powers[:m]
-        for k in range(m):
-            bs[k] = np.float64(cs[k]) * fast_exp(gamma * np.float64(ls[k]))
+        if ext is not None:
+            for k in range(m):
+                bs[k] = lobe_value(ext, start + k, gamma, np.float64(ls[k]), row)
+        else:
+            for k in range(m):
+                bs[k] = np.float64(cs[k]) * fast_exp(gamma * np.float64(ls[k]))
         yb, yb1, yb2 = _log_moments(ys, bs, ls)
         cb, cb1, cb2 = _log_moments(cs, bs, ls)
         bb, bb1, bb2 = _log_moments(bs, bs, ls)
@@ -158,37 +188,39 @@ def _b_sums_newton_range(y, C, log_cos_hn, lo, hi, gamma, out, powers):
 
 
 @njit(cache=True, nogil=True)
-def _gamma_sums_part(y, C, log_cos_hn, starts, ends, first, last, gamma, newton, out):
+def _gamma_sums_part(y, C, log_cos_hn, starts, ends, first, last, gamma, newton, out, ext, row):
     """Add runs ``first .. last - 1``'s sums to ``out``: :func:`b_sums`' three (unscaled) or, with ``newton``, nine."""
     if newton:
         powers = np.empty(BLOCK)
         for k in range(first, last):
-            _b_sums_newton_range(y, C, log_cos_hn, starts[k], ends[k], gamma, out, powers)
+            _b_sums_newton_range(y, C, log_cos_hn, starts[k], ends[k], gamma, out, powers, ext, row)
     else:
         for k in range(first, last):
-            a, b, c = _b_sums_range(y, C, log_cos_hn, starts[k], ends[k], gamma)
+            a, b, c = _b_sums_range(y, C, log_cos_hn, starts[k], ends[k], gamma, ext, row)
             out[0] += a
             out[1] += b
             out[2] += c
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _gamma_sums_parts(y, C, log_cos_hn, starts, ends, offsets, gamma, newton, part_sums):
+def _gamma_sums_parts(y, C, log_cos_hn, starts, ends, offsets, gamma, newton, part_sums, ext, row):
     # only the prange loop: Numba would run any array expression here as a parallel loop too
     for p in prange(offsets.shape[0] - 1):
-        _gamma_sums_part(y, C, log_cos_hn, starts, ends, offsets[p], offsets[p + 1], gamma, newton, part_sums[p])
+        _gamma_sums_part(y, C, log_cos_hn, starts, ends, offsets[p], offsets[p + 1], gamma, newton, part_sums[p],
+                         ext, row)
 
 
 @njit(cache=True, nogil=True)
-def _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, newton):
+def _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, newton, ext):
     """:func:`_gamma_sums_part` over all the runs, in :func:`split_runs`' pieces, the pieces added in order."""
+    row = lobe_row(ext, gamma)
     piece_starts, piece_ends, offsets = split_runs(starts, ends)
     parts = offsets.shape[0] - 1
     part_sums = np.zeros((parts, 9 if newton else 3))
     if parts == 1:
-        _gamma_sums_part(y, C, log_cos_hn, starts, ends, 0, starts.shape[0], gamma, newton, part_sums[0])
+        _gamma_sums_part(y, C, log_cos_hn, starts, ends, 0, starts.shape[0], gamma, newton, part_sums[0], ext, row)
     else:
-        _gamma_sums_parts(y, C, log_cos_hn, piece_starts, piece_ends, offsets, gamma, newton, part_sums)
+        _gamma_sums_parts(y, C, log_cos_hn, piece_starts, piece_ends, offsets, gamma, newton, part_sums, ext, row)
     out = np.zeros(part_sums.shape[1])
     for p in range(parts):
         out += part_sums[p]
@@ -196,14 +228,15 @@ def _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, newton):
 
 
 @njit(cache=True, nogil=True)
-def b_sums_newton(y, C, log_cos_hn, starts, ends, gamma):
+def b_sums_newton(y, C, log_cos_hn, starts, ends, gamma, ext=None):
     """:func:`b_sums` plus the same three sums weighted by ``log <h.n>`` and by its square (9 values).
 
     ``d B / d gamma = B log <h.n>``: these are the first and second gamma-derivatives of
     ``(SyB, SAB, SBB / 2)``, for the Newton proposal of the gamma move. In pieces on the
-    chain's threads as :func:`b_sums`.
+    chain's threads as :func:`b_sums`. With effects' lobe terms the two weighted sums are
+    those of the plain lobe's derivative (:mod:`rjfit.sampler.passes.lobe`).
     """
-    return _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, True)
+    return _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, True, ext)
 
 
 @njit(cache=True, nogil=True)
@@ -246,6 +279,14 @@ def run_indices(starts, ends, every=1):
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _stats_range_lobe(y, C, log_cos_hn, lo, hi, gamma, ext, row):
+    """:func:`_stats_range` with effects' lobe terms (scalar: the terms gather by view angle)."""
+    yy, yc, cc = fixed_sums(y, C, np.full(1, lo), np.full(1, hi))
+    yb, cb, bb = _b_sums_range_lobe(y, C, log_cos_hn, lo, hi, gamma, ext, row)
+    return yy, yc, cc, yb, cb, bb
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _stats_range(y, C, log_cos_hn, lo, hi, gamma):
     """Unscaled ``(Syy, SyC, SCC, SyB, SCB, SBB)`` of observations ``lo .. hi - 1`` at exponent ``gamma``."""
     yy = yc = cc = yb = cb = bb = 0.0
@@ -272,7 +313,7 @@ def _stats_range(y, C, log_cos_hn, lo, hi, gamma):
 
 
 @njit(cache=True, nogil=True)
-def region_stats_runs(y, C, log_cos_hn, offsets, starts, ends, gammas):
+def region_stats_runs(y, C, log_cos_hn, offsets, starts, ends, gammas, ext=None):
     """Unscaled sufficient statistics (R, 7) of every region from its runs (``likelihood.label_runs``).
 
     Each run is one vectorised pass that reads the problem's arrays in place; region r's
@@ -280,9 +321,14 @@ def region_stats_runs(y, C, log_cos_hn, offsets, starts, ends, gammas):
     """
     n_regions = offsets.shape[0] - 1
     out = np.zeros((n_regions, 7))
+    rows = lobe_rows(ext, gammas)
     for r in range(n_regions):
         for k in range(offsets[r], offsets[r + 1]):
-            yy, yc, cc, yb, cb, bb = _stats_range(y, C, log_cos_hn, starts[k], ends[k], gammas[r])
+            if ext is not None:
+                yy, yc, cc, yb, cb, bb = _stats_range_lobe(y, C, log_cos_hn, starts[k], ends[k], gammas[r], ext,
+                                                           rows[r])
+            else:
+                yy, yc, cc, yb, cb, bb = _stats_range(y, C, log_cos_hn, starts[k], ends[k], gammas[r])
             out[r, 0] += ends[k] - starts[k]
             out[r, 1] += yy
             out[r, 2] += yc

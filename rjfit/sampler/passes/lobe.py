@@ -1,0 +1,119 @@
+"""The lobe column of a problem with effects: per-observation terms that make B other than ``C <h.n>^gamma``.
+
+The plain model's lobe column is ``B_i(g) = C_i <h.n>_i^g`` with the same ``C`` as the
+diffuse column ``A_i = C_i / pi``. Effects inside the fit (issue 26,
+:mod:`rjfit.sampler.effects`) make it
+
+    B_i(g) = CB_i <h.n>_i^g M_i(g) + amb_i alb(g, v_i) / N(g)
+
+- ``CB``: the lobe's own ``C`` (Fresnel multiplies the lobe only, so ``CB != C``);
+- ``M_i(g) = (1 - w) + w G1(tan v_i, alpha(g)) G1(tan l_i, alpha(g))``: Smith-Beckmann
+  shadowing / masking with the roughness of the region's gamma (``w = 0``: none);
+- ``amb_i alb(g, v_i) / N(g)``: the lobe's share of ambient light, its directional albedo
+  interpolated in the table of :func:`rjfit.model.effects.albedo_table` (``amb`` empty: none).
+
+A :class:`LobeTerms` holds those terms, in the problem's observation order; the problem
+carries it as ``Problem.lobe`` (None for the plain model). Every compiled pass takes it as
+its last argument: Numba compiles the pass once for ``None``, where the branches on it are
+pruned at compile time (the plain model's machine code, bits and speed are those it had),
+and once for a :class:`LobeTerms`. The gamma-dependent parts are evaluated per region once
+per pass (:func:`lobe_rows`: the roughness and the albedo row over the view angles, divided by
+N(g)), then per observation (:func:`lobe_value`).
+
+The Newton gamma move's derivative sums weight B by ``log <h.n>`` (``dB/dg = B log <h.n>``,
+exact for the plain lobe); with masking or ambient light that is an approximation of the
+derivative, used only to place the proposal, whose density both ways the acceptance ratio
+holds: the move stays exact.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from rjfit.model.effects import g1_tan
+from rjfit.sampler.passes.special import fast_exp
+
+__all__ = ["LobeTerms", "lobe_rows", "lobe_row", "lobe_value", "plain_lobe_terms"]
+
+
+class LobeTerms(NamedTuple):
+    """The lobe column's terms of a problem with effects (module docstring), flat over observations.
+
+    Parts an effect does not use are empty arrays (``mask_w`` 0), so every problem with
+    effects has the same types and the passes compile once for all of them.
+    """
+
+    cb: np.ndarray          # float32 (N,): the lobe's C (divided by the noise scale like C)
+    mask_w: float           # shadowing / masking weight w (0: none)
+    tan_v: np.ndarray       # float32 (N,) or (0,): tan of the view angle
+    tan_l: np.ndarray       # float32 (N,) or (0,): tan of the light angle
+    amb: np.ndarray         # float32 (N,) or (0,): ambient radiance a / s_i (empty: no ambient light)
+    amb_j: np.ndarray       # int32 (N,) or (0,): albedo table column below the view angle
+    amb_fy: np.ndarray      # float32 (N,) or (0,): weight of the column above
+    table: np.ndarray       # float64 (G, J): the albedo table (rows: log gamma)
+    grid: np.ndarray        # float64 (3,): the table's lowest and highest log gamma, and its step
+
+    def take(self, idx) -> LobeTerms:
+        """The terms of the observations ``idx`` (gathered, in that order)."""
+        def part(values):
+            return values[idx] if values.shape[0] else values
+        return self._replace(cb=self.cb[idx], tan_v=part(self.tan_v), tan_l=part(self.tan_l), amb=part(self.amb),
+                             amb_j=part(self.amb_j), amb_fy=part(self.amb_fy))
+
+
+def plain_lobe_terms(cb) -> LobeTerms:
+    """Terms with only a lobe column of its own (no masking, no ambient light)."""
+    empty32 = np.zeros(0, np.float32)
+    return LobeTerms(cb=np.asarray(cb, np.float32), mask_w=0.0, tan_v=empty32, tan_l=empty32, amb=empty32,
+                     amb_j=np.zeros(0, np.int32), amb_fy=empty32, table=np.zeros((2, 2)), grid=np.array([0.0, 1.0, 1.0]))
+
+
+@njit(cache=True, nogil=True)
+def lobe_rows(ext, gammas):
+    """Per region (R, 1 + J): the Beckmann roughness ``alpha(g)`` and the albedo row over the view angles / N(g).
+
+    None for the plain model (``ext`` None). The albedo row is the table interpolated
+    linearly in log gamma (clipped to the table), as :func:`rjfit.model.effects.albedo_rows`.
+    """
+    if ext is None:
+        return None
+    n_cols = ext.table.shape[1]
+    out = np.zeros((gammas.shape[0], 1 + n_cols))
+    for r in range(gammas.shape[0]):
+        g = gammas[r]
+        out[r, 0] = math.sqrt(2.0 / (g + 2.0))
+        if ext.amb.shape[0] > 0:
+            x = (min(max(math.log(g), ext.grid[0]), ext.grid[1]) - ext.grid[0]) / ext.grid[2]
+            i = min(int(x), ext.table.shape[0] - 2)
+            fx = x - i
+            # Giesen's normalisation, as rjfit.model.blinn.blinn_normalisation (not callable from Numba)
+            norm = (g + 2.0) * (g + 4.0) / (8.0 * math.pi * (2.0 ** (-g / 2.0) + g))
+            for j in range(n_cols):
+                out[r, 1 + j] = ((1.0 - fx) * ext.table[i, j] + fx * ext.table[i + 1, j]) / norm
+    return out
+
+
+@njit(cache=True, nogil=True)
+def lobe_row(ext, gamma):
+    """:func:`lobe_rows` of one exponent: (1 + J,), or None for the plain model."""
+    if ext is None:
+        return None
+    return lobe_rows(ext, np.full(1, gamma))[0]
+
+
+@njit(inline="always")
+def lobe_value(ext, i, g, lh, row):
+    """``B_i(g)`` of observation ``i`` (``lh`` its log <h.n>, ``row`` its region's :func:`lobe_rows` row)."""
+    b = np.float64(ext.cb[i]) * fast_exp(g * lh)
+    w = ext.mask_w
+    if w != 0.0:
+        alpha = row[0]
+        b *= (1.0 - w) + w * (g1_tan(np.float64(ext.tan_v[i]), alpha) * g1_tan(np.float64(ext.tan_l[i]), alpha))
+    if ext.amb.shape[0] != 0:
+        j = ext.amb_j[i]
+        fy = np.float64(ext.amb_fy[i])
+        b += np.float64(ext.amb[i]) * ((1.0 - fy) * row[1 + j] + fy * row[2 + j])
+    return b

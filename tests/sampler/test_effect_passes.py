@@ -1,0 +1,58 @@
+"""The compiled passes on a problem with effects (issue 26) against their NumPy references.
+
+The tests of ``test_passes.py`` that read the problem's columns, run here on a problem whose
+lobe column carries every effect's terms (a lobe factor of its own, Smith-Beckmann masking
+and ambient light: :mod:`rjfit.sampler.passes.lobe`), transformed by every kind of effect
+(light gains, shadowing factor, indirect offset, sRGB camera) at a likelihood power 0.6. The
+references compute the lobe column with :func:`rjfit.sampler.likelihood.lobe_column`. Same
+tolerances as there. Left out: the Newton rule's finite differences (with masking and
+ambient light the Newton sums are the plain lobe's derivative, an approximation that only
+places the proposal: :mod:`rjfit.sampler.passes.lobe`).
+"""
+import numpy as np
+import pytest
+from test_passes import (test_b_sums_equal_numpy_reference, test_b_sums_newton_equal_numpy_reference,  # noqa: F401
+                         test_element_move_delta_and_shift_equal_reference, test_per_pixel_two_cases_equal_reference,
+                         test_region_stats_equal_numpy_reference, test_removal_sums_equal_reference,
+                         test_split_into_runs_equals_one_gather_per_region)
+
+from rjfit.data.synthetic import sphere_stack
+from rjfit.model.effects import ALBEDO_LOG_GAMMA, albedo_table, cos_v_weights
+from rjfit.model.priors import LogitNormal, LogNormal, Normal
+from rjfit.sampler.effects import (AmbientLight, CameraCurve, DirectFactor, IndirectLight, LightGains, LobeFactor,
+                                   LobeMasking)
+from rjfit.sampler.forward import EffectParam, LambertBlinnPhong, transformed
+
+
+def every_effect(observations, seed=0):
+    """One sampler effect of each kind for ``observations``, with random features (in their order)."""
+    rng = np.random.default_rng(seed)
+    n, n_lights = observations.n_obs, observations.n_lights
+    column, weight = cos_v_weights(rng.uniform(0.05, 1.0, n))
+    grid = np.array([ALBEDO_LOG_GAMMA[0], ALBEDO_LOG_GAMMA[-1], ALBEDO_LOG_GAMMA[1] - ALBEDO_LOG_GAMMA[0]])
+    unit = LogitNormal(0.0, 2.0)
+    return [
+        LobeFactor(params=(EffectParam("F0", LogitNormal(0.0, 2.0, low=0.01, high=1.0), 0.5),),
+                   fresnel_term=rng.uniform(0.0, 0.3, n) ** 2),
+        LobeMasking(params=(EffectParam("w_mask", unit, 0.5),), tan_v=rng.uniform(0.0, 3.0, n),
+                    tan_l=rng.uniform(0.0, 3.0, n)),
+        DirectFactor(params=(EffectParam("w_shadow", unit, 0.5),), visibility=(rng.random(n) < 0.8).astype(float)),
+        IndirectLight(params=(EffectParam("beta", LogNormal(0.0, 1.0), 1.0),),
+                      feature=rng.uniform(0.0, 0.05, n) * float(np.max(observations.y))),
+        LightGains(params=tuple(EffectParam(f"h{j}", Normal(0.0, 0.2), 0.0) for j in range(1, n_lights)),
+                   n_lights=n_lights),
+        AmbientLight(params=(EffectParam("ambient", LogNormal(np.log(0.05), 1.0), 0.05),), column=column.astype(np.int32),
+                     weight=weight, table=albedo_table(), grid=grid),
+        CameraCurve(params=(EffectParam("white_rel", LogNormal(0.0, 1.0), 1.0),), curve_kind="srgb",
+                    white_level=float(np.max(observations.y)), name="camera_srgb"),
+    ]
+
+
+@pytest.fixture(scope="module")
+def problem():
+    obs, _, _ = sphere_stack(40, n_lights=6, seed=3)
+    base = LambertBlinnPhong(every_effect(obs)).problem(obs, likelihood_power=0.6)
+    z = base.effects.initial_z() + np.random.default_rng(1).normal(0.0, 0.3, base.effects.n_params)
+    effect_problem, _ = transformed(base, z)
+    assert effect_problem.lobe.mask_w > 0 and effect_problem.lobe.amb.size == obs.n_obs
+    return effect_problem

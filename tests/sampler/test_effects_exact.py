@@ -1,0 +1,330 @@
+"""Exactness of the kernel with effects inside the likelihood (issue 26), as the plain kernel's is tested.
+
+- **Incremental statistics** against a full recompute: after every step of a chain with one
+  effect of each kind and busy structure moves, the cached statistics, log-likelihood and
+  log-Jacobian equal those recomputed on the problem transformed at the state's effect
+  parameters (and the oracle), to 1e-9 of their scale.
+- **Quadrature** on the tiny problem of ``test_exact_rj.py`` (one region, fixed segmentation):
+  for a light gain (two lights: one Helmert coordinate), the sRGB camera (with its
+  log-Jacobian) and ambient light, the effect parameter's marginal and the region's
+  (I0, kd, gamma) marginals against the exact posterior: a grid over the effect parameter,
+  the quadrature of ``test_exact_rj.Quadrature`` at each of its values (sigma^2 integrated
+  analytically), the log-Jacobian added. One-sample KS on draws thinned to about one per
+  effective sample, level 0.001 (fixed seeds).
+- **Enumeration** with ambient light: model and change-point frequencies (ESS-scaled
+  chi-square) and the ambient term's marginal (KS) against the exact posterior, the
+  enumeration of ``test_exact_rj.exact_posterior`` integrated over the ambient term.
+- **SBC** (Talts et al. 2018) with a light gain, ambient light and the sRGB camera at once,
+  data simulated from the extended model (noise on the linearised scale, as the fit's
+  likelihood has it): the ranks of all seven true parameters among 19 thinned draws must be
+  uniform (chi-square of 5 bins, level 0.001).
+
+A control shows the tests bite: leaving the camera's log-Jacobian out of the effect move's
+ratio moves the white level's marginal far from the exact one (p < 1e-6).
+"""
+import numpy as np
+import pytest
+from builders import tiny_problem
+from scipy import stats
+from test_effect_passes import every_effect
+from test_exact_rj import LEVEL, Quadrature, ess_scaled_chi2, exact_posterior
+from threadpoolctl import threadpool_limits
+
+from rjfit.data.observations import Observations
+from rjfit.data.synthetic import sphere_stack
+from rjfit.model.blinn import radiance
+from rjfit.model.effects import ALBEDO_LOG_GAMMA, albedo_table, cos_v_weights, lobe_albedo, srgb_decode
+from rjfit.model.effects import srgb_decode_log_slope
+from rjfit.model.priors import LogNormal, Normal
+from rjfit.sampler.effects import AmbientLight, CameraCurve, LightGains
+from rjfit.sampler.forward import EffectParam, LambertBlinnPhong, transformed
+from rjfit.sampler.kernel import ChainContext, initial_state, step
+from rjfit.sampler.likelihood import oracle_log_likelihood, region_stats
+from rjfit.sampler.moves import effects as effect_moves
+from rjfit.sampler.state import SamplerConfig
+
+GRID = np.array([ALBEDO_LOG_GAMMA[0], ALBEDO_LOG_GAMMA[-1], ALBEDO_LOG_GAMMA[1] - ALBEDO_LOG_GAMMA[0]])
+Z_POINTS = 61
+
+
+def test_incremental_statistics_equal_a_full_recompute_with_effects():
+    obs, _, _ = sphere_stack(12, n_lights=5, seed=4)
+    problem = LambertBlinnPhong(every_effect(obs, seed=2)).problem(obs, likelihood_power=0.7)
+    from rjfit.sampler.priors import make_prior
+
+    prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
+    config = SamplerConfig.from_flat(max_u=2, max_v=2, jump_prob=0.7, block_prob=0.4, vector_prob=0.7,
+                                     cp_uniform_prob=0.3, burn_in=60, anneal=0, refresh_every=0)
+    rng = np.random.default_rng(11)
+    state = initial_state(problem, prior, config, rng)
+    context = ChainContext()
+    accepted = 0
+    with threadpool_limits(1):
+        for _ in range(120):
+            state, info = step(state, rng, problem, prior, config, context)
+            accepted += sum(v for k, v in info.accepted.items() if k.startswith("effect_"))
+            current, log_jacobian = transformed(problem, state.effects.z)
+            stats = region_stats(current, state.labels, state.theta[:, 2], state.n_regions)
+            scale = np.maximum(1.0, np.abs(stats))
+            assert np.max(np.abs(state.stats - stats) / scale) < 1e-9
+            assert state.total_log_lik == pytest.approx(oracle_log_likelihood(current, state.labels, state.theta),
+                                                        rel=1e-9, abs=1e-6)
+            assert state.effects.log_jacobian == pytest.approx(log_jacobian, rel=1e-12, abs=1e-9)
+    assert accepted > 20, "the effect moves must be accepted for the test to bite"
+
+
+def test_camera_log_jacobian_is_the_log_slope_of_the_inverse():
+    """The camera curves' log-Jacobian against central differences of their inverses (relative step 1e-6)."""
+    y = np.array([0.001, 0.02, 0.3, 0.7, 1.0, 1.4]) * 10.0
+    for kind, theta in (("srgb", 1.3), ("gamma", 2.2)):
+        effect = CameraCurve(params=(EffectParam("p", LogNormal(0.0, 1.0), 1.0),), curve_kind=kind, white_level=10.0)
+        problem = LambertBlinnPhong([effect]).problem(_observations(y))
+        z = np.array([np.log(theta)])
+        columns = problem.effects.columns(z)
+        h = 1e-6 * problem.effects.y
+        plus, minus = (LambertBlinnPhong([effect]).problem(_observations(y + d)).effects.columns(z).y for d in (h, -h))
+        slope = (plus - minus) / (2 * h)
+        assert columns.log_jacobian == pytest.approx(float(np.sum(np.log(slope))), rel=1e-6, abs=1e-6)
+
+
+def _observations(y):
+    n = len(y)
+    return Observations(image_shape=(1, n), n_lights=1, pixel=np.arange(n), light=np.zeros(n, np.int32), y=np.asarray(y),
+                        cos_ln=np.full(n, 0.5), cos_hn=np.full(n, 0.9), irradiance=np.ones(n),
+                        object_mask=np.ones((1, n), bool))
+
+
+# -- exact posteriors with an effect: a grid over the effect parameter, the quadrature at each value ----------------
+
+class EffectQuadrature:
+    """The exact posterior of a tiny problem with one effect of one parameter ``z`` (unconstrained).
+
+    At each value of ``z`` on a grid (prior centre +- 6 prior sd), a :class:`test_exact_rj.Quadrature`
+    whose squared residuals are those of the extended model (computed here from eq. 2 and
+    :mod:`rjfit.model.effects`, independently of the sampler); the log-Jacobian of a camera
+    adds to the evidence of the whole data set.
+    """
+
+    def __init__(self, obs, prior, kind, z_prior, cos_v=None, white=None, points=41):
+        self.kind, self.z_prior, self.white = kind, z_prior, white
+        self.obs = obs
+        self.quad = Quadrature(obs, prior, points=points)
+        g0, g1, g2 = np.meshgrid(*self.quad.axes, indexing="ij")
+        I0, kd, g = np.exp(g0), 1 / (1 + np.exp(-g1)), np.exp(g2)
+        self.mu = np.stack([radiance(I0, kd, g, obs.cos_ln[i], obs.cos_hn[i], obs.irradiance[i])
+                            for i in range(obs.n_obs)])
+        if kind == "ambient":
+            self.amb = np.stack([I0 * (kd + (1 - kd) * lobe_albedo(g, cos_v[i])) for i in range(obs.n_obs)])
+        self.z = np.linspace(z_prior.loc - 6 * z_prior.scale, z_prior.loc + 6 * z_prior.scale, Z_POINTS)
+        self.log_norms, self.posteriors = [], []
+
+    def at(self, z):
+        """The quadrature at ``z`` (its squared residuals replaced) and the log-Jacobian there."""
+        value = float(self.z_prior.to_constrained(z))
+        y, log_jacobian = self.obs.y[:, None, None, None], 0.0
+        if self.kind == "gain":
+            gains = np.exp(np.array([1.0, -1.0]) / np.sqrt(2.0) * value)      # Helmert basis of two lights
+            mean = self.mu * gains[self.obs.light][:, None, None, None]
+        elif self.kind == "ambient":
+            mean = self.mu + value * self.amb
+        else:
+            white = value * self.white
+            y = white * srgb_decode(self.obs.y / white)[:, None, None, None]
+            log_jacobian = float(np.sum(srgb_decode_log_slope(self.obs.y / white)))
+            mean = self.mu
+        self.quad.sq = (y - mean) ** 2
+        self.quad._cache = {}
+        return self.quad, log_jacobian
+
+    def z_weights(self, log_evidence_at):
+        """Normalised posterior weights of the z grid (trapezoid) from ``log_evidence_at(quad) -> float``."""
+        log_w = []
+        for z in self.z:
+            quad, log_jacobian = self.at(z)
+            log_w.append(log_evidence_at(quad) + log_jacobian + float(self.z_prior.log_prob_unconstrained(z)))
+        log_w = np.array(log_w) + np.log(np.gradient(self.z))
+        return np.exp(log_w - np.logaddexp.reduce(log_w))
+
+    def z_cdf(self, weights):
+        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (weights[1:] + weights[:-1]))])
+        cdf /= cdf[-1]
+        return lambda x: np.interp(x, self.z, cdf)
+
+    def region_cdfs(self, weights, pixels):
+        """The region's (I0, kd, gamma) marginal CDFs: mixtures over the z grid."""
+        per_z = []
+        for z, w in zip(self.z, weights):
+            if w > 1e-6:
+                quad, _ = self.at(z)
+                per_z.append((w, quad.marginal_cdfs(pixels)[:3]))
+        total = sum(w for w, _ in per_z)
+        return [lambda x, k=k: sum(w * cdfs[k](x) for w, cdfs in per_z) / total for k in range(3)]
+
+
+def _thinned(values):
+    import arviz as az
+
+    ess = float(az.ess(np.asarray(values)[None], method="bulk"))
+    return np.asarray(values)[::max(1, int(np.ceil(len(values) / ess)))]
+
+
+def _fixed_chain(problem, prior, iterations, seed, burn=600, **flat):
+    config = SamplerConfig.from_flat(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=burn, anneal=0,
+                                     **flat)
+    rng = np.random.default_rng(seed)
+    state = initial_state(problem, prior, config, rng)
+    z, theta = np.zeros(iterations), np.zeros((iterations, 4))
+    context = ChainContext()
+    with threadpool_limits(1):
+        for t in range(iterations):
+            state, _ = step(state, rng, problem, prior, config, context)
+            z[t], theta[t] = state.effects.z[0], state.theta[0]
+    return z[burn:], theta[burn:]
+
+
+def _case(kind):
+    """(observations, region prior, sampler effect, its prior, EffectQuadrature keywords) of a one-effect tiny problem."""
+    obs, prior = tiny_problem()
+    if kind == "gain":
+        keep = obs.light < 2
+        obs = Observations(image_shape=obs.image_shape, n_lights=2, pixel=obs.pixel[keep], light=obs.light[keep],
+                           y=obs.y[keep], cos_ln=obs.cos_ln[keep], cos_hn=obs.cos_hn[keep],
+                           irradiance=obs.irradiance[keep], object_mask=obs.object_mask)
+        z_prior = Normal(0.0, 0.3)
+        return obs, prior, LightGains(params=(EffectParam("h1", z_prior, 0.0),), n_lights=2), z_prior, {}
+    if kind == "ambient":
+        z_prior = LogNormal(np.log(0.3), 0.5)
+        cos_v = np.random.default_rng(8).uniform(0.3, 1.0, obs.n_obs)
+        column, weight = cos_v_weights(cos_v)
+        effect = AmbientLight(params=(EffectParam("ambient", z_prior, 0.3),), column=column.astype(np.int32),
+                              weight=weight, table=albedo_table(), grid=GRID)
+        return obs, prior, effect, z_prior, {"cos_v": cos_v}
+    z_prior = LogNormal(np.log(1.2), 0.3)
+    white = float(np.max(obs.y))
+    effect = CameraCurve(params=(EffectParam("white_rel", z_prior, 1.2),), curve_kind="srgb", white_level=white,
+                         name="camera_srgb")
+    return obs, prior, effect, z_prior, {"white": white}
+
+
+@pytest.mark.parametrize("kind", ["gain", "camera_srgb", "ambient"])
+def test_effect_and_region_marginals_match_quadrature(kind):
+    obs, prior, effect, z_prior, extra = _case(kind)
+    problem = LambertBlinnPhong([effect]).problem(obs)
+    exact = EffectQuadrature(obs, prior, kind, z_prior, **extra)
+    pixels = [0, 1, 2, 3]
+    weights = exact.z_weights(lambda quad: quad.log_evidence(pixels))
+    z, theta = _fixed_chain(problem, prior, 4600, seed=3)
+    assert stats.kstest(_thinned(z), exact.z_cdf(weights)).pvalue > LEVEL
+    for k, cdf in enumerate(exact.region_cdfs(weights, pixels)):
+        draws = _thinned(theta[:, k])
+        assert stats.kstest(draws, cdf).pvalue > LEVEL, (k, len(draws))
+
+
+def test_a_move_without_the_camera_s_log_jacobian_samples_another_posterior(monkeypatch):
+    """Negative control: the sRGB camera's white level, the log-Jacobian dropped from the ratio."""
+    obs, prior, effect, z_prior, extra = _case("camera_srgb")
+    problem = LambertBlinnPhong([effect]).problem(obs)
+    exact = EffectQuadrature(obs, prior, "camera_srgb", z_prior, **extra)
+    weights = exact.z_weights(lambda quad: quad.log_evidence([0, 1, 2, 3]))
+    original = effect_moves.transformed
+    monkeypatch.setattr(effect_moves, "transformed", lambda p, z: (original(p, z)[0], 0.0))
+    z, _ = _fixed_chain(problem, prior, 4600, seed=3)
+    assert stats.kstest(_thinned(z), exact.z_cdf(weights)).pvalue < 1e-6
+
+
+def test_model_changepoint_and_ambient_frequencies_match_enumeration():
+    obs, prior, effect, z_prior, extra = _case("ambient")
+    problem = LambertBlinnPhong([effect]).problem(obs)
+    exact = EffectQuadrature(obs, prior, "ambient", z_prior, **extra)
+    posteriors = {}
+
+    def log_evidence_at(quad):
+        probs, log_norm = exact_posterior(quad, cp_prior="paper", log_norm=True)
+        posteriors[len(posteriors)] = probs
+        return log_norm
+
+    weights = exact.z_weights(log_evidence_at)
+    joint = {key: sum(w * posteriors[i][key] for i, w in enumerate(weights)) for key in posteriors[0]}
+    config = SamplerConfig.from_flat(max_u=1, max_v=1, split_scale=0.6, jump_prob=1.0, cp_step=1.0, cp_uniform_prob=0.3,
+                                     burn_in=600, anneal=0, cp_prior="paper")
+    rng = np.random.default_rng(5)
+    state = initial_state(problem, prior, config, rng, model=(0, 0))
+    iterations, burn = 9000, 600
+    models, u0, z = np.zeros((iterations, 2), int), np.full(iterations, -1), np.zeros(iterations)
+    context = ChainContext()
+    with threadpool_limits(1):
+        for t in range(iterations):
+            state, _ = step(state, rng, problem, prior, config, context)
+            models[t], z[t] = state.layout.model_key, state.effects.z[0]
+            if state.layout.n_u:
+                u0[t] = int(np.searchsorted([0.5, 1.5], state.layout.u[0, 0], side="right"))
+    models, u0, z = models[burn:], u0[burn:], z[burn:]
+    cells = [(0, 0), (0, 1), (1, 0), (1, 1)]
+    p_model = np.array([sum(p for k, p in joint.items() if k[:2] == m) for m in cells])
+    assert min(p_model) > 0.02, "the exact posterior should spread over the models for the test to bite"
+    p_value, freq, n_eff = ess_scaled_chi2([0, 1, 2, 3], models[:, 0] * 2 + models[:, 1], p_model)
+    assert p_value > LEVEL, (freq, p_model, n_eff)
+    with_u = models[:, 0] == 1
+    p_u = np.array([sum(p for k, p in joint.items() if k[0] == 1 and k[2] == c) for c in range(3)])
+    p_value, freq, n_eff = ess_scaled_chi2([0, 1, 2], u0[with_u], p_u / p_u.sum())
+    assert p_value > LEVEL, (freq, p_u / p_u.sum(), n_eff)
+    assert stats.kstest(_thinned(z), exact.z_cdf(weights)).pvalue > LEVEL
+
+
+# -- SBC with three effects at once --------------------------------------------------------------------------------
+
+def _sbc_effects(obs, cos_v):
+    column, weight = cos_v_weights(cos_v)
+    return [LightGains(params=(EffectParam("h1", Normal(0.0, 0.3), 0.0),), n_lights=2),
+            AmbientLight(params=(EffectParam("ambient", LogNormal(np.log(0.3), 0.5), 0.3),),
+                         column=column.astype(np.int32), weight=weight, table=albedo_table(), grid=GRID),
+            CameraCurve(params=(EffectParam("white_rel", LogNormal(np.log(1.5), 0.2), 1.5),), curve_kind="srgb",
+                        white_level=12.0, name="camera_srgb")]
+
+
+def _simulate(base, effects, theta, z, rng):
+    """Raw data from the extended model: ``f(mu + e)``, e ~ N(0, sigma^2) on the linearised scale."""
+    problem = LambertBlinnPhong(effects).problem(base)
+    current, _ = transformed(problem, z)
+    from rjfit.sampler.likelihood import ab_from_theta, lobe_column
+
+    a, b = ab_from_theta(theta)
+    mean = a * current.C.astype(float) / np.pi + b * lobe_column(current, slice(None), np.full(base.n_obs, theta[2]))
+    linear = mean + rng.normal(0.0, np.sqrt(theta[3]), mean.shape)
+    y = np.empty(base.n_obs)
+    y[np.argsort(base.pixel, kind="stable")] = problem.effects.columns(z).data_scale(linear)
+    return Observations(image_shape=base.image_shape, n_lights=2, pixel=base.pixel, light=base.light, y=y,
+                        cos_ln=base.cos_ln, cos_hn=base.cos_hn, irradiance=base.irradiance,
+                        object_mask=base.object_mask)
+
+
+def test_sbc_ranks_are_uniform_with_three_effects():
+    replicates, draws, thin, burn = 80, 19, 10, 150
+    rng = np.random.default_rng(2026)
+    H, W, L = 4, 4, 2
+    pixel = np.repeat(np.arange(H * W), L).astype(np.int64)
+    base = Observations(image_shape=(H, W), n_lights=L, pixel=pixel, light=np.tile(np.arange(L), H * W).astype(np.int32),
+                        y=np.ones(pixel.size), cos_ln=rng.uniform(0.3, 1.0, pixel.size),
+                        cos_hn=rng.uniform(0.6, 1.0, pixel.size), irradiance=rng.uniform(0.5, 1.5, pixel.size),
+                        object_mask=np.ones((H, W), bool))
+    _, prior = tiny_problem()
+    effects = _sbc_effects(base, rng.uniform(0.3, 1.0, pixel.size))
+    config = SamplerConfig.from_flat(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=burn, anneal=0)
+    priors = [p.prior for e in effects for p in e.params]
+    ranks = np.zeros((replicates, 7), int)
+    with threadpool_limits(1):
+        for i in range(replicates):
+            theta = prior.sample(rng)
+            z = np.array([p.loc + p.scale * rng.normal() for p in priors])
+            problem = LambertBlinnPhong(effects).problem(_simulate(base, effects, theta, z, rng))
+            order = [e.name for e in problem.effects.effects]
+            z_true = np.concatenate([z[[["light_calibration", "ambient", "camera_srgb"].index(n)]] for n in order])
+            state = initial_state(problem, prior, config, rng, theta=prior.sample(rng)[None])
+            kept, context = [], ChainContext()
+            for t in range(burn + draws * thin):
+                state, _ = step(state, rng, problem, prior, config, context)
+                if t >= burn and (t - burn) % thin == thin - 1:
+                    kept.append(np.concatenate([state.theta[0], state.effects.z]))
+            ranks[i] = (np.array(kept) < np.concatenate([theta, z_true])).sum(axis=0)
+    p_values = [stats.chisquare(np.bincount(ranks[:, k] // 4, minlength=5)).pvalue for k in range(7)]
+    assert min(p_values) > LEVEL, (p_values, ranks)
