@@ -145,7 +145,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
                else run_chains(specs, processes=options.processes, threads=options.threads))
     result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels)
     if problem.effects is not None:
-        result.summary["effects"] = effect_summaries(records, config.burn_in, problem.effects, effect_source)
+        result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
         result.summary["warnings"] += effect_warnings(result.summary["effects"])
     if truth_params is not None:
         result.summary["truth_params"] = truth_params

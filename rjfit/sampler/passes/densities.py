@@ -16,10 +16,10 @@ import math
 import numpy as np
 from numba import njit
 
-from rjfit.sampler.passes.lobe import lobe_value
+from rjfit.sampler.passes.lobe import lobe_fill
 from rjfit.sampler.passes.special import INV_PI, LOG_2PI, fast_exp
 
-__all__ = ["coefficients", "log_density", "log_density_lobe", "log_densities_into", "run_end"]
+__all__ = ["coefficients", "log_density", "log_densities_into", "run_end"]
 
 
 @njit(cache=True, nogil=True)
@@ -48,13 +48,6 @@ def log_density(yv, c, lh, coef, r):
     return coef[r, 3] - coef[r, 4] * resid * resid
 
 
-@njit(cache=True, nogil=True)
-def log_density_lobe(yv, c, lh, coef, r, ext, i, rows):
-    """:func:`log_density` of observation ``i`` with effects' lobe terms."""
-    resid = yv - coef[r, 0] * c - coef[r, 1] * lobe_value(ext, i, coef[r, 2], lh, rows[r])
-    return coef[r, 3] - coef[r, 4] * resid * resid
-
-
 @njit(inline="always")
 def run_end(values, lo, m):
     """End of the run of equal values that starts at ``lo``: ``values[lo:hi]`` all equal, ``hi <= m``."""
@@ -72,10 +65,9 @@ def log_densities_into(y, C, log_cos_hn, coef, r, out, ext=None, rows=None, offs
     """
     ca, cb, g, c0, c1 = coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3], coef[r, 4]
     if ext is not None:
-        row = rows[r]
+        lobe_fill(ext, offset, log_cos_hn, g, rows[r], out)       # the lobe column first, then the densities
         for k in range(out.shape[0]):
-            b = lobe_value(ext, offset + k, g, np.float64(log_cos_hn[k]), row)
-            resid = np.float64(y[k]) - ca * np.float64(C[k]) - cb * b
+            resid = np.float64(y[k]) - ca * np.float64(C[k]) - cb * out[k]
             out[k] = c0 - c1 * resid * resid
         return
     for k in range(out.shape[0]):

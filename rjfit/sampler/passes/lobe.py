@@ -18,7 +18,7 @@ its last argument: Numba compiles the pass once for ``None``, where the branches
 pruned at compile time (the plain model's machine code, bits and speed are those it had),
 and once for a :class:`LobeTerms`. The gamma-dependent parts are evaluated per region once
 per pass (:func:`lobe_rows`: the roughness and the albedo row over the view angles, divided by
-N(g)), then per observation (:func:`lobe_value`).
+N(g)), then per observation (:func:`lobe_scalar`, for a run of observations :func:`lobe_fill`).
 
 The Newton gamma move's derivative sums weight B by ``log <h.n>`` (``dB/dg = B log <h.n>``,
 exact for the plain lobe); with masking or ambient light that is an approximation of the
@@ -36,7 +36,7 @@ from numba import njit
 from rjfit.model.effects import g1_tan
 from rjfit.sampler.passes.special import fast_exp
 
-__all__ = ["LobeTerms", "lobe_rows", "lobe_row", "lobe_value", "plain_lobe_terms"]
+__all__ = ["LobeTerms", "lobe_rows", "lobe_row", "lobe_scalar", "lobe_fill", "lobe_at", "plain_lobe_terms"]
 
 
 class LobeTerms(NamedTuple):
@@ -105,15 +105,59 @@ def lobe_row(ext, gamma):
 
 
 @njit(inline="always")
-def lobe_value(ext, i, g, lh, row):
-    """``B_i(g)`` of observation ``i`` (``lh`` its log <h.n>, ``row`` its region's :func:`lobe_rows` row)."""
-    b = np.float64(ext.cb[i]) * fast_exp(g * lh)
+def lobe_scalar(cb, lh, g, w, tan_v, tan_l, alpha, amb, fy, albedo_j, albedo_next):
+    """``B`` of one observation from its terms (scalars only: an inlined function that takes arrays
+    costs a reference count per array and call, ten times the arithmetic).
+
+    ``cb``, ``lh``: its lobe C and log <h.n>; ``g``, ``alpha``: its region's exponent and
+    roughness; ``w``, ``tan_v``, ``tan_l``: masking (w = 0: none); ``amb``, ``fy``,
+    ``albedo_j``, ``albedo_next``: its ambient radiance, view-angle weight and the region's
+    albedo row (/ N(g)) at its two columns (amb = 0: none, adds 0).
+    """
+    b = cb * fast_exp(g * lh)
+    if w != 0.0:
+        b *= (1.0 - w) + w * (g1_tan(tan_v, alpha) * g1_tan(tan_l, alpha))
+    return b + amb * ((1.0 - fy) * albedo_j + fy * albedo_next)
+
+
+@njit(cache=True, nogil=True, fastmath={"contract"})
+def lobe_fill(ext, offset, log_cos_hn, g, row, out):
+    """``out[k] = B_(offset + k)(g)`` for ``k < len(out)`` (``log_cos_hn[k]`` that observation's log <h.n>, ``row``
+    its region's :func:`lobe_rows` row): the lobe column of a run of observations, for the passes to sum.
+
+    One loop per term, each without branches or gathers where it can (the power and the
+    masking factor vectorise), with the operations of :func:`lobe_scalar` in its order.
+    """
+    m = out.shape[0]
+    cb = ext.cb[offset:offset + m]
+    for k in range(m):
+        out[k] = np.float64(cb[k]) * fast_exp(g * np.float64(log_cos_hn[k]))
     w = ext.mask_w
     if w != 0.0:
         alpha = row[0]
-        b *= (1.0 - w) + w * (g1_tan(np.float64(ext.tan_v[i]), alpha) * g1_tan(np.float64(ext.tan_l[i]), alpha))
+        tan_v, tan_l = ext.tan_v[offset:offset + m], ext.tan_l[offset:offset + m]
+        for k in range(m):
+            out[k] *= (1.0 - w) + w * (g1_tan(np.float64(tan_v[k]), alpha) * g1_tan(np.float64(tan_l[k]), alpha))
     if ext.amb.shape[0] != 0:
-        j = ext.amb_j[i]
-        fy = np.float64(ext.amb_fy[i])
-        b += np.float64(ext.amb[i]) * ((1.0 - fy) * row[1 + j] + fy * row[2 + j])
-    return b
+        amb, fys, cols = ext.amb[offset:offset + m], ext.amb_fy[offset:offset + m], ext.amb_j[offset:offset + m]
+        for k in range(m):
+            j, fy = cols[k], np.float64(fys[k])
+            out[k] = out[k] + np.float64(amb[k]) * ((1.0 - fy) * row[1 + j] + fy * row[2 + j])
+
+
+@njit(cache=True, nogil=True)
+def lobe_at(ext, idx, log_cos_hn, gammas, rows, regions, out):
+    """``out[k] = B_(idx[k])`` in region ``regions[k]`` (its exponent ``gammas[r]``, its ``rows[r]``): the lobe
+    column of scattered observations, each in a region of its own (the element moves' observations)."""
+    w = ext.mask_w
+    has_ambient = ext.amb.shape[0] != 0
+    for k in range(out.shape[0]):
+        i, r = idx[k], regions[k]
+        tan_v = tan_l = amb = fy = 0.0
+        j = 0
+        if w != 0.0:
+            tan_v, tan_l = np.float64(ext.tan_v[i]), np.float64(ext.tan_l[i])
+        if has_ambient:
+            amb, fy, j = np.float64(ext.amb[i]), np.float64(ext.amb_fy[i]), ext.amb_j[i]
+        out[k] = lobe_scalar(np.float64(ext.cb[i]), np.float64(log_cos_hn[i]), gammas[r], w, tan_v, tan_l,
+                             rows[r, 0], amb, fy, rows[r, 1 + j], rows[r, 2 + j])

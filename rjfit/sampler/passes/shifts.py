@@ -16,8 +16,8 @@ import math
 import numpy as np
 from numba import njit
 
-from rjfit.sampler.passes.densities import coefficients, log_density, log_density_lobe
-from rjfit.sampler.passes.lobe import lobe_rows, lobe_value
+from rjfit.sampler.passes.densities import coefficients, log_density
+from rjfit.sampler.passes.lobe import lobe_at, lobe_rows
 from rjfit.sampler.passes.special import INV_PI
 
 __all__ = ["element_shift", "obs_log_density_delta", "shift_stats"]
@@ -56,20 +56,60 @@ def obs_log_density_delta(y, C, log_cos_hn, order, use_order, starts, ends, labe
     n_lines = starts.shape[0]
     out = np.zeros(n_lines)
     coef = coefficients(theta)
-    rows = lobe_rows(ext, coef[:, 2])
+    if ext is not None:
+        _obs_log_density_delta_lobe(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta, coef, ext, out)
+        return out
     for j in range(n_lines):
         total = 0.0
         for p in range(starts[j], ends[j]):
             i = order[p] if use_order else p
             yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
             r = labels[i]
-            if ext is not None:
-                total += (log_density_lobe(yv, c, lh, coef, r + delta[j], ext, i, rows)
-                          - log_density_lobe(yv, c, lh, coef, r, ext, i, rows))
-            else:
-                total += log_density(yv, c, lh, coef, r + delta[j]) - log_density(yv, c, lh, coef, r)
+            total += log_density(yv, c, lh, coef, r + delta[j]) - log_density(yv, c, lh, coef, r)
         out[j] = total
     return out
+
+
+@njit(cache=True, nogil=True)
+def _line_lobes(log_cos_hn, order, use_order, start, end, labels, step, gammas, ext, rows, idx, old, new, b_old, b_new):
+    """The observations ``p in [start, end)`` of one line: their indices, regions (old and old + ``step``) and lobe
+    columns in both, into the first ``end - start`` entries of the buffers."""
+    m = end - start
+    for k in range(m):
+        i = order[start + k] if use_order else start + k
+        idx[k] = i
+        old[k] = labels[i]
+        new[k] = old[k] + step
+    lobe_at(ext, idx[:m], log_cos_hn, gammas, rows, old[:m], b_old[:m])
+    lobe_at(ext, idx[:m], log_cos_hn, gammas, rows, new[:m], b_new[:m])
+
+
+@njit(cache=True, nogil=True)
+def _line_buffers(starts, ends):
+    """Buffers for :func:`_line_lobes` as long as the longest line."""
+    longest = 0
+    for j in range(starts.shape[0]):
+        longest = max(longest, ends[j] - starts[j])
+    return (np.empty(longest, np.int64), np.empty(longest, np.int64), np.empty(longest, np.int64),
+            np.empty(longest), np.empty(longest))
+
+
+@njit(cache=True, nogil=True)
+def _obs_log_density_delta_lobe(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta, coef, ext, out):
+    """:func:`obs_log_density_delta` with effects' lobe terms (each line's lobe columns first, :func:`_line_lobes`)."""
+    rows = lobe_rows(ext, coef[:, 2])
+    idx, old, new, b_old, b_new = _line_buffers(starts, ends)
+    for j in range(starts.shape[0]):
+        _line_lobes(log_cos_hn, order, use_order, starts[j], ends[j], labels, delta[j], coef[:, 2], ext, rows, idx,
+                    old, new, b_old, b_new)
+        total = 0.0
+        for k in range(ends[j] - starts[j]):
+            i, r, s = idx[k], old[k], new[k]
+            yv, c = np.float64(y[i]), np.float64(C[i])
+            resid_old = yv - coef[r, 0] * c - coef[r, 1] * b_old[k]
+            resid_new = yv - coef[s, 0] * c - coef[s, 1] * b_new[k]
+            total += coef[s, 3] - coef[s, 4] * resid_new * resid_new - coef[r, 3] + coef[r, 4] * resid_old * resid_old
+        out[j] = total
 
 
 @njit(cache=True, nogil=True)
@@ -105,7 +145,9 @@ def shift_stats(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta,
     terms of each moved observation, subtracted from its old region and added to its new
     one; ``labels`` is updated in place.
     """
-    rows = lobe_rows(ext, gammas)
+    if ext is not None:
+        _shift_stats_lobe(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta, gammas, stats, weight, ext)
+        return
     for j in range(starts.shape[0]):
         for p in range(starts[j], ends[j]):
             i = order[p] if use_order else p
@@ -114,10 +156,23 @@ def shift_stats(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta,
             a = c * INV_PI
             r_old = np.int64(labels[i])
             r_new = r_old + delta[j]
-            if ext is not None:
-                _add_terms_lobe(stats, r_old, -weight, yv, a, lobe_value(ext, i, gammas[r_old], lh, rows[r_old]))
-                _add_terms_lobe(stats, r_new, weight, yv, a, lobe_value(ext, i, gammas[r_new], lh, rows[r_new]))
-            else:
-                _add_terms(stats, r_old, -weight, yv, c, a, lh, gammas[r_old])
-                _add_terms(stats, r_new, weight, yv, c, a, lh, gammas[r_new])
+            _add_terms(stats, r_old, -weight, yv, c, a, lh, gammas[r_old])
+            _add_terms(stats, r_new, weight, yv, c, a, lh, gammas[r_new])
             labels[i] = r_new
+
+
+@njit(cache=True, nogil=True)
+def _shift_stats_lobe(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta, gammas, stats, weight, ext):
+    """:func:`shift_stats` with effects' lobe terms (each line's lobe columns first, :func:`_line_lobes`)."""
+    rows = lobe_rows(ext, gammas)
+    idx, old, new, b_old, b_new = _line_buffers(starts, ends)
+    for j in range(starts.shape[0]):
+        _line_lobes(log_cos_hn, order, use_order, starts[j], ends[j], labels, delta[j], gammas, ext, rows, idx, old,
+                    new, b_old, b_new)
+        for k in range(ends[j] - starts[j]):
+            i = idx[k]
+            yv = np.float64(y[i])
+            a = np.float64(C[i]) * INV_PI
+            _add_terms_lobe(stats, old[k], -weight, yv, a, b_old[k])
+            _add_terms_lobe(stats, new[k], weight, yv, a, b_new[k])
+            labels[i] = new[k]

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from rjfit.sampler.passes.lobe import lobe_row, lobe_rows, lobe_value
+from rjfit.sampler.passes.lobe import lobe_fill, lobe_row, lobe_rows
 from rjfit.sampler.passes.special import INV_PI, fast_exp
 
 __all__ = ["BLOCK", "PARTS", "PARALLEL_MIN_OBS", "split_runs", "b_sums", "b_sums_many", "b_sums_newton", "fixed_sums",
@@ -40,16 +40,18 @@ PARALLEL_MIN_OBS = 32768  # below this a pass runs whole (about 45 us; threads w
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _b_sums_range_lobe(y, C, log_cos_hn, lo, hi, gamma, ext, row):
-    """:func:`_b_sums_range` with effects' lobe terms (scalar: the terms gather by view angle)."""
+    """:func:`_b_sums_range` with effects' lobe terms: each block's lobe column first (:func:`lobe_fill`)."""
     yb = cb = bb = 0.0
+    bs = np.empty(BLOCK)
     for start in range(lo, hi, BLOCK):
         m = min(BLOCK, hi - start)
+        ys, cs = y[start:start + m], C[start:start + m]
+        lobe_fill(ext, start, log_cos_hn[start:start + m], gamma, row, bs[:m])
         pyb = pcb = pbb = 0.0
         for k in range(m):
-            i = start + k
-            b = lobe_value(ext, i, gamma, np.float64(log_cos_hn[i]), row)
-            pyb += np.float64(y[i]) * b
-            pcb += np.float64(C[i]) * b
+            b = bs[k]
+            pyb += np.float64(ys[k]) * b
+            pcb += np.float64(cs[k]) * b
             pbb += b * b
         yb += pyb
         cb += pcb
@@ -168,8 +170,7 @@ def _b_sums_newton_range(y, C, log_cos_hn, lo, hi, gamma, out, powers, ext, row)
         ys, cs, ls = y[start:start + m], C[start:start + m], log_cos_hn[start:start + m]   # as in b_sums
         bs = powers[:m]
         if ext is not None:
-            for k in range(m):
-                bs[k] = lobe_value(ext, start + k, gamma, np.float64(ls[k]), row)
+            lobe_fill(ext, start, ls, gamma, row, bs)
         else:
             for k in range(m):
                 bs[k] = np.float64(cs[k]) * fast_exp(gamma * np.float64(ls[k]))
