@@ -268,6 +268,10 @@ def _echo_fit(folder, summary: dict) -> None:
                f"ESS min {summary['ess_min']:.0f}; {summary['seconds']:.1f} s")
     if "label_accuracy" in summary:
         click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
+    for effect in summary.get("effects", []):
+        values = ", ".join(f"{p['name']} {p['mean']:.4g} (95 % {p['q2.5']:.4g} to {p['q97.5']:.4g})"
+                           for p in effect["parameters"])
+        click.echo(f"  effect {effect['name']}: {values}")
     for warning in summary.get("warnings", []):
         click.echo(f"  WARNING: {warning}", err=True)
 

@@ -75,7 +75,7 @@ class FitSource:
 
 def fit(observations, out_dir, options: FitOptions | None = None, *, truth_labels=None, truth_params=None,
         start=None, fixed_segmentation=None, chain_runner=None, source: FitSource | None = None,
-        before_publish=None, effects=(), effect_source=None, **option_keywords) -> dict:
+        before_publish=None, sampler_effects=(), effect_source=None, **option_keywords) -> dict:
     """Run the RJMCMC fit of ``observations`` and write results to ``out_dir``.
 
     Parameters
@@ -102,7 +102,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     before_publish : callable, optional
         ``before_publish(staging_dir, summary)``, called once every result is staged and
         before it replaces the folder's previous results (tests use it to interrupt a fit there).
-    effects : sequence of rjfit.sampler.forward.Effect, optional
+    sampler_effects : sequence of rjfit.sampler.forward.Effect, optional
         Effects sampled with the regions, their features in the order of ``observations``
         (:func:`rjfit.pipeline.fit_effects.fit_effects` builds them from the data set for
         ``options.effects`` and ``options.effects_from``); ``effect_source`` says where each
@@ -129,13 +129,13 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         of another run (the message says to delete it).
     """
     options = FitOptions.build(options, **option_keywords)
-    if (options.effects or options.effects_from is not None) and not effects:
+    if (options.effects or options.effects_from is not None) and not sampler_effects:
         raise ValueError("effects (--effects, --effects-from) need the data set's geometry: fit the data set "
-                         "(rjfit fit DATASET, rjfit.pipeline.fit_dataset.fit_dataset), or pass effects=")
+                         "(rjfit fit DATASET, rjfit.pipeline.fit_dataset.fit_dataset), or pass sampler_effects=")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    problem, suggestion, noise_record = prepare_problem(observations, options, effects)
+    problem, suggestion, noise_record = prepare_problem(observations, options, sampler_effects)
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
     prior = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A)

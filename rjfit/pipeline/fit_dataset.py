@@ -91,7 +91,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     observations = dataset.observations(options.channel)
     effects, effect_source = fit_effects(dataset, observations, options)
     return fit(observations, out_dir, options, truth_labels=dataset.truth_labels,
-               truth_params=dataset.truth_params, chain_runner=chain_runner, source=source, effects=effects,
+               truth_params=dataset.truth_params, chain_runner=chain_runner, source=source, sampler_effects=effects,
                effect_source=effect_source)
 
 
