@@ -212,6 +212,8 @@ def _click_option(name, default, spec):
              "power": click.STRING, "path": click.Path(dir_okay=False, path_type=Path),
              "dir": click.Path(file_okay=False, path_type=Path)}
     default = "1" if spec.kind == "power" and default == 1.0 else default
+    if spec.kind == "text" and isinstance(default, tuple):      # a list option's default, as it is typed
+        default = ",".join(default)
     return click.option(spec.flag, name, type=types[spec.kind], default=default, help=spec.help,
                         show_default=spec.show_default and default is not None)
 

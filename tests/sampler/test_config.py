@@ -11,7 +11,8 @@ VALUES = {"max_u": 5, "max_v": 4, "cp_prior": "paper", "cp_smooth_sd": 1.5, "upd
           "birth_straight_prob": 0.7, "birth_straight_sd": 2.0, "birth_gamma_inflation": 2.0,
           "min_obs_conditional": 10, "sampler": "paper", "gamma_move": "rw", "newton_scale": 0.5, "g_moves": 4,
           "target_accept": 0.3, "fallback_step": 0.2, "small_region_obs": 50, "full_recompute": True,
-          "burn_in": 100, "anneal": 50, "anneal_start": 0.01, "refresh_every": 50}
+          "burn_in": 100, "anneal": 50, "anneal_start": 0.01, "refresh_every": 50, "effect_every": 3,
+          "effect_target_accept": 0.4, "effect_curvature_every": 20, "effect_jitter": 0.1}
 
 
 def _at(config, path):

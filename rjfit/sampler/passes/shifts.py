@@ -115,19 +115,12 @@ def _obs_log_density_delta_lobe(y, C, log_cos_hn, order, use_order, starts, ends
 @njit(cache=True, nogil=True)
 def _add_terms(stats, r, sign, yv, c, a, lh, gamma):
     """Add ``sign`` times one observation's seven sufficient-statistic terms to region ``r``."""
-    b = c * math.exp(gamma * lh)
-    stats[r, 0] += sign
-    stats[r, 1] += sign * yv * yv
-    stats[r, 2] += sign * yv * a
-    stats[r, 3] += sign * a * a
-    stats[r, 4] += sign * yv * b
-    stats[r, 5] += sign * a * b
-    stats[r, 6] += sign * b * b
+    _add_terms_lobe(stats, r, sign, yv, a, c * math.exp(gamma * lh))
 
 
 @njit(cache=True, nogil=True)
 def _add_terms_lobe(stats, r, sign, yv, a, b):
-    """:func:`_add_terms` with the lobe term ``b`` given (effects' lobe terms)."""
+    """Add ``sign`` times one observation's seven terms to region ``r``, its lobe column ``b`` given."""
     stats[r, 0] += sign
     stats[r, 1] += sign * yv * yv
     stats[r, 2] += sign * yv * a
