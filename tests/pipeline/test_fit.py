@@ -12,13 +12,11 @@ from rjfit.pipeline.fit import fit
 def fitted(tmp_path_factory):
     out = tmp_path_factory.mktemp("fit")
     obs, labels, truth = sphere_stack(24, n_lights=8, seed=4)
-    # two chains in two spawned worker processes, started in model (1, 1) with straight change
-    # points near the centre lines and no annealed warm-up (a tempered start lets a chain this
-    # short wander into a twisted four-region mode it cannot leave in 1000 iterations at 24 px).
-    # Checked with this set-up and the current kernel (Newton gamma moves) on seeds 7, 8, 11-13,
-    # 16 and 20-25: every one passes both tests below (label accuracy 0.979-0.981, MAP model
-    # (1, 1)). With annealing at 600 iterations, about half of the seeds tried with the
-    # earlier kernel failed (7 of 16 runs).
+    # Two chains in two spawned worker processes, started in model (1, 1) with straight change
+    # points near the centre lines and no annealed warm-up: this file tests what a fit WRITES
+    # and its parameter estimates at the truth's mode. The default path (dispersed starts,
+    # annealing) is tested end to end in test_fit_default_path.py, over seeds in
+    # validation/default_fit_seeds.py.
     start = [{"changepoints": (np.full(24, 10.7), np.full(24, 13.4))},
              {"changepoints": (np.full(24, 13.6), np.full(24, 10.2))}]
     summary = fit(obs, out, truth_labels=labels, truth_params=truth, seed=8, n_chains=2, iterations=1000,
