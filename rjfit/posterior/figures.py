@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.plotting import pyplot, save_figure, zoom_to_object
+from rjfit.plotting import pyplot, region_colormap, save_figure, zoom_to_object
 from rjfit.sampler.priors import PARAM_NAMES
 
 __all__ = ["write_all", "model_histogram", "traces", "kept_draw_limits", "changepoints", "reflectance"]
@@ -61,7 +61,8 @@ def kept_draw_limits(series, burn_in, margin=0.1):
 def traces(records, burn_in, model, path):
     plt = _plt()
     R = (model[0] + 1) * (model[1] + 1)
-    fig, axes = plt.subplots(R, 4, figsize=(14, 1.8 * R + 0.5), squeeze=False, sharex=True)
+    # constrained layout keeps the overall title above the panel titles (a plain suptitle covers them)
+    fig, axes = plt.subplots(R, 4, figsize=(14, 1.8 * R + 0.8), squeeze=False, sharex=True, layout="constrained")
     for r in range(R):
         for k, name in enumerate(PARAM_NAMES):
             ax = axes[r, k]
@@ -148,7 +149,9 @@ def reflectance(labels, prediction, path):
         ax.set_title(title, fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.85)
     shown = np.where(np.asarray(labels) >= 0, labels, np.nan)
-    im = axes[3].imshow(shown, cmap="tab10", vmin=-0.5, vmax=9.5, interpolation="nearest")
+    # one colour per region however many there are (a ten-colour map repeats from the eleventh)
+    cmap, norm = region_colormap(int(np.nanmax(shown)) + 1 if np.isfinite(shown).any() else 1)
+    im = axes[3].imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
     for ax in axes:
         zoom_to_object(ax, np.isfinite(observed) | np.isfinite(shown))
     axes[3].set_title("MAP labels", fontsize=9)
