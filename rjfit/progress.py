@@ -15,7 +15,8 @@ import os
 import sys
 import time
 
-__all__ = ["progress", "tracked", "LineProgress", "TerminalProgress", "line_interval", "INTERVAL_ENV", "DEFAULT_INTERVAL"]
+__all__ = ["progress", "tracked", "LineProgress", "TerminalProgress", "line_interval", "INTERVAL_ENV",
+           "DEFAULT_INTERVAL"]
 
 #: environment variable that sets the seconds between two progress lines in a log
 INTERVAL_ENV = "RJFIT_PROGRESS_SECONDS"
@@ -97,7 +98,7 @@ class LineProgress:
             self._line(now)
 
     def write(self, text: str, say=None) -> None:
-        """A line of the caller's own (what a step found) between progress lines: ``say(text)``, or printed to the stream."""
+        """A line of the caller's own (what a step found) between progress lines: ``say(text)``, or to the stream."""
         if say is None:
             print(text, file=self.stream, flush=True)
         else:

@@ -16,7 +16,7 @@ import numpy as np
 from rjfit.plotting import pyplot, region_colormap, save_figure, zoom_to_object
 from rjfit.sampler.priors import PARAM_NAMES
 
-__all__ = ["write_all", "model_histogram", "traces", "kept_draw_limits", "changepoints", "reflectance"]
+__all__ = ["write_all", "model_histogram", "traces", "trace_figure", "kept_draw_limits", "changepoints", "reflectance"]
 
 
 def _plt():
@@ -59,6 +59,11 @@ def kept_draw_limits(series, burn_in, margin=0.1):
 
 
 def traces(records, burn_in, model, path):
+    return _save(trace_figure(records, burn_in, model), path)
+
+
+def trace_figure(records, burn_in, model):
+    """The figure of :func:`traces` (not saved): one row of panels per region of ``model``, one column per parameter."""
     plt = _plt()
     R = (model[0] + 1) * (model[1] + 1)
     # constrained layout keeps the overall title above the panel titles (a plain suptitle covers them)
@@ -84,7 +89,7 @@ def traces(records, burn_in, model, path):
     axes[-1, 0].set_xlabel("iteration (dashed: end of burn-in)")
     fig.suptitle(f"Traces of the MAP model {model}; each y axis spans the kept draws "
                  "(burn-in excursions beyond them are cut off)")
-    return _save(fig, path)
+    return fig
 
 
 def changepoints(records, burn_in, model, image_shape, path):

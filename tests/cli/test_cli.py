@@ -58,6 +58,8 @@ def test_fit_refuses_an_unvalidated_data_set_with_one_clear_line(paper_sphere_sm
     assert summary["validation"]["passed"] is None
     assert summary["warnings"][0].startswith("the forward model was not cross-checked")
     assert f"WARNING: {summary['warnings'][0]}" in result.output
+    # one chain: the one-line summary says why there is no R-hat instead of printing nan
+    assert "R-hat: not computable (one chain: R-hat compares chains" in result.output and "nan" not in result.output
 
 
 def test_bad_input_is_one_line_naming_the_file(tmp_path):
@@ -129,7 +131,7 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path, paper_spher
     import html as html_module
 
     assert all(html_module.escape(w) in html for w in summary["warnings"])
-    assert ("Warnings (convergence and model misfit)" in html) == bool(summary["warnings"])
+    assert ("Warnings (convergence, model misfit and the numbers themselves)" in html) == bool(summary["warnings"])
     assert ("Convergence checks passed" in html) != bool(summary["warnings"])
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
                      "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):

@@ -27,7 +27,7 @@ class Clock:
 def test_lines_come_at_the_interval_and_at_the_end():
     stream, clock = io.StringIO(), Clock()
     bar = LineProgress(100, "chain 1", "iteration", interval=10.0, stream=stream, clock=clock)
-    for _ in range(25):                      # 4 s per iteration: a line every 12 s (the first 10 s or more after the last)
+    for _ in range(25):       # 4 s per iteration: a line every 12 s (the first 10 s or more after the last)
         clock.now += 4.0
         bar.update(1, lambda: "model (n_u, n_v) = (1, 2)")
     bar.close()
