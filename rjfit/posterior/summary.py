@@ -30,13 +30,15 @@ TV_MAX = 0.5
 def _arviz():
     """ArviZ, imported without its 0.x FutureWarning about the 1.0 refactor.
 
-    Every fit would otherwise print that notice in the middle of its own output; it is
-    about ArviZ's future API, not about anything rjfit calls (pinned in pyproject.toml).
+    Every fit would otherwise print that notice in the middle of its own output (once a day:
+    ArviZ keeps a stamp in the user's cache); it is about ArviZ's future API, not about
+    anything rjfit calls (pinned in pyproject.toml). The notice starts with a line break,
+    and a filter's message must match from the start.
     """
     import warnings
 
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="ArviZ is undergoing a major refactor", category=FutureWarning)
+        warnings.filterwarnings("ignore", message=r"\s*ArviZ is undergoing a major refactor", category=FutureWarning)
         import arviz
     return arviz
 
