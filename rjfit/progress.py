@@ -125,7 +125,10 @@ class LineProgress:
         return ", ".join(parts)
 
     def _line(self, now: float) -> None:
-        print(self.text(now), file=self.stream, flush=True)
+        # one write per line, newline included: chains in other processes write to the same
+        # log, and print() writes the text and its newline apart (their lines would interleave)
+        self.stream.write(self.text(now) + "\n")
+        self.stream.flush()
         self.last_line, self.written = now, self.n
 
 
