@@ -23,6 +23,7 @@ from rjfit.baselines import methods
 from rjfit.baselines.metrics import BOUNDARY_TOLERANCE, relabel_to_truth, segmentation_metrics
 from rjfit.io import atomic_path, publish, staging_dir, write_json_atomic
 from rjfit.pipeline import fit_folder
+from rjfit.plotting import label_image
 from rjfit.render.datasets import load_dataset
 
 __all__ = ["compare_dataset", "read_map_labels", "format_markdown", "METHODS", "MAP_LABEL_FILES", "RUNTIME_KEYS"]
@@ -108,16 +109,6 @@ def format_markdown(rows, notes=()) -> str:
     return text
 
 
-def _panel_image(labels):
-    from matplotlib import colormaps
-
-    palette = colormaps["tab10"].colors + colormaps["Set3"].colors
-    rgb = np.ones(labels.shape + (3,))
-    for label in np.unique(labels[labels >= 0]):
-        rgb[labels == label] = palette[int(label) % len(palette)]
-    return rgb
-
-
 def _write_figure(path: Path, truth, mask, panels, title):
     """panels: list of rows, each a list of (title, labels or None for a text-only panel, text)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -142,7 +133,7 @@ def _write_figure(path: Path, truth, mask, panels, title):
             else:
                 shown = labels if labels is truth else relabel_to_truth(truth, labels, mask)
                 shown = np.where(mask, shown, -1)
-                axis.imshow(_panel_image(shown), interpolation="nearest")
+                axis.imshow(label_image(shown), interpolation="nearest")
             axis.set_title(name, fontsize=8)
     figure.suptitle(title, fontsize=10)
     figure.tight_layout()

@@ -46,11 +46,14 @@ SUMMARY_FIELDS = {
     "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),
     "chain_model_posterior": (list, "model posterior of each chain"),
     "rhat_max": (_NUMBER, "largest R-hat over the MAP model's parameters (null: not computable)"),
+    "rhat_reason": (str, "why rhat_max is null (null when it is a number)"),
     "ess_min": (_NUMBER, "smallest of the bulk and tail ESS"),
     "ess_bulk_min": (_NUMBER, "smallest bulk ESS"),
     "ess_tail_min": (_NUMBER, "smallest tail ESS"),
     "diagnostics": (dict, "R-hat and ESS per parameter, and their extremes"),
     "acceptance": (dict, "acceptance rate of each move kind"),
+    "acceptance_counts": (dict, "per move kind: proposed, accepted and nan_rejected (rejected because the acceptance "
+                                "ratio was NaN) over all chains"),
     "warnings": (list, "what a reader must know before trusting the numbers, one sentence each"),
     # against the truth (synthetic data only)
     "label_accuracy": (_NUMBER, "share of object pixels whose MAP label matches the truth after matching"),

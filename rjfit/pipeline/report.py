@@ -245,17 +245,20 @@ def _posterior_section(summary: dict) -> list[str]:
     warnings = summary.get("warnings") or []
     if warnings:
         items = "".join(f"<li>{html.escape(w)}</li>" for w in warnings)
-        parts.append(f'<div class="fail"><p>Warnings (convergence and model misfit): do not trust the summaries '
-                     f"below until they are resolved.</p><ul>{items}</ul></div>")
+        parts.append(f'<div class="fail"><p>Warnings (convergence, model misfit and the numbers themselves): do not '
+                     f"trust the summaries below until they are resolved.</p><ul>{items}</ul></div>")
     elif "warnings" in summary:
         parts.append('<p><span class="pass">Convergence checks passed</span> (split R-hat &le; 1.01, bulk and tail '
-                     "ESS &ge; 100 per chain, the chains' model frequencies within 0.5 of each other in total variation).</p>")
+                     "ESS &ge; 100 per chain, the chains' model frequencies within 0.5 of each other in total "
+                     "variation), and no number of the summary was flagged (region means inside their prior's central "
+                     "99.9 % and their own 95 % intervals, no region without data, no binding model cap, no NaN "
+                     "acceptance ratio).</p>")
     map_model = summary.get("map_model", {})
     parts.append(_key_values({**{f"map_model.{k}": v for k, v in map_model.items()}, **summary},
                              ["map_model.n_u", "map_model.n_v", "map_model.m", "true_regions_probability", "four_region_probability",
                               "likelihood_power",
                               "exact_truth_probability", "label_accuracy",
-                              "rhat_max", "ess_min", "iterations", "seconds"]))
+                              "rhat_max", "rhat_reason", "ess_min", "iterations", "seconds"]))
     model_posterior = summary.get("model_posterior") or {}
     if model_posterior:
         rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{v:.4f}</td></tr>"

@@ -16,7 +16,6 @@ from rjfit.diagnose.effects.base import Effect, Param
 from rjfit.model.priors import LogitNormal
 from rjfit.render.scene_change import MitsubaChange
 
-
 # The smallest normal-incidence reflectance of a real dielectric is about 0.02 (water, n = 1.33;
 # ((n - 1) / (n + 1))^2); 0.01 (n = 1.22) stays below every coating, paint binder and glass.
 F0_MIN = 0.01
