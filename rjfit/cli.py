@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -256,6 +257,21 @@ def fit(datasets, out_dir, validation_path, allow_unvalidated, scheduler, worker
         _echo_fit(folder, summary)
 
 
+def _finite(value) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _rhat_text(summary: dict) -> str:
+    """``R-hat max 1.0042``, or ``R-hat: not computable (why)`` where the summary has none (NaN or null)."""
+    if _finite(summary.get("rhat_max")):
+        return f"R-hat max {summary['rhat_max']:.4f}"
+    return f"R-hat: not computable ({summary.get('rhat_reason') or 'no reason recorded'})"
+
+
+def _ess_text(summary: dict) -> str:
+    return f"ESS min {summary['ess_min']:.0f}" if _finite(summary.get("ess_min")) else "ESS: not computable"
+
+
 def _echo_fit(folder, summary: dict) -> None:
     """A fit's one-paragraph summary: model, regions, convergence, time, warnings."""
     map_model = summary["map_model"]
@@ -266,8 +282,8 @@ def _echo_fit(folder, summary: dict) -> None:
                       if noise_model != "constant" else "")
         click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
     click.echo(f"  MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
-               f"{len(summary['regions'])} regions; R-hat max {summary['rhat_max']:.4f}, "
-               f"ESS min {summary['ess_min']:.0f}; {summary['seconds']:.1f} s")
+               f"{len(summary['regions'])} regions; {_rhat_text(summary)}, {_ess_text(summary)}; "
+               f"{summary['seconds']:.1f} s")
     if "label_accuracy" in summary:
         click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
     for effect in summary.get("effects", []):

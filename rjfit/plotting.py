@@ -5,7 +5,8 @@ from pathlib import Path
 
 from rjfit.io import atomic_path
 
-__all__ = ["pyplot", "save_figure", "map_figure", "exclusion_figure", "object_window", "zoom_to_object"]
+__all__ = ["pyplot", "save_figure", "map_figure", "exclusion_figure", "object_window", "zoom_to_object",
+           "region_colours", "region_colormap", "label_image"]
 
 
 def pyplot():
@@ -108,3 +109,58 @@ def exclusion_figure(path, counts, object_mask, n_lights, *, dpi=100) -> Path:
         figure.colorbar(panel, ax=axis, fraction=0.046, label="images")
     figure.tight_layout()
     return save_figure(figure, path, dpi=dpi)
+
+
+def region_colours(n: int):
+    """``n`` distinct RGB colours (n, 3) in [0, 1] for region labels 0 .. n - 1, the same in every label figure.
+
+    The first ten are matplotlib's ``tab10``; each further one is the point of an RGB grid
+    farthest from every colour chosen so far and from white (the background off the object),
+    so no two regions share a colour however many there are (tested: at least 0.26 apart in
+    RGB for up to 64 regions, where a ten-colour map repeats from the eleventh).
+    """
+    import math
+
+    import numpy as np
+    from matplotlib import colormaps
+
+    chosen = [np.asarray(c, float) for c in colormaps["tab10"].colors[:n]]
+    if n <= len(chosen):
+        return np.array(chosen).reshape(n, 3)
+    steps = max(16, math.ceil((n + 11) ** (1 / 3)) + 1)       # room for n colours besides white
+    grid = np.linspace(0.0, 1.0, steps)
+    candidates = np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), axis=-1).reshape(-1, 3)
+    nearest = np.linalg.norm(candidates - 1.0, axis=1)
+    for colour in chosen:
+        nearest = np.minimum(nearest, np.linalg.norm(candidates - colour, axis=1))
+    while len(chosen) < n:
+        pick = candidates[int(np.argmax(nearest))]
+        chosen.append(pick)
+        nearest = np.minimum(nearest, np.linalg.norm(candidates - pick, axis=1))
+    return np.array(chosen)
+
+
+def region_colormap(n: int):
+    """A colormap and norm that draw labels 0 .. n - 1 in :func:`region_colours` (for ``imshow`` with a colour bar)."""
+    import numpy as np
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
+    count = max(int(n), 1)
+    return ListedColormap(region_colours(count)), BoundaryNorm(np.arange(count + 1) - 0.5, count)
+
+
+def label_image(labels, n: int | None = None):
+    """Labels (H, W) as an RGB image (H, W, 3) in :func:`region_colours`, white where a label is negative.
+
+    ``n``: regions to colour for (default: the largest label + 1), so that figures of one fit
+    agree on each region's colour.
+    """
+    import numpy as np
+
+    labels = np.asarray(labels)
+    count = int(labels.max()) + 1 if n is None and labels.size and labels.max() >= 0 else int(n or 0)
+    rgb = np.ones(labels.shape + (3,))
+    inside = labels >= 0
+    if inside.any():
+        rgb[inside] = region_colours(count)[labels[inside].astype(int)]
+    return rgb

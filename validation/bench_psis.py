@@ -35,6 +35,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     import arviz as az
+
     from rjfit.diagnose.psis import psis_loo
 
     log_lik = log_lik_matrix(args.draws, args.observations, args.seed)

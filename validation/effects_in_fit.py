@@ -40,8 +40,7 @@ from rjfit.model.effects import srgb_encode  # noqa: E402
 from rjfit.pipeline.fit_dataset import fit_dataset  # noqa: E402
 from rjfit.pipeline.fit_folder import read_map_labels  # noqa: E402
 from rjfit.render.datasets import load_dataset  # noqa: E402
-from rjfit.render.hidden import (AMBIENT_RELATIVE, CALIBRATED_LIGHT, CALIBRATION_ERROR, SRGB_WHITE,  # noqa: E402
-                                 render_hidden)
+from rjfit.render.hidden import AMBIENT_RELATIVE, CALIBRATED_LIGHT, CALIBRATION_ERROR, SRGB_WHITE, render_hidden  # noqa: E402
 
 #: case -> (hidden kind, effect named)
 CASES = {"clean": ("clean", "ambient"), "ambient": ("ambient", "ambient"),

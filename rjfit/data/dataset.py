@@ -11,7 +11,6 @@ Layout (``dataset.json`` documents itself; see ``docs/dataset-format.md``)::
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 

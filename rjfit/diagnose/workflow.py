@@ -17,14 +17,22 @@ import numpy as np
 
 from rjfit.data.noise import DEFAULT_FLOOR
 from rjfit.diagnose import document, figures
-from rjfit.diagnose.candidates import (DECISION_RULE, LOG_BF_THRESHOLD, LOO_SE_FACTOR, PRIOR_CONFLICT_SD,
-                                       candidate_row, fit_prior_conflicts, try_candidates)
+from rjfit.diagnose.candidates import (
+    DECISION_RULE,
+    LOG_BF_THRESHOLD,
+    LOO_SE_FACTOR,
+    PRIOR_CONFLICT_SD,
+    candidate_row,
+    fit_prior_conflicts,
+    try_candidates,
+)
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.refit import refit, standardised_residuals
 from rjfit.diagnose.simulate import simulate_fit
 from rjfit.io import publish, staging_dir, write_json_atomic
+from rjfit.progress import progress
 
 __all__ = ["diagnose", "SearchSettings", "LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "PRIOR_CONFLICT_SD", "GAP_DEFINITION",
            "DECISION_RULE", "FIGURE_PATTERNS"]
@@ -109,23 +117,20 @@ def _moved(before, after):
     return moved, panels[:8]
 
 
-def _candidate_bar(progress, total, step):
-    if not progress or total == 0:
+def _candidate_bar(show, total, step):
+    """The candidates' progress (a bar on a terminal, plain lines in a log), or None."""
+    if not show or total == 0:
         return None
-    from tqdm import tqdm
-    return tqdm(total=total, desc=f"step {step + 1}", unit="refit", leave=False, disable=None)
+    return progress(total, f"step {step + 1}", "refit", leave=False)
 
 
 def _bar_say(bar, say, line):
-    """A candidate's line above the bar (the bar is redrawn below it), then one step of the bar."""
-    if bar is None or bar.disable:
+    """A candidate's line (above the bar on a terminal), then one step of the progress."""
+    if bar is None:
         say(line)
-    else:
-        bar.clear()
-        say(line)
-        bar.refresh()
-    if bar is not None:
-        bar.update(1)
+        return
+    bar.write(line, say)
+    bar.update(1)
 
 
 def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_steps=3,
@@ -310,8 +315,8 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
     trace.searched.append(residuals)
     present_kinds = {e.kind for e in current.effects}
     to_try = [e for e in usable if e not in current.effects and e.kind not in present_kinds]
-    # one refit per candidate can take minutes on a large data set: a bar (stderr, off in
-    # logs) says how many are left, and a line per candidate as it finishes
+    # one refit per candidate can take minutes on a large data set: progress on stderr (a bar,
+    # or lines in a log) says how many are left, and a line per candidate as it finishes
     bar = _candidate_bar(settings.progress, len(to_try), step)
     candidate_fits, finished_rows = {}, {}
 

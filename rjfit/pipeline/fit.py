@@ -45,6 +45,7 @@ from rjfit.io import staging_dir
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import publish_results, results_digest, write_summary
 from rjfit.pipeline.options import FitOptions
+from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
 from rjfit.posterior.effects import effect_summaries
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
@@ -262,12 +263,13 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
     # what the figures and residual maps show: averaged draw by draw, each with its own segmentation
     prediction = post.posterior_mean_prediction(records, burn, problem)
     diag = post.diagnostics(draws)
+    counts = caveats.acceptance_counts(records)
     summary = {
         "model_posterior": post.model_posterior(records, burn),
         "map_model": {"n_u": n_u, "n_v": n_v, "m": model_number(n_u, n_v, options.max_v)},
         "model_number_convention": "m = n_u * (max_v + 1) + n_v + 1",
         "regions": post.region_summaries(draws, labels),
-        "rhat_max": diag["rhat_max"],
+        "rhat_max": diag["rhat_max"], "rhat_reason": diag["rhat_reason"],
         "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
         "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"],
         "diagnostics": diag,
@@ -278,8 +280,8 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
         "likelihood_power": float(problem.likelihood_power), "likelihood_power_suggestion": suggestion,
         "noise": noise_record,
         "anneal_iterations": int(round(options.anneal * burn)),
-        "acceptance": {k: sum(r.accepted.get(k, 0) for r in records) / max(1, sum(r.proposed.get(k, 0) for r in records))
-                       for k in sorted({k for r in records for k in r.proposed})},
+        "acceptance": {k: c["accepted"] / max(1, c["proposed"]) for k, c in counts.items()},
+        "acceptance_counts": counts,
         "chain_seconds": [r.seconds for r in records],
         "chain_threads": [r.threads for r in records],
         "chain_resumed_from": [list(r.resumed_from) for r in records],
@@ -287,7 +289,8 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
         "chain_regions": post.chain_region_summaries(records, draws, burn, (n_u, n_v), problem.image_shape,
                                                      problem.object_mask),
     }
-    summary["warnings"] = post.convergence_warnings(diag, summary["chain_model_posterior"], options.n_chains)
+    summary["warnings"] = (post.convergence_warnings(diag, summary["chain_model_posterior"], options.n_chains)
+                           + number_warnings(summary, labels, problem, prior, config))
     misfit = misfit_warning(suggestion, float(problem.likelihood_power))
     if misfit:
         summary["warnings"].append(misfit)
@@ -297,6 +300,22 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
         summary.update(truth_summary(records, burn, labels, truth_labels))
     return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
                      model=(n_u, n_v))
+
+
+def number_warnings(summary: dict, labels, problem, prior, config: SamplerConfig) -> list:
+    """The caveats of the summary's own numbers (:mod:`rjfit.posterior.caveats`): NaN rejections, regions without
+    data, parameters beyond their prior's plausible range, pooled means outside their intervals, a binding model
+    cap (not for a fixed segmentation, whose model cannot move)."""
+    observed = np.zeros(problem.height * problem.width, bool)
+    observed[problem.pixel] = True
+    out = (caveats.nan_rejection_warnings(summary["acceptance_counts"])
+           + caveats.empty_region_warnings(labels, observed.reshape(problem.image_shape), len(summary["regions"]))
+           + caveats.prior_range_warnings(summary["regions"], prior)
+           + caveats.pooled_interval_warnings(summary["regions"]))
+    if getattr(config.regions, "jumps", True):     # a region model without the switch always jumps
+        out += caveats.model_cap_warnings(summary["model_posterior"], {"n_u": (summary["max_u"], "--max-u"),
+                                                                      "n_v": (summary["max_v"], "--max-v")})
+    return out
 
 
 def truth_summary(records, burn, labels, truth_labels) -> dict:

@@ -46,11 +46,14 @@ SUMMARY_FIELDS = {
     "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),
     "chain_model_posterior": (list, "model posterior of each chain"),
     "rhat_max": (_NUMBER, "largest R-hat over the MAP model's parameters (null: not computable)"),
+    "rhat_reason": (str, "why rhat_max is null (null when it is a number)"),
     "ess_min": (_NUMBER, "smallest of the bulk and tail ESS"),
     "ess_bulk_min": (_NUMBER, "smallest bulk ESS"),
     "ess_tail_min": (_NUMBER, "smallest tail ESS"),
     "diagnostics": (dict, "R-hat and ESS per parameter, and their extremes"),
     "acceptance": (dict, "acceptance rate of each move kind (effect_NAME: each effect's move)"),
+    "acceptance_counts": (dict, "per move kind: proposed, accepted and nan_rejected (rejected because the acceptance "
+                                "ratio was NaN) over all chains"),
     "effects": (list, "per effect sampled with the regions (--effects): name, stage, and per parameter its prior and "
                       "posterior mean, sd, 95 % interval (constrained), R-hat and bulk ESS; per-light gains per light; "
                       "where its features came from"),

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field, fields
-
 from pathlib import Path
 
 from rjfit.data.formats import CHANNELS

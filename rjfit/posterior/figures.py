@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.plotting import pyplot, save_figure, zoom_to_object
+from rjfit.plotting import pyplot, region_colormap, save_figure, zoom_to_object
 from rjfit.sampler.priors import PARAM_NAMES
 
-__all__ = ["write_all", "model_histogram", "traces", "kept_draw_limits", "changepoints", "reflectance"]
+__all__ = ["write_all", "model_histogram", "traces", "trace_figure", "kept_draw_limits", "changepoints", "reflectance"]
 
 
 def _plt():
@@ -59,9 +59,15 @@ def kept_draw_limits(series, burn_in, margin=0.1):
 
 
 def traces(records, burn_in, model, path):
+    return _save(trace_figure(records, burn_in, model), path)
+
+
+def trace_figure(records, burn_in, model):
+    """The figure of :func:`traces` (not saved): one row of panels per region of ``model``, one column per parameter."""
     plt = _plt()
     R = (model[0] + 1) * (model[1] + 1)
-    fig, axes = plt.subplots(R, 4, figsize=(14, 1.8 * R + 0.5), squeeze=False, sharex=True)
+    # constrained layout keeps the overall title above the panel titles (a plain suptitle covers them)
+    fig, axes = plt.subplots(R, 4, figsize=(14, 1.8 * R + 0.8), squeeze=False, sharex=True, layout="constrained")
     for r in range(R):
         for k, name in enumerate(PARAM_NAMES):
             ax = axes[r, k]
@@ -83,7 +89,7 @@ def traces(records, burn_in, model, path):
     axes[-1, 0].set_xlabel("iteration (dashed: end of burn-in)")
     fig.suptitle(f"Traces of the MAP model {model}; each y axis spans the kept draws "
                  "(burn-in excursions beyond them are cut off)")
-    return _save(fig, path)
+    return fig
 
 
 def changepoints(records, burn_in, model, image_shape, path):
@@ -148,7 +154,9 @@ def reflectance(labels, prediction, path):
         ax.set_title(title, fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.85)
     shown = np.where(np.asarray(labels) >= 0, labels, np.nan)
-    im = axes[3].imshow(shown, cmap="tab10", vmin=-0.5, vmax=9.5, interpolation="nearest")
+    # one colour per region however many there are (a ten-colour map repeats from the eleventh)
+    cmap, norm = region_colormap(int(np.nanmax(shown)) + 1 if np.isfinite(shown).any() else 1)
+    im = axes[3].imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
     for ax in axes:
         zoom_to_object(ax, np.isfinite(observed) | np.isfinite(shown))
     axes[3].set_title("MAP labels", fontsize=9)

@@ -30,13 +30,15 @@ TV_MAX = 0.5
 def _arviz():
     """ArviZ, imported without its 0.x FutureWarning about the 1.0 refactor.
 
-    Every fit would otherwise print that notice in the middle of its own output; it is
-    about ArviZ's future API, not about anything rjfit calls (pinned in pyproject.toml).
+    Every fit would otherwise print that notice in the middle of its own output (once a day:
+    ArviZ keeps a stamp in the user's cache); it is about ArviZ's future API, not about
+    anything rjfit calls (pinned in pyproject.toml). The notice starts with a line break,
+    and a filter's message must match from the start.
     """
     import warnings
 
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="ArviZ is undergoing a major refactor", category=FutureWarning)
+        warnings.filterwarnings("ignore", message=r"\s*ArviZ is undergoing a major refactor", category=FutureWarning)
         import arviz
     return arviz
 
@@ -95,27 +97,53 @@ def map_model_draws(records, burn_in: int, model) -> list:
 
 
 def diagnostics(draws_per_chain) -> dict:
-    """ArviZ split R-hat and bulk/tail ESS of the MAP model's parameters.
+    """ArviZ split R-hat and bulk/tail ESS of the MAP model's parameters, and why R-hat is missing where it is.
 
     Chains are truncated to the shortest chain's number of MAP-model draws (ArviZ needs equal
-    lengths); a chain with fewer than 4 such draws is left out.
+    lengths); a chain with fewer than 4 such draws is left out. A parameter constant within
+    a chain gets neither (NaN): R-hat compares the spread within chains with the spread
+    between them, and a chain that never moved a parameter has no spread to compare
+    (ArviZ would divide by zero). ``rhat_reason`` says why ``rhat_max`` is NaN (None when
+    it is a number); ``rhat_missing`` lists each parameter without an R-hat and why.
     """
     az = _arviz()
 
+    n_chains = len(draws_per_chain)
     usable = [d for d in draws_per_chain if len(d) >= 4]
+    if len(usable) < 2:
+        reason = ("one chain: R-hat compares chains (run two or more, --chains)" if n_chains < 2 else
+                  f"only {len(usable)} of {n_chains} chains have 4 or more kept draws in the MAP model: the chains sit "
+                  "in different models")
     if not usable:
         return {"rhat_max": float("nan"), "ess_bulk_min": float("nan"), "ess_tail_min": float("nan"),
-                "ess_bulk_median": float("nan"), "chains_used": 0, "draws_per_chain": 0}
+                "ess_bulk_median": float("nan"), "chains_used": 0, "draws_per_chain": 0, "rhat_reason": reason,
+                "rhat_missing": []}
     length = min(len(d) for d in usable)
     stacked = np.stack([d[:length] for d in usable])            # (chain, draw, region, param)
-    data = az.convert_to_dataset({"theta": stacked}, dims={"theta": ["region", "parameter"]})
-    rhat = az.rhat(data)["theta"].values if len(usable) > 1 else np.full(stacked.shape[2:], np.nan)
-    ess_bulk = az.ess(data, method="bulk")["theta"].values
-    ess_tail = az.ess(data, method="tail")["theta"].values
+    constant = np.ptp(stacked, axis=1) == 0                      # (chain, region, param)
+    varying = ~constant.any(axis=0)
+    missing = [{"region": int(r), "parameter": PARAM_NAMES[k],
+                "reason": f"constant within chain {', '.join(str(c) for c in np.flatnonzero(constant[:, r, k]))}"}
+               for r, k in zip(*np.nonzero(~varying))]
+    rhat, ess_bulk, ess_tail = (np.full(stacked.shape[2:], np.nan) for _ in range(3))
+    if varying.any():
+        data = az.convert_to_dataset({"theta": stacked[:, :, varying]}, dims={"theta": ["quantity"]})
+        if len(usable) > 1:
+            rhat[varying] = az.rhat(data)["theta"].values
+        ess_bulk[varying] = az.ess(data, method="bulk")["theta"].values
+        ess_tail[varying] = az.ess(data, method="tail")["theta"].values
+    if len(usable) >= 2:
+        reason = None if np.any(np.isfinite(rhat)) else "every parameter of the MAP model is constant within a chain"
     return {"rhat_max": float(np.nanmax(rhat)) if np.any(np.isfinite(rhat)) else float("nan"),
-            "ess_bulk_min": float(np.min(ess_bulk)), "ess_tail_min": float(np.min(ess_tail)),
-            "ess_bulk_median": float(np.median(ess_bulk)), "rhat": rhat.tolist(), "ess_bulk": ess_bulk.tolist(),
-            "chains_used": len(usable), "draws_per_chain": int(length)}
+            "ess_bulk_min": _nan_min(ess_bulk), "ess_tail_min": _nan_min(ess_tail),
+            "ess_bulk_median": float(np.nanmedian(ess_bulk)) if np.any(np.isfinite(ess_bulk)) else float("nan"),
+            "rhat": rhat.tolist(), "ess_bulk": ess_bulk.tolist(),
+            "chains_used": len(usable), "draws_per_chain": int(length), "rhat_reason": reason,
+            "rhat_missing": missing}
+
+
+def _nan_min(values) -> float:
+    return float(np.nanmin(values)) if np.any(np.isfinite(values)) else float("nan")
 
 
 def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_chains: int) -> list:
@@ -125,7 +153,8 @@ def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_cha
     chains' model frequencies differ by more than :data:`TV_MAX` in total variation (chains
     stuck in different models make the pooled model posterior an artefact of the starts);
     that at least two chains visit the
-    MAP model, so that R-hat exists; split R-hat <= :data:`RHAT_MAX` and bulk and tail ESS
+    MAP model, so that R-hat exists, and that no parameter is constant within a chain (R-hat
+    is then missing for it); split R-hat <= :data:`RHAT_MAX` and bulk and tail ESS
     >= :data:`ESS_PER_CHAIN_MIN` per chain for the MAP model's parameters (Vehtari et al.
     2021).
 
@@ -160,6 +189,13 @@ def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_cha
     if n_chains >= 2 and used < 2:
         warnings.append(f"only {used} of {n_chains} chains visit the MAP model after burn-in (4 draws needed): "
                         "R-hat of its parameters cannot be computed")
+    missing = diagnostics_result.get("rhat_missing", [])
+    if used >= 2 and missing:
+        listed = "; ".join(f"region {m['region']} {m['parameter']} ({m['reason']})" for m in missing[:8])
+        more = f" and {len(missing) - 8} more" if len(missing) > 8 else ""
+        warnings.append(f"R-hat not computable for {len(missing)} of the MAP model's parameters: {listed}{more}: a "
+                        "chain that never moved a parameter over its kept draws is stuck there (every proposal "
+                        "rejected), and R-hat has no spread within it to compare")
     rhat = diagnostics_result.get("rhat_max", float("nan"))
     if np.isfinite(rhat) and rhat > RHAT_MAX:
         warnings.append(f"R-hat max {rhat:.4f} > {RHAT_MAX}: the chains have not mixed over the MAP model's parameters")

@@ -30,9 +30,10 @@ from rjfit.data.exr import write_exr
 from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.data.lights import geometry_terms
 from rjfit.data.loading import is_dataset
-from rjfit.io import atomic_path, publish, read_json, staging_dir, write_json_atomic
+from rjfit.io import atomic_path, publish, staging_dir, write_json_atomic
 from rjfit.model.blinn import radiance
 from rjfit.plotting import map_figure
+from rjfit.progress import tracked
 
 # purpose tag of the validation's path-tracing streams (see rjfit.render.render.RENDER_STREAM)
 VALIDATE_STREAM = 2
@@ -205,10 +206,8 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     positions = dataset.positions if dataset.positions is not None else np.zeros_like(dataset.normals)
     path_stack, closed_stack, worst_stack = [], [], []
     iterator = list(enumerate(lights))
-    if progress:
-        from tqdm import tqdm
-
-        iterator = tqdm(iterator, desc="validate", unit="light", disable=None)
+    if progress:            # a bar on a terminal, plain lines in a log
+        iterator = tracked(iterator, "validate", "light")
     for light_index, light in iterator:
         scene = make_scene([light], max_depth, light_format)
         path_colour = path_trace(scene, spp=spp, seed=(seed, VALIDATE_STREAM, light_index))

@@ -15,6 +15,7 @@ from rjfit.data.lights import Light
 from rjfit.data.meshes import build_parts
 from rjfit.errors import DatasetError
 from rjfit.io import read_json, write_json_atomic
+from rjfit.progress import tracked
 
 __all__ = ["SCENES_DIR", "load_scene_definition", "available_scenes", "render_dataset", "write_mesh_parts",
            "scene_from_dataset_meta", "GEOMETRY_MATERIAL"]
@@ -230,10 +231,8 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EED]))
         images = []
         iterator = range(len(lights))
-        if progress:
-            from tqdm import tqdm
-
-            iterator = tqdm(iterator, desc=f"render {definition['name']}", unit="light", disable=None)
+        if progress:        # a bar on a terminal, plain lines in a log
+            iterator = tracked(iterator, f"render {definition['name']}", "light")
         for light_index in iterator:
             light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], **scene_args)
             radiance = path_trace(light_scene, spp=spp, seed=(seed, RENDER_STREAM, light_index))

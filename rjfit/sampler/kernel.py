@@ -32,7 +32,7 @@ from rjfit.sampler.forward import Problem, transformed
 from rjfit.sampler.likelihood import log_likelihood_from_stats, region_stats
 from rjfit.sampler.moves.effects import initial_effect_state, move_effects
 from rjfit.sampler.moves.within import adapt_log_g_scale, update_regions
-from rjfit.sampler.priors import to_phi
+from rjfit.sampler.priors import PARAM_NAMES, to_phi
 from rjfit.sampler.state import ChainState, KernelSettings, SamplerConfig, StepInfo, Work
 
 __all__ = ["ChainContext", "make_state", "refresh", "step", "initial_state", "log_posterior", "anneal_power",
@@ -146,6 +146,12 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=
     A problem with effects starts its effect parameters near their starting values
     (:func:`rjfit.sampler.moves.effects.initial_effect_state`, drawn after the rest), and its
     statistics are those of the problem transformed there.
+
+    Raises
+    ------
+    ValueError
+        If a starting parameter lies outside its prior's support: from a state of zero
+        density every move's log ratio is ``-inf - (-inf)``, NaN, and the chain never moves.
     """
     layout = config.regions.initial_layout(problem, rng, **layout_start)
     R = layout.n_regions
@@ -157,6 +163,13 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=
             theta = np.stack([i0_centre * np.exp(rng.normal(0.0, 0.3, R)), rng.uniform(0.2, 0.8, R),
                               np.exp(rng.uniform(np.log(2.0), np.log(30.0), R)),
                               np.full(R, 0.1 * np.var(problem.y, dtype=np.float64) + 1e-12)], axis=1)
+    theta = np.asarray(theta, float).reshape(-1, 4)
+    outside = [(r, k) for k, p in enumerate(prior.params) for r in np.flatnonzero(~np.isfinite(p.logpdf(theta[:, k])))]
+    if outside:
+        r, k = outside[0]
+        raise ValueError(f"start of region {r}: {PARAM_NAMES[k]} = {theta[r, k]:.6g} lies outside its prior's support "
+                         f"({prior.params[k].kind} {prior.params[k].a:.6g}, {prior.params[k].b:.6g}); a chain cannot "
+                         "start where the posterior is zero")
     if problem.effects is None:
         return make_state(problem, layout, theta)
     effects, effect_problem = initial_effect_state(problem, rng, config.effects)

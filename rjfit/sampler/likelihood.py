@@ -19,6 +19,7 @@ terms (:mod:`rjfit.sampler.passes.lobe`).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -30,11 +31,16 @@ from rjfit.sampler.forward import Problem
 from rjfit.sampler.passes import sums
 
 __all__ = ["STAT_N", "STAT_YY", "STAT_YA", "STAT_AA", "STAT_YB", "STAT_AB", "STAT_BB", "LOG_2PI", "region_stats",
-           "log_likelihood_from_stats", "oracle_log_likelihood", "ab_from_theta", "b_terms", "index_dtype",
-           "RegionData", "label_runs", "lobe_column"]
+           "log_likelihood_from_stats", "log_lik_large_ab", "AB_PLAIN_MAX", "MEAN_NORM_MAX", "oracle_log_likelihood",
+           "ab_from_theta", "b_terms", "index_dtype", "RegionData", "label_runs", "lobe_column"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
 LOG_2PI = float(np.log(2.0 * np.pi))
+#: |a| and |b| up to which a region's quadratic form is summed as written: every product stays
+#: below 1e300 for statistics below 1e100 (a data set's are some 1e20 at most)
+AB_PLAIN_MAX = 1e100
+#: a mean's norm beyond which the density underflows (its square and the residual's overflow float64)
+MEAN_NORM_MAX = 1e150
 
 
 def index_dtype(n_max: int):
@@ -228,16 +234,55 @@ def ab_from_theta(theta):
 def log_likelihood_from_stats(stats, theta):
     """Per-region log-likelihood from sufficient statistics (R, 7) and parameters (R, 4).
 
-    Regions with no observation contribute 0.
+    Regions with no observation contribute 0. Regions whose |a| or |b| exceeds
+    :data:`AB_PLAIN_MAX` take :func:`log_lik_large_ab` (their quadratic form would overflow).
     """
     stats = np.asarray(stats, float)
     theta = np.asarray(theta, float)
     a, b = ab_from_theta(theta)
+    large = (np.abs(a) > AB_PLAIN_MAX) | (np.abs(b) > AB_PLAIN_MAX)
+    if np.any(large):       # summed as written with 0 in their place, then replaced
+        a, b = np.where(large, 0.0, a), np.where(large, 0.0, b)
     s2 = theta[..., 3]
     ssr = (stats[..., STAT_YY] - 2.0 * a * stats[..., STAT_YA] - 2.0 * b * stats[..., STAT_YB]
            + a * a * stats[..., STAT_AA] + 2.0 * a * b * stats[..., STAT_AB] + b * b * stats[..., STAT_BB])
     n = stats[..., STAT_N]
-    return -0.5 * n * (LOG_2PI + np.log(s2)) - 0.5 * ssr / s2
+    out = -0.5 * n * (LOG_2PI + np.log(s2)) - 0.5 * ssr / s2
+    if np.any(large):
+        big_a, big_b = ab_from_theta(theta)
+        out = np.array(out, float)
+        for index in zip(*np.nonzero(np.atleast_1d(large))):
+            index = index if np.ndim(large) else ()
+            out[index] = log_lik_large_ab(stats[index], big_a[index], big_b[index], s2[index])
+    return out
+
+
+def log_lik_large_ab(stats_r, a, b, s2) -> float:
+    """One region's log-likelihood where |a| or |b| exceeds :data:`AB_PLAIN_MAX`, without overflow.
+
+    Such amplitudes come from proposals where a column of the region has all but vanished:
+    at a gamma where ``<h.n>^gamma`` underflows over the region, SBB is ~1e-300 and the (a, b)
+    conditional's sd of b ~1e150, so b^2 overflows while b^2 SBB need not. The quadratic form
+    is summed in the columns' own scale, ``p = a sqrt(SAA)``, ``q = b sqrt(SBB)``:
+    ``SSR = Syy - 2 p SyA/sqrt(SAA) - 2 q SyB/sqrt(SBB) + p^2 + 2 p q r + q^2`` with
+    ``r = SAB / sqrt(SAA SBB)``. For a, b >= 0 (what the priors allow) and A, B >= 0 the
+    mean's norm is at least max(p, q); beyond :data:`MEAN_NORM_MAX` the density underflows
+    and the result is -inf, as it is for a NaN amplitude. Python floats, checked on their
+    results.
+    """
+    n, syy, sya, saa, syb, sab, sbb = (float(x) for x in stats_r)
+    a, b, s2 = float(a), float(b), float(s2)
+    sa, sb = math.sqrt(max(saa, 0.0)), math.sqrt(max(sbb, 0.0))
+    p = a * sa if sa > 0 else 0.0          # a column without observations (sum 0): its amplitude does not enter
+    q = b * sb if sb > 0 else 0.0
+    if not (abs(p) <= MEAN_NORM_MAX and abs(q) <= MEAN_NORM_MAX):     # also False for NaN
+        return -math.inf
+    ya = sya / sa if sa > 0 else 0.0
+    yb = syb / sb if sb > 0 else 0.0
+    r = sab / (sa * sb) if sa * sb > 0 else 0.0
+    ssr = syy - 2.0 * p * ya - 2.0 * q * yb + p * p + 2.0 * p * q * r + q * q
+    log_lik = -0.5 * n * (LOG_2PI + math.log(s2)) - 0.5 * ssr / s2
+    return log_lik if math.isfinite(log_lik) else -math.inf
 
 
 def oracle_log_likelihood(problem: Problem, labels, theta) -> float:

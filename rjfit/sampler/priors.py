@@ -108,6 +108,27 @@ class ParamPrior:
             return self.b / rng.gamma(self.a, 1.0, size)
         return rng.beta(self.a, self.b, size)
 
+    def central_interval(self, mass: float) -> tuple[float, float]:
+        """The interval holding the central ``mass`` of this prior (quantiles (1 - mass) / 2 and (1 + mass) / 2).
+
+        Raises
+        ------
+        ValueError
+            If ``mass`` is not in (0, 1).
+        """
+        if not 0.0 < mass < 1.0:
+            raise ValueError(f"mass must lie in (0, 1), got {mass}")
+        low, high = 0.5 * (1.0 - mass), 0.5 * (1.0 + mass)
+        if self.kind == "lognormal":
+            z = float(special.ndtri(high))
+            return math.exp(self.a - z * self.b), math.exp(self.a + z * self.b)
+        if self.kind == "uniform":
+            return self.a + low * (self.b - self.a), self.a + high * (self.b - self.a)
+        if self.kind == "invgamma":       # 1 / x ~ Gamma(a, rate b): its quantiles, reversed
+            return (self.b / float(special.gammaincinv(self.a, high)),
+                    self.b / float(special.gammaincinv(self.a, low)))
+        return float(special.betaincinv(self.a, self.b, low)), float(special.betaincinv(self.a, self.b, high))
+
     def to_json(self):
         return {"kind": self.kind, "a": float(self.a), "b": float(self.b)}
 

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from rjfit.progress import progress
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import ChainContext, effect_log_likelihood, initial_state, log_posterior, step
 from rjfit.sampler.state import ChainState, SamplerConfig
@@ -364,10 +365,9 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
         else:
             state = initial_state(problem, prior, config, rng, **(spec.start or {}))
         bar = None
-        if spec.progress:
-            from tqdm import tqdm
-            bar = tqdm(total=spec.iterations, initial=start_t, position=spec.chain, desc=f"chain {spec.chain}",
-                       leave=False, mininterval=1.0, disable=None)    # None: off when stderr is a log file, not a terminal
+        if spec.progress:       # a bar on a terminal, plain lines in a log
+            bar = progress(spec.iterations, f"chain {spec.chain}", "iteration", initial=start_t, position=spec.chain,
+                           leave=False)
         context = ChainContext()       # what the chain's steps reuse (never saved: rebuilt on resume)
         t0 = time.perf_counter()
         seconds_before = recorder.seconds
@@ -380,7 +380,7 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
                 constant += effect_log_likelihood(problem, state)
             recorder.record(t, state, log_posterior(problem, prior, state, config), constant)
             if bar is not None:
-                bar.update(1)
+                bar.update(1, functools.partial(_model_text, spec.config.regions, state))
             done = t + 1
             if spec.checkpoint_path and spec.checkpoint_every and done % spec.checkpoint_every == 0 \
                     and done < spec.iterations:
@@ -396,6 +396,12 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
             bar.close()
         recorder.seconds = seconds_before + time.perf_counter() - t0
         return dataclasses.replace(recorder.result(done), threads=threads_used)
+
+
+def _model_text(regions, state) -> str:
+    """``model (n_u, n_v) = (1, 2)``: the chain's current model in a progress line."""
+    names = ", ".join(regions.key_names)
+    return f"model ({names}) = ({', '.join(str(int(k)) for k in state.layout.model_key)})"
 
 
 def run_chains(specs, *, processes: int | None = None, threads: int | None = None):

@@ -58,6 +58,8 @@ def test_fit_refuses_an_unvalidated_data_set_with_one_clear_line(paper_sphere_sm
     assert summary["validation"]["passed"] is None
     assert summary["warnings"][0].startswith("the forward model was not cross-checked")
     assert f"WARNING: {summary['warnings'][0]}" in result.output
+    # one chain: the one-line summary says why there is no R-hat instead of printing nan
+    assert "R-hat: not computable (one chain: R-hat compares chains" in result.output and "nan" not in result.output
 
 
 def test_bad_input_is_one_line_naming_the_file(tmp_path):
@@ -129,7 +131,7 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path, paper_spher
     import html as html_module
 
     assert all(html_module.escape(w) in html for w in summary["warnings"])
-    assert ("Warnings (convergence and model misfit)" in html) == bool(summary["warnings"])
+    assert ("Warnings (convergence, model misfit and the numbers themselves)" in html) == bool(summary["warnings"])
     assert ("Convergence checks passed" in html) != bool(summary["warnings"])
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
                      "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):
@@ -236,3 +238,22 @@ def test_fit_each_channel_fits_r_g_and_b_into_their_own_folders(paper_sphere_sma
     assert abs(centre["G"] - centre["R"] - math.log(0.5)) < 1e-6
     assert abs(centre["B"] - centre["R"] - math.log(0.25)) < 1e-6
     assert not (tmp_path / "fit" / "summary.json").exists()
+
+
+def test_arviz_s_refactor_notice_never_reaches_the_output(tmp_path):
+    """ArviZ 0.x prints a FutureWarning about its 1.0 refactor once a day (a stamp in the user's
+    cache): with a fresh cache, importing every rjfit module and computing the diagnostics and the
+    InferenceData (every use of ArviZ in a fit) prints nothing of it."""
+    script = ("import importlib, pkgutil, numpy as np, rjfit\n"
+              "for module in pkgutil.walk_packages(rjfit.__path__, 'rjfit.'):\n"
+              "    if not module.name.endswith('__main__'):\n"
+              "        importlib.import_module(module.name)\n"
+              "from rjfit.posterior.summary import diagnostics\n"
+              "print(diagnostics([np.random.default_rng(0).normal(size=(50, 1, 4)) for _ in range(2)])['rhat_max'])\n")
+    import os
+
+    environment = {**os.environ, "XDG_CACHE_HOME": str(tmp_path)}
+    result = subprocess.run([sys.executable, "-W", "default", "-c", script], capture_output=True, text=True,
+                            env=environment, check=False)
+    assert result.returncode == 0, result.stderr
+    assert "major refactor" not in result.stderr and "FutureWarning" not in result.stderr, result.stderr

@@ -12,13 +12,11 @@ from rjfit.pipeline.fit import fit
 def fitted(tmp_path_factory):
     out = tmp_path_factory.mktemp("fit")
     obs, labels, truth = sphere_stack(24, n_lights=8, seed=4)
-    # two chains in two spawned worker processes, started in model (1, 1) with straight change
-    # points near the centre lines and no annealed warm-up (a tempered start lets a chain this
-    # short wander into a twisted four-region mode it cannot leave in 1000 iterations at 24 px).
-    # Checked with this set-up and the current kernel (Newton gamma moves) on seeds 7, 8, 11-13,
-    # 16 and 20-25: every one passes both tests below (label accuracy 0.979-0.981, MAP model
-    # (1, 1)). With annealing at 600 iterations, about half of the seeds tried with the
-    # earlier kernel failed (7 of 16 runs).
+    # Two chains in two spawned worker processes, started in model (1, 1) with straight change
+    # points near the centre lines and no annealed warm-up: this file tests what a fit WRITES
+    # and its parameter estimates at the truth's mode. The default path (dispersed starts,
+    # annealing) is tested end to end in test_fit_default_path.py, over seeds in
+    # validation/default_fit_seeds.py.
     start = [{"changepoints": (np.full(24, 10.7), np.full(24, 13.4))},
              {"changepoints": (np.full(24, 13.6), np.full(24, 10.2))}]
     summary = fit(obs, out, truth_labels=labels, truth_params=truth, seed=8, n_chains=2, iterations=1000,
@@ -69,6 +67,36 @@ def test_fit_recovers_the_truth_on_a_small_sphere(fitted):
         for name in ("I0", "kd", "gamma", "sigma2"):
             z = (region[name]["mean"] - params[name]) / region[name]["sd"]
             assert abs(z) < 4.0, (region["region"] if "region" in region else None, name, z)
+
+
+#: the beginnings of the caveats of a fit's own numbers (rjfit.posterior.caveats) and of R-hat's missing values
+NUMBER_CAVEATS = ("lies at or above its prior's plausible range", "lies at or below its prior's plausible range",
+                  "holds no pixel with observations", "the model cap binds", "outside its own 95 % interval",
+                  "acceptance ratio was NaN", "R-hat not computable")
+
+
+def test_a_clean_fit_has_none_of_the_number_caveats(fitted):
+    _, summary, _ = fitted
+    assert not [w for w in summary["warnings"] if any(c in w for c in NUMBER_CAVEATS)], summary["warnings"]
+    assert summary["rhat_reason"] is None and np.isfinite(summary["rhat_max"])
+    counts = summary["acceptance_counts"]
+    assert set(counts) == set(summary["acceptance"]) and all(c["nan_rejected"] == 0 for c in counts.values())
+    assert all(summary["acceptance"][k] == c["accepted"] / c["proposed"] for k, c in counts.items())
+
+
+def test_a_region_without_data_and_a_binding_cap_are_warned(tmp_path):
+    """A fixed segmentation whose first u vector lies left of every pixel: region 0 holds no
+    observation. A fit capped at (1, 1) on the four-region sphere: the posterior sits on the cap."""
+    obs, _, _ = sphere_stack(12, n_lights=4, seed=2)
+    empty = fit(obs, tmp_path / "empty", n_chains=1, iterations=20, max_u=1, max_v=0, processes=1, progress=False,
+                figures=False, fixed_segmentation=(np.full((12, 1), -0.9), np.zeros((12, 0))))
+    assert any(w.startswith("region 0 of the MAP model holds no pixel with observations") for w in empty["warnings"])
+    assert not any("the model cap binds" in w for w in empty["warnings"])     # a fixed segmentation cannot move
+    capped = fit(obs, tmp_path / "capped", n_chains=1, iterations=40, max_u=1, max_v=1, processes=1, progress=False,
+                 figures=False, start=[{"model": (1, 1)}])
+    assert capped["model_posterior"].get("(1,1)", 0.0) > 0.05
+    assert any(w.startswith("the model cap binds: ") and "n_u = 1" in w and "--max-u 2" in w
+               for w in capped["warnings"]), capped["warnings"]
 
 
 def test_an_interrupted_fit_leaves_the_previous_results_whole(tmp_path):
@@ -153,7 +181,7 @@ def test_summary_json_is_strict_json_even_without_rhat(tmp_path):
     obs, _, _ = sphere_stack(12, n_lights=4, seed=2)
     summary = fit(obs, tmp_path, n_chains=1, iterations=20, max_u=1, max_v=1, processes=1, progress=False,
                   figures=False)
-    assert np.isnan(summary["rhat_max"])
+    assert np.isnan(summary["rhat_max"]) and summary["rhat_reason"].startswith("one chain: R-hat compares chains")
     text = (tmp_path / "summary.json").read_text()
     assert "NaN" not in text and "Infinity" not in text
     on_disk = json.loads(text, parse_constant=lambda name: pytest.fail(f"non-JSON constant {name}"))

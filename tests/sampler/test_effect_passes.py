@@ -11,16 +11,28 @@ places the proposal: :mod:`rjfit.sampler.passes.lobe`).
 """
 import numpy as np
 import pytest
-from test_passes import (test_b_sums_equal_numpy_reference, test_b_sums_newton_equal_numpy_reference,  # noqa: F401
-                         test_element_move_delta_and_shift_equal_reference, test_per_pixel_two_cases_equal_reference,
-                         test_region_stats_equal_numpy_reference, test_removal_sums_equal_reference,
-                         test_split_into_runs_equals_one_gather_per_region)
+from test_passes import (  # noqa: F401
+    test_b_sums_equal_numpy_reference,
+    test_b_sums_newton_equal_numpy_reference,
+    test_element_move_delta_and_shift_equal_reference,
+    test_per_pixel_two_cases_equal_reference,
+    test_region_stats_equal_numpy_reference,
+    test_removal_sums_equal_reference,
+    test_split_into_runs_equals_one_gather_per_region,
+)
 
 from rjfit.data.synthetic import sphere_stack
 from rjfit.model.effects import ALBEDO_LOG_GAMMA, albedo_table, cos_v_weights
 from rjfit.model.priors import LogitNormal, LogNormal, Normal
-from rjfit.sampler.effects import (AmbientLight, CameraCurve, DirectFactor, IndirectLight, LightGains, LobeFactor,
-                                   LobeMasking)
+from rjfit.sampler.effects import (
+    AmbientLight,
+    CameraCurve,
+    DirectFactor,
+    IndirectLight,
+    LightGains,
+    LobeFactor,
+    LobeMasking,
+)
 from rjfit.sampler.forward import EffectParam, LambertBlinnPhong, transformed
 
 

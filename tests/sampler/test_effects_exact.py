@@ -24,7 +24,6 @@ ratio moves the white level's marginal far from the exact one (p < 1e-6).
 """
 import numpy as np
 import pytest
-from builders import tiny_problem
 from scipy import stats
 from test_effect_passes import every_effect
 from test_exact_rj import LEVEL, Quadrature, ess_scaled_chi2, exact_posterior
@@ -33,8 +32,14 @@ from threadpoolctl import threadpool_limits
 from rjfit.data.observations import Observations
 from rjfit.data.synthetic import sphere_stack
 from rjfit.model.blinn import radiance
-from rjfit.model.effects import ALBEDO_LOG_GAMMA, albedo_table, cos_v_weights, lobe_albedo, srgb_decode
-from rjfit.model.effects import srgb_decode_log_slope
+from rjfit.model.effects import (
+    ALBEDO_LOG_GAMMA,
+    albedo_table,
+    cos_v_weights,
+    lobe_albedo,
+    srgb_decode,
+    srgb_decode_log_slope,
+)
 from rjfit.model.priors import LogNormal, Normal
 from rjfit.sampler.effects import AmbientLight, CameraCurve, LightGains
 from rjfit.sampler.forward import EffectParam, LambertBlinnPhong, transformed
@@ -42,6 +47,8 @@ from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.likelihood import oracle_log_likelihood, region_stats
 from rjfit.sampler.moves import effects as effect_moves
 from rjfit.sampler.state import SamplerConfig
+
+from builders import tiny_problem
 
 GRID = np.array([ALBEDO_LOG_GAMMA[0], ALBEDO_LOG_GAMMA[-1], ALBEDO_LOG_GAMMA[1] - ALBEDO_LOG_GAMMA[0]])
 Z_POINTS = 31

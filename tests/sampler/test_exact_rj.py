@@ -20,7 +20,6 @@ p < 1e-6, and must instead match the posterior that dropping the Jacobian actual
 """
 import numpy as np
 import pytest
-from builders import TINY_SIGMA2_PRIOR, tiny_problem
 from scipy import stats
 from scipy.special import gammaln
 from threadpoolctl import threadpool_limits
@@ -30,6 +29,8 @@ from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 from rjfit.sampler.state import SamplerConfig
+
+from builders import TINY_SIGMA2_PRIOR, tiny_problem
 
 LEVEL = 1e-3
 INTERVALS = np.array([1.5, 1.0, 1.5]) / 4.0   # probabilities of the three intervals of [-1, 3]

@@ -13,9 +13,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from builders import tiny_problem
 from scipy import stats
-from test_exact_rj import tiny_problem
 from threadpoolctl import threadpool_limits
 
 from rjfit.data.observations import Observations
@@ -28,6 +26,8 @@ from rjfit.sampler.moves import within
 from rjfit.sampler.moves.gamma import newton_log_gamma
 from rjfit.sampler.priors import ParamPrior
 from rjfit.sampler.state import SamplerConfig
+
+from builders import tiny_problem
 
 REPLICATES, DRAWS, THIN, BURN = 100, 19, 20, 200
 

@@ -10,7 +10,7 @@ from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.priors import ParamPrior, make_prior, to_phi
 from rjfit.sampler.regions.base import RegionModel
 from rjfit.sampler.regions.changepoints import ChangepointRegions
-from rjfit.sampler.runner import ChainRecord, ChainSpec, run_chain
+from rjfit.sampler.runner import ChainRecord, ChainRecorder, ChainSpec
 from rjfit.sampler.state import SamplerConfig, StepInfo
 
 
@@ -61,25 +61,31 @@ def test_a_step_is_pure_the_context_only_saves_work(small):
     assert log_posterior(problem, prior, last, config) == pytest.approx(float(expected), rel=1e-15)
 
 
-@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")   # the NaN ratios themselves
-def test_nan_ratios_are_counted_in_the_chain_record(small):
-    """A start outside sigma^2's prior support: proposals outside it too give -inf - (-inf) = NaN ratios.
 
-    Each is a rejection (the chain stays put, as ``nan < x`` would have decided) and the
-    record counts it per move kind.
-    """
+def test_a_start_outside_the_prior_s_support_is_refused(small):
+    """From a state of zero density every ratio is -inf - (-inf) = NaN and the chain never moves: refused."""
     problem, prior, _ = small
     narrow = ParamPrior("uniform", 1e-9, 2e-9)        # far below the data's noise variance
     prior = type(prior)(params=prior.params[:3] + (narrow,))
     config = SamplerConfig.from_flat(max_u=1, max_v=1, update_changepoints=False, jumps=False)
-    height, width = problem.image_shape
     theta = np.tile([np.exp(prior.params[0].a), 0.5, 10.0, 1.0], (4, 1))       # sigma^2 = 1: outside the support
-    spec = ChainSpec(problem=problem, prior=prior, config=config, seed=1, chain=0, n_chains=1, iterations=5,
-                     start={"changepoints": (np.full(height, width / 2.0), np.full(width, height / 2.0)),
-                            "theta": theta})
-    record = run_chain(spec)
-    assert record.nan_rejected.get("sigma2", 0) > 0
-    assert record.accepted.get("sigma2", 0) == 0
+    with pytest.raises(ValueError, match=r"start of region 0: sigma2 = 1 lies outside its prior's support"):
+        initial_state(problem, prior, config, np.random.default_rng(1), theta=theta, model=(1, 1))
+
+
+def test_nan_rejections_reach_the_chain_record(small):
+    """What the accept step counts reaches the record, per move kind, next to the proposals."""
+    problem, prior, _ = small
+    spec = ChainSpec(problem=problem, prior=prior, config=SamplerConfig.from_flat(max_u=1, max_v=1), seed=1, chain=0,
+                     n_chains=1, iterations=3)
+    recorder = ChainRecorder(spec)
+    for decided in (0.0, np.nan, np.nan):
+        info = StepInfo()
+        info.count("vector_u", accept(-0.5, decided, info, "vector_u"))
+        recorder.add_counts(info)
+    record = recorder.result(0)
+    assert record.nan_rejected == {"vector_u": 2}
+    assert record.proposed == {"vector_u": 3} and record.accepted == {"vector_u": 1}
 
 
 def test_the_region_model_names_the_records_fields():

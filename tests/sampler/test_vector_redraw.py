@@ -133,3 +133,17 @@ def test_vector_redraw_carries_a_misplaced_vector_to_the_boundary():
     np.testing.assert_array_equal(work.labels, fresh.labels)
     np.testing.assert_allclose(work.stats, fresh.stats, rtol=1e-10, atol=1e-9)
     assert float(np.sum(work.log_lik)) == pytest.approx(fresh.total_log_lik, rel=1e-12)
+
+
+def test_a_vector_whose_gaps_jump_beyond_the_steps_reach_gives_no_nan_ratio():
+    """Three vectors that jump 39 pixels between rows 11 and 12 of a 24 x 48 image: the gaps of
+    those rows lie further apart than the chain's steps reach (23 cells for the smooth prior's sd
+    of 2), so the backward draw meets a dead end and the current vector's own path has density 0.
+    The proposal is invalid (-inf, a plain rejection), never NaN (-inf - (-inf))."""
+    problem, theta = small_problem(24, 48, boundary=24, seed=2, n_lights=3)
+    u = np.where(np.arange(24)[:, None] < 12, [1.2, 2.7, 4.1], [40.2, 42.6, 45.3])
+    state = make_state(problem, Changepoints(u, np.zeros((48, 0))), np.tile(theta[0], (4, 1)))
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        proposal = propose_vector_redraw(_work(state), rng, problem, ChangepointPrior(), "u")
+        assert proposal is not None and proposal.log_ratio == -np.inf, proposal and proposal.log_ratio

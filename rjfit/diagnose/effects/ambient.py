@@ -15,8 +15,16 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.diagnose.effects.base import Effect, Param
-from rjfit.model.effects import (ALBEDO_COS_V, ALBEDO_LOG_GAMMA, albedo_rows, albedo_table, cos_v_weights, gamma_weights, lobe_albedo,
-                                 lobe_albedo_quadrature)
+from rjfit.model.effects import (
+    ALBEDO_COS_V,
+    ALBEDO_LOG_GAMMA,
+    albedo_rows,
+    albedo_table,
+    cos_v_weights,
+    gamma_weights,
+    lobe_albedo,
+    lobe_albedo_quadrature,
+)
 from rjfit.model.priors import LogNormal
 from rjfit.render.scene_change import MitsubaChange
 from rjfit.sampler.effects import AmbientLight

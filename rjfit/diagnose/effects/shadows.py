@@ -15,8 +15,6 @@ plain closed form fails exactly on the shadowed observations).
 """
 from __future__ import annotations
 
-import numpy as np
-
 from rjfit.diagnose.effects.base import Effect, Param
 from rjfit.model.priors import LogitNormal
 from rjfit.render.effect_scenes import mitsuba_visibility

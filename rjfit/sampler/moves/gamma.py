@@ -13,6 +13,7 @@ the region.
 from __future__ import annotations
 
 import math
+import sys
 
 from rjfit.sampler.likelihood import LOG_2PI, STAT_AA, STAT_AB, STAT_BB, STAT_YA, STAT_YB
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab, log_target_ab
@@ -72,11 +73,19 @@ def ls_profile(sya, saa, sums, g):
     l-derivatives of SyB, SAB and SBB are g- and g^2-weighted sums of them. With
     ``c = S^-1 s`` (the least-squares a, b) and primes for d/dl: ``f' = 2 c.s' - c.S'c`` and
     ``f'' = 2 d.S^-1 d + 2 c.s'' - c.S''c`` with ``d = s' - S'c``.
-    Returns ``(f, f', f'', det, det', det'', a, b)`` or None for a singular S.
+    Returns ``(f, f', f'', det, det', det'', a, b)``, or None for a singular S and where the
+    lobe has vanished from the region at this gamma: ``<h.n>^gamma`` underflows, SBB falls
+    below the smallest normal float (its sums keep a few bits; measured on psm-rock: SBB
+    8.8e-322 at gamma 838, least-squares b -4e160, f' overflowing) and the profile, flat
+    to double precision, has no curvature to use. A result that is still not finite (gamma
+    near e^700, whose square overflows) is None too. The arithmetic runs on Python floats
+    (the same IEEE operations as NumPy's scalars, so the same bits) and is checked on its
+    results.
     """
-    syb, sab, sbb, yb1, ab1, bb1, yb2, ab2, bb2 = sums
+    syb, sab, sbb, yb1, ab1, bb1, yb2, ab2, bb2 = (float(x) for x in sums)
+    sya, saa, g = float(sya), float(saa), float(g)
     det = saa * sbb - sab * sab
-    if not (saa > 0 and sbb > 0 and det > 1e-10 * saa * sbb):
+    if not (saa > 0 and sbb >= sys.float_info.min and det > 1e-10 * saa * sbb):
         return None
     ca = (sbb * sya - sab * syb) / det
     cb = (saa * syb - sab * sya) / det
@@ -90,7 +99,8 @@ def ls_profile(sya, saa, sums, g):
           + 2.0 * cb * s2b - (2.0 * ca * cb * S2ab + cb * cb * S2bb))
     det1 = saa * S1bb - 2.0 * sab * S1ab
     det2 = saa * S2bb - 2.0 * S1ab * S1ab - 2.0 * sab * S2ab
-    return f, f1, f2, det, det1, det2, ca, cb
+    profile = (f, f1, f2, det, det1, det2, ca, cb)
+    return profile if all(math.isfinite(x) for x in profile) else None
 
 
 def newton_log_gamma(stats_r, sums, g, s2, scale):

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from rjfit.sampler.likelihood import LOG_2PI, STAT_AB, STAT_BB, STAT_YB
+from rjfit.sampler.likelihood import AB_PLAIN_MAX, LOG_2PI, STAT_AB, STAT_BB, STAT_YB, log_lik_large_ab
 
 __all__ = ["giesen_norm", "region_log_lik", "stats_at_gamma", "set_region"]
 
@@ -27,6 +27,8 @@ def region_log_lik(stats_r, I0, kd, g, s2) -> float:
     n, syy, sya, saa, syb, sab, sbb = stats_r
     a = I0 * kd
     b = I0 * (1.0 - kd) * giesen_norm(g)
+    if abs(a) > AB_PLAIN_MAX or abs(b) > AB_PLAIN_MAX:      # the plain sum would overflow
+        return log_lik_large_ab(stats_r, a, b, s2)
     ssr = syy - 2.0 * a * sya - 2.0 * b * syb + a * a * saa + 2.0 * a * b * sab + b * b * sbb
     return -0.5 * n * (LOG_2PI + math.log(s2)) - 0.5 * ssr / s2
 

@@ -149,7 +149,10 @@ def cell_path_log_prob(alpha, path, log_kernel):
 def cell_backward_sample(alpha, log_kernel, uniforms):
     """A cell path drawn backwards from ``alpha`` (last line first), one uniform per line.
 
-    Line r's draw looks only at the cells within the kernel's reach of line r + 1's cell.
+    Line r's draw looks only at the cells within the kernel's reach of line r + 1's cell;
+    where none of them has a finite logit (a dead end: the forward pass floors a step's
+    weight at 1e-300, the backward draw has none) line r gets -1 and the path is no draw
+    of the chain (the caller rejects it).
     """
     n_lines, n_cells = alpha.shape
     logits = np.empty(n_cells)

@@ -1,0 +1,128 @@
+"""Caveats of a fit's summaries: each a plain sentence that names what is wrong, where, and why it matters.
+
+:mod:`rjfit.posterior.summary` checks that the chains support the summaries (R-hat, ESS,
+agreement over models); the checks here look at the numbers themselves:
+
+- a region's posterior mean at or beyond its prior's plausible range, defined as the prior's
+  central :data:`PLAUSIBLE_MASS` interval (:func:`prior_range_warnings`);
+- a region of the MAP model that holds no pixel with observations (:func:`empty_region_warnings`);
+- a model cap that binds: more than :data:`CAP_MASS_MAX` of the posterior on the largest
+  model allowed along an axis (:func:`model_cap_warnings`);
+- a pooled mean outside its own 95 % interval (:func:`pooled_interval_warnings`);
+- proposals rejected because their acceptance ratio was NaN (:func:`nan_rejection_warnings`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rjfit.sampler.priors import PARAM_NAMES
+
+__all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "prior_range_warnings", "empty_region_warnings", "model_cap_warnings",
+           "pooled_interval_warnings", "nan_rejection_warnings", "acceptance_counts"]
+
+#: a prior's plausible range: its central 99.9 % interval (a posterior mean outside it lies
+#: where the prior puts 1 in 2000 of its mass on either side)
+PLAUSIBLE_MASS = 0.999
+#: a model cap binds when more than this share of the kept draws sits on it
+CAP_MASS_MAX = 0.05
+
+
+def prior_range_warnings(regions, prior, mass: float = PLAUSIBLE_MASS) -> list:
+    """A warning per region parameter whose posterior mean lies at or beyond its prior's central ``mass`` interval.
+
+    Parameters
+    ----------
+    regions : list of dict
+        :func:`rjfit.posterior.summary.region_summaries`.
+    prior : rjfit.sampler.priors.Prior
+    mass : float
+        The share of the prior the plausible range holds.
+    """
+    ranges = [p.central_interval(mass) for p in prior.params]
+    out = []
+    for index, region in enumerate(regions):
+        for name, (low, high) in zip(PARAM_NAMES, ranges):
+            mean = region[name]["mean"]
+            if low < mean < high:
+                continue
+            side = "above" if mean >= high else "below"
+            out.append(f"region {region.get('region', index)}: {name} posterior mean {mean:.4g} lies at or {side} its "
+                       f"prior's plausible range [{low:.4g}, {high:.4g}] (the prior's central {100 * mass:g} % "
+                       "interval): the data pull it where the prior puts almost no mass, or cannot identify it; do "
+                       "not read it as a measurement")
+    return out
+
+
+def empty_region_warnings(labels, observed, n_regions: int) -> list:
+    """A warning per region of the MAP model with no pixel that has an observation.
+
+    Parameters
+    ----------
+    labels : ndarray (H, W)
+        MAP labels (-1 off the object).
+    observed : ndarray of bool (H, W)
+        Pixels with at least one observation in the fit.
+    n_regions : int
+        Regions of the MAP model.
+    """
+    labels = np.asarray(labels)
+    held = np.bincount(labels[np.asarray(observed, bool) & (labels >= 0)].ravel(), minlength=n_regions)
+    return [f"region {r} of the MAP model holds no pixel with observations (its pixels in the MAP labels: "
+            f"{int(np.sum(labels == r))}): its parameters are drawn from their prior alone and say nothing about "
+            f"the data, yet it counts among the model's {n_regions} regions"
+            for r in range(n_regions) if held[r] == 0]
+
+
+def model_cap_warnings(model_posterior: dict, caps: dict, threshold: float = CAP_MASS_MAX) -> list:
+    """A warning per axis whose largest allowed model holds more than ``threshold`` of the posterior.
+
+    Parameters
+    ----------
+    model_posterior : dict
+        ``{"(k1,k2,...)": probability}`` (:func:`rjfit.posterior.summary.model_posterior`).
+    caps : dict
+        ``{key name: (largest allowed value, the option that sets it)}``, in the order of the
+        model keys' entries (``{"n_u": (3, "--max-u"), "n_v": (3, "--max-v")}``).
+    threshold : float
+    """
+    keys = [tuple(int(k) for k in key.strip("()").split(",")) for key in model_posterior]
+    masses = np.array(list(model_posterior.values()), dtype=float)
+    out = []
+    for axis, (name, (cap, option)) in enumerate(caps.items()):
+        at_cap = float(masses[[key[axis] == cap for key in keys]].sum()) if keys else 0.0
+        if at_cap > threshold:
+            out.append(f"the model cap binds: {at_cap:.0%} of the posterior has {name} = {cap}, the most allowed "
+                       f"(warned above {threshold:.0%}): the posterior over models is cut there and the data may "
+                       f"support more; rerun with {option} {cap + 1} to see")
+    return out
+
+
+def pooled_interval_warnings(regions) -> list:
+    """A warning per region parameter whose pooled mean lies outside its own 95 % interval (separated modes)."""
+    out = []
+    for index, region in enumerate(regions):
+        for name in PARAM_NAMES:
+            entry = region[name]
+            if entry["q2.5"] <= entry["mean"] <= entry["q97.5"]:
+                continue
+            out.append(f"region {region.get('region', index)}: the pooled mean of {name}, {entry['mean']:.4g}, lies "
+                       f"outside its own 95 % interval [{entry['q2.5']:.4g}, {entry['q97.5']:.4g}]: the draws fall "
+                       "into separate modes (chains in different modes, or a few extreme draws); the mean describes "
+                       "none of them: read chain_regions")
+    return out
+
+
+def acceptance_counts(records) -> dict:
+    """Per move kind over all chains: proposals, acceptances and rejections for a NaN acceptance ratio."""
+    kinds = sorted({k for r in records for k in r.proposed} | {k for r in records for k in r.nan_rejected})
+    return {k: {"proposed": sum(r.proposed.get(k, 0) for r in records),
+                "accepted": sum(r.accepted.get(k, 0) for r in records),
+                "nan_rejected": sum(r.nan_rejected.get(k, 0) for r in records)} for k in kinds}
+
+
+def nan_rejection_warnings(counts: dict) -> list:
+    """A warning per move kind with proposals rejected because their acceptance ratio was NaN."""
+    return [f"{c['nan_rejected']} of {c['proposed']} '{kind}' proposals were rejected because their acceptance "
+            "ratio was NaN (a density that could not be evaluated there): the chain never goes where those "
+            "proposals lead, whatever the posterior says there; please report it with the data set"
+            for kind, c in counts.items() if c["nan_rejected"]]

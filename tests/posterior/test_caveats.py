@@ -1,0 +1,133 @@
+"""Caveats of a fit's numbers, each triggered by a summary built to have it and absent from one without it;
+R-hat's reasons where it cannot be computed."""
+import numpy as np
+import pytest
+
+from rjfit.posterior.caveats import (
+    CAP_MASS_MAX,
+    PLAUSIBLE_MASS,
+    acceptance_counts,
+    empty_region_warnings,
+    model_cap_warnings,
+    nan_rejection_warnings,
+    pooled_interval_warnings,
+    prior_range_warnings,
+)
+from rjfit.posterior.summary import convergence_warnings, diagnostics, region_summaries
+from rjfit.sampler.priors import ParamPrior, Prior
+
+PRIOR = Prior(params=(ParamPrior("lognormal", np.log(100.0), 1.5), ParamPrior("uniform", 0.0, 1.0),
+                      ParamPrior("lognormal", np.log(10.0), 1.5), ParamPrior("lognormal", np.log(0.01), 3.0)))
+INSIDE = {"I0": 100.0, "kd": 0.5, "gamma": 10.0, "sigma2": 0.01}
+
+
+def _region(index, **means):
+    values = {**INSIDE, **means}
+    return {"region": index, "pixels": 10,
+            **{name: {"mean": v, "sd": 0.1 * abs(v), "q2.5": 0.9 * v, "q97.5": 1.1 * v} for name, v in values.items()}}
+
+
+def test_a_mean_beyond_the_prior_s_central_99_9_percent_is_named_with_its_range():
+    # I0 ~ LogNormal(log 100, 1.5): its central 99.9 % interval is 100 exp(+-3.29 x 1.5) = [0.72, 13918]
+    regions = [_region(0), _region(1, I0=4.0e14), _region(2, gamma=0.008), _region(3, kd=1.0)]
+    warnings = prior_range_warnings(regions, PRIOR)
+    assert len(warnings) == 3
+    assert warnings[0].startswith("region 1: I0 posterior mean 4e+14 lies at or above its prior's plausible range "
+                                  "[0.7185, 1.392e+04] (the prior's central 99.9 % interval)")
+    assert warnings[1].startswith("region 2: gamma posterior mean 0.008 lies at or below")
+    assert warnings[2].startswith("region 3: kd posterior mean 1 lies at or above its prior's plausible range "
+                                  "[0.0005, 0.9995]")          # a uniform prior's edge
+    assert prior_range_warnings([_region(0)], PRIOR) == []
+    low, high = PRIOR.params[0].central_interval(PLAUSIBLE_MASS)
+    assert prior_range_warnings([_region(0, I0=0.999 * high)], PRIOR) == []
+
+
+def test_a_region_without_observed_pixels_is_named():
+    labels = np.array([[0, 0, 1], [1, 2, 2], [-1, 3, -1]])
+    observed = np.array([[True, True, True], [True, False, False], [False, True, False]])
+    warnings = empty_region_warnings(labels, observed, 4)
+    # region 2 covers two object pixels, neither with an observation; region 3's pixel has one
+    assert len(warnings) == 1 and warnings[0].startswith("region 2 of the MAP model holds no pixel with observations "
+                                                         "(its pixels in the MAP labels: 2)")
+    assert "among the model's 4 regions" in warnings[0]
+    assert empty_region_warnings(labels, observed | (labels >= 0), 4) == []
+
+
+def test_a_binding_model_cap_is_named_above_its_threshold():
+    caps = {"n_u": (3, "--max-u"), "n_v": (2, "--max-v")}
+    posterior = {"(3,1)": 0.30, "(2,1)": 0.66, "(1,2)": 0.04}
+    warnings = model_cap_warnings(posterior, caps)
+    assert warnings == [f"the model cap binds: 30% of the posterior has n_u = 3, the most allowed (warned above "
+                        f"{CAP_MASS_MAX:.0%}): the posterior over models is cut there and the data may support more; "
+                        "rerun with --max-u 4 to see"]
+    # 4 % on n_v = 2 is under the threshold
+    assert model_cap_warnings({"(1,1)": 0.96, "(1,2)": 0.04}, caps) == []
+
+
+def test_a_pooled_mean_outside_its_own_interval_is_named():
+    rng = np.random.default_rng(0)
+    # two chains in two modes of I0 (20 and 1e6, one draw in a hundred in the far mode): the pooled mean
+    # (about 1e4) is in neither mode and outside the pooled 95 % interval [about 20, about 20]
+    near = np.tile([20.0, 0.5, 10.0, 0.01], (990, 1, 1)) * rng.uniform(0.99, 1.01, (990, 1, 4))
+    far = np.tile([1e6, 0.5, 10.0, 0.01], (10, 1, 1))
+    regions = region_summaries([near, far])
+    warnings = pooled_interval_warnings(regions)
+    assert len(warnings) == 1 and warnings[0].startswith("region 0: the pooled mean of I0, ")
+    assert "outside its own 95 % interval" in warnings[0]
+    assert pooled_interval_warnings(region_summaries([near])) == []
+
+
+def test_nan_rejections_reach_the_counts_and_a_warning():
+    class Record:
+        def __init__(self, proposed, accepted, nan_rejected):
+            self.proposed, self.accepted, self.nan_rejected = proposed, accepted, nan_rejected
+
+    records = [Record({"vector_u": 10, "ab": 5}, {"vector_u": 2, "ab": 5}, {"vector_u": 1}),
+               Record({"vector_u": 10}, {"vector_u": 3}, {})]
+    counts = acceptance_counts(records)
+    assert counts == {"ab": {"proposed": 5, "accepted": 5, "nan_rejected": 0},
+                      "vector_u": {"proposed": 20, "accepted": 5, "nan_rejected": 1}}
+    warnings = nan_rejection_warnings(counts)
+    assert len(warnings) == 1 and warnings[0].startswith("1 of 20 'vector_u' proposals were rejected because their "
+                                                         "acceptance ratio was NaN")
+
+
+@pytest.mark.parametrize("case, reason", [
+    ("one chain", "one chain: R-hat compares chains"),
+    ("different models", "only 1 of 3 chains have 4 or more kept draws in the MAP model: the chains sit in different "
+                         "models"),
+    ("all constant", "every parameter of the MAP model is constant within a chain"),
+])
+def test_rhat_says_why_it_cannot_be_computed(case, reason):
+    rng = np.random.default_rng(1)
+    chains = {"one chain": [rng.normal(size=(100, 1, 4))],
+              "different models": [rng.normal(size=(100, 1, 4)), np.empty((2, 1, 4)), np.empty((0, 1, 4))],
+              "all constant": [np.ones((100, 1, 4)), np.ones((100, 1, 4))]}[case]
+    diag = diagnostics(chains)
+    assert np.isnan(diag["rhat_max"]) and diag["rhat_reason"].startswith(reason)
+
+
+def test_a_parameter_constant_in_one_chain_has_no_rhat_and_is_named():
+    rng = np.random.default_rng(2)
+    chains = [rng.normal(size=(200, 2, 4)) for _ in range(3)]
+    chains[1][:, 1, 2] = 7.0               # region 1's gamma never moves in chain 1
+    diag = diagnostics(chains)
+    assert diag["rhat_reason"] is None and np.isfinite(diag["rhat_max"])
+    assert np.isnan(diag["rhat"][1][2]) and np.isfinite(diag["rhat"][1][1])
+    assert diag["rhat_missing"] == [{"region": 1, "parameter": "gamma", "reason": "constant within chain 1"}]
+    warnings = convergence_warnings(diag, [{"(1,0)": 1.0}] * 3, 3)
+    assert any(w.startswith("R-hat not computable for 1 of the MAP model's parameters: region 1 gamma (constant "
+                            "within chain 1)") for w in warnings), warnings
+
+
+def test_rhat_and_ess_of_varying_parameters_are_arviz_s_own():
+    """Leaving constant parameters out does not change the others' R-hat and ESS (ArviZ computes each alone)."""
+    import arviz as az
+
+    rng = np.random.default_rng(3)
+    chains = [rng.normal(size=(300, 2, 4)) for _ in range(2)]
+    stacked = np.stack(chains)
+    data = az.convert_to_dataset({"theta": stacked}, dims={"theta": ["region", "parameter"]})
+    diag = diagnostics(chains)
+    assert diag["rhat"] == az.rhat(data)["theta"].values.tolist()
+    assert diag["ess_bulk"] == az.ess(data, method="bulk")["theta"].values.tolist()
