@@ -31,6 +31,7 @@ observations cannot tell two regions apart make it ~0 even for a good fit).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import time
 from dataclasses import dataclass
@@ -53,7 +54,7 @@ from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.regions.changepoint_grid import model_number
 from rjfit.sampler.runner import ChainSpec, run_chains
-from rjfit.sampler.state import SamplerConfig
+from rjfit.sampler.state import FLAT_OPTIONS, SamplerConfig
 
 __all__ = ["fit", "FitSource", "write_parameter_maps"]
 
@@ -216,10 +217,11 @@ def burn_in_iterations(options: FitOptions) -> int:
 def sampler_config(options: FitOptions, *, fixed: bool = False) -> SamplerConfig:
     """The kernel's settings from the fit's options; ``fixed``: the segmentation does not move."""
     burn = burn_in_iterations(options)
-    return SamplerConfig.from_flat(max_u=options.max_u, max_v=options.max_v, sampler=options.sampler,
-                                   split_map=options.split_map, cp_prior=options.cp_prior,
-                                   drop_jacobian=options.drop_jacobian, burn_in=burn, jump_prob=options.jump_prob,
-                                   anneal=int(round(options.anneal * burn)), effect_every=options.effect_every,
+    # a fit option named like a sampler setting reaches the sampler as it is, so a new one is one
+    # FitOptions field; burn-in and the annealed warm-up are fractions here and iterations there
+    same_name = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)
+                 if f.name in FLAT_OPTIONS and f.name not in ("burn_in", "anneal")}
+    return SamplerConfig.from_flat(**same_name, burn_in=burn, anneal=int(round(options.anneal * burn)),
                                    # reproducing the paper's omission: every jump must use its map
                                    free_jump_prob=0.0 if options.drop_jacobian else BirthDeathSettings.free_prob,
                                    update_changepoints=not fixed, jumps=not fixed)
