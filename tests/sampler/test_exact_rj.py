@@ -20,12 +20,10 @@ p < 1e-6, and must instead match the posterior that dropping the Jacobian actual
 """
 import numpy as np
 import pytest
-from builders import TINY_SIGMA2_PRIOR, tiny_problem
+from builders import Quadrature, ess_scaled_chi2, tiny_problem
 from scipy import stats
-from scipy.special import gammaln
 from threadpoolctl import threadpool_limits
 
-from rjfit.model.blinn import radiance
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
@@ -33,76 +31,6 @@ from rjfit.sampler.state import SamplerConfig
 
 LEVEL = 1e-3
 INTERVALS = np.array([1.5, 1.0, 1.5]) / 4.0   # probabilities of the three intervals of [-1, 3]
-ALPHA, BETA = TINY_SIGMA2_PRIOR                 # inverse-gamma prior of sigma^2 (tiny_problem's)
-
-
-class Quadrature:
-    """Evidence of any subset of observations, and parameter marginals, on a phi grid."""
-
-    def __init__(self, obs, prior, points=81, likelihood_power=1.0):
-        self.power = likelihood_power
-        a0, s0 = prior.params[0].a, prior.params[0].b
-        a2, s2 = prior.params[2].a, prior.params[2].b
-        self.axes = [np.linspace(a0 - 6 * s0, a0 + 6 * s0, points), np.linspace(-14, 14, points),
-                     np.linspace(a2 - 6 * s2, a2 + 6 * s2, points)]
-        g0, g1, g2 = np.meshgrid(*self.axes, indexing="ij")
-        phi = np.stack([g0, g1, g2, np.zeros_like(g0)], axis=-1)
-        self.log_prior = prior.logpdf_phi_components(phi)[..., :3].sum(-1)
-        I0, kd, g = np.exp(g0), 1 / (1 + np.exp(-g1)), np.exp(g2)
-        self.sq = np.stack([(obs.y[i] - radiance(I0, kd, g, obs.cos_ln[i], obs.cos_hn[i], obs.irradiance[i])) ** 2
-                            for i in range(obs.n_obs)])
-        self.weights = [np.gradient(ax) for ax in self.axes]   # trapezoid weights on a uniform grid
-        for w in self.weights:
-            w[0] *= 0.5 / 1.0
-            w[-1] *= 0.5 / 1.0
-        self.pixel = np.asarray(obs.pixel)
-        self._cache = {}
-
-    def _log_integrand(self, obs_idx):
-        # likelihood ** zeta: n and SSR scaled by zeta (sigma^2 still integrates analytically)
-        n = self.power * len(obs_idx)
-        ssr = self.power * self.sq[obs_idx].sum(0)
-        log_inner = (-0.5 * n * np.log(2 * np.pi) + ALPHA * np.log(BETA) - gammaln(ALPHA) + gammaln(ALPHA + n / 2)
-                     - (ALPHA + n / 2) * np.log(BETA + ssr / 2))
-        return self.log_prior + log_inner, ssr
-
-    def log_evidence(self, pixels):
-        key = frozenset(int(p) for p in pixels)
-        if not key:
-            return 0.0
-        if key not in self._cache:
-            f, _ = self._log_integrand(np.flatnonzero(np.isin(self.pixel, list(key))))
-            m = f.max()
-            w = self.weights[0][:, None, None] * self.weights[1][None, :, None] * self.weights[2][None, None, :]
-            self._cache[key] = float(m + np.log(np.sum(np.exp(f - m) * w)))
-        return self._cache[key]
-
-    def marginal_cdfs(self, pixels):
-        """CDFs of I0, kd, gamma, sigma^2 for the region made of ``pixels`` (functions of theta)."""
-        idx = np.flatnonzero(np.isin(self.pixel, list(pixels)))
-        f, ssr = self._log_integrand(idx)
-        w = self.weights[0][:, None, None] * self.weights[1][None, :, None] * self.weights[2][None, None, :]
-        p = np.exp(f - f.max()) * w
-        p /= p.sum()
-        cdfs = []
-        for k, transform in enumerate((np.exp, lambda x: 1 / (1 + np.exp(-x)), np.exp)):
-            marginal = p.sum(axis=tuple(j for j in range(3) if j != k))
-            # trapezoid mass between grid nodes -> piecewise-linear CDF on the transformed nodes
-            cdf = np.concatenate([[0.0], np.cumsum(0.5 * (marginal[1:] + marginal[:-1]))])
-            cdf /= cdf[-1]
-            nodes = transform(self.axes[k])
-            cdfs.append(lambda x, nodes=nodes, cdf=cdf: np.interp(x, nodes, cdf))
-        shape, scale = ALPHA + self.power * len(idx) / 2, BETA + ssr / 2
-        flat_p, flat_scale = p.ravel(), scale.ravel()
-        keep = flat_p > 1e-8 * flat_p.max()
-        flat_p, flat_scale = flat_p[keep] / flat_p[keep].sum(), flat_scale[keep]
-        # the sigma^2 marginal is a mixture of inverse gammas: tabulate its CDF, interpolate
-        lo = stats.invgamma.ppf(1e-9, shape, scale=flat_scale.min())
-        hi = stats.invgamma.ppf(1 - 1e-9, shape, scale=flat_scale.max())
-        nodes = np.geomspace(lo, hi, 400)
-        table = np.array([np.dot(flat_p, stats.invgamma.cdf(x, shape, scale=flat_scale)) for x in nodes])
-        cdfs.append(lambda x: np.interp(x, nodes, table))
-        return cdfs
 
 
 SMOOTH_SD = 1.0
@@ -171,17 +99,6 @@ def run(problem, prior, config, iterations, seed):
                 u0[t] = 0 if x < 0.5 else (1 if x < 1.5 else 2)
             theta[t] = state.theta[0]
     return models, u0, theta
-
-
-def ess_scaled_chi2(cells, draws, probs):
-    """Chi-square p-value of ``draws`` (cell index per iteration) against ``probs``, ESS-scaled."""
-    import arviz as az
-
-    freq = np.array([np.mean(draws == c) for c in cells])
-    n_eff = min(float(az.ess((draws == c).astype(float)[None], method="bulk")) for c in cells
-                if 0 < np.mean(draws == c) < 1)
-    x2 = n_eff * np.sum((freq - probs) ** 2 / probs)
-    return float(stats.chi2.sf(x2, len(cells) - 1)), freq, n_eff
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from numba import njit
 from rjfit.sampler.passes.densities import coefficients, log_density
 from rjfit.sampler.passes.special import INV_PI
 
-__all__ = ["element_shift", "obs_log_density_delta", "shift_stats"]
+__all__ = ["element_shift", "obs_log_density_delta", "add_obs_terms", "shift_stats"]
 
 
 @njit(cache=True, nogil=True)
@@ -66,7 +66,7 @@ def obs_log_density_delta(y, C, log_cos_hn, order, use_order, starts, ends, labe
 
 
 @njit(cache=True, nogil=True)
-def _add_terms(stats, r, sign, yv, c, a, lh, gamma):
+def add_obs_terms(stats, r, sign, yv, c, a, lh, gamma):
     """Add ``sign`` times one observation's seven sufficient-statistic terms to region ``r``."""
     b = c * math.exp(gamma * lh)
     stats[r, 0] += sign
@@ -94,6 +94,6 @@ def shift_stats(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta,
             a = c * INV_PI
             r_old = np.int64(labels[i])
             r_new = r_old + delta[j]
-            _add_terms(stats, r_old, -weight, yv, c, a, lh, gammas[r_old])
-            _add_terms(stats, r_new, weight, yv, c, a, lh, gammas[r_new])
+            add_obs_terms(stats, r_old, -weight, yv, c, a, lh, gammas[r_old])
+            add_obs_terms(stats, r_new, weight, yv, c, a, lh, gammas[r_new])
             labels[i] = r_new

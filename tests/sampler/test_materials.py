@@ -1,0 +1,154 @@
+"""The material region model's passes against their NumPy twins, and its incremental bookkeeping.
+
+The passes are compared with :mod:`rjfit.sampler.reference` on a 9 x 11 problem of three
+materials (tolerance 1e-9 relative: float64 sums of float32 data in another order). The
+bookkeeping test runs long random move sequences (Gibbs sweeps, cluster moves with births
+and deaths, within-material moves) with no refresh, and compares every material's
+statistics and log-likelihood with a full recompute (1e-9 relative, as the brief states).
+"""
+import numpy as np
+import pytest
+from builders import raises
+from threadpoolctl import threadpool_limits
+
+from rjfit.data.observations import Observations
+from rjfit.model.blinn import radiance
+from rjfit.sampler import reference
+from rjfit.sampler.forward import Problem
+from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.likelihood import log_likelihood_from_stats, oracle_log_likelihood, region_stats
+from rjfit.sampler.passes import labels as passes
+from rjfit.sampler.priors import make_prior
+from rjfit.sampler.regions.material_labels import PottsPrior, bond_probabilities, boundary_count, kmeans_labels
+from rjfit.sampler.regions.materials import MaterialRegions
+from rjfit.sampler.state import SamplerConfig
+
+TRUTH = np.array([[10.0, 0.8, 5.0, 0.02], [6.0, 0.4, 30.0, 0.02], [14.0, 0.6, 12.0, 0.02]])
+
+
+def material_problem(height=9, width=11, lights=6, seed=0, likelihood_power=1.0):
+    """Three materials (a disc, a stripe and the rest) on a gently curved patch, with some invalid observations."""
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[0:height, 0:width]
+    truth = np.zeros((height, width), int)
+    truth[(rows - height / 2) ** 2 + (cols - width / 3) ** 2 < (height / 3.5) ** 2] = 1
+    truth[:, width - 3:] = 2
+    pixel = np.repeat(np.arange(height * width), lights)
+    light = np.tile(np.arange(lights), height * width)
+    keep = rng.random(pixel.size) > 0.1          # some pixels miss some lights
+    pixel, light = pixel[keep], light[keep]
+    cos_ln = rng.uniform(0.2, 1.0, pixel.size)
+    cos_hn = rng.uniform(0.5, 1.0, pixel.size)
+    irradiance = rng.uniform(0.5, 1.5, pixel.size)
+    theta = TRUTH[truth.ravel()[pixel]]
+    y = radiance(theta[:, 0], theta[:, 1], theta[:, 2], cos_ln, cos_hn, irradiance)
+    y = y + rng.normal(0.0, np.sqrt(theta[:, 3]))
+    obs = Observations(image_shape=(height, width), n_lights=lights, pixel=pixel.astype(np.int64),
+                       light=light.astype(np.int32), y=y, cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irradiance,
+                       object_mask=np.ones((height, width), bool))
+    return Problem.from_observations(obs, likelihood_power=likelihood_power), truth
+
+
+def test_pixel_log_lik_matches_reference():
+    problem, _ = material_problem()
+    got = passes.pixel_log_lik(problem.y, problem.C, problem.log_cos_hn, problem.pixel, TRUTH, 9 * 11)
+    want = reference.pixel_log_lik(problem, TRUTH)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_gibbs_sweep_matches_reference_and_keeps_every_material():
+    problem, truth = material_problem()
+    log_lik = reference.pixel_log_lik(problem, TRUTH)
+    rng = np.random.default_rng(3)
+    start = rng.integers(0, 3, truth.size)
+    start[:3] = [0, 1, 2]
+    start[3:] = np.where(start[3:] == 2, 0, start[3:])     # material 2 has one pixel: it must keep it
+    labelled = np.ones(truth.size, bool)
+    labelled[50] = False
+    for parity in (0, 1):
+        uniforms = rng.random(truth.size)
+        z_fast, z_ref = start.copy(), start.copy()
+        n_fast, n_ref = (np.bincount(start[labelled], minlength=3) for _ in range(2))
+        changed = passes.gibbs_sweep(z_fast, labelled, log_lik, 0.7, 1.3, 9, 11, n_fast, uniforms, parity)
+        assert changed == reference.gibbs_sweep(z_ref, labelled, log_lik, 0.7, 1.3, (9, 11), n_ref, uniforms, parity)
+        np.testing.assert_array_equal(z_fast, z_ref)
+        assert changed > 0 and z_fast[2] == 2 and z_fast[50] == start[50]
+        moved = np.flatnonzero(z_fast != start)
+        assert np.all((moved // 11 + moved % 11) % 2 == parity)
+
+
+def test_edge_uniforms_and_clusters_match_reference():
+    problem, truth = material_problem()
+    bonds = bond_probabilities(problem)
+    flat = truth.ravel().astype(np.int8)
+    labelled = np.ones(flat.size, bool)
+    key = 2 ** 62 + 12345
+    for edge in (0, 1, 77, 197):
+        assert passes.edge_uniform(np.uint64(key), np.uint64(edge)) == reference.edge_uniform(key, edge)
+    for seed in (0, 40, 98):
+        got = passes.grow_cluster(flat, labelled, bonds.q, np.uint64(key), seed, 9, 11, 3)
+        want = reference.grow_cluster(flat, labelled, bonds.q, key, seed, (9, 11), 3)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        np.testing.assert_allclose(got[2], want[2], rtol=1e-12)
+        assert np.all(flat[got[0]] == flat[seed])
+
+
+def test_bonds_are_weak_across_true_boundaries():
+    """The data-driven bonds: high between pixels of one material, low across materials (noise 0.02 here)."""
+    problem, truth = material_problem()
+    q = bond_probabilities(problem).q.reshape(9, 11, 2)
+    same_right = truth[:, :-1] == truth[:, 1:]
+    across = q[:, :-1, 0][~same_right]
+    inside = q[:, :-1, 0][same_right]
+    assert np.median(inside) > 0.5 > np.median(across) and np.all(q <= 0.95)
+
+
+def test_potts_prior_and_kmeans():
+    pixels = np.array([[0, 0, 1], [2, 1, 1], [-1, 1, 1]])
+    assert boundary_count(pixels) == 4
+    potts = PottsPrior(beta=0.5, rho=0.1)
+    assert potts.log_density(pixels, 3) == pytest.approx(3 * np.log(0.1) - 0.5 * 4 - np.log(6))
+    labels = kmeans_labels(np.array([[0.0, 0], [0, 0.1], [5, 5], [5, 5.1], [np.nan, np.nan]]), 3,
+                           np.random.default_rng(0))
+    assert sorted(set(labels)) == [0, 1, 2]
+
+
+def test_start_checks():
+    problem, truth = material_problem()
+    regions = MaterialRegions(max_materials=2)
+    rng = np.random.default_rng(0)
+    with raises(ValueError, "more than max_materials=2"):
+        regions.initial_layout(problem, rng, pixel_labels=truth)
+    with raises(ValueError, "without a pixel"):
+        MaterialRegions().initial_layout(problem, rng, pixel_labels=np.where(truth == 1, 2, truth))
+    with raises(TypeError, "split_map does not apply to the materials region model"):
+        SamplerConfig.from_flat(region_model="materials", split_map="mean")
+    layout = MaterialRegions(max_materials=8).initial_layout(problem, rng)
+    assert 1 <= layout.n_materials <= 4 and np.all(layout.counts() > 0)
+
+
+@pytest.mark.parametrize("power", [1.0, 0.3])
+def test_incremental_statistics_match_full_recompute(power):
+    """300 iterations of every move (no refresh), births and deaths included: stats and log-likelihood to 1e-9."""
+    problem, truth = material_problem(likelihood_power=power)
+    prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
+    config = SamplerConfig.from_flat(region_model="materials", max_materials=5, refresh_every=0, burn_in=0,
+                                     cluster_moves=6, cluster_new_prob=0.5)
+    rng = np.random.default_rng(11)
+    state = initial_state(problem, prior, config, rng, n_materials=2)
+    kinds, ks = set(), set()
+    with threadpool_limits(1):
+        for _ in range(300):
+            state, info = step(state, rng, problem, prior, config)
+            kinds |= {k for k, v in info.accepted.items() if v}
+            ks.add(state.layout.n_materials)
+    assert {"label_gibbs", "cluster", "cluster_birth", "cluster_death"} <= kinds, kinds
+    assert len(ks) > 1
+    labels = state.layout.labels(problem)
+    np.testing.assert_array_equal(labels, state.labels)
+    assert np.all(state.layout.counts() > 0)
+    full = region_stats(problem, labels, state.theta[:, 2], state.n_regions)
+    np.testing.assert_allclose(state.stats, full, rtol=1e-9, atol=1e-9 * np.abs(full).max())
+    np.testing.assert_allclose(state.log_lik, log_likelihood_from_stats(full, state.theta), rtol=1e-9)
+    assert state.total_log_lik == pytest.approx(oracle_log_likelihood(problem, labels, state.theta), rel=1e-9)
