@@ -197,7 +197,7 @@ def sampler_config(options: FitOptions, *, fixed: bool = False) -> SamplerConfig
 def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, truth_labels, start, fixed_segmentation):
     """One :class:`~rjfit.sampler.runner.ChainSpec` per chain (its seed, start and checkpoint file)."""
     # at least ~50 change-point snapshots after burn-in, so a short run still has its MAP labels
-    cp_thin = max(1, min(options.cp_thin, (options.iterations - config.burn_in) // 50))
+    cp_thin = max(1, min(options.cp_thin, (options.iterations - config.kernel.burn_in) // 50))
     specs = []
     for c in range(options.n_chains):
         chain_start = dict(start[c]) if start is not None else {}
@@ -225,7 +225,7 @@ class FitResult:
 
 def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels):
     """The posterior summaries of the chains' kept draws, with the settings they ran with."""
-    burn = config.burn_in
+    burn = config.kernel.burn_in
     n_u, n_v = post.map_model(records, burn)
     draws = post.map_model_draws(records, burn, (n_u, n_v))
     labels = post.map_labels(records, burn, (n_u, n_v), problem.image_shape, problem.object_mask)
