@@ -227,8 +227,8 @@ class Quadrature:
             self._cache[key] = float(m + np.log(np.sum(np.exp(f - m) * w)))
         return self._cache[key]
 
-    def marginal_cdfs(self, pixels):
-        """CDFs of I0, kd, gamma, sigma^2 for the region made of ``pixels`` (functions of theta)."""
+    def marginal_cdfs(self, pixels, with_sigma2=True):
+        """CDFs of I0, kd, gamma, sigma^2 (the last only ``with_sigma2``) for the region made of ``pixels``."""
         idx = np.flatnonzero(np.isin(self.pixel, list(pixels)))
         f, ssr = self._log_integrand(idx)
         w = self.weights[0][:, None, None] * self.weights[1][None, :, None] * self.weights[2][None, None, :]
@@ -242,6 +242,8 @@ class Quadrature:
             cdf /= cdf[-1]
             nodes = transform(self.axes[k])
             cdfs.append(lambda x, nodes=nodes, cdf=cdf: np.interp(x, nodes, cdf))
+        if not with_sigma2:
+            return cdfs
         shape, scale = TINY_SIGMA2_PRIOR[0] + self.power * len(idx) / 2, TINY_SIGMA2_PRIOR[1] + ssr / 2
         flat_p, flat_scale = p.ravel(), scale.ravel()
         keep = flat_p > 1e-8 * flat_p.max()

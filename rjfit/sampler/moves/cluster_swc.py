@@ -62,14 +62,21 @@ class ClusterSettings:
         Cluster moves per iteration.
     new_prob : float
         Probability of proposing a NEW material for the cluster when 1 < K < K_max.
-    bond_q_max, bond_tau : float
-        The bond probabilities' ceiling and width
+    bond_q_max : float or None
+        The bond probabilities' ceiling; None (default): ``1 - exp(-beta)``, Swendsen and
+        Wang's bond for the Potts prior, at which the cut factor of a boundary edge,
+        ``1 - q``, and its Potts factor, ``exp(-beta)``, cancel: a cluster whose neighbours
+        across its boundary look alike is then moved as readily as the Potts prior alone
+        allows (a higher ceiling makes every merge of two materials of one appearance
+        improbable, a lower one the clusters small).
+    bond_tau : float
+        The bond probabilities' width in units of the features' spread
         (:func:`~rjfit.sampler.regions.material_labels.bond_probabilities`).
     """
 
     moves: int = 4
     new_prob: float = 0.3
-    bond_q_max: float = 0.95
+    bond_q_max: float | None = None
     bond_tau: float = 2.0
 
     def __post_init__(self):
@@ -77,6 +84,10 @@ class ClusterSettings:
             raise ValueError(f"cluster moves per iteration must be >= 0, got {self.moves}")
         if not 0.0 < self.new_prob < 1.0:
             raise ValueError(f"new_prob must lie in (0, 1), got {self.new_prob}")
+
+    def q_max(self, beta: float) -> float:
+        """The bonds' ceiling under Potts strength ``beta`` (see ``bond_q_max``)."""
+        return float(-np.expm1(-beta)) if self.bond_q_max is None else float(self.bond_q_max)
 
 
 def label_choice(n_materials: int, max_materials: int, new_prob: float, jumps: bool = True) -> tuple[float, float]:

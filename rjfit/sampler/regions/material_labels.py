@@ -18,7 +18,8 @@ coefficients its appearance with the shading removed. Feature j of an edge diffe
 the differences between neighbours, most of which lie inside one material), and
 ``q_e = q_max exp(-|d / s|^2 / (2 tau^2))``. An edge touching a pixel without a fit gets
 ``q_max / 2``. Every q lies in [0, q_max] with q_max < 1, so every cut weight
-``log(1 - q)`` is finite. The cluster moves are exact for any such q; q only decides which
+``log(1 - q)`` is finite; the cluster moves take ``q_max = 1 - exp(-beta)`` (Swendsen and
+Wang's bond for the Potts prior: see :class:`~rjfit.sampler.moves.cluster_swc.ClusterSettings`). The cluster moves are exact for any such q; q only decides which
 clusters they propose.
 """
 from __future__ import annotations
@@ -87,7 +88,7 @@ def _edge_pairs(labelled):
     return first, second, edges
 
 
-def bond_probabilities(problem, q_max: float = 0.95, tau: float = 2.0) -> Bonds:
+def bond_probabilities(problem, q_max: float = 1.0 - np.exp(-1.0), tau: float = 2.0) -> Bonds:
     """The bonds of the cluster moves from the data (see the module docstring).
 
     Raises
@@ -95,8 +96,8 @@ def bond_probabilities(problem, q_max: float = 0.95, tau: float = 2.0) -> Bonds:
     ValueError
         If ``q_max`` is not in (0, 1) or ``tau`` not positive.
     """
-    if not 0.0 < q_max < 1.0 or not tau > 0:
-        raise ValueError(f"bond q_max must lie in (0, 1) and tau be positive, got {q_max}, {tau}")
+    if not 0.0 <= q_max < 1.0 or not tau > 0:
+        raise ValueError(f"bond q_max must lie in [0, 1) and tau be positive, got {q_max}, {tau}")
     labelled = labelled_pixels(problem)
     features = pixel_features(problem)
     first, second, edges = _edge_pairs(labelled)

@@ -115,7 +115,7 @@ class MaterialRegions(RegionModel):
             or ``pixel_labels`` has another shape, leaves a labelled pixel without a label
             or a label 0 .. K - 1 unused.
         """
-        bonds = bond_probabilities(problem, self.cluster.bond_q_max, self.cluster.bond_tau)
+        bonds = bond_probabilities(problem, self.cluster.q_max(self.potts.beta), self.cluster.bond_tau)
         labelled = labelled_pixels(problem)
         if pixel_labels is not None:
             pixel_labels = np.asarray(pixel_labels)
@@ -158,7 +158,7 @@ class MaterialRegions(RegionModel):
                     info.jump = kind
 
     def snapshot(self, layout) -> dict:
-        return {"material_labels": layout.pixels}
+        return {"material_labels": np.where(layout.pixels >= 0, layout.pixels, np.nan).astype(np.float32)}
 
     def snapshot_shapes(self, problem) -> dict:
         return {"material_labels": tuple(problem.image_shape)}
