@@ -257,10 +257,15 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
     if options.regions == "materials":
         from rjfit.pipeline.fit_materials import summarise_materials
 
-        result = summarise_materials(records, problem, options, burn, truth_labels)
-        result.summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
-        result.summary["warnings"] += _fit_warnings(problem, prior, suggestion)
-        return result
+        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn)
+        summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
+        summary["warnings"] += _fit_warnings(problem, prior, suggestion)
+        if truth_labels is not None:
+            summary.update(truth_summary(records, burn, labels, truth_labels))
+            summary["materials_right_probability"] = summary["materials_posterior"].get(
+                str(summary["true_region_count"]), 0.0)
+        return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
+                         model=(summary["map_materials"],), extra=extra)
     n_u, n_v = post.map_model(records, burn)
     draws = post.map_model_draws(records, burn, (n_u, n_v))
     labels = post.map_labels(records, burn, (n_u, n_v), problem.image_shape, problem.object_mask)

@@ -28,10 +28,12 @@ EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials ea
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
 
 
-def summarise_materials(records, problem, options, burn: int, truth_labels):
-    """The material model's summary entries and results (a :class:`rjfit.pipeline.fit.FitResult`)."""
-    from rjfit.pipeline.fit import FitResult, truth_summary
+def summarise_materials(records, problem, options, burn: int):
+    """The material model's summary entries and results: ``(summary, MAP labels, prediction, extra)``.
 
+    ``extra`` holds ``map_probability`` (H, W) and the relabelled ``draws``
+    (:class:`rjfit.posterior.materials.RelabelledDraws`).
+    """
     posterior = mat.materials_posterior(records, burn)
     k = int(next(iter(posterior)))
     draws = mat.relabelled_draws(records, burn, k)
@@ -51,13 +53,8 @@ def summarise_materials(records, problem, options, burn: int, truth_labels):
     cap = mat.cap_warning(posterior, options.max_materials)
     if cap:
         summary["warnings"].append(cap)
-    if truth_labels is not None:
-        truth = truth_summary(records, burn, labels, truth_labels)
-        summary.update(truth)
-        summary["materials_right_probability"] = posterior.get(str(truth["true_region_count"]), 0.0)
     prediction = post.posterior_mean_prediction(records, burn, problem)
-    return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn, model=(k,),
-                     extra={"map_probability": probability, "draws": draws})
+    return summary, labels, prediction, {"map_probability": probability, "draws": draws}
 
 
 def write_material_files(staging: Path, result, records, options) -> None:

@@ -157,3 +157,21 @@ def test_incremental_statistics_match_full_recompute(power):
         np.testing.assert_allclose(state.log_lik, log_likelihood_from_stats(full, state.theta), rtol=1e-9)
         assert state.total_log_lik == pytest.approx(oracle_log_likelihood(problem, labels, state.theta), rel=1e-9)
     assert {"label_gibbs", "cluster", "cluster_birth", "cluster_death"} <= kinds, kinds
+
+
+def test_slab_material_map_assigns_faces_by_texel():
+    """geometry.material_map: each face of the slab takes the texel under its centroid (a 2 x 2 map of 3 materials)."""
+    from rjfit.data.descriptions import check_scene_definition
+    from rjfit.data.meshes import dented_slab
+    from rjfit.errors import DatasetError
+    from rjfit.render.render import load_scene_definition
+
+    parts = dented_slab(size=2.0, resolution=20, material_map=[[0, 1], [2, 0]], materials=(0, 1, 2))
+    for mesh, material in parts:
+        centre = mesh.triangles_center
+        quadrant = np.where(centre[:, 1] > 0, np.where(centre[:, 0] < 0, 0, 1), np.where(centre[:, 0] < 0, 2, 0))
+        assert np.all(quadrant == material)
+    definition = load_scene_definition("dented_plaster")
+    definition["geometry"].update(material_map=[[0, 1], [2, 0]], materials=[0, 1])
+    with pytest.raises(DatasetError, match="material"):
+        check_scene_definition(definition)
