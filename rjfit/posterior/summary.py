@@ -253,7 +253,7 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
     for index in picks:
         rec, s = kept[index]
         t = rec.cp_iteration[s]
-        if rec.region_model == "materials":       # the snapshot holds the labels themselves
+        if getattr(rec, "n_materials", None) is not None:      # materials: the snapshot holds the labels
             n_regions = int(rec.n_materials[t])
             pixels = np.nan_to_num(rec.material_labels[s], nan=0.0).astype(np.int64).ravel()
             labels = np.repeat(pixels, np.diff(problem.pixel_start))
