@@ -1,6 +1,6 @@
 """Integer pixel codes of measured images: bit depth, 8-bit data widened to 16 bits, encodings, quantisation.
 
-A measured image is read whole (:func:`rjfit.data.diligent._read_raw_image`); this module
+A measured image is read whole (:func:`rjfit.data.diligent_files.read_raw_image`); this module
 decides what its integer values mean before any other use:
 
 - **Bit depth.** 16-bit files are linear sensor counts unless declared otherwise; an 8-bit

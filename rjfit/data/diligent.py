@@ -57,13 +57,26 @@ photometric-stereo folder has no shadow rays, so this is how cast shadows are ke
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.checks import check_finite, check_lights_face_object, check_mask, check_unit_normals
-from rjfit.data.codes import BITS, ENCODINGS, QUANTISATION_VARIANCE_CODES, RESPONSES, read_codes, response_of
+from rjfit.data.checks import check_lights_face_object, check_mask, check_unit_normals
+from rjfit.data.codes import BITS, ENCODINGS, QUANTISATION_VARIANCE_CODES, RESPONSES, response_of
 from rjfit.data.dataset import Dataset
+from rjfit.data.diligent_files import (
+    NORMAL_MAP_NAMES,
+    check_reading,
+    find_normal_map,
+    numbered_lines,
+    read_images,
+    read_mask,
+    read_normal_map,
+    read_vectors,
+    require_file,
+    size_text,
+)
 from rjfit.data.lights import Light
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.io import read_json
@@ -77,12 +90,9 @@ INTENSITIES = "light_intensities.txt"
 LIGHT_DIRECTION_TOLERANCE = 0.01      # largest | |d| - 1 | of a light direction read from DIRECTIONS
 MASK = "mask.png"
 LAYOUT_FILES = (FILENAMES, DIRECTIONS, INTENSITIES, MASK)
-NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "normal")
-                         for ext in ("mat", "npy", "exr"))
 OPTIONS_FILE = "rjfit.json"
 _OPTIONS = ("saturation", "dark", "encoded", "response", "bits", "mask", "normals", "crop", "camera")
 CAMERA_KINDS = ("orthographic", "perspective")
-_MAT_VARIABLES = ("Normal_gt", "normals", "normal", "N")
 
 
 def is_diligent_folder(path) -> bool:
@@ -94,182 +104,6 @@ def is_diligent_folder(path) -> bool:
     path = Path(path)
     return path.is_dir() and ((path / FILENAMES).is_file() or (path / DIRECTIONS).is_file())
 
-
-# -- text files ---------------------------------------------------------------------------------
-
-def _require_file(path: Path, role: str) -> Path:
-    if not path.is_file():
-        raise DatasetFileNotFoundError(f"{path}: no such file (the {role} of a photometric-stereo folder)")
-    return path
-
-
-def _numbered_lines(path: Path):
-    """``(line_number, text)`` of the non-blank lines of a text file (1-based line numbers)."""
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError as error:
-        raise DatasetError(f"{path}: not a text file ({error})") from error
-    return [(number, line.strip()) for number, line in enumerate(text.splitlines(), start=1) if line.strip()]
-
-
-def _read_vectors(path: Path, widths, what):
-    """Rows of numbers, one per non-blank line, each of one of ``widths`` lengths."""
-    rows, numbers = [], []
-    for number, line in _numbered_lines(path):
-        try:
-            values = [float(token) for token in line.replace(",", " ").split()]
-        except ValueError:
-            raise DatasetError(f"{path} line {number}: expected numbers, got {line!r}") from None
-        if len(values) not in widths:
-            expected = " or ".join(str(w) for w in widths)
-            raise DatasetError(f"{path} line {number}: expected {expected} numbers ({what}), got {len(values)}: "
-                               f"{line!r}")
-        if not np.all(np.isfinite(values)):
-            raise DatasetError(f"{path} line {number}: {what} is NaN or Inf: {line!r}")
-        rows.append(values)
-        numbers.append(number)
-    if not rows:
-        raise DatasetError(f"{path}: the file is empty (no {what})")
-    return rows, numbers
-
-
-# -- images and maps ----------------------------------------------------------------------------
-
-def _size(array) -> str:
-    return f"{array.shape[1]} x {array.shape[0]} (width x height)"
-
-
-def _read_raw_image(path: Path) -> np.ndarray:
-    """The image as stored: (H, W, 3) in R, G, B order, integer or float."""
-    if path.suffix.lower() == ".exr":
-        from rjfit.data.exr import read_exr
-
-        channels = read_exr(path)
-        if all(c in channels for c in "RGB"):
-            return np.stack([channels[c] for c in "RGB"], axis=-1)
-        if "Y" in channels:
-            return np.repeat(channels["Y"][..., None], 3, axis=-1)
-        raise DatasetError(f"{path}: needs channels R, G, B (or Y), has {sorted(channels)}")
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise DatasetError(f"{path}: not a readable image (OpenCV could not decode it)")
-    if image.ndim == 2:
-        return np.repeat(image[..., None], 3, axis=-1)
-    if image.shape[-1] != 3:
-        raise DatasetError(f"{path}: has {image.shape[-1]} channels, expected 3 (RGB) or 1 (grey)")
-    return image[..., ::-1]  # OpenCV reads BGR
-
-
-def _check_depth(raw: np.ndarray, path: Path, encoded, reference, response=None, bits=None):
-    """The image's codes as declared (:func:`rjfit.data.codes.read_codes`: undeclared 8-bit data and
-    8-bit codes in 16-bit files are refused), and its largest code; refuses mixed kinds of images."""
-    codes, max_code = read_codes(raw, path, encoded, response, bits)
-    if reference is not None and raw.dtype != reference[0]:
-        raise DatasetError(f"{path}: pixels are {raw.dtype}, but {reference[1].name} holds {reference[0]}; every "
-                           f"image of a stack must have one type (one unit)")
-    return codes, max_code
-
-
-def _read_mask(path: Path) -> np.ndarray:
-    """The object mask: pixels where any colour (or grey) channel is above half its range.
-
-    The mask is drawn in colour (DiLiGenT's are 8-bit RGB, 0 or 255); an alpha channel is not
-    part of it. OpenCV returns grey + alpha and RGBA files with the alpha last (4 channels,
-    or 2 for a grey + alpha TIFF): that channel is set aside, so an opaque alpha does not
-    select the whole frame. Where the alpha itself varies and marks other pixels than the
-    colour does, the file is ambiguous and refused.
-    """
-    import cv2
-
-    mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if mask is None:
-        raise DatasetError(f"{path}: not a readable image (OpenCV could not decode it)")
-    if np.issubdtype(mask.dtype, np.floating):
-        check_finite(mask, path)
-    alpha = None
-    if mask.ndim == 3 and mask.shape[-1] in (2, 4):
-        mask, alpha = mask[..., :-1], mask[..., -1]
-    above_half = (lambda values: values > 0.5) if np.issubdtype(mask.dtype, np.floating) else (
-        lambda values: values > np.iinfo(mask.dtype).max // 2)
-    selected = above_half(mask)
-    selected = selected.any(axis=-1) if selected.ndim == 3 else selected
-    if alpha is not None and (alpha != alpha.flat[0]).any():
-        by_alpha = above_half(alpha)
-        if not np.array_equal(by_alpha, selected):
-            raise DatasetError(f"{path}: the mask's alpha channel marks {int(by_alpha.sum())} pixels but its colour "
-                               f"channels mark {int(selected.sum())}; rjfit reads the colour (non-zero on the "
-                               f"object), so save the mask without an alpha channel, as grey or RGB")
-    return selected
-
-
-def _find_normal_map(folder: Path, normals) -> Path:
-    if normals is not None:
-        candidate = Path(normals)
-        candidate = candidate if candidate.is_absolute() else folder / candidate
-        return _require_file(candidate, "normal map")
-    for name in NORMAL_MAP_NAMES:
-        if (folder / name).is_file():
-            return folder / name
-    raise DatasetFileNotFoundError(f"{folder}: no normal map (looked for {', '.join(NORMAL_MAP_NAMES)}); pass "
-                                   f"normals=FILE to name one")
-
-
-def _read_normal_map(path: Path) -> np.ndarray:
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        try:
-            normals = np.load(path, allow_pickle=False)
-        # Broad on purpose: it wraps only this one read of the user's file, numpy documents no complete
-        # list of what a bad file raises (ValueError, EOFError, OSError seen), and it is re-raised as a
-        # DatasetError that names the file.
-        except Exception as error:
-            raise DatasetError(f"{path}: not a readable .npy file ({error})") from error
-    elif suffix == ".mat":
-        import scipy.io
-
-        try:
-            contents = scipy.io.loadmat(str(path))
-        except NotImplementedError as error:  # MATLAB v7.3 files are HDF5
-            raise DatasetError(f"{path}: MATLAB v7.3 (HDF5) file, which scipy cannot read; save it with "
-                               f"-v7, or as .npy") from error
-        # Broad on purpose: it wraps only this one read of the user's file, and scipy raises whatever its
-        # parser hits on a corrupt one (MatReadError, ValueError, even IndexError for junk bytes); it is
-        # re-raised as a DatasetError that names the file.
-        except Exception as error:
-            raise DatasetError(f"{path}: not a readable MATLAB file ({error})") from error
-        variables = {k: v for k, v in contents.items() if not k.startswith("__")}
-        named = [k for k in _MAT_VARIABLES if k in variables]
-        maps = [k for k, v in variables.items() if np.ndim(v) == 3 and np.shape(v)[-1] == 3]
-        if named:
-            normals = variables[named[0]]
-        elif len(maps) == 1:
-            normals = variables[maps[0]]
-        else:
-            raise DatasetError(f"{path}: cannot tell which variable holds the normals (expected one of "
-                               f"{', '.join(_MAT_VARIABLES)}; has {sorted(variables)})")
-    elif suffix == ".exr":
-        from rjfit.data.exr import read_exr
-
-        channels = read_exr(path)
-        for names in (("N.X", "N.Y", "N.Z"), ("X", "Y", "Z"), ("R", "G", "B")):
-            if all(name in channels for name in names):
-                normals = np.stack([channels[name] for name in names], axis=-1)
-                break
-        else:
-            raise DatasetError(f"{path}: needs channels N.X N.Y N.Z (or X Y Z, or R G B), has {sorted(channels)}")
-    else:
-        raise DatasetError(f"{path}: unsupported normal map format {suffix!r} (use .npy, .mat or .exr; a PNG "
-                           f"picture of normals is quantised and not unit length)")
-    normals = np.asarray(normals)
-    if normals.ndim != 3 or normals.shape[-1] != 3 or not np.issubdtype(normals.dtype, np.number):
-        raise DatasetError(f"{path}: normal map must be a numeric (height, width, 3) array, got shape "
-                           f"{normals.shape}, type {normals.dtype}")
-    return normals.astype(np.float64)
-
-
-# -- the loader ---------------------------------------------------------------------------------
 
 def folder_options(folder) -> dict:
     """The loader options declared in ``FOLDER/rjfit.json`` ({} without one).
@@ -290,8 +124,8 @@ def folder_options(folder) -> dict:
     rules = {"saturation": (lambda v: v is None or (_is_number(v) and v > 0), "a raw value > 0, or null"),
              "dark": (lambda v: v is None or (_is_number(v) and v >= 0), "a raw value >= 0, or null"),
              "encoded": (lambda v: v is None or v in ENCODINGS,
-                         f"null (linear 16-bit or float data), \"linear\" (integer codes linear in radiance, 8-bit "
-                         f"allowed) or \"sRGB\" (sRGB-encoded integer codes, decoded)"),
+                         "null (linear 16-bit or float data), \"linear\" (integer codes linear in radiance, 8-bit "
+                         "allowed) or \"sRGB\" (sRGB-encoded integer codes, decoded)"),
              "response": (lambda v: v is None or v in RESPONSES,
                           "\"unknown\" (the camera response is not known: the images are read as raw codes and a "
                           "later stage estimates it) or null (known: linear, or as \"encoded\" says)"),
@@ -456,20 +290,88 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, respo
         (("saturation", saturation), ("dark", dark), ("encoded", encoded), ("response", response), ("bits", bits),
          ("mask", mask), ("normals", normals), ("crop", crop), ("camera", camera)))
     camera = check_camera(camera, f"{folder}: camera")
-    _check_reading(folder, encoded, response, bits)
-
-    names_file = _require_file(folder / FILENAMES, "list of images")
-    directions_file = _require_file(folder / DIRECTIONS, "light directions")
-    intensities_file = _require_file(folder / INTENSITIES, "light intensities")
+    check_reading(folder, encoded, response, bits)
+    lights = _read_lights(folder, response)
     mask_file = folder / (mask_name or MASK)
     if mask_name is not None and not mask_file.is_file():
         raise DatasetFileNotFoundError(f"{mask_file}: no such file (the object mask that mask={mask_name!r} names, "
                                        f"in {OPTIONS_FILE} or as an argument)")
-    _require_file(mask_file, "object mask")
-    normals_file = _find_normal_map(folder, normals)
+    require_file(mask_file, "object mask")
+    normals_file = find_normal_map(folder, normals)
+    mask = read_mask(mask_file)
+    check_mask(mask, mask_file)
+    normal_map = read_normal_map(normals_file)
+    if normal_map.shape[:2] != mask.shape:
+        raise DatasetError(f"{normals_file}: normal map is {size_text(normal_map)}, but {mask_file.name} is "
+                           f"{size_text(mask)}; the mask, the normal map and every image must have one size")
+    check_unit_normals(normal_map, mask, normals_file)
+    normal_map = np.where(mask[..., None], normal_map, 0.0)
+    view_dirs = view_directions(camera, *mask.shape)
+    check_lights_face_object(lights.lights, normal_map, None, view_dirs, mask, lights.describe)
+    images, saturated, too_dark, threshold_used, pixel_type, max_code = read_images(
+        lights.image_files, mask, mask_file, lights.intensities, encoded, response, bits, saturation, dark)
+    dataset_response = response_of(encoded, response)
+    quantised = max_code is not None and dataset_response != "sRGB"
+    meta = {
+        "name": folder.resolve().name, "kind": "measured", "layout": "diligent",
+        "source": "photometric-stereo folder, DiLiGenT layout (Shi et al., CVPR 2016)",
+        "description": _first_heading(folder / "README.md"), "path": str(folder),
+        "camera": {**_camera_meta(camera, *mask.shape),
+                   "axes": "x right, y up, z towards the camera; image rows top to bottom"},
+        "resolution": list(mask.shape), "units": _units(dataset_response, encoded, max_code),
+        "pixel_type": pixel_type, "encoded": encoded, "response": dataset_response,
+        "bits": None if max_code is None else int(max_code).bit_length(),
+        "quantisation": ({"step_raw": 1.0, "variance_raw": QUANTISATION_VARIANCE_CODES,
+                          "rule": "uniform rounding to integer codes: variance step^2 / 12 in raw codes; "
+                                  "Dataset.quantisation_variance holds it per light and channel in the images' "
+                                  "units"} if quantised else None),
+        "images": [str(file.relative_to(folder)) for file in lights.image_files], "normal_map": normals_file.name,
+        "mask": mask_file.name, "mask_pixels": int(mask.sum()),
+        "lights": [light.to_json() for light in lights.lights],
+        "light_intensities_rgb": lights.intensities.tolist(),
+        "saturation": {"raw_threshold": None if threshold_used is None else float(threshold_used),
+                       "rule": "an observation is saturated when any channel's raw value >= raw_threshold",
+                       "saturated_observations_in_mask": int(saturated[:, mask].sum())},
+        "dark": {"raw_threshold": dark, "rule": "an observation is too dark when every channel's raw value <= "
+                 "raw_threshold (null: no threshold)",
+                 "dark_observations_in_mask": None if too_dark is None else int(too_dark[:, mask].sum())},
+        "reference_intensity": 1.0,
+    }
+    dataset = Dataset(path=folder, meta=meta, images=images, normals=normal_map, view_dirs=view_dirs,
+                      positions=None, visibility=None, object_mask=mask, lights=lights.lights, saturation=None,
+                      saturated=saturated, too_dark=too_dark, response=dataset_response,
+                      quantisation_variance=QUANTISATION_VARIANCE_CODES / lights.intensities ** 2 if quantised else None)
+    if crop is not False and crop is not None:
+        dataset = crop_to_mask(dataset, margin=2 if crop is True else int(crop))
+    return dataset
 
-    # Lights and images must pair up one to one.
-    listed = _numbered_lines(names_file)
+
+def _units(response: str, encoded, max_code) -> str:
+    if response == "unknown":
+        return "raw camera codes, response unknown (not linear in radiance) / light intensity (per channel)"
+    if encoded == "sRGB":
+        return "sRGB-decoded linear value in [0, 1] / light intensity (per channel)"
+    if max_code is not None:
+        return "raw sensor counts / light intensity (per channel)"
+    return "stored float value / light intensity (per channel)"
+
+
+@dataclass(frozen=True)
+class _FolderLights:
+    """The lights of a folder paired one to one with their images, and how to name a light in a message."""
+
+    lights: list
+    intensities: np.ndarray      # (L, 3)
+    image_files: list
+    describe: object             # describe(index or None) -> text naming the light's line
+
+
+def _read_lights(folder: Path, response) -> _FolderLights:
+    """The image list, light directions and intensities, checked to pair up one to one."""
+    names_file = require_file(folder / FILENAMES, "list of images")
+    directions_file = require_file(folder / DIRECTIONS, "light directions")
+    intensities_file = require_file(folder / INTENSITIES, "light intensities")
+    listed = numbered_lines(names_file)
     if not listed:
         raise DatasetError(f"{names_file}: the file is empty (no images listed)")
     seen = {}
@@ -478,8 +380,8 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, respo
             raise DatasetError(f"{names_file} line {number}: {name} is listed twice (also on line {seen[name]}); "
                                f"each light needs its own image")
         seen[name] = number
-    directions, direction_lines = _read_vectors(directions_file, (3,), "a light direction x y z")
-    intensities, intensity_lines = _read_vectors(intensities_file, (1, 3), "a light intensity (r g b)")
+    directions, direction_lines = read_vectors(directions_file, (3,), "a light direction x y z")
+    intensities, intensity_lines = read_vectors(intensities_file, (1, 3), "a light intensity (r g b)")
     for other, rows, lines in ((directions_file, directions, direction_lines),
                                (intensities_file, intensities, intensity_lines)):
         if len(rows) < len(listed):
@@ -495,7 +397,21 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, respo
             raise DatasetFileNotFoundError(
                 f"{image_files[index]}: no such file; {names_file} line {number} names it as the image of light "
                 f"{index + 1} (a light without an image)")
+    directions = _unit_directions(directions, directions_file, direction_lines)
+    intensities = _intensities(intensities, intensities_file, intensity_lines, response)
+    lights = [Light(kind="directional", intensity=1.0, direction=tuple(float(c) for c in d)) for d in directions]
 
+    def describe(index):
+        if index is None:
+            return str(directions_file)
+        d = directions[index]
+        return (f"{directions_file} line {direction_lines[index]} (light {index + 1}, image {listed[index][1]}, "
+                f"direction {d[0]:.4g} {d[1]:.4g} {d[2]:.4g})")
+
+    return _FolderLights(lights=lights, intensities=intensities, image_files=image_files, describe=describe)
+
+
+def _unit_directions(directions, directions_file, direction_lines) -> np.ndarray:
     directions = np.asarray(directions, dtype=np.float64)
     lengths = np.linalg.norm(directions, axis=1)
     if (lengths == 0).any():
@@ -512,7 +428,10 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, respo
                            f"{LIGHT_DIRECTION_TOLERANCE:g}); {int(off.sum())} of {len(lengths)} lines are so: the file "
                            f"holds unit vectors towards distant lights (point lights with positions belong in a "
                            f"stack.json mesh stack)")
-    directions /= lengths[:, None]
+    return directions / lengths[:, None]
+
+
+def _intensities(intensities, intensities_file, intensity_lines, response) -> np.ndarray:
     intensities = np.asarray([row * 3 if len(row) == 1 else row for row in intensities], dtype=np.float64)
     if (intensities <= 0).any():
         index = int(np.argmax((intensities <= 0).any(axis=1)))
@@ -524,133 +443,7 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, respo
                            f"differs from line {intensity_lines[0]}'s {intensities[0].tolist()}, but the response is "
                            f"unknown: an intensity cannot be divided out of codes that are not linear in it (give "
                            f"equal intensities, or declare the response)")
-
-    # Mask and normals.
-    mask = _read_mask(mask_file)
-    check_mask(mask, mask_file)
-    normal_map = _read_normal_map(normals_file)
-    if normal_map.shape[:2] != mask.shape:
-        raise DatasetError(f"{normals_file}: normal map is {_size(normal_map)}, but {mask_file.name} is "
-                           f"{_size(mask)}; the mask, the normal map and every image must have one size")
-    check_unit_normals(normal_map, mask, normals_file)
-    normal_map = np.where(mask[..., None], normal_map, 0.0)
-    view_dirs = view_directions(camera, *mask.shape)
-    lights = [Light(kind="directional", intensity=1.0, direction=tuple(float(c) for c in d)) for d in directions]
-
-    def describe(index):
-        if index is None:
-            return str(directions_file)
-        d = directions[index]
-        return (f"{directions_file} line {direction_lines[index]} (light {index + 1}, image {listed[index][1]}, "
-                f"direction {d[0]:.4g} {d[1]:.4g} {d[2]:.4g})")
-
-    check_lights_face_object(lights, normal_map, None, view_dirs, mask, describe)
-
-    height, width = mask.shape
-    images, saturated, too_dark, threshold_used, pixel_type, max_code = _read_images(
-        image_files, mask, mask_file, intensities, encoded, response, bits, saturation, dark)
-    dataset_response = response_of(encoded, response)
-    quantised = max_code is not None and dataset_response != "sRGB"
-    if dataset_response == "unknown":
-        units = "raw camera codes, response unknown (not linear in radiance) / light intensity (per channel)"
-    elif encoded == "sRGB":
-        units = "sRGB-decoded linear value in [0, 1] / light intensity (per channel)"
-    elif max_code is not None:
-        units = "raw sensor counts / light intensity (per channel)"
-    else:
-        units = "stored float value / light intensity (per channel)"
-    readme = folder / "README.md"
-    meta = {
-        "name": folder.resolve().name,
-        "kind": "measured",
-        "layout": "diligent",
-        "source": "photometric-stereo folder, DiLiGenT layout (Shi et al., CVPR 2016)",
-        "description": _first_heading(readme),
-        "path": str(folder),
-        "camera": {**_camera_meta(camera, *mask.shape),
-                   "axes": "x right, y up, z towards the camera; image rows top to bottom"},
-        "resolution": [height, width],
-        "units": units,
-        "pixel_type": pixel_type,
-        "encoded": encoded,
-        "response": dataset_response,
-        "bits": None if max_code is None else int(max_code).bit_length(),
-        "quantisation": ({"step_raw": 1.0, "variance_raw": QUANTISATION_VARIANCE_CODES,
-                          "rule": "uniform rounding to integer codes: variance step^2 / 12 in raw codes; "
-                                  "Dataset.quantisation_variance holds it per light and channel in the images' "
-                                  "units"} if quantised else None),
-        "images": [name for _, name in listed],
-        "normal_map": normals_file.name,
-        "mask": mask_file.name,
-        "mask_pixels": int(mask.sum()),
-        "lights": [light.to_json() for light in lights],
-        "light_intensities_rgb": intensities.tolist(),
-        "saturation": {"raw_threshold": None if threshold_used is None else float(threshold_used),
-                       "rule": "an observation is saturated when any channel's raw value >= raw_threshold",
-                       "saturated_observations_in_mask": int(saturated[:, mask].sum())},
-        "dark": {"raw_threshold": dark, "rule": "an observation is too dark when every channel's raw value <= "
-                 "raw_threshold (null: no threshold)",
-                 "dark_observations_in_mask": None if too_dark is None else int(too_dark[:, mask].sum())},
-        "reference_intensity": 1.0,
-    }
-    dataset = Dataset(path=folder, meta=meta, images=images, normals=normal_map, view_dirs=view_dirs,
-                      positions=None, visibility=None, object_mask=mask, lights=lights, saturation=None,
-                      saturated=saturated, too_dark=too_dark, response=dataset_response,
-                      quantisation_variance=QUANTISATION_VARIANCE_CODES / intensities ** 2 if quantised else None)
-    if crop is not False and crop is not None:
-        dataset = crop_to_mask(dataset, margin=2 if crop is True else int(crop))
-    return dataset
-
-
-def _check_reading(folder: Path, encoded, response, bits) -> None:
-    """The declared encoding, response and bit depth, checked alone and together (arguments bypass
-    :func:`folder_options`)."""
-    if encoded is not None and encoded not in ENCODINGS:
-        raise DatasetError(f"{folder}: encoded must be None (linear data) or one of {ENCODINGS}, got {encoded!r}")
-    if response is not None and response not in RESPONSES:
-        raise DatasetError(f"{folder}: response must be None (known) or one of {RESPONSES}, got {response!r}")
-    if bits is not None and bits not in BITS:
-        raise DatasetError(f"{folder}: bits must be None (the files' own type) or one of {BITS}, got {bits!r}")
-    if response == "unknown" and encoded is not None:
-        raise DatasetError(f"{folder}: response='unknown' and encoded={encoded!r} contradict each other; declare "
-                           f"one (encoded when the response is known, response='unknown' when it is not)")
-
-
-def _read_images(image_files, mask, mask_file, intensities, encoded, response, bits, saturation, dark):
-    """Read the stack whole: check, take the declared codes, flag clipped and dark observations, decode,
-    divide by the light's intensity.
-
-    Returns ``(images, saturated, too_dark, threshold_used, pixel_type, max_code)``: float32 (L, H, W, 3),
-    (L, H, W) flags, the saturation threshold applied (in codes), the files' pixel type and the largest
-    code of the declared depth (None for float images).
-    """
-    height, width = mask.shape
-    images = np.empty((len(image_files), height, width, 3), dtype=np.float32)
-    saturated = np.zeros((len(image_files), height, width), dtype=bool)
-    too_dark = None if dark is None else np.zeros((len(image_files), height, width), dtype=bool)
-    reference, threshold_used, max_code = None, saturation, None
-    for index, image_file in enumerate(image_files):
-        raw = _read_raw_image(image_file)
-        if raw.shape[:2] != (height, width):
-            raise DatasetError(f"{image_file}: image is {_size(raw)}, but {mask_file.name} is {_size(mask)}; the "
-                               f"mask, the normal map and every image must have one size")
-        codes, max_code = _check_depth(raw, image_file, encoded, reference, response, bits)
-        reference = reference or (raw.dtype, image_file)
-        check_finite(codes, image_file)
-        threshold = saturation if saturation is not None else max_code
-        if threshold is not None:
-            saturated[index] = (codes >= threshold).any(axis=-1)
-            threshold_used = threshold
-        if too_dark is not None:
-            too_dark[index] = (codes <= dark).all(axis=-1)
-        if max_code is not None and encoded == "sRGB":
-            import colour
-
-            linear = colour.cctf_decoding(codes / float(max_code), "sRGB")
-        else:
-            linear = codes
-        images[index] = linear / intensities[index]
-    return images, saturated, too_dark, threshold_used, str(reference[0]), max_code
+    return intensities
 
 
 def _camera_meta(camera, height, width) -> dict:

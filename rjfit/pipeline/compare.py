@@ -21,8 +21,9 @@ import numpy as np
 
 from rjfit.baselines import methods
 from rjfit.baselines.metrics import BOUNDARY_TOLERANCE, relabel_to_truth, segmentation_metrics
-from rjfit.io import atomic_path, publish, staging_dir
+from rjfit.io import atomic_path, publish, staging_dir, write_json_atomic
 from rjfit.pipeline import fit_folder
+from rjfit.render.datasets import load_dataset
 
 __all__ = ["compare_dataset", "read_map_labels", "format_markdown", "METHODS", "MAP_LABEL_FILES", "RUNTIME_KEYS"]
 
@@ -184,24 +185,58 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
     ValueError
         If the data set has no ground truth, or ``fit_dir`` holds a fit of another data set.
     """
-    from rjfit.io import write_json_atomic
-    from rjfit.render.datasets import load_dataset
-
     dataset = load_dataset(dataset_dir)
     if dataset.truth_labels is None:
         raise ValueError(f"{dataset_dir}: has no truth_labels; the comparison needs a data set with ground "
                          f"truth (render one with `rjfit render SCENE --out DIR`)")
     truth, mask = dataset.truth_labels, dataset.object_mask & (dataset.truth_labels >= 0)
     # the fit is read and checked before any baseline runs, so a wrong --fit fails at once
-    fit_labels, fit_summary = read_map_labels(fit_dir, mask) if fit_dir is not None else (None, {})
+    fit_labels, fit_summary = _fit_of(dataset, fit_dir, mask)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)      # an --out that cannot be written fails before the baselines run
+    rows, segmentations, ncut = _run_baselines(dataset, channel, mask, truth, seed, progress)
+    notes = _notes(dataset, mask, truth, channel, seed, ncut)
+    if fit_dir is not None:
+        seconds, key = _runtime_from(fit_summary)
+        note = (f"runtime from summary.json['{key}']" if key else
+                f"no runtime in summary.json (looked for {', '.join(RUNTIME_KEYS)})")
+        metrics = segmentation_metrics(truth, fit_labels, mask)
+        rows.append({"method": RJFIT, "label": "rjfit MAP (RJMCMC)", "k": metrics["n_clusters"], **metrics,
+                     "seconds": seconds, "note": note})
+        segmentations[(RJFIT, metrics["n_clusters"])] = fit_labels
+        notes.append(f"rjfit MAP segmentation from {fit_dir}; {note}.")
+    else:
+        notes.append("rjfit MAP: no fit folder given (--fit FIT_DIR), so rjfit's row is left out.")
+    payload = {"dataset": str(dataset.path), "resolution": list(mask.shape), "n_object_pixels": int(mask.sum()),
+               "channel": channel, "seed": seed, "boundary_tolerance_px": BOUNDARY_TOLERANCE,
+               "ncut_image": ncut[0], "notes": notes, "rows": rows, "fit_id": fit_summary.get("fit_id"),
+               "figures": ["segmentations.png"]}
+    with staging_dir(out_dir) as staging:
+        _write_figure(staging / "segmentations.png", truth, mask, _panels(rows, segmentations, truth),
+                      f"{dataset.path.name}: segmentations matched to the truth (colour = matched region)")
+        (staging / "comparison.md").write_text("# Segmentation baselines\n\n" + format_markdown(rows, notes),
+                                               encoding="utf-8")
+        write_json_atomic(staging / "comparison.json", payload)
+        publish(staging, out_dir, manifest="comparison.json", names=RESULT_FILES, remove=RESULT_FILES)
+    return rows
+
+
+def _fit_of(dataset, fit_dir, mask):
+    """``(MAP labels, summary)`` of ``fit_dir`` checked to be a fit of ``dataset`` (None, {} without a fit)."""
+    if fit_dir is None:
+        return None, {}
+    fit_labels, fit_summary = read_map_labels(fit_dir, mask)
     fitted = fit_summary.get("dataset")
-    if fit_dir is not None and (not fitted or Path(fitted).resolve() != Path(dataset.path).resolve()):
+    if not fitted or Path(fitted).resolve() != Path(dataset.path).resolve():
         unknown = ("an unknown data set (summary.json has no 'dataset' entry)" if fit_summary
                    else "an unknown data set (no summary.json)")
         raise ValueError(f"{fit_dir}: is a fit of {fitted or unknown}, not of "
                          f"{Path(dataset.path).resolve()}; compare a data set with its own fit")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)      # an --out that cannot be written fails before the baselines run
+    return fit_labels, fit_summary
+
+
+def _run_baselines(dataset, channel, mask, truth, seed, progress):
+    """Every (method, k) of :data:`METHODS`: rows, segmentations, and (image, valid pixels) normalized cuts used."""
     grey = dataset.channel_values(channel)
     ncut_index = methods.pick_ncut_image(dataset.valid_mask(channel))
     n_valid = int(dataset.valid_mask(channel)[ncut_index].sum())
@@ -223,7 +258,12 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
             segmentations[(name, k)] = labels
             rows.append({"method": name, "label": label, "k": k, **segmentation_metrics(truth, labels, mask),
                          "seconds": seconds, "note": ""})
-    notes = [
+    return rows, segmentations, (ncut_index, n_valid)
+
+
+def _notes(dataset, mask, truth, channel, seed, ncut) -> list[str]:
+    ncut_index, n_valid = ncut
+    return [
         f"Data set {dataset.path} ({mask.shape[1]} x {mask.shape[0]}, {int(mask.sum())} object pixels, "
         f"{int(np.unique(truth[mask]).size)} true regions, {dataset.n_lights} images), channel '{channel}', "
         f"seed {seed}. Metrics on object pixels only; clusters matched to regions by the Hungarian method, "
@@ -237,24 +277,10 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
         f"to [0, 1] by its 99th percentile: scikit-image's default for 8-bit images), recursive N-cut, then "
         f"adjacent segments merged by Ward's criterion until k remain; k includes the background segment.",
     ]
-    if fit_dir is not None:
-        labels, summary = fit_labels, fit_summary
-        seconds, key = _runtime_from(summary)
-        note = (f"runtime from summary.json['{key}']" if key else
-                f"no runtime in summary.json (looked for {', '.join(RUNTIME_KEYS)})")
-        metrics = segmentation_metrics(truth, labels, mask)
-        rows.append({"method": RJFIT, "label": "rjfit MAP (RJMCMC)", "k": metrics["n_clusters"], **metrics,
-                     "seconds": seconds, "note": note})
-        segmentations[(RJFIT, metrics["n_clusters"])] = labels
-        notes.append(f"rjfit MAP segmentation from {fit_dir}; {note}.")
-    else:
-        notes.append("rjfit MAP: no fit folder given (--fit FIT_DIR), so rjfit's row is left out.")
 
-    payload = {"dataset": str(dataset.path), "resolution": list(mask.shape), "n_object_pixels": int(mask.sum()),
-               "channel": channel, "seed": seed, "boundary_tolerance_px": BOUNDARY_TOLERANCE,
-               "ncut_image": ncut_index, "notes": notes, "rows": rows, "fit_id": fit_summary.get("fit_id"),
-               "figures": ["segmentations.png"]}
 
+def _panels(rows, segmentations, truth):
+    """The figure's rows of panels: truth, rjfit and normalized cuts first, then one row per other method."""
     def panel(row):
         return (f"{row['method']} k={row['k']}\nacc {row['pixel_accuracy']:.2f}  bF1 {row['boundary_f1']:.2f}",
                 segmentations[(row["method"], row["k"])], "")
@@ -263,13 +289,5 @@ def compare_dataset(dataset_dir, out_dir, *, fit_dir=None, seed: int = 0, channe
     rjfit_rows = [row for row in rows if row["method"] == RJFIT]
     first += [panel(row) for row in rjfit_rows] or [("rjfit MAP", None, "no fit given\n(--fit FIT_DIR)")]
     first += [panel(row) for row in rows if row["method"] == "normalized_cuts"]
-    panels = [first] + [[panel(row) for row in rows if row["method"] == name]
-                        for name in METHODS if name != "normalized_cuts"]
-    with staging_dir(out_dir) as staging:
-        _write_figure(staging / "segmentations.png", truth, mask, panels,
-                      f"{dataset.path.name}: segmentations matched to the truth (colour = matched region)")
-        (staging / "comparison.md").write_text("# Segmentation baselines\n\n" + format_markdown(rows, notes),
-                                               encoding="utf-8")
-        write_json_atomic(staging / "comparison.json", payload)
-        publish(staging, out_dir, manifest="comparison.json", names=RESULT_FILES, remove=RESULT_FILES)
-    return rows
+    return [first] + [[panel(row) for row in rows if row["method"] == name]
+                      for name in METHODS if name != "normalized_cuts"]

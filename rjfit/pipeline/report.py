@@ -192,34 +192,56 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
     summary = read_summary(fit_dir)
     out_path = Path(out_path) if out_path else fit_dir / "report.html"
     dataset_dir = Path(summary["dataset"]) if summary.get("dataset") else None
+    parts = _header(fit_dir, dataset_dir) + _validation_section(summary, dataset_dir)
+    parts += _posterior_section(summary) + _settings_section(summary)
+    parts.append("<h2>Figures</h2>")
+    for png in sorted(fit_dir.glob("*.png")) + sorted((fit_dir / "figures").glob("*.png")):
+        parts.append(_embed(png, png.stem.replace("_", " ")))
+    folders = {"diagnosis": Path(diagnosis_dir) if diagnosis_dir else fit_dir / "diagnosis",
+               "comparison": Path(comparison_dir) if comparison_dir else fit_dir / "comparison"}
+    for sub, title, command in (("diagnosis", "Model criticism", "rjfit diagnose"), ("comparison", "Baselines",
+                                                                                     "rjfit compare DATASET --fit")):
+        parts += _derived_section(sub, title, command, folders[sub], fit_dir, summary)
+
+    document = (f"<!doctype html><html><head><meta charset='utf-8'><title>rjfit report</title>"
+                f"<style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>")
+    return write_text_atomic(out_path, document)
+
+
+def _header(fit_dir: Path, dataset_dir) -> list[str]:
     # a rendered data set's folder is often just "dataset": its description has the scene's name
     described = _load_json(dataset_dir / "dataset.json") if dataset_dir else None
     title = (described or {}).get("name") or (dataset_dir.name if dataset_dir else fit_dir.name)
-    parts = [f"<h1>rjfit report: {html.escape(title)}</h1>",
-             f"<p>Fit folder <code>{html.escape(str(fit_dir.resolve()))}</code>; data set "
-             f"<code>{html.escape(str(dataset_dir))}</code>.</p>"]
+    return [f"<h1>rjfit report: {html.escape(title)}</h1>",
+            f"<p>Fit folder <code>{html.escape(str(fit_dir.resolve()))}</code>; data set "
+            f"<code>{html.escape(str(dataset_dir))}</code>.</p>"]
 
-    # the gate's result: the data set's own, or the file the fit was given (a read-only data set)
+
+def _validation_section(summary: dict, dataset_dir) -> list[str]:
+    """The gate's result: the data set's own, or the file the fit was given (a read-only data set)."""
     validation_file = dataset_dir / "validation" / "validation.json" if dataset_dir else None
     recorded = (summary.get("validation") or {}).get("path")
     if isinstance(recorded, str) and recorded and not (validation_file and validation_file.is_file()):
         validation_file = Path(recorded)
     validation = _load_json(validation_file) if validation_file else None
     validation_dir = validation_file.parent if validation_file else None
-    parts.append("<h2>Forward-model cross-check</h2>")
-    if validation:
-        verdict = '<span class="pass">passed</span>' if validation.get("passed") else '<span class="fail">failed</span>'
-        parts.append(f"<p>Closed form vs Mitsuba path tracer: {verdict}.</p>")
-        parts.append(_key_values(validation, ["median_rel_err", "p99_rel_err", "max_rel_err", "pixels_compared",
-                                              "unexplained_fraction"]))
-        for name, caption in (("relative_error.png", "relative error"), ("unexplained_fraction.png",
-                                                                        "unexplained fraction")):
-            if (validation_dir / name).is_file():
-                parts.append(_embed(validation_dir / name, caption))
-    else:
-        parts.append("<p>No validation found for this data set.</p>")
+    parts = ["<h2>Forward-model cross-check</h2>"]
+    if not validation:
+        return parts + ["<p>No validation found for this data set.</p>"]
+    verdict = '<span class="pass">passed</span>' if validation.get("passed") else '<span class="fail">failed</span>'
+    parts.append(f"<p>Closed form vs Mitsuba path tracer: {verdict}.</p>")
+    parts.append(_key_values(validation, ["median_rel_err", "p99_rel_err", "max_rel_err", "pixels_compared",
+                                          "unexplained_fraction"]))
+    for name, caption in (("relative_error.png", "relative error"), ("unexplained_fraction.png",
+                                                                    "unexplained fraction")):
+        if (validation_dir / name).is_file():
+            parts.append(_embed(validation_dir / name, caption))
+    return parts
 
-    parts.append("<h2>Segmentation and model posterior</h2>")
+
+def _posterior_section(summary: dict) -> list[str]:
+    """Warnings, the model posterior and the region tables."""
+    parts = ["<h2>Segmentation and model posterior</h2>"]
     warnings = summary.get("warnings") or []
     if warnings:
         items = "".join(f"<li>{html.escape(w)}</li>" for w in warnings)
@@ -241,7 +263,11 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
         parts.append(f"<table><tr><th>model (n_u, n_v)</th><th>posterior</th></tr>{rows}</table>")
     parts.append("<h2>Region parameters</h2>" + _region_table(summary))
     parts.append(_chain_region_tables(summary))
-    # what the numbers above were computed with: two fits of one data set can differ in these
+    return parts
+
+
+def _settings_section(summary: dict) -> list[str]:
+    """What the numbers above were computed with: two fits of one data set can differ in these."""
     noise = summary.get("noise") or {}
     settings = {"channel": summary.get("channel"), "chains": summary.get("n_chains"),
                 "iterations per chain": summary.get("iterations"), "burn-in iterations": summary.get("burn_in"),
@@ -251,61 +277,54 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
                 "crop (row0, col0 of the files)": (f"{summary['crop'].get('row0')}, {summary['crop'].get('col0')}"
                                                    if summary.get("crop") else None),
                 "fit id": summary.get("fit_id")}
-    parts.append("<h3>Fit settings</h3>" + _key_values({k: v for k, v in settings.items() if v is not None},
-                                                       [k for k, v in settings.items() if v is not None]))
+    shown = {k: v for k, v in settings.items() if v is not None}
+    return ["<h3>Fit settings</h3>" + _key_values(shown, list(shown))]
 
-    parts.append("<h2>Figures</h2>")
-    for png in sorted(fit_dir.glob("*.png")) + sorted((fit_dir / "figures").glob("*.png")):
-        parts.append(_embed(png, png.stem.replace("_", " ")))
 
-    folders = {"diagnosis": Path(diagnosis_dir) if diagnosis_dir else fit_dir / "diagnosis",
-               "comparison": Path(comparison_dir) if comparison_dir else fit_dir / "comparison"}
-    for sub, title, command in (("diagnosis", "Model criticism", "rjfit diagnose"), ("comparison", "Baselines",
-                                                                                     "rjfit compare DATASET --fit")):
-        folder = folders[sub]
-        payload = _load_json(folder / f"{sub}.json")
-        if payload is None:
-            if sub == "diagnosis":
-                parts.append(f"<h2>{title}</h2><p>Not run for this fit: <code>rjfit diagnose "
-                             f"{html.escape(str(fit_dir))}</code> finds where the model and the data disagree and "
-                             f"names the physical effect the model misses.</p>")
-            continue
-        parts.append(f"<h2>{title}</h2>")
-        made_from = payload.get("fit_id") if isinstance(payload, dict) else None
-        if made_from and summary.get("fit_id") and made_from != summary["fit_id"]:
-            parts.append(f'<p class="fail">The {sub} in <code>{html.escape(str(folder.resolve()))}</code> was made '
-                         f"from another fit (fit id {html.escape(made_from)}, this one is "
-                         f"{html.escape(summary['fit_id'])}), so it is not shown; run <code>{command} "
-                         f"{html.escape(str(fit_dir))}</code> again.</p>")
-            continue
-        markdown = folder / f"{sub}.md"
-        if sub == "diagnosis":
-            named = payload.get("named_effects") or []
-            if not markdown.is_file():
-                parts.append(f"<p>Named effects: {html.escape(', '.join(named) if named else 'none')}.</p>")
-            else:
-                # diagnosis.md holds the gaps, the steps, every candidate's evidence and the skipped
-                # ones; its title and image links are left out (the figures follow, embedded)
-                lines = [line for line in markdown.read_text(encoding="utf-8").splitlines()
-                         if not line.startswith("# ") and not line.startswith("![")]
-                parts.append(_markdown_to_html("\n".join(lines)))
-        elif isinstance(payload, list) or "methods" in payload:
-            entries = payload if isinstance(payload, list) else payload["methods"]
-            header = sorted({k for e in entries for k in e if not isinstance(e[k], (dict, list))})
-            rows = "".join("<tr>" + "".join(f"<td>{_fmt(e.get(k))}</td>" for k in header) + "</tr>" for e in entries)
-            parts.append("<table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in header) + f"</tr>{rows}</table>")
-        elif markdown.is_file():
-            parts.append(_markdown_to_html(markdown.read_text(encoding="utf-8")))
-        for name in _listed_figures(sub, payload):
-            png = folder / name
-            if Path(name).name != name or png.suffix.lower() != ".png":
-                continue                # a figure of the folder is named by a plain PNG file name
-            if png.is_file():
-                parts.append(_embed(png, f"{sub}: {png.stem.replace('_', ' ')}"))
-            else:
-                parts.append(f'<p class="fail">Figure <code>{html.escape(name)}</code>, which {sub}.json names, is '
-                             f"missing from <code>{html.escape(str(folder.resolve()))}</code>.</p>")
+def _derived_section(sub: str, title: str, command: str, folder: Path, fit_dir: Path, summary: dict) -> list[str]:
+    """A diagnosis or comparison of this fit, with the figures its json names; a stale one is flagged, not shown."""
+    payload = _load_json(folder / f"{sub}.json")
+    if payload is None:
+        if sub != "diagnosis":
+            return []
+        return [f"<h2>{title}</h2><p>Not run for this fit: <code>rjfit diagnose "
+                f"{html.escape(str(fit_dir))}</code> finds where the model and the data disagree and "
+                f"names the physical effect the model misses.</p>"]
+    parts = [f"<h2>{title}</h2>"]
+    made_from = payload.get("fit_id") if isinstance(payload, dict) else None
+    if made_from and summary.get("fit_id") and made_from != summary["fit_id"]:
+        return parts + [f'<p class="fail">The {sub} in <code>{html.escape(str(folder.resolve()))}</code> was made '
+                        f"from another fit (fit id {html.escape(made_from)}, this one is "
+                        f"{html.escape(summary['fit_id'])}), so it is not shown; run <code>{command} "
+                        f"{html.escape(str(fit_dir))}</code> again.</p>"]
+    parts += _derived_text(sub, payload, folder / f"{sub}.md")
+    for name in _listed_figures(sub, payload):
+        png = folder / name
+        if Path(name).name != name or png.suffix.lower() != ".png":
+            continue                # a figure of the folder is named by a plain PNG file name
+        if png.is_file():
+            parts.append(_embed(png, f"{sub}: {png.stem.replace('_', ' ')}"))
+        else:
+            parts.append(f'<p class="fail">Figure <code>{html.escape(name)}</code>, which {sub}.json names, is '
+                         f"missing from <code>{html.escape(str(folder.resolve()))}</code>.</p>")
+    return parts
 
-    document = (f"<!doctype html><html><head><meta charset='utf-8'><title>rjfit report</title>"
-                f"<style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>")
-    return write_text_atomic(out_path, document)
+
+def _derived_text(sub: str, payload, markdown: Path) -> list[str]:
+    if sub == "diagnosis":
+        named = payload.get("named_effects") or []
+        if not markdown.is_file():
+            return [f"<p>Named effects: {html.escape(', '.join(named) if named else 'none')}.</p>"]
+        # diagnosis.md holds the gaps, the steps, every candidate's evidence and the skipped
+        # ones; its title and image links are left out (the figures follow, embedded)
+        lines = [line for line in markdown.read_text(encoding="utf-8").splitlines()
+                 if not line.startswith("# ") and not line.startswith("![")]
+        return [_markdown_to_html("\n".join(lines))]
+    if isinstance(payload, list) or "methods" in payload:
+        entries = payload if isinstance(payload, list) else payload["methods"]
+        header = sorted({k for e in entries for k in e if not isinstance(e[k], (dict, list))})
+        rows = "".join("<tr>" + "".join(f"<td>{_fmt(e.get(k))}</td>" for k in header) + "</tr>" for e in entries)
+        return ["<table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in header) + f"</tr>{rows}</table>"]
+    if markdown.is_file():
+        return [_markdown_to_html(markdown.read_text(encoding="utf-8"))]
+    return []

@@ -46,7 +46,7 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
         camera sees no part of the mesh.
     """
     from rjfit.data.checks import check_lights_face_object
-    from rjfit.data.diligent import _check_depth, _read_raw_image
+    from rjfit.data.diligent_files import check_depth, read_raw_image
     from rjfit.data.mesh import load_mesh
     from rjfit.render.mitsuba_scene import activate, shadow_visibility, trace_pixels
     from rjfit.render.render import scene_from_dataset_meta
@@ -69,8 +69,8 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
         image_path = path / name
         if not image_path.is_file():
             raise DatasetFileNotFoundError(f"{image_path}: no such file; {description} names it as an image")
-        raw = _read_raw_image(image_path)
-        _check_depth(raw, image_path, None, reference)
+        raw = read_raw_image(image_path)
+        check_depth(raw, image_path, None, reference)
         reference = reference or (raw.dtype, image_path)
         if raw.shape[:2] != (height, width):
             raise DatasetError(f"{image_path}: image is {raw.shape[1]} x {raw.shape[0]}, {description} says "
