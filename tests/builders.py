@@ -261,14 +261,15 @@ def ess_scaled_chi2(cells, draws, probs):
     """Chi-square p-value of ``draws`` (cell index per iteration) against ``probs``, scaled by the ESS.
 
     ``X^2 = N_eff sum (p_hat - p)^2 / p`` with N_eff the smallest ArviZ bulk ESS of the cell
-    indicators (chain draws are autocorrelated), df = cells - 1. Returns
+    indicators (chain draws are autocorrelated), df = cells - 1. A chain that never left one
+    cell has no ESS: it counts as one effective draw (the most lenient reading). Returns
     ``(p_value, frequencies, n_eff)``.
     """
     import arviz as az
 
     freq = np.array([np.mean(draws == c) for c in cells])
-    n_eff = min(float(az.ess((draws == c).astype(float)[None], method="bulk")) for c in cells
-                if 0 < np.mean(draws == c) < 1)
+    n_eff = min((float(az.ess((draws == c).astype(float)[None], method="bulk")) for c in cells
+                 if 0 < np.mean(draws == c) < 1), default=1.0)
     x2 = n_eff * np.sum((freq - probs) ** 2 / probs)
     return float(stats.chi2.sf(x2, len(cells) - 1)), freq, n_eff
 

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.io import write_text_atomic
+
 MATERIALS = [{"name": "white paint", "I0": 100.0, "kd": 0.85, "gamma": 8.0},
              {"name": "grey glaze", "I0": 70.0, "kd": 0.6, "gamma": 20.0},
              {"name": "dark paint", "I0": 45.0, "kd": 0.9, "gamma": 5.0}]
@@ -79,7 +81,7 @@ def scene(name: str, size: int) -> dict:
     return definition
 
 
-def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0) -> dict:
+def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0, workers=2) -> dict:
     from rjfit.pipeline.fit_dataset import fit_dataset
     from rjfit.render.render import render_dataset
 
@@ -89,7 +91,7 @@ def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0) -> dict:
     started = time.perf_counter()
     summary = fit_dataset(data, out / f"{name}_{size}" / f"fit_b{beta}_r{rho}", allow_unvalidated=True,
                           regions="materials", potts_beta=beta, potts_rho=rho, iterations=iterations, n_chains=4,
-                          seed=seed, progress=False, figures=True)
+                          seed=seed, progress=False, figures=True, n_workers=workers)
     return {"layout": name, "size": size, "beta": beta, "rho": rho, "true_K": summary["true_region_count"],
             "label_accuracy": summary["label_accuracy"], "P(K=true)": summary["materials_right_probability"],
             "materials_posterior": summary["materials_posterior"], "rhat_max": summary["rhat_max"],
@@ -104,19 +106,21 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--layouts", nargs="*", default=list(LAYOUTS))
     parser.add_argument("--sweep", action="store_true", help="beta in {0.5, 1, 2} x rho in {0.1, 1}")
+    parser.add_argument("--betas", type=float, nargs="*", default=[1.0], help="Potts beta values (rho 1)")
+    parser.add_argument("--workers", type=int, default=2, help="chains run at once (processes)")
     parser.add_argument("--out", type=Path, default=Path("validation_materials"))
     args = parser.parse_args(argv)
-    settings = [(b, r) for b in (0.5, 1.0, 2.0) for r in (0.1, 1.0)] if args.sweep else [(1.0, 1.0)]
+    settings = [(b, r) for b in (0.5, 1.0, 2.0) for r in (0.1, 1.0)] if args.sweep else [(b, 1.0) for b in args.betas]
     rows = []
     for name in args.layouts:
         for beta, rho in settings:
-            row = fit_layout(name, args.size, args.out, args.iterations, args.seed, beta, rho)
+            row = fit_layout(name, args.size, args.out, args.iterations, args.seed, beta, rho, args.workers)
             rows.append(row)
             print(f"{name:8s} beta {beta:3.1f} rho {rho:3.1f}: accuracy {row['label_accuracy']:.4f}, "
                   f"P(K={row['true_K']}) {row['P(K=true)']:.3f}, K posterior {row['materials_posterior']}, "
                   f"R-hat {row['rhat_max']:.3f}, {row['seconds']:.0f} s", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "results.json").write_text(json.dumps(rows, indent=1))
+            # after every fit, so that a run stopped part way keeps the fits it made
+            write_text_atomic(args.out / "results.json", json.dumps(rows, indent=1))
 
 
 if __name__ == "__main__":

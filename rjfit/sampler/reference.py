@@ -21,7 +21,8 @@ from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YY, ab_from_theta, b_
 
 __all__ = ["region_stats", "b_sums", "b_sums_newton", "obs_log_density", "forward_filter", "cell_step_logits",
            "path_log_prob", "backward_sample", "normal_mass", "within_cell_log_density", "draw_within_cells",
-           "rank_chain", "pixel_log_lik", "gibbs_sweep", "edge_uniform", "grow_cluster"]
+           "rank_chain", "pixel_log_lik", "gibbs_sweep", "edge_uniform", "grow_cluster",
+           "allocate_split"]
 
 
 # ----------------------------------------------------------------------------- sufficient statistics
@@ -305,3 +306,23 @@ def grow_cluster(pixel_labels, labelled, bond_q, key, seed, image_shape, n_label
                 n_to[pixel_labels[q]] += 1
                 log_cut_to[pixel_labels[q]] += math.log1p(-bond_q[edge])
     return np.array(sorted(cluster), np.int64), n_to, log_cut_to
+
+
+def allocate_split(members, guide_log_lik, power, beta, image_shape, uniforms, forced):
+    """Twin of :func:`rjfit.sampler.passes.labels.allocate_split`: the same allocation with a softmax per pixel."""
+    height, width = image_shape
+    part_of = {}
+    parts = np.empty(len(members), np.int8)
+    log_prob = 0.0
+    for j, p in enumerate(members):
+        r, c = divmod(int(p), width)
+        logits = power * np.asarray(guide_log_lik)[:, j].astype(float)
+        for q, inside in ((p - width, r > 0), (p + width, r < height - 1), (p - 1, c > 0), (p + 1, c < width - 1)):
+            if inside and int(q) in part_of:
+                logits[part_of[int(q)]] += beta
+        log_probs = logits - np.logaddexp.reduce(logits)
+        part = int(forced[j]) if forced[j] >= 0 else (0 if uniforms[j] < math.exp(log_probs[0]) else 1)
+        parts[j] = part
+        part_of[int(p)] = part
+        log_prob += log_probs[part]
+    return parts, float(log_prob)

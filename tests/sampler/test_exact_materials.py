@@ -14,8 +14,12 @@ posterior by a chi-square test scaled by the effective sample size
 outcome deterministic); so are the frequencies of K. The parameters of pixel 0's material
 are compared with their exact marginal (a mixture over partitions of the blocks'
 quadrature marginals) by one-sample KS tests on draws thinned to about one per effective
-sample, level 0.001. The negative control drops the cut products of the cluster moves
-(their ``log(1 - q)`` sums) with bonds near q_max and must be rejected with p < 1e-6.
+sample, level 0.001. K changes by the cluster moves' births and deaths and by the merge/split
+moves of whole materials (:mod:`rjfit.sampler.moves.merge_split`), together and, in one
+test, by merges and splits alone. The negative controls must be rejected with p < 1e-6:
+the cluster moves without their cut products (their ``log(1 - q)`` sums) with bonds near
+q_max, and the merge/split moves with the split probability q(X, Y) missing the coin's
+second half.
 """
 import dataclasses
 
@@ -27,11 +31,14 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.moves import cluster_swc
+from rjfit.sampler.moves import cluster_swc, merge_split
+from rjfit.sampler.passes.labels import allocate_split
 from rjfit.sampler.regions.material_labels import boundary_count
 from rjfit.sampler.state import SamplerConfig
 
 LEVEL = 1e-3
+ENUMERATION_ITERATIONS, ENUMERATION_BURN = 6000, 500
+CONTROL_ITERATIONS, CONTROL_BURN = 3000, 300
 
 
 def set_partitions(n):
@@ -130,21 +137,27 @@ def materials_config(**options):
     return SamplerConfig.from_flat(**flat)
 
 
-@pytest.mark.parametrize("beta,rho,seed", [(1.0, 1.0, 1), (0.5, 0.1, 2)])
-def test_partitions_k_and_parameters_match_enumeration_with_births_and_deaths(square, beta, rho, seed):
-    """All 15 partitions of the 2 x 2 image, K_max 4: Gibbs, cluster moves, births and deaths."""
+# K moved by every jump move, by the cluster moves' births and deaths alone, by merges and splits alone
+JUMP_MOVES = {"all": {"merge_split_moves": 1}, "cluster": {"merge_split_moves": 0},
+              "merge_split": {"cluster_moves": 0, "merge_split_moves": 2}}
+
+
+@pytest.mark.parametrize("jumps,beta,rho,seed", [("all", 1.0, 1.0, 1), ("cluster", 0.5, 0.1, 2),
+                                                 ("merge_split", 2.0, 0.5, 4)])
+def test_partitions_k_and_parameters_match_enumeration(square, jumps, beta, rho, seed):
+    """All 15 partitions of the 2 x 2 image, K_max 4: Gibbs sweeps and the jump moves ``jumps``."""
     prior, problem, quad = square
     exact = exact_partition_posterior(quad, (2, 2), beta, rho)
-    config = materials_config(max_materials=4, potts_beta=beta, potts_rho=rho)
-    parts, theta0 = run(problem, prior, config, 6000, seed)
-    parts, theta0 = parts[500:], theta0[500:]
+    config = materials_config(max_materials=4, potts_beta=beta, potts_rho=rho, **JUMP_MOVES[jumps])
+    parts, theta0 = run(problem, prior, config, ENUMERATION_ITERATIONS, seed)
+    parts, theta0 = parts[ENUMERATION_BURN:], theta0[ENUMERATION_BURN:]
     p_part, details = partition_test(parts, exact)
     p_k, k_details = k_test(parts, exact)
-    print(beta, rho, p_part, details, p_k, k_details)
+    print(jumps, beta, rho, p_part, details, p_k, k_details)
     assert np.sort(k_details["exact"])[-2] > 0.05, "the exact posterior should spread over K for the test to bite"
     assert p_part > LEVEL, details
     assert p_k > LEVEL, k_details
-    if seed == 1:        # once: the mixture marginals cost seconds
+    if jumps == "all":        # once: the mixture marginals cost seconds
         p_theta = theta0_ks(quad, exact, theta0)
         print("KS", p_theta)
         assert min(p_theta) > LEVEL, p_theta
@@ -163,14 +176,17 @@ def test_fixed_k_gibbs_and_cluster_moves_match_enumeration():
 
 
 def test_dropping_the_cut_products_is_detected(square, monkeypatch):
-    """Negative control: bonds at their ceiling 0.95 (tau huge) and the cut products left out of the ratio."""
+    """Negative control: bonds at their ceiling 0.95 (tau huge) and the cut products left out of the ratio.
+
+    K moves by the cluster moves alone here (no merges and splits, whose ratios are right).
+    """
     prior, problem, quad = square
     exact = exact_partition_posterior(quad, (2, 2), 1.0, 1.0)
-    base = materials_config(max_materials=4)
+    base = materials_config(max_materials=4, **JUMP_MOVES["cluster"])
     config = dataclasses.replace(base, regions=dataclasses.replace(
         base.regions, cluster=dataclasses.replace(base.regions.cluster, bond_q_max=0.95, bond_tau=1e6)))
-    right, _ = run(problem, prior, config, 3000, 7)
-    p_right, details_right = partition_test(right[300:], exact)
+    right, _ = run(problem, prior, config, CONTROL_ITERATIONS, 7)
+    p_right, details_right = partition_test(right[CONTROL_BURN:], exact)
     grow = cluster_swc.grow_cluster
 
     def without_cuts(*args):
@@ -178,10 +194,33 @@ def test_dropping_the_cut_products_is_detected(square, monkeypatch):
         return members, n_to, np.zeros_like(log_cut_to)
 
     monkeypatch.setattr(cluster_swc, "grow_cluster", without_cuts)
-    wrong, _ = run(problem, prior, config, 3000, 7)
-    p_wrong, details_wrong = partition_test(wrong[300:], exact)
+    wrong, _ = run(problem, prior, config, CONTROL_ITERATIONS, 7)
+    p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
     print(p_right, details_right, p_wrong, details_wrong)
     assert p_right > LEVEL, details_right
+    assert p_wrong < 1e-6, details_wrong
+
+
+def test_split_probability_without_the_coins_second_half_is_detected(square, monkeypatch):
+    """Negative control: q(X, Y) taken as 1/2 P(X to part 0, Y to part 1) alone, merges and splits only.
+
+    The right chain of this setting is the enumeration test's ``merge_split`` case (same
+    beta, rho and moves), which passes.
+    """
+    prior, problem, quad = square
+    exact = exact_partition_posterior(quad, (2, 2), 2.0, 0.5)
+    config = materials_config(max_materials=4, potts_beta=2.0, potts_rho=0.5, **JUMP_MOVES["merge_split"])
+
+    def half_coin(members, guide, in_first, problem, beta):
+        first = np.asarray(in_first, np.int8)
+        _, log_a = allocate_split(members, guide, float(problem.likelihood_power), beta, problem.height,
+                                  problem.width, np.empty(0), 1 - first)
+        return float(log_a - np.log(2.0))
+
+    monkeypatch.setattr(merge_split, "split_log_prob", half_coin)
+    wrong, _ = run(problem, prior, config, CONTROL_ITERATIONS, 8)
+    p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
+    print(p_wrong, details_wrong)
     assert p_wrong < 1e-6, details_wrong
 
 

@@ -16,7 +16,9 @@ from rjfit.model.blinn import radiance
 from rjfit.sampler import reference
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.kmeans import two_means_labels
 from rjfit.sampler.likelihood import log_likelihood_from_stats, oracle_log_likelihood, region_stats
+from rjfit.sampler.moves import merge_split
 from rjfit.sampler.passes import labels as passes
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.regions.material_labels import PottsPrior, bond_probabilities, boundary_count, kmeans_labels
@@ -130,19 +132,22 @@ def test_start_checks():
 
 @pytest.mark.parametrize("power", [1.0, 0.3])
 def test_incremental_statistics_match_full_recompute(power):
-    """Two chains of 300 iterations (no refresh), every move accepted in one or the other: stats and log-likelihood
+    """Three chains of 300 iterations (no refresh), every move accepted in one or another: stats and log-likelihood
     equal a full recompute to 1e-9 relative at the end.
 
-    One starts with 5 materials for 3 (twins: cluster moves between them), one with 1 under an
-    annealed warm-up (likelihood power rising from 1e-3 over 200 iterations, statistics
-    rescaled at every step; beta 2: compact materials, so whole ones die).
+    One starts with 5 materials for 3 (twins: cluster moves between them, and without
+    merges and splits, so that cluster moves kill them); two under an annealed warm-up
+    (likelihood power rising from 1e-3 over 200 iterations, statistics rescaled at every
+    step; beta 2: compact materials), one from 4 materials with every move, one from 6, the
+    cap, with merges and splits the only jumps.
     """
     problem, truth = material_problem(likelihood_power=power)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     kinds = set()
-    for start, flat in ((5, {}), (1, {"burn_in": 200, "anneal": 200, "potts_beta": 2.0})):
-        config = SamplerConfig.from_flat(region_model="materials", max_materials=6, refresh_every=0, cluster_moves=6,
-                                         **{"burn_in": 0, **flat})
+    annealed = {"burn_in": 200, "anneal": 200, "potts_beta": 2.0}
+    for start, flat in ((5, {"merge_split_moves": 0}), (4, annealed), (6, {**annealed, "cluster_moves": 0})):
+        config = SamplerConfig.from_flat(region_model="materials", max_materials=6, refresh_every=0,
+                                         **{"burn_in": 0, "cluster_moves": 6, **flat})
         rng = np.random.default_rng(11)
         state = initial_state(problem, prior, config, rng, n_materials=start)
         with threadpool_limits(1):
@@ -156,7 +161,46 @@ def test_incremental_statistics_match_full_recompute(power):
         np.testing.assert_allclose(state.stats, full, rtol=1e-9, atol=1e-9 * np.abs(full).max())
         np.testing.assert_allclose(state.log_lik, log_likelihood_from_stats(full, state.theta), rtol=1e-9)
         assert state.total_log_lik == pytest.approx(oracle_log_likelihood(problem, labels, state.theta), rel=1e-9)
-    assert {"label_gibbs", "cluster", "cluster_birth", "cluster_death"} <= kinds, kinds
+    assert {"label_gibbs", "cluster", "cluster_birth", "cluster_death", "split", "merge"} <= kinds, kinds
+
+
+def test_allocate_split_matches_reference_and_evaluates_its_own_draws():
+    """The sequential allocation against its twin: draws, their log probability, and a forced allocation's."""
+    problem, truth = material_problem()
+    members = np.flatnonzero(truth.ravel() != 2)
+    guide = reference.pixel_log_lik(problem, TRUTH[:2])[:, members]
+    rng = np.random.default_rng(4)
+    uniforms = rng.random(members.size)
+    free = np.full(members.size, -1, np.int8)
+    for power, beta in ((1.0, 1.0), (0.05, 2.0)):
+        parts, log_p = passes.allocate_split(members, guide, power, beta, 9, 11, uniforms, free)
+        want_parts, want_log_p = reference.allocate_split(members, guide, power, beta, (9, 11), uniforms, free)
+        np.testing.assert_array_equal(parts, want_parts)
+        assert log_p == pytest.approx(want_log_p, rel=1e-12)
+        again = passes.allocate_split(members, guide, power, beta, 9, 11, np.empty(0), parts)
+        np.testing.assert_array_equal(again[0], parts)
+        assert again[1] == pytest.approx(log_p, rel=1e-12)
+        forced = (rng.random(members.size) < 0.5).astype(np.int8)
+        got = passes.allocate_split(members, guide, power, beta, 9, 11, np.empty(0), forced)[1]
+        assert got == pytest.approx(reference.allocate_split(members, guide, power, beta, (9, 11), np.empty(0),
+                                                             forced)[1], rel=1e-12)
+    # at power 1 the guides are the disc's and the background's truth: the draw separates them
+    parts, _ = passes.allocate_split(members, guide, 1.0, 1.0, 9, 11, uniforms, free)
+    assert np.array_equal(parts, (truth.ravel()[members] == 1).astype(np.int8))
+
+
+def test_split_guide_is_a_function_of_the_pixel_set_and_finds_the_two_paints():
+    """The guide from the disc and background pixels together: deterministic, and it tells the two apart."""
+    problem, truth = material_problem()
+    prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
+    features = bond_probabilities(problem).features
+    members = np.flatnonzero(truth.ravel() != 2)
+    guide = merge_split.split_guide(problem, prior, members, features)
+    np.testing.assert_array_equal(guide, merge_split.split_guide(problem, prior, members, features))
+    prefers = np.argmax(guide, axis=0)
+    disc = truth.ravel()[members] == 1
+    assert len(set(prefers[disc])) == 1 and len(set(prefers[~disc])) == 1 and prefers[disc][0] != prefers[~disc][0]
+    assert two_means_labels(np.ones((5, 2))) is None
 
 
 def test_slab_material_map_assigns_faces_by_texel():

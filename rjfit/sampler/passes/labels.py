@@ -12,7 +12,9 @@
   cut weights of its boundary edges by the label across them;
 - :func:`edge_uniform`: the uniform of one edge's bond, a hash of the move's key and the
   edge (SplitMix64), so a cluster move draws one number from the chain's generator whatever
-  the size of its cluster.
+  the size of its cluster;
+- :func:`allocate_split`: the sequential allocation of a material's pixels to two parts
+  (the split of the merge/split move), drawing or evaluating its probability.
 
 Pixels are flat row-major indices ``r * W + c``; an edge is named by its first pixel and
 its direction: edge ``2 p`` joins p to its right neighbour, edge ``2 p + 1`` to the pixel
@@ -31,7 +33,7 @@ from rjfit.sampler.passes.shifts import add_obs_terms
 from rjfit.sampler.passes.special import INV_PI
 from rjfit.sampler.passes.sums import BLOCK, PARALLEL_MIN_OBS
 
-__all__ = ["pixel_log_lik", "gibbs_sweep", "relabel_pixels", "grow_cluster", "edge_uniform"]
+__all__ = ["pixel_log_lik", "gibbs_sweep", "relabel_pixels", "grow_cluster", "edge_uniform", "allocate_split"]
 
 
 @njit(cache=True, nogil=True)
@@ -215,3 +217,38 @@ def grow_cluster(pixel_labels, labelled, bond_q, key, seed, height, width, n_lab
             n_to[pixel_labels[q]] += 1
             log_cut_to[pixel_labels[q]] += math.log1p(-bond_q[edge])
     return np.sort(members[:count]), n_to, log_cut_to
+
+
+@njit(cache=True, nogil=True)
+def allocate_split(members, guide_log_lik, power, beta, height, width, uniforms, forced):
+    """Sequential allocation of the pixels ``members`` to parts 0 and 1: ``(parts, log probability)``.
+
+    Pixel ``members[j]``, in the given order, goes to part c with probability proportional
+    to ``exp(power * guide_log_lik[c, j] + beta * n_c)``, n_c its 4-neighbours among
+    ``members[:j]`` already in part c. With ``forced[j] >= 0`` the pixel goes to that part
+    (the probability of a given allocation, for the reverse move); else to part 0 when
+    ``uniforms[j]`` is below its probability. The log probability is the sum of the chosen
+    parts' log probabilities.
+    """
+    n = members.shape[0]
+    part_of = np.full(height * width, -1, np.int8)
+    parts = np.empty(n, np.int8)
+    log_prob = 0.0
+    for j in range(n):
+        p = members[j]
+        r, c = p // width, p % width
+        same0, same1 = 0, 0
+        for q, inside in ((p - width, r > 0), (p + width, r < height - 1), (p - 1, c > 0), (p + 1, c < width - 1)):
+            if inside and part_of[q] == 0:
+                same0 += 1
+            elif inside and part_of[q] == 1:
+                same1 += 1
+        # logit of part 1 against part 0, and the two log probabilities by a stable log-sigmoid
+        d = power * (guide_log_lik[1, j] - guide_log_lik[0, j]) + beta * (same1 - same0)
+        log_p1 = -math.log1p(math.exp(-d)) if d > 0 else d - math.log1p(math.exp(d))
+        log_p0 = -math.log1p(math.exp(d)) if d < 0 else -d - math.log1p(math.exp(-d))
+        part = forced[j] if forced[j] >= 0 else (0 if uniforms[j] < math.exp(log_p0) else 1)
+        parts[j] = part
+        part_of[p] = part
+        log_prob += log_p0 if part == 0 else log_p1
+    return parts, log_prob

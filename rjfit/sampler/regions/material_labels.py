@@ -30,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import gammaln
 
+from rjfit.sampler.kmeans import kmeans_labels
 from rjfit.sampler.likelihood import b_terms, index_dtype
 
 __all__ = ["MaterialLabels", "Bonds", "bond_probabilities", "pixel_features", "boundary_count", "labelled_pixels",
@@ -39,11 +40,17 @@ BOND_GAMMA = 10.0
 
 
 class Bonds(NamedTuple):
-    """Bond probabilities of the cluster moves: ``q`` (2 H W,), edge ``2 p`` to the right of p, ``2 p + 1`` below it."""
+    """What the label moves read from the data alone, computed once: the bonds and the per-pixel features.
+
+    ``q`` (2 H W,): the bond probabilities of the cluster moves, edge ``2 p`` to the right of
+    p, ``2 p + 1`` below it; ``features`` (H W, 2): :func:`pixel_features`, which the bonds
+    and the split proposals' guides use.
+    """
 
     q: np.ndarray
     q_max: float
     tau: float
+    features: np.ndarray
 
 
 def labelled_pixels(problem) -> np.ndarray:
@@ -112,7 +119,7 @@ def bond_probabilities(problem, q_max: float = 1.0 - np.exp(-1.0), tau: float = 
         q[edges] = np.where(fitted, q_max * np.exp(-0.5 * np.nan_to_num(d2, nan=np.inf) / tau ** 2), 0.5 * q_max)
     else:
         q[edges] = 0.5 * q_max
-    return Bonds(q=q, q_max=float(q_max), tau=float(tau))
+    return Bonds(q=q, q_max=float(q_max), tau=float(tau), features=features)
 
 
 def boundary_count(pixel_labels) -> int:
@@ -154,37 +161,6 @@ class MaterialLabels(NamedTuple):
 
     def with_pixels(self, pixels, n_materials: int) -> MaterialLabels:
         return MaterialLabels(pixels, int(n_materials), self.bonds)
-
-
-def kmeans_labels(features, n_clusters: int, rng, iterations: int = 20) -> np.ndarray:
-    """Lloyd's k-means of the rows of ``features`` (standardised; NaN rows go to the nearest centre by the others).
-
-    Centres start at distinct rows drawn from ``rng``; a cluster left empty takes the row
-    farthest from its centre, so every label 0 .. n_clusters - 1 is used (needs at least
-    ``n_clusters`` rows).
-    """
-    x = np.asarray(features, float)
-    spread = np.nanstd(x, axis=0)
-    x = (x - np.nanmean(x, axis=0)) / np.where(spread > 0, spread, 1.0)
-    x = np.nan_to_num(x, nan=0.0)
-    centres = x[rng.choice(x.shape[0], n_clusters, replace=False)]
-    labels = np.zeros(x.shape[0], np.int64)
-    for _ in range(iterations):
-        dist = ((x[:, None, :] - centres[None]) ** 2).sum(-1)
-        labels = np.argmin(dist, axis=1)
-        for k in range(n_clusters):
-            members = labels == k
-            if not np.any(members):
-                far = int(np.argmax(dist[np.arange(x.shape[0]), labels]))
-                labels[far] = k
-                members = labels == k
-            centres[k] = x[members].mean(axis=0)
-    for k in range(n_clusters):      # the final assignment may leave one empty: give it a row
-        if not np.any(labels == k):
-            counts = np.bincount(labels, minlength=n_clusters)
-            donor = np.flatnonzero(counts[labels] > 1)[0]
-            labels[donor] = k
-    return labels
 
 
 @dataclass(frozen=True)

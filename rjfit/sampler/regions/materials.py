@@ -30,7 +30,11 @@ unchanged), in order:
    material emptied (:mod:`rjfit.sampler.moves.label_gibbs`);
 2. ``cluster.moves`` Swendsen-Wang-cut cluster moves: a cluster of one label, grown by
    data-driven bonds, moved to another label or to a NEW material (a birth), a whole
-   material moved (a death) (:mod:`rjfit.sampler.moves.cluster_swc`).
+   material moved (a death) (:mod:`rjfit.sampler.moves.cluster_swc`);
+3. ``merge_split.moves`` merges of two whole materials and their reverse, splits of one by
+   sequential allocation guided by a deterministic 2-means of its pixels (with ``jumps``;
+   :mod:`rjfit.sampler.moves.merge_split`): what removes twins (two materials of one paint)
+   and separates a second paint hidden in a material.
 
 Each leaves the posterior invariant on its own. The kernel's annealed warm-up tempers the
 likelihood for these moves as for change points. Start: K0 uniform on
@@ -51,10 +55,11 @@ import numpy as np
 from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.moves.cluster_swc import ClusterSettings, propose_cluster_move
 from rjfit.sampler.moves.label_gibbs import sweep_labels
+from rjfit.sampler.moves.merge_split import MergeSplitSettings, propose_merge_split
 from rjfit.sampler.moves.region_proposals import RegionProposalSettings
 from rjfit.sampler.regions.base import RegionModel
 from rjfit.sampler.regions.material_labels import (MaterialLabels, PottsPrior, bond_probabilities, kmeans_labels,
-                                                   labelled_pixels, pixel_features)
+                                                   labelled_pixels)
 
 __all__ = ["MaterialRegions"]
 
@@ -76,6 +81,8 @@ class MaterialRegions(RegionModel):
         Gibbs sweeps per iteration.
     cluster : ClusterSettings
         Of the cluster moves (and their bonds).
+    merge_split : MergeSplitSettings
+        Of the merge/split moves of whole materials (made only with ``jumps``).
     proposals : RegionProposalSettings
         Of the proposals of a born (dying) material's parameters.
     """
@@ -86,6 +93,7 @@ class MaterialRegions(RegionModel):
     jumps: bool = True
     sweeps: int = 1
     cluster: ClusterSettings = field(default_factory=ClusterSettings)
+    merge_split: MergeSplitSettings = field(default_factory=MergeSplitSettings)
     proposals: RegionProposalSettings = field(default_factory=RegionProposalSettings)
 
     key_names = ("n_materials",)
@@ -131,7 +139,7 @@ class MaterialRegions(RegionModel):
                 n_materials = int(rng.integers(1, min(4, self.max_materials) + 1))
             n_materials = min(int(n_materials), int(labelled.sum()))
             pixels = np.full(labelled.shape, -1, np.int8)
-            pixels[labelled] = kmeans_labels(pixel_features(problem)[labelled.ravel()], n_materials, rng)
+            pixels[labelled] = kmeans_labels(bonds.features[labelled.ravel()], n_materials, rng)
         if n_materials > self.max_materials:
             raise ValueError(f"start has {n_materials} materials, more than max_materials={self.max_materials}")
         return MaterialLabels(pixels, int(n_materials), bonds)
@@ -145,17 +153,24 @@ class MaterialRegions(RegionModel):
         for _ in range(self.sweeps):
             sweep_labels(work, rng, problem, self.potts, info)
         for _ in range(self.cluster.moves):
-            proposal, kind = propose_cluster_move(work, rng, problem, prior, self.cluster, self.proposals, self.potts,
-                                                  self.max_materials, self.jumps)
-            if proposal is None:
-                info.count(kind, False)
-                continue
-            accepted = accept(np.log(rng.random()), proposal.log_ratio, info, kind)
-            info.count(kind, accepted)
-            if accepted:
-                work.take(proposal)
-                if kind != "cluster":
-                    info.jump = kind
+            self._test(work, rng, info, *propose_cluster_move(work, rng, problem, prior, self.cluster, self.proposals,
+                                                              self.potts, self.max_materials, self.jumps))
+        for _ in range(self.merge_split.moves if self.jumps else 0):
+            self._test(work, rng, info, *propose_merge_split(work, rng, problem, prior, self.merge_split,
+                                                             self.proposals, self.potts, self.max_materials))
+
+    @staticmethod
+    def _test(work, rng, info, proposal, kind) -> None:
+        """Accept or reject one label move's proposal (None: no move, counted as a rejection)."""
+        if proposal is None:
+            info.count(kind, False)
+            return
+        accepted = accept(np.log(rng.random()), proposal.log_ratio, info, kind)
+        info.count(kind, accepted)
+        if accepted:
+            work.take(proposal)
+            if kind != "cluster":
+                info.jump = kind
 
     def snapshot(self, layout) -> dict:
         return {"material_labels": np.where(layout.pixels >= 0, layout.pixels, np.nan).astype(np.float32)}
