@@ -84,9 +84,11 @@ class FitOptions:
     max_materials: int = cli_option(8, "--max-materials",
                                     "Most materials (--regions materials); the summary warns when the posterior "
                                     "puts mass on it.", "int", low=1)
-    potts_beta: float = cli_option(1.0, "--potts-beta",
+    potts_beta: float = cli_option(2.0, "--potts-beta",
                                    "Potts prior strength per pair of neighbouring pixels of different materials "
-                                   "(--regions materials).", "float")
+                                   "(--regions materials). Keep it above log(1 + sqrt(--max-materials)), the "
+                                   "Potts model's critical coupling (1.27 for 8): below it the prior favours "
+                                   "materials scattered pixel by pixel (docs/materials.md).", "float")
     potts_rho: float = 1.0
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)

@@ -12,7 +12,7 @@ VALUES = {"max_u": 5, "max_v": 4, "cp_prior": "paper", "cp_smooth_sd": 1.5, "upd
           "min_obs_conditional": 10, "sampler": "paper", "gamma_move": "rw", "newton_scale": 0.5, "g_moves": 4,
           "target_accept": 0.3, "fallback_step": 0.2, "small_region_obs": 50, "full_recompute": True,
           "burn_in": 100, "anneal": 50, "anneal_start": 0.01, "refresh_every": 50,
-          "max_materials": 5, "potts_beta": 2.0, "potts_rho": 0.1, "update_labels": False, "label_sweeps": 2,
+          "max_materials": 5, "potts_beta": 3.0, "potts_rho": 0.1, "update_labels": False, "label_sweeps": 2,
           "cluster_moves": 7, "cluster_new_prob": 0.2, "merge_split_moves": 3}
 
 

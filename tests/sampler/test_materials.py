@@ -145,7 +145,7 @@ def test_incremental_statistics_match_full_recompute(power):
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     kinds = set()
     annealed = {"burn_in": 200, "anneal": 200, "potts_beta": 2.0}
-    for start, flat in ((5, {"merge_split_moves": 0}), (4, annealed), (6, {**annealed, "cluster_moves": 0})):
+    for start, flat in ((5, {"merge_split_moves": 0, "potts_beta": 1.0}), (4, annealed), (6, {**annealed, "cluster_moves": 0})):
         config = SamplerConfig.from_flat(region_model="materials", max_materials=6, refresh_every=0,
                                          **{"burn_in": 0, "cluster_moves": 6, **flat})
         rng = np.random.default_rng(11)

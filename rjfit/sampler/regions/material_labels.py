@@ -171,7 +171,7 @@ class PottsPrior:
     its normaliser depends on (beta, rho) only, so every acceptance ratio is exact without it.
     """
 
-    beta: float = 1.0
+    beta: float = 2.0
     rho: float = 1.0
 
     def log_density(self, pixels, n_materials: int) -> float:

@@ -16,10 +16,13 @@ posterior mass sits on it). Every label is in use: no state has an empty materia
 - Each material k has its own parameters ``theta_k = (I0, kd, gamma, sigma^2)``, drawn iid
   from the fit's region prior (:func:`rjfit.sampler.priors.make_prior`), shared by every
   pixel that carries it, connected or not.
-- beta and rho are fixed: ``beta = 1`` per neighbour pair and ``rho = 1`` by default (the
-  rule: a boundary edge costs a factor e, a material no prior cost beyond its parameters'
-  prior and its K!; ``validation/materials.py`` measures how accuracy and K's posterior
-  change for beta in {0.5, 1, 2} and rho in {0.1, 1}).
+- beta and rho are fixed: ``beta = 2`` per neighbour pair and ``rho = 1`` by default. The
+  rule: beta well above the critical coupling of the K_max-state Potts model on the square
+  lattice, ``log(1 + sqrt(K_max))`` (1.27 for K_max = 8; beta 2 is above it for K_max up to
+  30). Below it the prior's mass lies on labellings scattered pixel by pixel, which with K
+  free means K_max "twins" of one paint (measured at beta 1: K = K_max on every synthetic
+  layout; ``validation/materials.py``, docs/materials.md). rho = 1: a material costs
+  nothing beyond its parameters' prior and its K!.
 - Observations enter through the change-point model's likelihood (likelihood power zeta,
   known noise scales): materials are regions.
 
