@@ -2,8 +2,9 @@
 
 One sweep = the per-pixel log-likelihood pass under every material, both checkerboard
 colours and the statistics update of the relabelled pixels (``sweep_labels``), K = 4
-materials, labels from a start that leaves many pixels to change. Also one cluster move.
-Prints the median of ``--repeats`` runs after a warm-up (compilation excluded).
+materials, labels from a start that leaves many pixels to change. Then the proposals of
+the merge/split and cluster moves (made, not accepted), timed by kind. Prints medians of
+``--repeats`` runs after a warm-up (compilation excluded).
 
     PYTHONPATH=. python validation/bench_label_sweep.py [--size 128 --lights 12 --threads 1]
 """
@@ -20,7 +21,9 @@ def main(argv=None):
     from rjfit.model.blinn import radiance
     from rjfit.sampler.forward import Problem
     from rjfit.sampler.kernel import initial_state
+    from rjfit.sampler.moves.cluster_swc import propose_cluster_move
     from rjfit.sampler.moves.label_gibbs import sweep_labels
+    from rjfit.sampler.moves.merge_split import propose_merge_split
     from rjfit.sampler.priors import make_prior
     from rjfit.sampler.runner import numba_threads
     from rjfit.sampler.state import SamplerConfig, StepInfo, Work
@@ -55,8 +58,19 @@ def main(argv=None):
             changed = sweep_labels(work, rng, problem, config.regions.potts, StepInfo())
             if repeat:
                 times.append(time.perf_counter() - start)
+        proposal_times = {"split": [], "merge": [], "cluster": [], "cluster_birth": [], "cluster_death": []}
+        regions = config.regions
+        for repeat in range(args.repeats + 1):
+            for propose, settings in ((propose_merge_split, regions.merge_split), (propose_cluster_move, regions.cluster)):
+                start = time.perf_counter()
+                _, kind = propose(work, rng, problem, prior, settings, regions.proposals, regions.potts,
+                                  regions.max_materials)
+                if repeat:
+                    proposal_times[kind].append(time.perf_counter() - start)
     print(f"{n} x {n} x {L} ({problem.n_obs} observations), K = {args.materials}, {args.threads} thread(s): "
           f"label sweep median {1e3 * np.median(times):.2f} ms (min {1e3 * min(times):.2f}), {changed} pixels changed")
+    print("proposals (not accepted), median ms: " + ", ".join(
+        f"{kind} {1e3 * np.median(t):.1f} ({len(t)})" for kind, t in proposal_times.items() if t))
 
 
 if __name__ == "__main__":

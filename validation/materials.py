@@ -91,7 +91,7 @@ def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0, workers=2) 
     started = time.perf_counter()
     summary = fit_dataset(data, out / f"{name}_{size}" / f"fit_b{beta}_r{rho}", allow_unvalidated=True,
                           regions="materials", potts_beta=beta, potts_rho=rho, iterations=iterations, n_chains=4,
-                          seed=seed, progress=False, figures=True, n_workers=workers)
+                          seed=seed, progress=False, figures=True, processes=workers)
     return {"layout": name, "size": size, "beta": beta, "rho": rho, "true_K": summary["true_region_count"],
             "label_accuracy": summary["label_accuracy"], "P(K=true)": summary["materials_right_probability"],
             "materials_posterior": summary["materials_posterior"], "rhat_max": summary["rhat_max"],
@@ -107,7 +107,7 @@ def main(argv=None):
     parser.add_argument("--layouts", nargs="*", default=list(LAYOUTS))
     parser.add_argument("--sweep", action="store_true", help="beta in {0.5, 1, 2} x rho in {0.1, 1}")
     parser.add_argument("--betas", type=float, nargs="*", default=[1.0], help="Potts beta values (rho 1)")
-    parser.add_argument("--workers", type=int, default=2, help="chains run at once (processes)")
+    parser.add_argument("--workers", type=int, default=2, help="chains run at once (worker processes; 1: in this one)")
     parser.add_argument("--out", type=Path, default=Path("validation_materials"))
     args = parser.parse_args(argv)
     settings = [(b, r) for b in (0.5, 1.0, 2.0) for r in (0.1, 1.0)] if args.sweep else [(b, 1.0) for b in args.betas]

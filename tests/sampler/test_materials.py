@@ -21,6 +21,7 @@ from rjfit.sampler.likelihood import log_likelihood_from_stats, oracle_log_likel
 from rjfit.sampler.moves import merge_split
 from rjfit.sampler.passes import labels as passes
 from rjfit.sampler.priors import make_prior
+from rjfit.sampler.regions import material_labels
 from rjfit.sampler.regions.material_labels import PottsPrior, bond_probabilities, boundary_count, kmeans_labels
 from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.state import SamplerConfig
@@ -106,6 +107,28 @@ def test_bonds_are_weak_across_true_boundaries():
     assert np.median(inside) > 0.4 > 0.1 > np.median(across) and np.all(q <= 1 - np.exp(-1.0))
 
 
+def test_seed_weights_favour_weak_bonds_and_only_labelled_pixels():
+    """The cluster moves' seeds: a probability per pixel, 0 off the labelled pixels, more on the borders."""
+    problem, truth = material_problem()
+    bonds = bond_probabilities(problem)
+    weights = np.diff(bonds.seed_cdf, prepend=0.0).reshape(9, 11)
+    assert weights.sum() == pytest.approx(1.0) and np.all(weights > 0)
+    border = np.zeros(truth.shape, bool)
+    border[:, 1:] |= truth[:, 1:] != truth[:, :-1]
+    border[:, :-1] |= truth[:, 1:] != truth[:, :-1]
+    border[1:] |= truth[1:] != truth[:-1]
+    border[:-1] |= truth[1:] != truth[:-1]
+    assert weights[border].mean() > 2 * weights[~border].mean()
+    seeds = [bonds.draw_seed(np.random.default_rng(k)) for k in range(2000)]
+    assert np.mean(border.ravel()[seeds]) == pytest.approx(weights[border].sum(), abs=0.05)
+    labelled = np.ones((3, 4), bool)
+    labelled[1, 2] = False
+    q = bond_probabilities(problem).q[:24]
+    first, second, edges = material_labels._edge_pairs(labelled)
+    seed_weights = material_labels.seed_weights(labelled, q, 0.5, first, second, edges)
+    assert seed_weights[6] == 0 and seed_weights.sum() == pytest.approx(1.0)
+
+
 def test_potts_prior_and_kmeans():
     pixels = np.array([[0, 0, 1], [2, 1, 1], [-1, 1, 1]])
     assert boundary_count(pixels) == 4
@@ -145,7 +168,8 @@ def test_incremental_statistics_match_full_recompute(power):
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     kinds = set()
     annealed = {"burn_in": 200, "anneal": 200, "potts_beta": 2.0}
-    for start, flat in ((5, {"merge_split_moves": 0, "potts_beta": 1.0}), (4, annealed), (6, {**annealed, "cluster_moves": 0})):
+    chains = ((5, {"merge_split_moves": 0, "potts_beta": 1.0}), (4, annealed), (6, {**annealed, "cluster_moves": 0}))
+    for start, flat in chains:
         config = SamplerConfig.from_flat(region_model="materials", max_materials=6, refresh_every=0,
                                          **{"burn_in": 0, "cluster_moves": 6, **flat})
         rng = np.random.default_rng(11)

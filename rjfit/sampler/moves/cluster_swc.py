@@ -3,8 +3,10 @@
 After Barbu and Zhu, "Generalizing Swendsen-Wang to sampling arbitrary posterior
 probabilities", IEEE PAMI 27(8), 2005. One move:
 
-1. a seed pixel p, uniform over the labelled pixels; its cluster V0: the pixels of its
-   label l joined to it by bonds that are on, each edge between two pixels of one label on
+1. a seed pixel p, drawn with fixed data-driven weights (half uniform over the labelled
+   pixels, half by the weakness of their bonds:
+   :func:`~rjfit.sampler.regions.material_labels.seed_weights`); its cluster V0: the pixels
+   of its label l joined to it by bonds that are on, each edge between two pixels of one label on
    with its data-driven probability q_e (:class:`~rjfit.sampler.regions.material_labels.Bonds`;
    :func:`rjfit.sampler.passes.labels.grow_cluster`);
 2. a new label for V0: NEW with probability ``p_new(K)`` (0 at K = K_max, 1 at K = 1,
@@ -17,7 +19,8 @@ probabilities", IEEE PAMI 27(8), 2005. One move:
 
    with C(V, W) the edges between V and W: the probability of cutting V0 out of its label
    in the reverse move over that in this one (the bonds inside V0 and the seed's chance
-   to fall in V0 are the same both ways and cancel). pi holds the likelihood of V0's
+   to fall in V0, the sum of the seed weights over V0, are the same both ways and cancel).
+   pi holds the likelihood of V0's
    observations under the two materials (to the likelihood power zeta), the Potts term
    ``-beta dB`` (dB = n_l - n_l', the edges from V0 to the rest of l and to l'), ``rho^K``
    and ``1 / K!`` (the labelled state's density).
@@ -128,8 +131,7 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
     n_mat = layout.n_materials
     height, width = problem.image_shape
     flat = layout.pixels.ravel()
-    labelled_idx = np.flatnonzero(flat >= 0)
-    seed = int(labelled_idx[rng.integers(labelled_idx.size)])
+    seed = layout.bonds.draw_seed(rng)
     key = np.uint64(rng.integers(0, 2 ** 63))
     members, n_to, cut_to = grow_cluster(flat, flat >= 0, layout.bonds.q, key, seed, height, width, n_mat)
     old = int(flat[seed])

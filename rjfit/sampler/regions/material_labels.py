@@ -44,13 +44,22 @@ class Bonds(NamedTuple):
 
     ``q`` (2 H W,): the bond probabilities of the cluster moves, edge ``2 p`` to the right of
     p, ``2 p + 1`` below it; ``features`` (H W, 2): :func:`pixel_features`, which the bonds
-    and the split proposals' guides use.
+    and the split proposals' guides use; ``seed_cdf`` (H W,): the cumulative seed weights of
+    the cluster moves (:func:`seed_weights`).
     """
 
     q: np.ndarray
     q_max: float
     tau: float
     features: np.ndarray
+    seed_cdf: np.ndarray
+
+    def draw_seed(self, rng) -> int:
+        """A cluster move's seed pixel, drawn with the seed weights by one uniform of ``rng``."""
+        cdf = self.seed_cdf
+        # argmax: the first index at the total, the last pixel of positive weight (a guard
+        # against rounding at u * total == total; never reached otherwise)
+        return int(min(np.searchsorted(cdf, rng.random() * cdf[-1], side="right"), np.argmax(cdf)))
 
 
 def labelled_pixels(problem) -> np.ndarray:
@@ -119,7 +128,33 @@ def bond_probabilities(problem, q_max: float = 1.0 - np.exp(-1.0), tau: float = 
         q[edges] = np.where(fitted, q_max * np.exp(-0.5 * np.nan_to_num(d2, nan=np.inf) / tau ** 2), 0.5 * q_max)
     else:
         q[edges] = 0.5 * q_max
-    return Bonds(q=q, q_max=float(q_max), tau=float(tau), features=features)
+    seeds = seed_weights(labelled, q, q_max, first, second, edges)
+    return Bonds(q=q, q_max=float(q_max), tau=float(tau), features=features, seed_cdf=np.cumsum(seeds))
+
+
+def seed_weights(labelled, q, q_max, first, second, edges) -> np.ndarray:
+    """(H W,) the cluster moves' seed probabilities: half uniform over the labelled pixels, half by weak bonds.
+
+    A pixel's weakness is the mean over its edges of ``1 - q_e / q_max`` (1 with no edge):
+    about 0.2 inside a uniform paint (the noise of its features), 0.3 to 0.5 on a boundary,
+    about 1 at a pixel unlike all its neighbours. The second half goes by its cube, so that
+    those pixels stand out against a paint's noise: seeds fall there more often, and the
+    clusters of one or a few such pixels (births and deaths of small materials, boundary
+    moves) are proposed often. The weights are a
+    function of the data alone, and a cluster move's proposal probability holds them only
+    as the sum over its cluster, the same both ways: they cancel in every ratio.
+    """
+    n_pix = labelled.size
+    strength = np.zeros(n_pix)
+    degree = np.zeros(n_pix)
+    rel = q[edges] / q_max if q_max > 0 else np.zeros(edges.size)
+    for end in (first, second):
+        np.add.at(strength, end, rel)
+        np.add.at(degree, end, 1.0)
+    weakness = (np.where(degree > 0, 1.0 - strength / np.maximum(degree, 1.0), 1.0) * labelled.ravel()) ** 3
+    uniform = labelled.ravel() / max(int(labelled.sum()), 1)
+    total = weakness.sum()
+    return 0.5 * uniform + 0.5 * (weakness / total if total > 0 else uniform)
 
 
 def boundary_count(pixel_labels) -> int:
