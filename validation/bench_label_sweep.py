@@ -60,8 +60,9 @@ def main(argv=None):
                 times.append(time.perf_counter() - start)
         proposal_times = {"split": [], "merge": [], "cluster": [], "cluster_birth": [], "cluster_death": []}
         regions = config.regions
+        moves = ((propose_merge_split, regions.merge_split), (propose_cluster_move, regions.cluster))
         for repeat in range(args.repeats + 1):
-            for propose, settings in ((propose_merge_split, regions.merge_split), (propose_cluster_move, regions.cluster)):
+            for propose, settings in moves:
                 start = time.perf_counter()
                 _, kind = propose(work, rng, problem, prior, settings, regions.proposals, regions.potts,
                                   regions.max_materials)
