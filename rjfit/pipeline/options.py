@@ -87,7 +87,7 @@ class FitOptions:
     potts_beta: float = cli_option(2.0, "--potts-beta",
                                    "Potts prior strength per pair of neighbouring pixels of different materials "
                                    "(--regions materials). Keep it above log(1 + sqrt(--max-materials)), the "
-                                   "Potts model's critical coupling (1.27 for 8): below it the prior favours "
+                                   "Potts model's critical coupling (1.34 for 8): below it the prior favours "
                                    "materials scattered pixel by pixel (docs/materials.md).", "float")
     potts_rho: float = 1.0
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)

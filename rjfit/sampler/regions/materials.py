@@ -18,8 +18,8 @@ posterior mass sits on it). Every label is in use: no state has an empty materia
   pixel that carries it, connected or not.
 - beta and rho are fixed: ``beta = 2`` per neighbour pair and ``rho = 1`` by default. The
   rule: beta well above the critical coupling of the K_max-state Potts model on the square
-  lattice, ``log(1 + sqrt(K_max))`` (1.27 for K_max = 8; beta 2 is above it for K_max up to
-  30). Below it the prior's mass lies on labellings scattered pixel by pixel, which with K
+  lattice, ``log(1 + sqrt(K_max))`` (1.34 for K_max = 8; beta 2 is above it for K_max up to
+  40). Below it the prior's mass lies on labellings scattered pixel by pixel, which with K
   free means K_max "twins" of one paint (measured at beta 1: K = K_max on every synthetic
   layout; ``validation/materials.py``, docs/materials.md). rho = 1: a material costs
   nothing beyond its parameters' prior and its K!.
