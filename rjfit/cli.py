@@ -274,15 +274,21 @@ def _ess_text(summary: dict) -> str:
 
 def _echo_fit(folder, summary: dict) -> None:
     """A fit's one-paragraph summary: model, regions, convergence, time, warnings."""
-    map_model = summary["map_model"]
     click.echo(f"fit of {summary['dataset']} ({summary['channel']}) -> {folder}")
     noise_model = summary.get("noise", {}).get("model", "constant")
     if noise_model != "constant" or summary["likelihood_power"] != 1.0:
         noise_text = (f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), "
                       if noise_model != "constant" else "")
         click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
-    click.echo(f"  MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
-               f"{len(summary['regions'])} regions; {_rhat_text(summary)}, {_ess_text(summary)}; "
+    if summary.get("region_model") == "materials":
+        k = summary["map_materials"]
+        model = (f"MAP number of materials {k} (posterior {summary['materials_posterior'][str(k)]:.3f}), mean "
+                 f"probability of a pixel's MAP material {summary['map_probability_mean']:.3f}")
+    else:
+        map_model = summary["map_model"]
+        model = (f"MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
+                 f"{len(summary['regions'])} regions")
+    click.echo(f"  {model}; {_rhat_text(summary)}, {_ess_text(summary)}; "
                f"{summary['seconds']:.1f} s")
     if "label_accuracy" in summary:
         click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")

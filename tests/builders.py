@@ -11,12 +11,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import integrate, stats
+from scipy.special import gammaln
 
 from rjfit.data.exr import write_exr
 from rjfit.data.formats import DATASET_FORMAT
 from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
 from rjfit.sampler.priors import ParamPrior, Prior
+from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"     # ../shared beside the checkout (measured data)
@@ -150,8 +153,9 @@ def raises(error, *parts):
 TINY_SIGMA2_PRIOR = (3.0, 0.6)
 
 
-def tiny_problem(seed=5):
-    """A 2 x 2 image under 3 lights (12 observations) of two regions split down the middle, and a proper prior.
+def tiny_problem(seed=5, width=2):
+    """A 2 x ``width`` image under 3 lights (12 observations for width 2) of two regions split down the middle
+    (the left half of the columns, rounded up, and the rest), and a proper prior.
 
     The regions' truth is ``(I0, kd, gamma, sigma^2) = (10, 0.75, 4, 0.3)`` left and
     ``(10, 0.3, 15, 0.3)`` right; the prior is lognormal around the truth's I0 and gamma,
@@ -159,14 +163,14 @@ def tiny_problem(seed=5):
     out analytically in the enumeration tests). Returns ``(observations, prior)``.
     """
     rng = np.random.default_rng(seed)
-    H, W, L = 2, 2, 3
+    H, W, L = 2, width, 3
     pixel = np.repeat(np.arange(H * W), L)
     light = np.tile(np.arange(L), H * W).astype(np.int32)
     cos_ln = rng.uniform(0.3, 1.0, pixel.size)
     cos_hn = rng.uniform(0.6, 1.0, pixel.size)
     irradiance = rng.uniform(0.5, 1.5, pixel.size)
     col = pixel % W
-    truth = np.array([[10.0, 0.75, 4.0, 0.3], [10.0, 0.3, 15.0, 0.3]])[col]
+    truth = np.array([[10.0, 0.75, 4.0, 0.3], [10.0, 0.3, 15.0, 0.3]])[(2 * col >= W).astype(int)]
     mu = radiance(truth[:, 0], truth[:, 1], truth[:, 2], cos_ln, cos_hn, irradiance)
     y = mu + rng.normal(0, np.sqrt(0.3), pixel.size)
     obs = Observations(image_shape=(H, W), n_lights=L, pixel=pixel.astype(np.int64), light=light, y=y,
@@ -174,6 +178,158 @@ def tiny_problem(seed=5):
     prior = Prior(params=(ParamPrior("lognormal", np.log(10.0), 0.3), ParamPrior("uniform", 0.0, 1.0),
                           ParamPrior("lognormal", np.log(8.0), 0.6), ParamPrior("invgamma", *TINY_SIGMA2_PRIOR)))
     return obs, prior
+
+
+class Quadrature:
+    """Evidence of any subset of observations, and parameter marginals, on a phi grid (the enumeration tests' oracle).
+
+    sigma^2 has :func:`tiny_problem`'s inverse-gamma prior :data:`TINY_SIGMA2_PRIOR` and is
+    integrated analytically; I0, kd, gamma by the trapezoid rule on a 3-D grid in the
+    sampler's phi coordinates (``points`` per axis). ``likelihood_power``: the likelihood
+    raised to it (coarsened posterior).
+    """
+
+    def __init__(self, obs, prior, points=81, likelihood_power=1.0):
+        self.power = likelihood_power
+        a0, s0 = prior.params[0].a, prior.params[0].b
+        a2, s2 = prior.params[2].a, prior.params[2].b
+        self.axes = [np.linspace(a0 - 6 * s0, a0 + 6 * s0, points), np.linspace(-14, 14, points),
+                     np.linspace(a2 - 6 * s2, a2 + 6 * s2, points)]
+        g0, g1, g2 = np.meshgrid(*self.axes, indexing="ij")
+        phi = np.stack([g0, g1, g2, np.zeros_like(g0)], axis=-1)
+        self.log_prior = prior.logpdf_phi_components(phi)[..., :3].sum(-1)
+        I0, kd, g = np.exp(g0), 1 / (1 + np.exp(-g1)), np.exp(g2)
+        self.sq = np.stack([(obs.y[i] - radiance(I0, kd, g, obs.cos_ln[i], obs.cos_hn[i], obs.irradiance[i])) ** 2
+                            for i in range(obs.n_obs)])
+        self.weights = [np.gradient(ax) for ax in self.axes]   # trapezoid weights on a uniform grid
+        for w in self.weights:
+            w[0] *= 0.5 / 1.0
+            w[-1] *= 0.5 / 1.0
+        self.pixel = np.asarray(obs.pixel)
+        self._cache = {}
+
+    def _log_integrand(self, obs_idx):
+        # likelihood ** zeta: n and SSR scaled by zeta (sigma^2 still integrates analytically)
+        n = self.power * len(obs_idx)
+        ssr = self.power * self.sq[obs_idx].sum(0)
+        alpha, beta = TINY_SIGMA2_PRIOR
+        log_inner = (-0.5 * n * np.log(2 * np.pi) + alpha * np.log(beta) - gammaln(alpha) + gammaln(alpha + n / 2)
+                     - (alpha + n / 2) * np.log(beta + ssr / 2))
+        return self.log_prior + log_inner, ssr
+
+    def log_evidence(self, pixels):
+        key = frozenset(int(p) for p in pixels)
+        if not key:
+            return 0.0
+        if key not in self._cache:
+            f, _ = self._log_integrand(np.flatnonzero(np.isin(self.pixel, list(key))))
+            m = f.max()
+            w = self.weights[0][:, None, None] * self.weights[1][None, :, None] * self.weights[2][None, None, :]
+            self._cache[key] = float(m + np.log(np.sum(np.exp(f - m) * w)))
+        return self._cache[key]
+
+    def marginal_cdfs(self, pixels, with_sigma2=True):
+        """CDFs of I0, kd, gamma, sigma^2 (the last only ``with_sigma2``) for the region made of ``pixels``."""
+        idx = np.flatnonzero(np.isin(self.pixel, list(pixels)))
+        f, ssr = self._log_integrand(idx)
+        w = self.weights[0][:, None, None] * self.weights[1][None, :, None] * self.weights[2][None, None, :]
+        p = np.exp(f - f.max()) * w
+        p /= p.sum()
+        cdfs = []
+        for k, transform in enumerate((np.exp, lambda x: 1 / (1 + np.exp(-x)), np.exp)):
+            marginal = p.sum(axis=tuple(j for j in range(3) if j != k))
+            # trapezoid mass between grid nodes -> piecewise-linear CDF on the transformed nodes
+            cdf = np.concatenate([[0.0], np.cumsum(0.5 * (marginal[1:] + marginal[:-1]))])
+            cdf /= cdf[-1]
+            nodes = transform(self.axes[k])
+            cdfs.append(lambda x, nodes=nodes, cdf=cdf: np.interp(x, nodes, cdf))
+        if not with_sigma2:
+            return cdfs
+        shape, scale = TINY_SIGMA2_PRIOR[0] + self.power * len(idx) / 2, TINY_SIGMA2_PRIOR[1] + ssr / 2
+        flat_p, flat_scale = p.ravel(), scale.ravel()
+        keep = flat_p > 1e-8 * flat_p.max()
+        flat_p, flat_scale = flat_p[keep] / flat_p[keep].sum(), flat_scale[keep]
+        # the sigma^2 marginal is a mixture of inverse gammas: tabulate its CDF, interpolate
+        lo = stats.invgamma.ppf(1e-9, shape, scale=flat_scale.min())
+        hi = stats.invgamma.ppf(1 - 1e-9, shape, scale=flat_scale.max())
+        nodes = np.geomspace(lo, hi, 400)
+        table = np.array([np.dot(flat_p, stats.invgamma.cdf(x, shape, scale=flat_scale)) for x in nodes])
+        cdfs.append(lambda x: np.interp(x, nodes, table))
+        return cdfs
+
+
+def ess_scaled_chi2(cells, draws, probs):
+    """Chi-square p-value of ``draws`` (cell index per iteration) against ``probs``, scaled by the ESS.
+
+    ``X^2 = N_eff sum (p_hat - p)^2 / p`` with N_eff the smallest ArviZ bulk ESS of the cell
+    indicators (chain draws are autocorrelated), df = cells - 1. A chain that never left one
+    cell has no ESS: it counts as one effective draw (the most lenient reading). Returns
+    ``(p_value, frequencies, n_eff)``.
+    """
+    import arviz as az
+
+    freq = np.array([np.mean(draws == c) for c in cells])
+    n_eff = min((float(az.ess((draws == c).astype(float)[None], method="bulk")) for c in cells
+                 if 0 < np.mean(draws == c) < 1), default=1.0)
+    x2 = n_eff * np.sum((freq - probs) ** 2 / probs)
+    return float(stats.chi2.sf(x2, len(cells) - 1)), freq, n_eff
+
+
+#: probabilities of the three change-point intervals of [-1, 3] in the enumeration below
+INTERVALS = np.array([1.5, 1.0, 1.5]) / 4.0   # probabilities of the three intervals of [-1, 3]
+
+
+CP_SMOOTH_SD = 1.0   # sd of the smooth change-point prior in the enumeration below (the tests set cp_smooth_sd to it)
+CP_EDGES = np.array([-1.0, 0.5, 1.5, 3.0])   # interval edges of the change points of a 2 x 2 image
+
+
+def interval_pair_log_weight(a, b, cp_prior):
+    """Log prior mass of a 2-element vector with elements in intervals a and b."""
+    if cp_prior == "paper":
+        return float(np.log(INTERVALS[a]) + np.log(INTERVALS[b]))
+    # smooth prior: x0 ~ U(-1, 3) (density 1/4), x1 - x0 ~ N(0, s^2), both truncated to [-1, 3] (unnormalised)
+    def inner(x0):
+        upper = stats.norm.cdf((CP_EDGES[b + 1] - x0) / CP_SMOOTH_SD)
+        return (upper - stats.norm.cdf((CP_EDGES[b] - x0) / CP_SMOOTH_SD)) / 4.0
+
+    value, _ = integrate.quad(inner, CP_EDGES[a], CP_EDGES[a + 1], epsabs=1e-13, epsrel=1e-11)
+    return float(np.log(value))
+
+
+def exact_changepoint_posterior(quad, jacobian_power=None, cp_prior="paper", log_norm=False):
+    """Exact posterior over (model, u interval of row 0) and over models, for the 2 x 2 image
+    of :func:`tiny_problem` with at most one change-point vector per direction.
+
+    ``jacobian_power``: if given, weight each model by 3^(-4 * splits) with ``splits`` the
+    number of region splits needed to reach it from (0, 0): the posterior that a chain
+    dropping the paper map's Jacobian (|det| = 3 per component) targets instead.
+    ``log_norm``: also return the log of the normaliser (the data's evidence), as a pair.
+    """
+    H = W = 2
+    joint = {}
+    for n_u in (0, 1):
+        for n_v in (0, 1):
+            for cu in np.ndindex(*(3,) * (H * n_u)):
+                for cv in np.ndindex(*(3,) * (W * n_v)):
+                    u = np.array([[(-1.0, 1.0, 2.0)[k]] for k in cu]).reshape(H, n_u)
+                    v = np.array([[(-1.0, 1.0, 2.0)[k]] for k in cv]).reshape(W, n_v)
+                    labels = pixel_region_labels(u, v, (H, W)).ravel()
+                    log_w = np.log(0.25)
+                    if n_u:
+                        log_w += interval_pair_log_weight(cu[0], cu[1], cp_prior)
+                    if n_v:
+                        log_w += interval_pair_log_weight(cv[0], cv[1], cp_prior)
+                    log_w += sum(quad.log_evidence(np.flatnonzero(labels == r)) for r in range((n_u + 1) * (n_v + 1)))
+                    if jacobian_power is not None:
+                        splits = {(0, 0): 0, (1, 0): 1, (0, 1): 1, (1, 1): 3}[(n_u, n_v)]
+                        log_w -= jacobian_power * splits
+                    key = (n_u, n_v, cu[0] if n_u else -1)
+                    joint[key] = np.logaddexp(joint.get(key, -np.inf), log_w)
+    keys = sorted(joint)
+    log_w = np.array([joint[k] for k in keys])
+    norm = np.logaddexp.reduce(log_w)
+    prob = dict(zip(keys, np.exp(log_w - norm)))
+    return (prob, float(norm)) if log_norm else prob
 
 
 # == criticism (rjfit.diagnose): hidden-effect data sets and fit folders for `rjfit diagnose` ========

@@ -29,6 +29,8 @@ import inspect
 import math
 from numbers import Integral, Real
 
+import numpy as np
+
 from rjfit.data.formats import DATASET_FORMAT, MESH_STACK_FORMAT
 from rjfit.data.meshes import GENERATORS
 from rjfit.errors import SceneError
@@ -272,6 +274,15 @@ def _check_geometry(check, geometry, n_materials):
                     else:
                         check.number(value, f"{field} {part}")
         parts = 2
+        texels = arguments.get("material_map")
+        if texels is not None:
+            shape = np.shape(texels) if isinstance(texels, (list, tuple)) else ()
+            if len(shape) != 2 or min(shape) < 1:
+                check.fail("geometry.material_map", "must be a 2-D list of material indices (rows of texels)")
+            values = np.asarray(texels)
+            if not (np.issubdtype(values.dtype, np.integer) and values.min() >= 0):
+                check.fail("geometry.material_map", "must hold integers >= 0 (indices into geometry.materials)")
+            parts = int(values.max()) + 1
     indices = arguments["materials"]
     if not (isinstance(indices, (list, tuple)) and len(indices) == parts):
         check.fail("geometry.materials", f"is {indices!r}; the {name!r} generator needs {parts} material indices")

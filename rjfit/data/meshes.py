@@ -57,12 +57,19 @@ def sphere_quadrants(radius=1.0, n_longitude=256, n_latitude=128, materials=(0, 
     return split_by_face_label(vertices, faces, normals, face_labels)
 
 
-def dented_slab(size=2.0, resolution=200, dents=(), grooves=(), boundary_x=0.0, materials=(0, 1)):
+def dented_slab(size=2.0, resolution=200, dents=(), grooves=(), boundary_x=0.0, materials=(0, 1), material_map=None):
     """A square height field ``z = h(x, y)`` with Gaussian dents and grooves (concave).
 
     ``dents`` are ``(x, y, depth, width)`` tuples, ``grooves`` ``(x, depth, width)`` tuples
     of grooves along y. Faces left of ``boundary_x`` get ``materials[0]``, the others
     ``materials[1]``; the grid has a vertex column on the boundary so no face straddles it.
+
+    ``material_map`` (optional): a material index image (rows from y = +size/2 down to
+    -size/2, columns from x = -size/2 to +size/2), mapped onto the slab by its (x, y)
+    texture coordinates: each face takes the index of the texel under its centroid
+    (nearest texel), and ``materials[index]`` is its material. With a fine grid
+    (``resolution`` several times the map's size) boundaries follow the map to within a
+    grid cell; the rendered truth labels are the faces' materials as the camera sees them.
     """
     half = size / 2.0
     x = np.unique(np.concatenate([np.linspace(-half, half, resolution + 1), [boundary_x]]))
@@ -88,6 +95,12 @@ def dented_slab(size=2.0, resolution=200, dents=(), grooves=(), boundary_x=0.0, 
     a, b, c, d = i * n_x + j, i * n_x + j + 1, (i + 1) * n_x + j, (i + 1) * n_x + j + 1
     faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
     centroid_x = vertices[faces, 0].mean(axis=1)
+    if material_map is not None:
+        texels = np.asarray(material_map, np.int64)
+        centroid_y = vertices[faces, 1].mean(axis=1)
+        col = np.clip(((centroid_x + half) / size * texels.shape[1]).astype(np.int64), 0, texels.shape[1] - 1)
+        row = np.clip(((half - centroid_y) / size * texels.shape[0]).astype(np.int64), 0, texels.shape[0] - 1)
+        return split_by_face_label(vertices, faces, normals, np.asarray(materials)[texels[row, col]])
     face_labels = np.where(centroid_x < boundary_x, materials[0], materials[1])
     return split_by_face_label(vertices, faces, normals, face_labels)
 

@@ -10,6 +10,10 @@ Outputs in ``out_dir`` (each written atomically):
 - ``labels.exr``: MAP labels (channel ``labels``, -1 off the object);
 - ``chains.nc``: full chains as ArviZ InferenceData (dims chain, draw, region, parameter);
 - ``changepoints.npz``: thinned change-point snapshots per chain;
+- with ``--regions materials`` (:mod:`rjfit.pipeline.fit_materials`): labels.exr holds the
+  MAP material, chains.nc the relabelled draws (dims chain, draw, material, parameter),
+  ``materials.npz`` the label snapshots instead of changepoints.npz, and maps.exr the
+  per-pixel probability of the MAP material (``map_probability``);
 - ``maps.exr``: per-pixel parameters, labels, valid-images count and residual RMS
   (:func:`write_parameter_maps`);
 - ``figures/*.png``: the paper's figures (see :mod:`rjfit.posterior.figures`).
@@ -34,7 +38,7 @@ import contextlib
 import dataclasses
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +58,7 @@ from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.regions.changepoint_grid import model_number
 from rjfit.sampler.runner import ChainSpec, run_chains
-from rjfit.sampler.state import FLAT_OPTIONS, SamplerConfig
+from rjfit.sampler.state import SamplerConfig, flat_option_applies
 
 __all__ = ["fit", "FitSource", "write_parameter_maps"]
 
@@ -217,10 +221,15 @@ def burn_in_iterations(options: FitOptions) -> int:
 def sampler_config(options: FitOptions, *, fixed: bool = False) -> SamplerConfig:
     """The kernel's settings from the fit's options; ``fixed``: the segmentation does not move."""
     burn = burn_in_iterations(options)
-    # a fit option named like a sampler setting reaches the sampler as it is, so a new one is one
-    # FitOptions field; burn-in and the annealed warm-up are fractions here and iterations there
+    # a fit option named like a sampler setting of the fit's region model reaches the sampler as it is,
+    # so a new one is one FitOptions field; burn-in and the annealed warm-up are fractions here and
+    # iterations there
     same_name = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)
-                 if f.name in FLAT_OPTIONS and f.name not in ("burn_in", "anneal")}
+                 if f.name not in ("burn_in", "anneal") and flat_option_applies(f.name, options.regions)}
+    if options.regions == "materials":
+        return SamplerConfig.from_flat(region_model="materials", **same_name, burn_in=burn,
+                                       anneal=int(round(options.anneal * burn)), update_labels=not fixed,
+                                       jumps=not fixed)
     return SamplerConfig.from_flat(**same_name, burn_in=burn, anneal=int(round(options.anneal * burn)),
                                    # reproducing the paper's omission: every jump must use its map
                                    free_jump_prob=0.0 if options.drop_jacobian else BirthDeathSettings.free_prob,
@@ -234,8 +243,9 @@ def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, trut
     specs = []
     for c in range(options.n_chains):
         chain_start = dict(start[c]) if start is not None else {}
-        if fixed_segmentation is not None:
-            chain_start.setdefault("changepoints", fixed_segmentation)
+        if fixed_segmentation is not None:     # (u, v) change points, or (H, W) material labels
+            chain_start.setdefault("pixel_labels" if options.regions == "materials" else "changepoints",
+                                   fixed_segmentation)
         specs.append(ChainSpec(problem=problem, prior=prior, config=config, seed=options.seed, chain=c,
                                n_chains=options.n_chains, iterations=options.iterations,
                                checkpoint_path=str(out_dir / "checkpoints" / f"chain_{c}.pkl"),
@@ -254,18 +264,48 @@ class FitResult:
     problem: Problem
     burn: int
     model: tuple
+    extra: dict = field(default_factory=dict)   # the region model's own results (materials: map_probability, draws)
+
+
+def run_entries(records, problem, prior, options: FitOptions, burn: int, suggestion, noise_record) -> dict:
+    """The summary entries every region model shares: the settings a fit ran with, acceptance and timing."""
+    counts = caveats.acceptance_counts(records)
+    return {
+        "iterations": options.iterations, "burn_in": burn, "n_chains": options.n_chains, "seed": options.seed,
+        "n_observations": problem.n_obs, "region_model": options.regions,
+        "sampler": options.sampler, "prior": prior.to_json(),
+        "likelihood_power": float(problem.likelihood_power), "likelihood_power_suggestion": suggestion,
+        "noise": noise_record,
+        "anneal_iterations": int(round(options.anneal * burn)),
+        "acceptance": {k: c["accepted"] / max(1, c["proposed"]) for k, c in counts.items()},
+        "acceptance_counts": counts,
+        "chain_seconds": [r.seconds for r in records],
+        "chain_threads": [r.threads for r in records],
+        "chain_resumed_from": [list(r.resumed_from) for r in records],
+    }
 
 
 def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels):
     """The posterior summaries of the chains' kept draws, with the settings they ran with."""
     burn = config.kernel.burn_in
+    if options.regions == "materials":
+        from rjfit.pipeline.fit_materials import summarise_materials
+
+        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn)
+        summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
+        summary["warnings"] += _fit_warnings(problem, prior, suggestion)
+        if truth_labels is not None:
+            summary.update(truth_summary(records, burn, labels, truth_labels))
+            summary["materials_right_probability"] = summary["materials_posterior"].get(
+                str(summary["true_region_count"]), 0.0)
+        return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
+                         model=(summary["map_materials"],), extra=extra)
     n_u, n_v = post.map_model(records, burn)
     draws = post.map_model_draws(records, burn, (n_u, n_v))
     labels = post.map_labels(records, burn, (n_u, n_v), problem.image_shape, problem.object_mask)
     # what the figures and residual maps show: averaged draw by draw, each with its own segmentation
     prediction = post.posterior_mean_prediction(records, burn, problem)
     diag = post.diagnostics(draws)
-    counts = caveats.acceptance_counts(records)
     summary = {
         "model_posterior": post.model_posterior(records, burn),
         "map_model": {"n_u": n_u, "n_v": n_v, "m": model_number(n_u, n_v, options.max_v)},
@@ -275,29 +315,16 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
         "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
         "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"],
         "diagnostics": diag,
-        "iterations": options.iterations, "burn_in": burn, "n_chains": options.n_chains, "seed": options.seed,
-        "n_observations": problem.n_obs,
-        "sampler": options.sampler, "prior": prior.to_json(), "max_u": options.max_u, "max_v": options.max_v,
+        "max_u": options.max_u, "max_v": options.max_v,
         "split_map": options.split_map, "cp_prior": options.cp_prior, "drop_jacobian": options.drop_jacobian,
-        "likelihood_power": float(problem.likelihood_power), "likelihood_power_suggestion": suggestion,
-        "noise": noise_record,
-        "anneal_iterations": int(round(options.anneal * burn)),
-        "acceptance": {k: c["accepted"] / max(1, c["proposed"]) for k, c in counts.items()},
-        "acceptance_counts": counts,
-        "chain_seconds": [r.seconds for r in records],
-        "chain_threads": [r.threads for r in records],
-        "chain_resumed_from": [list(r.resumed_from) for r in records],
         "chain_model_posterior": [post.model_posterior([r], burn) for r in records],
         "chain_regions": post.chain_region_summaries(records, draws, burn, (n_u, n_v), problem.image_shape,
                                                      problem.object_mask),
     }
+    summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
     summary["warnings"] = (post.convergence_warnings(diag, summary["chain_model_posterior"], options.n_chains)
                            + number_warnings(summary, labels, problem, prior, config))
-    misfit = misfit_warning(suggestion, float(problem.likelihood_power))
-    if misfit:
-        summary["warnings"].append(misfit)
-    if prior.caveat:
-        summary["warnings"].append(prior.caveat)
+    summary["warnings"] += _fit_warnings(problem, prior, suggestion)
     if truth_labels is not None:
         summary.update(truth_summary(records, burn, labels, truth_labels))
     return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
@@ -320,6 +347,17 @@ def number_warnings(summary: dict, labels, problem, prior, config: SamplerConfig
     return out
 
 
+def _fit_warnings(problem, prior, suggestion) -> list:
+    """The warnings of the data and prior that every region model's summary carries."""
+    warnings = []
+    misfit = misfit_warning(suggestion, float(problem.likelihood_power))
+    if misfit:
+        warnings.append(misfit)
+    if prior.caveat:
+        warnings.append(prior.caveat)
+    return warnings
+
+
 def truth_summary(records, burn, labels, truth_labels) -> dict:
     """How the fit compares with the ground truth of a synthetic data set."""
     accuracy = post.label_accuracy(labels, truth_labels)
@@ -340,31 +378,18 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
     beside the summary of another. (``staging_dir`` removes the staging folders of runs
     killed while they wrote their results.)
     """
-    summary, burn, max_v = result.summary, result.burn, options.max_v
+    summary = result.summary
     with staging_dir(out_dir) as staging:
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)})
         summary["fit_id"] = results_digest(summary)
-        effect_names = () if result.problem.effects is None else result.problem.effects.names
-        idata = post.to_inference_data(records, burn, max_v, effect_names)
-        idata.posterior.attrs.update({
-            "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
-            "regions": f"region r of a draw is cell r of its model (n_u, n_v); slots past (n_u + 1)(n_v + 1) "
-                       f"are NaN (the region dimension has room for the largest model, {options.max_u}, {max_v})",
-            "parameters": "I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise "
-                          "variance), in the units of the observations"})
-        idata.to_netcdf(str(staging / "chains.nc"))
-        cp_payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records)
-                      for k in ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v")}
-        with open(staging / "changepoints.npz", "wb") as handle:
-            np.savez_compressed(handle, **cp_payload)
-        if options.figures:
-            from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
+        if options.regions == "materials":
+            from rjfit.pipeline.fit_materials import write_material_files
 
-            written = figs.write_all(staging / "figures", records=records, burn_in=burn, model=result.model,
-                                     labels=result.labels, problem=result.problem, prediction=result.prediction,
-                                     max_v=max_v)
-            summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
-        summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction)
+            write_material_files(staging, result, records, options)
+        else:
+            write_changepoint_files(staging, result, records, options)
+        extra = {"map_probability": result.extra["map_probability"]} if "map_probability" in result.extra else None
+        summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra)
         if source is not None:
             record_source(summary, source, staging, options)
         if before_publish is not None:
@@ -372,6 +397,31 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
         summary["seconds"] = time.perf_counter() - started
         write_summary(staging / "summary.json", summary)
         publish_results(staging, out_dir)
+
+
+def write_changepoint_files(staging: Path, result: FitResult, records, options: FitOptions) -> None:
+    """A change-point fit's ``chains.nc``, ``changepoints.npz`` and (with ``options.figures``) figures."""
+    summary, burn, max_v = result.summary, result.burn, options.max_v
+    effect_names = () if result.problem.effects is None else result.problem.effects.names
+    idata = post.to_inference_data(records, burn, max_v, effect_names)
+    idata.posterior.attrs.update({
+        "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
+        "regions": f"region r of a draw is cell r of its model (n_u, n_v); slots past (n_u + 1)(n_v + 1) "
+                   f"are NaN (the region dimension has room for the largest model, {options.max_u}, {max_v})",
+        "parameters": "I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise "
+                      "variance), in the units of the observations"})
+    idata.to_netcdf(str(staging / "chains.nc"))
+    cp_payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records)
+                  for k in ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v")}
+    with open(staging / "changepoints.npz", "wb") as handle:
+        np.savez_compressed(handle, **cp_payload)
+    if options.figures:
+        from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
+
+        written = figs.write_all(staging / "figures", records=records, burn_in=burn, model=result.model,
+                                 labels=result.labels, problem=result.problem, prediction=result.prediction,
+                                 max_v=max_v)
+        summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
 
 
 def record_source(summary: dict, source: FitSource, staging: Path, options: FitOptions) -> None:
@@ -387,7 +437,7 @@ def record_source(summary: dict, source: FitSource, staging: Path, options: FitO
     summary["warnings"][:0] = list(source.warnings)
 
 
-def write_parameter_maps(observations, summary, out_dir: Path, prediction=None) -> str:
+def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, extra_channels=None) -> str:
     """Per-pixel maps of the MAP segmentation as one EXR: each region's posterior mean and sd
     of I0, kd, gamma, sigma^2, the label, the valid-images count (paper, Fig. 8) and the RMS
     over lights of the standardised residual ``(y - mu) / (sigma s)`` (``s`` the known noise
@@ -421,5 +471,6 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None) 
         sum_squares = np.bincount(observations.pixel, weights=np.nan_to_num(standardised) ** 2, minlength=size)
         rms = np.where(count > 0, np.sqrt(sum_squares / np.maximum(count, 1)), np.nan).reshape(labels.shape)
     channels.update(label=labels, valid_images=count.reshape(labels.shape), residual_rms=rms)
+    channels.update(extra_channels or {})
     write_exr(out_dir / "maps.exr", channels)
     return "maps.exr"

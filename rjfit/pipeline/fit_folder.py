@@ -29,7 +29,7 @@ __all__ = ["SUMMARY_FIELDS", "write_summary", "read_summary", "read_map_labels",
 #: file names of the MAP labels in a fit folder, tried in this order (the fit writes labels.exr)
 MAP_LABEL_FILES = ("map_labels.exr", "labels.exr")
 #: the results a fit writes beside summary.json (published together with it)
-RESULT_FILES = ("labels.exr", "chains.nc", "changepoints.npz", "maps.exr", "figures")
+RESULT_FILES = ("labels.exr", "chains.nc", "changepoints.npz", "materials.npz", "maps.exr", "figures")
 #: results derived from a fit by later commands; those of a replaced fit no longer describe it
 DERIVED_RESULTS = ("report.html",)
 
@@ -45,6 +45,20 @@ SUMMARY_FIELDS = {
                       "with its pixel count"),
     "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),
     "chain_model_posterior": (list, "model posterior of each chain"),
+    "region_model": (str, "what partitions the pixels: 'changepoints' (the paper's) or 'materials' (free-form "
+                          "materials under a Potts prior); the model-specific entries below are that model's"),
+    "materials_posterior": (dict, "materials: posterior probability of each number of materials K (pooled over "
+                                  "chains, kept draws)"),
+    "map_materials": (int, "materials: the most probable K (the 'regions' entries are its materials)"),
+    "chain_materials_posterior": (list, "materials: the posterior over K of each chain"),
+    "material_relabelling": (str, "materials: how draws are relabelled to the MAP labelling before summaries"),
+    "empty_materials": (str, "materials: why no material is ever empty"),
+    "map_probability_mean": (_NUMBER, "materials: mean over labelled pixels of the posterior probability of the "
+                                      "pixel's MAP material (per pixel: maps.exr channel map_probability)"),
+    "max_materials": (int, "materials: the most materials a state may have (a cap; warned about when it binds)"),
+    "potts_beta": (_NUMBER, "materials: Potts prior strength per neighbour pair of different materials"),
+    "potts_rho": (_NUMBER, "materials: prior factor per material (rho^K)"),
+    "materials_right_probability": (_NUMBER, "materials: posterior probability of the true number of materials"),
     "rhat_max": (_NUMBER, "largest R-hat over the MAP model's parameters (null: not computable)"),
     "rhat_reason": (str, "why rhat_max is null (null when it is a number)"),
     "ess_min": (_NUMBER, "smallest of the bulk and tail ESS"),
@@ -119,7 +133,7 @@ def _has_type(value, kind) -> bool:
 def results_digest(summary: dict) -> str:
     """A short digest of a fit's results (models, regions, seed, settings): it identifies the
     fit that a diagnosis or comparison was made from, so a report can tell a stale one."""
-    keys = ("model_posterior", "map_model", "regions", "iterations", "burn_in", "n_chains", "seed", "n_observations",
+    keys = ("model_posterior", "map_model", "materials_posterior", "map_materials", "regions", "iterations", "burn_in", "n_chains", "seed", "n_observations",
             "likelihood_power", "prior")
     digested = {key: summary.get(key) for key in keys}
     if "effects" in summary:        # a fit with effects (a plain fit's digest is what it always was)

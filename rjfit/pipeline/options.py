@@ -17,6 +17,7 @@ from rjfit.data.formats import CHANNELS
 from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
 from rjfit.diagnose.effects import EFFECTS
 from rjfit.sampler.priors import PRESETS
+from rjfit.sampler.state import REGION_MODELS
 
 __all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS"]
 
@@ -88,6 +89,20 @@ class FitOptions:
     burn_in: float | None = cli_option(
         None, "--burn-in", "Discarded fraction (default: 0.5 for synthetic data, 0.2 for measured, as in the paper).",
         "float", show_default=False)
+    regions: str = cli_option(
+        "changepoints", "--regions",
+        "Region model: the paper's change points (changepoints), or free-form materials (materials): a material "
+        "label per pixel under a Potts prior, K materials unknown, one BRDF per material shared by all its pixels, "
+        "connected or not.", "choice", choices=tuple(REGION_MODELS))
+    max_materials: int = cli_option(8, "--max-materials",
+                                    "Most materials (--regions materials); the summary warns when the posterior "
+                                    "puts mass on it.", "int", low=1)
+    potts_beta: float = cli_option(2.0, "--potts-beta",
+                                   "Potts prior strength per pair of neighbouring pixels of different materials "
+                                   "(--regions materials). Keep it above log(1 + sqrt(--max-materials)), the "
+                                   "Potts model's critical coupling (1.34 for 8): below it the prior favours "
+                                   "materials scattered pixel by pixel (docs/materials.md).", "float")
+    potts_rho: float = 1.0
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)
     sampler: str = cli_option("adaptive", "--sampler",
@@ -164,7 +179,8 @@ class FitOptions:
         if self.n_chains < 1 or self.iterations < 10:
             raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got "
                              f"{self.n_chains}, {self.iterations}")
-        for name, what in (("prior", "prior"), ("noise", "noise model"), ("channel", "channel"),
+        for name, what in (("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
+                           ("channel", "channel"),
                            ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
             spec = self.cli(name)
             if getattr(self, name) not in spec.choices:
@@ -180,6 +196,15 @@ class FitOptions:
             raise ValueError(f"anneal is the fraction of the burn-in run tempered, in [0, 1], got {self.anneal}")
         if not (math.isfinite(self.noise_floor) and self.noise_floor > 0):
             raise ValueError(f"noise floor (--noise-floor) must be a positive number, got {self.noise_floor}")
+        if not (math.isfinite(self.potts_beta) and self.potts_beta >= 0 and self.potts_rho > 0):
+            raise ValueError(f"Potts strength (--potts-beta) must be a number >= 0 and rho > 0, got "
+                             f"{self.potts_beta}, {self.potts_rho}")
+        if self.regions == "materials" and (self.effects or self.effects_from is not None):
+            # the label moves' per-pixel likelihoods and cluster statistics see the plain lobe only
+            raise ValueError("--effects and --effects-from work with --regions changepoints only (the material model's "
+                             "label moves do not yet carry the effects' terms); drop one of them")
+        if not 1 <= self.max_materials <= 127:
+            raise ValueError(f"--max-materials must lie in 1 .. 127, got {self.max_materials}")
         if self.max_u < 0 or self.max_v < 0:
             raise ValueError(f"max_u and max_v (--max-u, --max-v) must be >= 0, got {self.max_u}, {self.max_v}")
 

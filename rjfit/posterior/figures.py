@@ -5,7 +5,9 @@
   the kept draws (Fig. 3/6);
 - ``changepoints.png``: change-point modes with 95 % bands and 2-D histograms (Fig. 7);
 - ``reflectance.png``: posterior mean radiance, observed radiance and absolute error maps,
-  averaged over lights (Fig. 1b, 4b/c).
+  averaged over lights (Fig. 1b, 4b/c);
+- the material model's ``materials.png`` (the MAP material map, a distinct colour per
+  material however many) and ``materials_histogram.png`` (the posterior over K).
 """
 from __future__ import annotations
 
@@ -13,10 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.plotting import pyplot, region_colormap, save_figure, zoom_to_object
+from rjfit.plotting import label_image, pyplot, region_colormap, region_colours, save_figure, zoom_to_object
 from rjfit.sampler.priors import PARAM_NAMES
 
-__all__ = ["write_all", "model_histogram", "traces", "trace_figure", "kept_draw_limits", "changepoints", "reflectance"]
+__all__ = ["write_all", "model_histogram", "traces", "trace_figure", "kept_draw_limits", "changepoints", "reflectance",
+           "material_map", "materials_histogram"]
 
 
 def _plt():
@@ -163,6 +166,38 @@ def reflectance(labels, prediction, path):
     regions = np.unique(np.asarray(labels)[np.asarray(labels) >= 0])
     colorbar = fig.colorbar(im, ax=axes[3], shrink=0.85, ticks=regions)
     colorbar.set_label("region")
+    return _save(fig, path)
+
+
+def material_map(labels, path):
+    """The MAP material of every pixel as an image, one colour per material (white: unlabelled)."""
+    plt = _plt()
+    labels = np.asarray(labels)
+    n_materials = int(labels.max()) + 1 if np.any(labels >= 0) else 0
+    colours = region_colours(max(n_materials, 1))
+    image = label_image(labels, n_materials)
+    fig, ax = plt.subplots(figsize=(6, 5.4))
+    ax.imshow(image, interpolation="nearest")
+    ax.set_title(f"MAP materials ({n_materials})", fontsize=10)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    from matplotlib.patches import Patch
+
+    ax.legend(handles=[Patch(color=colours[m], label=f"material {m}") for m in range(n_materials)],
+              loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    return _save(fig, path)
+
+
+def materials_histogram(posterior: dict, path):
+    """The posterior over the number of materials K (``{"K": probability}``)."""
+    plt = _plt()
+    ks = sorted(int(k) for k in posterior)
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    ax.bar(ks, [posterior[str(k)] for k in ks], color="tab:blue")
+    ax.set_xlabel("number of materials K")
+    ax.set_ylabel("posterior probability")
+    ax.set_xticks(ks)
+    ax.set_title("Posterior over the number of materials")
     return _save(fig, path)
 
 

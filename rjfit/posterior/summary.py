@@ -253,7 +253,7 @@ def chain_region_summaries(records, draws_per_chain, burn_in: int, model, image_
 def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 100) -> dict:
     """Per-pixel maps of the posterior mean prediction, averaged draw by draw over kept draws of every model.
 
-    For each kept draw with a change-point snapshot (at most ``max_draws``, evenly spaced
+    For each kept draw with a layout snapshot (change points or material labels; at most ``max_draws``, evenly spaced
     over the chains' snapshots after ``burn_in``) every observation's radiance ``mu_i`` is
     computed from that draw's own segmentation and parameters, then averaged. Unlike
     radiance at pooled region means on the MAP labels, this is the posterior's prediction
@@ -303,10 +303,16 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
     for index in picks:
         rec, s = kept[index]
         t = rec.cp_iteration[s]
-        n_u, n_v = int(rec.n_u[t]), int(rec.n_v[t])
-        labels = obs_region_labels(rec.cp_u[s, :, :n_u].astype(float), rec.cp_v[s, :, :n_v].astype(float),
-                                   problem.row, problem.col, pixel_start=problem.pixel_start)
-        I0, kd, gamma, sigma2 = (rec.theta[t, :(n_u + 1) * (n_v + 1), k] for k in range(4))
+        if getattr(rec, "n_materials", None) is not None:      # materials: the snapshot holds the labels
+            n_regions = int(rec.n_materials[t])
+            pixels = np.nan_to_num(rec.material_labels[s], nan=0.0).astype(np.int64).ravel()
+            labels = np.repeat(pixels, np.diff(problem.pixel_start))
+        else:
+            n_u, n_v = int(rec.n_u[t]), int(rec.n_v[t])
+            n_regions = (n_u + 1) * (n_v + 1)
+            labels = obs_region_labels(rec.cp_u[s, :, :n_u].astype(float), rec.cp_v[s, :, :n_v].astype(float),
+                                       problem.row, problem.col, pixel_start=problem.pixel_start)
+        I0, kd, gamma, sigma2 = (rec.theta[t, :n_regions, k] for k in range(4))
         # eq. 2 per region, gathered per observation: mu = C (I0 kd / pi + I0 (1 - kd) N(g) <h.n>^g), with
         # C = E <l.n>; the Problem's y and C are divided by the known noise scales s, so mu here is mu / s too
         diffuse, lobe = I0 * kd / np.pi, I0 * (1.0 - kd) * blinn_normalisation(gamma)

@@ -22,7 +22,8 @@ from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YY, ab_from_theta, lo
 
 __all__ = ["region_stats", "b_sums", "b_sums_newton", "obs_log_density", "forward_filter", "cell_step_logits",
            "path_log_prob", "backward_sample", "normal_mass", "within_cell_log_density", "draw_within_cells",
-           "rank_chain"]
+           "rank_chain", "pixel_log_lik", "gibbs_sweep", "edge_uniform", "grow_cluster",
+           "allocate_split"]
 
 
 # ----------------------------------------------------------------------------- sufficient statistics
@@ -219,3 +220,110 @@ def rank_chain(log_emit, log_t):
     def logits(alpha, r, rank_next):
         return alpha[r] + log_t[:, rank_next]
     return alpha, logits
+
+
+# ----------------------------------------------------------------------------- material labels
+
+def pixel_log_lik(problem: Problem, theta) -> np.ndarray:
+    """Twin of :func:`rjfit.sampler.passes.labels.pixel_log_lik`: (K, H W) per-pixel sums of log densities (fsum)."""
+    theta = np.asarray(theta, float)
+    n_pix = problem.height * problem.width
+    out = np.zeros((theta.shape[0], n_pix))
+    idx = np.arange(problem.n_obs)
+    for k in range(theta.shape[0]):
+        density = obs_log_density(problem, idx, np.repeat(theta[k][None], problem.n_obs, axis=0))
+        for p in range(n_pix):
+            out[k, p] = math.fsum(density[problem.pixel_start[p]:problem.pixel_start[p + 1]])
+    return out
+
+
+def gibbs_sweep(pixel_labels, labelled, log_lik, power, beta, image_shape, counts, uniforms, parity) -> int:
+    """Twin of :func:`rjfit.sampler.passes.labels.gibbs_sweep` (pixel by pixel, NumPy per pixel); in place."""
+    height, width = image_shape
+    changed = 0
+    for r in range(height):
+        for c in range((r + parity) % 2, width, 2):
+            p = r * width + c
+            old = pixel_labels[p]
+            if not labelled[p] or counts[old] <= 1:
+                continue
+            logits = power * log_lik[:, p].copy()
+            for q, inside in ((p - width, r > 0), (p + width, r < height - 1), (p - 1, c > 0), (p + 1, c < width - 1)):
+                if inside and labelled[q]:
+                    logits[pixel_labels[q]] += beta
+            weights = np.exp(logits - logits.max())
+            running = np.cumsum(weights)
+            new = int(np.searchsorted(running, uniforms[p] * running[-1], side="right"))
+            new = min(new, logits.size - 1)
+            if new != old:
+                counts[old] -= 1
+                counts[new] += 1
+                pixel_labels[p] = new
+                changed += 1
+    return changed
+
+
+_MASK64 = (1 << 64) - 1
+
+
+def edge_uniform(key: int, edge: int) -> float:
+    """Twin of :func:`rjfit.sampler.passes.labels.edge_uniform` (SplitMix64 in Python integers)."""
+    z = (key + edge + 0x9E3779B97F4A7C15) & _MASK64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
+    z ^= z >> 31
+    return (z >> 11) / float(1 << 53)
+
+
+def grow_cluster(pixel_labels, labelled, bond_q, key, seed, image_shape, n_labels):
+    """Twin of :func:`rjfit.sampler.passes.labels.grow_cluster`: the on-bond component by a breadth-first search."""
+    height, width = image_shape
+
+    def neighbours(p):
+        r, c = divmod(p, width)
+        if c < width - 1:
+            yield p + 1, 2 * p
+        if r < height - 1:
+            yield p + width, 2 * p + 1
+        if c > 0:
+            yield p - 1, 2 * (p - 1)
+        if r > 0:
+            yield p - width, 2 * (p - width) + 1
+
+    label = pixel_labels[seed]
+    cluster, frontier = {int(seed)}, [int(seed)]
+    while frontier:
+        p = frontier.pop()
+        for q, edge in neighbours(p):
+            if (q not in cluster and labelled[q] and pixel_labels[q] == label
+                    and edge_uniform(int(key), edge) < bond_q[edge]):
+                cluster.add(q)
+                frontier.append(q)
+    n_to = np.zeros(n_labels, np.int64)
+    log_cut_to = np.zeros(n_labels)
+    for p in cluster:
+        for q, edge in neighbours(p):
+            if q not in cluster and labelled[q]:
+                n_to[pixel_labels[q]] += 1
+                log_cut_to[pixel_labels[q]] += math.log1p(-bond_q[edge])
+    return np.array(sorted(cluster), np.int64), n_to, log_cut_to
+
+
+def allocate_split(members, guide_log_lik, power, beta, image_shape, uniforms, forced):
+    """Twin of :func:`rjfit.sampler.passes.labels.allocate_split`: the same allocation with a softmax per pixel."""
+    height, width = image_shape
+    part_of = {}
+    parts = np.empty(len(members), np.int8)
+    log_prob = 0.0
+    for j, p in enumerate(members):
+        r, c = divmod(int(p), width)
+        logits = power * np.asarray(guide_log_lik)[:, j].astype(float)
+        for q, inside in ((p - width, r > 0), (p + width, r < height - 1), (p - 1, c > 0), (p + 1, c < width - 1)):
+            if inside and int(q) in part_of:
+                logits[part_of[int(q)]] += beta
+        log_probs = logits - np.logaddexp.reduce(logits)
+        part = int(forced[j]) if forced[j] >= 0 else (0 if uniforms[j] < math.exp(log_probs[0]) else 1)
+        parts[j] = part
+        part_of[int(p)] = part
+        log_prob += log_probs[part]
+    return parts, float(log_prob)

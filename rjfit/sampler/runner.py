@@ -67,22 +67,20 @@ class ChainSpec:
 class ChainRecord:
     """The trace of one chain (per iteration unless noted).
 
-    The model keys (``n_u``, ``n_v``) and layout snapshots (``cp_u``, ``cp_v``) are the
-    change-point region model's (:attr:`RegionModel.key_names
-    <rjfit.sampler.regions.base.RegionModel.key_names>`, :meth:`~rjfit.sampler.regions.base.RegionModel.snapshot`).
+    The model keys and layout snapshots are the region model's
+    (:attr:`RegionModel.key_names <rjfit.sampler.regions.base.RegionModel.key_names>`,
+    :meth:`~rjfit.sampler.regions.base.RegionModel.snapshot`): change points record
+    ``n_u``, ``n_v`` and snapshots ``cp_u``, ``cp_v``; materials record ``n_materials`` and
+    snapshots ``material_labels``. The other model's fields are None.
     """
 
-    n_u: np.ndarray                 # (T,) int
-    n_v: np.ndarray                 # (T,) int
     theta: np.ndarray               # (T, R_max, 4), NaN beyond the current model's regions
     log_lik: np.ndarray             # (T,)
     log_post: np.ndarray            # (T,)
     exact_truth: np.ndarray         # (T,) int8: 1 if object pixels fall into exactly the true regions, -1 unknown
     true_regions: np.ndarray        # (T,) int8: 1 if one region per true region, agreeing on >= 99 % of pixels; -1 unknown
     object_regions: np.ndarray      # (T,) int16: number of regions holding object pixels (with observations)
-    cp_iteration: np.ndarray        # (S,) iteration of each change-point snapshot
-    cp_u: np.ndarray                # (S, H, max_u), NaN padded
-    cp_v: np.ndarray                # (S, W, max_v), NaN padded
+    cp_iteration: np.ndarray        # (S,) iteration of each layout snapshot
     accepted: dict
     proposed: dict
     seconds: float
@@ -90,15 +88,31 @@ class ChainRecord:
     resumed_from: tuple = ()        # iterations of the checkpoints this chain resumed from, in order
     threads: int = 1                # Numba threads it ran on (its samples do not depend on them; its seconds do)
     nan_rejected: dict = dataclasses.field(default_factory=dict)   # per move kind: proposals rejected for a NaN ratio
-    effects: np.ndarray | None = None   # (T, K) constrained effect parameters (EffectData.names); None: no effects
+    n_u: np.ndarray | None = None               # (T,) int: change points
+    n_v: np.ndarray | None = None
+    cp_u: np.ndarray | None = None              # (S, H, max_u), NaN padded
+    cp_v: np.ndarray | None = None              # (S, W, max_v), NaN padded
+    n_materials: np.ndarray | None = None       # (T,) int: materials
+    material_labels: np.ndarray | None = None   # (S, H, W) float32, NaN off the labelled pixels
+    effects: np.ndarray | None = None           # (T, K) constrained effect parameters (EffectData.names); None: none
+
+    #: fields with one entry per draw, and per snapshot (what :meth:`truncated` cuts)
+    PER_DRAW = ("theta", "log_lik", "log_post", "exact_truth", "true_regions", "object_regions", "n_u", "n_v",
+                "n_materials", "effects")
+    PER_SNAPSHOT = ("cp_iteration", "cp_u", "cp_v", "material_labels")
+
+    @property
+    def region_model(self) -> str:
+        """'materials' or 'changepoints': which region model's fields this record holds."""
+        return "materials" if self.n_materials is not None else "changepoints"
 
     def truncated(self, t: int) -> ChainRecord:
         keep = self.cp_iteration < t
-        return ChainRecord(self.n_u[:t], self.n_v[:t], self.theta[:t], self.log_lik[:t], self.log_post[:t],
-                           self.exact_truth[:t], self.true_regions[:t], self.object_regions[:t], self.cp_iteration[keep],
-                           self.cp_u[keep], self.cp_v[keep], dict(self.accepted), dict(self.proposed), self.seconds,
-                           min(t, self.iterations_done), self.resumed_from, self.threads, dict(self.nan_rejected),
-                           None if self.effects is None else self.effects[:t])
+        changes = {name: getattr(self, name)[:t] for name in self.PER_DRAW if getattr(self, name) is not None}
+        changes.update({name: getattr(self, name)[keep] for name in self.PER_SNAPSHOT
+                        if getattr(self, name) is not None})
+        return dataclasses.replace(self, **changes, accepted=dict(self.accepted), proposed=dict(self.proposed),
+                                   iterations_done=min(t, self.iterations_done), nan_rejected=dict(self.nan_rejected))
 
 
 def chain_rngs(seed: int, n_chains: int):

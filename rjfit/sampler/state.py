@@ -25,8 +25,10 @@ from rjfit.sampler.moves.effects import EffectSettings
 from rjfit.sampler.moves.within import WithinSettings
 from rjfit.sampler.regions.base import RegionModel
 from rjfit.sampler.regions.changepoints import ChangepointRegions
+from rjfit.sampler.regions.materials import MaterialRegions
 
-__all__ = ["ChainState", "Work", "StepInfo", "KernelSettings", "SamplerConfig", "FLAT_OPTIONS"]
+__all__ = ["ChainState", "Work", "StepInfo", "KernelSettings", "SamplerConfig", "FLAT_OPTIONS", "REGION_MODELS",
+           "flat_option_applies"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,6 +170,9 @@ class KernelSettings:
             raise ValueError(f"anneal_start must lie in (0, 1], got {self.anneal_start}")
 
 
+#: The region models :meth:`SamplerConfig.from_flat` builds, by name (``rjfit fit --regions``).
+REGION_MODELS = {"changepoints": ChangepointRegions, "materials": MaterialRegions}
+
 #: Where each flat option of :meth:`SamplerConfig.from_flat` lives: a path of attributes
 #: from the config (one option may set several places). The settings classes document them.
 FLAT_OPTIONS = {
@@ -191,6 +196,11 @@ FLAT_OPTIONS = {
     "g_moves": ["within.g_moves"], "target_accept": ["within.target_accept"],
     "fallback_step": ["within.fallback_step"], "small_region_obs": ["within.small_region_obs"],
     "full_recompute": ["within.full_recompute"],
+    # the material region model's (region_model="materials")
+    "max_materials": ["regions.max_materials"], "potts_beta": ["regions.potts.beta"],
+    "potts_rho": ["regions.potts.rho"], "update_labels": ["regions.update_labels"],
+    "label_sweeps": ["regions.sweeps"], "cluster_moves": ["regions.cluster.moves"],
+    "cluster_new_prob": ["regions.cluster.new_prob"], "merge_split_moves": ["regions.merge_split.moves"],
     "burn_in": ["kernel.burn_in"], "anneal": ["kernel.anneal"], "anneal_start": ["kernel.anneal_start"],
     "refresh_every": ["kernel.refresh_every"],
     "effect_every": ["effects.every"], "effect_target_accept": ["effects.target_accept"],
@@ -221,30 +231,56 @@ class SamplerConfig:
     effects: EffectSettings = field(default_factory=EffectSettings)
 
     @classmethod
-    def from_flat(cls, **options) -> SamplerConfig:
+    def from_flat(cls, region_model: str = "changepoints", **options) -> SamplerConfig:
         """The config from flat option names (``max_u=2, sampler='paper', burn_in=500, ...``; see :data:`FLAT_OPTIONS`).
 
-        Options left out keep their settings' defaults.
+        ``region_model``: 'changepoints' (the paper's, default) or 'materials'
+        (:class:`~rjfit.sampler.regions.materials.MaterialRegions`). Options left out keep
+        their settings' defaults.
 
         Raises
         ------
         TypeError
-            For an option name that is not in :data:`FLAT_OPTIONS`.
+            For an option name that is not in :data:`FLAT_OPTIONS`, or one of the other
+            region model's.
         ValueError
-            For a value a settings class rejects.
+            For a value a settings class rejects, or an unknown ``region_model``.
         """
         unknown = sorted(set(options) - set(FLAT_OPTIONS))
         if unknown:
             raise TypeError(f"unknown sampler option(s) {', '.join(unknown)}: choose from {', '.join(FLAT_OPTIONS)}")
+        if region_model not in REGION_MODELS:
+            raise ValueError(f"unknown region model {region_model!r}: choose one of {', '.join(REGION_MODELS)}")
+        base = cls(regions=REGION_MODELS[region_model]())
         changes: dict = {}
         for name, value in options.items():
-            for path in FLAT_OPTIONS[name]:
+            paths = [path for path in FLAT_OPTIONS[name] if _has_path(base, path)]
+            if not paths:
+                raise TypeError(f"sampler option {name} does not apply to the {region_model} region model")
+            for path in paths:
                 node = changes
                 *parents, leaf = path.split(".")
                 for part in parents:
                     node = node.setdefault(part, {})
                 node[leaf] = value
-        return _apply(cls(), changes)
+        return _apply(base, changes)
+
+
+def flat_option_applies(name: str, region_model: str = "changepoints") -> bool:
+    """Whether :meth:`SamplerConfig.from_flat` takes the flat option ``name`` for ``region_model``
+    (False for names that are not flat options, and for the other region model's options)."""
+    if name not in FLAT_OPTIONS or region_model not in REGION_MODELS:
+        return False
+    base = SamplerConfig(regions=REGION_MODELS[region_model]())
+    return any(_has_path(base, path) for path in FLAT_OPTIONS[name])
+
+
+def _has_path(obj, path: str) -> bool:
+    for part in path.split("."):
+        if not hasattr(obj, part):
+            return False
+        obj = getattr(obj, part)
+    return True
 
 
 def _apply(obj, changes: dict):

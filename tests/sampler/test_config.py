@@ -12,7 +12,9 @@ VALUES = {"max_u": 5, "max_v": 4, "cp_prior": "paper", "cp_smooth_sd": 1.5, "upd
           "min_obs_conditional": 10, "sampler": "paper", "gamma_move": "rw", "newton_scale": 0.5, "g_moves": 4,
           "target_accept": 0.3, "fallback_step": 0.2, "small_region_obs": 50, "full_recompute": True,
           "burn_in": 100, "anneal": 50, "anneal_start": 0.01, "refresh_every": 50, "effect_every": 3,
-          "effect_target_accept": 0.4, "effect_curvature_every": 20, "effect_jitter": 0.1}
+          "effect_target_accept": 0.4, "effect_curvature_every": 20, "effect_jitter": 0.1,
+          "max_materials": 5, "potts_beta": 3.0, "potts_rho": 0.1, "update_labels": False, "label_sweeps": 2,
+          "cluster_moves": 7, "cluster_new_prob": 0.2, "merge_split_moves": 3}
 
 
 def _at(config, path):
@@ -23,17 +25,31 @@ def _at(config, path):
 
 
 def test_every_flat_option_sets_its_places_and_nothing_else():
+    """Each option on the region model it applies to (the materials' own on region_model='materials')."""
     assert set(VALUES) == set(FLAT_OPTIONS), "give every flat option a test value"
-    default = SamplerConfig()
-    every_path = [path for paths in FLAT_OPTIONS.values() for path in paths]
-    for name, value in VALUES.items():
-        options = {name: value, **({"burn_in": 100} if name == "anneal" else {})}   # anneal needs a burn-in
-        config = SamplerConfig.from_flat(**options)
-        changed = {path for option in options for path in FLAT_OPTIONS[option]}
-        for path in every_path:
-            expected = VALUES[_flat_name(path)] if path in changed else _at(default, path)
-            assert _at(config, path) == expected, (name, path)
-    assert _at(default, "regions.birth_death.free_prob") != VALUES["free_jump_prob"]
+    for model in ("changepoints", "materials"):
+        default = SamplerConfig.from_flat(region_model=model)
+        every_path = [path for paths in FLAT_OPTIONS.values() for path in paths if _has(default, path)]
+        for name, value in VALUES.items():
+            if not any(_has(default, path) for path in FLAT_OPTIONS[name]):
+                with pytest.raises(TypeError, match=f"{name} does not apply to the {model} region model"):
+                    SamplerConfig.from_flat(region_model=model, **{name: value})
+                continue
+            options = {name: value, **({"burn_in": 100} if name == "anneal" else {})}   # anneal needs a burn-in
+            config = SamplerConfig.from_flat(region_model=model, **options)
+            changed = {path for option in options for path in FLAT_OPTIONS[option]}
+            for path in every_path:
+                expected = VALUES[_flat_name(path)] if path in changed else _at(default, path)
+                assert _at(config, path) == expected, (model, name, path)
+    assert _at(SamplerConfig(), "regions.birth_death.free_prob") != VALUES["free_jump_prob"]
+
+
+def _has(config, path):
+    try:
+        _at(config, path)
+    except AttributeError:
+        return False
+    return True
 
 
 def _flat_name(path):

@@ -21,146 +21,17 @@ p < 1e-6, and must instead match the posterior that dropping the Jacobian actual
 import numpy as np
 import pytest
 from scipy import stats
-from scipy.special import gammaln
 from threadpoolctl import threadpool_limits
 
-from rjfit.model.blinn import radiance
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 from rjfit.sampler.state import SamplerConfig
 
-from builders import TINY_SIGMA2_PRIOR, tiny_problem
+from builders import CP_SMOOTH_SD as SMOOTH_SD
+from builders import INTERVALS, Quadrature, ess_scaled_chi2, exact_changepoint_posterior, tiny_problem
 
 LEVEL = 1e-3
-INTERVALS = np.array([1.5, 1.0, 1.5]) / 4.0   # probabilities of the three intervals of [-1, 3]
-ALPHA, BETA = TINY_SIGMA2_PRIOR                 # inverse-gamma prior of sigma^2 (tiny_problem's)
-
-
-class Quadrature:
-    """Evidence of any subset of observations, and parameter marginals, on a phi grid."""
-
-    def __init__(self, obs, prior, points=81, likelihood_power=1.0):
-        self.power = likelihood_power
-        a0, s0 = prior.params[0].a, prior.params[0].b
-        a2, s2 = prior.params[2].a, prior.params[2].b
-        self.axes = [np.linspace(a0 - 6 * s0, a0 + 6 * s0, points), np.linspace(-14, 14, points),
-                     np.linspace(a2 - 6 * s2, a2 + 6 * s2, points)]
-        g0, g1, g2 = np.meshgrid(*self.axes, indexing="ij")
-        phi = np.stack([g0, g1, g2, np.zeros_like(g0)], axis=-1)
-        self.log_prior = prior.logpdf_phi_components(phi)[..., :3].sum(-1)
-        I0, kd, g = np.exp(g0), 1 / (1 + np.exp(-g1)), np.exp(g2)
-        self.sq = np.stack([(obs.y[i] - radiance(I0, kd, g, obs.cos_ln[i], obs.cos_hn[i], obs.irradiance[i])) ** 2
-                            for i in range(obs.n_obs)])
-        self.weights = [np.gradient(ax) for ax in self.axes]   # trapezoid weights on a uniform grid
-        for w in self.weights:
-            w[0] *= 0.5 / 1.0
-            w[-1] *= 0.5 / 1.0
-        self.pixel = np.asarray(obs.pixel)
-        self._cache = {}
-
-    def _log_integrand(self, obs_idx):
-        # likelihood ** zeta: n and SSR scaled by zeta (sigma^2 still integrates analytically)
-        n = self.power * len(obs_idx)
-        ssr = self.power * self.sq[obs_idx].sum(0)
-        log_inner = (-0.5 * n * np.log(2 * np.pi) + ALPHA * np.log(BETA) - gammaln(ALPHA) + gammaln(ALPHA + n / 2)
-                     - (ALPHA + n / 2) * np.log(BETA + ssr / 2))
-        return self.log_prior + log_inner, ssr
-
-    def log_evidence(self, pixels):
-        key = frozenset(int(p) for p in pixels)
-        if not key:
-            return 0.0
-        if key not in self._cache:
-            f, _ = self._log_integrand(np.flatnonzero(np.isin(self.pixel, list(key))))
-            m = f.max()
-            w = self.weights[0][:, None, None] * self.weights[1][None, :, None] * self.weights[2][None, None, :]
-            self._cache[key] = float(m + np.log(np.sum(np.exp(f - m) * w)))
-        return self._cache[key]
-
-    def marginal_cdfs(self, pixels, with_sigma2=True):
-        """CDFs of I0, kd, gamma, sigma^2 for the region made of ``pixels`` (functions of theta; sigma^2's only
-        ``with_sigma2``: its mixture of inverse gammas is the slow part)."""
-        idx = np.flatnonzero(np.isin(self.pixel, list(pixels)))
-        f, ssr = self._log_integrand(idx)
-        w = self.weights[0][:, None, None] * self.weights[1][None, :, None] * self.weights[2][None, None, :]
-        p = np.exp(f - f.max()) * w
-        p /= p.sum()
-        cdfs = []
-        for k, transform in enumerate((np.exp, lambda x: 1 / (1 + np.exp(-x)), np.exp)):
-            marginal = p.sum(axis=tuple(j for j in range(3) if j != k))
-            # trapezoid mass between grid nodes -> piecewise-linear CDF on the transformed nodes
-            cdf = np.concatenate([[0.0], np.cumsum(0.5 * (marginal[1:] + marginal[:-1]))])
-            cdf /= cdf[-1]
-            nodes = transform(self.axes[k])
-            cdfs.append(lambda x, nodes=nodes, cdf=cdf: np.interp(x, nodes, cdf))
-        if not with_sigma2:
-            return cdfs
-        shape, scale = ALPHA + self.power * len(idx) / 2, BETA + ssr / 2
-        flat_p, flat_scale = p.ravel(), scale.ravel()
-        keep = flat_p > 1e-8 * flat_p.max()
-        flat_p, flat_scale = flat_p[keep] / flat_p[keep].sum(), flat_scale[keep]
-        # the sigma^2 marginal is a mixture of inverse gammas: tabulate its CDF, interpolate
-        lo = stats.invgamma.ppf(1e-9, shape, scale=flat_scale.min())
-        hi = stats.invgamma.ppf(1 - 1e-9, shape, scale=flat_scale.max())
-        nodes = np.geomspace(lo, hi, 400)
-        table = np.array([np.dot(flat_p, stats.invgamma.cdf(x, shape, scale=flat_scale)) for x in nodes])
-        cdfs.append(lambda x: np.interp(x, nodes, table))
-        return cdfs
-
-
-SMOOTH_SD = 1.0
-EDGES = np.array([-1.0, 0.5, 1.5, 3.0])
-
-
-def _interval_pair_log_weight(a, b, cp_prior):
-    """Log prior mass of a 2-element vector with elements in intervals a and b."""
-    if cp_prior == "paper":
-        return float(np.log(INTERVALS[a]) + np.log(INTERVALS[b]))
-    from scipy import integrate
-
-    # smooth prior: x0 ~ U(-1, 3) (density 1/4), x1 - x0 ~ N(0, s^2), both truncated to [-1, 3] (unnormalised)
-    def inner(x0):
-        return (stats.norm.cdf((EDGES[b + 1] - x0) / SMOOTH_SD) - stats.norm.cdf((EDGES[b] - x0) / SMOOTH_SD)) / 4.0
-
-    value, _ = integrate.quad(inner, EDGES[a], EDGES[a + 1], epsabs=1e-13, epsrel=1e-11)
-    return float(np.log(value))
-
-
-def exact_posterior(quad, jacobian_power=None, cp_prior="paper", log_norm=False):
-    """Exact posterior over (model, u interval of row 0) and over models.
-
-    ``jacobian_power``: if given, weight each model by 3^(-4 * splits) with ``splits`` the
-    number of region splits needed to reach it from (0, 0): the posterior that a chain
-    dropping the paper map's Jacobian (|det| = 3 per component) targets instead.
-    ``log_norm``: also return the log of the normaliser (the data's evidence), as a pair.
-    """
-    H = W = 2
-    joint = {}
-    for n_u in (0, 1):
-        for n_v in (0, 1):
-            for cu in np.ndindex(*(3,) * (H * n_u)):
-                for cv in np.ndindex(*(3,) * (W * n_v)):
-                    u = np.array([[(-1.0, 1.0, 2.0)[k]] for k in cu]).reshape(H, n_u)
-                    v = np.array([[(-1.0, 1.0, 2.0)[k]] for k in cv]).reshape(W, n_v)
-                    labels = pixel_region_labels(u, v, (H, W)).ravel()
-                    log_w = np.log(0.25)
-                    if n_u:
-                        log_w += _interval_pair_log_weight(cu[0], cu[1], cp_prior)
-                    if n_v:
-                        log_w += _interval_pair_log_weight(cv[0], cv[1], cp_prior)
-                    log_w += sum(quad.log_evidence(np.flatnonzero(labels == r)) for r in range((n_u + 1) * (n_v + 1)))
-                    if jacobian_power is not None:
-                        splits = {(0, 0): 0, (1, 0): 1, (0, 1): 1, (1, 1): 3}[(n_u, n_v)]
-                        log_w -= jacobian_power * splits
-                    key = (n_u, n_v, cu[0] if n_u else -1)
-                    joint[key] = np.logaddexp(joint.get(key, -np.inf), log_w)
-    keys = sorted(joint)
-    log_w = np.array([joint[k] for k in keys])
-    norm = np.logaddexp.reduce(log_w)
-    prob = dict(zip(keys, np.exp(log_w - norm)))
-    return (prob, float(norm)) if log_norm else prob
-
 
 def run(problem, prior, config, iterations, seed):
     rng = np.random.default_rng(seed)
@@ -177,17 +48,6 @@ def run(problem, prior, config, iterations, seed):
                 u0[t] = 0 if x < 0.5 else (1 if x < 1.5 else 2)
             theta[t] = state.theta[0]
     return models, u0, theta
-
-
-def ess_scaled_chi2(cells, draws, probs):
-    """Chi-square p-value of ``draws`` (cell index per iteration) against ``probs``, ESS-scaled."""
-    import arviz as az
-
-    freq = np.array([np.mean(draws == c) for c in cells])
-    n_eff = min(float(az.ess((draws == c).astype(float)[None], method="bulk")) for c in cells
-                if 0 < np.mean(draws == c) < 1)
-    x2 = n_eff * np.sum((freq - probs) ** 2 / probs)
-    return float(stats.chi2.sf(x2, len(cells) - 1)), freq, n_eff
 
 
 @pytest.fixture(scope="module")
@@ -225,8 +85,8 @@ def _model_and_cp_tests(models, u0, exact):
 
 @pytest.mark.parametrize("split_map,cp_prior,iterations", [("conditional", "smooth", 20000), ("conditional", "paper", 12000),
                                                            ("mean", "paper", 12000), ("paper", "paper", 12000)])
-def test_model_and_changepoint_frequencies_match_exact_posterior(setup, split_map, cp_prior, iterations):
-    exact = exact_posterior(setup[3], cp_prior=cp_prior)
+def test_model_and_changepoint_frequencies_match_exact_changepoint_posterior(setup, split_map, cp_prior, iterations):
+    exact = exact_changepoint_posterior(setup[3], cp_prior=cp_prior)
     config = SamplerConfig.from_flat(max_u=1, max_v=1, split_map=split_map, split_scale=0.6, jump_prob=1.0, cp_step=1.0,
                            cp_uniform_prob=0.3, burn_in=0, cp_prior=cp_prior, cp_smooth_sd=SMOOTH_SD)
     p_model, p_u, details = _model_and_cp_tests(*_chain(setup, config, iterations, 1), exact)
@@ -242,11 +102,11 @@ def test_paper_map_without_jacobian_gives_a_different_wrong_model_posterior(setu
     config = SamplerConfig.from_flat(max_u=1, max_v=1, split_map="paper", drop_jacobian=True, split_scale=0.6, jump_prob=1.0,
                            cp_step=1.0, cp_uniform_prob=0.3, burn_in=0, cp_prior="paper", free_jump_prob=0.0)
     models, u0 = _chain(setup, config, 12000, 2)
-    p_model, _, details = _model_and_cp_tests(models, u0, exact_posterior(setup[3]))
+    p_model, _, details = _model_and_cp_tests(models, u0, exact_changepoint_posterior(setup[3]))
     print("no jacobian vs exact", details)
     assert p_model < 1e-6, details
     # ... and it samples exactly the distorted posterior that dropping |det J| = 3^4 per split implies
-    distorted = exact_posterior(setup[3], jacobian_power=4 * np.log(3.0))
+    distorted = exact_changepoint_posterior(setup[3], jacobian_power=4 * np.log(3.0))
     p_distorted, _, details = _model_and_cp_tests(models, u0, distorted)
     print("no jacobian vs distorted", details)
     assert p_distorted > LEVEL, details
@@ -308,7 +168,7 @@ def exact_posterior_u_only(quad, max_u=2):
 
 
 @pytest.mark.parametrize("free_jump_prob", [1.0, 0.5])
-def test_free_rank_birth_death_match_exact_posterior(setup, free_jump_prob):
+def test_free_rank_birth_death_match_exact_changepoint_posterior(setup, free_jump_prob):
     """Up to two u vectors, so the free pair's elements really take either rank in each row.
 
     ``free_jump_prob`` 1: births and deaths only by the free pair; 0.5: mixed with the
@@ -353,8 +213,8 @@ def test_coarsened_posterior_matches_exact_tempered_posterior(setup):
     """
     obs, prior, _, quad = setup
     zeta = 0.4
-    tempered = exact_posterior(Quadrature(obs, prior, likelihood_power=zeta))
-    plain = exact_posterior(quad)
+    tempered = exact_changepoint_posterior(Quadrature(obs, prior, likelihood_power=zeta))
+    plain = exact_changepoint_posterior(quad)
     problem = Problem.from_observations(obs, likelihood_power=zeta)
     config = SamplerConfig.from_flat(max_u=1, max_v=1, jump_prob=1.0, cp_step=1.0, cp_uniform_prob=0.3, burn_in=0,
                            cp_prior="paper")

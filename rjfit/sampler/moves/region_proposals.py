@@ -21,7 +21,7 @@ from rjfit.sampler.moves.gamma import ls_profile
 from rjfit.sampler.moves.region_terms import giesen_norm
 
 __all__ = ["RegionProposalSettings", "LAPLACE_COARSE_OBS", "LAPLACE_GRID", "ssr_min", "sigma2_prior_as_invgamma",
-           "laplace_log_gamma", "region_proposal", "draw_region", "log_q_region", "regions_term"]
+           "laplace_log_gamma", "region_proposal", "draw_region", "log_q_region", "regions_term", "region_term"]
 
 LAPLACE_COARSE_OBS = 4096
 LAPLACE_GRID = np.linspace(math.log(0.2), math.log(500.0), 9)    # log gamma: the coarse search's points
@@ -255,14 +255,29 @@ def regions_term(problem, prior, settings: RegionProposalSettings, labels, theta
     theta = theta.copy()
     split = RegionData.split(problem, labels, theta.shape[0])
     for r in regions:
-        data = split[r]
-        proposal = region_proposal(data, settings, prior)
-        if draw_rng is not None:
-            drawn = draw_region(draw_rng, data, proposal, prior, settings)
-            if drawn is None:
-                return None, -np.inf
-            theta[r], log_q = drawn
-        else:
-            log_q = log_q_region(tuple(theta[r]), data.stats_at(theta[r, 2]), proposal, prior, settings)
-        total += _prior_in_q_coords(prior, tuple(theta[r]), proposal[0] == "conditional") - log_q
+        theta_r, term = region_term(split[r], theta[r], prior, settings, draw_rng)
+        if theta_r is None:
+            return None, -np.inf
+        theta[r] = theta_r
+        total += term
     return theta, total
+
+
+def region_term(data, theta_r, prior, settings: RegionProposalSettings, draw_rng=None):
+    """One region's (log prior in q-coordinates - log q) for its data ``data`` (a :class:`RegionData`).
+
+    With ``draw_rng`` the parameters are drawn from the proposal first (``theta_r`` is then
+    ignored). Returns ``(theta_r, term)``, or ``(None, -inf)`` if a draw was invalid. What
+    a move that creates (removes) a region whose parameters are drawn afresh from its data
+    adds to (subtracts from) its log ratio, Jacobian 1.
+    """
+    proposal = region_proposal(data, settings, prior)
+    if draw_rng is not None:
+        drawn = draw_region(draw_rng, data, proposal, prior, settings)
+        if drawn is None:
+            return None, -np.inf
+        theta_r, log_q = drawn
+    else:
+        theta_r = tuple(float(t) for t in theta_r)
+        log_q = log_q_region(theta_r, data.stats_at(theta_r[2]), proposal, prior, settings)
+    return np.asarray(theta_r, float), _prior_in_q_coords(prior, tuple(theta_r), proposal[0] == "conditional") - log_q

@@ -20,7 +20,7 @@ from rjfit.sampler.passes.densities import coefficients, log_density
 from rjfit.sampler.passes.lobe import lobe_at, lobe_rows
 from rjfit.sampler.passes.special import INV_PI
 
-__all__ = ["element_shift", "obs_log_density_delta", "shift_stats"]
+__all__ = ["element_shift", "obs_log_density_delta", "add_obs_terms", "shift_stats"]
 
 
 @njit(cache=True, nogil=True)
@@ -113,7 +113,7 @@ def _obs_log_density_delta_lobe(y, C, log_cos_hn, order, use_order, starts, ends
 
 
 @njit(cache=True, nogil=True)
-def _add_terms(stats, r, sign, yv, c, a, lh, gamma):
+def add_obs_terms(stats, r, sign, yv, c, a, lh, gamma):
     """Add ``sign`` times one observation's seven sufficient-statistic terms to region ``r``."""
     _add_terms_lobe(stats, r, sign, yv, a, c * math.exp(gamma * lh))
 
@@ -149,8 +149,8 @@ def shift_stats(y, C, log_cos_hn, order, use_order, starts, ends, labels, delta,
             a = c * INV_PI
             r_old = np.int64(labels[i])
             r_new = r_old + delta[j]
-            _add_terms(stats, r_old, -weight, yv, c, a, lh, gammas[r_old])
-            _add_terms(stats, r_new, weight, yv, c, a, lh, gammas[r_new])
+            add_obs_terms(stats, r_old, -weight, yv, c, a, lh, gammas[r_old])
+            add_obs_terms(stats, r_new, weight, yv, c, a, lh, gammas[r_new])
             labels[i] = r_new
 
 

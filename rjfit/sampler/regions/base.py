@@ -39,7 +39,8 @@ working copy's parts (:meth:`~rjfit.sampler.state.Work.take` of a
 labels array it does not own). Every random draw comes from ``rng``, in an order fixed by
 the code, so a seed fixes the chain.
 
-What a second model needs (free-form materials with a Potts prior, issue 27)
+What a second model needs (as free-form materials with a Potts prior do, issue 27:
+:mod:`rjfit.sampler.regions.materials`)
 ------------------------------------------------------------------------------
 - Layout: per-pixel material labels (H, W) with K materials in use, K unknown, and the
   Potts strength if it is sampled; ``n_regions`` = K (one BRDF per material, shared by every
@@ -58,11 +59,11 @@ What a second model needs (free-form materials with a Potts prior, issue 27)
   :mod:`rjfit.sampler.moves.region_proposals`, as the change-point births do), a compiled
   pass for the label sweeps beside :mod:`rjfit.sampler.passes` and the observation terms
   moved between statistics like :func:`rjfit.sampler.passes.shifts.shift_stats`.
-- Records: ``key_names = ("n_materials",)`` and ``snapshot`` = ``{"labels": (H, W)}``
+- Records: ``key_names = ("n_materials",)`` and ``snapshot`` = ``{"material_labels": (H, W)}``
   (the recorder keeps snapshots as float32 arrays with NaN padding, exact for label
-  values), with fields of those names in :class:`~rjfit.sampler.runner.ChainRecord` (today
-  it holds the change-point names ``n_u``, ``n_v``, ``cp_u``, ``cp_v``, which the posterior
-  summaries read).
+  values), with fields of those names in :class:`~rjfit.sampler.runner.ChainRecord` (which
+  holds each model's names as optional fields: ``n_u``, ``n_v``, ``cp_u``, ``cp_v`` for
+  change points, ``n_materials``, ``material_labels`` for materials).
 - Its settings as fields of its dataclass, like :class:`~rjfit.sampler.regions.changepoints.ChangepointRegions`,
   so that ``SamplerConfig(regions=MaterialRegions(...))`` selects it.
 """

@@ -1,0 +1,83 @@
+"""The material region model's part of a fit (``rjfit fit --regions materials``): its summary and files.
+
+:func:`summarise_materials` turns the chains into the summary entries of the material model
+(:data:`rjfit.pipeline.fit_folder.SUMMARY_FIELDS`): the posterior over K
+(``materials_posterior``), the MAP K, per-material parameter summaries with pixel counts
+(``regions``, one entry per material, after relabelling: :mod:`rjfit.posterior.materials`),
+their R-hat and ESS, the cap warning, and the truth comparison of synthetic data.
+:func:`write_material_files` writes what differs from a change-point fit's folder:
+``chains.nc`` (dims chain, draw, material, parameter: the relabelled draws),
+``materials.npz`` (every chain's label snapshots and K per iteration) and the figures
+(``materials.png``, the MAP material map, a distinct colour per material however many;
+``materials_histogram.png``; ``reflectance.png``). ``labels.exr`` holds the MAP material
+per pixel and ``maps.exr`` gains ``map_probability``, the posterior probability of that
+material (written by :func:`rjfit.pipeline.fit.write_results`).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rjfit.posterior import materials as mat
+from rjfit.posterior import summary as post
+
+__all__ = ["summarise_materials", "write_material_files", "EMPTY_MATERIALS_NOTE"]
+
+EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "
+                        "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
+
+
+def summarise_materials(records, problem, options, burn: int):
+    """The material model's summary entries and results: ``(summary, MAP labels, prediction, extra)``.
+
+    ``extra`` holds ``map_probability`` (H, W) and the relabelled ``draws``
+    (:class:`rjfit.posterior.materials.RelabelledDraws`).
+    """
+    posterior = mat.materials_posterior(records, burn)
+    k = int(next(iter(posterior)))
+    draws = mat.relabelled_draws(records, burn, k)
+    labels, probability = draws.map_labels()
+    summaries, diag = mat.material_summaries(draws, labels)
+    chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
+    summary = {
+        "materials_posterior": posterior, "map_materials": k, "regions": summaries,
+        "material_relabelling": mat.RELABELLING, "empty_materials": EMPTY_MATERIALS_NOTE,
+        "map_probability_mean": float(np.nanmean(probability)),
+        "rhat_max": diag["rhat_max"], "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
+        "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"], "diagnostics": diag,
+        "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
+        "chain_materials_posterior": chain_posteriors,
+    }
+    summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains)
+    cap = mat.cap_warning(posterior, options.max_materials)
+    if cap:
+        summary["warnings"].append(cap)
+    prediction = post.posterior_mean_prediction(records, burn, problem)
+    return summary, labels, prediction, {"map_probability": probability, "draws": draws}
+
+
+def write_material_files(staging: Path, result, records, options) -> None:
+    """``chains.nc``, ``materials.npz`` and (with ``options.figures``) the figures, into ``staging``."""
+    summary, burn = result.summary, result.burn
+    idata = mat.to_inference_data(records, burn, result.extra["draws"])
+    idata.posterior.attrs.update({
+        "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
+        "materials": f"the kept draws with a label snapshot and K = {summary['map_materials']} (the MAP K), "
+                     f"relabelled: {mat.RELABELLING}",
+        "parameters": "I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise variance), "
+                      "in the units of the observations"})
+    idata.to_netcdf(str(staging / "chains.nc"))
+    payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records)
+               for k in ("cp_iteration", "material_labels", "n_materials")}
+    with open(staging / "materials.npz", "wb") as handle:
+        np.savez_compressed(handle, **payload)
+    if options.figures:
+        from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
+
+        folder = staging / "figures"
+        written = {"materials": figs.material_map(result.labels, folder / "materials.png"),
+                   "materials_histogram": figs.materials_histogram(summary["materials_posterior"],
+                                                                   folder / "materials_histogram.png"),
+                   "reflectance": figs.reflectance(result.labels, result.prediction, folder / "reflectance.png")}
+        summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}

@@ -1,0 +1,157 @@
+"""Posterior summaries of the material region model: K, MAP materials, per-material parameters.
+
+Label switching. The posterior is invariant under the K! renumberings of the materials, so
+material k of one draw need not be material k of another. Summaries use the kept draws
+that have a label snapshot (every ``cp_thin``-th iteration after burn-in) with K equal to
+the MAP K, each relabelled to a reference labelling by the optimal matching of pixel
+overlaps (the Hungarian assignment on the K x K table of pixels that carry material i in
+the draw and j in the reference, ``scipy.optimize.linear_sum_assignment``). The reference
+is the kept snapshot of highest log posterior; the MAP material of a pixel is then its most
+frequent relabelled material, and its probability is that frequency. One matching pass:
+the reference is a single draw, so pixels it misassigns can shift a matching where
+materials overlap little.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from rjfit.posterior.summary import _arviz, diagnostics, region_summaries
+from rjfit.sampler.priors import PARAM_NAMES
+
+__all__ = ["materials_posterior", "map_materials", "RelabelledDraws", "relabelled_draws", "material_summaries",
+           "to_inference_data", "cap_warning", "RELABELLING"]
+
+#: How draws are matched to the MAP labelling (written into the summary).
+RELABELLING = ("kept draws with a label snapshot and K = MAP K, each relabelled to the snapshot of highest log "
+               "posterior by the optimal one-to-one matching of pixel overlaps (Hungarian assignment)")
+
+
+def materials_posterior(records, burn_in: int) -> dict:
+    """{"K": probability} over the numbers of materials visited after burn-in, most probable first.
+
+    Raises
+    ------
+    ValueError
+        If no chain has a draw after burn-in.
+    """
+    ks = np.concatenate([r.n_materials[burn_in:] for r in records]).astype(np.int64)
+    if ks.size == 0:
+        raise ValueError("no draws after burn-in: lower the burn-in (--burn-in) or run more iterations (--iterations)")
+    values, counts = np.unique(ks, return_counts=True)
+    order = np.argsort(-counts, kind="stable")
+    return {str(int(values[i])): float(counts[i] / ks.size) for i in order}
+
+
+def map_materials(records, burn_in: int) -> int:
+    """The most probable number of materials after burn-in."""
+    return int(next(iter(materials_posterior(records, burn_in))))
+
+
+class RelabelledDraws:
+    """The kept snapshot draws at the MAP K, relabelled to one labelling (see the module docstring).
+
+    Attributes
+    ----------
+    theta : list of ndarray (S_c, K, 4)
+        Per chain, the relabelled parameters of its snapshot draws at K.
+    labels : list of ndarray (S_c, H, W)
+        Per chain, their relabelled pixel labels (-1 unlabelled).
+    reference : ndarray (H, W)
+        The reference labelling.
+    """
+
+    def __init__(self, theta, labels, reference):
+        self.theta, self.labels, self.reference = theta, labels, reference
+
+    def map_labels(self):
+        """(MAP material per pixel, its posterior probability): the per-pixel mode of the relabelled labels."""
+        stacked = np.concatenate([lab for lab in self.labels if len(lab)])
+        k = int(self.reference.max()) + 1
+        counts = np.stack([(stacked == m).sum(axis=0) for m in range(k)])
+        labels = np.where(self.reference >= 0, np.argmax(counts, axis=0), -1)
+        probability = np.where(self.reference >= 0, counts.max(axis=0) / stacked.shape[0], np.nan)
+        return labels, probability
+
+
+def _snapshots(rec, burn_in, k):
+    for s in np.flatnonzero(rec.cp_iteration >= burn_in):
+        t = int(rec.cp_iteration[s])
+        if int(rec.n_materials[t]) == k:
+            yield t, np.nan_to_num(rec.material_labels[s], nan=-1.0).astype(np.int64)
+
+
+def relabelled_draws(records, burn_in: int, k: int) -> RelabelledDraws:
+    """The snapshot draws at ``k`` materials relabelled to the reference (see the module docstring).
+
+    Raises
+    ------
+    ValueError
+        If no snapshot after burn-in has ``k`` materials.
+    """
+    best = None
+    for rec in records:
+        for t, labels in _snapshots(rec, burn_in, k):
+            if best is None or rec.log_post[t] > best[0]:
+                best = (rec.log_post[t], labels)
+    if best is None:
+        raise ValueError(f"no label snapshot with {k} materials after burn-in: run more iterations")
+    reference = best[1]
+    labelled = reference >= 0
+    thetas, all_labels = [], []
+    for rec in records:
+        theta_c, labels_c = [], []
+        for t, labels in _snapshots(rec, burn_in, k):
+            overlap = np.zeros((k, k), np.int64)
+            np.add.at(overlap, (labels[labelled], reference[labelled]), 1)
+            rows, cols = linear_sum_assignment(-overlap)
+            to_reference = np.empty(k, np.int64)
+            to_reference[rows] = cols
+            theta = np.empty((k, 4))
+            theta[to_reference] = rec.theta[t, :k]
+            theta_c.append(theta)
+            labels_c.append(np.where(labelled, to_reference[np.clip(labels, 0, None)], -1))
+        thetas.append(np.array(theta_c).reshape(-1, k, 4))
+        all_labels.append(np.array(labels_c).reshape(-1, *reference.shape))
+    return RelabelledDraws(thetas, all_labels, reference)
+
+
+def material_summaries(draws: RelabelledDraws, map_labels) -> tuple[list, dict]:
+    """Per material: pixel count (MAP labels) and posterior mean, sd, 95 % interval of each parameter; and diagnostics.
+
+    Returns ``(summaries, diagnostics)``; :func:`rjfit.posterior.summary.diagnostics` of the
+    relabelled draws (R-hat and ESS over chains).
+    """
+    summaries = region_summaries(draws.theta, map_labels)
+    for entry in summaries:
+        entry["material"] = entry["region"]
+    return summaries, diagnostics(draws.theta)
+
+
+def cap_warning(posterior: dict, max_materials: int, threshold: float = 0.05) -> str | None:
+    """A warning when the posterior puts mass on K = K_max (the cap may bind), else None."""
+    mass = posterior.get(str(int(max_materials)), 0.0)
+    if mass < threshold:
+        return None
+    return (f"the posterior puts {mass:.2f} on K = {max_materials} materials, the cap (--max-materials): the data may "
+            "support more materials than the cap allows; refit with a higher --max-materials")
+
+
+def to_inference_data(records, burn_in: int, draws: RelabelledDraws):
+    """ArviZ InferenceData: the relabelled snapshot draws (chain, draw, material, parameter) and K per iteration.
+
+    Chains are cut to the shortest chain's number of relabelled draws (ArviZ needs equal
+    lengths; a chain with none is left out of ``posterior``); ``n_materials`` and
+    ``log_post`` of every kept iteration are in ``sample_stats``.
+    """
+    az = _arviz()
+    usable = [theta for theta in draws.theta if len(theta)]
+    length = min(len(theta) for theta in usable)
+    k = usable[0].shape[1]
+    posterior = {"theta": np.stack([theta[:length] for theta in usable])}
+    T = min(len(r.n_materials) for r in records)
+    sample_stats = {"n_materials": np.stack([r.n_materials[burn_in:T] for r in records]).astype(np.int64),
+                    "log_post": np.stack([r.log_post[burn_in:T] for r in records])}
+    return az.from_dict(posterior=posterior, sample_stats=sample_stats,
+                        coords={"material": np.arange(k), "parameter": list(PARAM_NAMES)},
+                        dims={"theta": ["material", "parameter"]})

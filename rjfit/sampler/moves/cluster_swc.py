@@ -1,0 +1,210 @@
+"""Swendsen-Wang-cut cluster moves of material labels, with births and deaths of materials.
+
+After Barbu and Zhu, "Generalizing Swendsen-Wang to sampling arbitrary posterior
+probabilities", IEEE PAMI 27(8), 2005. One move:
+
+1. a seed pixel p, drawn with fixed data-driven weights (half uniform over the labelled
+   pixels, half by the weakness of their bonds:
+   :func:`~rjfit.sampler.regions.material_labels.seed_weights`); its cluster V0: the pixels
+   of its label l joined to it by bonds that are on, each edge between two pixels of one label on
+   with its data-driven probability q_e (:class:`~rjfit.sampler.regions.material_labels.Bonds`;
+   :func:`rjfit.sampler.passes.labels.grow_cluster`);
+2. a new label for V0: NEW with probability ``p_new(K)`` (0 at K = K_max, 1 at K = 1,
+   else ``new_prob``), otherwise one of the K - 1 other labels, uniformly
+   (:func:`label_choice`);
+3. the acceptance ratio
+
+       pi(B) / pi(A)  x  prod_{C(V0, V_l')} (1 - q_e) / prod_{C(V0, V_l \\ V0)} (1 - q_e)
+                      x  q(l | V0, B) / q(l' | V0, A)
+
+   with C(V, W) the edges between V and W: the probability of cutting V0 out of its label
+   in the reverse move over that in this one (the bonds inside V0 and the seed's chance
+   to fall in V0, the sum of the seed weights over V0, are the same both ways and cancel).
+   pi holds the likelihood of V0's
+   observations under the two materials (to the likelihood power zeta), the Potts term
+   ``-beta dB`` (dB = n_l - n_l', the edges from V0 to the rest of l and to l'), ``rho^K``
+   and ``1 / K!`` (the labelled state's density).
+
+A move of V0 to NEW when V0 is not all of l is a **birth**: the new material's parameters
+are drawn from the region proposal built from V0's data (the change-point births' Laplace /
+conditional proposal, :func:`~rjfit.sampler.moves.region_proposals.region_term`), and it
+takes a slot drawn uniformly among the K + 1 (the labels at and above it shift up). A move
+of V0 to an existing label when V0 is all of l is a **death**: material l is removed (the
+labels above shift down) and its parameters are evaluated under the same proposal built
+from V0's data. Parameters are drawn afresh, so the Jacobian is 1, as in the change-point
+'conditional' split map. A birth's reverse is the death that picks V0's new label's
+cluster (all of it) and its old label; the slot's 1 / (K + 1) and the prior's K! / (K + 1)!
+cancel, and both are written out. V0 equal to all of l sent to NEW only renames a material:
+no move.
+
+With ``jumps`` off (K fixed) NEW is never chosen and a move that would empty a material
+is not made (the target has no mass there).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rjfit.sampler.likelihood import RegionData, log_likelihood_from_stats
+from rjfit.sampler.moves.proposal import Proposal
+from rjfit.sampler.moves.region_proposals import region_term
+from rjfit.sampler.passes.labels import grow_cluster
+
+__all__ = ["ClusterSettings", "label_choice", "cluster_data", "propose_cluster_move"]
+
+
+@dataclass(frozen=True)
+class ClusterSettings:
+    """How the cluster moves run.
+
+    Attributes
+    ----------
+    moves : int
+        Cluster moves per iteration.
+    new_prob : float
+        Probability of proposing a NEW material for the cluster when 1 < K < K_max.
+    bond_q_max : float or None
+        The bond probabilities' ceiling; None (default): ``1 - exp(-beta)``, Swendsen and
+        Wang's bond for the Potts prior, at which the cut factor of a boundary edge,
+        ``1 - q``, and its Potts factor, ``exp(-beta)``, cancel: a cluster whose neighbours
+        across its boundary look alike is then moved as readily as the Potts prior alone
+        allows (a higher ceiling makes every merge of two materials of one appearance
+        improbable, a lower one the clusters small).
+    bond_tau : float
+        The bond probabilities' width in units of the features' spread
+        (:func:`~rjfit.sampler.regions.material_labels.bond_probabilities`).
+    """
+
+    moves: int = 4
+    new_prob: float = 0.3
+    bond_q_max: float | None = None
+    bond_tau: float = 2.0
+
+    def __post_init__(self):
+        if self.moves < 0:
+            raise ValueError(f"cluster moves per iteration must be >= 0, got {self.moves}")
+        if not 0.0 < self.new_prob < 1.0:
+            raise ValueError(f"new_prob must lie in (0, 1), got {self.new_prob}")
+
+    def q_max(self, beta: float) -> float:
+        """The bonds' ceiling under Potts strength ``beta`` (see ``bond_q_max``)."""
+        return float(-np.expm1(-beta)) if self.bond_q_max is None else float(self.bond_q_max)
+
+
+def label_choice(n_materials: int, max_materials: int, new_prob: float, jumps: bool = True) -> tuple[float, float]:
+    """``(P(NEW), P(one given other existing label))`` of a cluster of a state with K materials."""
+    p_new = 0.0 if (not jumps or n_materials >= max_materials) else (1.0 if n_materials == 1 else new_prob)
+    p_other = (1.0 - p_new) / (n_materials - 1) if n_materials > 1 else 0.0
+    return p_new, p_other
+
+
+def cluster_data(problem, members) -> RegionData:
+    """The observations of the pixels ``members`` (ascending) as runs of the problem's arrays."""
+    starts = problem.pixel_start[members].astype(np.int64)
+    ends = problem.pixel_start[members + 1].astype(np.int64)
+    keep = ends > starts
+    return RegionData(y=problem.y, C=problem.C, log_cos_hn=problem.log_cos_hn, runs=(starts[keep], ends[keep]),
+                      weight=problem.likelihood_power)
+
+
+def _log_lik(stats_r, theta_r) -> float:
+    return float(log_likelihood_from_stats(stats_r, theta_r))
+
+
+def _proposal(work, problem, pixels, n_materials, theta, stats, log_ratio) -> Proposal:
+    layout = work.layout.with_pixels(pixels, n_materials)
+    return Proposal(layout, theta, layout.labels(problem), stats, log_likelihood_from_stats(stats, theta),
+                    float(log_ratio))
+
+
+def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, proposals, potts, max_materials: int,
+                         jumps: bool = True):
+    """One cluster move's proposal: ``(Proposal, kind)``, or ``(None, kind)`` when there is no move to test.
+
+    ``kind`` is 'cluster', 'cluster_birth' or 'cluster_death'. Draws, in order: the seed,
+    the bonds' key, the label choice's uniform, the other label or (birth) the slot and the
+    new parameters.
+    """
+    layout = work.layout
+    n_mat = layout.n_materials
+    height, width = problem.image_shape
+    flat = layout.pixels.ravel()
+    seed = layout.bonds.draw_seed(rng)
+    key = np.uint64(rng.integers(0, 2 ** 63))
+    members, n_to, cut_to = grow_cluster(flat, flat >= 0, layout.bonds.q, key, seed, height, width, n_mat)
+    old = int(flat[seed])
+    p_new, p_other = label_choice(n_mat, max_materials, settings.new_prob, jumps)
+    if p_new == 0.0 and n_mat == 1:
+        return None, "cluster"
+    birth = rng.random() < p_new
+    whole = members.size == int(np.count_nonzero(flat == old))
+    if birth and whole:
+        return None, "cluster_birth"          # a renaming of material `old`: the same partition
+    if not birth and whole and not jumps:
+        return None, "cluster_death"          # K fixed: a material may not be emptied
+    data = cluster_data(problem, members)
+    stats_old = data.stats_at(work.theta[old, 2])
+    log_lik_old = _log_lik(stats_old, work.theta[old])
+    if birth:
+        return _birth(work, rng, problem, prior, settings, proposals, potts, max_materials,
+                      (members, n_to, cut_to, old, data, stats_old, log_lik_old, p_new)), "cluster_birth"
+    pick = int(rng.integers(n_mat - 1))
+    new = pick if pick < old else pick + 1
+    stats_new = data.stats_at(work.theta[new, 2])
+    delta_lik = _log_lik(stats_new, work.theta[new]) - log_lik_old
+    # Potts: V0's edges to the rest of `old` become cut, those to `new` join
+    delta_potts = -potts.beta * (n_to[old] - n_to[new])
+    cut_ratio = cut_to[new] - cut_to[old]
+    pixels = layout.pixels.copy().ravel()
+    pixels[members] = new
+    if not whole:
+        stats = work.stats.copy()
+        stats[old] -= stats_old
+        stats[new] += stats_new
+        return _proposal(work, problem, pixels.reshape(height, width), n_mat, work.theta.copy(), stats,
+                         delta_lik + delta_potts + cut_ratio), "cluster"
+    # death of `old`: its parameters evaluated under the proposal built from V0's data
+    _, term = region_term(data, work.theta[old], prior, proposals)
+    p_new_back = label_choice(n_mat - 1, max_materials, settings.new_prob, jumps)[0]
+    log_ratio = (delta_lik + delta_potts + cut_ratio
+                 - math.log(potts.rho) + math.log(n_mat)          # rho^K and the labelled state's 1 / K!
+                 - term
+                 + math.log(p_new_back) - math.log(n_mat)         # the reverse birth: NEW, then slot `old` of K
+                 - math.log(p_other))
+    stats = work.stats.copy()
+    stats[new] += stats_new
+    pixels[pixels > old] -= 1
+    keep = np.arange(n_mat) != old
+    return _proposal(work, problem, pixels.reshape(height, width), n_mat - 1, work.theta[keep].copy(), stats[keep],
+                     log_ratio), "cluster_death"
+
+
+def _birth(work, rng, problem, prior, settings, proposals, potts, max_materials, cluster) -> Proposal:
+    """The birth of a material for the cluster (see the module docstring)."""
+    members, n_to, cut_to, old, data, stats_old, log_lik_old, p_new = cluster
+    layout = work.layout
+    n_mat = layout.n_materials
+    slot = int(rng.integers(n_mat + 1))
+    theta_born, term = region_term(data, None, prior, proposals, draw_rng=rng)
+    pixels = layout.pixels.copy().ravel()
+    pixels[pixels >= slot] += 1
+    pixels[members] = slot
+    pixels = pixels.reshape(layout.pixels.shape)
+    if theta_born is None:
+        return Proposal.invalid(layout.with_pixels(pixels, n_mat + 1))
+    stats_born = data.stats_at(theta_born[2])
+    p_other_back = label_choice(n_mat + 1, max_materials, settings.new_prob)[1]
+    log_ratio = (_log_lik(stats_born, theta_born) - log_lik_old
+                 - potts.beta * n_to[old]                        # every edge from V0 to `old` is cut
+                 + math.log(potts.rho) - math.log(n_mat + 1)      # rho^K and the labelled state's 1 / K!
+                 + term
+                 - cut_to[old]                                    # the reverse cuts nothing: V0 is all its material
+                 + math.log(p_other_back)                         # the reverse death picks `old` back
+                 - math.log(p_new) + math.log(n_mat + 1))         # NEW, and the slot's 1 / (K + 1)
+    stats = work.stats.copy()
+    stats[old] -= stats_old
+    stats = np.insert(stats, slot, stats_born, axis=0)
+    theta = np.insert(work.theta, slot, theta_born, axis=0)
+    return _proposal(work, problem, pixels, n_mat + 1, theta, stats, log_ratio)

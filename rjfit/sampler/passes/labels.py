@@ -1,0 +1,254 @@
+"""Compiled passes of the material region model: per-pixel log-likelihoods, the label sweep, clusters.
+
+- :func:`pixel_log_lik`: every pixel's log-likelihood under every material (one pass over
+  the observations; the densities of a block are evaluated material by material in a loop
+  that vectorises, then summed per pixel);
+- :func:`gibbs_sweep`: one colour of the checkerboard Gibbs sweep of pixel labels (pixels
+  of one colour are not 4-neighbours, so each one's conditional depends only on the other
+  colour's labels);
+- :func:`relabel_pixels`: move the observations of relabelled pixels between the
+  materials' sufficient statistics (and relabel them);
+- :func:`grow_cluster`: a Swendsen-Wang-cut cluster from a seed pixel, with the counts and
+  cut weights of its boundary edges by the label across them;
+- :func:`edge_uniform`: the uniform of one edge's bond, a hash of the move's key and the
+  edge (SplitMix64), so a cluster move draws one number from the chain's generator whatever
+  the size of its cluster;
+- :func:`allocate_split`: the sequential allocation of a material's pixels to two parts
+  (the split of the merge/split move), drawing or evaluating its probability.
+
+Pixels are flat row-major indices ``r * W + c``; an edge is named by its first pixel and
+its direction: edge ``2 p`` joins p to its right neighbour, edge ``2 p + 1`` to the pixel
+below. The NumPy twins are in :mod:`rjfit.sampler.reference`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from rjfit.sampler.passes.cells import pixel_cuts
+from rjfit.sampler.passes.densities import coefficients, log_densities_into
+from rjfit.sampler.passes.shifts import add_obs_terms
+from rjfit.sampler.passes.special import INV_PI
+from rjfit.sampler.passes.sums import BLOCK, PARALLEL_MIN_OBS
+
+__all__ = ["pixel_log_lik", "gibbs_sweep", "relabel_pixels", "grow_cluster", "edge_uniform", "allocate_split"]
+
+
+@njit(cache=True, nogil=True)
+def _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, lo, hi):
+    density = np.empty(BLOCK)
+    for start in range(lo, hi, BLOCK):
+        m = min(BLOCK, hi - start)
+        ys, cs, ls, ps = y[start:start + m], C[start:start + m], log_cos_hn[start:start + m], pixel[start:start + m]
+        for k in range(coef.shape[0]):
+            log_densities_into(ys, cs, ls, coef, k, density[:m])
+            # observations are sorted by pixel: sum a pixel's in a register, write once
+            key = -1
+            total = 0.0
+            for j in range(m):
+                if ps[j] != key:
+                    if key >= 0:
+                        out[k, key] += total
+                    key, total = ps[j], 0.0
+                total += density[j]
+            if key >= 0:
+                out[k, key] += total
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _pixel_log_lik_parts(y, C, log_cos_hn, pixel, coef, out, bounds):
+    # parts start at a pixel's first observation: no two parts write one pixel's entries
+    for p in prange(bounds.shape[0] - 1):
+        _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, bounds[p], bounds[p + 1])
+
+
+@njit(cache=True, nogil=True)
+def pixel_log_lik(y, C, log_cos_hn, pixel, theta, n_pixels):
+    """(K, n_pixels): the sum of each pixel's observations' log densities under each material (unweighted).
+
+    ``theta`` (K, 4) are the materials' parameters; a pixel without observations gets 0.
+    In :data:`~rjfit.sampler.passes.sums.PARTS` pieces on the chain's threads for large
+    problems, each cut at a pixel's first observation (the pieces do not depend on the
+    threads, so neither do the sums).
+    """
+    coef = coefficients(theta)
+    out = np.zeros((theta.shape[0], n_pixels))
+    n = y.shape[0]
+    if n < PARALLEL_MIN_OBS:
+        _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, 0, n)
+    else:
+        _pixel_log_lik_parts(y, C, log_cos_hn, pixel, coef, out, pixel_cuts(pixel, pixel))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def gibbs_sweep(pixel_labels, labelled, log_lik, power, beta, height, width, counts, uniforms, parity):
+    """Gibbs updates of the labelled pixels with ``(r + c) % 2 == parity``, in row-major order; returns how many changed.
+
+    Pixel p's label is drawn from ``power * log_lik[k, p] + beta * (4-neighbours labelled k)``
+    over the K materials by inverse CDF with ``uniforms[p]``, unless p is the last pixel of
+    its material (``counts[label] == 1``): then it keeps its label, the conditional of the
+    target restricted to states with no empty material. ``pixel_labels`` and ``counts``
+    are updated in place.
+    """
+    n_labels = log_lik.shape[0]
+    logits = np.empty(n_labels)
+    changed = 0
+    for r in range(height):
+        for c in range((r + parity) % 2, width, 2):
+            p = r * width + c
+            if not labelled[p]:
+                continue
+            old = pixel_labels[p]
+            if counts[old] <= 1:
+                continue
+            for k in range(n_labels):
+                logits[k] = power * log_lik[k, p]
+            if r > 0 and labelled[p - width]:
+                logits[pixel_labels[p - width]] += beta
+            if r < height - 1 and labelled[p + width]:
+                logits[pixel_labels[p + width]] += beta
+            if c > 0 and labelled[p - 1]:
+                logits[pixel_labels[p - 1]] += beta
+            if c < width - 1 and labelled[p + 1]:
+                logits[pixel_labels[p + 1]] += beta
+            top = logits.max()
+            total = 0.0
+            for k in range(n_labels):
+                logits[k] = math.exp(logits[k] - top)
+                total += logits[k]
+            target = uniforms[p] * total
+            new = n_labels - 1
+            running = 0.0
+            for k in range(n_labels):
+                running += logits[k]
+                if target < running:
+                    new = k
+                    break
+            if new != old:
+                counts[old] -= 1
+                counts[new] += 1
+                pixel_labels[p] = new
+                changed += 1
+    return changed
+
+
+@njit(cache=True, nogil=True)
+def relabel_pixels(y, C, log_cos_hn, pixel_start, pixels, old, new, gammas, stats, weight, obs_labels):
+    """Move the observations of ``pixels`` from material ``old[j]`` to ``new[j]``: statistics and labels, in place.
+
+    ``stats`` (K, 7) loses ``weight`` (the likelihood power) times each observation's terms
+    in its old material and gains them in its new one (at each material's gamma);
+    ``obs_labels`` gets the new label.
+    """
+    for j in range(pixels.shape[0]):
+        p = pixels[j]
+        for i in range(pixel_start[p], pixel_start[p + 1]):
+            yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
+            a = c * INV_PI
+            add_obs_terms(stats, old[j], -weight, yv, c, a, lh, gammas[old[j]])
+            add_obs_terms(stats, new[j], weight, yv, c, a, lh, gammas[new[j]])
+            obs_labels[i] = new[j]
+
+
+@njit(cache=True, nogil=True)
+def edge_uniform(key, edge):
+    """A uniform in [0, 1) for ``edge`` under the move's ``key`` (SplitMix64 of ``key + edge``; both uint64)."""
+    z = key + edge + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit(inline="always")
+def _neighbour(p, direction, height, width):
+    """``(neighbour, edge)`` of pixel p in direction 0 right, 1 down, 2 left, 3 up; neighbour -1 off the image."""
+    r, c = p // width, p % width
+    if direction == 0:
+        return (p + 1, 2 * p) if c < width - 1 else (-1, -1)
+    if direction == 1:
+        return (p + width, 2 * p + 1) if r < height - 1 else (-1, -1)
+    if direction == 2:
+        return (p - 1, 2 * (p - 1)) if c > 0 else (-1, -1)
+    return (p - width, 2 * (p - width) + 1) if r > 0 else (-1, -1)
+
+
+@njit(cache=True, nogil=True)
+def grow_cluster(pixel_labels, labelled, bond_q, key, seed, height, width, n_labels):
+    """The Swendsen-Wang-cut cluster of ``seed``: pixels of its label joined by bonds that are on.
+
+    Edge e between two labelled pixels of one label is on when ``edge_uniform(key, e) <
+    bond_q[e]``. Returns ``(members, n_to, log_cut_to)``: the cluster's pixels (ascending),
+    and per label k the number of edges from the cluster to labelled pixels of label k
+    outside it and the sum of their ``log(1 - bond_q)``.
+    """
+    n_pix = height * width
+    in_cluster = np.zeros(n_pix, np.bool_)
+    stack = np.empty(n_pix, np.int64)
+    members = np.empty(n_pix, np.int64)
+    label = pixel_labels[seed]
+    in_cluster[seed] = True
+    stack[0] = seed
+    top, count = 1, 0
+    while top > 0:
+        top -= 1
+        p = stack[top]
+        members[count] = p
+        count += 1
+        for direction in range(4):
+            q, edge = _neighbour(p, direction, height, width)
+            if q < 0 or in_cluster[q] or not labelled[q] or pixel_labels[q] != label:
+                continue
+            if edge_uniform(key, np.uint64(edge)) < bond_q[edge]:
+                in_cluster[q] = True
+                stack[top] = q
+                top += 1
+    n_to = np.zeros(n_labels, np.int64)
+    log_cut_to = np.zeros(n_labels)
+    for j in range(count):
+        p = members[j]
+        for direction in range(4):
+            q, edge = _neighbour(p, direction, height, width)
+            if q < 0 or in_cluster[q] or not labelled[q]:
+                continue
+            n_to[pixel_labels[q]] += 1
+            log_cut_to[pixel_labels[q]] += math.log1p(-bond_q[edge])
+    return np.sort(members[:count]), n_to, log_cut_to
+
+
+@njit(cache=True, nogil=True)
+def allocate_split(members, guide_log_lik, power, beta, height, width, uniforms, forced):
+    """Sequential allocation of the pixels ``members`` to parts 0 and 1: ``(parts, log probability)``.
+
+    Pixel ``members[j]``, in the given order, goes to part c with probability proportional
+    to ``exp(power * guide_log_lik[c, j] + beta * n_c)``, n_c its 4-neighbours among
+    ``members[:j]`` already in part c. With ``forced[j] >= 0`` the pixel goes to that part
+    (the probability of a given allocation, for the reverse move); else to part 0 when
+    ``uniforms[j]`` is below its probability. The log probability is the sum of the chosen
+    parts' log probabilities.
+    """
+    n = members.shape[0]
+    part_of = np.full(height * width, -1, np.int8)
+    parts = np.empty(n, np.int8)
+    log_prob = 0.0
+    for j in range(n):
+        p = members[j]
+        r, c = p // width, p % width
+        same0, same1 = 0, 0
+        for q, inside in ((p - width, r > 0), (p + width, r < height - 1), (p - 1, c > 0), (p + 1, c < width - 1)):
+            if inside and part_of[q] == 0:
+                same0 += 1
+            elif inside and part_of[q] == 1:
+                same1 += 1
+        # logit of part 1 against part 0, and the two log probabilities by a stable log-sigmoid
+        d = power * (guide_log_lik[1, j] - guide_log_lik[0, j]) + beta * (same1 - same0)
+        log_p1 = -math.log1p(math.exp(-d)) if d > 0 else d - math.log1p(math.exp(d))
+        log_p0 = -math.log1p(math.exp(d)) if d < 0 else -d - math.log1p(math.exp(-d))
+        part = forced[j] if forced[j] >= 0 else (0 if uniforms[j] < math.exp(log_p0) else 1)
+        parts[j] = part
+        part_of[p] = part
+        log_prob += log_p0 if part == 0 else log_p1
+    return parts, log_prob

@@ -1,0 +1,187 @@
+"""Free-form materials: a material label per pixel under a Potts prior, K unknown (issue 27).
+
+The model
+---------
+Every labelled pixel p (the object mask's pixels and every pixel with an observation)
+carries a material label z_p in {0 .. K - 1}; K, the number of materials, is unknown,
+``1 <= K <= K_max`` (``max_materials``, default 8: a cap, and the fit's summary warns when
+posterior mass sits on it). Every label is in use: no state has an empty material.
+
+- Prior of the partition S that z induces: a Gibbs distribution over partitions,
+  ``pi(S) ~ rho^K(S) exp(-beta B(S))``, B(S) the number of 4-neighbour pairs of labelled
+  pixels with different materials. Its normaliser is one number for fixed (beta, rho), so
+  every acceptance ratio is exact without it. The labelled state z has density
+  ``pi(S(z)) / K!`` (the K! labellings of a partition;
+  :class:`~rjfit.sampler.regions.material_labels.PottsPrior`).
+- Each material k has its own parameters ``theta_k = (I0, kd, gamma, sigma^2)``, drawn iid
+  from the fit's region prior (:func:`rjfit.sampler.priors.make_prior`), shared by every
+  pixel that carries it, connected or not.
+- beta and rho are fixed: ``beta = 2`` per neighbour pair and ``rho = 1`` by default. The
+  rule: beta well above the critical coupling of the K_max-state Potts model on the square
+  lattice, ``log(1 + sqrt(K_max))`` (1.34 for K_max = 8; beta 2 is above it for K_max up to
+  40). Below it the prior's mass lies on labellings scattered pixel by pixel, which with K
+  free means K_max "twins" of one paint (measured at beta 1: K = K_max on every synthetic
+  layout; ``validation/materials.py``, docs/materials.md). rho = 1: a material costs
+  nothing beyond its parameters' prior and its K!.
+- Observations enter through the change-point model's likelihood (likelihood power zeta,
+  known noise scales): materials are regions.
+
+The moves of one iteration (after the kernel's within-region moves, which serve materials
+unchanged), in order:
+
+1. ``sweeps`` checkerboard Gibbs sweeps of the labels over the K existing materials, no
+   material emptied (:mod:`rjfit.sampler.moves.label_gibbs`);
+2. ``cluster.moves`` Swendsen-Wang-cut cluster moves: a cluster of one label, grown by
+   data-driven bonds, moved to another label or to a NEW material (a birth), a whole
+   material moved (a death) (:mod:`rjfit.sampler.moves.cluster_swc`);
+3. ``merge_split.moves`` merges of two whole materials and their reverse, splits of one by
+   sequential allocation guided by a deterministic 2-means of its pixels (with ``jumps``;
+   :mod:`rjfit.sampler.moves.merge_split`): what removes twins (two materials of one paint)
+   and separates a second paint hidden in a material.
+
+Each leaves the posterior invariant on its own. The kernel's annealed warm-up tempers the
+likelihood for these moves as for change points. Start: K0 uniform on
+1 .. min(4, K_max), labels from a k-means (seeded by the chain's generator) of the per-pixel
+features the bonds use; parameters as the change-point start draws them.
+
+Colour (issue 27 item 3) plugs in below this module: a material owns one theta row per
+channel that shares its gamma (one statistics row per channel; per-pixel log-likelihoods
+summed over channels), and the moves here see only per-material log-likelihoods and
+statistics rows.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rjfit.sampler.moves.accept import accept
+from rjfit.sampler.moves.cluster_swc import ClusterSettings, propose_cluster_move
+from rjfit.sampler.moves.label_gibbs import sweep_labels
+from rjfit.sampler.moves.merge_split import MergeSplitSettings, propose_merge_split
+from rjfit.sampler.moves.region_proposals import RegionProposalSettings
+from rjfit.sampler.regions.base import RegionModel
+from rjfit.sampler.regions.material_labels import (
+    MaterialLabels,
+    PottsPrior,
+    bond_probabilities,
+    kmeans_labels,
+    labelled_pixels,
+)
+
+__all__ = ["MaterialRegions"]
+
+
+@dataclass(frozen=True)
+class MaterialRegions(RegionModel):
+    """Regions as free-form materials under a Potts prior, with the settings of their moves.
+
+    Attributes
+    ----------
+    max_materials : int
+        K_max, the most materials a state may have (flat option ``max_materials``).
+    potts : PottsPrior
+        beta (``potts_beta``) and rho (``potts_rho``).
+    update_labels, jumps : bool
+        Whether labels move (sweeps and cluster moves) and whether materials are born and
+        die (False: K fixed at the start's).
+    sweeps : int
+        Gibbs sweeps per iteration.
+    cluster : ClusterSettings
+        Of the cluster moves (and their bonds).
+    merge_split : MergeSplitSettings
+        Of the merge/split moves of whole materials (made only with ``jumps``).
+    proposals : RegionProposalSettings
+        Of the proposals of a born (dying) material's parameters.
+    """
+
+    max_materials: int = 8
+    potts: PottsPrior = field(default_factory=PottsPrior)
+    update_labels: bool = True
+    jumps: bool = True
+    sweeps: int = 1
+    cluster: ClusterSettings = field(default_factory=ClusterSettings)
+    merge_split: MergeSplitSettings = field(default_factory=MergeSplitSettings)
+    proposals: RegionProposalSettings = field(default_factory=RegionProposalSettings)
+
+    key_names = ("n_materials",)
+
+    def __post_init__(self):
+        if not 1 <= self.max_materials <= 127:
+            raise ValueError(f"max_materials (--max-materials) must lie in 1 .. 127, got {self.max_materials}")
+        if not (self.potts.beta >= 0 and self.potts.rho > 0):
+            raise ValueError(f"potts beta must be >= 0 and rho > 0, got {self.potts.beta}, {self.potts.rho}")
+        if self.sweeps < 0:
+            raise ValueError(f"sweeps must be >= 0, got {self.sweeps}")
+
+    @property
+    def max_regions(self) -> int:
+        return self.max_materials
+
+    def initial_layout(self, problem, rng, *, n_materials=None, pixel_labels=None) -> MaterialLabels:
+        """A dispersed start: ``pixel_labels`` (H, W) if given, else a k-means of ``n_materials`` clusters.
+
+        The default ``n_materials`` is uniform on 1 .. min(4, max_materials); the k-means
+        clusters the per-pixel features of the bonds, from centres drawn from ``rng``.
+
+        Raises
+        ------
+        ValueError
+            If the start has more materials than ``max_materials`` or the labelled pixels,
+            or ``pixel_labels`` has another shape, leaves a labelled pixel without a label
+            or a label 0 .. K - 1 unused.
+        """
+        bonds = bond_probabilities(problem, self.cluster.q_max(self.potts.beta), self.cluster.bond_tau)
+        labelled = labelled_pixels(problem)
+        if pixel_labels is not None:
+            pixel_labels = np.asarray(pixel_labels)
+            if pixel_labels.shape != labelled.shape or np.any(pixel_labels[labelled] < 0):
+                raise ValueError(f"start pixel_labels must give every labelled pixel a material >= 0 "
+                                 f"(shape {labelled.shape})")
+            pixels = np.where(labelled, pixel_labels, -1).astype(np.int8)
+            n_materials = int(pixels.max()) + 1
+            if np.any(np.bincount(pixels[labelled], minlength=n_materials) == 0):
+                raise ValueError("start pixel_labels leave a material 0 .. K - 1 without a pixel")
+        else:
+            if n_materials is None:
+                n_materials = int(rng.integers(1, min(4, self.max_materials) + 1))
+            n_materials = min(int(n_materials), int(labelled.sum()))
+            pixels = np.full(labelled.shape, -1, np.int8)
+            pixels[labelled] = kmeans_labels(bonds.features[labelled.ravel()], n_materials, rng)
+        if n_materials > self.max_materials:
+            raise ValueError(f"start has {n_materials} materials, more than max_materials={self.max_materials}")
+        return MaterialLabels(pixels, int(n_materials), bonds)
+
+    def log_prior(self, problem, layout) -> float:
+        return self.potts.log_density(layout.pixels, layout.n_materials)
+
+    def structure_moves(self, work, rng, problem, prior, info) -> None:
+        if not self.update_labels:
+            return
+        for _ in range(self.sweeps):
+            sweep_labels(work, rng, problem, self.potts, info)
+        for _ in range(self.cluster.moves):
+            self._test(work, rng, info, *propose_cluster_move(work, rng, problem, prior, self.cluster, self.proposals,
+                                                              self.potts, self.max_materials, self.jumps))
+        for _ in range(self.merge_split.moves if self.jumps else 0):
+            self._test(work, rng, info, *propose_merge_split(work, rng, problem, prior, self.merge_split,
+                                                             self.proposals, self.potts, self.max_materials))
+
+    @staticmethod
+    def _test(work, rng, info, proposal, kind) -> None:
+        """Accept or reject one label move's proposal (None: no move, counted as a rejection)."""
+        if proposal is None:
+            info.count(kind, False)
+            return
+        accepted = accept(np.log(rng.random()), proposal.log_ratio, info, kind)
+        info.count(kind, accepted)
+        if accepted:
+            work.take(proposal)
+            if kind != "cluster":
+                info.jump = kind
+
+    def snapshot(self, layout) -> dict:
+        return {"material_labels": np.where(layout.pixels >= 0, layout.pixels, np.nan).astype(np.float32)}
+
+    def snapshot_shapes(self, problem) -> dict:
+        return {"material_labels": tuple(problem.image_shape)}
