@@ -111,9 +111,18 @@ def _towards_null(param, z) -> bool:
     return (z - param.prior.loc) * (z_null - param.prior.loc) > 0 and abs(z - param.prior.loc) <= abs(z_null - param.prior.loc)
 
 
+def _towards_physical_end(param, z) -> bool:
+    """Whether ``z`` lies on the side of the prior's centre where one of the parameter's
+    ``physical_ends`` is (a weight near 1 is full occlusion: physical, however far on the logit scale)."""
+    with np.errstate(divide="ignore"):
+        ends = [float(param.prior.to_unconstrained(end)) for end in param.physical_ends]       # +-inf
+    return any((z - param.prior.loc) * (z_end - param.prior.loc) > 0 for z_end in ends)
+
+
 def prior_conflicts(z, n_regions, effects, effect_params, effect_name):
     """The parameters of the effect ``effect_name`` whose MAP lies beyond :data:`PRIOR_CONFLICT_SD`
-    prior sd of the prior's centre, away from the effect's null: ``[{"param", "map",
+    prior sd of the prior's centre, away from the effect's null and from its physical ends
+    (:class:`rjfit.diagnose.effects.Param`): ``[{"param", "map",
     "prior_sd_from_centre"}]``.
 
     ``z`` is a refit's unconstrained MAP, with ``n_regions`` regions' 4 parameters first, then
@@ -126,7 +135,7 @@ def prior_conflicts(z, n_regions, effects, effect_params, effect_name):
         for k, param in enumerate(params if effect.name == effect_name else ()):
             value = float(z[offset + k])
             distance = abs(value - param.prior.loc) / param.prior.scale
-            if distance > PRIOR_CONFLICT_SD and not _towards_null(param, value):
+            if distance > PRIOR_CONFLICT_SD and not (_towards_null(param, value) or _towards_physical_end(param, value)):
                 conflicts.append({"param": f"{effect.name}.{param.name}",
                                   "map": float(param.prior.to_constrained(value)), "prior_sd_from_centre": distance})
         offset += len(params)
