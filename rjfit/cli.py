@@ -59,7 +59,7 @@ def main():
     posterior (Lenoch, Wilhelm and Woehler, VISAPP 2016), with a forward model checked
     against Mitsuba.
 
-    Data flows one way: render -> validate -> fit -> diagnose / compare -> report.
+    Data flows one way: render -> validate -> fit -> diagnose / refine / compare -> report.
     """
 
 
@@ -145,7 +145,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
                    "with a hidden effect); the fit's warnings then say so.")
 def run(scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidated):
     """The main job, end to end on SCENE (default: the paper's synthetic sphere):
-    render -> validate -> fit -> compare -> diagnose -> report.
+    render -> validate -> fit -> compare -> diagnose and refine -> report.
 
     Stops with status 1 after a failed cross-check, unless --allow-unvalidated."""
     from rjfit.pipeline.run import run as run_main_job
@@ -157,7 +157,9 @@ def run(scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidate
                 f"p99 {result['p99_rel_err']:.3g}, unexplained fraction {result['unexplained_fraction']:.3g}"),
             "fit": lambda summary: _echo_fit(out_dir / "fit", summary),
             "compare": lambda rows: _echo_comparison(rows, out_dir / "fit" / "comparison", out_dir / "fit"),
-            "diagnose": lambda result: _echo_diagnosis(result, out_dir / "fit" / "diagnosis"),
+            "refine": lambda result: click.echo(
+                f"  named effects: {', '.join(result['named_effects']) or 'none'}; {result['stopped']}; final fit "
+                f"{result['final_fit']}"),
             "report": lambda path: None}
     results = run_main_job(scene, out_dir, resolution=resolution, iterations=iterations, n_chains=n_chains, seed=seed,
                            allow_unvalidated=allow_unvalidated, announce=click.echo,

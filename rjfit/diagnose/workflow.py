@@ -30,6 +30,8 @@ from rjfit.diagnose.candidates import (
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
+from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
+from rjfit.diagnose.naming import NAMING_RULE, judge_candidates
 from rjfit.diagnose.refit import refit, standardised_residuals
 from rjfit.diagnose.simulate import simulate_fit
 from rjfit.io import publish, staging_dir, write_json_atomic
@@ -268,6 +270,11 @@ def _search(dataset, labels, figure_dir, settings):
     _add_gaps(ctx, trace, sigma2_hat, figure_dir if settings.make_figures else None)
     signature_figures = _signature_figures(ctx, trace, sigma2_hat, figure_dir) if settings.make_figures else []
     result = _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, sigma2_hat, sigma2_plain)
+    if result["gap_final"] > UNEXPLAINED_GAP and not trace.stopped.startswith(("stopped after", "search skipped")):
+        # nothing (more) qualified, yet the final model misses more than noise: say where,
+        # instead of listing effects
+        result["unexplained_misfit"] = describe_misfit(ctx, standardised_residuals(ctx, trace.current), sigma2_hat)
+        settings.say(result["unexplained_misfit"]["text"])
     simulate = ctx.has_mesh if settings.simulate is None else settings.simulate
     if simulate and ctx.has_mesh:
         result["simulation"] = _simulation(ctx, plain, trace.current, sigma2_hat, settings, figure_dir)
@@ -353,8 +360,24 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
         trace.stopped = (f"no candidate effect was decisive at step {step + 1}" if step_rows
                          else f"no candidate effect left to try at step {step + 1}")
         return None
-    best = max(decisive, key=lambda row: row["log_bayes_factor"])
+    by_name = {name: value for (_, name), value in tried["candidate_residuals"].items()}
+    qualified = judge_candidates(ctx, decisive, tried["fits"], by_name, trace.current, residuals, sigma2_plain,
+                                 simulate=_simulating(ctx, settings), n_sim_draws=settings.n_sim_draws,
+                                 seed=settings.seed)
+    for row in decisive:
+        if not row["qualifies"]:
+            settings.say(f"  {row['effect']:18s} decisive but not named: {row['why_not']}")
+    if not qualified:
+        trace.stopped = (f"no candidate effect qualified at step {step + 1}: "
+                         + "; ".join(f"{row['effect']} {row['why_not']}" for row in decisive))
+        return None
+    best = max(qualified, key=lambda row: row["log_bayes_factor"])
     return best, tried["fits"][best["effect"]], residuals
+
+
+def _simulating(ctx, settings) -> bool:
+    """Whether Mitsuba simulates on this search (default: when the data set has a mesh)."""
+    return bool(ctx.has_mesh and (settings.simulate is None or settings.simulate))
 
 
 def _try_step(ctx, step, current, to_try, sigma2_plain, settings) -> dict:
@@ -476,6 +499,7 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
                    "base_refits": trace.base_refits},
         "gap_definition": GAP_DEFINITION,
         "decision_rule": DECISION_RULE,
+        "naming_rule": NAMING_RULE,
         "thresholds": {"log_bayes_factor": settings.threshold, "loo_se_factor": settings.loo_se_factor,
                        "prior_conflict_sd": PRIOR_CONFLICT_SD},
         "likelihood_power": ctx.likelihood_power,

@@ -9,8 +9,9 @@ can return to the true regions once the ambient term is in its model.
 
 The refits use the original fit's options (``summary.json`` "fit_options") plus the effects;
 each round's fit and diagnosis go to ``DIR/round{k}/``; ``DIR/refine.json`` (rewritten
-atomically after every round) lists the rounds and ``DIR/segmentations.png`` shows each
-round's MAP segmentation beside the last.
+atomically after every round) lists the rounds, ``DIR/segmentations.png`` shows each
+round's MAP segmentation beside the last, and ``DIR/report.html`` is the final fit's report
+with the rounds.
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from rjfit.pipeline.diagnose import diagnose_fit
 from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
 
 __all__ = ["refine", "MAX_ROUNDS", "fit_options_of"]
@@ -79,7 +81,7 @@ def _validation_options(summary: dict) -> dict:
 
 
 def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, progress=False, say=print,
-           **diagnose_options) -> dict:
+           first_diagnosis_dir=None, **diagnose_options) -> dict:
     """Diagnose, refit with what was named, diagnose again, until nothing more is named.
 
     Parameters
@@ -95,6 +97,9 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         Of each diagnosis (:func:`rjfit.diagnose.workflow.diagnose`).
     say : callable
         Receives a line per round and the cap's warning.
+    first_diagnosis_dir : path, optional
+        Where the first round's diagnosis goes (default ``out_dir/round1/diagnosis``; `rjfit
+        run` puts it in ``FIT/diagnosis``, where the report looks).
 
     Returns
     -------
@@ -127,6 +132,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     current, fit_seconds = fit_dir, summary.get("seconds")
     for index in range(max_rounds):
         diagnosis_dir = out_dir / f"round{index + 1}" / "diagnosis"
+        if index == 0 and first_diagnosis_dir is not None:
+            diagnosis_dir = Path(first_diagnosis_dir)
         diagnosis = diagnose_fit(current, diagnosis_dir, seed=seed, max_steps=max_steps, progress=progress,
                                  **diagnose_options)
         record = _round_record(current, read_summary(current), diagnosis, diagnosis_dir, fit_seconds)
@@ -155,6 +162,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     result["segmentations"] = _segmentation_figure(out_dir, result["rounds"], dataset_dir)
     result["seconds"] = time.perf_counter() - started
     write_json_atomic(out_dir / "refine.json", result)
+    build_report(current, out_dir / "report.html", diagnosis_dir=result["rounds"][-1]["diagnosis"], refine_dir=out_dir)
     return result
 
 
