@@ -8,7 +8,6 @@ largest log BF is named. The loop stops when nothing is decisive or after ``max_
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +32,7 @@ from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
 from rjfit.diagnose.naming import NAMING_RULE, judge_candidates
 from rjfit.diagnose.refit import refit, standardised_residuals
-from rjfit.diagnose.simulate import simulate_fit
+from rjfit.diagnose.simulate import simulation_record
 from rjfit.io import publish, staging_dir, write_json_atomic
 from rjfit.progress import progress
 
@@ -268,7 +267,8 @@ def _search(dataset, labels, figure_dir, settings):
     # the report uses it.
     sigma2_hat = noise_variance(ctx, standardised_residuals(ctx, trace.current))
     _add_gaps(ctx, trace, sigma2_hat, figure_dir if settings.make_figures else None)
-    signature_figures = _signature_figures(ctx, trace, sigma2_hat, figure_dir) if settings.make_figures else []
+    signature_figures = (figures.signature_figures(ctx, trace.searched, trace.signatures, sigma2_hat, figure_dir)
+                         if settings.make_figures else [])
     result = _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, sigma2_hat, sigma2_plain)
     if result["gap_final"] > UNEXPLAINED_GAP and not trace.stopped.startswith(("stopped after", "search skipped")):
         # nothing (more) qualified, yet the final model misses more than noise: say where,
@@ -277,7 +277,9 @@ def _search(dataset, labels, figure_dir, settings):
         settings.say(result["unexplained_misfit"]["text"])
     simulate = ctx.has_mesh if settings.simulate is None else settings.simulate
     if simulate and ctx.has_mesh:
-        result["simulation"] = _simulation(ctx, plain, trace.current, sigma2_hat, settings, figure_dir)
+        result["simulation"] = simulation_record(ctx, plain, trace.current, sigma2_hat, n_draws=settings.n_sim_draws,
+                                                 seed=settings.seed,
+                                                 figure_dir=figure_dir if settings.make_figures else None)
     elif simulate:
         result["simulation_skipped"] = "no mesh: Mitsuba cannot render this data set's object"
     result["seconds"] = round(time.perf_counter() - started, 2)
@@ -444,40 +446,8 @@ def _add_gaps(ctx, trace, sigma2_hat, figure_dir):
                            per_light_gap_before=before_b["per_light"], per_light_gap_after=after_b["per_light"],
                            per_region_gap_before=before_b["per_region"], per_region_gap_after=after_b["per_region"])
         if figure_dir is not None:
-            _step_figures(ctx, index, step_record, (before, after, panels), (before_b, after_b), sigma2_hat,
+            figures.step_figures(ctx, index, step_record, (before, after, panels), (before_b, after_b), sigma2_hat,
                           figure_dir)
-
-
-def _step_figures(ctx, index, step_record, named, breakdowns, sigma2_hat, figure_dir):
-    """A named step's figures (residuals before and after, gap per light, posteriors), their
-    names entered in its record."""
-    before, after, panels = named
-    before_b, after_b = breakdowns
-    tag = f"step{index + 1}_{step_record['effect']}"
-    step_record["figures"]["residuals"] = figures.residual_pair_figure(
-        figure_dir / f"{tag}_residuals.png", ctx.per_pixel_mean(before) / math.sqrt(sigma2_hat),
-        ctx.per_pixel_mean(after) / math.sqrt(sigma2_hat),
-        f"before (gap {step_record['gap_before']:.3g})",
-        f"after + {step_record['effect']} (gap {step_record['gap_after']:.3g})")
-    step_record["figures"]["per_light"] = figures.per_light_figure(
-        figure_dir / f"{tag}_per_light.png", before_b["per_light"], after_b["per_light"],
-        f"gap per light, step {index + 1}: + {step_record['effect']}")
-    if panels:
-        step_record["figures"]["posteriors"] = figures.posterior_figure(figure_dir / f"{tag}_posteriors.png", panels)
-
-
-def _signature_figures(ctx, trace, sigma2_hat, figure_dir) -> list:
-    """Per step searched, the residual beside the five best-scoring candidates' signatures."""
-    names = []
-    for step, residuals in enumerate(trace.searched):
-        maps = sorted(((score, name, image) for (at_step, name), (score, image) in trace.signatures.items()
-                       if at_step == step), key=lambda t: -t[0])[:5]
-        if maps:
-            names.append(figures.signature_figure(
-                figure_dir / f"signatures_step{step + 1}.png", ctx.per_pixel_mean(residuals) / math.sqrt(sigma2_hat),
-                [(f"{name}\nscore {score:.2f}", image) for score, name, image in maps],
-                f"step {step + 1}: residual and what each missing effect would leave (fitted signature)"))
-    return names
 
 
 def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, sigma2_hat, sigma2_plain) -> dict:
@@ -520,28 +490,3 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
                                "Laplace draws as second opinion",
                    "segmentation": "fixed (given labels)"},
     }
-
-
-def _simulation(ctx, plain, current, sigma2_hat, settings, figure_dir) -> dict:
-    """The Mitsuba posterior predictive of the plain and final models (``diagnosis.json``
-    "simulation"), with its figures where ``settings.make_figures``."""
-    seed, n_draws = settings.seed, settings.n_sim_draws
-    sim = {"plain": simulate_fit(ctx, plain, sigma2_hat, n_draws=n_draws, seed=seed)}
-    if current is not plain:
-        sim["final"] = simulate_fit(ctx, current, sigma2_hat, n_draws=n_draws, seed=seed)
-    sim_figs = {}
-    if settings.make_figures:
-        final = sim.get("final", sim["plain"])
-        sim_figs["mitsuba_residuals"] = figures.residual_pair_figure(
-            figure_dir / "mitsuba_residuals.png", sim["plain"]["mean_z_map"], final["mean_z_map"],
-            f"Mitsuba, plain (gap {sim['plain']['gap']:.3g})", f"Mitsuba, final (gap {final['gap']:.3g})",
-            label="mean standardised residual over lights")
-        sim_figs["ppc"] = figures.map_figure(figure_dir / "ppc_p_values.png", final["ppc_p_values"],
-                                             "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1)
-        for label, s in sim.items():
-            sim_figs[f"per_image_{label}"] = figures.per_image_figure(
-                figure_dir / f"mitsuba_per_image_{label}.png", s["standardised"],
-                f"{label}: standardised residual per image")
-    simulation = {label: {k: v for k, v in s.items() if not isinstance(v, np.ndarray)} for label, s in sim.items()}
-    simulation["figures"] = sim_figs
-    return simulation

@@ -142,15 +142,11 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         say(_round_line(index, record))
         new = [name for name in record["named"] if name not in record["effects"]]
         result["named_effects"] += [name for name in new if name not in result["named_effects"]]
-        if not new:
-            result["stopped"] = f"round {index + 1}'s diagnosis named nothing more"
-            break
-        if index + 1 == max_rounds:
-            result["stopped"] = f"stopped after {max_rounds} rounds (max_rounds)"
-            result["warnings"].append(
-                f"the cap of {max_rounds} rounds bound: round {index + 1}'s diagnosis still named "
-                f"{', '.join(new)}, which no fit sampled; refine {current} again or raise --max-rounds")
-            say(f"warning: {result['warnings'][-1]}")
+        if not new or index + 1 == max_rounds:
+            result["stopped"], warning = _stop(index, max_rounds, new, current)
+            if warning:
+                result["warnings"].append(warning)
+                say(f"warning: {warning}")
             break
         write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
         next_fit = out_dir / f"round{index + 2}" / "fit"
@@ -164,6 +160,15 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     write_json_atomic(out_dir / "refine.json", result)
     build_report(current, out_dir / "report.html", diagnosis_dir=result["rounds"][-1]["diagnosis"], refine_dir=out_dir)
     return result
+
+
+def _stop(index: int, max_rounds: int, new: list, current: Path) -> tuple:
+    """Why the loop stops after round ``index + 1`` (it names ``new`` effects): ``(reason, warning or None)``."""
+    if not new:
+        return f"round {index + 1}'s diagnosis named nothing more", None
+    return (f"stopped after {max_rounds} rounds (max_rounds)",
+            f"the cap of {max_rounds} rounds bound: round {index + 1}'s diagnosis still named {', '.join(new)}, which "
+            f"no fit sampled; refine {current} again or raise --max-rounds")
 
 
 def _round_line(index: int, record: dict) -> str:

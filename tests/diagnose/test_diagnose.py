@@ -209,3 +209,20 @@ def test_cli_jobs_reaches_the_workflow(tmp_path, monkeypatch):
     assert seen["jobs"] is None          # the workflow's default: the cores available
     outcome = CliRunner().invoke(main, ["diagnose", str(tmp_path), "--jobs", "0"])
     assert outcome.exit_code == 2 and "--jobs" in outcome.output
+
+
+def test_a_second_lobe_outside_the_library_names_nothing_and_is_described(hidden, tmp_path):
+    """A second lobe (Mitsuba's blendbsdf: 30 % of a GGX roughconductor over the Blinn plugin)
+    is no library effect. Before the naming rule light_calibration was named here (log BF 505,
+    closing 25 % of the excess gap) and fresnel was decisive at F0 = 0.01 (prior-data
+    conflict); now nothing qualifies and the diagnosis reports an unexplained misfit on the
+    highlights (their gap 76.9 against 7.3 for the rest, measured). The ambient stack, run with
+    the same rule above, still names ambient."""
+    result = _run(hidden("second_lobe"), tmp_path / "diagnosis", max_steps=2, simulate=False, make_figures=False)
+    assert result["named_effects"] == [], result["named_effects"]
+    assert any(row.get("decisive") for row in result["candidates"])      # evidence alone would have named
+    misfit = result["unexplained_misfit"]
+    assert misfit["gap"] > 1.0 and "highlight" in misfit["where"], misfit
+    assert misfit["highlight"] > 2.0 * misfit["diffuse"]
+    markdown = (tmp_path / "diagnosis" / "diagnosis.md").read_text()
+    assert "unexplained misfit" in markdown and "highlight" in markdown
