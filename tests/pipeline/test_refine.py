@@ -53,3 +53,16 @@ def test_refine_names_ambient_and_fits_it_with_the_regions(ambient_fit, tmp_path
     assert (tmp_path / "refine" / "segmentations.png").is_file()
     assert "Refinement (rjfit refine" in (tmp_path / "refine" / "report.html").read_text()
     assert any(line.startswith("round 1:") for line in lines)
+
+
+def test_refine_refuses_a_fit_without_recorded_options_in_one_line(tmp_path):
+    """A fit made before summary.json recorded its options cannot be fitted again as it was."""
+    from rjfit.errors import DatasetError
+
+    fit_dir = tmp_path / "old_fit"
+    fit_dir.mkdir()
+    (fit_dir / "summary.json").write_text(json.dumps({"dataset": str(tmp_path)}))
+    with pytest.raises(DatasetError, match=r"old_fit/summary.json: records no 'fit_options'"):
+        refine(fit_dir, tmp_path / "out")
+    with pytest.raises(ValueError, match="max_rounds must be an integer >= 1"):
+        refine(fit_dir, tmp_path / "out", max_rounds=0)
