@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.diagnose.document import gap_text
 from rjfit.diagnose.gap import gap, gap_breakdown
 
 __all__ = ["UNEXPLAINED_GAP", "HIGHLIGHT_FRACTION", "RIM_COS", "describe_misfit"]
@@ -86,7 +87,7 @@ def describe_misfit(ctx, residuals, sigma2_hat) -> dict:
 
 
 def _fmt(value) -> str:
-    return "n/a" if value is None else f"{value:.3g}"
+    return "n/a" if value is None else gap_text(value)     # every gap as the diagnosis writes it
 
 
 def _text(total, gap_highlight, gap_diffuse, gap_rim, gap_interior, worst, lag1, where) -> str:
