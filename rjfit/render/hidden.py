@@ -223,5 +223,4 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
 
 
 HIDDEN = ("clean", "ambient", "camera_response", "light_calibration", "interreflection", "cast_shadows", "fresnel",
-          "second_lobe",
-          "fresnel_plugin", "masking")
+          "fresnel_plugin", "masking", "second_lobe")
