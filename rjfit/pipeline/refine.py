@@ -123,6 +123,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     summary = read_summary(fit_dir)
     options = fit_options_of(summary, fit_dir)
     dataset_dir = Path(summary["dataset"]) if summary.get("dataset") else None
+    if dataset_dir is not None and not dataset_dir.is_absolute() and not dataset_dir.exists():
+        dataset_dir = fit_dir / dataset_dir          # named relative to the fit folder (as diagnose reads it)
     if dataset_dir is None or not dataset_dir.exists():
         raise DatasetError(f"{fit_dir / 'summary.json'}: the data set it names ({summary.get('dataset')}) is not "
                            f"there; refine needs it to fit again")
