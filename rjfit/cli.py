@@ -1,4 +1,4 @@
-"""The ``rjfit`` command line: render | validate | fit | diagnose | compare | report | run."""
+"""The ``rjfit`` command line: render | validate | fit | diagnose | refine | compare | report | run."""
 from __future__ import annotations
 
 import json
@@ -59,7 +59,7 @@ def main():
     posterior (Lenoch, Wilhelm and Woehler, VISAPP 2016), with a forward model checked
     against Mitsuba.
 
-    Data flows one way: render -> validate -> fit -> diagnose / compare -> report.
+    Data flows one way: render -> validate -> fit -> diagnose / refine / compare -> report.
     """
 
 
@@ -145,7 +145,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
                    "with a hidden effect); the fit's warnings then say so.")
 def run(scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidated):
     """The main job, end to end on SCENE (default: the paper's synthetic sphere):
-    render -> validate -> fit -> compare -> diagnose -> report.
+    render -> validate -> fit -> compare -> diagnose and refine -> report.
 
     Stops with status 1 after a failed cross-check, unless --allow-unvalidated."""
     from rjfit.pipeline.run import run as run_main_job
@@ -157,7 +157,9 @@ def run(scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidate
                 f"p99 {result['p99_rel_err']:.3g}, unexplained fraction {result['unexplained_fraction']:.3g}"),
             "fit": lambda summary: _echo_fit(out_dir / "fit", summary),
             "compare": lambda rows: _echo_comparison(rows, out_dir / "fit" / "comparison", out_dir / "fit"),
-            "diagnose": lambda result: _echo_diagnosis(result, out_dir / "fit" / "diagnosis"),
+            "refine": lambda result: click.echo(
+                f"  named effects: {', '.join(result['named_effects']) or 'none'}; {result['stopped']}; final fit "
+                f"{result['final_fit']}"),
             "report": lambda path: None}
     results = run_main_job(scene, out_dir, resolution=resolution, iterations=iterations, n_chains=n_chains, seed=seed,
                            allow_unvalidated=allow_unvalidated, announce=click.echo,
@@ -361,6 +363,30 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
     result = diagnose_fit(fit_dir, out_dir, dataset=dataset_dir, candidates=candidates, seed=seed, max_steps=max_steps,
                           simulate=False if no_simulate else None, progress=True, jobs=jobs, **options)
     _echo_diagnosis(result, out_dir)
+
+
+@main.command("refine")
+@click.argument("fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for each round's fit and diagnosis (round<k>/), refine.json and segmentations.png.")
+@click.option("--max-rounds", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Most diagnoses (the first fit's and those of the refits); a warning says when the cap binds.")
+@click.option("--max-steps", type=click.IntRange(min=0), default=3, show_default=True,
+              help="Most effects each diagnosis names.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the diagnoses' refits and simulations (the refits of the fit use the fit's own seed).")
+@click.option("--no-simulate", is_flag=True, help="Skip the Mitsuba posterior predictive rendering of each diagnosis.")
+def refine(fit_dir, out_dir, max_rounds, max_steps, seed, no_simulate):
+    """Close the loop: diagnose FIT_DIR, fit its data set again with the named effects sampled
+    jointly with the segmentation (the fit's own options plus --effects-from), diagnose that
+    fit, and repeat until nothing more is named."""
+    from rjfit.pipeline.refine import refine as refine_fit
+
+    result = refine_fit(fit_dir, out_dir, max_rounds=max_rounds, max_steps=max_steps, seed=seed,
+                        simulate=False if no_simulate else None, progress=True, say=click.echo)
+    click.echo(f"named effects: {', '.join(result['named_effects']) or 'none'}; {result['stopped']}")
+    click.echo(f"final fit: {result['final_fit']}  rounds: {Path(out_dir) / 'refine.json'}  "
+               f"segmentations: {Path(out_dir) / result['segmentations']}")
 
 
 def _echo_diagnosis(result: dict, out_dir) -> None:

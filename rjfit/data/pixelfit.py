@@ -16,12 +16,20 @@ __all__ = ["per_pixel_residuals", "GAMMA_GRID"]
 GAMMA_GRID = np.geomspace(0.5, 500.0, 16)
 
 
-def per_pixel_residuals(observations, gammas=GAMMA_GRID):
+GOLDEN_STEPS = 24       # golden-section steps on log(exponent): the bracket shrinks by 0.618^24 ~ 1e-5
+
+
+def per_pixel_residuals(observations, gammas=GAMMA_GRID, refine_steps=GOLDEN_STEPS):
     """Residuals of a separate fit of every pixel; NaN for pixels with fewer than 4 observations.
 
-    Per pixel and exponent g of ``gammas``: least squares of y on A = E <l.n> / pi and
-    B = E <l.n> <h.n>^g (a, b unconstrained: this is a diagnostic of the family's shape),
-    keeping the exponent with the smallest residual sum of squares.
+    Per pixel and exponent g: least squares of y on A = E <l.n> / pi and B = E <l.n> <h.n>^g
+    (a, b unconstrained: this is a diagnostic of the family's shape). The exponent is the best
+    of ``gammas``, then refined by ``refine_steps`` golden-section steps on log g between its
+    grid neighbours. Why refine: the grid's steps are a factor 1.6 apart, and on a glossy
+    material with little noise the misfit of the nearest grid exponent is a smooth function of
+    the geometry, the same in neighbouring pixels (lag-1 correlation 0.34 on a clean rendered
+    sphere with exponents 15 to 80 and noise sd 1 % of the signal, measured), which
+    :mod:`rjfit.data.coarsen` would read as a misfit of the model family.
     """
     obs = observations
     pixel = np.asarray(obs.pixel, np.int64)
@@ -36,20 +44,50 @@ def per_pixel_residuals(observations, gammas=GAMMA_GRID):
         return np.bincount(pixel, weights=w, minlength=n_pix)
 
     s_yy, s_ya, s_aa = sums(y * y), sums(y * A), sums(A * A)
-    best_ssr = np.full(n_pix, np.inf)
-    best = (np.zeros(n_pix), np.zeros(n_pix), np.zeros(n_pix))
-    for g in gammas:
-        B = C * np.exp(g * log_hn) * blinn_normalisation(g)
+
+    def lobe(g_obs):
+        return C * np.exp(g_obs * log_hn) * blinn_normalisation(g_obs)
+
+    def fit(g_pix):
+        """(a, b, residual sum of squares) per pixel at the exponents ``g_pix``."""
+        B = lobe(g_pix[pixel])
         s_yb, s_ab, s_bb = sums(y * B), sums(A * B), sums(B * B)
         det = s_aa * s_bb - s_ab * s_ab
         ok = (count >= 4) & (det > 1e-12 * np.maximum(s_aa * s_bb, 1e-300))
         safe = np.where(ok, det, 1.0)
         a = np.where(ok, (s_bb * s_ya - s_ab * s_yb) / safe, 0.0)
         b = np.where(ok, (s_aa * s_yb - s_ab * s_ya) / safe, 0.0)
-        ssr = np.where(ok, s_yy - a * s_ya - b * s_yb, np.inf)
-        better = ssr < best_ssr
-        best_ssr = np.where(better, ssr, best_ssr)
-        best = tuple(np.where(better, new, old) for new, old in zip((a, b, np.full(n_pix, g)), best))
-    a, b, g = (v[pixel] for v in best)
-    residuals = y - a * A - b * C * np.exp(g * log_hn) * blinn_normalisation(g)
-    return np.where(np.isfinite(best_ssr[pixel]), residuals, np.nan)
+        return a, b, np.where(ok, s_yy - a * s_ya - b * s_yb, np.inf)
+
+    gammas = np.asarray(gammas, float)
+    ssr_grid = np.stack([fit(np.full(n_pix, g))[2] for g in gammas])
+    best_index = np.argmin(ssr_grid, axis=0)
+    g = _golden_section(lambda log_g: fit(np.exp(log_g))[2],
+                        np.log(gammas[np.maximum(best_index - 1, 0)]),
+                        np.log(gammas[np.minimum(best_index + 1, gammas.size - 1)]), refine_steps)
+    g = np.exp(g)
+    a, b, ssr = fit(g)
+    worse = ssr > ssr_grid[best_index, np.arange(n_pix)]      # the bracket held no better point
+    g = np.where(worse, gammas[best_index], g)
+    a, b, ssr = fit(g)
+    residuals = y - a[pixel] * A - b[pixel] * lobe(g[pixel])
+    return np.where(np.isfinite(ssr[pixel]), residuals, np.nan)
+
+
+def _golden_section(cost, low, high, steps):
+    """Per element, the minimiser of ``cost`` (vectorised: an array of costs per array of points)
+    on [low, high] by golden-section search (the middle of the last bracket)."""
+    ratio = (np.sqrt(5.0) - 1.0) / 2.0
+    low, high = np.array(low, float), np.array(high, float)
+    left, right = high - ratio * (high - low), low + ratio * (high - low)
+    cost_left, cost_right = cost(left), cost(right)
+    for _ in range(steps):
+        go_left = cost_left <= cost_right          # the minimum lies in [low, right]
+        high = np.where(go_left, right, high)
+        low = np.where(go_left, low, left)
+        new_left, new_right = high - ratio * (high - low), low + ratio * (high - low)
+        probe = np.where(go_left, new_left, new_right)
+        cost_probe = cost(probe)
+        left, right = np.where(go_left, probe, right), np.where(go_left, left, probe)
+        cost_left, cost_right = (np.where(go_left, cost_probe, cost_right), np.where(go_left, cost_left, cost_probe))
+    return 0.5 * (low + high)

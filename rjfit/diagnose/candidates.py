@@ -23,8 +23,8 @@ import numpy as np
 from rjfit.diagnose.loo import loo_difference
 from rjfit.diagnose.refit import refit, standardised_residuals, template_columns
 
-__all__ = ["LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "PRIOR_CONFLICT_SD", "DECISION_RULE", "try_candidates",
-           "candidate_row", "prior_conflicts", "fit_prior_conflicts"]
+__all__ = ["LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "PRIOR_CONFLICT_SD", "DECISION_RULE", "BASE_TOLERANCE",
+           "try_candidates", "converge_base", "candidate_row", "prior_conflicts", "fit_prior_conflicts"]
 
 LOG_BF_THRESHOLD = math.log(100.0)
 LOO_SE_FACTOR = 4.0
@@ -33,6 +33,11 @@ LOO_SE_FACTOR = 4.0
 # prior-data conflict: the data pull it where its physics is implausible, so the effect may
 # be standing in for another with a similar signature.
 PRIOR_CONFLICT_SD = 3.0
+# The current model counts as at its optimum when a refit of it from a candidate's point (its
+# region and shared parameters) lowers its negative log posterior by no more than this (nats):
+# more, and every candidate's log BF carries that common gain (a step of the measured issue
+# had fresnel, masking, ambient and camera_gamma all at 8,729 to 8,733).
+BASE_TOLERANCE = 0.5
 DECISION_RULE = (f"decisive when log Bayes factor (Laplace evidence) > ln 100 = {LOG_BF_THRESHOLD:.2f} and "
                  f"delta ELPD (PSIS-LOO) > {LOO_SE_FACTOR:g} SE; the decisive candidate with the largest log BF is named")
 
@@ -101,6 +106,24 @@ def try_candidates(ctx, current, effects, residuals, sigma2_hat, *, seed, thresh
     return outcomes
 
 
+def converge_base(ctx, current, candidates, *, seed, tol=BASE_TOLERANCE):
+    """The current model refitted from the point of the best candidate (by evidence) among
+    ``candidates`` (refits of ``current`` plus one effect each), where that lowers its objective
+    (negative log posterior) by more than ``tol``; else None.
+
+    A candidate's refit re-optimises the current model's parameters too: when the current
+    refit stopped short of its optimum (or in a poorer local one), every candidate gains the
+    same part, and the log Bayes factors measure the refit, not the effect. Refitting the
+    current model from where a candidate went takes that common part into the base.
+    """
+    if not candidates:
+        return None
+    best = max(candidates, key=lambda fit: fit.log_evidence)
+    base = refit(ctx, current.effects, start=best, seed=seed)
+    gain = current.objective.f(current.z) - base.objective.f(base.z)
+    return base if gain > tol else None
+
+
 def _towards_null(param, z) -> bool:
     """Whether ``z`` lies between the prior's centre and the parameter's null (where the effect
     vanishes): a parameter pulled there says the effect is absent, not that it stands in for another."""
@@ -111,9 +134,18 @@ def _towards_null(param, z) -> bool:
     return (z - param.prior.loc) * (z_null - param.prior.loc) > 0 and abs(z - param.prior.loc) <= abs(z_null - param.prior.loc)
 
 
+def _towards_physical_end(param, z) -> bool:
+    """Whether ``z`` lies on the side of the prior's centre where one of the parameter's
+    ``physical_ends`` is (a weight near 1 is full occlusion: physical, however far on the logit scale)."""
+    with np.errstate(divide="ignore"):
+        ends = [float(param.prior.to_unconstrained(end)) for end in param.physical_ends]       # +-inf
+    return any((z - param.prior.loc) * (z_end - param.prior.loc) > 0 for z_end in ends)
+
+
 def prior_conflicts(z, n_regions, effects, effect_params, effect_name):
     """The parameters of the effect ``effect_name`` whose MAP lies beyond :data:`PRIOR_CONFLICT_SD`
-    prior sd of the prior's centre, away from the effect's null: ``[{"param", "map",
+    prior sd of the prior's centre, away from the effect's null and from its physical ends
+    (:class:`rjfit.diagnose.effects.Param`): ``[{"param", "map",
     "prior_sd_from_centre"}]``.
 
     ``z`` is a refit's unconstrained MAP, with ``n_regions`` regions' 4 parameters first, then
@@ -126,7 +158,7 @@ def prior_conflicts(z, n_regions, effects, effect_params, effect_name):
         for k, param in enumerate(params if effect.name == effect_name else ()):
             value = float(z[offset + k])
             distance = abs(value - param.prior.loc) / param.prior.scale
-            if distance > PRIOR_CONFLICT_SD and not _towards_null(param, value):
+            if distance > PRIOR_CONFLICT_SD and not (_towards_null(param, value) or _towards_physical_end(param, value)):
                 conflicts.append({"param": f"{effect.name}.{param.name}",
                                   "map": float(param.prior.to_constrained(value)), "prior_sd_from_centre": distance})
         offset += len(params)

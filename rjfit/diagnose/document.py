@@ -31,11 +31,14 @@ def gap_text(value) -> str:
 def named_text(result: dict) -> str:
     """The named effects, or why there are none (nothing decisive, or no search at all)."""
     named = result["named_effects"]
+    unexplained = result.get("unexplained_misfit")
     if named:
-        return ", ".join(named)
+        return ", ".join(named) + (f"; then {unexplained['text']}" if unexplained else "")
     stopped = result.get("search", {}).get("stopped", "")
     if stopped.startswith("search skipped"):
         return f"none ({stopped})"
+    if unexplained:
+        return f"none ({stopped}); {unexplained['text']}"
     return f"none: no missing effect was found ({stopped})" if stopped else "none: no missing effect was found"
 
 
@@ -85,6 +88,7 @@ def _head_lines(result: dict) -> list[str]:
     lines.append(f"**Named effects:** {named_text(result)}")
     lines += ["", f"Gap: {result['gap_definition']}", "",
               f"Decision rule: {result['decision_rule']}", "",
+              *([f"Naming rule: {result['naming_rule']}", ""] if result.get("naming_rule") else []),
               *([f"Likelihood power: {result['likelihood_power']:.4g} (the fit's coarsened likelihood; log Bayes "
                  f"factors weigh the data as the fit did)", ""] if result.get("likelihood_power", 1.0) != 1.0 else []),
               *([f"Noise model: {result['noise']['model']}, {result['noise']['formula']} (the fit's; the refits weigh "

@@ -13,7 +13,7 @@ from rjfit.plotting import pyplot, zoom_to_object
 from rjfit.plotting import save_figure as _save_figure
 
 __all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure",
-           "signature_figure", "per_image_figure", "listed_figures"]
+           "signature_figure", "per_image_figure", "listed_figures", "step_figures", "signature_figures"]
 
 
 def _plt():
@@ -125,3 +125,36 @@ def listed_figures(result: dict) -> list[str]:
     names += list(result.get("signature_figures") or [])
     names += list(((result.get("simulation") or {}).get("figures") or {}).values())
     return list(dict.fromkeys(name for name in names if isinstance(name, str) and name))
+
+
+def step_figures(ctx, index, step_record, named, breakdowns, sigma2_hat, figure_dir):
+    """A named step's figures (residuals before and after, gap per light, posteriors), their
+    names entered in its record."""
+    before, after, panels = named
+    before_b, after_b = breakdowns
+    tag = f"step{index + 1}_{step_record['effect']}"
+    step_record["figures"]["residuals"] = residual_pair_figure(
+        figure_dir / f"{tag}_residuals.png", ctx.per_pixel_mean(before) / math.sqrt(sigma2_hat),
+        ctx.per_pixel_mean(after) / math.sqrt(sigma2_hat),
+        f"before (gap {step_record['gap_before']:.3g})",
+        f"after + {step_record['effect']} (gap {step_record['gap_after']:.3g})")
+    step_record["figures"]["per_light"] = per_light_figure(
+        figure_dir / f"{tag}_per_light.png", before_b["per_light"], after_b["per_light"],
+        f"gap per light, step {index + 1}: + {step_record['effect']}")
+    if panels:
+        step_record["figures"]["posteriors"] = posterior_figure(figure_dir / f"{tag}_posteriors.png", panels)
+
+
+def signature_figures(ctx, searched, signatures, sigma2_hat, figure_dir) -> list:
+    """Per step searched (``searched``: the current model's residuals at each), the residual beside
+    the five best-scoring candidates' signatures (``signatures``: (step, effect) -> (score, map))."""
+    names = []
+    for step, residuals in enumerate(searched):
+        maps = sorted(((score, name, image) for (at_step, name), (score, image) in signatures.items()
+                       if at_step == step), key=lambda t: -t[0])[:5]
+        if maps:
+            names.append(signature_figure(
+                figure_dir / f"signatures_step{step + 1}.png", ctx.per_pixel_mean(residuals) / math.sqrt(sigma2_hat),
+                [(f"{name}\nscore {score:.2f}", image) for score, name, image in maps],
+                f"step {step + 1}: residual and what each missing effect would leave (fitted signature)"))
+    return names

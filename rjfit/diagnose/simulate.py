@@ -24,12 +24,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.diagnose.figures import map_figure, per_image_figure, residual_pair_figure
 from rjfit.diagnose.gap import gap, gap_breakdown
 from rjfit.diagnose.scenes import model_scene
 from rjfit.render.effect_scenes import render_model
 from rjfit.render.scene_change import merge_changes
 
-__all__ = ["simulate_fit"]
+__all__ = ["simulate_fit", "simulation_record"]
 
 SIMULATION_STREAM = 14     # purpose tag of the posterior predictive renders' streams (mitsuba_seed)
 
@@ -87,3 +88,27 @@ def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, sp
         "ppc_fraction_below_0.01": float(np.nanmean(p_values[observed] < 0.01)),
         "simulation_sd_mean": float(np.sqrt(var_sim).mean()),
     }
+
+
+def simulation_record(ctx, plain, current, sigma2_hat, *, n_draws, seed, figure_dir=None) -> dict:
+    """The Mitsuba posterior predictive of the plain and final models (``diagnosis.json``
+    "simulation"), with its figures in ``figure_dir`` where given."""
+    sim = {"plain": simulate_fit(ctx, plain, sigma2_hat, n_draws=n_draws, seed=seed)}
+    if current is not plain:
+        sim["final"] = simulate_fit(ctx, current, sigma2_hat, n_draws=n_draws, seed=seed)
+    sim_figs = {}
+    if figure_dir is not None:
+        final = sim.get("final", sim["plain"])
+        sim_figs["mitsuba_residuals"] = residual_pair_figure(
+            figure_dir / "mitsuba_residuals.png", sim["plain"]["mean_z_map"], final["mean_z_map"],
+            f"Mitsuba, plain (gap {sim['plain']['gap']:.3g})", f"Mitsuba, final (gap {final['gap']:.3g})",
+            label="mean standardised residual over lights")
+        sim_figs["ppc"] = map_figure(figure_dir / "ppc_p_values.png", final["ppc_p_values"],
+                                     "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1)
+        for label, s in sim.items():
+            sim_figs[f"per_image_{label}"] = per_image_figure(
+                figure_dir / f"mitsuba_per_image_{label}.png", s["standardised"],
+                f"{label}: standardised residual per image")
+    simulation = {label: {k: v for k, v in s.items() if not isinstance(v, np.ndarray)} for label, s in sim.items()}
+    simulation["figures"] = sim_figs
+    return simulation

@@ -8,7 +8,6 @@ largest log BF is named. The loop stops when nothing is decisive or after ``max_
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,14 +22,17 @@ from rjfit.diagnose.candidates import (
     LOO_SE_FACTOR,
     PRIOR_CONFLICT_SD,
     candidate_row,
+    converge_base,
     fit_prior_conflicts,
     try_candidates,
 )
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
+from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
+from rjfit.diagnose.naming import NAMING_RULE, judge_candidates
 from rjfit.diagnose.refit import refit, standardised_residuals
-from rjfit.diagnose.simulate import simulate_fit
+from rjfit.diagnose.simulate import simulation_record
 from rjfit.io import publish, staging_dir, write_json_atomic
 from rjfit.progress import progress
 
@@ -73,6 +75,7 @@ class SearchSettings:
     noise: str = "constant"
     noise_floor: float = DEFAULT_FLOOR
     jobs: int = 1
+    base_effects: tuple = ()
 
     def __post_init__(self):
         """Raises ValueError if ``max_steps`` is not an integer >= 0 or ``jobs`` not an integer >= 1."""
@@ -92,6 +95,8 @@ class _SearchTrace:
 
     current: object                                       # the current model's FitResult
     stopped: str
+    plain: object = None                                  # the plain model's refit (replaced if refitted better)
+    base_refits: list = field(default_factory=list)       # each refit of the current model from a candidate's point
     steps: list = field(default_factory=list)             # a record per named effect (diagnosis.json "steps")
     named: list = field(default_factory=list)             # per named effect: (residuals before, after, posterior panels)
     rows: list = field(default_factory=list)              # a row per candidate and step (diagnosis.json "candidates")
@@ -136,7 +141,7 @@ def _bar_say(bar, say, line):
 def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_steps=3,
              threshold=LOG_BF_THRESHOLD, loo_se_factor=LOO_SE_FACTOR, simulate=None, n_sim_draws=3,
              channel="mean", make_figures=True, progress=False, provenance=None, likelihood_power=1.0,
-             noise="constant", noise_floor=DEFAULT_FLOOR, jobs=None):
+             noise="constant", noise_floor=DEFAULT_FLOOR, jobs=None, base_effects=()):
     """Run the criticism workflow on a data set with a FIXED segmentation.
 
     Parameters
@@ -205,7 +210,8 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
                               threshold=threshold, loo_se_factor=loo_se_factor, simulate=simulate,
                               n_sim_draws=n_sim_draws, channel=channel, make_figures=make_figures, progress=progress,
                               provenance=provenance, likelihood_power=likelihood_power, noise=noise,
-                              noise_floor=noise_floor, jobs=jobs)
+                              noise_floor=noise_floor, jobs=jobs,
+                              base_effects=tuple(get_effect(e) for e in base_effects))
     out_dir = Path(out_dir)
     with staging_dir(out_dir) as staging:
         result = _search(dataset, labels, staging, settings)
@@ -243,7 +249,10 @@ def _search(dataset, labels, figure_dir, settings):
     settings.say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions{weighed}: the plain model's "
                  f"refit, then one refit per candidate effect and step (each a few seconds to minutes, growing with "
                  f"the observations)")
-    plain = refit(ctx, (), seed=settings.seed)
+    if any(effect.name == "interreflection" for effect in settings.base_effects):
+        # its feature is the indirect light of a model: that of the plain model's materials
+        ctx.features["fit_region_params"] = refit(ctx, (), seed=settings.seed).region_params()
+    plain = refit(ctx, settings.base_effects, seed=settings.seed)
     ctx.features["fit_region_params"] = plain.region_params()
     # The noise estimate of the plain model's residuals only scores the candidates' signatures
     # during the search; every gap reported (printed, in diagnosis.json and diagnosis.md) uses
@@ -252,16 +261,25 @@ def _search(dataset, labels, figure_dir, settings):
     settings.say(f"plain model: log Z {plain.log_evidence:.1f} (gaps follow at the end, with the final noise estimate)")
     usable, skipped = _usable_candidates(ctx, settings)
     trace = _run_steps(ctx, plain, usable, sigma2_plain, settings)
+    plain = trace.plain          # refitted from a candidate's point where that found a better optimum
     # The noise estimate, final: second differences of the FINAL model's residuals (the best
     # model leaves the smoothest misfit, so its estimate is the least inflated); every gap of
     # the report uses it.
     sigma2_hat = noise_variance(ctx, standardised_residuals(ctx, trace.current))
     _add_gaps(ctx, trace, sigma2_hat, figure_dir if settings.make_figures else None)
-    signature_figures = _signature_figures(ctx, trace, sigma2_hat, figure_dir) if settings.make_figures else []
+    signature_figures = (figures.signature_figures(ctx, trace.searched, trace.signatures, sigma2_hat, figure_dir)
+                         if settings.make_figures else [])
     result = _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, sigma2_hat, sigma2_plain)
+    if result["gap_final"] > UNEXPLAINED_GAP and not trace.stopped.startswith(("stopped after", "search skipped")):
+        # nothing (more) qualified, yet the final model misses more than noise: say where,
+        # instead of listing effects
+        result["unexplained_misfit"] = describe_misfit(ctx, standardised_residuals(ctx, trace.current), sigma2_hat)
+        settings.say(result["unexplained_misfit"]["text"])
     simulate = ctx.has_mesh if settings.simulate is None else settings.simulate
     if simulate and ctx.has_mesh:
-        result["simulation"] = _simulation(ctx, plain, trace.current, sigma2_hat, settings, figure_dir)
+        result["simulation"] = simulation_record(ctx, plain, trace.current, sigma2_hat, n_draws=settings.n_sim_draws,
+                                                 seed=settings.seed,
+                                                 figure_dir=figure_dir if settings.make_figures else None)
     elif simulate:
         result["simulation_skipped"] = "no mesh: Mitsuba cannot render this data set's object"
     result["seconds"] = round(time.perf_counter() - started, 2)
@@ -297,7 +315,7 @@ def _run_steps(ctx, plain, usable, sigma2_plain, settings) -> _SearchTrace:
     else:
         stopped = (f"stopped after {max_steps} step{'s' if max_steps > 1 else ''} (max_steps): "
                    f"further missing effects were not searched for")
-    trace = _SearchTrace(current=plain, stopped=stopped)
+    trace = _SearchTrace(current=plain, stopped=stopped, plain=plain)
     for step in range(max_steps if usable else 0):
         found = _search_step(ctx, step, usable, sigma2_plain, settings, trace)
         if found is None:
@@ -307,42 +325,89 @@ def _run_steps(ctx, plain, usable, sigma2_plain, settings) -> _SearchTrace:
     return trace
 
 
+#: most times one step refits the current model from a candidate's point and tries the candidates again
+BASE_REFITS = 2
+
+
 def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
     """One step: refit and score the candidates (rows added to ``trace``). Returns ``(the best
-    decisive row, its refit, the current model's residuals)``, or None (``trace.stopped`` says why)."""
-    current = trace.current
-    residuals = standardised_residuals(ctx, current)
+    decisive row, its refit, the current model's residuals)``, or None (``trace.stopped`` says why).
+
+    Where a candidate's point shows that the current model was not at its optimum
+    (:func:`rjfit.diagnose.candidates.converge_base`), the current model is replaced by its refit
+    from there and the candidates are tried again (at most :data:`BASE_REFITS` times), so that
+    each log Bayes factor measures its candidate, not the current refit's shortfall."""
+    present_kinds = {e.kind for e in trace.current.effects}
+    to_try = [e for e in usable if e not in trace.current.effects and e.kind not in present_kinds]
+    for attempt in range(BASE_REFITS + 1):
+        tried = _try_step(ctx, step, trace.current, to_try, sigma2_plain, settings)
+        better = (converge_base(ctx, trace.current, list(tried["fits"].values()), seed=settings.seed)
+                  if attempt < BASE_REFITS else None)
+        if better is None:
+            break
+        gain = trace.current.objective.f(trace.current.z) - better.objective.f(better.z)
+        settings.say(f"  the current model was not at its optimum (a refit from the best candidate's point gains "
+                     f"{gain:.1f} in log posterior): refitted, and the candidates tried again")
+        trace.base_refits.append({"step": step, "log_posterior_gain": gain})
+        if trace.current is trace.plain:
+            trace.plain = better
+        trace.current = better
+    residuals, step_rows = tried["residuals"], tried["rows"]
     trace.searched.append(residuals)
-    present_kinds = {e.kind for e in current.effects}
-    to_try = [e for e in usable if e not in current.effects and e.kind not in present_kinds]
-    # one refit per candidate can take minutes on a large data set: progress on stderr (a bar,
-    # or lines in a log) says how many are left, and a line per candidate as it finishes
-    bar = _candidate_bar(settings.progress, len(to_try), step)
-    candidate_fits, finished_rows = {}, {}
-
-    def on_finished(effect, outcome):       # as each candidate finishes (on this thread)
-        row = finished_rows[effect.name] = candidate_row(step, effect, outcome, current, settings.threshold,
-                                                         settings.loo_se_factor)
-        if "error" not in row:
-            candidate, candidate_residuals, signature, _ = outcome
-            candidate_fits[effect.name] = candidate
-            trace.signatures[step, effect.name] = signature
-            trace.candidate_residuals[step, effect.name] = candidate_residuals
-        _bar_say(bar, settings.say, document.candidate_line(row))
-
-    try_candidates(ctx, current, to_try, residuals, sigma2_plain, seed=settings.seed, threshold=settings.threshold,
-                   jobs=settings.jobs, report=on_finished)
-    step_rows = [finished_rows[effect.name] for effect in to_try]     # in the candidates' order
-    if bar is not None:
-        bar.close()
+    trace.signatures.update(tried["signatures"])
+    trace.candidate_residuals.update(tried["candidate_residuals"])
     trace.rows += step_rows
     decisive = [row for row in step_rows if row.get("decisive")]
     if not decisive:
         trace.stopped = (f"no candidate effect was decisive at step {step + 1}" if step_rows
                          else f"no candidate effect left to try at step {step + 1}")
         return None
-    best = max(decisive, key=lambda row: row["log_bayes_factor"])
-    return best, candidate_fits[best["effect"]], residuals
+    by_name = {name: value for (_, name), value in tried["candidate_residuals"].items()}
+    qualified = judge_candidates(ctx, decisive, tried["fits"], by_name, trace.current, residuals, sigma2_plain,
+                                 simulate=_simulating(ctx, settings), n_sim_draws=settings.n_sim_draws,
+                                 seed=settings.seed)
+    for row in decisive:
+        if not row["qualifies"]:
+            settings.say(f"  {row['effect']:18s} decisive but not named: {row['why_not']}")
+    if not qualified:
+        trace.stopped = (f"no candidate effect qualified at step {step + 1}: "
+                         + "; ".join(f"{row['effect']} {row['why_not']}" for row in decisive))
+        return None
+    best = max(qualified, key=lambda row: row["log_bayes_factor"])
+    return best, tried["fits"][best["effect"]], residuals
+
+
+def _simulating(ctx, settings) -> bool:
+    """Whether Mitsuba simulates on this search (default: when the data set has a mesh)."""
+    return bool(ctx.has_mesh and (settings.simulate is None or settings.simulate))
+
+
+def _try_step(ctx, step, current, to_try, sigma2_plain, settings) -> dict:
+    """Refit and score ``to_try`` against ``current``: ``{"residuals" (current's), "rows" (in the
+    candidates' order), "fits", "signatures", "candidate_residuals"}`` (the last three by effect)."""
+    residuals = standardised_residuals(ctx, current)
+    # one refit per candidate can take minutes on a large data set: progress on stderr (a bar,
+    # or lines in a log) says how many are left, and a line per candidate as it finishes
+    bar = _candidate_bar(settings.progress, len(to_try), step)
+    tried = {"residuals": residuals, "fits": {}, "signatures": {}, "candidate_residuals": {}}
+    finished_rows = {}
+
+    def on_finished(effect, outcome):       # as each candidate finishes (on this thread)
+        row = finished_rows[effect.name] = candidate_row(step, effect, outcome, current, settings.threshold,
+                                                         settings.loo_se_factor)
+        if "error" not in row:
+            candidate, candidate_residuals, signature, _ = outcome
+            tried["fits"][effect.name] = candidate
+            tried["signatures"][step, effect.name] = signature
+            tried["candidate_residuals"][step, effect.name] = candidate_residuals
+        _bar_say(bar, settings.say, document.candidate_line(row))
+
+    try_candidates(ctx, current, to_try, residuals, sigma2_plain, seed=settings.seed, threshold=settings.threshold,
+                   jobs=settings.jobs, report=on_finished)
+    if bar is not None:
+        bar.close()
+    tried["rows"] = [finished_rows[effect.name] for effect in to_try]     # in the candidates' order
+    return tried
 
 
 def _name_effect(ctx, step, best, new, residuals, settings, trace):
@@ -381,40 +446,8 @@ def _add_gaps(ctx, trace, sigma2_hat, figure_dir):
                            per_light_gap_before=before_b["per_light"], per_light_gap_after=after_b["per_light"],
                            per_region_gap_before=before_b["per_region"], per_region_gap_after=after_b["per_region"])
         if figure_dir is not None:
-            _step_figures(ctx, index, step_record, (before, after, panels), (before_b, after_b), sigma2_hat,
+            figures.step_figures(ctx, index, step_record, (before, after, panels), (before_b, after_b), sigma2_hat,
                           figure_dir)
-
-
-def _step_figures(ctx, index, step_record, named, breakdowns, sigma2_hat, figure_dir):
-    """A named step's figures (residuals before and after, gap per light, posteriors), their
-    names entered in its record."""
-    before, after, panels = named
-    before_b, after_b = breakdowns
-    tag = f"step{index + 1}_{step_record['effect']}"
-    step_record["figures"]["residuals"] = figures.residual_pair_figure(
-        figure_dir / f"{tag}_residuals.png", ctx.per_pixel_mean(before) / math.sqrt(sigma2_hat),
-        ctx.per_pixel_mean(after) / math.sqrt(sigma2_hat),
-        f"before (gap {step_record['gap_before']:.3g})",
-        f"after + {step_record['effect']} (gap {step_record['gap_after']:.3g})")
-    step_record["figures"]["per_light"] = figures.per_light_figure(
-        figure_dir / f"{tag}_per_light.png", before_b["per_light"], after_b["per_light"],
-        f"gap per light, step {index + 1}: + {step_record['effect']}")
-    if panels:
-        step_record["figures"]["posteriors"] = figures.posterior_figure(figure_dir / f"{tag}_posteriors.png", panels)
-
-
-def _signature_figures(ctx, trace, sigma2_hat, figure_dir) -> list:
-    """Per step searched, the residual beside the five best-scoring candidates' signatures."""
-    names = []
-    for step, residuals in enumerate(trace.searched):
-        maps = sorted(((score, name, image) for (at_step, name), (score, image) in trace.signatures.items()
-                       if at_step == step), key=lambda t: -t[0])[:5]
-        if maps:
-            names.append(figures.signature_figure(
-                figure_dir / f"signatures_step{step + 1}.png", ctx.per_pixel_mean(residuals) / math.sqrt(sigma2_hat),
-                [(f"{name}\nscore {score:.2f}", image) for score, name, image in maps],
-                f"step {step + 1}: residual and what each missing effect would leave (fitted signature)"))
-    return names
 
 
 def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, sigma2_hat, sigma2_plain) -> dict:
@@ -427,13 +460,16 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
         "dataset": str(getattr(ctx.dataset, "path", dataset)),
         "channel": settings.channel,
         "signature_figures": signature_figures,
+        "base_effects": [e.name for e in settings.base_effects],
         "named_effects": [s["effect"] for s in trace.steps],
         "steps": trace.steps,
         "candidates": trace.rows,
         "skipped": skipped,
-        "search": {"max_steps": int(settings.max_steps), "stopped": trace.stopped},
+        "search": {"max_steps": int(settings.max_steps), "stopped": trace.stopped,
+                   "base_refits": trace.base_refits},
         "gap_definition": GAP_DEFINITION,
         "decision_rule": DECISION_RULE,
+        "naming_rule": NAMING_RULE,
         "thresholds": {"log_bayes_factor": settings.threshold, "loo_se_factor": settings.loo_se_factor,
                        "prior_conflict_sd": PRIOR_CONFLICT_SD},
         "likelihood_power": ctx.likelihood_power,
@@ -454,28 +490,3 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
                                "Laplace draws as second opinion",
                    "segmentation": "fixed (given labels)"},
     }
-
-
-def _simulation(ctx, plain, current, sigma2_hat, settings, figure_dir) -> dict:
-    """The Mitsuba posterior predictive of the plain and final models (``diagnosis.json``
-    "simulation"), with its figures where ``settings.make_figures``."""
-    seed, n_draws = settings.seed, settings.n_sim_draws
-    sim = {"plain": simulate_fit(ctx, plain, sigma2_hat, n_draws=n_draws, seed=seed)}
-    if current is not plain:
-        sim["final"] = simulate_fit(ctx, current, sigma2_hat, n_draws=n_draws, seed=seed)
-    sim_figs = {}
-    if settings.make_figures:
-        final = sim.get("final", sim["plain"])
-        sim_figs["mitsuba_residuals"] = figures.residual_pair_figure(
-            figure_dir / "mitsuba_residuals.png", sim["plain"]["mean_z_map"], final["mean_z_map"],
-            f"Mitsuba, plain (gap {sim['plain']['gap']:.3g})", f"Mitsuba, final (gap {final['gap']:.3g})",
-            label="mean standardised residual over lights")
-        sim_figs["ppc"] = figures.map_figure(figure_dir / "ppc_p_values.png", final["ppc_p_values"],
-                                             "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1)
-        for label, s in sim.items():
-            sim_figs[f"per_image_{label}"] = figures.per_image_figure(
-                figure_dir / f"mitsuba_per_image_{label}.png", s["standardised"],
-                f"{label}: standardised residual per image")
-    simulation = {label: {k: v for k, v in s.items() if not isinstance(v, np.ndarray)} for label, s in sim.items()}
-    simulation["figures"] = sim_figs
-    return simulation

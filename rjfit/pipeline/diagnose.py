@@ -27,8 +27,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     dataset : path or Dataset, optional
         The fitted data set, when the one ``summary.json`` names has moved.
     **options
-        Keyword arguments of :func:`rjfit.diagnose.workflow.diagnose`; ``channel``, ``likelihood_power``, ``noise`` and
-        ``noise_floor`` default to the fit's, and
+        Keyword arguments of :func:`rjfit.diagnose.workflow.diagnose`; ``channel``, ``likelihood_power``, ``noise``,
+        ``noise_floor`` and ``base_effects`` (the effects it sampled) default to the fit's, and
         ``provenance`` is always set to the fit's folder and ``fit_id``.
 
     Returns
@@ -72,6 +72,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     noise_record = summary.get("noise") or {}
     options.setdefault("noise", noise_record.get("model") or "constant")
     options.setdefault("noise_floor", noise_record.get("floor") or DEFAULT_FLOOR)
+    # the effects the fit sampled: the search starts from them and names only further ones
+    options.setdefault("base_effects", [entry["name"] for entry in summary.get("effects") or []])
     options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
     dataset = dataset if hasattr(dataset, "images") else load_dataset(dataset)
     labels = read_map_labels(fit_dir, dataset.object_mask)

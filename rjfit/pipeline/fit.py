@@ -155,6 +155,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         result.summary["warnings"] += effect_warnings(result.summary["effects"])
     if truth_params is not None:
         result.summary["truth_params"] = truth_params
+    result.summary["fit_options"] = options.to_json()        # what `rjfit refine` fits again with
     write_results(out_dir, result, records, observations, options, source, before_publish, started)
     # The results are written: the checkpoints (for resuming an interrupted run) have
     # served, and a later run into this directory must start afresh, not resume them.

@@ -235,6 +235,28 @@ class FitOptions:
         """A copy with ``changes`` (checked like the original)."""
         return dataclasses.replace(self, **changes)
 
+    def to_json(self) -> dict:
+        """Every option as JSON values (``summary.json`` "fit_options": what `rjfit refine` fits again with)."""
+        record = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            record[f.name] = (str(value) if isinstance(value, Path) else list(value) if isinstance(value, tuple)
+                              else value)
+        return record
+
+    @classmethod
+    def from_json(cls, record: dict) -> "FitOptions":
+        """The options :meth:`to_json` recorded (names it does not know are ignored: a newer rjfit's).
+
+        Raises
+        ------
+        ValueError
+            If a recorded option is out of range (as the constructor).
+        """
+        names = {f.name for f in fields(cls)}
+        known = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in names}
+        return cls(**known)
+
     def burn_in_for(self, measured: bool) -> float:
         """The burn-in fraction: the option, or the paper's default for the data's kind (0.2 measured, 0.5 synthetic)."""
         if self.burn_in is not None:

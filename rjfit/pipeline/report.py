@@ -197,7 +197,7 @@ def _listed_figures(sub: str, payload) -> list:
     return [name for name in figures if isinstance(name, str)] if isinstance(figures, list) else []
 
 
-def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=None) -> Path:
+def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=None, refine_dir=None) -> Path:
     """Write ``report.html`` for a fit folder and return its path.
 
     Reads ``summary.json`` and every PNG in the fit folder, and, where present, the data
@@ -206,7 +206,9 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
     ``FIT_DIR/diagnosis`` and ``FIT_DIR/comparison``) with the figures their json names (no
     other PNG of those folders). A diagnosis or comparison made from another fit (its
     ``fit_id`` differs from the summary's) is not shown as this fit's: the report says it is
-    stale. The page is written atomically (:func:`rjfit.io.write_text_atomic`).
+    stale. A refinement (``refine_dir/refine.json``, default ``FIT_DIR/refine``, as `rjfit run`
+    leaves it; `rjfit refine --out` elsewhere) adds its rounds and each round's segmentation
+    beside the last. The page is written atomically (:func:`rjfit.io.write_text_atomic`).
 
     Raises
     ------
@@ -229,6 +231,7 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
     for sub, title, command in (("diagnosis", "Model criticism", "rjfit diagnose"), ("comparison", "Baselines",
                                                                                      "rjfit compare DATASET --fit")):
         parts += _derived_section(sub, title, command, folders[sub], fit_dir, summary)
+    parts += _refine_section(Path(refine_dir) if refine_dir else fit_dir / "refine")
 
     document = (f"<!doctype html><html><head><meta charset='utf-8'><title>rjfit report</title>"
                 f"<style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>")
@@ -359,3 +362,34 @@ def _derived_text(sub: str, payload, markdown: Path) -> list[str]:
     if markdown.is_file():
         return [_markdown_to_html(markdown.read_text(encoding="utf-8"))]
     return []
+
+
+_ROUND_COLUMNS = ("effects", "n_regions", "label_accuracy", "gap", "gap_simulated", "named", "seconds")
+
+
+def _refine_section(folder: Path) -> list[str]:
+    """The rounds of `rjfit refine` (its ``refine.json``) and their segmentations, if it ran."""
+    refined = _load_json(folder / "refine.json")
+    if not isinstance(refined, dict) or not isinstance(refined.get("rounds"), list):
+        return []
+    parts = ["<h2>Refinement (rjfit refine: fit again with the named effects)</h2>",
+             f"<p>Named effects: {html.escape(', '.join(refined.get('named_effects') or []) or 'none')}; "
+             f"{html.escape(str(refined.get('stopped', '')))}. Final fit <code>"
+             f"{html.escape(str(refined.get('final_fit')))}</code>. The gaps are each round's fitted model on its own "
+             f"MAP segmentation (diagnosis gap_plain, with the effects that fit sampled); label accuracy only with "
+             f"ground truth.</p>"]
+    for warning in refined.get("warnings") or []:
+        parts.append(f'<p class="fail">{html.escape(str(warning))}</p>')
+    header = "".join(f"<th>{name}</th>" for name in ("round",) + _ROUND_COLUMNS)
+    rows = []
+    for index, record in enumerate(refined["rounds"]):
+        cells = [str(index + 1)]
+        for name in _ROUND_COLUMNS:
+            value = record.get(name)
+            cells.append(html.escape(", ".join(value) or "none") if isinstance(value, list) else _fmt(value))
+        rows.append("<tr>" + "".join(f"<td>{cell}</td>" for cell in cells) + "</tr>")
+    parts.append(f"<table><tr>{header}</tr>{''.join(rows)}</table>")
+    figure = folder / str(refined.get("segmentations") or "segmentations.png")
+    if figure.is_file():
+        parts.append(_embed(figure, "each round's MAP segmentation, the last on the right"))
+    return parts

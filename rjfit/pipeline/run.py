@@ -1,7 +1,9 @@
 """``rjfit run``: the main job, end to end on one scene, as a Python function.
 
-render -> validate -> fit -> compare (with ground truth) -> diagnose -> report, each step
-with the defaults of its own command. :func:`run` tells its caller what happens through two
+render -> validate -> fit -> compare (with ground truth) -> diagnose and refine -> report,
+each step with the defaults of its own command: refine diagnoses the fit (into
+``fit/diagnosis``), fits again with what was named and diagnoses again until nothing more is
+named (``fit/refine``). :func:`run` tells its caller what happens through two
 callables: ``announce(text)`` before each step and ``done(step, result)`` after it (the
 command line prints each step's result as that step's own command does).
 """
@@ -11,16 +13,16 @@ import time
 from pathlib import Path
 
 from rjfit.pipeline.compare import compare_dataset
-from rjfit.pipeline.diagnose import diagnose_fit
 from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.refine import refine
 from rjfit.pipeline.report import build_report
 from rjfit.render.gate import ValidationRequiredError, validate_dataset
 from rjfit.render.render import render_dataset
 
 __all__ = ["run", "STEPS"]
 
-STEPS = ("render", "validate", "fit", "compare", "diagnose", "report")
+STEPS = ("render", "validate", "fit", "compare", "refine", "report")
 
 
 def _quiet(*_):
@@ -36,8 +38,8 @@ def run(scene: str = "paper_sphere", out_dir=None, *, resolution=None, iteration
     scene : str
         A built-in scene name or a scene JSON file.
     out_dir : path, optional
-        The run folder: ``dataset/`` and ``fit/`` (with ``comparison/``, ``diagnosis/`` and
-        ``report.html``) inside it.
+        The run folder: ``dataset/`` and ``fit/`` (with ``comparison/``, ``diagnosis/``,
+        ``refine/`` and ``report.html``) inside it.
     resolution : int, optional
         Square image size (default: the scene's).
     iterations, n_chains : int
@@ -86,8 +88,9 @@ def run(scene: str = "paper_sphere", out_dir=None, *, resolution=None, iteration
         step(4, "compare", "compare with baselines",
              lambda: compare_dataset(dataset_dir, fit_dir / "comparison", fit_dir=fit_dir, seed=seed,
                                      progress=announce))
-    step(5, "diagnose", "diagnose (model criticism)",
-         lambda: diagnose_fit(fit_dir, fit_dir / "diagnosis", seed=seed, progress=True))
+    step(5, "refine", "diagnose (model criticism) and refine (fit again with what was named)",
+         lambda: refine(fit_dir, fit_dir / "refine", first_diagnosis_dir=fit_dir / "diagnosis", seed=seed,
+                        progress=True, say=announce))
     step(6, "report", "report", lambda: build_report(fit_dir))
     results["seconds"] = time.perf_counter() - started
     return results

@@ -26,6 +26,10 @@ fresnel            a sphere with back lights (angles 105-130 degrees from the vi
                    exactly Blinn: the test asks the workflow to name the dominant missing effect.
 fresnel_plugin     the same scene with ``rjfit_blinn_ext`` (F0 = 0.04): only Fresnel is missing.
 masking            the back-lit sphere with ``rjfit_blinn_ext`` (mask_w = 1, Smith-Beckmann G).
+second_lobe        paper_sphere whose materials are Mitsuba's built-in ``blendbsdf``: 70 % rjfit's
+                   Blinn-Phong plugin and 30 % a built-in ``roughconductor`` (GGX, alpha 0.15, a
+                   perfect conductor, specular reflectance the material's scale): a second lobe
+                   of another family, outside the criticism's library (no effect explains it).
 ambient+light_calibration  both at once on paper_sphere.
 clean              paper_sphere as is.
 """
@@ -80,6 +84,22 @@ def _roughplastic(materials, reference_intensity):
                 "int_ior": 1.5, "ext_ior": 1.0,
                 "diffuse_reflectance": {"type": "rgb", "value": [scale * m["kd"]] * 3},
                 "specular_reflectance": {"type": "rgb", "value": [1.0] * 3}}
+    return override
+
+
+SECOND_LOBE_WEIGHT = 0.3
+SECOND_LOBE_ALPHA = 0.15
+
+
+def _second_lobe(materials, reference_intensity):
+    from rjfit.render.mitsuba_scene import material_dict
+
+    def override(index):
+        m = materials[index]
+        scale = m["I0"] / reference_intensity
+        return {"type": "blendbsdf", "weight": SECOND_LOBE_WEIGHT, "first": material_dict(m, reference_intensity),
+                "second": {"type": "roughconductor", "distribution": "ggx", "alpha": SECOND_LOBE_ALPHA,
+                           "material": "none", "specular_reflectance": {"type": "rgb", "value": [scale] * 3}}}
     return override
 
 
@@ -175,6 +195,11 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
             _edit_meta(path, lambda meta: meta.update(noise_variance=noise_variance, hidden_response={
                 "curve": "sRGB (colour.cctf_encoding)", "white_level_factor": SRGB_WHITE, "noise": "after encoding"}))
         return path
+    if kinds == {"second_lobe"}:
+        scene = load_scene_definition("paper_sphere")
+        activate()
+        return render_dataset(scene, out_dir, bsdf_override=_second_lobe(scene["materials"], scene["reference_intensity"]),
+                              **options)
     if kinds == {"interreflection"}:
         return render_dataset("dented_plaster", out_dir, spp=16, **options)
     if kinds == {"cast_shadows"}:
@@ -198,4 +223,4 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
 
 
 HIDDEN = ("clean", "ambient", "camera_response", "light_calibration", "interreflection", "cast_shadows", "fresnel",
-          "fresnel_plugin", "masking")
+          "fresnel_plugin", "masking", "second_lobe")

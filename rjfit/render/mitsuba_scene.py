@@ -20,7 +20,7 @@ import numpy as np
 from rjfit.data.lights import Light
 
 __all__ = ["activate", "resolve_variant", "supported_variant", "is_scalar_variant", "UnsupportedVariantError", "camera_dict", "light_dict", "material_dict", "build_scene", "trace_pixels", "path_trace",
-           "shadow_visibility", "DEFAULT_VARIANT"]
+           "shadow_visibility", "shape_materials", "DEFAULT_VARIANT"]
 
 DEFAULT_VARIANT = "llvm_ad_rgb"
 
@@ -279,8 +279,33 @@ def _pixel_centre_rays(scene):
     return rays, (height, width)
 
 
-def _part_index(shape_id: str) -> int:
-    return int(shape_id.split("_")[1])
+def _part_index(shape_id: str) -> int | None:
+    """The part of a shape named ``part_NNN`` by :func:`build_scene`, or None for another id."""
+    prefix, _, number = shape_id.partition("_")
+    return int(number) if prefix == "part" and number.isdigit() else None
+
+
+def shape_materials(shape_ids, mesh_material_indices) -> list[int]:
+    """The material index of each of a scene's shapes (by their ids, in ``scene.shapes()`` order).
+
+    Mitsuba merges the meshes that share a BSDF into one shape without the parts' ids (since
+    3.5; an empty id in 3.9): when two parts of one material are merged, the merged shape gets
+    the material its parts share. Parts of different materials have different BSDFs, so they
+    are never merged; if they were, the material of a hit could not be told.
+
+    Raises
+    ------
+    ValueError
+        If shapes without a part's id stand for parts of more than one material.
+    """
+    parts = [_part_index(shape_id) for shape_id in shape_ids]
+    merged = sorted(set(range(len(mesh_material_indices))) - {p for p in parts if p is not None})
+    merged_materials = {int(mesh_material_indices[p]) for p in merged}
+    if any(p is None for p in parts) and len(merged_materials) != 1:
+        raise ValueError(f"Mitsuba merged mesh parts {merged} of materials {sorted(merged_materials)} into shapes "
+                         f"without ids, so a hit's material cannot be told; give each material its own BSDF")
+    shared = next(iter(merged_materials), -1)
+    return [int(mesh_material_indices[p]) if p is not None else shared for p in parts]
 
 
 def trace_pixels(scene, mesh_material_indices):
@@ -303,10 +328,9 @@ def trace_pixels(scene, mesh_material_indices):
     hit = np.array(interaction.is_valid(), dtype=bool)
     material = np.full(height * width, -1, dtype=np.int32)
     shapes = scene.shapes()
-    part_ids = [shape.id() for shape in shapes]
-    for shape, shape_id in zip(shapes, part_ids):
+    for shape, shape_material in zip(shapes, shape_materials([s.id() for s in shapes], mesh_material_indices)):
         on_shape = np.array(interaction.shape == mi.ShapePtr(shape), dtype=bool) & hit
-        material[on_shape] = mesh_material_indices[_part_index(shape_id)]
+        material[on_shape] = shape_material
 
     def image(vectors):
         # A value the same for every lane (an orthographic camera's direction) comes back
@@ -330,6 +354,8 @@ def _trace_pixels_scalar(scene, rays, shape, mesh_material_indices):
     hit = np.zeros(n, dtype=bool)
     material = np.full(n, -1, dtype=np.int32)
     interactions = []
+    shape_ids = [shape.id() for shape in scene.shapes()]
+    material_of = dict(zip(shape_ids, shape_materials(shape_ids, mesh_material_indices)))
     for pixel, ray in enumerate(rays):
         interaction = scene.ray_intersect(ray)
         interactions.append(interaction)
@@ -338,7 +364,7 @@ def _trace_pixels_scalar(scene, rays, shape, mesh_material_indices):
             hit[pixel] = True
             positions[pixel] = np.array(interaction.p, dtype=np.float64)
             normals[pixel] = np.array(interaction.sh_frame.n, dtype=np.float64)
-            material[pixel] = mesh_material_indices[_part_index(interaction.shape.id())]
+            material[pixel] = material_of[interaction.shape.id()]
     return {"positions": positions.reshape(height, width, 3), "normals": normals.reshape(height, width, 3),
             "view_dirs": view_dirs.reshape(height, width, 3), "hit": hit.reshape(height, width),
             "material": material.reshape(height, width), "_interaction": interactions}

@@ -8,7 +8,7 @@ from click.testing import CliRunner
 
 from rjfit.cli import main
 
-COMMANDS = ("render", "validate", "fit", "diagnose", "compare", "report", "run")
+COMMANDS = ("render", "validate", "fit", "diagnose", "refine", "compare", "report", "run")
 
 
 def test_every_command_has_help():
@@ -133,6 +133,8 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path, paper_spher
     assert all(html_module.escape(w) in html for w in summary["warnings"])
     assert ("Warnings (convergence, model misfit and the numbers themselves)" in html) == bool(summary["warnings"])
     assert ("Convergence checks passed" in html) != bool(summary["warnings"])
+    # rjfit run ends with refine: its first diagnosis is the fit's, and the report shows its rounds
+    assert (tmp_path / "run" / "fit" / "refine" / "refine.json").is_file() and "Refinement (rjfit refine" in html
     for produced in ("fit/comparison/comparison.json", "fit/diagnosis/diagnosis.json", "fit/chains.nc",
                      "fit/labels.exr", "fit/maps.exr", "dataset/validation/validation.json"):
         assert (tmp_path / "run" / produced).is_file(), produced

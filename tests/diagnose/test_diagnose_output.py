@@ -88,7 +88,7 @@ def test_max_steps_zero_says_the_search_was_skipped(rendered, tmp_path):
     assert "named effects: none (search skipped: max_steps is 0" in outcome.output, outcome.output
     result = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert result["candidates"] == [] and result["steps"] == []
-    assert result["search"] == {"max_steps": 0, "stopped": result["search"]["stopped"]}
+    assert result["search"] == {"max_steps": 0, "stopped": result["search"]["stopped"], "base_refits": []}
     assert result["search"]["stopped"].startswith("search skipped: max_steps is 0")
     markdown = (tmp_path / "out" / "diagnosis.md").read_text()
     assert "no missing effect" not in markdown and "search skipped: max_steps is 0" in markdown

@@ -492,3 +492,25 @@ def test_the_plain_prediction_is_eq_2_of_the_model_layer():
     expected = radiance(params[region, 0], params[region, 1], gamma, cos_ln, cos_hn, irradiance)
     np.testing.assert_allclose(mu, expected, rtol=1e-14, atol=0)
     np.testing.assert_array_equal(predict(ctx, [], params, [], []), mu)
+
+
+def test_a_weight_at_its_physical_end_is_not_a_prior_data_conflict():
+    """cast_shadows w = 1 (full occlusion) and masking w = 0.999 are physical values: far out on the
+    logit scale of their LogitNormal(0, 2) priors (w = 0.999 is 3.45 sd) but no conflict; the same
+    distance towards an end that is not physical (Fresnel's floor F0_MIN) still is one."""
+    from types import SimpleNamespace
+
+    from rjfit.diagnose.candidates import prior_conflicts
+    from rjfit.diagnose.effects import get_effect
+
+    ctx = SimpleNamespace(n_lights=3)
+    shadows, masking, fresnel = (get_effect(name).params(ctx) for name in ("cast_shadows", "masking", "fresnel"))
+    effects = [SimpleNamespace(name=name) for name in ("cast_shadows", "masking", "fresnel")]
+    to_z = [p.prior.to_unconstrained for p in (shadows[0], masking[0], fresnel[0])]
+    f0_floor = float(fresnel[0].prior.to_constrained(fresnel[0].prior.loc - 4.0 * fresnel[0].prior.scale))
+    z = np.array([0.0, 0, 0, 0, to_z[0](1.0 - 1e-9), to_z[1](0.999), to_z[2](f0_floor)])
+    params = [shadows, masking, fresnel]
+    assert abs(z[5] - masking[0].prior.loc) / masking[0].prior.scale > 3.0       # beyond the 3-sd rule
+    assert prior_conflicts(z, 1, effects, params, "cast_shadows") == []
+    assert prior_conflicts(z, 1, effects, params, "masking") == []
+    assert [c["param"] for c in prior_conflicts(z, 1, effects, params, "fresnel")] == ["fresnel.F0"]

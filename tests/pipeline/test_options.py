@@ -71,3 +71,16 @@ def test_the_summary_writer_refuses_an_entry_the_schema_does_not_have(tmp_path):
         write_summary(tmp_path / "bad.json", {"seed": "1"})
     assert not (tmp_path / "bad.json").exists()
     assert all(isinstance(meaning, str) and meaning for _, meaning in SUMMARY_FIELDS.values())
+
+
+def test_options_round_trip_through_their_json_record(tmp_path):
+    """summary.json "fit_options" gives back the options the fit ran with (what `rjfit refine` refits with)."""
+    import json
+
+    options = FitOptions(n_chains=2, iterations=50, effects=("ambient", "camera_srgb"), effects_from=tmp_path,
+                         likelihood_power="auto", noise="relative", burn_in=0.3)
+    record = json.loads(json.dumps(options.to_json()))
+    assert FitOptions.from_json(record) == options
+    assert FitOptions.from_json({**record, "a_newer_option": 1}) == options
+    with pytest.raises(ValueError, match="--chains"):
+        FitOptions.from_json({**record, "n_chains": 0})

@@ -217,3 +217,31 @@ def test_a_damaged_mesh_file_is_one_clear_error(paper_sphere_small, tmp_path):
     part.write_bytes(part.read_bytes() + b"trailing junk\n")
     with pytest.raises(DatasetError, match=rf"Mitsuba cannot load the data set's scene: .*{part.name}.*damaged"):
         validate_dataset(copy, tmp_path / "v", spp=1)
+
+
+def test_parts_sharing_one_material_validate_and_cast_shadows(paper_sphere_small, tmp_path):
+    """Mitsuba merges the meshes of one BSDF into one shape without the parts' ids: the part lookup
+    must still give each hit its material (it raised IndexError), for validate and cast shadows."""
+    from rjfit.render.datasets import load_dataset
+    from rjfit.render.effect_scenes import mitsuba_visibility
+
+    copy = tmp_path / "ds"
+    shutil.copytree(paper_sphere_small, copy)
+    (copy / "validation").exists() and shutil.rmtree(copy / "validation")
+    meta = json.loads((copy / "dataset.json").read_text())
+    shared = meta["meshes"][0]["material"]
+    meta["meshes"][1]["material"] = shared        # two parts, one material: Mitsuba merges them
+    (copy / "dataset.json").write_text(json.dumps(meta))
+    result = validate_dataset(copy, tmp_path / "v", spp=1)
+    assert result["passed"], result
+    visibility = mitsuba_visibility(load_dataset(copy))
+    assert visibility.shape[1:] == tuple(meta["resolution"]) and visibility.any()
+
+
+def test_shape_materials_of_merged_parts():
+    from rjfit.render.mitsuba_scene import shape_materials
+
+    assert shape_materials(["part_003", "", "part_000"], [0, 1, 1, 2]) == [2, 1, 0]
+    assert shape_materials(["part_000", "part_001"], [3, 4]) == [3, 4]
+    with pytest.raises(ValueError, match=r"merged mesh parts \[1, 2\] of materials \[1, 2\]"):
+        shape_materials(["part_000", ""], [0, 1, 2])

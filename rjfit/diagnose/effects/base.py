@@ -38,12 +38,18 @@ class Param:
     """One scalar parameter of an effect: its prior (with the transform) and two values:
     ``init`` where a refit starts, ``null`` where the effect vanishes (possibly a bound of the
     prior's support, approached only as a limit: an ambient term's 0, camera sRGB's infinite
-    white level; None where no value of this parameter alone makes the effect vanish)."""
+    white level; None where no value of this parameter alone makes the effect vanish).
+
+    ``physical_ends`` lists the bounds of the prior's support that are physical states, not
+    artefacts of the transform: a weight's w = 1 (full occlusion, full masking). A MAP pulled
+    towards such an end lies many prior sd out on the logit scale (w = 0.999 is 3.5 sd of a
+    LogitNormal(0, 2)) yet is a physical value, so it is not a prior-data conflict."""
 
     name: str
     prior: object
     init: float
     null: float | None = None
+    physical_ends: tuple = ()
 
 
 class Effect:

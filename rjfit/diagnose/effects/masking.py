@@ -45,7 +45,7 @@ class Masking(Effect):
     description = "Smith-Beckmann shadowing/masking G on the specular lobe, mixed with weight w"
 
     def params(self, ctx):
-        return [Param("w_mask", LogitNormal(loc=0.0, scale=2.0), init=0.5, null=0.0)]
+        return [Param("w_mask", LogitNormal(loc=0.0, scale=2.0), init=0.5, null=0.0, physical_ends=(1.0,))]
 
     def prepare(self, ctx):
         # the geometry's tangents: fixed, while alpha changes with every gamma a refit tries

@@ -30,7 +30,7 @@ class CastShadows(Effect):
     description = "direct light times Mitsuba shadow-ray visibility (weight w; w = 0: none)"
 
     def params(self, ctx):
-        return [Param("w_shadow", LogitNormal(loc=0.0, scale=2.0), init=0.5, null=0.0)]
+        return [Param("w_shadow", LogitNormal(loc=0.0, scale=2.0), init=0.5, null=0.0, physical_ends=(1.0,))]
 
     def prepare(self, ctx):
         visibility = ctx.feature("mitsuba_visibility", lambda: mitsuba_visibility(ctx.dataset))

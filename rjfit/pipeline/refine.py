@@ -1,0 +1,202 @@
+"""``rjfit refine FIT --out DIR``: close the loop of model criticism (issue 26).
+
+Diagnose the fit (:func:`rjfit.pipeline.diagnose.diagnose_fit`), fit the data set again with
+the effects the diagnosis named sampled jointly with the segmentation (``rjfit fit
+--effects-from``), diagnose that fit (its search starts from the effects it sampled), and
+repeat until a diagnosis names nothing more, at most ``max_rounds`` diagnoses. A named effect
+thus reaches the segmentation: a fit that over-segmented to absorb a missing ambient term
+can return to the true regions once the ambient term is in its model.
+
+The refits use the original fit's options (``summary.json`` "fit_options") plus the effects;
+each round's fit and diagnosis go to ``DIR/round{k}/``; ``DIR/refine.json`` (rewritten
+atomically after every round) lists the rounds, ``DIR/segmentations.png`` shows each
+round's MAP segmentation beside the last, and ``DIR/report.html`` is the final fit's report
+with the rounds.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rjfit.errors import DatasetError
+from rjfit.io import write_json_atomic
+from rjfit.pipeline.diagnose import diagnose_fit
+from rjfit.pipeline.fit_dataset import fit_dataset
+from rjfit.pipeline.fit_folder import read_map_labels, read_summary
+from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.report import build_report
+from rjfit.render.datasets import load_dataset
+
+__all__ = ["refine", "MAX_ROUNDS", "fit_options_of"]
+
+#: most diagnoses of one refinement (the first fit's and those of up to MAX_ROUNDS - 1 refits)
+MAX_ROUNDS = 4
+
+
+def fit_options_of(summary: dict, fit_dir) -> FitOptions:
+    """The options a fit ran with (``summary.json`` "fit_options").
+
+    Raises
+    ------
+    DatasetError
+        If the summary does not record them (a fit made before rjfit recorded its options) or
+        records options out of range.
+    """
+    record = summary.get("fit_options")
+    if not isinstance(record, dict):
+        raise DatasetError(f"{Path(fit_dir) / 'summary.json'}: records no 'fit_options' (a fit made by an older "
+                           f"rjfit); fit the data set again to refine it")
+    try:
+        return FitOptions.from_json(record)
+    except (TypeError, ValueError) as error:
+        raise DatasetError(f"{Path(fit_dir) / 'summary.json'}: its 'fit_options' cannot be used ({error}); fit the "
+                           f"data set again") from None
+
+
+def _round_record(fit_dir: Path, summary: dict, diagnosis: dict, diagnosis_dir: Path, fit_seconds) -> dict:
+    """One round of ``refine.json``: the fit (its effects, MAP model, regions, label accuracy)
+    and its diagnosis (gap of the fitted model on its MAP segmentation, Mitsuba's simulated gap,
+    the effects it named)."""
+    simulated = (diagnosis.get("simulation") or {}).get("plain", {}).get("gap")
+    seconds = None if fit_seconds is None else float(fit_seconds) + float(diagnosis.get("seconds") or 0.0)
+    return {"fit": str(fit_dir), "diagnosis": str(diagnosis_dir),
+            "effects": [entry["name"] for entry in summary.get("effects") or []],
+            "map_model": summary.get("map_model"), "n_regions": len(summary.get("regions") or []),
+            "label_accuracy": summary.get("label_accuracy"),
+            "gap": diagnosis.get("gap_plain"), "gap_simulated": simulated,
+            "named": list(diagnosis.get("named_effects") or []),
+            "fit_seconds": fit_seconds, "diagnosis_seconds": diagnosis.get("seconds"), "seconds": seconds}
+
+
+def _validation_options(summary: dict) -> dict:
+    """How the refits pass the gate: the validation file the first fit was given, and
+    ``allow_unvalidated`` where that fit was made without a passing one."""
+    validation = summary.get("validation") or {}
+    options = {"allow_unvalidated": validation.get("passed") is not True}
+    if validation.get("path") and Path(validation["path"]).is_file():
+        options["validation_path"] = Path(validation["path"])
+    return options
+
+
+def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, progress=False, say=print,
+           first_diagnosis_dir=None, **diagnose_options) -> dict:
+    """Diagnose, refit with what was named, diagnose again, until nothing more is named.
+
+    Parameters
+    ----------
+    fit_dir : path
+        A folder ``rjfit fit`` wrote (its ``summary.json`` records the options it ran with).
+    out_dir : path
+        ``round{k}/diagnosis`` and ``round{k}/fit`` (k >= 2), ``refine.json`` and
+        ``segmentations.png`` go there (created).
+    max_rounds : int >= 1
+        Most diagnoses; when the last one still names an effect the record says the cap bound.
+    seed, max_steps, progress, **diagnose_options
+        Of each diagnosis (:func:`rjfit.diagnose.workflow.diagnose`).
+    say : callable
+        Receives a line per round and the cap's warning.
+    first_diagnosis_dir : path, optional
+        Where the first round's diagnosis goes (default ``out_dir/round1/diagnosis``; `rjfit
+        run` puts it in ``FIT/diagnosis``, where the report looks).
+
+    Returns
+    -------
+    dict
+        The contents of ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``,
+        ``effects`` sampled, ``map_model``, ``n_regions``, ``label_accuracy`` (null without
+        truth), ``gap``, ``gap_simulated`` (null without a mesh), ``named``, ``seconds``),
+        ``named_effects`` (in the order named), ``final_fit``, ``stopped`` and ``warnings``.
+
+    Raises
+    ------
+    ValueError
+        If ``max_rounds`` is not an integer >= 1; as the diagnosis and the fit.
+    DatasetError
+        If the fit's summary does not record its options (see :func:`fit_options_of`).
+    """
+    if isinstance(max_rounds, bool) or not isinstance(max_rounds, (int, np.integer)) or max_rounds < 1:
+        raise ValueError(f"max_rounds must be an integer >= 1, got {max_rounds!r}")
+    started = time.perf_counter()
+    fit_dir, out_dir = Path(fit_dir), Path(out_dir)
+    summary = read_summary(fit_dir)
+    options = fit_options_of(summary, fit_dir)
+    dataset_dir = Path(summary["dataset"]) if summary.get("dataset") else None
+    if dataset_dir is not None and not dataset_dir.is_absolute() and not dataset_dir.exists():
+        dataset_dir = fit_dir / dataset_dir          # named relative to the fit folder (as diagnose reads it)
+    if dataset_dir is None or not dataset_dir.exists():
+        raise DatasetError(f"{fit_dir / 'summary.json'}: the data set it names ({summary.get('dataset')}) is not "
+                           f"there; refine needs it to fit again")
+    gate = _validation_options(summary)
+    result = {"source_fit": str(fit_dir.resolve()), "fit_options": options.to_json(), "rounds": [],
+              "named_effects": [], "final_fit": str(fit_dir), "stopped": "", "warnings": []}
+    current, fit_seconds = fit_dir, summary.get("seconds")
+    for index in range(max_rounds):
+        diagnosis_dir = out_dir / f"round{index + 1}" / "diagnosis"
+        if index == 0 and first_diagnosis_dir is not None:
+            diagnosis_dir = Path(first_diagnosis_dir)
+        diagnosis = diagnose_fit(current, diagnosis_dir, seed=seed, max_steps=max_steps, progress=progress,
+                                 **diagnose_options)
+        record = _round_record(current, read_summary(current), diagnosis, diagnosis_dir, fit_seconds)
+        result["rounds"].append(record)
+        result["final_fit"] = str(current)
+        say(_round_line(index, record))
+        new = [name for name in record["named"] if name not in record["effects"]]
+        result["named_effects"] += [name for name in new if name not in result["named_effects"]]
+        if not new or index + 1 == max_rounds:
+            result["stopped"], warning = _stop(index, max_rounds, new, current)
+            if warning:
+                result["warnings"].append(warning)
+                say(f"warning: {warning}")
+            break
+        write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
+        next_fit = out_dir / f"round{index + 2}" / "fit"
+        effects = tuple(record["effects"]) + tuple(new)
+        say(f"round {index + 2}: fitting again with {', '.join(effects)} sampled with the regions")
+        fit_started = time.perf_counter()
+        fit_dataset(dataset_dir, next_fit, options.replace(effects=effects, effects_from=diagnosis_dir), **gate)
+        current, fit_seconds = next_fit, time.perf_counter() - fit_started
+    result["segmentations"] = _segmentation_figure(out_dir, result["rounds"], dataset_dir)
+    result["seconds"] = time.perf_counter() - started
+    write_json_atomic(out_dir / "refine.json", result)
+    build_report(current, out_dir / "report.html", diagnosis_dir=result["rounds"][-1]["diagnosis"], refine_dir=out_dir)
+    return result
+
+
+def _stop(index: int, max_rounds: int, new: list, current: Path) -> tuple:
+    """Why the loop stops after round ``index + 1`` (it names ``new`` effects): ``(reason, warning or None)``."""
+    if not new:
+        return f"round {index + 1}'s diagnosis named nothing more", None
+    return (f"stopped after {max_rounds} rounds (max_rounds)",
+            f"the cap of {max_rounds} rounds bound: round {index + 1}'s diagnosis still named {', '.join(new)}, which "
+            f"no fit sampled; refine {current} again or raise --max-rounds")
+
+
+def _round_line(index: int, record: dict) -> str:
+    accuracy = "" if record["label_accuracy"] is None else f", label accuracy {record['label_accuracy']:.3f}"
+    simulated = "" if record["gap_simulated"] is None else f", simulated gap {record['gap_simulated']:.3g}"
+    effects = ", ".join(record["effects"]) or "none"
+    named = ", ".join(record["named"]) or "nothing"
+    return (f"round {index + 1}: effects sampled {effects}; {record['n_regions']} regions{accuracy}; gap "
+            f"{record['gap']:.3g}{simulated}; diagnosis named {named}")
+
+
+def _segmentation_figure(out_dir: Path, rounds: list, dataset_dir: Path) -> str:
+    """Each round's MAP segmentation beside the last (``segmentations.png``); its file name."""
+    from rjfit.plotting import label_image, pyplot, save_figure, zoom_to_object
+
+    mask = load_dataset(dataset_dir).object_mask
+    labels = [read_map_labels(Path(r["fit"]), mask) for r in rounds]
+    count = max(int(lab.max()) + 1 for lab in labels)
+    plt = pyplot()
+    figure, axes = plt.subplots(1, len(labels), figsize=(3.2 * len(labels), 3.4), squeeze=False)
+    for index, (axis, lab, record) in enumerate(zip(axes[0], labels, rounds)):
+        axis.imshow(label_image(lab, count), interpolation="nearest")
+        zoom_to_object(axis, mask)
+        effects = ", ".join(record["effects"]) or "plain"
+        accuracy = "" if record["label_accuracy"] is None else f", acc. {record['label_accuracy']:.3f}"
+        axis.set_title(f"round {index + 1}: {effects}\n{record['n_regions']} regions{accuracy}", fontsize=8)
+        axis.set_axis_off()
+    save_figure(figure, out_dir / "segmentations.png", tight=True)
+    return "segmentations.png"

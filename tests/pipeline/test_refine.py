@@ -1,0 +1,68 @@
+"""``rjfit refine``: diagnose, fit again with what was named, diagnose again (issue 26, item 2).
+
+A tiny paper_sphere (24 x 24, 10 lights) with a hidden ambient term (Mitsuba's built-in
+``constant`` emitter), fitted with short chains: the first diagnosis must name ambient, the
+second round's fit must sample it with the regions, and refine.json must list both rounds.
+Cost: two short fits and two diagnoses (four candidates) with their Mitsuba simulations: 76 s
+on 2 shared cores (measured), most of it the diagnoses.
+"""
+import json
+
+import pytest
+
+from builders import hidden_data_sets
+from rjfit.pipeline.fit_dataset import fit_dataset
+from rjfit.pipeline.fit_folder import read_summary
+from rjfit.pipeline.refine import refine
+
+# ambient's competitors on this stack (the Mitsuba-feature effects cost renders and cannot mimic it)
+CANDIDATES = ("ambient", "camera_gamma", "light_calibration", "fresnel")
+FIT = dict(n_chains=1, iterations=60, max_u=1, max_v=1, processes=1, progress=False, figures=False, seed=0)
+
+
+@pytest.fixture(scope="module")
+def ambient_fit(tmp_path_factory):
+    dataset = hidden_data_sets(tmp_path_factory, resolution=24)("ambient")
+    fit_dir = tmp_path_factory.mktemp("refine") / "fit"
+    fit_dataset(dataset, fit_dir, allow_unvalidated=True, **FIT)
+    return fit_dir
+
+
+def test_refine_names_ambient_and_fits_it_with_the_regions(ambient_fit, tmp_path):
+    lines = []
+    result = refine(ambient_fit, tmp_path / "refine", max_rounds=2, max_steps=1, say=lines.append,
+                    candidates=CANDIDATES)
+    assert result["rounds"][0]["named"] == ["ambient"]
+    assert result["named_effects"][0] == "ambient"
+    assert len(result["rounds"]) == 2 and result["rounds"][1]["effects"][0] == "ambient"
+    second = read_summary(result["rounds"][1]["fit"])
+    assert [entry["name"] for entry in second["effects"]][0] == "ambient"
+    # the refit ran with the first fit's options plus the effects
+    first_options = read_summary(ambient_fit)["fit_options"]
+    assert {k: v for k, v in second["fit_options"].items() if k not in ("effects", "effects_from")} == \
+           {k: v for k, v in first_options.items() if k not in ("effects", "effects_from")}
+    written = json.loads((tmp_path / "refine" / "refine.json").read_text())
+    assert written["final_fit"] == result["rounds"][-1]["fit"] and len(written["rounds"]) == 2
+    for record in written["rounds"]:
+        assert set(record) >= {"effects", "map_model", "n_regions", "label_accuracy", "gap", "gap_simulated",
+                               "seconds"}
+        assert 0.0 <= record["label_accuracy"] <= 1.0 and record["gap_simulated"] is not None
+    # the second diagnosis starts from the fit's ambient: its gap is the model with ambient
+    assert json.loads((tmp_path / "refine" / "round2" / "diagnosis" / "diagnosis.json").read_text())[
+        "base_effects"][0] == "ambient"
+    assert (tmp_path / "refine" / "segmentations.png").is_file()
+    assert "Refinement (rjfit refine" in (tmp_path / "refine" / "report.html").read_text()
+    assert any(line.startswith("round 1:") for line in lines)
+
+
+def test_refine_refuses_a_fit_without_recorded_options_in_one_line(tmp_path):
+    """A fit made before summary.json recorded its options cannot be fitted again as it was."""
+    from rjfit.errors import DatasetError
+
+    fit_dir = tmp_path / "old_fit"
+    fit_dir.mkdir()
+    (fit_dir / "summary.json").write_text(json.dumps({"dataset": str(tmp_path)}))
+    with pytest.raises(DatasetError, match=r"old_fit/summary.json: records no 'fit_options'"):
+        refine(fit_dir, tmp_path / "out")
+    with pytest.raises(ValueError, match="max_rounds must be an integer >= 1"):
+        refine(fit_dir, tmp_path / "out", max_rounds=0)
