@@ -111,8 +111,10 @@ def fit_prediction(ctx, effects, region_params, effect_thetas):
     model = LambertBlinnPhong([effect.sampler_effect(ctx) for effect in effects])
     problem = model.problem(observations, noise_scale=ctx.noise_scale)
     theta_of = {effect.name: np.atleast_1d(np.asarray(theta, dtype=float)) for effect, theta in zip(effects, effect_thetas)}
-    z = np.concatenate([[float(p.prior.to_unconstrained(v)) for p, v in zip(e.params, theta_of[e.name])]
-                        for e in problem.effects.effects])
+    # a parameter at its physical end (w = 1: full shadows) is +-inf unconstrained, and maps back exactly
+    with np.errstate(divide="ignore"):
+        z = np.concatenate([[float(p.prior.to_unconstrained(v)) for p, v in zip(e.params, theta_of[e.name])]
+                            for e in problem.effects.effects])
     draw, _ = transformed(problem, z)
     order = np.argsort(ctx.pixel, kind="stable")      # the problem's order (sorted by pixel)
     theta = np.asarray(region_params, dtype=float)[ctx.region[order]]

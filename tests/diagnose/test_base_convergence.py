@@ -6,7 +6,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from builders import hidden_data_sets
 from rjfit.diagnose.candidates import BASE_TOLERANCE, LOG_BF_THRESHOLD, converge_base
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import get_effect
@@ -14,6 +13,8 @@ from rjfit.diagnose.gap import noise_variance
 from rjfit.diagnose.refit import refit, standardised_residuals
 from rjfit.diagnose.workflow import SearchSettings, _search_step, _SearchTrace
 from rjfit.render.datasets import load_dataset
+
+from builders import hidden_data_sets
 
 
 @pytest.fixture(scope="module")

@@ -10,10 +10,11 @@ import json
 
 import pytest
 
-from builders import hidden_data_sets
 from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_summary
 from rjfit.pipeline.refine import refine
+
+from builders import hidden_data_sets
 
 # ambient's competitors on this stack (the Mitsuba-feature effects cost renders and cannot mimic it)
 CANDIDATES = ("ambient", "camera_gamma", "light_calibration", "fresnel")
