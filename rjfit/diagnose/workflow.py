@@ -202,10 +202,9 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     FileNotFoundError, DatasetError
         When ``dataset`` is a path: as :func:`rjfit.render.datasets.load_dataset`.
     """
-    if jobs is None:
-        from rjfit.sampler.runner import available_cores
+    from rjfit.sampler.runner import available_cores  # the sampler's processes: imported only here
 
-        jobs = available_cores()
+    jobs = available_cores() if jobs is None else jobs
     settings = SearchSettings(candidates=tuple(get_effect(c) for c in candidates), seed=seed, max_steps=max_steps,
                               threshold=threshold, loo_se_factor=loo_se_factor, simulate=simulate,
                               n_sim_draws=n_sim_draws, channel=channel, make_figures=make_figures, progress=progress,

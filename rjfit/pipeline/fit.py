@@ -48,7 +48,7 @@ from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import staging_dir
 from rjfit.model.blinn import radiance
-from rjfit.pipeline.fit_folder import publish_results, results_digest, write_summary
+from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, publish_results, results_digest, save_chain_arrays, write_summary
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
@@ -157,14 +157,18 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         result.summary["truth_params"] = truth_params
     result.summary["fit_options"] = options.to_json()        # what `rjfit refine` fits again with
     write_results(out_dir, result, records, observations, options, source, before_publish, started)
-    # The results are written: the checkpoints (for resuming an interrupted run) have
-    # served, and a later run into this directory must start afresh, not resume them.
+    remove_checkpoints(specs, out_dir)
+    return result.summary
+
+
+def remove_checkpoints(specs, out_dir: Path) -> None:
+    """The results are written: the checkpoints (for resuming an interrupted run) have served,
+    and a later run into ``out_dir`` must start afresh, not resume them."""
     for spec in specs:
         if os.path.exists(spec.checkpoint_path):
             os.remove(spec.checkpoint_path)
     with contextlib.suppress(OSError):      # only when empty: a folder the user keeps files in stays
         (out_dir / "checkpoints").rmdir()
-    return result.summary
 
 
 def effect_warnings(effects) -> list:
@@ -409,13 +413,9 @@ def write_changepoint_files(staging: Path, result: FitResult, records, options: 
         "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
         "regions": f"region r of a draw is cell r of its model (n_u, n_v); slots past (n_u + 1)(n_v + 1) "
                    f"are NaN (the region dimension has room for the largest model, {options.max_u}, {max_v})",
-        "parameters": "I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise "
-                      "variance), in the units of the observations"})
+        "parameters": PARAMETERS_ATTR})
     idata.to_netcdf(str(staging / "chains.nc"))
-    cp_payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records)
-                  for k in ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v")}
-    with open(staging / "changepoints.npz", "wb") as handle:
-        np.savez_compressed(handle, **cp_payload)
+    save_chain_arrays(staging / "changepoints.npz", records, ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v"))
     if options.figures:
         from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
 

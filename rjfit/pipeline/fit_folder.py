@@ -24,7 +24,20 @@ from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.io import publish, read_json, write_json_atomic
 
 __all__ = ["SUMMARY_FIELDS", "write_summary", "read_summary", "read_map_labels", "results_digest", "publish_results",
-           "MAP_LABEL_FILES", "RESULT_FILES", "DERIVED_RESULTS"]
+           "MAP_LABEL_FILES", "RESULT_FILES", "DERIVED_RESULTS", "PARAMETERS_ATTR", "save_chain_arrays"]
+
+#: what chains.nc says its parameter dimension holds (either region model)
+PARAMETERS_ATTR = ("I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise variance), "
+                   "in the units of the observations")
+
+
+def save_chain_arrays(path, records, keys) -> None:
+    """Each chain's record fields ``keys`` into one compressed ``.npz`` (``chain{c}_{key}``)."""
+    import numpy as np
+
+    payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records) for k in keys}
+    with open(path, "wb") as handle:
+        np.savez_compressed(handle, **payload)
 
 #: file names of the MAP labels in a fit folder, tried in this order (the fit writes labels.exr)
 MAP_LABEL_FILES = ("map_labels.exr", "labels.exr")

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 
@@ -65,13 +66,9 @@ def write_material_files(staging: Path, result, records, options) -> None:
         "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
         "materials": f"the kept draws with a label snapshot and K = {summary['map_materials']} (the MAP K), "
                      f"relabelled: {mat.RELABELLING}",
-        "parameters": "I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise variance), "
-                      "in the units of the observations"})
+        "parameters": PARAMETERS_ATTR})
     idata.to_netcdf(str(staging / "chains.nc"))
-    payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records)
-               for k in ("cp_iteration", "material_labels", "n_materials")}
-    with open(staging / "materials.npz", "wb") as handle:
-        np.savez_compressed(handle, **payload)
+    save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"))
     if options.figures:
         from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
 

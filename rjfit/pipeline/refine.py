@@ -80,6 +80,17 @@ def _validation_options(summary: dict) -> dict:
     return options
 
 
+def _dataset_of(summary: dict, fit_dir: Path) -> Path:
+    """The data set a fit names, as diagnose reads it (a relative name may be relative to the fit folder)."""
+    dataset_dir = Path(summary["dataset"]) if summary.get("dataset") else None
+    if dataset_dir is not None and not dataset_dir.is_absolute() and not dataset_dir.exists():
+        dataset_dir = fit_dir / dataset_dir
+    if dataset_dir is None or not dataset_dir.exists():
+        raise DatasetError(f"{fit_dir / 'summary.json'}: the data set it names ({summary.get('dataset')}) is not "
+                           f"there; refine needs it to fit again")
+    return dataset_dir
+
+
 def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, progress=False, say=print,
            first_diagnosis_dir=None, **diagnose_options) -> dict:
     """Diagnose, refit with what was named, diagnose again, until nothing more is named.
@@ -122,12 +133,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     fit_dir, out_dir = Path(fit_dir), Path(out_dir)
     summary = read_summary(fit_dir)
     options = fit_options_of(summary, fit_dir)
-    dataset_dir = Path(summary["dataset"]) if summary.get("dataset") else None
-    if dataset_dir is not None and not dataset_dir.is_absolute() and not dataset_dir.exists():
-        dataset_dir = fit_dir / dataset_dir          # named relative to the fit folder (as diagnose reads it)
-    if dataset_dir is None or not dataset_dir.exists():
-        raise DatasetError(f"{fit_dir / 'summary.json'}: the data set it names ({summary.get('dataset')}) is not "
-                           f"there; refine needs it to fit again")
+    dataset_dir = _dataset_of(summary, fit_dir)
     gate = _validation_options(summary)
     result = {"source_fit": str(fit_dir.resolve()), "fit_options": options.to_json(), "rounds": [],
               "named_effects": [], "final_fit": str(fit_dir), "stopped": "", "warnings": []}

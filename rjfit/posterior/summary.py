@@ -250,6 +250,22 @@ def chain_region_summaries(records, draws_per_chain, burn_in: int, model, image_
     return out
 
 
+def draw_labels(record, snapshot: int, problem) -> tuple[int, np.ndarray]:
+    """(number of regions, region of every observation of ``problem``) of a chain's layout snapshot
+    (change points, or material labels per pixel)."""
+    from rjfit.sampler.regions.changepoint_grid import obs_region_labels
+
+    t = record.cp_iteration[snapshot]
+    if getattr(record, "n_materials", None) is not None:      # materials: the snapshot holds the labels
+        pixels = np.nan_to_num(record.material_labels[snapshot], nan=0.0).astype(np.int64).ravel()
+        return int(record.n_materials[t]), np.repeat(pixels, np.diff(problem.pixel_start))
+    n_u, n_v = int(record.n_u[t]), int(record.n_v[t])
+    labels = obs_region_labels(record.cp_u[snapshot, :, :n_u].astype(float),
+                               record.cp_v[snapshot, :, :n_v].astype(float), problem.row, problem.col,
+                               pixel_start=problem.pixel_start)
+    return (n_u + 1) * (n_v + 1), labels
+
+
 def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 100) -> dict:
     """Per-pixel maps of the posterior mean prediction, averaged draw by draw over kept draws of every model.
 
@@ -276,7 +292,6 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
         If no change-point snapshot lies after ``burn_in``.
     """
     from rjfit.model.blinn import blinn_normalisation
-    from rjfit.sampler.regions.changepoint_grid import obs_region_labels
 
     kept = [(rec, s) for rec in records for s in np.flatnonzero(rec.cp_iteration >= burn_in)]
     if not kept:
@@ -286,15 +301,7 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
         from rjfit.posterior.effects import effects_prediction
 
         def picks_of(_):
-            out = []
-            for index in picks:
-                rec, s = kept[index]
-                t = rec.cp_iteration[s]
-                n_u, n_v = int(rec.n_u[t]), int(rec.n_v[t])
-                out.append((rec, t, obs_region_labels(rec.cp_u[s, :, :n_u].astype(float),
-                                                      rec.cp_v[s, :, :n_v].astype(float), problem.row, problem.col,
-                                                      pixel_start=problem.pixel_start)))
-            return out
+            return [(kept[i][0], kept[i][0].cp_iteration[kept[i][1]], draw_labels(*kept[i], problem)[1]) for i in picks]
         return effects_prediction(records, burn_in, problem, picks_of)
     C = problem.C.astype(np.float64)
     log_cos_hn = problem.log_cos_hn.astype(np.float64)
@@ -302,17 +309,8 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
     sigma2_sum = np.zeros(problem.n_obs)
     for index in picks:
         rec, s = kept[index]
-        t = rec.cp_iteration[s]
-        if getattr(rec, "n_materials", None) is not None:      # materials: the snapshot holds the labels
-            n_regions = int(rec.n_materials[t])
-            pixels = np.nan_to_num(rec.material_labels[s], nan=0.0).astype(np.int64).ravel()
-            labels = np.repeat(pixels, np.diff(problem.pixel_start))
-        else:
-            n_u, n_v = int(rec.n_u[t]), int(rec.n_v[t])
-            n_regions = (n_u + 1) * (n_v + 1)
-            labels = obs_region_labels(rec.cp_u[s, :, :n_u].astype(float), rec.cp_v[s, :, :n_v].astype(float),
-                                       problem.row, problem.col, pixel_start=problem.pixel_start)
-        I0, kd, gamma, sigma2 = (rec.theta[t, :n_regions, k] for k in range(4))
+        n_regions, labels = draw_labels(rec, s, problem)
+        I0, kd, gamma, sigma2 = (rec.theta[rec.cp_iteration[s], :n_regions, k] for k in range(4))
         # eq. 2 per region, gathered per observation: mu = C (I0 kd / pi + I0 (1 - kd) N(g) <h.n>^g), with
         # C = E <l.n>; the Problem's y and C are divided by the known noise scales s, so mu here is mu / s too
         diffuse, lobe = I0 * kd / np.pi, I0 * (1.0 - kd) * blinn_normalisation(gamma)
