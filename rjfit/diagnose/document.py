@@ -2,7 +2,8 @@
 print, each number written one way (the figures are :mod:`rjfit.diagnose.figures`')."""
 from __future__ import annotations
 
-__all__ = ["markdown", "gap_text", "candidate_line", "gap_lines", "named_text", "prior_conflict_text"]
+__all__ = ["markdown", "gap_text", "candidate_line", "gap_lines", "named_text", "prior_conflict_text",
+           "not_told_apart_text", "revision_text"]
 
 
 def _fmt(value, spec=".3g"):
@@ -21,6 +22,22 @@ def prior_conflict_text(conflict: dict) -> str:
     """One prior-data conflict of an effect parameter (workflow ``PRIOR_CONFLICT_SD``), in words."""
     return (f"prior-data conflict: {conflict['param']} = {conflict['map']:.3g} lies "
             f"{conflict['prior_sd_from_centre']:.1f} prior sd from its prior's centre")
+
+
+def not_told_apart_text(effect: str, log_bf: float, runners_up: list) -> str:
+    """Why a named effect's choice is not decisive: runners-up whose log BF is within the threshold of its own."""
+    others = ", ".join(f"{r['effect']} (log BF {r['log_bayes_factor']:.1f})" for r in runners_up)
+    return (f"{effect} (log BF {log_bf:.1f}) is not told apart from {others} by the evidence (within ln 100): "
+            f"either explains the data about as well")
+
+
+def revision_text(revision: dict) -> str:
+    """One revision of an earlier choice (:mod:`rjfit.diagnose.revisit`), in words."""
+    if revision["action"] == "swapped":
+        return (f"after step {revision['after_step'] + 1}: {revision['effect']} swapped for {revision['replacement']} "
+                f"(log BF {revision['log_bayes_factor']:.1f} with the other effects present)")
+    return (f"after step {revision['after_step'] + 1}: {revision['effect']} dropped (log BF {revision['log_bayes_factor']:.1f} "
+            f"for keeping it, not decisive: the later effects explain its part)")
 
 
 def gap_text(value) -> str:
@@ -114,8 +131,13 @@ def _step_lines(result: dict) -> list[str]:
     if not result["steps"]:
         stopped = result.get("search", {}).get("stopped", "")
         lines.append(f"| - | {'no search' if stopped.startswith('search skipped') else 'none decisive'} | | | | |")
+    if result.get("revisions"):
+        lines += ["", "Earlier choices revisited (" + result.get("revision_rule", "") + "):", ""]
+        lines += [f"- {revision_text(r)}" for r in result["revisions"]]
     for i, step in enumerate(result["steps"]):
         lines += ["", f"### Step {i + 1}: {step['effect']}", ""]
+        if step.get("not_told_apart"):
+            lines += [f"**Caveat**: {not_told_apart_text(step['effect'], step['evidence']['log_bayes_factor'], step['not_told_apart'])}.", ""]
         lines += [f"**Warning**, {prior_conflict_text(c)}: the effect may stand in for another with a similar "
                   f"signature.\n" for c in step.get("prior_conflict", ())]
         figs = step.get("figures", {})

@@ -26,7 +26,7 @@ from rjfit.diagnose.optimise import find_map, newton_corrections
 from rjfit.diagnose.region_priors import initial_region_params, region_priors
 
 __all__ = ["FitResult", "refit", "predictions", "posterior_mean_prediction", "standardised_residuals",
-           "template_columns", "objective_with"]
+           "template_columns", "objective_with", "moved_parameters"]
 
 
 @dataclass
@@ -217,3 +217,21 @@ def objective_with(fit: FitResult, ctx, effect):
     R = ctx.n_regions
     z[: 4 * R] = fit.z[: 4 * R]
     return objective, _place_effect_starts(objective, z, dict(zip(fit.effect_names, fit.effect_thetas())))
+
+
+def moved_parameters(before, after):
+    """The parameters whose MAP moved by more than 2 posterior sd (of ``after``) from ``before`` to
+    ``after`` (two refits): ``(moved records, up to 8 (name, draws before or None, draws after) panels)``."""
+    b_values = dict(zip(before.names, before.constrained()))
+    b_draws = {n: d for n, d in zip(before.names, np.array([before.constrained(z) for z in before.draws]).T)}
+    a_draws_all = np.array([after.constrained(z) for z in after.draws]).T
+    moved, panels = [], []
+    for name, value, draws in zip(after.names, after.constrained(), a_draws_all):
+        sd = float(draws.std())
+        if name not in b_values:
+            panels.append((name, None, draws))
+            continue
+        if abs(value - b_values[name]) > 2.0 * max(sd, 1e-300):
+            moved.append({"name": name, "before": float(b_values[name]), "after": float(value), "sd_after": sd})
+            panels.append((name, b_draws[name], draws))
+    return moved, panels[:8]

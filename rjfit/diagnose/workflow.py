@@ -31,7 +31,8 @@ from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
 from rjfit.diagnose.naming import NAMING_RULE, judge_candidates
-from rjfit.diagnose.refit import refit, standardised_residuals
+from rjfit.diagnose.refit import moved_parameters, refit, standardised_residuals
+from rjfit.diagnose.revisit import REVISION_RULE, revisit
 from rjfit.diagnose.simulate import simulation_record
 from rjfit.io import publish, staging_dir, write_json_atomic
 from rjfit.progress import progress
@@ -103,23 +104,7 @@ class _SearchTrace:
     searched: list = field(default_factory=list)          # per step searched: the current model's residuals
     signatures: dict = field(default_factory=dict)        # (step, effect name) -> (signature score, map)
     candidate_residuals: dict = field(default_factory=dict)   # (step, effect name) -> the candidate's residuals
-
-
-def _moved(before, after):
-    """Parameters whose MAP moved by more than 2 posterior sd (after), with draws for figures."""
-    b_values = dict(zip(before.names, before.constrained()))
-    b_draws = {n: d for n, d in zip(before.names, np.array([before.constrained(z) for z in before.draws]).T)}
-    a_draws_all = np.array([after.constrained(z) for z in after.draws]).T
-    moved, panels = [], []
-    for name, value, draws in zip(after.names, after.constrained(), a_draws_all):
-        sd = float(draws.std())
-        if name not in b_values:
-            panels.append((name, None, draws))
-            continue
-        if abs(value - b_values[name]) > 2.0 * max(sd, 1e-300):
-            moved.append({"name": name, "before": float(b_values[name]), "after": float(value), "sd_after": sd})
-            panels.append((name, b_draws[name], draws))
-    return moved, panels[:8]
+    revisions: list = field(default_factory=list)         # each earlier effect swapped or dropped (rjfit.diagnose.revisit)
 
 
 def _candidate_bar(show, total, step):
@@ -320,6 +305,11 @@ def _run_steps(ctx, plain, usable, sigma2_plain, settings) -> _SearchTrace:
         if found is None:
             break
         _name_effect(ctx, step, *found, settings, trace)
+        if len(trace.current.effects) > 1:
+            newest = next(e for e in trace.current.effects if e.name == found[0]["effect"])
+            trace.current, revisions = revisit(ctx, trace.current, newest, usable, step=step, seed=settings.seed,
+                                               threshold=settings.threshold, say=settings.say)
+            trace.revisions += revisions
     settings.say(trace.stopped)
     return trace
 
@@ -373,6 +363,10 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
                          + "; ".join(f"{row['effect']} {row['why_not']}" for row in decisive))
         return None
     best = max(qualified, key=lambda row: row["log_bayes_factor"])
+    # a runner-up within the threshold is not told apart from the winner by the evidence: say so
+    best["not_told_apart"] = [{"effect": row["effect"], "log_bayes_factor": row["log_bayes_factor"]}
+                              for row in qualified if row is not best
+                              and best["log_bayes_factor"] - row["log_bayes_factor"] <= settings.threshold]
     return best, tried["fits"][best["effect"]], residuals
 
 
@@ -416,13 +410,16 @@ def _name_effect(ctx, step, best, new, residuals, settings, trace):
         # refitted materials (whose albedos no longer absorb the indirect light) and refit.
         ctx.features["fit_region_params"] = new.region_params()
         new = refit(ctx, new.effects, start=new, seed=settings.seed)
-    moved, panels = _moved(trace.current, new)
+    moved, panels = moved_parameters(trace.current, new)
     step_record = {"effect": best["effect"], "kind": best["kind"],
                    "evidence": {k: best.get(k) for k in ("log_bayes_factor", "delta_elpd_loo", "delta_elpd_loo_se",
                                                           "max_khat", "khat_unreliable_fraction", "signature_score")},
                    "prior_conflict": fit_prior_conflicts(new, best["effect"]),
                    "effect_params": {k: v for k, v in new.summary().items() if k.startswith(best["effect"] + ".")},
                    "moved_parameters": moved, "figures": {}}
+    if best.get("not_told_apart"):
+        step_record["not_told_apart"] = best["not_told_apart"]
+        settings.say(f"  caveat: {document.not_told_apart_text(best['effect'], best['log_bayes_factor'], best['not_told_apart'])}")
     settings.say(f"named {best['effect']} at step {step + 1} (log BF {best['log_bayes_factor']:.1f})"
                  + "".join(f"; {document.prior_conflict_text(c)}" for c in step_record["prior_conflict"]))
     trace.steps.append(step_record)
@@ -460,7 +457,10 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
         "channel": settings.channel,
         "signature_figures": signature_figures,
         "base_effects": [e.name for e in settings.base_effects],
-        "named_effects": [s["effect"] for s in trace.steps],
+        # the final model's effects beyond the fit's own: the steps' names after any revision
+        "named_effects": [e.name for e in current.effects if e.name not in {b.name for b in settings.base_effects}],
+        "revisions": trace.revisions,
+        "revision_rule": REVISION_RULE,
         "steps": trace.steps,
         "candidates": trace.rows,
         "skipped": skipped,

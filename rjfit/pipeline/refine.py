@@ -148,17 +148,20 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         result["rounds"].append(record)
         result["final_fit"] = str(current)
         say(_round_line(index, record))
-        new = [name for name in record["named"] if name not in record["effects"]]
+        # the diagnosis' final model: the fit's effects (less any it dropped or swapped) and what it named
+        final = list((diagnosis.get("final_model") or {}).get("effects") or record["effects"] + record["named"])
+        new = [name for name in final if name not in record["effects"]]
+        record["dropped"] = [name for name in record["effects"] if name not in final]
         result["named_effects"] += [name for name in new if name not in result["named_effects"]]
-        if not new or index + 1 == max_rounds:
-            result["stopped"], warning = _stop(index, max_rounds, new, current)
+        if not (new or record["dropped"]) or index + 1 == max_rounds:
+            result["stopped"], warning = _stop(index, max_rounds, new, record["dropped"], current)
             if warning:
                 result["warnings"].append(warning)
                 say(f"warning: {warning}")
             break
         write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
         next_fit = out_dir / f"round{index + 2}" / "fit"
-        effects = tuple(record["effects"]) + tuple(new)
+        effects = tuple(final)
         say(f"round {index + 2}: fitting again with {', '.join(effects)} sampled with the regions")
         fit_started = time.perf_counter()
         fit_dataset(dataset_dir, next_fit, options.replace(effects=effects, effects_from=diagnosis_dir), **gate)
@@ -170,13 +173,15 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     return result
 
 
-def _stop(index: int, max_rounds: int, new: list, current: Path) -> tuple:
-    """Why the loop stops after round ``index + 1`` (it names ``new`` effects): ``(reason, warning or None)``."""
-    if not new:
+def _stop(index: int, max_rounds: int, new: list, dropped: list, current: Path) -> tuple:
+    """Why the loop stops after round ``index + 1`` (its diagnosis names ``new`` effects and drops
+    or swaps out ``dropped`` ones of the fit): ``(reason, warning or None)``."""
+    if not (new or dropped):
         return f"round {index + 1}'s diagnosis named nothing more", None
+    changes = ([f"named {', '.join(new)}"] if new else []) + ([f"dropped {', '.join(dropped)}"] if dropped else [])
     return (f"stopped after {max_rounds} rounds (max_rounds)",
-            f"the cap of {max_rounds} rounds bound: round {index + 1}'s diagnosis still named {', '.join(new)}, which "
-            f"no fit sampled; refine {current} again or raise --max-rounds")
+            f"the cap of {max_rounds} rounds bound: round {index + 1}'s diagnosis still {' and '.join(changes)}, "
+            f"which no fit has done; refine {current} again or raise --max-rounds")
 
 
 def _round_line(index: int, record: dict) -> str:
