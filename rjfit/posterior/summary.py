@@ -252,13 +252,17 @@ def chain_region_summaries(records, draws_per_chain, burn_in: int, model, image_
 
 def draw_labels(record, snapshot: int, problem) -> tuple[int, np.ndarray]:
     """(number of regions, region of every observation of ``problem``) of a chain's layout snapshot
-    (change points, or material labels per pixel)."""
+    (change points, or material labels per pixel; for a joint colour fit parameter rows,
+    ``material C + channel``, and their number)."""
     from rjfit.sampler.regions.changepoint_grid import obs_region_labels
 
     t = record.cp_iteration[snapshot]
     if getattr(record, "n_materials", None) is not None:      # materials: the snapshot holds the labels
         pixels = np.nan_to_num(record.material_labels[snapshot], nan=0.0).astype(np.int64).ravel()
-        return int(record.n_materials[t]), np.repeat(pixels, np.diff(problem.pixel_start))
+        labels = np.repeat(pixels, np.diff(problem.pixel_start))
+        if problem.n_channels > 1:
+            return int(record.n_materials[t]) * problem.n_channels, labels * problem.n_channels + problem.channel
+        return int(record.n_materials[t]), labels
     n_u, n_v = int(record.n_u[t]), int(record.n_v[t])
     labels = obs_region_labels(record.cp_u[snapshot, :, :n_u].astype(float),
                                record.cp_v[snapshot, :, :n_v].astype(float), problem.row, problem.col,
