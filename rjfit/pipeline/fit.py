@@ -195,7 +195,7 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     """
     scale = noise_scale(observations, options.noise, options.noise_floor)
     try:
-        suggestion = suggest_likelihood_power(observations, noise_scale=scale)
+        suggestion = _power_suggestion(observations, scale)
     except ValueError:
         if options.likelihood_power == "auto":
             raise
@@ -206,6 +206,21 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     else:
         problem = Problem.from_observations(observations, likelihood_power=float(power), noise_scale=scale)
     return problem, suggestion, describe_noise(options.noise, options.noise_floor, scale)
+
+
+def _power_suggestion(observations, scale):
+    """:func:`~rjfit.data.coarsen.suggest_likelihood_power`; for a joint colour fit measured per channel, the
+    smallest power (the most misfit) taken, with each channel's under ``channels``."""
+    if observations.channel is None:
+        return suggest_likelihood_power(observations, noise_scale=scale)
+    per_channel = []
+    for c in range(observations.n_channels):
+        mine = observations.channel == c
+        single = dataclasses.replace(observations.subset(mine), channel=None, n_channels=1)
+        per_channel.append(suggest_likelihood_power(single, noise_scale=None if scale is None else scale[mine]))
+    suggestion = dict(min(per_channel, key=lambda s: s["likelihood_power"]))
+    suggestion["channels"] = per_channel
+    return suggestion
 
 
 def burn_in_iterations(options: FitOptions) -> int:
@@ -450,10 +465,14 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, 
     mixes modes when chains disagree)."""
     labels = np.rint(np.nan_to_num(read_exr(out_dir / "labels.exr")["labels"], nan=-1)).astype(int)
     names = ("I0", "kd", "gamma", "sigma2")
-    table = np.full((max(len(summary["regions"]), int(labels.max()) + 1) + 1, 8), np.nan)
+    colour = bool(summary["regions"]) and "channels" in summary["regions"][0]
+    if colour:      # a joint colour fit: gamma per material, the rest per channel (I0_R, kd_R, ..., sigma2_B)
+        names = ("gamma",) + tuple(f"{name}_{channel}" for channel in summary["regions"][0]["channels"]
+                                   for name in ("I0", "kd", "sigma2"))
+    table = np.full((max(len(summary["regions"]), int(labels.max()) + 1) + 1, 2 * len(names)), np.nan)
     for index, region in enumerate(summary["regions"]):
         row = int(region.get("region", index))
-        table[row] = [region[name][stat] for name in names for stat in ("mean", "sd")]
+        table[row] = [_region_value(region, name)[stat] for name in names for stat in ("mean", "sd")]
     region_of_pixel = np.where(labels >= 0, labels, table.shape[0] - 1)      # last row stays NaN
     channels = {f"{name}{suffix}": table[region_of_pixel, 2 * k + j]
                 for k, name in enumerate(names) for j, suffix in enumerate(("", "_sd"))}
@@ -461,6 +480,8 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, 
     count = np.bincount(observations.pixel, minlength=size)
     if prediction is not None:
         rms = prediction["residual_rms"]
+    elif colour:
+        raise ValueError("a joint colour fit's residual map needs its posterior mean prediction")
     else:
         obs_params = table[region_of_pixel.ravel()[observations.pixel]]
         mu = radiance(obs_params[:, 0], obs_params[:, 2], obs_params[:, 4], observations.cos_ln, observations.cos_hn,
@@ -475,3 +496,11 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, 
     channels.update(extra_channels or {})
     write_exr(out_dir / "maps.exr", channels)
     return "maps.exr"
+
+
+def _region_value(region: dict, name: str) -> dict:
+    """A region's summary of parameter ``name``; ``I0_R`` etc.: channel R's I0 of a joint colour fit."""
+    if name in region:
+        return region[name]
+    parameter, channel = name.rsplit("_", 1)
+    return region["channels"][channel][parameter]

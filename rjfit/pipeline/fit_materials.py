@@ -37,7 +37,7 @@ def summarise_materials(records, problem, options, burn: int):
     """
     posterior = mat.materials_posterior(records, burn)
     k = int(next(iter(posterior)))
-    draws = mat.relabelled_draws(records, burn, k)
+    draws = mat.relabelled_draws(records, burn, k, problem.n_channels)
     labels, probability = draws.map_labels()
     summaries, diag = mat.material_summaries(draws, labels)
     chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
