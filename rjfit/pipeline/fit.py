@@ -43,12 +43,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.coarsen import misfit_warning, suggest_likelihood_power
+from rjfit.data.coarsen import misfit_warning
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import staging_dir
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, publish_results, results_digest, save_chain_arrays, write_summary
+from rjfit.pipeline.fit_materials import power_suggestion
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
@@ -195,7 +196,7 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     """
     scale = noise_scale(observations, options.noise, options.noise_floor)
     try:
-        suggestion = _power_suggestion(observations, scale)
+        suggestion = power_suggestion(observations, scale)
     except ValueError:
         if options.likelihood_power == "auto":
             raise
@@ -206,21 +207,6 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     else:
         problem = Problem.from_observations(observations, likelihood_power=float(power), noise_scale=scale)
     return problem, suggestion, describe_noise(options.noise, options.noise_floor, scale)
-
-
-def _power_suggestion(observations, scale):
-    """:func:`~rjfit.data.coarsen.suggest_likelihood_power`; for a joint colour fit measured per channel, the
-    smallest power (the most misfit) taken, with each channel's under ``channels``."""
-    if observations.channel is None:
-        return suggest_likelihood_power(observations, noise_scale=scale)
-    per_channel = []
-    for c in range(observations.n_channels):
-        mine = observations.channel == c
-        single = dataclasses.replace(observations.subset(mine), channel=None, n_channels=1)
-        per_channel.append(suggest_likelihood_power(single, noise_scale=None if scale is None else scale[mine]))
-    suggestion = dict(min(per_channel, key=lambda s: s["likelihood_power"]))
-    suggestion["channels"] = per_channel
-    return suggestion
 
 
 def burn_in_iterations(options: FitOptions) -> int:

@@ -17,13 +17,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import dataclasses
+
 import numpy as np
+
+from rjfit.data.coarsen import suggest_likelihood_power
 
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 
-__all__ = ["summarise_materials", "write_material_files", "EMPTY_MATERIALS_NOTE"]
+__all__ = ["summarise_materials", "write_material_files", "EMPTY_MATERIALS_NOTE", "power_suggestion"]
 
 EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
@@ -78,3 +82,18 @@ def write_material_files(staging: Path, result, records, options) -> None:
                                                                    folder / "materials_histogram.png"),
                    "reflectance": figs.reflectance(result.labels, result.prediction, folder / "reflectance.png")}
         summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
+
+
+def power_suggestion(observations, scale):
+    """:func:`~rjfit.data.coarsen.suggest_likelihood_power`; for a joint colour fit measured per channel, the
+    smallest power (the most misfit) taken, with each channel's under ``channels``."""
+    if observations.channel is None:
+        return suggest_likelihood_power(observations, noise_scale=scale)
+    per_channel = []
+    for c in range(observations.n_channels):
+        mine = observations.channel == c
+        single = dataclasses.replace(observations.subset(mine), channel=None, n_channels=1)
+        per_channel.append(suggest_likelihood_power(single, noise_scale=None if scale is None else scale[mine]))
+    suggestion = dict(min(per_channel, key=lambda s: s["likelihood_power"]))
+    suggestion["channels"] = per_channel
+    return suggestion
