@@ -4,7 +4,7 @@ A 10 x 12 image under 6 lights, two paints of one kd and gamma whose channel MEA
 equal (I0 x (1.5, 0.8, 0.7) left, x (0.75, 0.75, 1.5) right: their grey data follow one
 BRDF) and whose hues differ; 2 chains of 150 iterations (about 15 s). Checks what the fit
 writes (per-material gamma, per-channel I0, kd and sigma^2 in summary.json, chains.nc's
-channel dimension, maps.exr's per-channel maps) and that the colour fit separates the
+channel dimension, maps.exr's per-channel maps, the colour reflectance figure) and that the colour fit separates the
 paints (label accuracy >= 0.95: the per-channel amplitudes differ by 10 to 20 noise sds per
 observation); and that ``--channel rgb`` with the change-point model is refused.
 """
@@ -43,7 +43,7 @@ def fitted(tmp_path_factory):
     obs, truth = colour_stack()
     out = tmp_path_factory.mktemp("fit") / "out"
     summary = fit(obs, out, regions="materials", channel="rgb", iterations=150, n_chains=2, processes=1,
-                  truth_labels=truth, progress=False, seed=2, figures=False)
+                  truth_labels=truth, progress=False, seed=2)
     return out, summary
 
 
@@ -59,6 +59,7 @@ def test_colour_fit_writes_per_channel_parameters(fitted):
     assert theta.dims[2:] == ("material", "channel", "parameter") and list(theta["channel"].values) == ["R", "G", "B"]
     maps = read_exr(out / "maps.exr")
     assert {"gamma", "I0_R", "kd_B", "sigma2_G", "residual_rms"} <= set(maps)
+    assert (out / summary["figures"]["reflectance"]).is_file()       # the colour reflectance figure
 
 
 def test_colour_needs_the_material_model():
