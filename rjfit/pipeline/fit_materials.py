@@ -85,8 +85,14 @@ def write_material_files(staging: Path, result, records, options) -> None:
 
 
 def power_suggestion(observations, scale):
-    """:func:`~rjfit.data.coarsen.suggest_likelihood_power`; for a joint colour fit measured per channel, the
-    smallest power (the most misfit) taken, with each channel's under ``channels``."""
+    """:func:`~rjfit.data.coarsen.suggest_likelihood_power`; for a joint colour fit measured per channel, with
+    each channel's under ``channels``: the smallest (the most misfit) divided by the number of channels.
+
+    Why divided: the misfit of a pixel (a normal a few degrees off, a lobe the model lacks) is
+    shared by its channels, so C channels hold about as many independent discrepancies as
+    one, while the likelihood counts C times the observations; at one channel's power a
+    colour fit weighs the misfit C times (psm-rock, docs/materials.md: the matrix split
+    along shading at the channels' power, one material at a third of it)."""
     if observations.channel is None:
         return suggest_likelihood_power(observations, noise_scale=scale)
     per_channel = []
@@ -95,5 +101,7 @@ def power_suggestion(observations, scale):
         single = dataclasses.replace(observations.subset(mine), channel=None, n_channels=1)
         per_channel.append(suggest_likelihood_power(single, noise_scale=None if scale is None else scale[mine]))
     suggestion = dict(min(per_channel, key=lambda s: s["likelihood_power"]))
+    suggestion["likelihood_power"] /= observations.n_channels
     suggestion["channels"] = per_channel
+    suggestion["rule"] = "the smallest channel's power divided by the number of channels (misfit shared by channels)"
     return suggestion
