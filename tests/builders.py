@@ -180,6 +180,35 @@ def tiny_problem(seed=5, width=2):
     return obs, prior
 
 
+#: (I0 per channel, kd per channel) of the two regions of :func:`tiny_colour_problem` (gamma 4 left, 15 right)
+TINY_COLOUR_TRUTH = (((9.0, 11.0, 10.0), (0.75, 0.5, 0.6)), ((11.0, 9.0, 10.0), (0.3, 0.45, 0.35)))
+
+
+def tiny_colour_problem(seed=5, width=2):
+    """:func:`tiny_problem`'s image, geometry and prior, observed in three channels (a joint colour fit).
+
+    Region left: gamma 4, right: gamma 15; per channel the I0 and kd of
+    :data:`TINY_COLOUR_TRUTH`, sigma^2 0.3. Returns ``(per-channel observations, stacked
+    observations, prior)`` (:func:`rjfit.data.observations.stack_channels`).
+    """
+    from rjfit.data.observations import stack_channels
+
+    base, prior = tiny_problem(seed=seed, width=width)
+    rng = np.random.default_rng(seed + 100)
+    left = (2 * (base.pixel % width) < width)
+    per_channel = []
+    for c in range(3):
+        I0 = np.where(left, TINY_COLOUR_TRUTH[0][0][c], TINY_COLOUR_TRUTH[1][0][c])
+        kd = np.where(left, TINY_COLOUR_TRUTH[0][1][c], TINY_COLOUR_TRUTH[1][1][c])
+        gamma = np.where(left, 4.0, 15.0)
+        mu = radiance(I0, kd, gamma, base.cos_ln, base.cos_hn, base.irradiance)
+        y = mu + rng.normal(0, np.sqrt(0.3), mu.size)
+        per_channel.append(Observations(image_shape=base.image_shape, n_lights=base.n_lights, pixel=base.pixel,
+                                        light=base.light, y=y, cos_ln=base.cos_ln, cos_hn=base.cos_hn,
+                                        irradiance=base.irradiance, object_mask=base.object_mask))
+    return per_channel, stack_channels(per_channel), prior
+
+
 class Quadrature:
     """Evidence of any subset of observations, and parameter marginals, on a phi grid (the enumeration tests' oracle).
 

@@ -6,7 +6,7 @@ materials, labels from a start that leaves many pixels to change. Then the propo
 the merge/split and cluster moves (made, not accepted), timed by kind. Prints medians of
 ``--repeats`` runs after a warm-up (compilation excluded).
 
-    PYTHONPATH=. python validation/bench_label_sweep.py [--size 128 --lights 12 --threads 1]
+    PYTHONPATH=. python validation/bench_label_sweep.py [--size 128 --lights 12 --threads 1 --channels 3]
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import numpy as np
 
 
 def main(argv=None):
-    from rjfit.data.observations import Observations
+    from rjfit.data.observations import Observations, stack_channels
     from rjfit.model.blinn import radiance
     from rjfit.sampler.forward import Problem
     from rjfit.sampler.kernel import initial_state
@@ -34,6 +34,8 @@ def main(argv=None):
     parser.add_argument("--materials", type=int, default=4)
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--channels", type=int, default=1,
+                        help="3: a joint colour fit (--channel rgb): every channel observed, per-channel amplitudes")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(0)
     n, L = args.size, args.lights
@@ -42,9 +44,15 @@ def main(argv=None):
     pixel = np.repeat(np.arange(n * n), L)
     cos_ln, cos_hn, irr = rng.uniform(0.2, 1, pixel.size), rng.uniform(0.5, 1, pixel.size), rng.uniform(0.5, 1.5, pixel.size)
     theta = params[truth[pixel] % len(params)]
-    y = radiance(theta[:, 0], theta[:, 1], theta[:, 2], cos_ln, cos_hn, irr) + rng.normal(0, 0.15, pixel.size)
-    obs = Observations(image_shape=(n, n), n_lights=L, pixel=pixel, light=np.tile(np.arange(L), n * n).astype(np.int32),
-                       y=y, cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irr, object_mask=np.ones((n, n), bool))
+    per_channel = []
+    for c in range(args.channels):      # channel c's amplitudes scaled by 1, 0.8, 1.2, ...
+        scale = 1.0 + 0.2 * ((c + 1) // 2) * (-1) ** c if c else 1.0
+        y = (radiance(scale * theta[:, 0], theta[:, 1], theta[:, 2], cos_ln, cos_hn, irr)
+             + rng.normal(0, 0.15, pixel.size))
+        per_channel.append(Observations(image_shape=(n, n), n_lights=L, pixel=pixel,
+                                        light=np.tile(np.arange(L), n * n).astype(np.int32), y=y, cos_ln=cos_ln,
+                                        cos_hn=cos_hn, irradiance=irr, object_mask=np.ones((n, n), bool)))
+    obs = per_channel[0] if args.channels == 1 else stack_channels(per_channel)
     problem = Problem.from_observations(obs)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     config = SamplerConfig.from_flat(region_model="materials")
@@ -68,7 +76,8 @@ def main(argv=None):
                                   regions.max_materials)
                 if repeat:
                     proposal_times[kind].append(time.perf_counter() - start)
-    print(f"{n} x {n} x {L} ({problem.n_obs} observations), K = {args.materials}, {args.threads} thread(s): "
+    print(f"{n} x {n} x {L} x {args.channels} channel(s) ({problem.n_obs} observations), K = {args.materials}, "
+          f"{args.threads} thread(s): "
           f"label sweep median {1e3 * np.median(times):.2f} ms (min {1e3 * min(times):.2f}), {changed} pixels changed")
     print("proposals (not accepted), median ms: " + ", ".join(
         f"{kind} {1e3 * np.median(t):.1f} ({len(t)})" for kind, t in proposal_times.items() if t))

@@ -19,9 +19,9 @@ import numpy as np
 from rjfit.data.checks import check_finite, check_lights_face_object, check_mask, check_unit_normals
 from rjfit.data.descriptions import check_dataset_description
 from rjfit.data.exr import read_exr
-from rjfit.data.formats import CHANNELS
+from rjfit.data.formats import CHANNELS, COLOUR, COLOUR_CHANNELS
 from rjfit.data.lights import Light, geometry_terms
-from rjfit.data.observations import EXCLUSION_RULES, Observations, exclusion_reasons
+from rjfit.data.observations import EXCLUSION_RULES, Observations, exclusion_reasons, stack_channels
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.io import read_json
 
@@ -249,12 +249,14 @@ class Dataset:
         return valid
 
     def observations(self, channel: str = "mean", dark: float | None = None) -> Observations:
-        """The valid observations of one channel (see :meth:`valid_mask`).
+        """The valid observations of one channel (see :meth:`valid_mask`), or of R, G and B jointly.
 
         Parameters
         ----------
         channel, dark
-            As in :meth:`valid_mask`.
+            As in :meth:`valid_mask`; ``channel="rgb"`` (:data:`~rjfit.data.formats.COLOUR`):
+            each of R, G and B's valid observations, stacked with their channel index
+            (:func:`~rjfit.data.observations.stack_channels`), for a joint colour fit.
 
         Returns
         -------
@@ -267,6 +269,8 @@ class Dataset:
         DatasetError
             If no observation is valid.
         """
+        if channel == COLOUR:
+            return stack_channels([self.observations(name, dark) for name in COLOUR_CHANNELS])
         rows, cols = np.nonzero(self.object_mask)
         flat_pixel = rows.astype(np.int64) * self.image_shape[1] + cols
         parts = {"pixel": [], "light": [], "y": [], "cos_ln": [], "cos_hn": [], "irradiance": []}

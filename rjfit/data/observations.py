@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Observations", "valid_observation_mask", "exclusion_reasons", "observations_from_stack",
+__all__ = ["Observations", "valid_observation_mask", "exclusion_reasons", "observations_from_stack", "stack_channels",
            "valid_images_per_pixel", "MIN_COS", "EXCLUSION_RULES"]
 
 
@@ -33,6 +33,12 @@ class Observations:
     y, cos_ln, cos_hn, irradiance : ndarray of float64, shape (N,)
         Measured value, geometry terms and relative irradiance (intensity / r^2).
     object_mask : ndarray of bool, shape (H, W)
+    channel : ndarray of int8, shape (N,), optional
+        The colour channel of each observation of a joint colour fit (``--channel rgb``: 0, 1,
+        2 for R, G, B; the observations of one pixel and light may be there once per channel);
+        None for a single-channel stack (every observation one channel).
+    n_channels : int
+        The number of colour channels fitted jointly (1 for a single channel).
     """
 
     image_shape: tuple[int, int]
@@ -44,6 +50,8 @@ class Observations:
     cos_hn: np.ndarray
     irradiance: np.ndarray
     object_mask: np.ndarray
+    channel: np.ndarray | None = None
+    n_channels: int = 1
 
     @property
     def n_obs(self) -> int:
@@ -72,6 +80,7 @@ class Observations:
             image_shape=self.image_shape, n_lights=self.n_lights, pixel=self.pixel[keep],
             light=self.light[keep], y=self.y[keep], cos_ln=self.cos_ln[keep],
             cos_hn=self.cos_hn[keep], irradiance=self.irradiance[keep], object_mask=self.object_mask,
+            channel=None if self.channel is None else self.channel[keep], n_channels=self.n_channels,
         )
 
 
@@ -192,3 +201,40 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
         irradiance=np.asarray(irradiance, dtype=float)[valid],
         object_mask=np.asarray(object_mask, dtype=bool),
     )
+
+
+def stack_channels(per_channel) -> Observations:
+    """The observations of a joint colour fit: each channel's :class:`Observations`, one after the other.
+
+    Parameters
+    ----------
+    per_channel : sequence of Observations
+        One per colour channel (R, G, B), of one stack: the same images, lights and mask.
+        Each keeps its own valid observations (a channel too dark or not finite there drops
+        out of that channel only).
+
+    Returns
+    -------
+    Observations
+        ``channel`` holds each observation's channel index, ``n_channels`` their number.
+
+    Raises
+    ------
+    ValueError
+        If fewer than two channels are given, or they differ in image shape or lights.
+    """
+    parts = list(per_channel)
+    if len(parts) < 2:
+        raise ValueError(f"a joint colour fit needs two or more channels, got {len(parts)}")
+    first = parts[0]
+    if any(o.image_shape != first.image_shape or o.n_lights != first.n_lights or o.channel is not None
+           for o in parts):
+        raise ValueError("the channels of a joint colour fit must be single channels of one stack "
+                         "(same image shape and lights)")
+    return Observations(
+        image_shape=first.image_shape, n_lights=first.n_lights,
+        **{name: np.concatenate([getattr(o, name) for o in parts])
+           for name in ("pixel", "light", "y", "cos_ln", "cos_hn", "irradiance")},
+        object_mask=first.object_mask,
+        channel=np.concatenate([np.full(o.n_obs, c, np.int8) for c, o in enumerate(parts)]),
+        n_channels=len(parts))

@@ -43,12 +43,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.coarsen import misfit_warning, suggest_likelihood_power
+from rjfit.data.coarsen import misfit_warning
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import staging_dir
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, publish_results, results_digest, save_chain_arrays, write_summary
+from rjfit.pipeline.fit_materials import power_suggestion
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
@@ -195,7 +196,7 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     """
     scale = noise_scale(observations, options.noise, options.noise_floor)
     try:
-        suggestion = suggest_likelihood_power(observations, noise_scale=scale)
+        suggestion = power_suggestion(observations, scale)
     except ValueError:
         if options.likelihood_power == "auto":
             raise
@@ -450,10 +451,14 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, 
     mixes modes when chains disagree)."""
     labels = np.rint(np.nan_to_num(read_exr(out_dir / "labels.exr")["labels"], nan=-1)).astype(int)
     names = ("I0", "kd", "gamma", "sigma2")
-    table = np.full((max(len(summary["regions"]), int(labels.max()) + 1) + 1, 8), np.nan)
+    colour = bool(summary["regions"]) and "channels" in summary["regions"][0]
+    if colour:      # a joint colour fit: gamma per material, the rest per channel (I0_R, kd_R, ..., sigma2_B)
+        names = ("gamma",) + tuple(f"{name}_{channel}" for channel in summary["regions"][0]["channels"]
+                                   for name in ("I0", "kd", "sigma2"))
+    table = np.full((max(len(summary["regions"]), int(labels.max()) + 1) + 1, 2 * len(names)), np.nan)
     for index, region in enumerate(summary["regions"]):
         row = int(region.get("region", index))
-        table[row] = [region[name][stat] for name in names for stat in ("mean", "sd")]
+        table[row] = [_region_value(region, name)[stat] for name in names for stat in ("mean", "sd")]
     region_of_pixel = np.where(labels >= 0, labels, table.shape[0] - 1)      # last row stays NaN
     channels = {f"{name}{suffix}": table[region_of_pixel, 2 * k + j]
                 for k, name in enumerate(names) for j, suffix in enumerate(("", "_sd"))}
@@ -461,6 +466,8 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, 
     count = np.bincount(observations.pixel, minlength=size)
     if prediction is not None:
         rms = prediction["residual_rms"]
+    elif colour:
+        raise ValueError("a joint colour fit's residual map needs its posterior mean prediction")
     else:
         obs_params = table[region_of_pixel.ravel()[observations.pixel]]
         mu = radiance(obs_params[:, 0], obs_params[:, 2], obs_params[:, 4], observations.cos_ln, observations.cos_hn,
@@ -475,3 +482,11 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, 
     channels.update(extra_channels or {})
     write_exr(out_dir / "maps.exr", channels)
     return "maps.exr"
+
+
+def _region_value(region: dict, name: str) -> dict:
+    """A region's summary of parameter ``name``; ``I0_R`` etc.: channel R's I0 of a joint colour fit."""
+    if name in region:
+        return region[name]
+    parameter, channel = name.rsplit("_", 1)
+    return region["channels"][channel][parameter]

@@ -14,6 +14,7 @@ from rjfit.data.dataset import read_validation_result
 from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.pipeline.fit import FitSource, fit
 from rjfit.pipeline.fit_effects import fit_effects
+from rjfit.data.formats import COLOUR
 from rjfit.pipeline.options import EACH_CHANNEL, FitOptions
 from rjfit.render.datasets import load_dataset
 from rjfit.render.gate import require_validated
@@ -86,7 +87,8 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)
-    source = FitSource(entries=entries, warnings=warnings, exclusion_counts=dataset.exclusion_counts(options.channel),
+    source = FitSource(entries=entries, warnings=warnings, exclusion_counts=dataset.exclusion_counts(
+                            "mean" if options.channel == COLOUR else options.channel),
                        object_mask=dataset.object_mask, n_lights=dataset.n_lights)
     observations = dataset.observations(options.channel)
     effects, effect_source = fit_effects(dataset, observations, options)

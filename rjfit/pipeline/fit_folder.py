@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.exr import read_exr
-from rjfit.data.formats import CHANNELS
+from rjfit.data.formats import CHANNELS, COLOUR
 from rjfit.data.noise import NOISE_MODELS
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.io import publish, read_json, write_json_atomic
@@ -260,8 +260,8 @@ def read_summary(fit_dir) -> dict:
         floor = noise.get("floor")
         if floor is not None and not (_is_number(floor) and 0.0 < floor < float("inf")):
             problems.append(f"'noise' entry 'floor' is {_short(floor)}, not a positive number")
-    if isinstance(summary.get("channel"), str) and summary["channel"] not in CHANNELS:
-        problems.append(f"'channel' is {summary['channel']!r}, not one of {', '.join(CHANNELS)}")
+    if isinstance(summary.get("channel"), str) and summary["channel"] not in CHANNELS + (COLOUR,):
+        problems.append(f"'channel' is {summary['channel']!r}, not one of {', '.join(CHANNELS + (COLOUR,))}")
     if problems:
         raise DatasetError(f"{path}: not a summary `rjfit fit` wrote ({'; '.join(problems)}); {_again(fit_dir)}")
     return summary

@@ -17,13 +17,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import dataclasses
+
 import numpy as np
+
+from rjfit.data.coarsen import suggest_likelihood_power
 
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 
-__all__ = ["summarise_materials", "write_material_files", "EMPTY_MATERIALS_NOTE"]
+__all__ = ["summarise_materials", "write_material_files", "EMPTY_MATERIALS_NOTE", "power_suggestion"]
 
 EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
@@ -37,7 +41,7 @@ def summarise_materials(records, problem, options, burn: int):
     """
     posterior = mat.materials_posterior(records, burn)
     k = int(next(iter(posterior)))
-    draws = mat.relabelled_draws(records, burn, k)
+    draws = mat.relabelled_draws(records, burn, k, problem.n_channels)
     labels, probability = draws.map_labels()
     summaries, diag = mat.material_summaries(draws, labels)
     chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
@@ -78,3 +82,26 @@ def write_material_files(staging: Path, result, records, options) -> None:
                                                                    folder / "materials_histogram.png"),
                    "reflectance": figs.reflectance(result.labels, result.prediction, folder / "reflectance.png")}
         summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
+
+
+def power_suggestion(observations, scale):
+    """:func:`~rjfit.data.coarsen.suggest_likelihood_power`; for a joint colour fit measured per channel, with
+    each channel's under ``channels``: the smallest (the most misfit) divided by the number of channels.
+
+    Why divided: the misfit of a pixel (a normal a few degrees off, a lobe the model lacks) is
+    shared by its channels, so C channels hold about as many independent discrepancies as
+    one, while the likelihood counts C times the observations; at one channel's power a
+    colour fit weighs the misfit C times (psm-rock, docs/materials.md: the matrix split
+    along shading at the channels' power, one material at a third of it)."""
+    if observations.channel is None:
+        return suggest_likelihood_power(observations, noise_scale=scale)
+    per_channel = []
+    for c in range(observations.n_channels):
+        mine = observations.channel == c
+        single = dataclasses.replace(observations.subset(mine), channel=None, n_channels=1)
+        per_channel.append(suggest_likelihood_power(single, noise_scale=None if scale is None else scale[mine]))
+    suggestion = dict(min(per_channel, key=lambda s: s["likelihood_power"]))
+    suggestion["likelihood_power"] /= observations.n_channels
+    suggestion["channels"] = per_channel
+    suggestion["rule"] = "the smallest channel's power divided by the number of channels (misfit shared by channels)"
+    return suggestion

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from rjfit.data.formats import CHANNELS
+from rjfit.data.formats import CHANNELS, COLOUR
 from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
 from rjfit.diagnose.effects import EFFECTS
 from rjfit.sampler.priors import PRESETS
@@ -22,7 +22,7 @@ from rjfit.sampler.state import REGION_MODELS
 __all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS"]
 
 EACH_CHANNEL = ("R", "G", "B")                 # what ``channel="each"`` fits, one fit per channel
-FIT_CHANNELS = CHANNELS + ("each",)
+FIT_CHANNELS = CHANNELS + ("each", COLOUR)
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,8 @@ class FitOptions:
     channel: str = cli_option(
         "mean", "--channel",
         "Colour channel fitted (luminance: CIE Y, sRGB primaries); each: R, G and B fitted separately, into "
-        "OUT/R, OUT/G and OUT/B (OUT/NAME/R, ... for several data sets).", "choice", choices=FIT_CHANNELS)
+        "OUT/R, OUT/G and OUT/B (OUT/NAME/R, ... for several data sets); rgb: R, G and B fitted jointly (one "
+        "segmentation, one lobe exponent per material, per-channel amplitudes and noise; --regions materials).", "choice", choices=FIT_CHANNELS)
     likelihood_power: float | str = cli_option(
         1.0, "--likelihood-power",
         "zeta in (0, 1] of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each observation "
@@ -203,6 +204,10 @@ class FitOptions:
             # the label moves' per-pixel likelihoods and cluster statistics see the plain lobe only
             raise ValueError("--effects and --effects-from work with --regions changepoints only (the material model's "
                              "label moves do not yet carry the effects' terms); drop one of them")
+        if self.channel == COLOUR and (self.regions != "materials" or self.sampler != "adaptive"):
+            raise ValueError("--channel rgb (a joint colour fit) works with --regions materials and the adaptive "
+                             "sampler only (the change-point model's passes see one channel): use --regions materials, "
+                             "or fit one channel (--channel mean, R, G, B or each)")
         if not 1 <= self.max_materials <= 127:
             raise ValueError(f"--max-materials must lie in 1 .. 127, got {self.max_materials}")
         if self.max_u < 0 or self.max_v < 0:

@@ -146,6 +146,8 @@ def reflectance(labels, prediction, path):
     """
     plt = _plt()
     fitted, observed, abs_err = prediction["radiance"], prediction["observed"], prediction["abs_error"]
+    if "radiance_rgb" in prediction:        # a joint colour fit: the radiances in colour
+        return _reflectance_colour(labels, prediction, path)
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
     # fitted and observed share one colour scale, so equal colours mean equal radiance
     shared = dict(vmin=float(np.nanmin([np.nanmin(fitted), np.nanmin(observed)])),
@@ -166,6 +168,31 @@ def reflectance(labels, prediction, path):
     regions = np.unique(np.asarray(labels)[np.asarray(labels) >= 0])
     colorbar = fig.colorbar(im, ax=axes[3], shrink=0.85, ticks=regions)
     colorbar.set_label("region")
+    return _save(fig, path)
+
+
+def _reflectance_colour(labels, prediction, path):
+    """:func:`reflectance` of a joint colour fit: fitted and observed radiance as RGB images (one scale: the
+    observed 99th percentile maps to white), the absolute error (channel mean) and the MAP labels."""
+    plt = _plt()
+    fitted, observed = prediction["radiance_rgb"], prediction["observed_rgb"]
+    top = float(np.nanpercentile(observed, 99)) or 1.0
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
+    for ax, img, title in zip(axes[:2], (fitted, observed),
+                              (f"posterior mean radiance, RGB (mean over lights; {prediction['draws']} draws)",
+                               "observed radiance, RGB")):
+        ax.imshow(np.clip(np.nan_to_num(img / top, nan=1.0), 0.0, 1.0))
+        ax.set_title(title, fontsize=9)
+    im = axes[2].imshow(prediction["abs_error"], cmap="viridis")
+    axes[2].set_title("absolute error |y - E[mu]| (mean over channels)", fontsize=9)
+    fig.colorbar(im, ax=axes[2], shrink=0.85)
+    shown = np.where(np.asarray(labels) >= 0, labels, np.nan)
+    cmap, norm = region_colormap(int(np.nanmax(shown)) + 1 if np.isfinite(shown).any() else 1)
+    im = axes[3].imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
+    for ax in axes:
+        zoom_to_object(ax, np.isfinite(prediction["observed"]) | np.isfinite(shown))
+    axes[3].set_title("MAP labels", fontsize=9)
+    fig.colorbar(im, ax=axes[3], shrink=0.85, ticks=np.unique(np.asarray(labels)[np.asarray(labels) >= 0]))
     return _save(fig, path)
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from rjfit.data.formats import COLOUR_CHANNELS
 from rjfit.posterior.summary import _arviz, diagnostics, region_summaries
 from rjfit.sampler.priors import PARAM_NAMES
 
@@ -81,8 +82,11 @@ def _snapshots(rec, burn_in, k):
             yield t, np.nan_to_num(rec.material_labels[s], nan=-1.0).astype(np.int64)
 
 
-def relabelled_draws(records, burn_in: int, k: int) -> RelabelledDraws:
+def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1) -> RelabelledDraws:
     """The snapshot draws at ``k`` materials relabelled to the reference (see the module docstring).
+
+    A joint colour fit (``n_channels`` > 1) records a row per material and channel: its
+    draws are then (S_c, K, C, 4).
 
     Raises
     ------
@@ -107,11 +111,11 @@ def relabelled_draws(records, burn_in: int, k: int) -> RelabelledDraws:
             rows, cols = linear_sum_assignment(-overlap)
             to_reference = np.empty(k, np.int64)
             to_reference[rows] = cols
-            theta = np.empty((k, 4))
-            theta[to_reference] = rec.theta[t, :k]
-            theta_c.append(theta)
+            theta = np.empty((k, n_channels, 4))
+            theta[to_reference] = rec.theta[t, :k * n_channels].reshape(k, n_channels, 4)
+            theta_c.append(theta if n_channels > 1 else theta[:, 0])
             labels_c.append(np.where(labelled, to_reference[np.clip(labels, 0, None)], -1))
-        thetas.append(np.array(theta_c).reshape(-1, k, 4))
+        thetas.append(np.array(theta_c).reshape(-1, k, *((n_channels,) if n_channels > 1 else ()), 4))
         all_labels.append(np.array(labels_c).reshape(-1, *reference.shape))
     return RelabelledDraws(thetas, all_labels, reference)
 
@@ -122,10 +126,27 @@ def material_summaries(draws: RelabelledDraws, map_labels) -> tuple[list, dict]:
     Returns ``(summaries, diagnostics)``; :func:`rjfit.posterior.summary.diagnostics` of the
     relabelled draws (R-hat and ESS over chains).
     """
+    if draws.theta[0].ndim == 4:
+        return colour_summaries(draws, map_labels)
     summaries = region_summaries(draws.theta, map_labels)
     for entry in summaries:
         entry["material"] = entry["region"]
     return summaries, diagnostics(draws.theta)
+
+
+def colour_summaries(draws: RelabelledDraws, map_labels, channel_names=COLOUR_CHANNELS) -> tuple[list, dict]:
+    """:func:`material_summaries` of a joint colour fit: per material its pixels and gamma, and per channel
+    I0, kd and sigma^2 (posterior mean, sd, 95 % interval); diagnostics over every (material, channel) row."""
+    k, n_ch = draws.theta[0].shape[1:3]
+    flat = [theta.reshape(len(theta), k * n_ch, 4) for theta in draws.theta]
+    rows = region_summaries(flat, None)
+    summaries = []
+    for m in range(k):
+        entry = {"region": m, "material": m, "pixels": int(np.sum(map_labels == m)), "gamma": rows[m * n_ch]["gamma"],
+                 "channels": {name: {param: rows[m * n_ch + c][param] for param in ("I0", "kd", "sigma2")}
+                              for c, name in enumerate(channel_names[:n_ch])}}
+        summaries.append(entry)
+    return summaries, diagnostics(flat)
 
 
 def cap_warning(posterior: dict, max_materials: int, threshold: float = 0.05) -> str | None:
@@ -152,6 +173,9 @@ def to_inference_data(records, burn_in: int, draws: RelabelledDraws):
     T = min(len(r.n_materials) for r in records)
     sample_stats = {"n_materials": np.stack([r.n_materials[burn_in:T] for r in records]).astype(np.int64),
                     "log_post": np.stack([r.log_post[burn_in:T] for r in records])}
-    return az.from_dict(posterior=posterior, sample_stats=sample_stats,
-                        coords={"material": np.arange(k), "parameter": list(PARAM_NAMES)},
-                        dims={"theta": ["material", "parameter"]})
+    coords = {"material": np.arange(k), "parameter": list(PARAM_NAMES)}
+    dims = ["material", "parameter"]
+    if usable[0].ndim == 4:       # a joint colour fit: (chain, draw, material, channel, parameter)
+        coords["channel"] = list(COLOUR_CHANNELS[:usable[0].shape[2]])
+        dims = ["material", "channel", "parameter"]
+    return az.from_dict(posterior=posterior, sample_stats=sample_stats, coords=coords, dims={"theta": dims})

@@ -252,13 +252,17 @@ def chain_region_summaries(records, draws_per_chain, burn_in: int, model, image_
 
 def draw_labels(record, snapshot: int, problem) -> tuple[int, np.ndarray]:
     """(number of regions, region of every observation of ``problem``) of a chain's layout snapshot
-    (change points, or material labels per pixel)."""
+    (change points, or material labels per pixel; for a joint colour fit parameter rows,
+    ``material C + channel``, and their number)."""
     from rjfit.sampler.regions.changepoint_grid import obs_region_labels
 
     t = record.cp_iteration[snapshot]
     if getattr(record, "n_materials", None) is not None:      # materials: the snapshot holds the labels
         pixels = np.nan_to_num(record.material_labels[snapshot], nan=0.0).astype(np.int64).ravel()
-        return int(record.n_materials[t]), np.repeat(pixels, np.diff(problem.pixel_start))
+        labels = np.repeat(pixels, np.diff(problem.pixel_start))
+        if problem.n_channels > 1:
+            return int(record.n_materials[t]) * problem.n_channels, labels * problem.n_channels + problem.channel
+        return int(record.n_materials[t]), labels
     n_u, n_v = int(record.n_u[t]), int(record.n_v[t])
     labels = obs_region_labels(record.cp_u[snapshot, :, :n_u].astype(float),
                                record.cp_v[snapshot, :, :n_v].astype(float), problem.row, problem.col,
@@ -284,7 +288,9 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
         in the data's units; ``residual_rms``: RMS over
         its lights of ``(y_i - E[mu_i]) / (sqrt(E[sigma_i^2]) s_i)`` (``s_i`` the known noise
         scales, 1 for constant noise); each (H, W), NaN at pixels without observations;
-        ``draws``, the number of draws averaged.
+        ``draws``, the number of draws averaged. A joint colour fit (every channel's
+        observations, averaged together above) adds ``radiance_rgb`` and ``observed_rgb``
+        (H, W, C), each channel's mean over lights.
 
     Raises
     ------
@@ -326,9 +332,23 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
         with np.errstate(invalid="ignore", divide="ignore"):
             return (np.bincount(problem.pixel, weights=values, minlength=n_pix) / count).reshape(problem.image_shape)
 
-    return {"radiance": per_pixel(mu * scale), "observed": per_pixel(y * scale),
-            "abs_error": per_pixel(np.abs(y - mu) * scale),
-            "residual_rms": np.sqrt(per_pixel((y - mu) ** 2 / sigma2)), "draws": int(len(picks))}
+    out = {"radiance": per_pixel(mu * scale), "observed": per_pixel(y * scale),
+           "abs_error": per_pixel(np.abs(y - mu) * scale),
+           "residual_rms": np.sqrt(per_pixel((y - mu) ** 2 / sigma2)), "draws": int(len(picks))}
+    if problem.n_channels > 1:        # a joint colour fit: the radiances per channel as well, (H, W, C)
+        for name, values in (("radiance_rgb", mu * scale), ("observed_rgb", y * scale)):
+            out[name] = np.stack([_channel_mean(problem, values, c) for c in range(problem.n_channels)], axis=-1)
+    return out
+
+
+def _channel_mean(problem, values, channel: int) -> np.ndarray:
+    """(H, W): the mean over a pixel's observations of ``channel`` (NaN without any)."""
+    n_pix = problem.height * problem.width
+    mine = problem.channel == channel
+    count = np.bincount(problem.pixel[mine], minlength=n_pix).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (np.bincount(problem.pixel[mine], weights=values[mine], minlength=n_pix) / count).reshape(
+            problem.image_shape)
 
 
 def map_labels(records, burn_in: int, model, image_shape, object_mask=None) -> np.ndarray:

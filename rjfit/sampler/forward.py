@@ -94,6 +94,11 @@ class Problem:
     same for every segmentation and parameter value, so the sampler leaves it out of
     ``ChainState.log_lik`` and the chain records add it.
 
+    ``channel`` and ``n_channels``: a joint colour fit (``rjfit fit --channel rgb``) holds
+    each colour channel's observations, a pixel's sorted by channel (``channel``, int8); a
+    region (material) then has one parameter row per channel sharing gamma
+    (:mod:`rjfit.sampler.colour`). None and 1 for a single channel.
+
     ``lobe`` (a :class:`~rjfit.sampler.passes.lobe.LobeTerms`, or None for the plain lobe
     ``C <h.n>^gamma``) holds the lobe column's own terms of a problem with effects applied;
     ``effects`` (an :class:`EffectData`, or None) the forward model's effects with the
@@ -115,6 +120,19 @@ class Problem:
     noise_scale: np.ndarray | None = None   # float32 s_i (y and C are stored divided by it); None: all 1
     lobe: LobeTerms | None = None          # the lobe column's terms with effects applied; None: C <h.n>^gamma
     effects: EffectData | None = None      # the effects sampled with the regions, and their raw data
+    channel: np.ndarray | None = None      # int8 colour channel per observation (joint colour fit); None: one
+    n_channels: int = 1
+
+    @cached_property
+    def channel_start(self) -> np.ndarray:
+        """(H W C + 1,) the first observation of pixel p's channel c at ``p C + c`` (a joint colour fit).
+
+        A pixel's observations are sorted by channel (:meth:`LambertBlinnPhong.problem`
+        sorts stably by pixel the channels stacked one after the other), so each
+        (pixel, channel) is one run.
+        """
+        key = self.pixel.astype(np.int64) * self.n_channels + (0 if self.channel is None else self.channel)
+        return np.searchsorted(key, np.arange(self.height * self.width * self.n_channels + 1)).astype(np.int64)
 
     @cached_property
     def log_likelihood_constant(self) -> float:
@@ -407,6 +425,9 @@ class LambertBlinnPhong(ForwardModel):
             raise ValueError("no valid observation: nothing to fit (check the object mask and validity thresholds)")
         if np.any(obs.cos_ln <= 0):
             raise ValueError("observations with <l.n> <= 0 are not valid: filter them with valid_observation_mask")
+        if obs.n_channels > 1 and self.effects:
+            raise ValueError("effects inside the fit are for single-channel fits; a joint colour fit (--channel rgb) "
+                             "takes none")
         if noise_scale is not None:
             noise_scale = np.asarray(noise_scale, dtype=np.float64)
             if noise_scale.shape != (obs.n_obs,):
@@ -428,6 +449,7 @@ class LambertBlinnPhong(ForwardModel):
                                  C=np.asarray(obs.irradiance, float)[order] * np.asarray(obs.cos_ln, float)[order],
                                  light=np.asarray(obs.light)[order].astype(np.int32),
                                  scale=None if scale is None else scale.astype(np.float64))
+        channel = None if obs.channel is None else np.asarray(obs.channel)[order].astype(np.int8)
         del order
         line_dtype = np.int16 if max(height, width) <= np.iinfo(np.int16).max else np.int32
         row, col = (pixel // width).astype(line_dtype), (pixel % width).astype(line_dtype)
@@ -438,7 +460,8 @@ class LambertBlinnPhong(ForwardModel):
         return Problem(image_shape=(int(height), int(width)), y=y, C=C, log_cos_hn=log_cos_hn, row=row, col=col,
                        pixel=pixel, pixel_start=pixel_start, colmajor_order=colmajor_order,
                        colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool),
-                       likelihood_power=float(likelihood_power), noise_scale=scale, effects=effects)
+                       likelihood_power=float(likelihood_power), noise_scale=scale, effects=effects,
+                       channel=channel, n_channels=int(obs.n_channels))
 
 
 def _columns(obs: Observations, order, noise_scale):

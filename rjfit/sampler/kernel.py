@@ -28,11 +28,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from rjfit.sampler.colour import log_prior_phi, starting_theta
 from rjfit.sampler.forward import Problem, transformed
 from rjfit.sampler.likelihood import log_likelihood_from_stats, region_stats
 from rjfit.sampler.moves.effects import initial_effect_state, move_effects
 from rjfit.sampler.moves.within import adapt_log_g_scale, update_regions
-from rjfit.sampler.priors import PARAM_NAMES, to_phi
+from rjfit.sampler.priors import PARAM_NAMES
 from rjfit.sampler.state import ChainState, KernelSettings, SamplerConfig, StepInfo, Work
 
 __all__ = ["ChainContext", "make_state", "refresh", "step", "initial_state", "log_posterior", "anneal_power",
@@ -92,8 +93,9 @@ def make_state(problem: Problem, layout, theta, *, log_g_scale: float = 0.0, ite
         If ``theta`` has not one row per region of ``layout``.
     """
     theta = np.asarray(theta, float).reshape(-1, 4)
-    if theta.shape[0] != layout.n_regions:
-        raise ValueError(f"theta has {theta.shape[0]} regions, the layout makes {layout.n_regions}")
+    if theta.shape[0] != layout.n_regions * problem.n_channels:
+        raise ValueError(f"theta has {theta.shape[0]} rows, the layout makes {layout.n_regions} regions of "
+                         f"{problem.n_channels} channel(s)")
     labels = layout.labels(problem)
     stats = region_stats(problem, labels, theta[:, 2], theta.shape[0])
     return ChainState(layout=layout, theta=theta, stats=stats, log_lik=log_likelihood_from_stats(stats, theta),
@@ -112,7 +114,7 @@ def log_posterior(problem: Problem, prior, state: ChainState, config: SamplerCon
     For a problem with effects, ``state.log_lik`` is on the transformed problem; the
     log-Jacobian is left out here (:func:`effect_log_likelihood`).
     """
-    total = float(np.sum(state.log_lik) + np.sum(prior.logpdf_phi(to_phi(state.theta)))
+    total = float(np.sum(state.log_lik) + log_prior_phi(prior, state.theta, problem.n_channels)
                   + config.regions.log_prior(problem, state.layout))
     if state.effects is not None:
         total += problem.effects.log_prior(state.effects.z)
@@ -164,6 +166,8 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=
                               np.exp(rng.uniform(np.log(2.0), np.log(30.0), R)),
                               np.full(R, 0.1 * np.var(problem.y, dtype=np.float64) + 1e-12)], axis=1)
     theta = np.asarray(theta, float).reshape(-1, 4)
+    if problem.n_channels > 1 and theta.shape[0] == R:     # one row per material: every channel starts there
+        theta = starting_theta(theta, problem.n_channels)
     outside = [(r, k) for k, p in enumerate(prior.params) for r in np.flatnonzero(~np.isfinite(p.logpdf(theta[:, k])))]
     if outside:
         r, k = outside[0]

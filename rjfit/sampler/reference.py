@@ -22,7 +22,7 @@ from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YY, ab_from_theta, lo
 
 __all__ = ["region_stats", "b_sums", "b_sums_newton", "obs_log_density", "forward_filter", "cell_step_logits",
            "path_log_prob", "backward_sample", "normal_mass", "within_cell_log_density", "draw_within_cells",
-           "rank_chain", "pixel_log_lik", "gibbs_sweep", "edge_uniform", "grow_cluster",
+           "rank_chain", "pixel_log_lik", "pixel_log_lik_colour", "gibbs_sweep", "edge_uniform", "grow_cluster",
            "allocate_split"]
 
 
@@ -232,6 +232,21 @@ def pixel_log_lik(problem: Problem, theta) -> np.ndarray:
     idx = np.arange(problem.n_obs)
     for k in range(theta.shape[0]):
         density = obs_log_density(problem, idx, np.repeat(theta[k][None], problem.n_obs, axis=0))
+        for p in range(n_pix):
+            out[k, p] = math.fsum(density[problem.pixel_start[p]:problem.pixel_start[p + 1]])
+    return out
+
+
+def pixel_log_lik_colour(problem: Problem, theta) -> np.ndarray:
+    """Twin of :func:`rjfit.sampler.passes.labels.pixel_log_lik_colour`: (K, H W), material k's channel c in row
+    ``k C + c`` (fsum per pixel)."""
+    theta = np.asarray(theta, float)
+    n_ch = problem.n_channels
+    n_pix = problem.height * problem.width
+    out = np.zeros((theta.shape[0] // n_ch, n_pix))
+    idx = np.arange(problem.n_obs)
+    for k in range(out.shape[0]):
+        density = obs_log_density(problem, idx, theta[k * n_ch + problem.channel.astype(np.int64)])
         for p in range(n_pix):
             out[k, p] = math.fsum(density[problem.pixel_start[p]:problem.pixel_start[p + 1]])
     return out

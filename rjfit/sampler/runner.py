@@ -138,7 +138,8 @@ class ChainRecorder:
     def __init__(self, spec: ChainSpec):
         problem, T = spec.problem, spec.iterations
         self.regions = spec.config.regions
-        self.r_max = self.regions.max_regions
+        self.n_channels = problem.n_channels        # a joint colour fit records a row per material and channel
+        self.r_max = self.regions.max_regions * self.n_channels
         self.keys = {name: np.zeros(T, np.int16) for name in self.regions.key_names}
         self.theta = np.full((T, self.r_max, 4), np.nan)
         self.log_lik = np.zeros(T)
@@ -185,6 +186,9 @@ class ChainRecorder:
         """
         if self._exact_memo[0] is labels:
             return self._exact_memo[1]
+        memo_key = labels
+        if self.n_channels > 1:       # rows (material C + channel) -> materials
+            labels = labels // self.n_channels
         n_object = int(np.count_nonzero(np.bincount(labels[self.pixel_first_obs])))
         exact, true_regions = -1, -1
         if self.first_obs is not None:
@@ -199,7 +203,7 @@ class ChainRecorder:
             if held.shape[0] == self.n_truth:
                 rows, cols = linear_sum_assignment(-held)
                 true_regions = int(held[rows, cols].sum() >= TRUE_REGIONS_AGREEMENT * lab.size)
-        self._exact_memo = (labels, (exact, true_regions, n_object))
+        self._exact_memo = (memo_key, (exact, true_regions, n_object))
         return exact, true_regions, n_object
 
     def record(self, t: int, state: ChainState, log_post: float, log_lik_constant: float = 0.0):

@@ -105,7 +105,7 @@ SUMMARY = "{fit}/summary.json: not a summary `rjfit fit` wrote ({problem}); " + 
     (edit_summary(lambda s: s.update(warnings=["R-hat", 3])), "'warnings' entry 1 is 3, not a string"),
     (edit_summary(lambda s: s.update(model_posterior={"(1,0)": "high"})),
      "'model_posterior' entry '(1,0)' is 'high', not a number"),
-    (edit_summary(lambda s: s.update(channel="red")), "'channel' is 'red', not one of mean, R, G, B, luminance"),
+    (edit_summary(lambda s: s.update(channel="red")), "'channel' is 'red', not one of mean, R, G, B, luminance, rgb"),
     (edit_summary(lambda s: s.update(likelihood_power=2)), "'likelihood_power' is 2, not a number in (0, 1]"),
     (edit_summary(lambda s: s["noise"].update(model="loud")),
      "'noise' entry 'model' is 'loud', not one of constant, shot, relative"),

@@ -37,6 +37,10 @@ cluster (all of it) and its old label; the slot's 1 / (K + 1) and the prior's K!
 cancel, and both are written out. V0 equal to all of l sent to NEW only renames a material:
 no move.
 
+A joint colour fit (:mod:`rjfit.sampler.colour`): a material is its C parameter rows, the
+likelihood of V0 under it the sum over channels, a born material's rows drawn given one
+gamma (:func:`~rjfit.sampler.colour.material_term`).
+
 With ``jumps`` off (K fixed) NEW is never chosen and a move that would empty a material
 is not made (the target has no mass there).
 """
@@ -47,12 +51,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rjfit.sampler.likelihood import RegionData, log_likelihood_from_stats
+from rjfit.sampler.colour import material_log_lik, material_rows, material_term, pixel_set_data
+from rjfit.sampler.likelihood import log_likelihood_from_stats
 from rjfit.sampler.moves.proposal import Proposal
-from rjfit.sampler.moves.region_proposals import region_term
 from rjfit.sampler.passes.labels import grow_cluster
 
-__all__ = ["ClusterSettings", "label_choice", "cluster_data", "propose_cluster_move"]
+__all__ = ["ClusterSettings", "label_choice", "cluster_data", "stats_rows", "with_rows", "propose_cluster_move"]
 
 
 @dataclass(frozen=True)
@@ -100,17 +104,21 @@ def label_choice(n_materials: int, max_materials: int, new_prob: float, jumps: b
     return p_new, p_other
 
 
-def cluster_data(problem, members) -> RegionData:
-    """The observations of the pixels ``members`` (ascending) as runs of the problem's arrays."""
-    starts = problem.pixel_start[members].astype(np.int64)
-    ends = problem.pixel_start[members + 1].astype(np.int64)
-    keep = ends > starts
-    return RegionData(y=problem.y, C=problem.C, log_cos_hn=problem.log_cos_hn, runs=(starts[keep], ends[keep]),
-                      weight=problem.likelihood_power)
+def cluster_data(problem, members):
+    """The observations of the pixels ``members`` (ascending) as runs of the problem's arrays: a
+    :class:`~rjfit.sampler.likelihood.RegionData`, or for a joint colour fit one per channel
+    (:func:`rjfit.sampler.colour.pixel_set_data`)."""
+    return pixel_set_data(problem, members)
 
 
-def _log_lik(stats_r, theta_r) -> float:
-    return float(log_likelihood_from_stats(stats_r, theta_r))
+def stats_rows(data, gamma) -> np.ndarray:
+    """The statistics rows (C, 7) of a pixel set's observations at ``gamma`` (one row per channel)."""
+    return data.stats_at(gamma).reshape(-1, 7)
+
+
+def with_rows(array, at: int, rows) -> np.ndarray:
+    """``array`` with ``rows`` inserted before row ``at``."""
+    return np.concatenate([array[:at], rows, array[at:]])
 
 
 def _proposal(work, problem, pixels, n_materials, theta, stats, log_ratio) -> Proposal:
@@ -144,16 +152,19 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
         return None, "cluster_birth"          # a renaming of material `old`: the same partition
     if not birth and whole and not jumps:
         return None, "cluster_death"          # K fixed: a material may not be emptied
+    n_ch = problem.n_channels
+    rows_old = material_rows(old, n_ch)
     data = cluster_data(problem, members)
-    stats_old = data.stats_at(work.theta[old, 2])
-    log_lik_old = _log_lik(stats_old, work.theta[old])
+    stats_old = stats_rows(data, work.theta[old * n_ch, 2])
+    log_lik_old = material_log_lik(stats_old, work.theta[rows_old])
     if birth:
         return _birth(work, rng, problem, prior, settings, proposals, potts, max_materials,
                       (members, n_to, cut_to, old, data, stats_old, log_lik_old, p_new)), "cluster_birth"
     pick = int(rng.integers(n_mat - 1))
     new = pick if pick < old else pick + 1
-    stats_new = data.stats_at(work.theta[new, 2])
-    delta_lik = _log_lik(stats_new, work.theta[new]) - log_lik_old
+    rows_new = material_rows(new, n_ch)
+    stats_new = stats_rows(data, work.theta[new * n_ch, 2])
+    delta_lik = material_log_lik(stats_new, work.theta[rows_new]) - log_lik_old
     # Potts: V0's edges to the rest of `old` become cut, those to `new` join
     delta_potts = -potts.beta * (n_to[old] - n_to[new])
     cut_ratio = cut_to[new] - cut_to[old]
@@ -161,12 +172,12 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
     pixels[members] = new
     if not whole:
         stats = work.stats.copy()
-        stats[old] -= stats_old
-        stats[new] += stats_new
+        stats[rows_old] -= stats_old
+        stats[rows_new] += stats_new
         return _proposal(work, problem, pixels.reshape(height, width), n_mat, work.theta.copy(), stats,
                          delta_lik + delta_potts + cut_ratio), "cluster"
     # death of `old`: its parameters evaluated under the proposal built from V0's data
-    _, term = region_term(data, work.theta[old], prior, proposals)
+    _, term = material_term(data, work.theta[rows_old], prior, proposals)
     p_new_back = label_choice(n_mat - 1, max_materials, settings.new_prob, jumps)[0]
     log_ratio = (delta_lik + delta_potts + cut_ratio
                  - math.log(potts.rho) + math.log(n_mat)          # rho^K and the labelled state's 1 / K!
@@ -174,9 +185,9 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
                  + math.log(p_new_back) - math.log(n_mat)         # the reverse birth: NEW, then slot `old` of K
                  - math.log(p_other))
     stats = work.stats.copy()
-    stats[new] += stats_new
+    stats[rows_new] += stats_new
     pixels[pixels > old] -= 1
-    keep = np.arange(n_mat) != old
+    keep = np.repeat(np.arange(n_mat) != old, n_ch)
     return _proposal(work, problem, pixels.reshape(height, width), n_mat - 1, work.theta[keep].copy(), stats[keep],
                      log_ratio), "cluster_death"
 
@@ -187,16 +198,17 @@ def _birth(work, rng, problem, prior, settings, proposals, potts, max_materials,
     layout = work.layout
     n_mat = layout.n_materials
     slot = int(rng.integers(n_mat + 1))
-    theta_born, term = region_term(data, None, prior, proposals, draw_rng=rng)
+    n_ch = problem.n_channels
+    theta_born, term = material_term(data, None, prior, proposals, draw_rng=rng)
     pixels = layout.pixels.copy().ravel()
     pixels[pixels >= slot] += 1
     pixels[members] = slot
     pixels = pixels.reshape(layout.pixels.shape)
     if theta_born is None:
         return Proposal.invalid(layout.with_pixels(pixels, n_mat + 1))
-    stats_born = data.stats_at(theta_born[2])
+    stats_born = stats_rows(data, theta_born[0, 2])
     p_other_back = label_choice(n_mat + 1, max_materials, settings.new_prob)[1]
-    log_ratio = (_log_lik(stats_born, theta_born) - log_lik_old
+    log_ratio = (material_log_lik(stats_born, theta_born) - log_lik_old
                  - potts.beta * n_to[old]                        # every edge from V0 to `old` is cut
                  + math.log(potts.rho) - math.log(n_mat + 1)      # rho^K and the labelled state's 1 / K!
                  + term
@@ -204,7 +216,7 @@ def _birth(work, rng, problem, prior, settings, proposals, potts, max_materials,
                  + math.log(p_other_back)                         # the reverse death picks `old` back
                  - math.log(p_new) + math.log(n_mat + 1))         # NEW, and the slot's 1 / (K + 1)
     stats = work.stats.copy()
-    stats[old] -= stats_old
-    stats = np.insert(stats, slot, stats_born, axis=0)
-    theta = np.insert(work.theta, slot, theta_born, axis=0)
+    stats[material_rows(old, n_ch)] -= stats_old
+    stats = with_rows(stats, slot * n_ch, stats_born)
+    theta = with_rows(work.theta, slot * n_ch, theta_born)
     return _proposal(work, problem, pixels, n_mat + 1, theta, stats, log_ratio)

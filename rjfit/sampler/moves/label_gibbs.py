@@ -12,13 +12,21 @@ pass over the observations (:func:`rjfit.sampler.passes.labels.pixel_log_lik`), 
 labels do not change. Every update is an exact Gibbs draw (accepted always); the step
 counts how many pixels changed label. The relabelled pixels' observations then move
 between the materials' sufficient statistics (:func:`~rjfit.sampler.passes.labels.relabel_pixels`).
+A joint colour fit sums a pixel's channels under the material's rows and moves each
+observation between its channel's rows (the ``_colour`` passes).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from rjfit.sampler.likelihood import log_likelihood_from_stats
-from rjfit.sampler.passes.labels import gibbs_sweep, pixel_log_lik, relabel_pixels
+from rjfit.sampler.passes.labels import (
+    gibbs_sweep,
+    pixel_log_lik,
+    pixel_log_lik_colour,
+    relabel_pixels,
+    relabel_pixels_colour,
+)
 
 __all__ = ["sweep_labels"]
 
@@ -33,7 +41,12 @@ def sweep_labels(work, rng, problem, potts, info) -> int:
     n_pix = height * width
     old = layout.pixels.ravel().astype(np.int64)
     labelled = old >= 0
-    log_lik = pixel_log_lik(problem.y, problem.C, problem.log_cos_hn, problem.pixel, work.theta, n_pix)
+    n_ch = problem.n_channels
+    if n_ch == 1:
+        log_lik = pixel_log_lik(problem.y, problem.C, problem.log_cos_hn, problem.pixel, work.theta, n_pix)
+    else:       # a joint colour fit: a pixel's log-likelihood sums its channels' under the material's rows
+        log_lik = pixel_log_lik_colour(problem.y, problem.C, problem.log_cos_hn, problem.channel_start, work.theta,
+                                       n_ch, n_pix)
     pixels = old.copy()
     counts = np.bincount(old[labelled], minlength=layout.n_materials).astype(np.int64)
     changed = 0
@@ -45,9 +58,14 @@ def sweep_labels(work, rng, problem, potts, info) -> int:
     moved = np.flatnonzero(pixels != old)
     if moved.size:
         labels = work.labels if work.labels_owned else work.labels.copy()
-        relabel_pixels(problem.y, problem.C, problem.log_cos_hn, problem.pixel_start, moved, old[moved],
-                       pixels[moved], np.ascontiguousarray(work.theta[:, 2]), work.stats,
-                       float(problem.likelihood_power), labels)
+        if n_ch == 1:
+            relabel_pixels(problem.y, problem.C, problem.log_cos_hn, problem.pixel_start, moved, old[moved],
+                           pixels[moved], np.ascontiguousarray(work.theta[:, 2]), work.stats,
+                           float(problem.likelihood_power), labels)
+        else:
+            relabel_pixels_colour(problem.y, problem.C, problem.log_cos_hn, problem.pixel_start, problem.channel,
+                                  n_ch, moved, old[moved], pixels[moved], np.ascontiguousarray(work.theta[:, 2]),
+                                  work.stats, float(problem.likelihood_power), labels)
         work.labels, work.labels_owned, work.region_index = labels, True, None
         work.layout = layout.with_pixels(pixels.reshape(height, width).astype(layout.pixels.dtype),
                                          layout.n_materials)

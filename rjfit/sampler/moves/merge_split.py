@@ -44,6 +44,9 @@ The log ratio of a split from K materials (the merge's is its negative, read bac
     + log P(merge | K + 1) - log(K (K + 1) / 2)                      (the reverse's choices)
     - log P(split | K) + log K + log(K - m) - log q(X, Y)            (this move's choices)
 
+A joint colour fit (:mod:`rjfit.sampler.colour`): the guides and the proposed materials
+have a row per channel sharing gamma, and every likelihood sums the channels.
+
 ``log(K + 1)`` is the labelled state's 1 / K! (``K! / (K + 1)!``); ``term`` is
 :func:`region_term`'s log prior in the proposal's coordinates minus log proposal density.
 """
@@ -54,14 +57,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rjfit.sampler.colour import guide_rows, material_log_lik, material_rows, material_term
 from rjfit.sampler.kmeans import two_means_labels
-from rjfit.sampler.likelihood import STAT_N, log_likelihood_from_stats
-from rjfit.sampler.moves.ab_conditional import ab_conditional
-from rjfit.sampler.moves.cluster_swc import cluster_data
+from rjfit.sampler.likelihood import log_likelihood_from_stats
+from rjfit.sampler.moves.cluster_swc import cluster_data, stats_rows, with_rows
 from rjfit.sampler.moves.proposal import Proposal
-from rjfit.sampler.moves.region_proposals import laplace_log_gamma, region_term, ssr_min
-from rjfit.sampler.moves.region_terms import giesen_norm
-from rjfit.sampler.passes.labels import allocate_split, pixel_log_lik
+from rjfit.sampler.passes.labels import allocate_split, pixel_log_lik, pixel_log_lik_colour
 
 __all__ = ["MergeSplitSettings", "GUIDE_FALLBACK_GAMMA", "split_probability", "split_guide", "split_log_prob",
            "propose_merge_split"]
@@ -99,18 +100,12 @@ def split_probability(n_materials: int, max_materials: int, split_prob: float, j
 
 
 def _guide_theta(problem, prior, members):
-    """The deterministic fit (I0, kd, gamma, sigma^2) of the pixels ``members`` (see the module docstring), or None."""
+    """The deterministic fit (rows of (I0, kd, gamma, sigma^2), one per channel) of the pixels ``members``
+    (see the module docstring), or None."""
     data = cluster_data(problem, members)
     if data.n == 0:
         return None
-    laplace = laplace_log_gamma(data, prior)
-    g = math.exp(laplace[0]) if laplace is not None else GUIDE_FALLBACK_GAMMA
-    stats_r = data.stats_at(g)
-    cond, res = ab_conditional(stats_r, 1.0), ssr_min(stats_r)
-    if cond is None or res is None or not (cond.ma + cond.mb > 0):
-        return None
-    I0 = cond.ma + cond.mb / giesen_norm(g)
-    return np.array([I0, cond.ma / I0, g, max(res[0] / stats_r[STAT_N], 1e-12)])
+    return guide_rows(data, prior, GUIDE_FALLBACK_GAMMA)
 
 
 def split_guide(problem, prior, members, features) -> np.ndarray:
@@ -128,8 +123,15 @@ def split_guide(problem, prior, members, features) -> np.ndarray:
     if thetas[0] is None or thetas[1] is None:
         return guide
     idx = cluster_data(problem, members).idx
-    per_pixel = pixel_log_lik(problem.y[idx], problem.C[idx], problem.log_cos_hn[idx], problem.pixel[idx],
-                              np.stack(thetas), problem.height * problem.width)
+    n_pix, n_ch = problem.height * problem.width, problem.n_channels
+    if n_ch == 1:
+        per_pixel = pixel_log_lik(problem.y[idx], problem.C[idx], problem.log_cos_hn[idx], problem.pixel[idx],
+                                  np.concatenate(thetas), n_pix)
+    else:
+        key = problem.pixel[idx].astype(np.int64) * n_ch + problem.channel[idx]
+        bounds = np.searchsorted(key, np.arange(n_pix * n_ch + 1)).astype(np.int64)
+        per_pixel = pixel_log_lik_colour(problem.y[idx], problem.C[idx], problem.log_cos_hn[idx], bounds,
+                                         np.concatenate(thetas), n_ch, n_pix)
     return per_pixel[:, members]
 
 
@@ -202,24 +204,27 @@ def _split(work, rng, problem, prior, settings, proposals, potts, max_materials,
     pixels[members[~stay]] = k
     if stay.all() or not stay.any():
         return Proposal.invalid(work.layout.with_pixels(pixels.reshape(work.layout.pixels.shape), n_mat + 1))
+    n_ch = problem.n_channels
+    rows_m = material_rows(m, n_ch)
     data_x, data_y = cluster_data(problem, members[stay]), cluster_data(problem, members[~stay])
-    theta_x, term_x = region_term(data_x, None, prior, proposals, draw_rng=rng)
-    theta_y, term_y = region_term(data_y, None, prior, proposals, draw_rng=rng) if theta_x is not None else (None, 0)
+    theta_x, term_x = material_term(data_x, None, prior, proposals, draw_rng=rng)
+    theta_y, term_y = (material_term(data_y, None, prior, proposals, draw_rng=rng) if theta_x is not None
+                       else (None, 0))
     if theta_x is None or theta_y is None:
         return Proposal.invalid(work.layout.with_pixels(pixels.reshape(work.layout.pixels.shape), n_mat + 1))
-    _, term_m = region_term(cluster_data(problem, members), work.theta[m], prior, proposals)
-    stats_x, stats_y = data_x.stats_at(theta_x[2]), data_y.stats_at(theta_y[2])
-    delta_lik = (float(log_likelihood_from_stats(stats_x, theta_x)) + float(log_likelihood_from_stats(stats_y, theta_y))
-                 - float(work.log_lik[m]))
+    _, term_m = material_term(cluster_data(problem, members), work.theta[rows_m], prior, proposals)
+    stats_x, stats_y = stats_rows(data_x, theta_x[0, 2]), stats_rows(data_y, theta_y[0, 2])
+    delta_lik = (material_log_lik(stats_x, theta_x) + material_log_lik(stats_y, theta_y)
+                 - float(np.sum(work.log_lik[rows_m])))
     log_ratio = (delta_lik + math.log(potts.rho) - math.log(n_mat + 1)
                  - potts.beta * _edges_between(problem.image_shape, members[stay], members[~stay])
                  + term_x + term_y - term_m
                  + _ratio_choices(n_mat, m, max_materials, settings, p_split)
                  - split_log_prob(members, guide, stay, problem, float(potts.beta)))
-    theta = np.insert(work.theta, k, theta_y, axis=0)
-    theta[m] = theta_x
-    stats = np.insert(work.stats, k, stats_y, axis=0)
-    stats[m] = stats_x
+    theta = with_rows(work.theta, k * n_ch, theta_y)
+    theta[rows_m] = theta_x
+    stats = with_rows(work.stats, k * n_ch, stats_y)
+    stats[rows_m] = stats_x
     return _proposal(work, problem, pixels, n_mat + 1, theta, stats, log_ratio)
 
 
@@ -228,18 +233,22 @@ def _merge(work, rng, problem, prior, settings, proposals, potts, max_materials,
     flat = work.layout.pixels.ravel()
     j, k = sorted(int(x) for x in rng.choice(n_mat, 2, replace=False))
     members = np.flatnonzero((flat == j) | (flat == k))
+    n_ch = problem.n_channels
+    rows_j, rows_k = material_rows(j, n_ch), material_rows(k, n_ch)
     data = cluster_data(problem, members)
-    theta_m, term_m = region_term(data, None, prior, proposals, draw_rng=rng)
+    theta_m, term_m = material_term(data, None, prior, proposals, draw_rng=rng)
     pixels = flat.copy()
     pixels[pixels == k] = j
     pixels[pixels > k] -= 1
     if theta_m is None:
         return Proposal.invalid(work.layout.with_pixels(pixels.reshape(work.layout.pixels.shape), n_mat - 1))
     in_j = flat[members] == j
-    _, term_j = region_term(cluster_data(problem, members[in_j]), work.theta[j], prior, proposals)
-    _, term_k = region_term(cluster_data(problem, members[~in_j]), work.theta[k], prior, proposals)
-    stats_m = data.stats_at(theta_m[2])
-    delta_lik = float(log_likelihood_from_stats(stats_m, theta_m)) - float(work.log_lik[j] + work.log_lik[k])
+    _, term_j = material_term(cluster_data(problem, members[in_j]), work.theta[rows_j], prior, proposals)
+    _, term_k = material_term(cluster_data(problem, members[~in_j]), work.theta[rows_k], prior, proposals)
+    stats_m = stats_rows(data, theta_m[0, 2])
+    log_lik_jk = (float(work.log_lik[j] + work.log_lik[k]) if n_ch == 1
+                  else float(np.sum(work.log_lik[rows_j]) + np.sum(work.log_lik[rows_k])))
+    delta_lik = material_log_lik(stats_m, theta_m) - log_lik_jk
     guide = split_guide(problem, prior, members, work.layout.bonds.features)
     p_split_back = split_probability(n_mat - 1, max_materials, settings.split_prob)
     log_ratio = (delta_lik - math.log(potts.rho) + math.log(n_mat)
@@ -247,8 +256,8 @@ def _merge(work, rng, problem, prior, settings, proposals, potts, max_materials,
                  + term_m - term_j - term_k
                  - _ratio_choices(n_mat - 1, j, max_materials, settings, p_split_back)
                  + split_log_prob(members, guide, in_j, problem, float(potts.beta)))
-    theta = np.delete(work.theta, k, axis=0)
-    theta[j] = theta_m
-    stats = np.delete(work.stats, k, axis=0)
-    stats[j] = stats_m
+    theta = np.delete(work.theta, np.arange(k * n_ch, (k + 1) * n_ch), axis=0)
+    theta[rows_j] = theta_m
+    stats = np.delete(work.stats, np.arange(k * n_ch, (k + 1) * n_ch), axis=0)
+    stats[rows_j] = stats_m
     return _proposal(work, problem, pixels, n_mat - 1, theta, stats, log_ratio)

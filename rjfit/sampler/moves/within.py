@@ -17,6 +17,7 @@ import numpy as np
 
 from rjfit.sampler.likelihood import STAT_N
 from rjfit.sampler.moves.ab_conditional import move_ab
+from rjfit.sampler.moves.colour_within import update_materials_colour
 from rjfit.sampler.moves.gamma import move_gamma_newton, move_gamma_rw
 from rjfit.sampler.moves.paper_mh import update_region_paper
 from rjfit.sampler.moves.phi_walk import move_phi_rw
@@ -90,9 +91,13 @@ class WithinSettings:
 def update_regions(work, rng, prior, problem, settings: WithinSettings, g_step: float, info) -> list:
     """Run the within-region moves for every region in turn; returns the gamma random walks' acceptances.
 
+    A joint colour fit (``problem.n_channels > 1``, 'adaptive' only) runs each material's
+    rows together (:func:`~rjfit.sampler.moves.colour_within.update_materials_colour`).
     ``g_step`` is the current multiplier of the gamma random walk's width (the kernel adapts
     it during burn-in from the returned acceptances).
     """
+    if problem.n_channels > 1:      # a joint colour fit: a material's rows share gamma
+        return update_materials_colour(work, rng, prior, problem, settings, g_step, info)
     g_acc = []
     for r in range(work.theta.shape[0]):
         if settings.sampler == "adaptive":

@@ -14,7 +14,9 @@
   edge (SplitMix64), so a cluster move draws one number from the chain's generator whatever
   the size of its cluster;
 - :func:`allocate_split`: the sequential allocation of a material's pixels to two parts
-  (the split of the merge/split move), drawing or evaluating its probability.
+  (the split of the merge/split move), drawing or evaluating its probability;
+- :func:`pixel_log_lik_colour`, :func:`relabel_pixels_colour`: the first and third for a
+  joint colour fit (a row of parameters per material and channel).
 
 Pixels are flat row-major indices ``r * W + c``; an edge is named by its first pixel and
 its direction: edge ``2 p`` joins p to its right neighbour, edge ``2 p + 1`` to the pixel
@@ -30,10 +32,11 @@ from numba import njit, prange
 from rjfit.sampler.passes.cells import pixel_cuts
 from rjfit.sampler.passes.densities import coefficients, log_densities_into
 from rjfit.sampler.passes.shifts import add_obs_terms
-from rjfit.sampler.passes.special import INV_PI
-from rjfit.sampler.passes.sums import BLOCK, PARALLEL_MIN_OBS
+from rjfit.sampler.passes.special import INV_PI, fast_exp
+from rjfit.sampler.passes.sums import BLOCK, PARALLEL_MIN_OBS, PARTS
 
-__all__ = ["pixel_log_lik", "gibbs_sweep", "relabel_pixels", "grow_cluster", "edge_uniform", "allocate_split"]
+__all__ = ["pixel_log_lik", "gibbs_sweep", "relabel_pixels", "grow_cluster", "edge_uniform", "allocate_split",
+           "pixel_log_lik_colour", "relabel_pixels_colour"]
 
 
 @njit(cache=True, nogil=True)
@@ -252,3 +255,71 @@ def allocate_split(members, guide_log_lik, power, beta, height, width, uniforms,
         part_of[p] = part
         log_prob += log_p0 if part == 0 else log_p1
     return parts, log_prob
+
+
+# ---- a joint colour fit (rjfit.sampler.colour): material k's channel c is parameter row k C + c ----
+
+@njit(cache=True, nogil=True)
+def _colour_pixel_log_lik_range(y, C, log_cos_hn, channel_start, coef, n_channels, out, p_lo, p_hi):
+    for p in range(p_lo, p_hi):
+        for c in range(n_channels):
+            lo, hi = channel_start[p * n_channels + c], channel_start[p * n_channels + c + 1]
+            if hi == lo:
+                continue
+            for k in range(out.shape[0]):
+                row = k * n_channels + c
+                ca, cb, g, c0, c1 = coef[row, 0], coef[row, 1], coef[row, 2], coef[row, 3], coef[row, 4]
+                total = 0.0
+                for i in range(lo, hi):
+                    cc = np.float64(C[i])
+                    resid = np.float64(y[i]) - ca * cc - cb * cc * fast_exp(g * np.float64(log_cos_hn[i]))
+                    total += c0 - c1 * resid * resid
+                out[k, p] += total
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _colour_pixel_log_lik_parts(y, C, log_cos_hn, channel_start, coef, n_channels, out, bounds):
+    for part in prange(bounds.shape[0] - 1):        # whole pixels per part: no pixel is written twice
+        _colour_pixel_log_lik_range(y, C, log_cos_hn, channel_start, coef, n_channels, out, bounds[part],
+                                    bounds[part + 1])
+
+
+@njit(cache=True, nogil=True)
+def pixel_log_lik_colour(y, C, log_cos_hn, channel_start, theta, n_channels, n_pixels):
+    """(K, n_pixels): each pixel's log densities summed over its observations and channels, under each material.
+
+    ``theta`` (K C, 4): material k's channel c is row ``k C + c``; ``channel_start``
+    (:attr:`rjfit.sampler.forward.Problem.channel_start`) bounds each (pixel, channel)'s
+    observations. Each pixel's sum runs channel by channel in a fixed order, in
+    :data:`~rjfit.sampler.passes.sums.PARTS` pieces of whole pixels for large problems, so
+    it does not depend on the threads.
+    """
+    coef = coefficients(theta)
+    out = np.zeros((theta.shape[0] // n_channels, n_pixels))
+    if y.shape[0] < PARALLEL_MIN_OBS:
+        _colour_pixel_log_lik_range(y, C, log_cos_hn, channel_start, coef, n_channels, out, 0, n_pixels)
+    else:
+        bounds = np.empty(PARTS + 1, np.int64)
+        for part in range(PARTS + 1):
+            bounds[part] = n_pixels * part // PARTS
+        _colour_pixel_log_lik_parts(y, C, log_cos_hn, channel_start, coef, n_channels, out, bounds)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def relabel_pixels_colour(y, C, log_cos_hn, pixel_start, channel, n_channels, pixels, old, new, gammas, stats,
+                          weight, obs_labels):
+    """:func:`relabel_pixels` of a joint colour fit: observation i of channel c moves between rows ``k C + c``.
+
+    ``gammas`` and ``stats`` have a row per material and channel; ``obs_labels`` gets
+    ``new[j] C + c``.
+    """
+    for j in range(pixels.shape[0]):
+        p = pixels[j]
+        for i in range(pixel_start[p], pixel_start[p + 1]):
+            yv, c, lh = np.float64(y[i]), np.float64(C[i]), np.float64(log_cos_hn[i])
+            a = c * INV_PI
+            row_old, row_new = old[j] * n_channels + channel[i], new[j] * n_channels + channel[i]
+            add_obs_terms(stats, row_old, -weight, yv, c, a, lh, gammas[row_old])
+            add_obs_terms(stats, row_new, weight, yv, c, a, lh, gammas[row_new])
+            obs_labels[i] = row_new

@@ -17,7 +17,8 @@ coefficients its appearance with the shading removed. Feature j of an edge diffe
 ``d_j``; each is divided by ``s_j = 1.4826 median |d_j|`` over all edges (a robust spread of
 the differences between neighbours, most of which lie inside one material), and
 ``q_e = q_max exp(-|d / s|^2 / (2 tau^2))``. An edge touching a pixel without a fit gets
-``q_max / 2``. Every q lies in [0, q_max] with q_max < 1, so every cut weight
+``q_max / 2``. A joint colour fit's features are every channel's (a, b) (2 C of them), so
+the bonds and the split guides see hue. Every q lies in [0, q_max] with q_max < 1, so every cut weight
 ``log(1 - q)`` is finite; the cluster moves take ``q_max = 1 - exp(-beta)`` (Swendsen and
 Wang's bond for the Potts prior: see :class:`~rjfit.sampler.moves.cluster_swc.ClusterSettings`). The cluster moves are exact for any such q; q only decides which
 clusters they propose.
@@ -30,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import gammaln
 
+from rjfit.sampler.colour import colour_pixel_features
 from rjfit.sampler.kmeans import kmeans_labels
 from rjfit.sampler.likelihood import b_terms, index_dtype
 
@@ -115,7 +117,7 @@ def bond_probabilities(problem, q_max: float = 1.0 - np.exp(-1.0), tau: float = 
     if not 0.0 <= q_max < 1.0 or not tau > 0:
         raise ValueError(f"bond q_max must lie in [0, 1) and tau be positive, got {q_max}, {tau}")
     labelled = labelled_pixels(problem)
-    features = pixel_features(problem)
+    features = pixel_features(problem) if problem.n_channels == 1 else colour_pixel_features(problem, BOND_GAMMA)
     first, second, edges = _edge_pairs(labelled)
     q = np.zeros(2 * labelled.size)
     diff = np.abs(features[first] - features[second])
@@ -185,9 +187,14 @@ class MaterialLabels(NamedTuple):
         return (int(self.n_materials),)
 
     def labels(self, problem) -> np.ndarray:
-        """The material of every observation of ``problem`` (its pixel's label, repeated per observation)."""
-        flat = self.pixels.ravel().astype(index_dtype(max(self.n_materials - 1, 0)))
-        return np.repeat(flat, np.diff(problem.pixel_start))
+        """The material of every observation of ``problem`` (its pixel's label, repeated per observation);
+        for a joint colour fit its parameter row, ``material C + channel``."""
+        n_ch = problem.n_channels
+        flat = self.pixels.ravel().astype(index_dtype(max(self.n_materials * n_ch - 1, 0)))
+        labels = np.repeat(flat, np.diff(problem.pixel_start))
+        if n_ch > 1:
+            labels = labels * n_ch + problem.channel
+        return labels
 
     def counts(self) -> np.ndarray:
         """Pixels per material (K,)."""

@@ -44,10 +44,10 @@ likelihood for these moves as for change points. Start: K0 uniform on
 1 .. min(4, K_max), labels from a k-means (seeded by the chain's generator) of the per-pixel
 features the bonds use; parameters as the change-point start draws them.
 
-Colour (issue 27 item 3) plugs in below this module: a material owns one theta row per
-channel that shares its gamma (one statistics row per channel; per-pixel log-likelihoods
-summed over channels), and the moves here see only per-material log-likelihoods and
-statistics rows.
+A joint colour fit (``--channel rgb``, :mod:`rjfit.sampler.colour`): a material owns one
+theta row per channel sharing its gamma (one statistics row per channel, the observation
+labels are rows ``k C + c``); the label moves sum the channels per pixel and see a pixel
+set as C statistics rows at one gamma, so this module is unchanged.
 """
 from __future__ import annotations
 
