@@ -34,10 +34,10 @@ PAINT = {"I0": 80.0, "kd": 0.7, "gamma": 12.0}
 
 def render_pair(size: int, out: Path, seed: int) -> Path:
     """The colour data set of the pair: channel c of every image from the render with the paints' channel-c I0."""
+    import materials as layouts  # validation/materials.py: the layouts and the slab scene
+
     from rjfit.data.exr import read_exr, write_exr
     from rjfit.render.render import render_dataset
-
-    import materials as layouts      # validation/materials.py: the layouts and the slab scene
 
     target = out / "dataset"
     if (target / "dataset.json").is_file():

@@ -12,9 +12,9 @@ from pathlib import Path
 
 from rjfit.data.dataset import read_validation_result
 from rjfit.data.fingerprint import dataset_fingerprint
+from rjfit.data.formats import COLOUR
 from rjfit.pipeline.fit import FitSource, fit
 from rjfit.pipeline.fit_effects import fit_effects
-from rjfit.data.formats import COLOUR
 from rjfit.pipeline.options import EACH_CHANNEL, FitOptions
 from rjfit.render.datasets import load_dataset
 from rjfit.render.gate import require_validated

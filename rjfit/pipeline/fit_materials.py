@@ -15,14 +15,12 @@ material (written by :func:`rjfit.pipeline.fit.write_results`).
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
 from rjfit.data.coarsen import suggest_likelihood_power
-
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post

@@ -16,6 +16,7 @@
 import numpy as np
 import pytest
 from scipy import stats
+from test_exact_materials import canonical, exact_partition_posterior, k_test, partition_test
 from threadpoolctl import threadpool_limits
 
 from rjfit.sampler import reference
@@ -25,8 +26,7 @@ from rjfit.sampler.likelihood import oracle_log_likelihood, region_stats
 from rjfit.sampler.passes.labels import pixel_log_lik_colour, relabel_pixels_colour
 from rjfit.sampler.state import SamplerConfig
 
-from builders import Quadrature, ess_scaled_chi2, tiny_colour_problem
-from test_exact_materials import exact_partition_posterior, k_test, partition_test, canonical
+from builders import Quadrature, tiny_colour_problem
 
 LEVEL = 1e-3
 
