@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from rjfit.data.fingerprint import dataset_fingerprint
+from rjfit.data.formats import COLOUR
 from rjfit.data.noise import DEFAULT_FLOOR
 from rjfit.diagnose.workflow import diagnose
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
@@ -17,6 +18,7 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     """The criticism workflow (:func:`rjfit.diagnose.workflow.diagnose`) on a fit folder: its ``summary.json`` names the data set (or ``dataset``
     gives it, when the folder has moved) and the channel fitted, ``map_labels.exr`` (or
     ``labels.exr``, as ``rjfit.pipeline.fit`` writes it; channel ``labels``) holds the MAP segmentation.
+    A joint colour fit (``--channel rgb``) is diagnosed on its channel mean, on its MAP materials.
 
     Parameters
     ----------
@@ -65,9 +67,17 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
         if dataset_fingerprint(dataset) != recorded:
             raise ValueError(f"{dataset}: not the data this fit was made from (its files differ from those "
                              f"{fit_dir / 'summary.json'} records); give the fitted data set, or fit this one again")
-    options.setdefault("channel", summary.get("channel") or "mean")     # the channel the fit used
+    fitted_channel = summary.get("channel") or "mean"
+    power = summary.get("likelihood_power", 1.0)
+    if fitted_channel == COLOUR:
+        # a joint colour fit is criticised on its channel mean (the refits and effects see one
+        # channel), on the colour fit's segmentation, at its power without the channels' part
+        # (channels that repeat each other are one channel's information)
+        design_effect = (summary.get("likelihood_power_suggestion") or {}).get("channel_design_effect") or 1.0
+        fitted_channel, power = "mean", min(1.0, float(power) * float(design_effect))
+    options.setdefault("channel", fitted_channel)     # the channel the fit used
     # the power of a coarsened fit: its Bayes factors weigh the data as the fit did
-    options.setdefault("likelihood_power", summary.get("likelihood_power", 1.0))
+    options.setdefault("likelihood_power", power)
     # and its noise model: the refits weigh the observations as its sampler did
     noise_record = summary.get("noise") or {}
     options.setdefault("noise", noise_record.get("model") or "constant")

@@ -356,7 +356,7 @@ def number_warnings(summary: dict, labels, problem, prior, config: SamplerConfig
 def _fit_warnings(problem, prior, suggestion) -> list:
     """The warnings of the data and prior that every region model's summary carries."""
     warnings = []
-    misfit = misfit_warning(suggestion, float(problem.likelihood_power))
+    misfit = misfit_warning((suggestion or {}).get("most_misfit_channel", suggestion), float(problem.likelihood_power))
     if misfit:
         warnings.append(misfit)
     if prior.caveat:

@@ -153,6 +153,15 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         new = [name for name in final if name not in record["effects"]]
         record["dropped"] = [name for name in record["effects"] if name not in final]
         result["named_effects"] += [name for name in new if name not in result["named_effects"]]
+        if (new or record["dropped"]) and options.regions != "changepoints":
+            # the material model's label moves do not carry the effects' terms: no refit with them
+            result["stopped"] = f"round {index + 1}'s diagnosis named effects, which the material model cannot sample"
+            warning = (f"the fit is of --regions {options.regions}, which cannot sample effects yet: refine stopped "
+                       f"after round {index + 1}'s diagnosis ({diagnosis_dir}); fit with --regions changepoints "
+                       f"--effects-from {diagnosis_dir} to sample what it named with the regions")
+            result["warnings"].append(warning)
+            say(f"warning: {warning}")
+            break
         if not (new or record["dropped"]) or index + 1 == max_rounds:
             result["stopped"], warning = _stop(index, max_rounds, new, record["dropped"], current)
             if warning:

@@ -67,3 +67,25 @@ def test_colour_needs_the_material_model():
         FitOptions(channel="rgb")
     with pytest.raises(ValueError, match="--channel rgb"):
         FitOptions(channel="rgb", regions="materials", sampler="paper")
+
+
+def test_the_colour_power_divides_by_the_channels_design_effect():
+    """``--likelihood-power auto`` with rgb: three copies of one channel carry one channel's
+    information (r = 1: the power divided by 3), three channels of independent noise carry three
+    (r ~ 0: the channels' power kept). The sphere is white noise (per-channel zeta ~ 1); with
+    ~20,000 shared observations r's sampling sd is ~0.007, so |r| < 0.05 is over 7 sd."""
+    import dataclasses
+
+    from rjfit.data.synthetic import sphere_stack
+    from rjfit.pipeline.fit_materials import power_suggestion
+
+    one = [sphere_stack(48, n_lights=10, seed=seed)[0] for seed in (5, 6, 7)]
+    copies = power_suggestion(stack_channels([one[0]] * 3), None)
+    assert copies["channel_correlation"] == pytest.approx(1.0)
+    assert copies["likelihood_power"] == pytest.approx(copies["most_misfit_channel"]["likelihood_power"] / 3)
+    # same geometry, independent noise per channel (sphere_stack's seed draws only the noise here)
+    assert all(np.array_equal(o.pixel, one[0].pixel) and np.array_equal(o.cos_hn, one[0].cos_hn) for o in one)
+    independent = stack_channels([one[0]] + [dataclasses.replace(one[0], y=o.y) for o in one[1:]])
+    suggestion = power_suggestion(independent, None)
+    assert abs(suggestion["channel_correlation"]) < 0.05
+    assert suggestion["likelihood_power"] > 0.9 * suggestion["most_misfit_channel"]["likelihood_power"]

@@ -22,8 +22,13 @@ FIT = dict(n_chains=1, iterations=60, max_u=1, max_v=1, processes=1, progress=Fa
 
 
 @pytest.fixture(scope="module")
-def ambient_fit(tmp_path_factory):
-    dataset = hidden_data_sets(tmp_path_factory, resolution=24)("ambient")
+def ambient_dataset(tmp_path_factory):
+    return hidden_data_sets(tmp_path_factory, resolution=24)("ambient")
+
+
+@pytest.fixture(scope="module")
+def ambient_fit(ambient_dataset, tmp_path_factory):
+    dataset = ambient_dataset
     fit_dir = tmp_path_factory.mktemp("refine") / "fit"
     fit_dataset(dataset, fit_dir, allow_unvalidated=True, **FIT)
     return fit_dir
@@ -67,3 +72,18 @@ def test_refine_refuses_a_fit_without_recorded_options_in_one_line(tmp_path):
         refine(fit_dir, tmp_path / "out")
     with pytest.raises(ValueError, match="max_rounds must be an integer >= 1"):
         refine(fit_dir, tmp_path / "out", max_rounds=0)
+
+
+def test_refine_of_a_material_fit_stops_after_a_diagnosis_that_names_effects(ambient_dataset, tmp_path):
+    """The material model cannot sample effects: refine says so (a warning naming the diagnosis and
+    the command that would) instead of failing at the refit. One candidate keeps it short (25 s)."""
+    fit_dir = tmp_path / "materials_fit"
+    fit_dataset(ambient_dataset, fit_dir, allow_unvalidated=True, **{**FIT, "iterations": 40}, regions="materials")
+    lines = []
+    result = refine(fit_dir, tmp_path / "refine", max_rounds=2, max_steps=1, say=lines.append,
+                    candidates=("ambient",))
+    assert result["rounds"][0]["named"] == ["ambient"] and len(result["rounds"]) == 1
+    assert "cannot sample" in result["stopped"]
+    (warning,) = result["warnings"]
+    assert "--regions changepoints --effects-from" in warning and str(result["rounds"][0]["diagnosis"]) in warning
+    assert any(line.startswith("warning: ") for line in lines)
