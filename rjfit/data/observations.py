@@ -33,6 +33,10 @@ class Observations:
     y, cos_ln, cos_hn, irradiance : ndarray of float64, shape (N,)
         Measured value, geometry terms and relative irradiance (intensity / r^2).
     object_mask : ndarray of bool, shape (H, W)
+    cos_lh : ndarray of float64, shape (N,), or None
+        ``<l.h>`` of each observation (the cosine of half the angle between the light and the
+        view): with ``cos_ln`` and ``cos_hn`` it fixes how the prediction changes with the
+        normal (:mod:`rjfit.data.normal_error`). None where the builder did not record it.
     """
 
     image_shape: tuple[int, int]
@@ -44,6 +48,7 @@ class Observations:
     cos_hn: np.ndarray
     irradiance: np.ndarray
     object_mask: np.ndarray
+    cos_lh: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -72,6 +77,7 @@ class Observations:
             image_shape=self.image_shape, n_lights=self.n_lights, pixel=self.pixel[keep],
             light=self.light[keep], y=self.y[keep], cos_ln=self.cos_ln[keep],
             cos_hn=self.cos_hn[keep], irradiance=self.irradiance[keep], object_mask=self.object_mask,
+            cos_lh=None if self.cos_lh is None else self.cos_lh[keep],
         )
 
 
@@ -144,7 +150,7 @@ def valid_images_per_pixel(valid):
     return np.asarray(valid, dtype=bool).sum(axis=0)
 
 
-def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_mask) -> Observations:
+def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_mask, cos_lh=None) -> Observations:
     """Gather the valid entries of dense (L, H, W) arrays into :class:`Observations`.
 
     Parameters
@@ -156,6 +162,8 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
         it is not intersected with ``object_mask`` here).
     object_mask : array_like of bool, shape (H, W)
         Stored with the observations.
+    cos_lh : array_like, shape (L, H, W), optional
+        ``<l.h>`` per light and pixel (:attr:`Observations.cos_lh`).
 
     Returns
     -------
@@ -171,7 +179,8 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
     images = np.asarray(images, dtype=float)
     if images.ndim != 3:
         raise ValueError(f"images must have shape (lights, height, width), got {images.shape}")
-    for name, array in (("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance), ("valid", valid)):
+    for name, array in (("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance), ("valid", valid),
+                        ("cos_lh", images if cos_lh is None else cos_lh)):
         if np.shape(array) != images.shape:
             raise ValueError(f"{name} has shape {np.shape(array)}, images have {images.shape}")
     if np.shape(object_mask) != images.shape[1:]:
@@ -191,4 +200,5 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
         cos_hn=np.asarray(cos_hn, dtype=float)[valid],
         irradiance=np.asarray(irradiance, dtype=float)[valid],
         object_mask=np.asarray(object_mask, dtype=bool),
+        cos_lh=None if cos_lh is None else np.asarray(cos_lh, dtype=float)[valid],
     )

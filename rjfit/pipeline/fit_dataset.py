@@ -10,6 +10,7 @@ import functools
 import math
 from pathlib import Path
 
+from rjfit.data.calibrate import calibrate_measured
 from rjfit.data.dataset import read_validation_result
 from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.pipeline.fit import FitSource, fit
@@ -67,6 +68,12 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
     dataset = load_dataset(dataset_dir)
     options = options.replace(burn_in=options.burn_in_for(measured=dataset.meta.get("kind") == "measured"))
+    calibration = None
+    if options.calibrate:
+        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
+    if options.preset == "measured":
+        # the rule: rho = 1 / (labelled pixels), so a one-pixel material is not a priori likelier on a larger image
+        options = options.replace(potts_rho=1.0 / int(dataset.object_mask.sum()))
     chain_runner = None
     if scheduler is not None or client is not None:
         from rjfit.pipeline.distributed import dask_map  # Dask: only when asked for
@@ -83,6 +90,8 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
                "channel": options.channel, "validation": record}
     if dataset.meta.get("crop"):
         entries["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
+    if calibration is not None:
+        entries["calibration"] = calibration
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)
