@@ -27,11 +27,13 @@ import json
 import time
 from pathlib import Path
 
-from rjfit.pipeline.fit_dataset import fit_dataset
+from rjfit.data.calibrate import drop_small_components
+from rjfit.pipeline.fit_dataset import fit_dataset, ghost_material_prior
 from rjfit.pipeline.options import FitOptions
 from rjfit.render.datasets import load_dataset
 
-# option changes per variant; "rho" -> potts_rho = 1 / (labelled pixels)
+# option changes per variant; "rho" -> potts_rho = 1 / (labelled pixels); "ghost" -> (potts_beta, potts_rho) of
+# rjfit.pipeline.fit_dataset.ghost_material_prior (what --preset measured uses)
 VARIANTS = {
     "auto": {"likelihood_power": "auto"},
     "area": {"likelihood_power": "area"},
@@ -41,6 +43,13 @@ VARIANTS = {
     "area-rho": {"likelihood_power": "area", "potts_rho": "rho"},
     "normals-area-rho": {"noise": "normals", "likelihood_power": "area", "potts_rho": "rho"},
     "calibrated-area-rho": {"likelihood_power": "area", "potts_rho": "rho", "calibrate": True},
+    "ghost": {"potts_rho": "ghost"},
+    "auto-ghost": {"likelihood_power": "auto", "potts_rho": "ghost"},
+    "area-ghost": {"likelihood_power": "area", "potts_rho": "ghost"},
+    "normals-area-ghost": {"noise": "normals", "likelihood_power": "area", "potts_rho": "ghost"},
+    "calibrated-auto-ghost": {"likelihood_power": "auto", "potts_rho": "ghost", "calibrate": True},
+    "calibrated-normals-auto-ghost": {"noise": "normals", "likelihood_power": "auto", "potts_rho": "ghost",
+                                      "calibrate": True},
     "measured": {"preset": "measured"},
     "cp-auto": {"regions": "changepoints", "likelihood_power": "auto"},
     "cp-measured": {"regions": "changepoints", "noise": "normals", "likelihood_power": "area", "calibrate": True},
@@ -51,6 +60,10 @@ def run(dataset: Path, variant: str, chains: int, iterations: int, out: Path, ta
     changes = dict(VARIANTS[variant])
     if changes.get("potts_rho") == "rho":
         changes["potts_rho"] = 1.0 / int(load_dataset(dataset).object_mask.sum())
+    if changes.get("potts_rho") == "ghost":
+        mask = drop_small_components(load_dataset(dataset))[0].object_mask if changes.get("calibrate") else \
+            load_dataset(dataset).object_mask
+        changes["potts_beta"], changes["potts_rho"] = ghost_material_prior(mask, FitOptions().potts_beta)
     changes.setdefault("regions", "materials")
     options = FitOptions(n_chains=chains, iterations=iterations, seed=seed, progress=False, **changes)
     folder = out / f"{dataset.name}_{variant}_{chains}x{iterations}"
@@ -60,7 +73,8 @@ def run(dataset: Path, variant: str, chains: int, iterations: int, out: Path, ta
            "seconds": round(time.perf_counter() - started, 1), "folder": str(folder),
            "likelihood_power": summary["likelihood_power"],
            "normal_error_deg": (summary["noise"].get("normal_error") or {}).get("sigma_n_deg"),
-           "potts_rho": summary["fit_options"]["potts_rho"], "rhat_max": summary.get("rhat_max"),
+           "potts_rho": summary["fit_options"]["potts_rho"], "potts_beta": summary["fit_options"]["potts_beta"],
+           "rhat_max": summary.get("rhat_max"),
            "calibration": summary.get("calibration")}
     if options.regions == "materials":
         row.update(posterior=summary["materials_posterior"], map=summary["map_materials"],
