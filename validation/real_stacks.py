@@ -103,6 +103,42 @@ def summarise(table: Path) -> str:
     return "\n".join(lines)
 
 
+def overlay(folder: Path, dataset: Path, out: Path) -> Path:
+    """The MAP materials' boundaries (red) over the stack's mean image, beside the map itself."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from rjfit.data.exr import read_exr
+
+    labels = np.asarray(read_exr(folder / "labels.exr")["labels"]).squeeze()
+    image = load_dataset(dataset).channel_values("mean").mean(axis=0)
+    edge = np.zeros(labels.shape, bool)
+    for axis in (0, 1):
+        change = np.diff(labels, axis=axis) != 0
+        both = (np.delete(labels, -1, axis=axis) >= 0) & (np.delete(labels, 0, axis=axis) >= 0)
+        if axis == 0:
+            edge[:-1] |= change & both
+        else:
+            edge[:, :-1] |= change & both
+    figure, (left, right) = plt.subplots(1, 2, figsize=(12, 5))
+    left.imshow(image / np.percentile(image, 99.5), cmap="gray", vmin=0, vmax=1)
+    left.imshow(np.ma.masked_where(~edge, edge), cmap="autumn", alpha=1.0, interpolation="nearest")
+    left.set_title(f"{dataset.name}: MAP material boundaries over the mean image")
+    summary = json.loads((folder / "summary.json").read_text())
+    right.imshow(np.where(labels >= 0, labels, np.nan), cmap="tab10", interpolation="nearest")
+    right.set_title(f"MAP materials: {summary['map_materials']} (posterior over K "
+                    f"{', '.join(f'{k}: {v:.2f}' for k, v in summary['materials_posterior'].items())})")
+    for axes in (left, right):
+        axes.set_xticks([]), axes.set_yticks([])
+    figure.tight_layout()
+    figure.savefig(out, dpi=110)
+    plt.close(figure)
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dataset", type=Path, nargs="?")
@@ -113,7 +149,11 @@ def main():
     parser.add_argument("--out", type=Path, default=Path("runs/real_stacks"))
     parser.add_argument("--table", type=Path, default=Path("runs/real_stacks/table.jsonl"))
     parser.add_argument("--summarise", action="store_true")
+    parser.add_argument("--overlay", type=Path, help="a fit folder of DATASET: draw its overlay figure to --out")
     args = parser.parse_args()
+    if args.overlay:
+        print(overlay(args.overlay, args.dataset, args.out))
+        return
     if args.summarise:
         print(summarise(args.table))
         return
