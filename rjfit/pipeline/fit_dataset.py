@@ -118,11 +118,13 @@ def ghost_material_prior(object_mask, beta: float) -> tuple[float, float]:
     """``(beta, rho)`` of the measured preset's Potts prior for this mask (the rule above ``GHOST_PIXELS``).
 
     beta: the smallest of ``beta``, ``beta + 0.05``, ... with ``S(beta) <= GHOST_PIXELS`` (at most 8);
-    rho: ``2 GHOST_ODDS / S(beta)``.
+    rho: ``2 GHOST_ODDS / S(beta)``. Pixels without a labelled neighbour are not counted: no beta
+    binds them (the preset's calibration leaves them out, :func:`rjfit.data.calibrate.drop_small_components`).
     """
     mask = np.asarray(object_mask, bool)
     padded = np.pad(mask, 1)
     neighbours = (padded[:-2, 1:-1].astype(int) + padded[2:, 1:-1] + padded[1:-1, :-2] + padded[1:-1, 2:])[mask]
+    neighbours = neighbours[neighbours > 0]
     ghost_pixels = lambda b: float(np.sum(np.exp(-b * neighbours)))      # noqa: E731
     while ghost_pixels(beta) > GHOST_PIXELS and beta < 8.0:
         beta = round(beta + 0.05, 2)

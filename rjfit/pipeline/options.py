@@ -118,6 +118,7 @@ class FitOptions:
         "estimated before the fit and applied to the images), as measured in docs/measured-data.md.", "choice",
         choices=("none", "measured"))
     calibrate: bool = False
+    cluster_material_seed: float = 0.0
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)
     sampler: str = cli_option("adaptive", "--sampler",
@@ -202,6 +203,7 @@ class FitOptions:
             object.__setattr__(self, "noise", "normals")
             object.__setattr__(self, "likelihood_power", "area")
             object.__setattr__(self, "calibrate", True)
+            object.__setattr__(self, "cluster_material_seed", 0.5)
         for name, what in (("preset", "preset"), ("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
                            ("channel", "channel"),
                            ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
