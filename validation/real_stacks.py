@@ -51,6 +51,7 @@ VARIANTS = {
     "calibrated-normals-auto-ghost": {"noise": "normals", "likelihood_power": "auto", "potts_rho": "ghost",
                                       "calibrate": True},
     "measured": {"preset": "measured"},
+    "measured-auto": {"preset": "measured", "likelihood_power": "auto"},
     "cp-auto": {"regions": "changepoints", "likelihood_power": "auto"},
     "cp-measured": {"regions": "changepoints", "noise": "normals", "likelihood_power": "area", "calibrate": True},
 }

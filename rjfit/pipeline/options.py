@@ -57,6 +57,9 @@ def _effect_names(value) -> tuple:
 
 
 POWER_RULES = ("auto", "area")
+#: What ``--preset measured`` sets, where an option is left at its default (docs/measured-data.md); the
+#: Potts beta and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
+MEASURED_PRESET = {"noise": "normals", "likelihood_power": "area", "calibrate": True, "cluster_material_seed": 0.5}
 
 
 def _likelihood_power_value(value):
@@ -113,8 +116,9 @@ class FitOptions:
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
-        "unknown response or intensities), sets --noise normals, --likelihood-power area, --potts-rho 1 / (labelled "
-        "pixels) and calibrate (mask parts under 5 px left out; an unknown camera response and per-light gains "
+        "unknown response or intensities), sets --noise normals and --likelihood-power area where they are left at "
+        "their defaults, the Potts beta and rho by a rule on the mask, half the cluster moves' seeds drawn per "
+        "material, and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
         "estimated before the fit and applied to the images), as measured in docs/measured-data.md.", "choice",
         choices=("none", "measured"))
     calibrate: bool = False
@@ -199,11 +203,10 @@ class FitOptions:
         if self.n_chains < 1 or self.iterations < 10:
             raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got "
                              f"{self.n_chains}, {self.iterations}")
-        if self.preset == "measured":
-            object.__setattr__(self, "noise", "normals")
-            object.__setattr__(self, "likelihood_power", "area")
-            object.__setattr__(self, "calibrate", True)
-            object.__setattr__(self, "cluster_material_seed", 0.5)
+        if self.preset == "measured":       # defaults for measured data: only options left at their defaults change
+            for name, value in MEASURED_PRESET.items():
+                if getattr(self, name) == FitOptions.__dataclass_fields__[name].default:
+                    object.__setattr__(self, name, value)
         for name, what in (("preset", "preset"), ("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
                            ("channel", "channel"),
                            ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
