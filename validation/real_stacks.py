@@ -52,6 +52,8 @@ VARIANTS = {
                                       "calibrate": True},
     "measured": {"preset": "measured"},
     "measured-auto": {"preset": "measured", "likelihood_power": "auto"},
+    "measured-auto-noanneal": {"preset": "measured", "likelihood_power": "auto", "anneal": 0.0},
+    "measured-noanneal": {"preset": "measured", "anneal": 0.0},
     "cp-auto": {"regions": "changepoints", "likelihood_power": "auto"},
     "cp-measured": {"regions": "changepoints", "noise": "normals", "likelihood_power": "area", "calibrate": True},
 }
@@ -91,15 +93,17 @@ def run(dataset: Path, variant: str, chains: int, iterations: int, out: Path, ta
 
 
 def summarise(table: Path) -> str:
-    lines = ["| data set | variant | chains x iter. | zeta | normal error (deg) | K posterior | MAP | MAP pixels | "
-             "R-hat | s |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| data set | variant | chains x iter. | zeta | normal error (deg) | K posterior | per chain | MAP | "
+             "MAP pixels | R-hat | s |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for text in table.read_text().splitlines():
         row = json.loads(text)
         posterior = ", ".join(f"{k}: {v:.2f}" for k, v in sorted(row["posterior"].items(), key=lambda kv: -kv[1])[:4])
         error = "-" if row["normal_error_deg"] is None else f"{row['normal_error_deg']:.2f}"
         rhat = "-" if row["rhat_max"] is None else f"{row['rhat_max']:.2f}"
+        chains = ", ".join("/".join(k for k, v in sorted(c.items(), key=lambda kv: -kv[1]) if v >= 0.1)
+                           for c in row["chains_posterior"])
         lines.append(f"| {row['dataset']} | {row['variant']} | {row['chains']} x {row['iterations']} | "
-                     f"{row['likelihood_power']:.3g} | {error} | {posterior} | {row['map']} | {row['pixels']} | "
+                     f"{row['likelihood_power']:.3g} | {error} | {posterior} | {chains} | {row['map']} | {row['pixels']} | "
                      f"{rhat} | {row['seconds']:.0f} |")
     return "\n".join(lines)
 
