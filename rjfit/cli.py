@@ -23,12 +23,13 @@ def _echo_json(payload: dict, keys) -> None:
 
 
 def _likelihood_power(text: str):
-    if text == "auto":
-        return "auto"
+    if text in ("auto", "area"):
+        return text
     try:
         value = float(text)
     except ValueError:
-        raise click.BadParameter(f"{text!r} is neither 'auto' nor a number", param_hint="--likelihood-power") from None
+        raise click.BadParameter(f"{text!r} is neither 'auto', 'area' nor a number",
+                                 param_hint="--likelihood-power") from None
     if not 0.0 < value <= 1.0:
         raise click.BadParameter(f"{value} is not in (0, 1]", param_hint="--likelihood-power")
     return value
@@ -279,8 +280,10 @@ def _echo_fit(folder, summary: dict) -> None:
     click.echo(f"fit of {summary['dataset']} ({summary['channel']}) -> {folder}")
     noise_model = summary.get("noise", {}).get("model", "constant")
     if noise_model != "constant" or summary["likelihood_power"] != 1.0:
-        noise_text = (f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), "
-                      if noise_model != "constant" else "")
+        normal_error = summary["noise"].get("normal_error")
+        noise_text = ("" if noise_model == "constant" else
+                      f"noise model normals (normal error sd {normal_error['sigma_n_deg']:.3g} deg), " if normal_error
+                      else f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), ")
         click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
     if summary.get("region_model") == "materials":
         k = summary["map_materials"]

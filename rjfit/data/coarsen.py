@@ -24,9 +24,16 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.data.noise import weighted_observations
-from rjfit.data.pixelfit import per_pixel_residuals
+from rjfit.data.pixelfit import group_fit, patch_index, per_pixel_residuals
 
-__all__ = ["suggest_likelihood_power", "misfit_warning", "MISFIT_ZETA"]
+__all__ = ["suggest_likelihood_power", "misfit_warning", "MISFIT_ZETA", "area_likelihood_power",
+           "summed_autocorrelation", "AREA_WINDOW", "AREA_PATCH"]
+
+# Lags summed by the area rule: within +-40 px (the DiLiGenT ball's residual correlation falls to ~0 by
+# about 20 px), at most a quarter of the image's side.
+AREA_WINDOW = 40
+AREA_PATCH = 5
+_MIN_LAG_PAIRS = 100
 
 # Below this suggested zeta (rho above 0.17) fewer than half of the observations count as
 # independent: the BRDF family misses a smooth part of the data, which can split one material.
@@ -89,10 +96,94 @@ def misfit_warning(suggestion, likelihood_power: float) -> str | None:
     then absorb the misfit instead of separating materials, even in a coarsened fit (the
     measured DiLiGenT ball: rho 0.41).
     """
-    if suggestion is None or suggestion["likelihood_power"] >= MISFIT_ZETA:
+    if suggestion is None or suggestion.get("likelihood_power", 1.0) >= MISFIT_ZETA:
         return None
     return (f"the per-pixel fits' residuals are shared by neighbouring pixels (lag-1 correlation rho "
             f"{suggestion['rho']:.2f}, as if only {suggestion['likelihood_power']:.0%} of the observations were "
             f"independent): the Lambert + Blinn-Phong model misses part of this data's reflectance, and regions "
             f"may split one material to absorb the misfit (this fit's likelihood power {likelihood_power:.3g}); "
             f"run `rjfit diagnose` before reading regions as materials")
+
+
+def summed_autocorrelation(observations, residuals, window: int = AREA_WINDOW) -> dict:
+    """The residuals' spatial autocorrelation under one light, pooled over lights and summed over lags.
+
+    ``rho(d) = sum_l sum_x r_l(x) r_l(x + d) / (n_pairs(d) c(0))``, ``c(0)`` the mean squared
+    residual, for every lag ``d = (dr, dc)`` with ``|dr|, |dc| <= window`` (each lag with at
+    least 100 pixel pairs). For a stationary field the variance of a mean over a large region
+    of n observations is ``sigma^2 / n * sum_d rho(d)``: ``area = sum_d rho(d)`` (in pixels) is
+    how many observations carry one observation's information; white noise gives 1.
+
+    Parameters
+    ----------
+    observations : rjfit.data.observations.Observations
+    residuals : ndarray (N,)
+        One per observation; NaN where there is none.
+    window : int
+        Largest lag summed, per image axis, in pixels (capped at a quarter of the image side).
+
+    Returns
+    -------
+    dict
+        ``area`` (pixels), ``window`` (the one used), ``rho_lag1`` (mean of the four nearest lags).
+
+    Raises
+    ------
+    ValueError
+        If no residual is finite or its mean square is 0.
+    """
+    height, width = observations.image_shape
+    window = int(max(1, min(window, height // 4, width // 4)))
+    pixel = np.asarray(observations.pixel, np.int64)
+    light = np.asarray(observations.light, np.int64)
+    residuals = np.asarray(residuals, float)
+    keep = np.isfinite(residuals)
+    if not keep.any() or not np.any(residuals[keep] != 0):
+        raise ValueError("no finite, non-zero residual: cannot measure the residuals' autocorrelation")
+    shape = (2 * height, 2 * width)          # zero padding: the circular correlation is the linear one
+    numerator, pairs = np.zeros(shape), np.zeros(shape)
+    for index in np.unique(light[keep]):
+        chosen = keep & (light == index)
+        dense, mask = np.zeros(height * width), np.zeros(height * width)
+        dense[pixel[chosen]] = residuals[chosen]
+        mask[pixel[chosen]] = 1.0
+        for image, total in ((dense, numerator), (mask, pairs)):
+            spectrum = np.fft.rfft2(image.reshape(height, width), shape)
+            total += np.fft.irfft2(spectrum * np.conj(spectrum), shape)
+    pairs = np.rint(pairs)
+    c0 = numerator[0, 0] / pairs[0, 0]
+    lags = np.r_[0:window + 1, -window:0]
+    num, cnt = numerator[np.ix_(lags % shape[0], lags % shape[1])], pairs[np.ix_(lags % shape[0], lags % shape[1])]
+    usable = cnt >= _MIN_LAG_PAIRS
+    rho = np.where(usable, num / np.where(usable, cnt, 1.0) / c0, 0.0)
+    return {"area": float(rho.sum()), "window": window,
+            "rho_lag1": float(np.mean([rho[1, 0], rho[-1, 0], rho[0, 1], rho[0, -1]]))}
+
+
+def area_likelihood_power(observations, noise_scale=None, patch: int = AREA_PATCH, window: int = AREA_WINDOW) -> dict:
+    """zeta = 1 / area: the likelihood power of an effective number of independent observations.
+
+    The residuals are those of Lambert + Blinn fits shared by ``patch`` x ``patch`` pixel tiles
+    (:func:`rjfit.data.pixelfit.group_fit`; weighted by ``noise_scale`` when given, so they are
+    the standardised residuals the fit's likelihood sees), and ``area`` is their summed spatial
+    autocorrelation (:func:`summed_autocorrelation`). zeta = 1 / max(area, 1), at least 1 / N:
+    white noise gives 1 (the plain posterior). Unlike the lag-1 rule (``suggest_likelihood_power``,
+    which assumes an AR(1) field) it counts correlation at every lag up to ``window``.
+
+    Returns
+    -------
+    dict
+        ``likelihood_power``, ``area``, ``window``, ``rho_lag1``, ``patch_px``, ``rule``.
+
+    Raises
+    ------
+    ValueError
+        As :func:`summed_autocorrelation`.
+    """
+    obs = weighted_observations(observations, noise_scale)
+    tile, n_tiles = patch_index(obs, patch)
+    measured = summed_autocorrelation(obs, group_fit(obs, tile, n_tiles)["residuals"], window)
+    zeta = max(1.0 / max(measured["area"], 1.0), 1.0 / obs.n_obs)
+    return {**measured, "likelihood_power": zeta, "patch_px": patch,
+            "rule": "zeta = 1 / max(1, sum of the spatial autocorrelation of the (standardised) residuals of "
+                    f"{patch} x {patch} pixel tile fits over lags within +-window px, pooled over lights)"}

@@ -20,7 +20,7 @@ from rjfit.data.checks import check_finite, check_lights_face_object, check_mask
 from rjfit.data.descriptions import check_dataset_description
 from rjfit.data.exr import read_exr
 from rjfit.data.formats import CHANNELS, COLOUR, COLOUR_CHANNELS
-from rjfit.data.lights import Light, geometry_terms
+from rjfit.data.lights import Light, cos_light_half, geometry_terms
 from rjfit.data.observations import EXCLUSION_RULES, Observations, exclusion_reasons, stack_channels
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.io import read_json
@@ -273,8 +273,11 @@ class Dataset:
             return stack_channels([self.observations(name, dark) for name in COLOUR_CHANNELS])
         rows, cols = np.nonzero(self.object_mask)
         flat_pixel = rows.astype(np.int64) * self.image_shape[1] + cols
-        parts = {"pixel": [], "light": [], "y": [], "cos_ln": [], "cos_hn": [], "irradiance": []}
+        parts = {"pixel": [], "light": [], "y": [], "cos_ln": [], "cos_hn": [], "irradiance": [], "cos_lh": []}
+        view_dirs = self.view_dirs[rows, cols]
+        positions = self.positions[rows, cols] if self.positions is not None else np.zeros_like(view_dirs)
         for index, valid, y, cos_ln, cos_hn, irradiance, _ in self._object_pixel_lights(channel, dark):
+            parts["cos_lh"].append(cos_light_half(positions, view_dirs, self.lights[index])[valid])
             parts["pixel"].append(flat_pixel[valid])
             parts["light"].append(np.full(int(valid.sum()), index, dtype=np.int32))
             for name, values in (("y", y), ("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance)):

@@ -149,3 +149,27 @@ def geometry_terms(positions, normals, view_dirs, light, reference_intensity=1.0
     cos_ln = np.sum(light_dirs * normals, axis=-1)
     cos_hn = np.sum(half * normals, axis=-1)
     return cos_ln, cos_hn, irradiance
+
+
+def cos_light_half(positions, view_dirs, light):
+    """Per-pixel ``<l.h>``: the cosine of half the angle between the light and the view direction.
+
+    It does not depend on the normal; with ``<l.n>`` and ``<h.n>`` it fixes how the prediction
+    changes when the normal turns (:mod:`rjfit.data.normal_error`).
+
+    Parameters
+    ----------
+    positions, view_dirs : ndarray, shape (..., 3)
+    light : Light
+
+    Returns
+    -------
+    ndarray, shape (...)
+    """
+    positions = np.asarray(positions, dtype=float)
+    view_dirs = np.asarray(view_dirs, dtype=float)
+    if light.kind == "point":
+        light_dirs = _normalise(np.asarray(light.position, dtype=float) - positions)
+    else:
+        light_dirs = np.broadcast_to(_normalise(np.asarray(light.direction, dtype=float)), positions.shape)
+    return np.sum(light_dirs * _normalise(light_dirs + view_dirs), axis=-1)

@@ -20,6 +20,11 @@ floor that keeps every scale positive; ``m_i`` is a reference signal, see below)
 ``relative``
     ``s_i = (m_i + c) / ybar``: standard deviation proportional to the signal plus a floor
     (a multiplicative error: a misfit or calibration error that grows with the signal).
+``normals``
+    ``s_i^2 = 1 + k g_i^2``: the normals' error carried as noise, ``g_i`` the tangential
+    gradient of the prediction with respect to the normal, k by maximum likelihood
+    (:mod:`rjfit.data.normal_error`, whose reference is a fit of small pixel tiles, not the
+    per-pixel fit below). Needs ``Observations.cos_lh``.
 
 The reference signal ``m_i`` is not ``y_i`` itself (a weight built from the noisy value
 would favour observations that happen to fall low and bias the fit), but the prediction of
@@ -43,12 +48,13 @@ import dataclasses
 
 import numpy as np
 
+from rjfit.data.normal_error import normal_error_noise
 from rjfit.data.pixelfit import per_pixel_residuals
 
 __all__ = ["NOISE_MODELS", "DEFAULT_FLOOR", "reference_signal", "noise_scale", "weighted_observations",
            "describe_noise"]
 
-NOISE_MODELS = ("constant", "shot", "relative")
+NOISE_MODELS = ("constant", "shot", "relative", "normals")
 DEFAULT_FLOOR = 0.05
 
 
@@ -76,7 +82,7 @@ def noise_scale(observations, model: str = "constant", floor: float = DEFAULT_FL
     Parameters
     ----------
     observations : rjfit.data.observations.Observations
-    model : {'constant', 'shot', 'relative'}
+    model : {'constant', 'shot', 'relative', 'normals'}
         See the module docstring.
     floor : float
         ``c / ybar``: the floor added to the reference signal, as a fraction of the mean
@@ -101,6 +107,8 @@ def noise_scale(observations, model: str = "constant", floor: float = DEFAULT_FL
         raise ValueError(f"unknown noise model {model!r}: choose one of {', '.join(NOISE_MODELS)}")
     if model == "constant":
         return None
+    if model == "normals":
+        return normal_error_noise(observations)[0]
     if not (np.isfinite(floor) and floor > 0):
         raise ValueError(f"the noise floor must be a positive fraction of the mean value, got {floor}")
     y = np.asarray(observations.y, float)
@@ -133,11 +141,13 @@ def weighted_observations(observations, scale):
 
 def describe_noise(model: str, floor: float, scale=None) -> dict:
     """A JSON-ready record of the noise model (for summary.json)."""
-    formula = {"constant": "var_i = sigma_r^2",
+    formula = {"constant": "var_i = sigma_r^2", "normals": "var_i = sigma_r^2 (1 + k g_i^2), g_i = |d mu_i / d n|",
                "shot": "var_i = sigma_r^2 (m_i + c) / ybar, c = floor * ybar",
                "relative": "sd_i = sigma_r (m_i + c) / ybar, c = floor * ybar"}[model]
-    record = {"model": model, "formula": formula, "floor": None if model == "constant" else float(floor),
-              "reference": None if model == "constant" else "per-pixel least-squares fit (Lambert + one Blinn lobe)"}
+    reference = {"constant": None, "normals": "Lambert + one Blinn lobe fitted to each 5 x 5 pixel tile"}.get(
+        model, "per-pixel least-squares fit (Lambert + one Blinn lobe)")
+    record = {"model": model, "formula": formula, "floor": None if model in ("constant", "normals") else float(floor),
+              "reference": reference}
     if scale is not None:
         s = np.asarray(scale, float)
         record.update(scale_min=float(s.min()), scale_median=float(np.median(s)), scale_max=float(s.max()),

@@ -39,6 +39,10 @@ class Observations:
         None for a single-channel stack (every observation one channel).
     n_channels : int
         The number of colour channels fitted jointly (1 for a single channel).
+    cos_lh : ndarray of float64, shape (N,), or None
+        ``<l.h>`` of each observation (the cosine of half the angle between the light and the
+        view): with ``cos_ln`` and ``cos_hn`` it fixes how the prediction changes with the
+        normal (:mod:`rjfit.data.normal_error`). None where the builder did not record it.
     """
 
     image_shape: tuple[int, int]
@@ -52,6 +56,7 @@ class Observations:
     object_mask: np.ndarray
     channel: np.ndarray | None = None
     n_channels: int = 1
+    cos_lh: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -81,6 +86,7 @@ class Observations:
             light=self.light[keep], y=self.y[keep], cos_ln=self.cos_ln[keep],
             cos_hn=self.cos_hn[keep], irradiance=self.irradiance[keep], object_mask=self.object_mask,
             channel=None if self.channel is None else self.channel[keep], n_channels=self.n_channels,
+            cos_lh=None if self.cos_lh is None else self.cos_lh[keep],
         )
 
 
@@ -153,7 +159,7 @@ def valid_images_per_pixel(valid):
     return np.asarray(valid, dtype=bool).sum(axis=0)
 
 
-def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_mask) -> Observations:
+def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_mask, cos_lh=None) -> Observations:
     """Gather the valid entries of dense (L, H, W) arrays into :class:`Observations`.
 
     Parameters
@@ -165,6 +171,8 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
         it is not intersected with ``object_mask`` here).
     object_mask : array_like of bool, shape (H, W)
         Stored with the observations.
+    cos_lh : array_like, shape (L, H, W), optional
+        ``<l.h>`` per light and pixel (:attr:`Observations.cos_lh`).
 
     Returns
     -------
@@ -180,7 +188,8 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
     images = np.asarray(images, dtype=float)
     if images.ndim != 3:
         raise ValueError(f"images must have shape (lights, height, width), got {images.shape}")
-    for name, array in (("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance), ("valid", valid)):
+    for name, array in (("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance), ("valid", valid),
+                        ("cos_lh", images if cos_lh is None else cos_lh)):
         if np.shape(array) != images.shape:
             raise ValueError(f"{name} has shape {np.shape(array)}, images have {images.shape}")
     if np.shape(object_mask) != images.shape[1:]:
@@ -200,6 +209,7 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
         cos_hn=np.asarray(cos_hn, dtype=float)[valid],
         irradiance=np.asarray(irradiance, dtype=float)[valid],
         object_mask=np.asarray(object_mask, dtype=bool),
+        cos_lh=None if cos_lh is None else np.asarray(cos_lh, dtype=float)[valid],
     )
 
 
@@ -237,4 +247,5 @@ def stack_channels(per_channel) -> Observations:
            for name in ("pixel", "light", "y", "cos_ln", "cos_hn", "irradiance")},
         object_mask=first.object_mask,
         channel=np.concatenate([np.full(o.n_obs, c, np.int8) for c, o in enumerate(parts)]),
-        n_channels=len(parts))
+        n_channels=len(parts),
+        cos_lh=None if any(o.cos_lh is None for o in parts) else np.concatenate([o.cos_lh for o in parts]))

@@ -11,7 +11,7 @@ import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation
 
-__all__ = ["per_pixel_residuals", "GAMMA_GRID"]
+__all__ = ["per_pixel_residuals", "group_fit", "patch_index", "GAMMA_GRID"]
 
 GAMMA_GRID = np.geomspace(0.5, 500.0, 16)
 
@@ -32,25 +32,52 @@ def per_pixel_residuals(observations, gammas=GAMMA_GRID, refine_steps=GOLDEN_STE
     :mod:`rjfit.data.coarsen` would read as a misfit of the model family.
     """
     obs = observations
-    pixel = np.asarray(obs.pixel, np.int64)
     n_pix = int(np.prod(obs.image_shape))
+    return group_fit(obs, np.asarray(obs.pixel, np.int64), n_pix, gammas, refine_steps)["residuals"]
+
+
+def patch_index(observations, patch: int) -> tuple[np.ndarray, int]:
+    """Per observation, the index of its ``patch`` x ``patch`` pixel tile; and the number of tiles."""
+    height, width = observations.image_shape
+    tiles_across = -(-width // patch)
+    pixel = np.asarray(observations.pixel, np.int64)
+    tile = (pixel // width // patch) * tiles_across + (pixel % width) // patch
+    return tile, int(-(-height // patch) * tiles_across)
+
+
+def group_fit(observations, group, n_groups, gammas=GAMMA_GRID, refine_steps=GOLDEN_STEPS) -> dict:
+    """One Lambert + Blinn fit per group of observations (a pixel, a patch of pixels).
+
+    Per group and exponent g: least squares of y on A = E <l.n> / pi and B = E <l.n> <h.n>^g N(g)
+    (a, b unconstrained), g the best of ``gammas`` refined by golden section on log g (see
+    :func:`per_pixel_residuals`). A group with fewer than 4 observations (or a singular
+    system) has no fit.
+
+    Returns
+    -------
+    dict
+        ``a``, ``b``, ``gamma`` (per group; a, b 0 where there is no fit), ``fitted`` (per
+        group, bool) and ``residuals`` (per observation, NaN where its group has no fit).
+    """
+    obs = observations
+    group = np.asarray(group, np.int64)
     y = np.asarray(obs.y, float)
     C = np.asarray(obs.irradiance, float) * np.asarray(obs.cos_ln, float)
     A = C / np.pi
     log_hn = np.log(np.clip(np.asarray(obs.cos_hn, float), 1e-300, None))
-    count = np.bincount(pixel, minlength=n_pix)
+    count = np.bincount(group, minlength=n_groups)
 
     def sums(w):
-        return np.bincount(pixel, weights=w, minlength=n_pix)
+        return np.bincount(group, weights=w, minlength=n_groups)
 
     s_yy, s_ya, s_aa = sums(y * y), sums(y * A), sums(A * A)
 
     def lobe(g_obs):
         return C * np.exp(g_obs * log_hn) * blinn_normalisation(g_obs)
 
-    def fit(g_pix):
-        """(a, b, residual sum of squares) per pixel at the exponents ``g_pix``."""
-        B = lobe(g_pix[pixel])
+    def fit(g_group):
+        """(a, b, residual sum of squares) per group at the exponents ``g_group``."""
+        B = lobe(g_group[group])
         s_yb, s_ab, s_bb = sums(y * B), sums(A * B), sums(B * B)
         det = s_aa * s_bb - s_ab * s_ab
         ok = (count >= 4) & (det > 1e-12 * np.maximum(s_aa * s_bb, 1e-300))
@@ -60,18 +87,19 @@ def per_pixel_residuals(observations, gammas=GAMMA_GRID, refine_steps=GOLDEN_STE
         return a, b, np.where(ok, s_yy - a * s_ya - b * s_yb, np.inf)
 
     gammas = np.asarray(gammas, float)
-    ssr_grid = np.stack([fit(np.full(n_pix, g))[2] for g in gammas])
+    ssr_grid = np.stack([fit(np.full(n_groups, g))[2] for g in gammas])
     best_index = np.argmin(ssr_grid, axis=0)
     g = _golden_section(lambda log_g: fit(np.exp(log_g))[2],
                         np.log(gammas[np.maximum(best_index - 1, 0)]),
                         np.log(gammas[np.minimum(best_index + 1, gammas.size - 1)]), refine_steps)
     g = np.exp(g)
     a, b, ssr = fit(g)
-    worse = ssr > ssr_grid[best_index, np.arange(n_pix)]      # the bracket held no better point
+    worse = ssr > ssr_grid[best_index, np.arange(n_groups)]      # the bracket held no better point
     g = np.where(worse, gammas[best_index], g)
     a, b, ssr = fit(g)
-    residuals = y - a[pixel] * A - b[pixel] * lobe(g[pixel])
-    return np.where(np.isfinite(ssr[pixel]), residuals, np.nan)
+    residuals = y - a[group] * A - b[group] * lobe(g[group])
+    fitted = np.isfinite(ssr)
+    return {"a": a, "b": b, "gamma": g, "fitted": fitted, "residuals": np.where(fitted[group], residuals, np.nan)}
 
 
 def _golden_section(cost, low, high, steps):

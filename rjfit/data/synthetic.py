@@ -127,7 +127,7 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
     params = {key: np.array([region[key] for region in truth], dtype=float) for key in ("I0", "kd", "gamma", "sigma2")}
     region = np.where(object_mask, labels, 0)
 
-    images, cos_ln_all, cos_hn_all, irr_all = [], [], [], []
+    images, cos_ln_all, cos_hn_all, irr_all, cos_lh_all = [], [], [], [], []
     for position in lights:
         to_light = position[None, None, :] - normals
         dist2 = np.sum(to_light**2, axis=-1)
@@ -144,9 +144,10 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
         cos_ln_all.append(cos_ln)
         cos_hn_all.append(cos_hn)
         irr_all.append(irradiance)
+        cos_lh_all.append(np.sum(light_dir * half, axis=-1))
     images = np.stack(images)
     cos_ln = np.stack(cos_ln_all)
     valid = object_mask[None] & (cos_ln > min_cos)
     obs: Observations = observations_from_stack(images, cos_ln, np.stack(cos_hn_all), np.stack(irr_all),
-                                                valid, object_mask)
+                                                valid, object_mask, cos_lh=np.stack(cos_lh_all))
     return obs, labels.astype(int), [dict(region) for region in truth]

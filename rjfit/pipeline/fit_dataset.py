@@ -10,6 +10,9 @@ import functools
 import math
 from pathlib import Path
 
+import numpy as np
+
+from rjfit.data.calibrate import calibrate_measured
 from rjfit.data.dataset import read_validation_result
 from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.data.formats import COLOUR
@@ -20,7 +23,15 @@ from rjfit.render.datasets import load_dataset
 from rjfit.render.gate import require_validated
 from rjfit.sampler.runner import run_chain
 
-__all__ = ["fit_dataset", "fit_datasets", "check_validation_file", "validation_record"]
+__all__ = ["fit_dataset", "fit_datasets", "check_validation_file", "validation_record", "ghost_material_prior",
+           "GHOST_PIXELS", "GHOST_ODDS"]
+
+# --preset measured's Potts rule (docs/measured-data.md): a material whose parameters equal an existing one's
+# holds about S(beta) = sum_p exp(-beta n_p) scattered pixels under the prior (n_p: p's labelled 4-neighbours);
+# beta is raised until S <= GHOST_PIXELS, so such a material shrinks to its last pixel often enough for the
+# cluster moves to remove it, and rho makes its prior odds rho S / 2 = GHOST_ODDS.
+GHOST_PIXELS = 1.0
+GHOST_ODDS = 0.05
 
 
 def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, validation_path=None,
@@ -68,6 +79,12 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
     dataset = load_dataset(dataset_dir)
     options = options.replace(burn_in=options.burn_in_for(measured=dataset.meta.get("kind") == "measured"))
+    calibration = None
+    if options.calibrate:
+        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
+    if options.preset == "measured" and options.potts_rho == 1.0:
+        beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
+        options = options.replace(potts_beta=beta, potts_rho=rho)
     chain_runner = None
     if scheduler is not None or client is not None:
         from rjfit.pipeline.distributed import dask_map  # Dask: only when asked for
@@ -84,6 +101,8 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
                "channel": options.channel, "validation": record}
     if dataset.meta.get("crop"):
         entries["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
+    if calibration is not None:
+        entries["calibration"] = calibration
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)
@@ -95,6 +114,23 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     return fit(observations, out_dir, options, truth_labels=dataset.truth_labels,
                truth_params=dataset.truth_params, chain_runner=chain_runner, source=source, sampler_effects=effects,
                effect_source=effect_source)
+
+
+def ghost_material_prior(object_mask, beta: float) -> tuple[float, float]:
+    """``(beta, rho)`` of the measured preset's Potts prior for this mask (the rule above ``GHOST_PIXELS``).
+
+    beta: the smallest of ``beta``, ``beta + 0.05``, ... with ``S(beta) <= GHOST_PIXELS`` (at most 8);
+    rho: ``2 GHOST_ODDS / S(beta)``. Pixels without a labelled neighbour are not counted: no beta
+    binds them (the preset's calibration leaves them out, :func:`rjfit.data.calibrate.drop_small_components`).
+    """
+    mask = np.asarray(object_mask, bool)
+    padded = np.pad(mask, 1)
+    neighbours = (padded[:-2, 1:-1].astype(int) + padded[2:, 1:-1] + padded[1:-1, :-2] + padded[1:-1, 2:])[mask]
+    neighbours = neighbours[neighbours > 0]
+    ghost_pixels = lambda b: float(np.sum(np.exp(-b * neighbours)))      # noqa: E731
+    while ghost_pixels(beta) > GHOST_PIXELS and beta < 8.0:
+        beta = round(beta + 0.05, 2)
+    return beta, 2.0 * GHOST_ODDS / ghost_pixels(beta)
 
 
 def check_validation_file(dataset_dir, validation_path=None) -> None:

@@ -127,6 +127,8 @@ SUMMARY_FIELDS = {
     "dataset_sha256": (str, "digest of the data set's files"),
     "channel": (str, "the colour channel fitted"),
     "crop": (dict, "where the maps sit in the original frame (row0, col0)"),
+    "calibration": (dict, "the data transforms applied before the fit (--preset measured): isolated pixels left "
+                          "out, the estimated camera response and light gains with their uncertainty"),
     "validation": (dict, "the cross-check the fit was made under: passed, errors, path, note"),
 }
 _TYPE_NAMES = {str: "a string", dict: "an object", list: "a list", float: "a number", int: "an integer",

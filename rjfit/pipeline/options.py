@@ -56,13 +56,19 @@ def _effect_names(value) -> tuple:
     return names
 
 
+POWER_RULES = ("auto", "area")
+#: What ``--preset measured`` sets, where an option is left at its default (docs/measured-data.md); the
+#: Potts beta and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
+MEASURED_PRESET = {"noise": "normals", "likelihood_power": "area", "calibrate": True, "cluster_material_seed": 0.5}
+
+
 def _likelihood_power_value(value):
-    if value == "auto":
+    if value in POWER_RULES:
         return value
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"likelihood power (--likelihood-power) must be a number in (0, 1] or 'auto', got "
+        raise ValueError(f"likelihood power (--likelihood-power) must be a number in (0, 1], 'auto' or 'area', got "
                          f"{value!r}") from None
     if not 0.0 < number <= 1.0:
         raise ValueError(f"likelihood power (--likelihood-power) must lie in (0, 1], got {number}")
@@ -102,7 +108,21 @@ class FitOptions:
                                    "(--regions materials). Keep it above log(1 + sqrt(--max-materials)), the "
                                    "Potts model's critical coupling (1.34 for 8): below it the prior favours "
                                    "materials scattered pixel by pixel (docs/materials.md).", "float")
-    potts_rho: float = 1.0
+    potts_rho: float = cli_option(
+        1.0, "--potts-rho",
+        "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). 1: a material costs only its "
+        "parameters' prior; --preset measured sets 1 / (labelled pixels), so that the prior's expected number of "
+        "one-pixel materials does not grow with the image (docs/measured-data.md).", "float")
+    preset: str = cli_option(
+        "none", "--preset",
+        "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
+        "unknown response or intensities), sets --noise normals and --likelihood-power area where they are left at "
+        "their defaults, the Potts beta and rho by a rule on the mask, half the cluster moves' seeds drawn per "
+        "material, and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
+        "estimated before the fit and applied to the images), as measured in docs/measured-data.md.", "choice",
+        choices=("none", "measured"))
+    calibrate: bool = False
+    cluster_material_seed: float = 0.0
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)
     sampler: str = cli_option("adaptive", "--sampler",
@@ -132,15 +152,19 @@ class FitOptions:
         "zeta in (0, 1] of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each observation "
         "counts as zeta observations, so a BRDF misfit shared by neighbouring pixels of measured data does not split "
         "a uniform material into regions. 'auto': zeta = ((1-rho)/(1+rho))^2 from the lag-1 spatial correlation rho "
-        "of per-pixel-fit residuals (about 1 for white noise). 1: the plain posterior.", "power")
+        "of per-pixel-fit residuals (about 1 for white noise). 'area': zeta = 1 / (the residuals' spatial "
+        "autocorrelation summed over lags within +-40 px: an effective number of independent observations; residuals "
+        "of 5 x 5 pixel tile fits, standardised by the noise model's scales). 1: the plain posterior.", "power")
     noise: str = cli_option(
         "constant", "--noise",
         "Noise model y_i ~ N(mu_i, sigma_r^2 s_i^2), s_i known per observation: constant: s_i = 1 (homoscedastic per "
         "region, the paper's); shot: s_i^2 = (m_i + c) / ybar (variance grows with the signal: photon plus read "
         "noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: a multiplicative error). m_i: the "
         "prediction of a separate Lambert + Blinn fit of each pixel; ybar: the mean observed value; c = NOISE_FLOOR * "
-        "ybar. Weighted least squares: the sampler is unchanged. A model the noise does not follow splits regions: "
-        "keep constant unless the noise is known to grow with the signal.", "choice", choices=NOISE_MODELS)
+        "ybar. normals: s_i^2 = 1 + k g_i^2, the normals' error as noise, g_i = |d mu_i / d n| of a Lambert + Blinn "
+        "fit of each 5 x 5 pixel tile, k by maximum likelihood (docs/measured-data.md). Weighted least squares: the "
+        "sampler is unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
+        "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS)
     noise_floor: float = cli_option(
         DEFAULT_FLOOR, "--noise-floor",
         "c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, as a fraction "
@@ -180,7 +204,11 @@ class FitOptions:
         if self.n_chains < 1 or self.iterations < 10:
             raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got "
                              f"{self.n_chains}, {self.iterations}")
-        for name, what in (("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
+        if self.preset == "measured":       # defaults for measured data: only options left at their defaults change
+            for name, value in MEASURED_PRESET.items():
+                if getattr(self, name) == FitOptions.__dataclass_fields__[name].default:
+                    object.__setattr__(self, name, value)
+        for name, what in (("preset", "preset"), ("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
                            ("channel", "channel"),
                            ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
             spec = self.cli(name)
@@ -204,6 +232,11 @@ class FitOptions:
             # the label moves' per-pixel likelihoods and cluster statistics see the plain lobe only
             raise ValueError("--effects and --effects-from work with --regions changepoints only (the material model's "
                              "label moves do not yet carry the effects' terms); drop one of them")
+        if self.channel == COLOUR and (self.noise == "normals" or self.likelihood_power == "area"):
+            # their tile fits would pool a pixel's channels as one channel's observations
+            raise ValueError("--noise normals and --likelihood-power area (--preset measured) measure one channel: "
+                             "not yet with --channel rgb; fit one channel (--channel mean) under the preset, or "
+                             "--channel rgb without it")
         if self.channel == COLOUR and (self.regions != "materials" or self.sampler != "adaptive"):
             raise ValueError("--channel rgb (a joint colour fit) works with --regions materials and the adaptive "
                              "sampler only (the change-point model's passes see one channel): use --regions materials, "

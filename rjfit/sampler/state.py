@@ -200,7 +200,7 @@ FLAT_OPTIONS = {
     "max_materials": ["regions.max_materials"], "potts_beta": ["regions.potts.beta"],
     "potts_rho": ["regions.potts.rho"], "update_labels": ["regions.update_labels"],
     "label_sweeps": ["regions.sweeps"], "cluster_moves": ["regions.cluster.moves"],
-    "cluster_new_prob": ["regions.cluster.new_prob"], "merge_split_moves": ["regions.merge_split.moves"],
+    "cluster_new_prob": ["regions.cluster.new_prob"], "cluster_material_seed": ["regions.cluster.material_seed"], "merge_split_moves": ["regions.merge_split.moves"],
     "burn_in": ["kernel.burn_in"], "anneal": ["kernel.anneal"], "anneal_start": ["kernel.anneal_start"],
     "refresh_every": ["kernel.refresh_every"],
     "effect_every": ["effects.every"], "effect_target_accept": ["effects.target_accept"],

@@ -89,3 +89,11 @@ def test_the_colour_power_divides_by_the_channels_design_effect():
     suggestion = power_suggestion(independent, None)
     assert abs(suggestion["channel_correlation"]) < 0.05
     assert suggestion["likelihood_power"] > 0.9 * suggestion["most_misfit_channel"]["likelihood_power"]
+
+
+def test_the_measured_preset_is_refused_with_colour_in_one_line():
+    """Its normals noise and area power come from tile fits of one channel (not yet per channel)."""
+    with pytest.raises(ValueError, match="not yet with --channel rgb"):
+        FitOptions(regions="materials", channel="rgb", preset="measured")
+    with pytest.raises(ValueError, match="not yet with --channel rgb"):
+        FitOptions(regions="materials", channel="rgb", noise="normals")

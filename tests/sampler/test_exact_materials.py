@@ -140,12 +140,15 @@ def materials_config(**options):
 
 
 # K moved by every jump move, by the cluster moves' births and deaths alone, by merges and splits alone
+# (and by the cluster moves alone with half their seeds drawn as a material, then a pixel of it)
 JUMP_MOVES = {"all": {"merge_split_moves": 1}, "cluster": {"merge_split_moves": 0},
-              "merge_split": {"cluster_moves": 0, "merge_split_moves": 1}}
+              "merge_split": {"cluster_moves": 0, "merge_split_moves": 1},
+              "cluster_material_seeds": {"merge_split_moves": 0, "cluster_material_seed": 0.5}}
 
 
 @pytest.mark.parametrize("jumps,beta,rho,seed", [("all", 1.0, 1.0, 1), ("cluster", 0.5, 0.1, 2),
-                                                 ("merge_split", 2.0, 0.5, 4)])
+                                                 ("merge_split", 2.0, 0.5, 4),
+                                                 ("cluster_material_seeds", 0.5, 0.1, 2)])
 def test_partitions_k_and_parameters_match_enumeration(square, jumps, beta, rho, seed):
     """All 15 partitions of the 2 x 2 image, K_max 4: Gibbs sweeps and the jump moves ``jumps``."""
     prior, problem, quad = square

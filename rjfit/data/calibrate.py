@@ -1,0 +1,175 @@
+"""Data transforms of a measured stack before a fit (``--preset measured``): stated, estimated, recorded.
+
+The material model's moves see the plain Lambert + Blinn lobe only, so what a change-point fit
+samples as effects (``--effects light_calibration,camera_gamma``) is estimated here once, before
+the fit, and applied to the images as a data transform. Each step's estimate and its
+uncertainty go into the fit's summary (``calibration``); the fit does not sample them, so its
+intervals are conditional on them.
+
+1. **Isolated pixels.** Connected parts (4-neighbours) of the object mask smaller than
+   ``min_component`` pixels (default 5) are left out. Why: the Potts prior ties a pixel's
+   material to its neighbours'; a pixel with none can take a material of its own at no
+   boundary cost, and on ``psm-horse`` one such pixel (of 29,488) held a material of its own
+   in every chain of a fit (docs/measured-data.md).
+2. **Camera response** (``Dataset.response == "unknown"`` only). The exponent kappa of
+   ``raw = k linear^(1/kappa)`` by :func:`rjfit.data.response.estimate_power_response`
+   (per-pixel fits, block bootstrap over 16-pixel tiles), then every image becomes
+   ``(raw / raw_max)^kappa`` (all channels, one kappa).
+3. **Per-light gains** (uncalibrated intensities: the response is unknown, or
+   ``gains=True``). With every 5 x 5 pixel tile fitted by one Lambert + Blinn lobe
+   (:func:`rjfit.data.pixelfit.group_fit`, which shares a tile's amplitudes over all lights so
+   it cannot absorb a light's gain), the gain of light l is the least-squares ratio
+   ``G_l = sum y m / sum m^2`` of its observations to the tiles' predictions; the images are
+   divided by G_l and the step repeated (over-relaxed, until it changes a gain by under
+   0.01 %); the gains are normalised to geometric mean 1 (the overall scale is I0's).
+   Uncertainty: the spread of the last step's ratio over a bootstrap of the tiles
+   (``n_bootstrap``, seeded), the tile fits held fixed: it leaves out the fits' own spread.
+
+Saturated observations are flagged before any transform (``Dataset.saturated``), so the
+transforms do not move the clipping threshold. The quantisation floor (``quantisation_variance``)
+no longer applies to transformed values and is dropped (its size is recorded: on psm it is
+1/36 code^2 for the channel mean against residual variances of 85 to 150 code^2).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import ndimage
+
+from rjfit.data.pixelfit import group_fit, patch_index
+from rjfit.data.response import estimate_power_response
+
+__all__ = ["calibrate_measured", "drop_small_components", "estimate_light_gains", "MIN_COMPONENT"]
+
+MIN_COMPONENT = 5
+# Alternating tile fits and gains converges slowly where a tile's lobe can take up part of a
+# light's gain (the error shrank by about 0.93 a round on paper_sphere): over-relaxed steps
+# (change^1.8), until the largest step is below 1e-4 or 60 rounds.
+_GAIN_ROUNDS = 60
+_GAIN_TOLERANCE = 1e-4
+# kappa 0.5 to 2.5 (the estimator's grid is 0.4 to 3.0): a third fewer tile-fit passes; an estimate on
+# the edge is flagged (at_grid_edge)
+_KAPPAS = np.round(np.arange(0.5, 2.5 + 1e-9, 0.05), 4)
+_OVER_RELAXATION = 1.8
+_TILE = 5
+
+
+def drop_small_components(dataset, min_component: int = MIN_COMPONENT):
+    """The data set with the object mask's connected parts under ``min_component`` pixels left out.
+
+    Returns
+    -------
+    (Dataset, dict)
+        The data set and a record: ``pixels_dropped``, ``components_dropped``, ``min_component``.
+    """
+    labels, n = ndimage.label(dataset.object_mask)
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)
+    small = np.flatnonzero(sizes < min_component)
+    small = small[small > 0]
+    drop = np.isin(labels, small)
+    record = {"min_component": min_component, "components_dropped": int(small.size),
+              "pixels_dropped": int(drop.sum())}
+    if not drop.any():
+        return dataset, record
+    return dataclasses.replace(dataset, object_mask=dataset.object_mask & ~drop), record
+
+
+def estimate_light_gains(dataset, channel: str = "mean", seed: int = 0, n_bootstrap: int = 50) -> dict:
+    """Per-light gains ``G_l`` from 5 x 5 pixel tile fits (module docstring, step 3).
+
+    Returns
+    -------
+    dict
+        ``gains`` (L,), ``gains_std`` (L,; block bootstrap over tiles), ``rounds``, ``bootstrap``.
+    """
+    observations = dataset.observations(channel)
+    tile, n_tiles = patch_index(observations, _TILE)
+    light = np.asarray(observations.light, np.int64)
+    y0 = np.asarray(observations.y, float)
+
+    def ratio(y, prediction, weights):
+        keep = np.isfinite(prediction)
+        m, w = prediction[keep], weights[tile[keep]]
+        return (np.bincount(light[keep], weights=w * y[keep] * m, minlength=dataset.n_lights)
+                / np.bincount(light[keep], weights=w * m * m, minlength=dataset.n_lights))
+
+    total, rounds, step = np.ones(dataset.n_lights), 0, np.inf
+    while rounds < _GAIN_ROUNDS and step > _GAIN_TOLERANCE:
+        y = y0 / total[light]
+        prediction = y - group_fit(dataclasses.replace(observations, y=y), tile, n_tiles)["residuals"]
+        change = ratio(y, prediction, np.ones(n_tiles)) ** _OVER_RELAXATION
+        total = total * change / np.exp(np.mean(np.log(total * change)))
+        step, rounds = float(np.max(np.abs(np.log(change)))), rounds + 1
+    y = y0 / total[light]
+    prediction = y - group_fit(dataclasses.replace(observations, y=y), tile, n_tiles)["residuals"]
+    rng = np.random.default_rng(seed)
+    draws = []
+    for _ in range(n_bootstrap):
+        resampled = total * ratio(y, prediction, rng.multinomial(n_tiles, np.full(n_tiles, 1.0 / n_tiles)).astype(float))
+        draws.append(resampled / np.exp(np.mean(np.log(resampled))))
+    draws = np.asarray(draws)
+    return {"gains": total.tolist(), "gains_std": draws.std(axis=0, ddof=1).tolist() if n_bootstrap > 1 else None,
+            "rounds": rounds, "last_step": step, "tile_px": _TILE,
+            "bootstrap": {"replicates": n_bootstrap, "over": f"{_TILE} x {_TILE} pixel tiles, the tile fits held fixed "
+                                                             "(the spread of the last ratio step only)", "seed": seed}}
+
+
+def _flag_saturated(dataset):
+    """``Dataset.saturated`` with the threshold applied now, so that scaling the images keeps it."""
+    if dataset.saturation is None:
+        return dataset
+    clipped = (dataset.images >= dataset.saturation).any(axis=-1)
+    if dataset.saturated is not None:
+        clipped |= dataset.saturated
+    return dataclasses.replace(dataset, saturated=clipped, saturation=None)
+
+
+def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: bool | None = None,
+                       min_component: int = MIN_COMPONENT):
+    """The transforms of the module docstring, in order; the transformed data set and their record.
+
+    Parameters
+    ----------
+    dataset : rjfit.data.dataset.Dataset
+    channel : str
+        The channel the estimates are made on (the fit's).
+    seed : int
+        Seeds the bootstraps.
+    gains : bool or None
+        Estimate per-light gains; None: only when the response is unknown (uncalibrated stacks).
+    min_component : int
+        Smallest connected part of the object mask kept, in pixels.
+
+    Returns
+    -------
+    (Dataset, dict)
+
+    Raises
+    ------
+    DatasetError
+        If the response must be estimated and too few pixels have a per-pixel fit.
+    """
+    dataset, isolated = drop_small_components(dataset, min_component)
+    record = {"isolated_pixels": isolated, "response": None, "light_gains": None,
+              "note": "estimated once before the fit and applied to the images; the fit's intervals are conditional "
+                      "on these estimates"}
+    unknown = dataset.response == "unknown"
+    if unknown:
+        dataset = _flag_saturated(dataset)
+        response = estimate_power_response(dataset, channel, seed, kappas=_KAPPAS)
+        kappa = response["kappa"]
+        images = (np.asarray(dataset.images, float) / float(np.max(dataset.images))) ** kappa
+        record["response"] = {key: response[key] for key in ("kappa", "exponent", "kappa_std", "kappa_interval",
+                                                             "at_grid_edge", "model", "errors", "caveat")}
+        record["quantisation_dropped"] = ("the raw codes' quantisation floor (1/12 code^2 per channel) does not apply "
+                                          "to the linearised values and is not used")
+        dataset = dataclasses.replace(dataset, images=images, response="linear", quantisation_variance=None,
+                                      meta={**dataset.meta, "response_estimated": kappa})
+    if gains or (gains is None and unknown):
+        dataset = _flag_saturated(dataset)
+        estimate = estimate_light_gains(dataset, channel, seed)
+        scale = np.asarray(estimate["gains"])[:, None, None, None]
+        dataset = dataclasses.replace(dataset, images=np.asarray(dataset.images, float) / scale)
+        record["light_gains"] = estimate
+    return dataset, record

@@ -1,0 +1,182 @@
+"""The normals' error as noise: a known per-observation scale from a reference fit of small patches.
+
+Measured normals (photometric stereo, a scan) are a degree or two off. Where the prediction
+changes fast with the normal (on and around a highlight whose lobe is about as wide as that
+error) a wrong normal gives a residual of the size of the highlight itself, spatially
+structured, that no BRDF shared by a material can follow: the fit then buys a material for
+the highlight (docs/measured-ball.md). This module carries that error in the noise instead.
+
+Model. The normal used at observation i differs from the true one by a small tangential
+error, isotropic with standard deviation sigma_n (radians) per tangential direction. To
+first order the prediction moves by ``grad_t mu_i . dn``, so
+
+    var_i = sigma_r^2 + sigma_n^2 g_i^2 = sigma_r^2 (1 + k g_i^2),     k = sigma_n^2 / sigma_r^2,
+
+with ``g_i = |d mu_i / d n|`` the tangential gradient of the prediction. For Lambert plus one
+energy-normalised Blinn lobe, ``mu = E (a <l.n> / pi + b N(g) <l.n> <h.n>^g)``, the gradient
+is ``alpha l + beta h`` with ``alpha = E (a / pi + b N(g) <h.n>^g)``, ``beta = E b N(g) g
+<l.n> <h.n>^(g-1)``, and its tangential part has
+
+    g_i^2 = alpha^2 (1 - <l.n>^2) + beta^2 (1 - <h.n>^2) + 2 alpha beta (<l.h> - <l.n><h.n>).
+
+The fit then uses the known scales ``s_i = sqrt(1 + k g_i^2)`` (:mod:`rjfit.data.noise`:
+weighted least squares; each material keeps its own sigma_r^2, sampled).
+
+The rule for g_i and k (the reference needs no segmentation). A per-pixel fit would absorb a
+wrong normal (each pixel gets its own lobe, which bends to the wrong normal), so its
+residuals do not show the error. Here every ``patch`` x ``patch`` pixel tile (default 5 x 5)
+shares one Lambert + Blinn fit (:func:`rjfit.data.pixelfit.group_fit`): one lobe cannot
+bend to 25 independent normal errors, so they stay in its residuals, while a tile is still
+small enough to follow a surface of several materials. ``g_i`` is the tangential gradient of
+the tile fit's prediction; k (with sigma_r^2) is the maximum-likelihood estimate of the
+Gaussian ``r_i ~ N(0, sigma_r^2 + sigma_n^2 g_i^2 + q_i)`` on the tile fits' residuals r_i,
+``q_i`` a known variance (quantisation), sigma_r^2 profiled out and k >= 0 found by a grid
+over log k refined by golden section, k = 0 included. Observations of a tile with no fit
+(fewer than 4 observations) get ``g_i = 0``.
+
+Caveats. First order in the error: where the lobe is narrower than sigma_n the residual is
+not linear in it, and k is what the linear model's likelihood prefers. Any misfit whose size
+grows with ``g_i`` (a lobe of the wrong shape on the highlight) is read as normal error too:
+sigma_n is then an upper bound on the normals' error, not a measurement of it. sigma_r^2 is
+pooled over the whole surface; with materials of different noise k is a compromise.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rjfit.data.pixelfit import _golden_section, group_fit, patch_index
+from rjfit.model.blinn import blinn_normalisation
+
+__all__ = ["DEFAULT_PATCH", "patch_reference", "tangential_gradient_squared", "estimate_normal_error",
+           "normal_error_noise"]
+
+DEFAULT_PATCH = 5
+_LOG_T_GRID = np.linspace(np.log(1e-8), np.log(1e8), 65)     # k * median(g^2): dimensionless
+
+
+def patch_reference(observations, patch: int = DEFAULT_PATCH) -> dict:
+    """The tile fits of ``patch`` x ``patch`` pixels: per observation the prediction, residual and g_i^2.
+
+    Raises
+    ------
+    ValueError
+        If ``patch < 1`` or the observations carry no ``cos_lh`` (build them from a Dataset or
+        :func:`rjfit.data.observations.observations_from_stack` with ``cos_lh``).
+    """
+    if patch < 1:
+        raise ValueError(f"patch must be at least 1 pixel, got {patch}")
+    if observations.cos_lh is None:
+        raise ValueError("the normal-error noise model needs <l.h> per observation (Observations.cos_lh); these "
+                         "observations were built without it")
+    tile, n_tiles = patch_index(observations, patch)
+    result = group_fit(observations, tile, n_tiles)
+    a, b, gamma = result["a"][tile], result["b"][tile], result["gamma"][tile]
+    g2 = tangential_gradient_squared(observations, a, b, gamma)
+    fitted = result["fitted"][tile]
+    return {"residuals": result["residuals"], "g2": np.where(fitted, g2, 0.0), "fitted": fitted,
+            "prediction": np.asarray(observations.y, float) - np.where(fitted, result["residuals"], 0.0),
+            "patch": patch, "tiles_fitted": int(result["fitted"].sum())}
+
+
+def tangential_gradient_squared(observations, a, b, gamma) -> np.ndarray:
+    """``|d mu_i / d n|^2`` (tangential part) of ``mu = E (a <l.n>/pi + b N(g) <l.n> <h.n>^g)`` per observation."""
+    cos_ln = np.asarray(observations.cos_ln, float)
+    cos_hn = np.clip(np.asarray(observations.cos_hn, float), 1e-12, 1.0)
+    cos_lh = np.asarray(observations.cos_lh, float)
+    irradiance = np.asarray(observations.irradiance, float)
+    lobe = b * blinn_normalisation(gamma) * np.exp((gamma - 1.0) * np.log(cos_hn))      # b N <h.n>^(g-1)
+    alpha = irradiance * (a / np.pi + lobe * cos_hn)
+    beta = irradiance * lobe * gamma * cos_ln
+    value = (alpha ** 2 * (1.0 - cos_ln ** 2) + beta ** 2 * (1.0 - cos_hn ** 2)
+             + 2.0 * alpha * beta * (cos_lh - cos_ln * cos_hn))
+    return np.maximum(value, 0.0)
+
+
+def estimate_normal_error(residuals, g2, known_variance=None) -> dict:
+    """Maximum-likelihood (sigma_r^2, sigma_n^2) of ``r_i ~ N(0, sigma_r^2 + sigma_n^2 g_i^2 + q_i)``.
+
+    Parameters
+    ----------
+    residuals, g2 : ndarray (N,)
+        Residuals and squared tangential gradients; non-finite residuals are left out.
+    known_variance : ndarray (N,) or float, optional
+        ``q_i``, a known variance added to each observation's (e.g. quantisation).
+
+    Returns
+    -------
+    dict
+        ``k`` (sigma_n^2 / sigma_r^2), ``sigma_r2``, ``sigma_n_deg`` (sigma_n in degrees),
+        ``log_likelihood_gain`` (over k = 0), ``n``.
+
+    Raises
+    ------
+    ValueError
+        If fewer than 3 finite residuals remain.
+    """
+    r = np.asarray(residuals, float)
+    keep = np.isfinite(r)
+    if int(keep.sum()) < 3:
+        raise ValueError("need at least 3 finite residuals to estimate the normal error")
+    r2, g2 = r[keep] ** 2, np.asarray(g2, float)[keep]
+    q = np.zeros_like(r2) if known_variance is None else np.broadcast_to(np.asarray(known_variance, float),
+                                                                       keep.shape)[keep]
+    scale = float(np.median(g2[g2 > 0])) if np.any(g2 > 0) else 1.0
+
+    def profile(k):
+        """(negative log-likelihood, sigma_r^2) at k, sigma_r^2 profiled: q enters as q / sigma_r^2 fixed
+        at the k = 0 level's sigma_r^2 (one pass; q is a floor far below the misfit where it is used)."""
+        weight = 1.0 + k * g2 + q / base
+        sigma_r2 = float(np.mean(r2 / weight))
+        return 0.5 * r2.size * np.log(sigma_r2) + 0.5 * float(np.sum(np.log(weight))), sigma_r2
+
+    base = max(float(np.mean(r2)), 1e-300)
+    nll0, _ = profile(0.0)
+    grid = np.array([profile(np.exp(t) / scale)[0] for t in _LOG_T_GRID])
+    best = int(np.argmin(grid))
+    k = 0.0
+    if grid[best] < nll0:
+        low, high = _LOG_T_GRID[max(best - 1, 0)], _LOG_T_GRID[min(best + 1, _LOG_T_GRID.size - 1)]
+        log_t = float(_golden_section(lambda t: np.array([profile(np.exp(v) / scale)[0] for v in np.ravel(t)]),
+                                      np.array([low]), np.array([high]), 30)[0])
+        k = np.exp(log_t) / scale
+    nll, sigma_r2 = profile(k)
+    if nll > nll0:
+        k, (nll, sigma_r2) = 0.0, profile(0.0)
+    return {"k": float(k), "sigma_r2": sigma_r2, "sigma_n_deg": float(np.degrees(np.sqrt(k * sigma_r2))),
+            "log_likelihood_gain": float(nll0 - nll), "n": int(r2.size)}
+
+
+def normal_error_noise(observations, patch: int = DEFAULT_PATCH, known_variance=None) -> tuple[np.ndarray, dict]:
+    """Known scales ``s_i = sqrt(1 + k g_i^2 + q_i / sigma_r^2)`` of the normal-error noise model, and its record.
+
+    Parameters
+    ----------
+    observations : rjfit.data.observations.Observations
+        With ``cos_lh``.
+    patch : int
+        Side of the reference fit's tiles in pixels.
+    known_variance : ndarray (N,) or float, optional
+        A known variance per observation (quantisation), in the units of ``y``.
+
+    Returns
+    -------
+    scale : ndarray (N,)
+    record : dict
+        The estimate (:func:`estimate_normal_error`), the rule and its caveat, for summary.json.
+
+    Raises
+    ------
+    ValueError
+        As :func:`patch_reference` and :func:`estimate_normal_error`.
+    """
+    reference = patch_reference(observations, patch)
+    estimate = estimate_normal_error(reference["residuals"], reference["g2"], known_variance)
+    q = 0.0 if known_variance is None else np.asarray(known_variance, float)
+    scale = np.sqrt(1.0 + estimate["k"] * reference["g2"] + q / estimate["sigma_r2"])
+    record = {**estimate, "patch_px": patch, "tiles_fitted": reference["tiles_fitted"],
+              "known_variance": None if known_variance is None else "quantisation",
+              "rule": "var_i = sigma_r^2 (1 + k g_i^2) (+ q_i): g_i the tangential gradient of a Lambert + Blinn fit "
+                      f"shared by each {patch} x {patch} pixel tile; k by maximum likelihood on those fits' residuals",
+              "caveat": "first order in the normals' error; a lobe misfit that grows with the gradient is read as "
+                        "normal error too, so sigma_n bounds the normals' error from above"}
+    return scale, record

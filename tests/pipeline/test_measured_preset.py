@@ -1,0 +1,51 @@
+"""``--preset measured``: what it sets, its Potts rule, and a short fit through it (about 15 s).
+
+The fit is Mitsuba's paper_sphere at 48 x 48 (the session's render), 1 chain of 30 iterations:
+the checks are on what the preset records (the normal-error estimate, the area power, the
+calibration, beta and rho), not on the chain.
+"""
+import numpy as np
+import pytest
+
+from rjfit.cli import _likelihood_power
+from rjfit.pipeline.fit_dataset import GHOST_ODDS, GHOST_PIXELS, fit_dataset, ghost_material_prior
+from rjfit.pipeline.options import FitOptions
+
+
+def test_the_preset_sets_the_measured_defaults_and_survives_a_round_trip():
+    options = FitOptions(preset="measured")
+    assert (options.noise, options.likelihood_power, options.calibrate) == ("normals", "area", True)
+    assert FitOptions.from_json(options.to_json()) == options
+    plain = FitOptions()
+    assert (plain.noise, plain.likelihood_power, plain.calibrate, plain.potts_rho) == ("constant", 1.0, False, 1.0)
+    assert _likelihood_power("area") == "area"
+    with pytest.raises(ValueError, match="preset"):
+        FitOptions(preset="rendered")
+
+
+def test_the_ghost_rule_bounds_a_twin_materials_prior_pixels_and_odds():
+    mask = np.zeros((60, 80), bool)
+    mask[5:55, 10:70] = True
+    mask[30, 72:78] = True            # a thin spur: pixels with 1 or 2 neighbours
+    beta, rho = ghost_material_prior(mask, 2.0)
+    padded = np.pad(mask, 1)
+    neighbours = (padded[:-2, 1:-1].astype(int) + padded[2:, 1:-1] + padded[1:-1, :-2] + padded[1:-1, 2:])[mask]
+    ghost = np.exp(-beta * neighbours).sum()
+    assert ghost <= GHOST_PIXELS < np.exp(-(beta - 0.05) * neighbours).sum()
+    assert rho * ghost / 2 == pytest.approx(GHOST_ODDS)
+    # a mask whose pixels all have 4 neighbours bar its edge needs less: beta never goes below the given one
+    assert ghost_material_prior(np.ones((3, 3), bool), 2.0)[0] >= 2.0
+
+
+def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tmp_path):
+    summary = fit_dataset(paper_sphere_small, tmp_path / "fit", FitOptions(
+        preset="measured", regions="materials", n_chains=1, iterations=30, processes=1, progress=False,
+        figures=False), allow_unvalidated=True)
+    assert summary["noise"]["model"] == "normals"
+    assert 0.0 <= summary["noise"]["normal_error"]["sigma_n_deg"] < 1.0      # the render's footprint: ~0.6
+    area = summary["likelihood_power_suggestion"]["area"]
+    assert summary["likelihood_power"] == pytest.approx(area["likelihood_power"])
+    assert summary["calibration"]["response"] is None          # a linear render: nothing to estimate
+    assert summary["calibration"]["isolated_pixels"]["pixels_dropped"] >= 0
+    options = summary["fit_options"]
+    assert options["preset"] == "measured" and options["potts_beta"] >= 2.0 and 0 < options["potts_rho"] < 1
