@@ -59,7 +59,8 @@ def _effect_names(value) -> tuple:
 POWER_RULES = ("auto", "area")
 #: What ``--preset measured`` sets, where an option is left at its default (docs/measured-data.md); the
 #: Potts beta and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
-MEASURED_PRESET = {"noise": "normals", "likelihood_power": "area", "calibrate": True, "cluster_material_seed": 0.5}
+MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
+                   "cluster_material_seed": 0.5}
 
 
 def _likelihood_power_value(value):
@@ -116,9 +117,9 @@ class FitOptions:
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
-        "unknown response or intensities), sets --noise normals and --likelihood-power area where they are left at "
-        "their defaults, the Potts beta and rho by a rule on the mask, half the cluster moves' seeds drawn per "
-        "material, and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
+        "unknown response or intensities), sets --noise normals and --likelihood-power auto where they are left at "
+        "their defaults, no annealed warm-up, the Potts beta and rho by a rule on the mask, half the cluster moves' "
+        "seeds drawn per material, and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
         "estimated before the fit and applied to the images), as measured in docs/measured-data.md.", "choice",
         choices=("none", "measured"))
     calibrate: bool = False

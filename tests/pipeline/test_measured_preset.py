@@ -1,8 +1,9 @@
 """``--preset measured``: what it sets, its Potts rule, and a short fit through it (about 15 s).
 
 The fit is Mitsuba's paper_sphere at 48 x 48 (the session's render), 1 chain of 30 iterations:
-the checks are on what the preset records (the normal-error estimate, the area power, the
-calibration, beta and rho), not on the chain.
+the checks are on what the preset records (the normal-error estimate, the power, the
+calibration, beta and rho), not on the chain. The area power is tested in
+tests/data/test_normal_error.py.
 """
 import numpy as np
 import pytest
@@ -14,7 +15,9 @@ from rjfit.pipeline.options import FitOptions
 
 def test_the_preset_sets_the_measured_defaults_and_survives_a_round_trip():
     options = FitOptions(preset="measured")
-    assert (options.noise, options.likelihood_power, options.calibrate) == ("normals", "area", True)
+    assert (options.noise, options.likelihood_power, options.calibrate, options.anneal,
+            options.cluster_material_seed) == ("normals", "auto", True, 0.0, 0.5)
+    assert FitOptions(preset="measured", likelihood_power="area").likelihood_power == "area"     # a given option stays
     assert FitOptions.from_json(options.to_json()) == options
     plain = FitOptions()
     assert (plain.noise, plain.likelihood_power, plain.calibrate, plain.potts_rho) == ("constant", 1.0, False, 1.0)
@@ -43,8 +46,7 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
         figures=False), allow_unvalidated=True)
     assert summary["noise"]["model"] == "normals"
     assert 0.0 <= summary["noise"]["normal_error"]["sigma_n_deg"] < 1.0      # the render's footprint: ~0.6
-    area = summary["likelihood_power_suggestion"]["area"]
-    assert summary["likelihood_power"] == pytest.approx(area["likelihood_power"])
+    assert summary["likelihood_power"] == pytest.approx(summary["likelihood_power_suggestion"]["likelihood_power"])
     assert summary["calibration"]["response"] is None          # a linear render: nothing to estimate
     assert summary["calibration"]["isolated_pixels"]["pixels_dropped"] >= 0
     options = summary["fit_options"]
