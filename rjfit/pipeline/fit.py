@@ -43,14 +43,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.coarsen import area_likelihood_power, misfit_warning
+from rjfit.data.coarsen import misfit_warning
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
-from rjfit.data.normal_error import normal_error_noise
 from rjfit.io import staging_dir
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, publish_results, results_digest, save_chain_arrays, write_summary
-from rjfit.pipeline.fit_materials import power_suggestion
+from rjfit.pipeline.fit_power import noise_and_power
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
@@ -195,23 +194,7 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     The suggestion is measured always (a fraction of a second): a misfit shared by
     neighbouring pixels is worth a warning whatever power the fit uses.
     """
-    normal_error = None
-    if options.noise == "normals":
-        scale, normal_error = normal_error_noise(observations)
-    else:
-        scale = noise_scale(observations, options.noise, options.noise_floor)
-    try:
-        suggestion = power_suggestion(observations, scale)
-    except ValueError:
-        if options.likelihood_power == "auto":
-            raise
-        suggestion = None      # too few adjacent pixels to measure it
-    if options.likelihood_power == "area":
-        area = area_likelihood_power(observations, noise_scale=scale)
-        suggestion = {**(suggestion or {}), "area": area}
-        power = area["likelihood_power"]
-    else:
-        power = suggestion["likelihood_power"] if options.likelihood_power == "auto" else options.likelihood_power
+    scale, suggestion, power, normal_error = noise_and_power(observations, options)
     if effects:
         problem = LambertBlinnPhong(effects).problem(observations, likelihood_power=float(power), noise_scale=scale)
     else:

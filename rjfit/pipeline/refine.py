@@ -154,16 +154,10 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         record["dropped"] = [name for name in record["effects"] if name not in final]
         result["named_effects"] += [name for name in new if name not in result["named_effects"]]
         if (new or record["dropped"]) and options.regions != "changepoints":
-            # the material model's label moves do not carry the effects' terms: no refit with them
-            result["stopped"] = f"round {index + 1}'s diagnosis named effects, which the material model cannot sample"
-            warning = (f"the fit is of --regions {options.regions}, which cannot sample effects yet: refine stopped "
-                       f"after round {index + 1}'s diagnosis ({diagnosis_dir}); fit with --regions changepoints "
-                       f"--effects-from {diagnosis_dir} to sample what it named with the regions")
-            result["warnings"].append(warning)
-            say(f"warning: {warning}")
-            break
-        if not (new or record["dropped"]) or index + 1 == max_rounds:
+            result["stopped"], warning = _cannot_sample(index, options.regions, diagnosis_dir)
+        elif not (new or record["dropped"]) or index + 1 == max_rounds:
             result["stopped"], warning = _stop(index, max_rounds, new, record["dropped"], current)
+        if result["stopped"]:
             if warning:
                 result["warnings"].append(warning)
                 say(f"warning: {warning}")
@@ -180,6 +174,15 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     write_json_atomic(out_dir / "refine.json", result)
     build_report(current, out_dir / "report.html", diagnosis_dir=result["rounds"][-1]["diagnosis"], refine_dir=out_dir)
     return result
+
+
+def _cannot_sample(index: int, regions: str, diagnosis_dir: Path) -> tuple:
+    """Why the loop stops when its diagnosis named effects that the fit's region model cannot
+    sample (the material model's label moves do not carry the effects' terms): ``(reason, warning)``."""
+    return (f"round {index + 1}'s diagnosis named effects, which the material model cannot sample",
+            f"the fit is of --regions {regions}, which cannot sample effects yet: refine stopped after round "
+            f"{index + 1}'s diagnosis ({diagnosis_dir}); fit with --regions changepoints --effects-from "
+            f"{diagnosis_dir} to sample what it named with the regions")
 
 
 def _stop(index: int, max_rounds: int, new: list, dropped: list, current: Path) -> tuple:

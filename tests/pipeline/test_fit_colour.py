@@ -77,7 +77,7 @@ def test_the_colour_power_divides_by_the_channels_design_effect():
     import dataclasses
 
     from rjfit.data.synthetic import sphere_stack
-    from rjfit.pipeline.fit_materials import power_suggestion
+    from rjfit.pipeline.fit_power import power_suggestion
 
     one = [sphere_stack(48, n_lights=10, seed=seed)[0] for seed in (5, 6, 7)]
     copies = power_suggestion(stack_channels([one[0]] * 3), None)

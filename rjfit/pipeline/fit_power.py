@@ -1,0 +1,96 @@
+"""A fit's noise scales and likelihood power, from its observations and options (``--noise``,
+``--likelihood-power``): the known per-observation scales, the measured power suggestion (for
+a joint colour fit per channel, with the channels' design effect) and the power the fit uses."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from rjfit.data.coarsen import area_likelihood_power, suggest_likelihood_power
+from rjfit.data.noise import noise_scale, weighted_observations
+from rjfit.data.normal_error import normal_error_noise
+from rjfit.data.pixelfit import per_pixel_residuals
+
+__all__ = ["noise_and_power", "power_suggestion"]
+
+
+def noise_and_power(observations, options):
+    """``(scale, suggestion, power, normal_error)``: the options' known noise scales (None for
+    constant noise), the measured power suggestion (None where too few adjacent pixels measure
+    it and the power is given), the likelihood power the fit uses, and the normals' error
+    record of ``--noise normals`` (else None).
+
+    Raises
+    ------
+    ValueError
+        If ``--likelihood-power auto`` cannot be measured (too few adjacent pixels).
+    """
+    normal_error = None
+    if options.noise == "normals":
+        scale, normal_error = normal_error_noise(observations)
+    else:
+        scale = noise_scale(observations, options.noise, options.noise_floor)
+    try:
+        suggestion = power_suggestion(observations, scale)
+    except ValueError:
+        if options.likelihood_power == "auto":
+            raise
+        suggestion = None      # too few adjacent pixels to measure it
+    if options.likelihood_power == "area":
+        area = area_likelihood_power(observations, noise_scale=scale)
+        suggestion = {**(suggestion or {}), "area": area}
+        power = area["likelihood_power"]
+    else:
+        power = suggestion["likelihood_power"] if options.likelihood_power == "auto" else options.likelihood_power
+    return scale, suggestion, power, normal_error
+
+
+def power_suggestion(observations, scale):
+    """:func:`~rjfit.data.coarsen.suggest_likelihood_power`; for a joint colour fit measured per channel, with
+    each channel's under ``channels``: the smallest (the most misfit) divided by the design effect of the
+    channels, ``1 + (C - 1) r``, r the mean correlation between channels of the per-pixel fits' residuals
+    of one observation (clipped to [0, 1]).
+
+    Why: the misfit of a pixel (a normal a few degrees off, a lobe the model lacks) is shared
+    by its channels, so C channels then hold about as many independent discrepancies as one
+    (r near 1: the power divided by C; psm-rock, docs/materials.md: the matrix split along
+    shading at the channels' power, one material at a third of it), while independent noise
+    per channel (r near 0) is C times the information and keeps the channels' power (Kish's
+    design effect for clusters of C equally correlated observations)."""
+    if observations.channel is None:
+        return suggest_likelihood_power(observations, noise_scale=scale)
+    per_channel, residuals = [], []
+    for c in range(observations.n_channels):
+        mine = observations.channel == c
+        single = dataclasses.replace(observations.subset(mine), channel=None, n_channels=1)
+        weighed = single if scale is None else weighted_observations(single, scale[mine])
+        per_channel.append(suggest_likelihood_power(single, noise_scale=None if scale is None else scale[mine]))
+        by_observation = np.full(int(np.prod(single.image_shape)) * single.n_lights, np.nan)
+        by_observation[np.asarray(single.pixel, np.int64) * single.n_lights + np.asarray(single.light)] = \
+            per_pixel_residuals(weighed)
+        residuals.append(by_observation)
+    correlation = _channel_correlation(residuals)
+    most_misfit = min(per_channel, key=lambda s: s["likelihood_power"])
+    suggestion = dict(most_misfit)
+    design_effect = 1.0 + (observations.n_channels - 1) * min(max(correlation, 0.0), 1.0)
+    suggestion["likelihood_power"] /= design_effect
+    # the misfit warning reads the spatial part (channels that repeat each other are no misfit)
+    suggestion.update(channels=per_channel, most_misfit_channel=most_misfit, channel_correlation=correlation,
+                      channel_design_effect=design_effect,
+                      rule="the smallest channel's power divided by the channels' design effect 1 + (C - 1) r, r the "
+                           "residuals' mean correlation between channels")
+    return suggestion
+
+
+def _channel_correlation(residuals) -> float:
+    """Mean Pearson correlation over channel pairs of the residuals of the observations every
+    channel has (``residuals``: per channel, an array over (pixel, light), NaN where none or not
+    fitted); 0 with fewer than 3 such observations."""
+    shared = np.all(np.isfinite(residuals), axis=0)
+    if shared.sum() < 3:
+        return 0.0
+    columns = [r[shared] for r in residuals]
+    pairs = [np.corrcoef(columns[i], columns[j])[0, 1] for i in range(len(columns)) for j in range(i + 1, len(columns))]
+    finite = [p for p in pairs if np.isfinite(p)]
+    return float(np.mean(finite)) if finite else 0.0
