@@ -235,7 +235,7 @@ class FitOptions:
                              "label moves do not yet carry the effects' terms); drop one of them")
         if self.channel == COLOUR and (self.noise == "normals" or self.likelihood_power == "area"):
             # their tile fits would pool a pixel's channels as one channel's observations
-            raise ValueError("--noise normals and --likelihood-power area (--preset measured) measure one channel: "
+            raise ValueError("--noise normals (which --preset measured sets) and --likelihood-power area measure one channel: "
                              "not yet with --channel rgb; fit one channel (--channel mean) under the preset, or "
                              "--channel rgb without it")
         if self.channel == COLOUR and (self.regions != "materials" or self.sampler != "adaptive"):

@@ -148,10 +148,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         result["rounds"].append(record)
         result["final_fit"] = str(current)
         say(_round_line(index, record))
-        # the diagnosis' final model: the fit's effects (less any it dropped or swapped) and what it named
-        final = list((diagnosis.get("final_model") or {}).get("effects") or record["effects"] + record["named"])
-        new = [name for name in final if name not in record["effects"]]
-        record["dropped"] = [name for name in record["effects"] if name not in final]
+        final, new = _final_model(diagnosis, record)
         result["named_effects"] += [name for name in new if name not in result["named_effects"]]
         if (new or record["dropped"]) and options.regions != "changepoints":
             result["stopped"], warning = _cannot_sample(index, options.regions, diagnosis_dir)
@@ -174,6 +171,14 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     write_json_atomic(out_dir / "refine.json", result)
     build_report(current, out_dir / "report.html", diagnosis_dir=result["rounds"][-1]["diagnosis"], refine_dir=out_dir)
     return result
+
+
+def _final_model(diagnosis: dict, record: dict) -> tuple:
+    """``(the diagnosis' final model's effects, those the fit did not sample)``: the fit's effects
+    less any the diagnosis dropped or swapped (recorded in ``record["dropped"]``), and what it named."""
+    final = list((diagnosis.get("final_model") or {}).get("effects") or record["effects"] + record["named"])
+    record["dropped"] = [name for name in record["effects"] if name not in final]
+    return final, [name for name in final if name not in record["effects"]]
 
 
 def _cannot_sample(index: int, regions: str, diagnosis_dir: Path) -> tuple:
