@@ -18,11 +18,11 @@ import math
 import numpy as np
 
 from rjfit.sampler.likelihood import STAT_N
-from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab, log_target_ab, move_ab
+from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab, log_target_ab
 from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.moves.gamma import log_q_log_gamma, ls_profile
 from rjfit.sampler.moves.region_terms import giesen_norm, region_log_lik, set_region, stats_at_gamma
-from rjfit.sampler.moves.sigma2 import move_sigma2
+from rjfit.sampler.moves.sigma2 import move_amplitudes_and_variance
 
 __all__ = ["update_materials_colour", "move_gamma_colour", "newton_log_gamma_colour", "move_phi_rw_colour"]
 
@@ -56,12 +56,7 @@ def update_materials_colour(work, rng, prior, problem, settings, g_step, info) -
                        3 * n_ch + 1)
             continue
         for r in rows:
-            result = move_ab(work, r, rng, prior, info)
-            if result is not None:
-                info.count("ab", result)
-            result = move_sigma2(work, r, rng, prior, info)
-            if result is not None:
-                info.count("sigma2", result)
+            move_amplitudes_and_variance(work, r, rng, prior, info)
         if n_all < settings.small_region_obs * n_ch:
             info.count("phi_rw", move_phi_rw_colour(work, rows, rng, prior, problem, settings.fallback_step, info),
                        3 * n_ch + 1)

@@ -4,10 +4,11 @@ from __future__ import annotations
 import math
 
 from rjfit.sampler.likelihood import LOG_2PI, STAT_N
+from rjfit.sampler.moves.ab_conditional import move_ab
 from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.moves.region_terms import region_log_lik, set_region
 
-__all__ = ["move_sigma2"]
+__all__ = ["move_sigma2", "move_amplitudes_and_variance"]
 
 
 def move_sigma2(work, r, rng, prior, info):
@@ -32,3 +33,14 @@ def move_sigma2(work, r, rng, prior, info):
         set_region(work, r, (I0, kd, g, s2_new))
         return True
     return False
+
+
+def move_amplitudes_and_variance(work, r, rng, prior, info) -> None:
+    """Row ``r``'s (a, b) move, then its sigma^2 move, each counted in ``info`` (given gamma):
+    the part of a region's update that a colour material runs once per channel row."""
+    result = move_ab(work, r, rng, prior, info)
+    if result is not None:
+        info.count("ab", result)
+    result = move_sigma2(work, r, rng, prior, info)
+    if result is not None:
+        info.count("sigma2", result)

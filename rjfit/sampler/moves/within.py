@@ -16,12 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from rjfit.sampler.likelihood import STAT_N
-from rjfit.sampler.moves.ab_conditional import move_ab
 from rjfit.sampler.moves.colour_within import update_materials_colour
 from rjfit.sampler.moves.gamma import move_gamma_newton, move_gamma_rw
 from rjfit.sampler.moves.paper_mh import update_region_paper
 from rjfit.sampler.moves.phi_walk import move_phi_rw
-from rjfit.sampler.moves.sigma2 import move_sigma2
+from rjfit.sampler.moves.sigma2 import move_amplitudes_and_variance
 
 __all__ = ["WithinSettings", "update_regions", "update_region_adaptive", "adapt_log_g_scale", "LOG_G_SCALE_BOUNDS"]
 
@@ -129,12 +128,7 @@ def update_region_adaptive(work, r, rng, prior, problem, settings: WithinSetting
         if not newton:       # the adapted step is the random walk's
             g_acc.append(result)
         info.count("gamma_newton" if newton else "gamma_ab", result)
-    result = move_ab(work, r, rng, prior, info)
-    if result is not None:
-        info.count("ab", result)
-    result = move_sigma2(work, r, rng, prior, info)
-    if result is not None:
-        info.count("sigma2", result)
+    move_amplitudes_and_variance(work, r, rng, prior, info)
     if n < settings.small_region_obs:
         # Small regions: the conditional proposals ignore the prior, which then matters;
         # a cheap phi-space random walk on top keeps them mixing (chosen by n only: valid).
