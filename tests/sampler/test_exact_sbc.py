@@ -22,7 +22,7 @@ from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.likelihood import RegionData
 from rjfit.sampler.moves import gamma as gamma_moves
-from rjfit.sampler.moves import within
+from rjfit.sampler.moves import sigma2 as sigma2_moves
 from rjfit.sampler.moves.gamma import newton_log_gamma
 from rjfit.sampler.priors import ParamPrior
 from rjfit.sampler.state import SamplerConfig
@@ -163,11 +163,11 @@ def test_sbc_of_the_conditional_moves_for_each_kind_of_sigma2_prior(sigma2_prior
 
 def test_sbc_detects_a_sigma2_move_without_its_prior_ratio(monkeypatch):
     """Negative control: the sigma^2 move accepting every proposal from the likelihood alone."""
-    original = within.move_sigma2
+    original = sigma2_moves.move_sigma2
     flat = ParamPrior("uniform", 0.0, 1e9)
 
     def without_prior_ratio(work, r, rng, prior, info):
         return original(work, r, rng, dataclasses.replace(prior, params=prior.params[:3] + (flat,)), info)
 
-    monkeypatch.setattr(within, "move_sigma2", without_prior_ratio)
+    monkeypatch.setattr(sigma2_moves, "move_sigma2", without_prior_ratio)
     assert min(_conditional_moves_sbc("lognormal")) < 1e-3
