@@ -40,7 +40,8 @@ from scipy import ndimage
 from rjfit.data.pixelfit import group_fit, patch_index
 from rjfit.data.response import estimate_power_response
 
-__all__ = ["calibrate_measured", "drop_small_components", "estimate_light_gains", "MIN_COMPONENT"]
+__all__ = ["calibrate_measured", "drop_small_components", "estimate_light_gains", "replay_calibration",
+           "MIN_COMPONENT"]
 
 MIN_COMPONENT = 5
 # Alternating tile fits and gains converges slowly where a tile's lobe can take up part of a
@@ -158,18 +159,72 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
     if unknown:
         dataset = _flag_saturated(dataset)
         response = estimate_power_response(dataset, channel, seed, kappas=_KAPPAS)
-        kappa = response["kappa"]
-        images = (np.asarray(dataset.images, float) / float(np.max(dataset.images))) ** kappa
+        dataset = _linearise(dataset, response["kappa"])
         record["response"] = {key: response[key] for key in ("kappa", "exponent", "kappa_std", "kappa_interval",
                                                              "at_grid_edge", "model", "errors", "caveat")}
         record["quantisation_dropped"] = ("the raw codes' quantisation floor (1/12 code^2 per channel) does not apply "
                                           "to the linearised values and is not used")
-        dataset = dataclasses.replace(dataset, images=images, response="linear", quantisation_variance=None,
-                                      meta={**dataset.meta, "response_estimated": kappa})
     if gains or (gains is None and unknown):
         dataset = _flag_saturated(dataset)
         estimate = estimate_light_gains(dataset, channel, seed)
-        scale = np.asarray(estimate["gains"])[:, None, None, None]
-        dataset = dataclasses.replace(dataset, images=np.asarray(dataset.images, float) / scale)
+        dataset = _divide_by_gains(dataset, estimate["gains"])
         record["light_gains"] = estimate
     return dataset, record
+
+
+def replay_calibration(dataset, record: dict, source="the fit's summary.json"):
+    """Apply a recorded calibration (``summary.json["calibration"]``) to the data set it was estimated on.
+
+    Later commands on a fit made under ``--preset measured`` (``rjfit diagnose``, ``refine``)
+    must see the data the fit saw: the same pixels left out, the same response exponent and
+    light gains, taken from the record rather than estimated again.
+
+    Parameters
+    ----------
+    dataset : rjfit.data.dataset.Dataset
+        The data set as loaded (before any transform).
+    record : dict
+        What :func:`calibrate_measured` returned with the transformed data set.
+    source : str
+        Where the record was read, for the error message.
+
+    Returns
+    -------
+    Dataset
+
+    Raises
+    ------
+    ValueError
+        If the record does not fit the data set (another number of lights, a response
+        recorded for a data set whose response is known, isolated pixels that differ).
+    """
+    isolated = record.get("isolated_pixels") or {}
+    dataset, dropped = drop_small_components(dataset, int(isolated.get("min_component", MIN_COMPONENT)))
+    if isolated and dropped["pixels_dropped"] != isolated.get("pixels_dropped"):
+        raise ValueError(f"{source}: its calibration left out {isolated.get('pixels_dropped')} isolated pixels, this "
+                         f"data set has {dropped['pixels_dropped']}: not the data set the fit was made from")
+    if record.get("response"):
+        if dataset.response != "unknown":
+            raise ValueError(f"{source}: its calibration estimated a camera response, but this data set declares "
+                             f"its response ({dataset.response!r}): not the data set the fit was made from")
+        dataset = _linearise(_flag_saturated(dataset), record["response"]["kappa"])
+    if record.get("light_gains"):
+        gains = record["light_gains"]["gains"]
+        if len(gains) != dataset.n_lights:
+            raise ValueError(f"{source}: its calibration has gains for {len(gains)} lights, this data set has "
+                             f"{dataset.n_lights}: not the data set the fit was made from")
+        dataset = _divide_by_gains(_flag_saturated(dataset), gains)
+    return dataset
+
+
+def _linearise(dataset, kappa: float):
+    """``(raw / raw_max)^kappa`` for every image and channel (step 2); the values are linear after it."""
+    images = (np.asarray(dataset.images, float) / float(np.max(dataset.images))) ** float(kappa)
+    return dataclasses.replace(dataset, images=images, response="linear", quantisation_variance=None,
+                               meta={**dataset.meta, "response_estimated": float(kappa)})
+
+
+def _divide_by_gains(dataset, gains):
+    """Each light's image divided by its gain (step 3)."""
+    scale = np.asarray(gains, float)[:, None, None, None]
+    return dataclasses.replace(dataset, images=np.asarray(dataset.images, float) / scale)

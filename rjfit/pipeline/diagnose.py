@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rjfit.data.calibrate import replay_calibration
 from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.data.formats import COLOUR
 from rjfit.data.noise import DEFAULT_FLOOR
@@ -19,6 +20,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     gives it, when the folder has moved) and the channel fitted, ``map_labels.exr`` (or
     ``labels.exr``, as ``rjfit.pipeline.fit`` writes it; channel ``labels``) holds the MAP segmentation.
     A joint colour fit (``--channel rgb``) is diagnosed on its channel mean, on its MAP materials.
+    A fit under ``--preset measured`` is diagnosed on the data it saw: its recorded calibration
+    (``summary.json["calibration"]``) is applied again (:func:`rjfit.data.calibrate.replay_calibration`).
 
     Parameters
     ----------
@@ -45,7 +48,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
         not there.
     ValueError
         If ``summary.json`` names no data set and ``dataset`` is not given, or the data set's
-        files differ from those the fit recorded (``dataset_sha256``); and as :func:`rjfit.diagnose.workflow.diagnose`.
+        files differ from those the fit recorded (``dataset_sha256``), or its recorded calibration does
+        not fit the data set; and as :func:`rjfit.diagnose.workflow.diagnose`.
     DatasetError
         If ``summary.json`` or the MAP labels are damaged (:func:`rjfit.pipeline.fit_folder.read_summary`,
         :func:`rjfit.pipeline.fit_folder.read_map_labels`); and as :func:`rjfit.diagnose.workflow.diagnose`.
@@ -86,5 +90,9 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     options.setdefault("base_effects", [entry["name"] for entry in summary.get("effects") or []])
     options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
     dataset = dataset if hasattr(dataset, "images") else load_dataset(dataset)
+    if summary.get("calibration"):
+        # a fit under --preset measured saw transformed data (pixels left out, the response
+        # linearised, the lights' gains divided out): criticise the data it saw
+        dataset = replay_calibration(dataset, summary["calibration"], source=str(fit_dir / "summary.json"))
     labels = read_map_labels(fit_dir, dataset.object_mask)
     return diagnose(dataset, labels, out_dir, **options)
