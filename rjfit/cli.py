@@ -344,7 +344,7 @@ def _effect_names():
 @click.option("--likelihood-power", type=click.FloatRange(min=0.0, max=1.0, min_open=True), default=None,
               help="The power zeta the refits raise the likelihood to, so that Bayes factors weigh the data as a "
                    "coarsened fit did (default: the fit's, 1 for a plain fit).")
-@click.option("--noise", type=click.Choice(["constant", "shot", "relative"]), default=None,
+@click.option("--noise", type=click.Choice(["constant", "shot", "relative", "normals"]), default=None,
               help="The noise model the refits weigh the observations by (see `rjfit fit --help`; default: the "
                    "fit's, with its --noise-floor).")
 @click.option("--jobs", type=click.IntRange(min=1), default=None,

@@ -9,7 +9,7 @@ held fixed, which is what makes a refit per candidate effect cheap.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -137,7 +137,7 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
         The power zeta of a coarsened fit (:mod:`rjfit.data.coarsen`): every refit on the context
         raises the likelihood to it, so its evidence and Bayes factors weigh the data as the
         fit did (1: the plain likelihood).
-    noise : {'constant', 'shot', 'relative'}
+    noise : {'constant', 'shot', 'relative', 'normals'}
         The fit's noise model (:mod:`rjfit.data.noise`): refits then weigh observation i by its
         known scale s_i, ``y_i ~ N(mu_i, sigma_r^2 s_i^2)``, as the sampler did.
     noise_floor : float
@@ -177,6 +177,8 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
     l = light_dirs[obs.light, rows, cols]
     h = l + v
     h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    # <l.h> per observation: the normals' error noise model needs it (the fit's observations carry it)
+    obs = replace(obs, cos_lh=np.sum(l * h, axis=-1))
     scale = noise_scale(obs, noise, noise_floor)
     return Context(dataset=dataset, labels=region_map.astype(np.int64), n_regions=int(used.size),
                    region=region_map[rows, cols].astype(np.int64), light=obs.light.astype(np.int64),
