@@ -2,6 +2,8 @@
 print, each number written one way (the figures are :mod:`rjfit.diagnose.figures`')."""
 from __future__ import annotations
 
+import math
+
 __all__ = ["markdown", "gap_text", "candidate_line", "gap_lines", "named_text", "prior_conflict_text",
            "not_told_apart_text", "revision_text"]
 
@@ -99,6 +101,12 @@ def markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _decisive_gain(result: dict) -> float:
+    """The plain log-likelihood gain a candidate needs to be decisive at the fit's power (Occam factor aside)."""
+    threshold = (result.get("thresholds") or {}).get("log_bayes_factor", math.log(100.0))
+    return float(threshold) / float(result["likelihood_power"])
+
+
 def _head_lines(result: dict) -> list[str]:
     """The title, named effects, definitions, likelihood power and noise model, gaps, skipped candidates."""
     lines = [f"# Diagnosis of `{result['dataset']}`", ""]
@@ -107,7 +115,10 @@ def _head_lines(result: dict) -> list[str]:
               f"Decision rule: {result['decision_rule']}", "",
               *([f"Naming rule: {result['naming_rule']}", ""] if result.get("naming_rule") else []),
               *([f"Likelihood power: {result['likelihood_power']:.4g} (the fit's coarsened likelihood; log Bayes "
-                 f"factors weigh the data as the fit did)", ""] if result.get("likelihood_power", 1.0) != 1.0 else []),
+                 f"factors weigh the data as the fit did: a candidate is decisive only where it raises the plain "
+                 f"log-likelihood by more than about the log Bayes factor threshold over zeta, "
+                 f"{_decisive_gain(result):,.0f} nats, plus its Occam factor)", ""]
+                if result.get("likelihood_power", 1.0) != 1.0 else []),
               *([f"Noise model: {result['noise']['model']}, {result['noise']['formula']} (the fit's; the refits weigh "
                  f"each observation by its known scale)", ""]
                 if (result.get("noise") or {}).get("model", "constant") != "constant" else []),

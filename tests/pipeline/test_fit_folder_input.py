@@ -131,7 +131,10 @@ def test_diagnose_weighs_the_likelihood_as_the_fit_did(copy, tmp_path):
         diagnosis = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
         assert diagnosis["likelihood_power"] == expected
         evidence[expected] = diagnosis["plain_model"]["log_evidence"]
-        assert ("Likelihood power: 0.25" in (tmp_path / "d" / "diagnosis.md").read_text()) == (expected == 0.25)
+        markdown = (tmp_path / "d" / "diagnosis.md").read_text()
+        assert ("Likelihood power: 0.25" in markdown) == (expected == 0.25)
+        # what that power asks of a candidate, in plain log-likelihood: ln 100 / 0.25 = 18.4
+        assert ("over zeta, 18 nats" in markdown) == (expected == 0.25)
     # the refits weigh the likelihood by the power (test_diagnose_units checks how); unweighted,
     # both would give the same evidence
     assert abs(evidence[0.25] - evidence[1.0]) > 1.0, evidence
