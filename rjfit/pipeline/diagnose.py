@@ -19,9 +19,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     """The criticism workflow (:func:`rjfit.diagnose.workflow.diagnose`) on a fit folder: its ``summary.json`` names the data set (or ``dataset``
     gives it, when the folder has moved) and the channel fitted, ``map_labels.exr`` (or
     ``labels.exr``, as ``rjfit.pipeline.fit`` writes it; channel ``labels``) holds the MAP segmentation.
-    A joint colour fit (``--channel rgb``) is diagnosed on its channel mean, on its MAP materials.
-    A fit under ``--preset measured`` is diagnosed on the data it saw: its recorded calibration
-    (``summary.json["calibration"]``) is applied again (:func:`rjfit.data.calibrate.replay_calibration`).
+    A joint colour fit (``--channel rgb``) is diagnosed on its channel mean, on its MAP materials; a fit
+    under ``--preset measured`` on the data it saw (:func:`rjfit.data.calibrate.replay_calibration`).
 
     Parameters
     ----------

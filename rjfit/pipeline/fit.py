@@ -291,11 +291,12 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
     """The posterior summaries of the chains' kept draws, with the settings they ran with."""
     burn = config.kernel.burn_in
     if options.regions == "materials":
-        from rjfit.pipeline.fit_materials import summarise_materials
+        from rjfit.pipeline.fit_materials import material_number_warnings, summarise_materials
 
         summary, labels, prediction, extra = summarise_materials(records, problem, options, burn)
         summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
-        summary["warnings"] += _fit_warnings(problem, prior, suggestion)
+        summary["warnings"] += material_number_warnings(summary["regions"], prior) + _fit_warnings(
+            problem, prior, suggestion)
         if truth_labels is not None:
             summary.update(truth_summary(records, burn, labels, truth_labels))
             summary["materials_right_probability"] = summary["materials_posterior"].get(
@@ -342,6 +343,7 @@ def number_warnings(summary: dict, labels, problem, prior, config: SamplerConfig
     out = (caveats.nan_rejection_warnings(summary["acceptance_counts"])
            + caveats.empty_region_warnings(labels, observed.reshape(problem.image_shape), len(summary["regions"]))
            + caveats.prior_range_warnings(summary["regions"], prior)
+           + caveats.support_bound_warnings(summary["regions"], prior)
            + caveats.pooled_interval_warnings(summary["regions"]))
     if getattr(config.regions, "jumps", True):     # a region model without the switch always jumps
         out += caveats.model_cap_warnings(summary["model_posterior"], {"n_u": (summary["max_u"], "--max-u"),

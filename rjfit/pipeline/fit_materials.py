@@ -20,10 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
+from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 
-__all__ = ["summarise_materials", "write_material_files", "EMPTY_MATERIALS_NOTE"]
+__all__ = ["summarise_materials", "material_number_warnings", "write_material_files", "EMPTY_MATERIALS_NOTE"]
 
 EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
@@ -57,6 +58,22 @@ def summarise_materials(records, problem, options, burn: int):
         summary["warnings"].append(cap)
     prediction = post.posterior_mean_prediction(records, burn, problem)
     return summary, labels, prediction, {"map_probability": probability, "draws": draws}
+
+
+def material_number_warnings(materials, prior) -> list:
+    """The caveats of the material summaries' own numbers (:mod:`rjfit.posterior.caveats`): a mean beyond
+    its prior's plausible range, an interval at a bound of its prior's support, a pooled mean outside its
+    own interval. A colour fit's material is checked per channel (``"2 (G)"``), its gamma once."""
+    rows = []
+    for material in materials:
+        if "channels" not in material:
+            rows.append(material)
+            continue
+        for index, (name, params) in enumerate(material["channels"].items()):
+            rows.append({"region": f"{material['material']} ({name})", **params,
+                         **({"gamma": material["gamma"]} if index == 0 else {})})
+    return (caveats.prior_range_warnings(rows, prior) + caveats.support_bound_warnings(rows, prior)
+            + caveats.pooled_interval_warnings(rows))
 
 
 def write_material_files(staging: Path, result, records, options) -> None:

@@ -5,6 +5,9 @@ agreement over models); the checks here look at the numbers themselves:
 
 - a region's posterior mean at or beyond its prior's plausible range, defined as the prior's
   central :data:`PLAUSIBLE_MASS` interval (:func:`prior_range_warnings`);
+- a region's 95 % interval that reaches a hard bound of its prior's support (kd at 0 or 1):
+  the data allow the bound itself, and the mean is only pulled off it by the bound
+  (:func:`support_bound_warnings`);
 - a region of the MAP model that holds no pixel with observations (:func:`empty_region_warnings`);
 - a model cap that binds: more than :data:`CAP_MASS_MAX` of the posterior on the largest
   model allowed along an axis (:func:`model_cap_warnings`);
@@ -17,12 +20,16 @@ import numpy as np
 
 from rjfit.sampler.priors import PARAM_NAMES
 
-__all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "prior_range_warnings", "empty_region_warnings", "model_cap_warnings",
-           "pooled_interval_warnings", "nan_rejection_warnings", "acceptance_counts"]
+__all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "BOUND_SHARE", "prior_range_warnings", "support_bound_warnings",
+           "empty_region_warnings", "model_cap_warnings", "pooled_interval_warnings", "nan_rejection_warnings",
+           "acceptance_counts"]
 
 #: a prior's plausible range: its central 99.9 % interval (a posterior mean outside it lies
 #: where the prior puts 1 in 2000 of its mass on either side)
 PLAUSIBLE_MASS = 0.999
+#: a 95 % interval "reaches" a finite bound of the prior's support when it ends within this
+#: share of the support's width from it
+BOUND_SHARE = 0.01
 #: a model cap binds when more than this share of the kept draws sits on it
 CAP_MASS_MAX = 0.05
 
@@ -33,7 +40,7 @@ def prior_range_warnings(regions, prior, mass: float = PLAUSIBLE_MASS) -> list:
     Parameters
     ----------
     regions : list of dict
-        :func:`rjfit.posterior.summary.region_summaries`.
+        :func:`rjfit.posterior.summary.region_summaries` (a parameter a row lacks is skipped).
     prior : rjfit.sampler.priors.Prior
     mass : float
         The share of the prior the plausible range holds.
@@ -42,6 +49,8 @@ def prior_range_warnings(regions, prior, mass: float = PLAUSIBLE_MASS) -> list:
     out = []
     for index, region in enumerate(regions):
         for name, (low, high) in zip(PARAM_NAMES, ranges):
+            if name not in region:        # a colour fit's channel rows carry gamma once
+                continue
             mean = region[name]["mean"]
             if low < mean < high:
                 continue
@@ -50,6 +59,40 @@ def prior_range_warnings(regions, prior, mass: float = PLAUSIBLE_MASS) -> list:
                        f"prior's plausible range [{low:.4g}, {high:.4g}] (the prior's central {100 * mass:g} % "
                        "interval): the data pull it where the prior puts almost no mass, or cannot identify it; do "
                        "not read it as a measurement")
+    return out
+
+
+def support_bound_warnings(regions, prior, share: float = BOUND_SHARE) -> list:
+    """A warning per region parameter whose 95 % interval reaches a finite bound of its prior's support.
+
+    Only priors with a bounded support (uniform, beta: kd in (0, 1)) have such a bound. An
+    interval ending within ``share`` of the support's width from it means the data allow the
+    bound (kd = 0: no diffuse part), and the posterior mean is off it only because the bound
+    cuts the posterior there.
+
+    Parameters
+    ----------
+    regions : list of dict
+        :func:`rjfit.posterior.summary.region_summaries` (each parameter's ``q2.5``, ``q97.5``).
+    prior : rjfit.sampler.priors.Prior
+    share : float
+        How close to the bound, as a share of the support's width.
+    """
+    out = []
+    for index, region in enumerate(regions):
+        for name, param in zip(PARAM_NAMES, prior.params):
+            low, high = param.support()
+            summary = region.get(name) or {}
+            if not np.isfinite(high - low) or "q2.5" not in summary:
+                continue
+            margin = share * (high - low)
+            for bound, end, reaches in ((low, summary["q2.5"], summary["q2.5"] <= low + margin),
+                                        (high, summary["q97.5"], summary["q97.5"] >= high - margin)):
+                if reaches:
+                    out.append(f"region {region.get('region', index)}: {name}'s 95 % interval "
+                               f"[{summary['q2.5']:.4g}, {summary['q97.5']:.4g}] reaches its prior's bound {bound:g} "
+                               f"(mean {summary['mean']:.4g}): the data allow {name} = {bound:g}, and the mean is off "
+                               f"the bound only because the bound cuts the posterior; report the interval, not the mean")
     return out
 
 
@@ -102,8 +145,8 @@ def pooled_interval_warnings(regions) -> list:
     out = []
     for index, region in enumerate(regions):
         for name in PARAM_NAMES:
-            entry = region[name]
-            if entry["q2.5"] <= entry["mean"] <= entry["q97.5"]:
+            entry = region.get(name)
+            if entry is None or entry["q2.5"] <= entry["mean"] <= entry["q97.5"]:
                 continue
             out.append(f"region {region.get('region', index)}: the pooled mean of {name}, {entry['mean']:.4g}, lies "
                        f"outside its own 95 % interval [{entry['q2.5']:.4g}, {entry['q97.5']:.4g}]: the draws fall "

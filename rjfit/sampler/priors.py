@@ -108,6 +108,12 @@ class ParamPrior:
             return self.b / rng.gamma(self.a, 1.0, size)
         return rng.beta(self.a, self.b, size)
 
+    def support(self) -> tuple[float, float]:
+        """The prior's support (lower, upper): finite for 'uniform' (a, b) and 'beta' (0, 1), (0, inf) else."""
+        if self.kind == "uniform":
+            return float(self.a), float(self.b)
+        return (0.0, 1.0) if self.kind == "beta" else (0.0, math.inf)
+
     def central_interval(self, mass: float) -> tuple[float, float]:
         """The interval holding the central ``mass`` of this prior (quantiles (1 - mass) / 2 and (1 + mass) / 2).
 

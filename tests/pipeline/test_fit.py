@@ -71,6 +71,7 @@ def test_fit_recovers_the_truth_on_a_small_sphere(fitted):
 
 #: the beginnings of the caveats of a fit's own numbers (rjfit.posterior.caveats) and of R-hat's missing values
 NUMBER_CAVEATS = ("lies at or above its prior's plausible range", "lies at or below its prior's plausible range",
+                  "reaches its prior's bound",
                   "holds no pixel with observations", "the model cap binds", "outside its own 95 % interval",
                   "acceptance ratio was NaN", "R-hat not computable")
 

@@ -12,6 +12,7 @@ from rjfit.posterior.caveats import (
     nan_rejection_warnings,
     pooled_interval_warnings,
     prior_range_warnings,
+    support_bound_warnings,
 )
 from rjfit.posterior.summary import convergence_warnings, diagnostics, region_summaries
 from rjfit.sampler.priors import ParamPrior, Prior
@@ -40,6 +41,35 @@ def test_a_mean_beyond_the_prior_s_central_99_9_percent_is_named_with_its_range(
     assert prior_range_warnings([_region(0)], PRIOR) == []
     low, high = PRIOR.params[0].central_interval(PLAUSIBLE_MASS)
     assert prior_range_warnings([_region(0, I0=0.999 * high)], PRIOR) == []
+
+
+def test_an_interval_that_reaches_a_bound_of_the_prior_s_support_is_named():
+    """kd ~ U(0, 1): an interval ending within 1 % of the width from 0 or 1 reaches the bound; the
+    lognormal parameters have no finite bound to reach."""
+    at_zero = _region(1, kd=0.04)
+    at_zero["kd"].update({"q2.5": 0.0012, "q97.5": 0.12})
+    at_one = _region(2)
+    at_one["kd"].update({"q2.5": 0.97, "q97.5": 0.995, "mean": 0.985})
+    near = _region(3)
+    near["kd"].update({"q2.5": 0.011})                   # 1.1 % of the width from 0: not at it
+    tiny_gamma = _region(4, gamma=1e-6)                  # far below its range, but lognormal: no bound
+    warnings = support_bound_warnings([_region(0), at_zero, at_one, near, tiny_gamma], PRIOR)
+    assert len(warnings) == 2, warnings
+    assert warnings[0].startswith("region 1: kd's 95 % interval [0.0012, 0.12] reaches its prior's bound 0 (mean 0.04)")
+    assert warnings[1].startswith("region 2: kd's 95 % interval [0.97, 0.995] reaches its prior's bound 1")
+
+
+def test_a_colour_material_is_checked_per_channel_and_its_gamma_once():
+    from rjfit.pipeline.fit_materials import material_number_warnings
+
+    plain = _region(0)
+    colour = {"region": 1, "material": 1, "pixels": 10, "gamma": {"mean": 0.008, "sd": 0.001, "q2.5": 0.007, "q97.5": 0.009},
+              "channels": {c: {name: plain[name] for name in ("I0", "kd", "sigma2")} for c in "RGB"}}
+    colour["channels"]["G"] = {**colour["channels"]["G"], "kd": {"mean": 0.03, "sd": 0.02, "q2.5": 0.001, "q97.5": 0.08}}
+    warnings = material_number_warnings([plain, colour], PRIOR)
+    assert len(warnings) == 2, warnings
+    assert warnings[0].startswith("region 1 (R): gamma posterior mean 0.008 lies at or below")      # once, not per channel
+    assert warnings[1].startswith("region 1 (G): kd's 95 % interval [0.001, 0.08] reaches its prior's bound 0")
 
 
 def test_a_region_without_observed_pixels_is_named():
