@@ -29,7 +29,9 @@ from rjfit.pipeline.refine import refine  # noqa: E402
 from rjfit.render.hidden import render_hidden  # noqa: E402
 
 #: case -> hidden kind of rjfit.render.hidden
-CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response", "second lobe": "second_lobe"}
+CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response", "second lobe": "second_lobe",
+         "one light off": "light_calibration", "ambient + sRGB": "ambient+camera_response",
+         "cast shadows": "cast_shadows", "dielectric lobe": "fresnel"}
 
 
 def run_case(case, kind, out, args) -> dict:

@@ -13,7 +13,7 @@ Fits: ``--regions materials`` with ``--channel rgb`` and ``--channel mean``, the
 chains, seed and iterations. Prints and writes (``--out``/results.json) the label
 accuracy against the rendered truth, the K posterior, R-hat and the time.
 
-    PYTHONPATH=. python validation/colour.py --size 48 --chains 2 --iterations 600 --out /tmp/colour_pair
+    PYTHONPATH=. python validation/colour_pair.py --size 48 --chains 2 --iterations 600 --out /tmp/colour_pair
 """
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def render_pair(size: int, out: Path, seed: int) -> Path:
             channels[key] = np.asarray(read_exr(renders[c] / name)[key])
         write_exr(staging / name, channels)
     meta["note"] = ("channel c of each image is Mitsuba's render of the scene with the paints' channel-c I0 "
-                    f"(validation/colour.py: hues {HUES}, paint {PAINT})")
+                    f"(validation/colour_pair.py: hues {HUES}, paint {PAINT})")
     (staging / "dataset.json").write_text(json.dumps(meta, indent=1))
     staging.rename(target)
     return target
