@@ -56,6 +56,7 @@ VARIANTS = {
     "measured-noanneal": {"preset": "measured", "anneal": 0.0},
     "cp-auto": {"regions": "changepoints", "likelihood_power": "auto"},
     "cp-measured": {"regions": "changepoints", "noise": "normals", "likelihood_power": "area", "calibrate": True},
+    "cp-preset": {"regions": "changepoints", "preset": "measured"},
 }
 
 
