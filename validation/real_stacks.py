@@ -171,9 +171,9 @@ def overlay(folder: Path, dataset: Path, out: Path) -> Path:
                         f"{', '.join(f'{k}: {v:.2f}' for k, v in summary['materials_posterior'].items())})")
     else:       # a change-point fit: its MAP model's cells
         model = summary["map_model"]
-        right.set_title(f"MAP change points ({model['n_u']},{model['n_v']}): {len(summary['regions'])} regions "
-                        f"(posterior {_top(summary['model_posterior'], 3)})")
-        left.set_title(f"{dataset.name}: MAP change-point region boundaries over the mean image")
+        right.set_title(f"MAP change points (n_u, n_v) = ({model['n_u']},{model['n_v']}): {len(summary['regions'])} "
+                        f"regions\nposterior {_top(summary['model_posterior'], 3)}")
+        left.set_title(f"{dataset.name}: MAP change-point region boundaries\nover the mean image")
     for axes in (left, right):
         axes.set_xticks([]), axes.set_yticks([])
     figure.tight_layout()
