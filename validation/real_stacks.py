@@ -57,6 +57,8 @@ VARIANTS = {
     "cp-auto": {"regions": "changepoints", "likelihood_power": "auto"},
     "cp-measured": {"regions": "changepoints", "noise": "normals", "likelihood_power": "area", "calibrate": True},
     "cp-preset": {"regions": "changepoints", "preset": "measured"},
+    # the preset's parts with the change-point model's annealed warm-up kept (the preset turns it off)
+    "cp-preset-anneal": {"regions": "changepoints", "noise": "normals", "likelihood_power": "auto", "calibrate": True},
 }
 
 
