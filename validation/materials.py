@@ -178,7 +178,8 @@ def main(argv=None):
             print(f"{name:8s} change points: accuracy {row['label_accuracy']:.4f} (majority "
                   f"{row['majority_accuracy']:.4f}), MAP {row['map_model']}, "
                   f"cells {row['cells_posterior']}, P(object regions = {row['true_K']}) "
-                  f"{row['P(object regions = true K)']:.3f}, R-hat {row['rhat_max']}, {row['seconds']:.0f} s", flush=True)
+                  f"{row['P(object regions = true K)']:.3f}, R-hat {row['rhat_max']}, {row['seconds']:.0f} s",
+                  flush=True)
             write_text_atomic(args.out / f"results_changepoints_{args.chains}x{args.iterations}.json",
                               json.dumps(rows, indent=1))
         return
