@@ -13,13 +13,18 @@ by the data set's visibility):
 - ``patches``: two disconnected patches of one paint on a background (2 materials: the
   patches must come out as one material).
 
-Per layout: 4 chains of ``--iterations`` (default 1000, half burn-in), the label accuracy of
+Per layout: ``--chains`` (default 4) chains of ``--iterations`` (default 1000, half burn-in), the label accuracy of
 the MAP materials against the rendered truth (optimal matching), the posterior probability
 of the true K, and R-hat over 4 chains (relabelled draws at the MAP K). ``--sweep`` refits
 each layout for beta in {0.5, 1, 2} x rho in {0.1, 1}. Prints a table and writes it as
-JSON (``--out``/results.json).
+JSON (``--out``/results.json). ``--regions changepoints`` fits each layout under the paper's
+change-point model at its default settings instead (the comparison's rows; ``--out``/
+results_changepoints_CxN.json): label accuracy (and the majority accuracy: each region
+mapped to its most common paint), posterior over (n_u, n_v) and over the number of
+cells, the probability that the object's pixels fall into exactly the true number of regions.
 
     PYTHONPATH=. python validation/materials.py --size 64 --out /tmp/materials [--sweep]
+    PYTHONPATH=. python validation/materials.py --size 64 --regions changepoints --chains 2 --out /tmp/materials
 """
 from __future__ import annotations
 
@@ -81,22 +86,72 @@ def scene(name: str, size: int) -> dict:
     return definition
 
 
-def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0, workers=2) -> dict:
+def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0, workers=2, chains=4) -> dict:
     from rjfit.pipeline.fit_dataset import fit_dataset
-    from rjfit.render.render import render_dataset
 
-    data = out / f"{name}_{size}" / "dataset"
-    if not (data / "dataset.json").is_file():
-        render_dataset(scene(name, size), data)
+    data = layout_dataset(name, size, out)
     started = time.perf_counter()
     summary = fit_dataset(data, out / f"{name}_{size}" / f"fit_b{beta}_r{rho}", allow_unvalidated=True,
-                          regions="materials", potts_beta=beta, potts_rho=rho, iterations=iterations, n_chains=4,
-                          seed=seed, progress=False, figures=True, processes=workers)
+                          regions="materials", potts_beta=beta, potts_rho=rho, iterations=iterations,
+                          n_chains=chains, seed=seed, progress=False, figures=True, processes=workers)
     return {"layout": name, "size": size, "beta": beta, "rho": rho, "true_K": summary["true_region_count"],
             "label_accuracy": summary["label_accuracy"], "P(K=true)": summary["materials_right_probability"],
             "materials_posterior": summary["materials_posterior"], "rhat_max": summary["rhat_max"],
             "map_probability_mean": summary["map_probability_mean"], "seconds": time.perf_counter() - started,
             "warnings": summary["warnings"]}
+
+
+def layout_dataset(name: str, size: int, out: Path) -> Path:
+    """The layout's rendered data set under ``out`` (rendered on first use)."""
+    from rjfit.render.render import render_dataset
+
+    data = out / f"{name}_{size}" / "dataset"
+    if not (data / "dataset.json").is_file():
+        render_dataset(scene(name, size), data)
+    return data
+
+
+def majority_accuracy(labels, truth_labels) -> float:
+    """Fraction of object pixels whose region's most common true material is their own.
+
+    Unlike the one-to-one matching of the label accuracy, several regions may map to one
+    material: it says whether the regions' boundaries follow the paints, whatever the number
+    of regions (a change-point model needs several cells for one free-form material).
+    """
+    truth = np.asarray(truth_labels)
+    mask = truth >= 0
+    est, tru = np.asarray(labels)[mask], truth[mask]
+    right = sum(np.bincount(tru[est == region]).max() for region in np.unique(est))
+    return float(right / est.size)
+
+
+def fit_layout_changepoints(name, size, out, iterations, seed, workers=2, chains=4) -> dict:
+    """The layout under the paper's change-point model at its default settings (the comparison's rows)."""
+    from rjfit.data.exr import read_exr
+    from rjfit.pipeline.fit_dataset import fit_dataset
+    from rjfit.render.datasets import load_dataset
+
+    data = layout_dataset(name, size, out)
+    folder = out / f"{name}_{size}" / f"fit_changepoints_{chains}x{iterations}"
+    started = time.perf_counter()
+    summary = fit_dataset(data, folder, allow_unvalidated=True, regions="changepoints", iterations=iterations,
+                          n_chains=chains, seed=seed, progress=False, figures=True, processes=workers)
+    seconds = time.perf_counter() - started
+    majority = majority_accuracy(np.asarray(read_exr(folder / "labels.exr")["labels"]).squeeze(),
+                                 load_dataset(data).truth_labels)
+    # a change-point model of (n_u, n_v) has (n_u + 1)(n_v + 1) cells, some of them possibly off the object
+    cells = {}
+    for key, p in summary["model_posterior"].items():
+        n_u, n_v = (int(k) for k in key.strip("()").split(","))
+        cells[(n_u + 1) * (n_v + 1)] = cells.get((n_u + 1) * (n_v + 1), 0.0) + p
+    return {"layout": name, "size": size, "regions": "changepoints", "true_K": summary["true_region_count"],
+            "label_accuracy": summary["label_accuracy"], "majority_accuracy": majority,
+            "map_model": summary["map_model"],
+            "model_posterior": summary["model_posterior"], "chain_model_posterior": summary["chain_model_posterior"],
+            "cells_posterior": {str(k): v for k, v in sorted(cells.items())},
+            "P(object regions = true K)": summary["four_region_probability"],
+            "P(true regions)": summary["true_regions_probability"], "rhat_max": summary["rhat_max"],
+            "seconds": seconds, "warnings": summary["warnings"]}
 
 
 def main(argv=None):
@@ -108,13 +163,30 @@ def main(argv=None):
     parser.add_argument("--sweep", action="store_true", help="beta in {0.5, 1, 2} x rho in {0.1, 1}")
     parser.add_argument("--betas", type=float, nargs="*", default=[1.0], help="Potts beta values (rho 1)")
     parser.add_argument("--workers", type=int, default=2, help="chains run at once (worker processes; 1: in this one)")
+    parser.add_argument("--chains", type=int, default=4)
+    parser.add_argument("--regions", choices=("materials", "changepoints"), default="materials",
+                        help="changepoints: the paper's model at its default settings (--betas, --sweep unused)")
     parser.add_argument("--out", type=Path, default=Path("validation_materials"))
     args = parser.parse_args(argv)
     settings = [(b, r) for b in (0.5, 1.0, 2.0) for r in (0.1, 1.0)] if args.sweep else [(b, 1.0) for b in args.betas]
     rows = []
+    if args.regions == "changepoints":
+        for name in args.layouts:
+            row = fit_layout_changepoints(name, args.size, args.out, args.iterations, args.seed, args.workers,
+                                          args.chains)
+            rows.append(row)
+            print(f"{name:8s} change points: accuracy {row['label_accuracy']:.4f} (majority "
+                  f"{row['majority_accuracy']:.4f}), MAP {row['map_model']}, "
+                  f"cells {row['cells_posterior']}, P(object regions = {row['true_K']}) "
+                  f"{row['P(object regions = true K)']:.3f}, R-hat {row['rhat_max']}, {row['seconds']:.0f} s",
+                  flush=True)
+            write_text_atomic(args.out / f"results_changepoints_{args.chains}x{args.iterations}.json",
+                              json.dumps(rows, indent=1))
+        return
     for name in args.layouts:
         for beta, rho in settings:
-            row = fit_layout(name, args.size, args.out, args.iterations, args.seed, beta, rho, args.workers)
+            row = fit_layout(name, args.size, args.out, args.iterations, args.seed, beta, rho, args.workers,
+                             args.chains)
             rows.append(row)
             print(f"{name:8s} beta {beta:3.1f} rho {rho:3.1f}: accuracy {row['label_accuracy']:.4f}, "
                   f"P(K={row['true_K']}) {row['P(K=true)']:.3f}, K posterior {row['materials_posterior']}, "

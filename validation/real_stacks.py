@@ -56,6 +56,9 @@ VARIANTS = {
     "measured-noanneal": {"preset": "measured", "anneal": 0.0},
     "cp-auto": {"regions": "changepoints", "likelihood_power": "auto"},
     "cp-measured": {"regions": "changepoints", "noise": "normals", "likelihood_power": "area", "calibrate": True},
+    "cp-preset": {"regions": "changepoints", "preset": "measured"},
+    # the preset's parts with the change-point model's annealed warm-up kept (the preset turns it off)
+    "cp-preset-anneal": {"regions": "changepoints", "noise": "normals", "likelihood_power": "auto", "calibrate": True},
 }
 
 
@@ -92,24 +95,54 @@ def run(dataset: Path, variant: str, chains: int, iterations: int, out: Path, ta
     return row
 
 
+def _cells(key: str) -> int:
+    """The number of cells (regions) of a change-point model key "(n_u,n_v)": (n_u + 1)(n_v + 1)."""
+    n_u, n_v = (int(k) for k in key.strip("()").split(","))
+    return (n_u + 1) * (n_v + 1)
+
+
+def _top(posterior: dict, count: int = 4) -> str:
+    return ", ".join(f"{k}: {v:.2f}" for k, v in sorted(posterior.items(), key=lambda kv: -kv[1])[:count])
+
+
 def summarise(table: Path) -> str:
-    lines = ["| data set | variant | chains x iter. | zeta | normal error (deg) | K posterior | per chain | MAP | "
-             "MAP pixels | R-hat | s |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for text in table.read_text().splitlines():
-        row = json.loads(text)
-        posterior = ", ".join(f"{k}: {v:.2f}" for k, v in sorted(row["posterior"].items(), key=lambda kv: -kv[1])[:4])
+    """The table's rows in Markdown: one table for the material model's fits, one for the change points'."""
+    rows = [json.loads(text) for text in table.read_text().splitlines()]
+    materials = [r for r in rows if not isinstance(r["map"], dict)]
+    changepoints = [r for r in rows if isinstance(r["map"], dict)]
+    lines = []
+    if materials:
+        lines += ["| data set | variant | chains x iter. | zeta | normal error (deg) | K posterior | per chain | MAP | "
+                  "MAP pixels | R-hat | s |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row in materials:
         error = "-" if row["normal_error_deg"] is None else f"{row['normal_error_deg']:.2f}"
         rhat = "-" if row["rhat_max"] is None else f"{row['rhat_max']:.2f}"
         chains = ", ".join("/".join(k for k, v in sorted(c.items(), key=lambda kv: -kv[1]) if v >= 0.1)
                            for c in row["chains_posterior"])
         lines.append(f"| {row['dataset']} | {row['variant']} | {row['chains']} x {row['iterations']} | "
-                     f"{row['likelihood_power']:.3g} | {error} | {posterior} | {chains} | {row['map']} | {row['pixels']} | "
-                     f"{rhat} | {row['seconds']:.0f} |")
-    return "\n".join(lines)
+                     f"{row['likelihood_power']:.3g} | {error} | {_top(row['posterior'])} | {chains} | {row['map']} | "
+                     f"{row['pixels']} | {rhat} | {row['seconds']:.0f} |")
+    if changepoints:
+        lines += ["" if lines else None, "| data set | variant | chains x iter. | zeta | normal error (deg) | "
+                  "(n_u, n_v) posterior | regions posterior | per chain | MAP | MAP pixels | R-hat | s |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row in changepoints:
+        error = "-" if row["normal_error_deg"] is None else f"{row['normal_error_deg']:.2f}"
+        rhat = "-" if row["rhat_max"] is None else f"{row['rhat_max']:.2f}"
+        cells = {}
+        for key, p in row["posterior"].items():
+            cells[_cells(key)] = cells.get(_cells(key), 0.0) + p
+        chains = ", ".join("/".join(k for k, v in sorted(c.items(), key=lambda kv: -kv[1]) if v >= 0.1)
+                           for c in row["chains_posterior"])
+        n_u, n_v = row["map"]["n_u"], row["map"]["n_v"]
+        lines.append(f"| {row['dataset']} | {row['variant']} | {row['chains']} x {row['iterations']} | "
+                     f"{row['likelihood_power']:.3g} | {error} | {_top(row['posterior'])} | {_top(cells)} | {chains} | "
+                     f"({n_u},{n_v}) | {row['pixels']} | {rhat} | {row['seconds']:.0f} |")
+    return "\n".join(line for line in lines if line is not None)
 
 
 def overlay(folder: Path, dataset: Path, out: Path) -> Path:
-    """The MAP materials' boundaries (red) over the stack's mean image, beside the map itself."""
+    """The MAP materials' (or change-point regions') boundaries (red) over the stack's mean image, beside the map."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -133,9 +166,16 @@ def overlay(folder: Path, dataset: Path, out: Path) -> Path:
     left.imshow(np.ma.masked_where(~edge, edge), cmap="autumn", alpha=1.0, interpolation="nearest")
     left.set_title(f"{dataset.name}: MAP material boundaries over the mean image")
     summary = json.loads((folder / "summary.json").read_text())
-    right.imshow(np.where(labels >= 0, labels, np.nan), cmap="tab10", interpolation="nearest")
-    right.set_title(f"MAP materials: {summary['map_materials']} (posterior over K "
-                    f"{', '.join(f'{k}: {v:.2f}' for k, v in summary['materials_posterior'].items())})")
+    right.imshow(np.where(labels >= 0, labels, np.nan), cmap="tab10" if labels.max() < 10 else "tab20",
+                 interpolation="nearest")
+    if "map_materials" in summary:
+        right.set_title(f"MAP materials: {summary['map_materials']} (posterior over K "
+                        f"{', '.join(f'{k}: {v:.2f}' for k, v in summary['materials_posterior'].items())})")
+    else:       # a change-point fit: its MAP model's cells
+        model = summary["map_model"]
+        right.set_title(f"MAP change points (n_u, n_v) = ({model['n_u']},{model['n_v']}): {len(summary['regions'])} "
+                        f"regions\nposterior {_top(summary['model_posterior'], 3)}")
+        left.set_title(f"{dataset.name}: MAP change-point region boundaries\nover the mean image")
     for axes in (left, right):
         axes.set_xticks([]), axes.set_yticks([])
     figure.tight_layout()

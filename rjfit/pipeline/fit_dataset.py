@@ -82,7 +82,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     calibration = None
     if options.calibrate:
         dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
-    if options.preset == "measured" and options.potts_rho == 1.0:
+    if options.preset == "measured" and options.regions == "materials" and options.potts_rho == 1.0:  # Potts rule
         beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
         options = options.replace(potts_beta=beta, potts_rho=rho)
     chain_runner = None

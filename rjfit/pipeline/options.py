@@ -118,8 +118,8 @@ class FitOptions:
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
         "unknown response or intensities), sets --noise normals and --likelihood-power auto where they are left at "
-        "their defaults, no annealed warm-up, the Potts beta and rho by a rule on the mask, half the cluster moves' "
-        "seeds drawn per material, and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
+        "their defaults, no annealed warm-up, with --regions materials the Potts beta and rho by a rule on the mask "
+        "and half the cluster moves' seeds drawn per material, and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
         "estimated before the fit and applied to the images), as measured in docs/measured-data.md.", "choice",
         choices=("none", "measured"))
     calibrate: bool = False
