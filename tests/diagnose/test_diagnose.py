@@ -124,6 +124,30 @@ def test_noise_that_follows_the_signal_is_no_missing_effect_under_its_noise_mode
     assert abs(gaps["relative"]) < 0.1 and gaps["constant"] > 1.0, gaps
 
 
+def test_cast_shadows_are_named_with_the_simulation_on(hidden, tmp_path):
+    """The path tracer traces shadow rays for the plain model too, so its simulated gap is ~0
+    already and cannot fall; before naming rule 4's second branch, cast_shadows (log BF 5014,
+    closing the whole closed-form gap 1.21) was refused on a 64 x 64 stack for "the simulated
+    gap does not fall (-0.0346 -> -0.0346)" and `rjfit refine` never named it."""
+    result = _run(hidden("cast_shadows"), tmp_path / "diagnosis", max_steps=1, simulate=True, n_sim_draws=2,
+                  make_figures=False)
+    assert result["named_effects"] == ["cast_shadows"], [(c["effect"], c.get("why_not")) for c in result["candidates"]]
+    row = next(c for c in result["candidates"] if c["effect"] == "cast_shadows")
+    assert row["simulated_gap_current"] < 0.1          # the regime of rule 4's second branch
+
+
+def test_rule_4_accepts_an_effect_the_path_tracer_carries_and_nothing_else():
+    """Rule 4's second branch (rjfit.diagnose.naming), on the gaps measured on the 64 x 64
+    cast-shadow stack (closed form 1.21 -> -0.03, simulated -0.0346 both), where the strict
+    branch fails whenever the simulation's noise does not happen to fall."""
+    from rjfit.diagnose.naming import _simulation_carries_it
+
+    assert _simulation_carries_it(1.21, -0.03, -0.0346, -0.0346)
+    assert not _simulation_carries_it(2.22, 0.9, 19.1, 19.3)          # a wrong model: the render disagrees too
+    assert not _simulation_carries_it(1.21, -0.03, -0.0346, 0.4)      # the effect makes the render worse
+    assert not _simulation_carries_it(1.21, 2.0, -0.0346, -0.0346)    # the closed form moves away from it
+
+
 def test_two_hidden_effects_both_named_with_mitsuba_simulation(hidden, tmp_path):
     out = tmp_path / "two"
     # two steps: the test is about the two hidden effects (a third step's search would only add time)
