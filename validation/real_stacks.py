@@ -56,6 +56,8 @@ VARIANTS = {
     "measured-noanneal": {"preset": "measured", "anneal": 0.0},
     "cp-auto": {"regions": "changepoints", "likelihood_power": "auto"},
     "cp-measured": {"regions": "changepoints", "noise": "normals", "likelihood_power": "area", "calibrate": True},
+    # the preset with the footprint term added to the normals' noise (docs/measured-data.md, "The footprint term")
+    "measured-footprint": {"preset": "measured", "noise": "footprint"},
 }
 
 
