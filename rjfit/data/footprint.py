@@ -111,8 +111,14 @@ def image_gradient_squared(observations, noise_variance=None) -> np.ndarray:
         term = np.where(has_before & has_after, central,
                         np.where(has_after, forward, np.where(has_before, backward, 0.0)))
         total += np.maximum(np.nan_to_num(term, nan=0.0), 0.0)
-    return total[np.asarray(observations.light, np.int64), np.asarray(observations.pixel, np.int64)
-                 // observations.image_shape[1], np.asarray(observations.pixel, np.int64) % observations.image_shape[1]]
+    return _at_observations(total, observations)
+
+
+def _at_observations(images, observations) -> np.ndarray:
+    """Values of images (L, H, W) at the observations' light and pixel."""
+    pixel = np.asarray(observations.pixel, np.int64)
+    width = observations.image_shape[1]
+    return images[np.asarray(observations.light, np.int64), pixel // width, pixel % width]
 
 
 def estimate_footprint_error(residuals, g2, f2, known_variance=None) -> dict:

@@ -27,8 +27,8 @@ floor that keeps every scale positive; ``m_i`` is a reference signal, see below)
     per-pixel fit below). Needs ``Observations.cos_lh``.
 ``footprint``
     ``s_i^2 = 1 + k g_i^2 + t f_i^2``: ``normals`` plus a pixel's footprint, ``f_i^2`` the
-    squared image gradient of the observed image over 12 (:mod:`rjfit.data.footprint`), k and
-    t by maximum likelihood together. One channel only.
+    squared gradient of the observed image over 12 (:mod:`rjfit.data.footprint`), k and t by
+    maximum likelihood together. One channel only.
 
 The reference signal ``m_i`` is not ``y_i`` itself (a weight built from the noisy value
 would favour observations that happen to fall low and bias the fit), but the prediction of

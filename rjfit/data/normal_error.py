@@ -160,8 +160,9 @@ def normal_error_noise(observations, patch: int = DEFAULT_PATCH, known_variance=
     known_variance : ndarray (N,) or float, optional
         A known variance per observation (quantisation), in the units of ``y``.
     footprint : bool
-        Add the footprint term ``t f_i^2`` (:mod:`rjfit.data.footprint`; ``--noise footprint``),
-        k and t estimated jointly. False: the normals' term alone, as before.
+        Add the footprint term ``t f_i^2`` (``--noise footprint``; :mod:`rjfit.data.footprint`):
+        ``f_i^2`` the observed image's squared gradient over 12, k and t estimated jointly.
+        False: the normals' term alone, as before.
 
     Returns
     -------
@@ -196,8 +197,9 @@ def normal_error_noise(observations, patch: int = DEFAULT_PATCH, known_variance=
         record["rule"] = ("var_i = sigma_r^2 (1 + k g_i^2 + t f_i^2) (+ q_i): g_i as for --noise normals; f_i^2 = "
                           "|grad_x y_i|^2 / 12 of the observed image by central differences, its noise bias removed "
                           "per light; k and t by maximum likelihood on the tile fits' residuals")
-        record["caveat"] += ("; the footprint term reads any misfit that grows with the image gradient (an edge, the "
-                             "limb) as footprint, and its noise-bias correction is one variance per light")
+        record["caveat"] += ("; the footprint term reads any misfit that grows with the image gradient (the limb, an "
+                             "edge, a tile fit that straddles two materials) as footprint, and its noise-bias "
+                             "correction is one variance per light")
     return scale, record
 
 

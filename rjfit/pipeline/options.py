@@ -164,8 +164,8 @@ class FitOptions:
         "prediction of a separate Lambert + Blinn fit of each pixel; ybar: the mean observed value; c = NOISE_FLOOR * "
         "ybar. normals: s_i^2 = 1 + k g_i^2, the normals' error as noise, g_i = |d mu_i / d n| of a Lambert + Blinn "
         "fit of each 5 x 5 pixel tile, k by maximum likelihood (docs/measured-data.md). footprint: s_i^2 = 1 + k g_i^2 + "
-        "t f_i^2, normals plus a pixel's footprint, f_i^2 = |grad_x y_i|^2 / 12 of the observed image (the limb, paint "
-        "edges), k and t by maximum likelihood. Weighted least squares: the "
+        "t f_i^2, normals plus a pixel's footprint, f_i^2 = |grad_x y_i|^2 / 12 of the observed image (the limb of a "
+        "sphere), k and t by maximum likelihood (docs/measured-data.md). Weighted least squares: the "
         "sampler is unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
         "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS)
     noise_floor: float = cli_option(
