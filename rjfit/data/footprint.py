@@ -35,7 +35,7 @@ import numpy as np
 
 from rjfit.data.pixelfit import _golden_section
 
-__all__ = ["UNIFORM_OFFSET_VARIANCE", "image_gradient_squared", "light_noise_variance", "estimate_footprint_error"]
+__all__ = ["UNIFORM_OFFSET_VARIANCE", "image_gradient_squared", "finite_squares", "light_noise_variance", "estimate_footprint_error"]
 
 UNIFORM_OFFSET_VARIANCE = 1.0 / 12.0          # var of an offset uniform over one pixel, per axis (px^2)
 _CHI2_1_MEDIAN = 0.454936                      # median of chi^2 with one degree of freedom
@@ -121,6 +121,24 @@ def _at_observations(images, observations) -> np.ndarray:
     return images[np.asarray(observations.light, np.int64), pixel // width, pixel % width]
 
 
+def finite_squares(residuals, known_variance, *columns):
+    """``(r^2, q, *columns)`` over the finite residuals: the inputs of the noise models' maximum likelihood.
+
+    Raises
+    ------
+    ValueError
+        If fewer than 3 finite residuals remain.
+    """
+    r = np.asarray(residuals, float)
+    keep = np.isfinite(r)
+    if int(keep.sum()) < 3:
+        raise ValueError("need at least 3 finite residuals to estimate the normal (and footprint) error")
+    r2 = r[keep] ** 2
+    q = np.zeros_like(r2) if known_variance is None else np.broadcast_to(np.asarray(known_variance, float),
+                                                                       keep.shape)[keep]
+    return (r2, q, *(np.asarray(column, float)[keep] for column in columns))
+
+
 def estimate_footprint_error(residuals, g2, f2, known_variance=None) -> dict:
     """Maximum-likelihood ``(sigma_r^2, k, t)`` of ``r_i ~ N(0, sigma_r^2 (1 + k g_i^2 + t f_i^2) + q_i)``.
 
@@ -148,13 +166,7 @@ def estimate_footprint_error(residuals, g2, f2, known_variance=None) -> dict:
     ValueError
         If fewer than 3 finite residuals remain.
     """
-    r = np.asarray(residuals, float)
-    keep = np.isfinite(r)
-    if int(keep.sum()) < 3:
-        raise ValueError("need at least 3 finite residuals to estimate the normal and footprint error")
-    r2, g2, f2 = r[keep] ** 2, np.asarray(g2, float)[keep], np.asarray(f2, float)[keep]
-    q = np.zeros_like(r2) if known_variance is None else np.broadcast_to(np.asarray(known_variance, float),
-                                                                       keep.shape)[keep]
+    r2, q, g2, f2 = finite_squares(residuals, known_variance, g2, f2)
     base = max(float(np.mean(r2)), 1e-300)
     scale_g = float(np.median(g2[g2 > 0])) if np.any(g2 > 0) else 1.0
     scale_f = float(np.median(f2[f2 > 0])) if np.any(f2 > 0) else 1.0

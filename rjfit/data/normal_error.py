@@ -44,7 +44,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.data.footprint import UNIFORM_OFFSET_VARIANCE, estimate_footprint_error, image_gradient_squared
+from rjfit.data.footprint import (UNIFORM_OFFSET_VARIANCE, estimate_footprint_error, finite_squares,
+                                  image_gradient_squared)
 from rjfit.data.pixelfit import _golden_section, group_fit, patch_index
 from rjfit.model.blinn import blinn_normalisation
 
@@ -114,13 +115,7 @@ def estimate_normal_error(residuals, g2, known_variance=None) -> dict:
     ValueError
         If fewer than 3 finite residuals remain.
     """
-    r = np.asarray(residuals, float)
-    keep = np.isfinite(r)
-    if int(keep.sum()) < 3:
-        raise ValueError("need at least 3 finite residuals to estimate the normal error")
-    r2, g2 = r[keep] ** 2, np.asarray(g2, float)[keep]
-    q = np.zeros_like(r2) if known_variance is None else np.broadcast_to(np.asarray(known_variance, float),
-                                                                       keep.shape)[keep]
+    r2, q, g2 = finite_squares(residuals, known_variance, g2)
     scale = float(np.median(g2[g2 > 0])) if np.any(g2 > 0) else 1.0
 
     def profile(k):
