@@ -89,7 +89,7 @@ def test_a_known_footprint_is_recovered(one_material_renders):
     must lie within a factor 2 of the actual errors' summed square (seeds 0 to 2 read 1.24, 1.27 and 2.08
     with the footprint term, 1.18, 1.53 and 3.09 with the normals' term alone: the limb's few pixels carry most
     of the sum). Sharper: sigma_r^2 within 10 % of the added noise (the normals' term alone reads it 2 to 23 %
-    high), and the footprint term gains over 100 log-likelihood units over the normals' alone (about 360
+    high), and the footprint term gains over 100 log-likelihood units over the normals' alone (about 300
     measured).
     """
     low, high = one_material_renders
