@@ -28,6 +28,12 @@ has variance 6 v; 0.4549 is the median of chi^2_1), which a smooth signal and th
 not move; each axis' term is clipped at 0. Caveat: v is one value per light, so where the
 noise grows with the signal (shot noise) bright pixels keep part of the bias and dark ones
 lose part of their gradient; on a smooth surface with little noise f_i is then small, not 0.
+
+Measured (docs/measured-data.md, "The footprint term"): on the DiLiGenT ball the term carries
+much of the limb band's misfit (c about 0.5) and a fit under ``--preset measured --noise
+footprint`` keeps one material; on psm-rock it replaces the normals' term (c about 4) and the
+one fit made lost the large pebble, so the preset does not use it. The synthetic renders have
+no footprint (pixel-centre rays): there c is read from tile fits that straddle two paints.
 """
 from __future__ import annotations
 
