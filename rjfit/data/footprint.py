@@ -41,7 +41,8 @@ import numpy as np
 
 from rjfit.data.pixelfit import _golden_section
 
-__all__ = ["UNIFORM_OFFSET_VARIANCE", "image_gradient_squared", "finite_squares", "light_noise_variance", "estimate_footprint_error"]
+__all__ = ["UNIFORM_OFFSET_VARIANCE", "image_gradient_squared", "finite_squares", "light_noise_variance",
+           "estimate_footprint_error"]
 
 UNIFORM_OFFSET_VARIANCE = 1.0 / 12.0          # var of an offset uniform over one pixel, per axis (px^2)
 _CHI2_1_MEDIAN = 0.454936                      # median of chi^2 with one degree of freedom
