@@ -30,9 +30,9 @@ noise grows with the signal (shot noise) bright pixels keep part of the bias and
 lose part of their gradient; on a smooth surface with little noise f_i is then small, not 0.
 
 Measured (docs/measured-data.md, "The footprint term"): on the DiLiGenT ball the term carries
-much of the limb band's misfit (c about 0.5) and a fit under ``--preset measured --noise
-footprint`` keeps one material; on psm-rock it replaces the normals' term (c about 4) and the
-one fit made lost the large pebble, so the preset does not use it. The synthetic renders have
+part of the limb band's misfit (c about 0.5; the band halves but stays in 2 of 4 chains under
+``--preset measured --noise footprint``); on psm-rock it replaces the normals' term (c about
+4) and the fit made lost the large pebble, so the preset does not use it. The synthetic renders have
 no footprint (pixel-centre rays): there c is read from tile fits that straddle two paints.
 """
 from __future__ import annotations
