@@ -32,7 +32,7 @@ lose part of their gradient; on a smooth surface with little noise f_i is then s
 Measured (docs/measured-data.md, "The footprint term"): on the DiLiGenT ball the term carries
 part of the limb band's misfit (c about 0.5; the band halves but stays in 2 of 4 chains under
 ``--preset measured --noise footprint``); on psm-rock it replaces the normals' term (c about
-4) and the fit made lost the large pebble, so the preset does not use it. The synthetic renders have
+4) and 3 of 4 chains (two seeds) lost the large pebble, so the preset does not use it. The synthetic renders have
 no footprint (pixel-centre rays): there c is read from tile fits that straddle two paints.
 """
 from __future__ import annotations
