@@ -282,7 +282,8 @@ def _echo_fit(folder, summary: dict) -> None:
     if noise_model != "constant" or summary["likelihood_power"] != 1.0:
         normal_error = summary["noise"].get("normal_error")
         noise_text = ("" if noise_model == "constant" else
-                      f"noise model normals (normal error sd {normal_error['sigma_n_deg']:.3g} deg), " if normal_error
+                      f"noise model {noise_model} (normal error sd {normal_error['sigma_n_deg']:.3g} deg"
+                      + (f", footprint c {normal_error['c']:.3g}" if "c" in normal_error else "") + "), " if normal_error
                       else f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), ")
         click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
     if summary.get("region_model") == "materials":

@@ -86,15 +86,18 @@ def scene(name: str, size: int) -> dict:
     return definition
 
 
-def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0, workers=2, chains=4) -> dict:
+def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0, workers=2, chains=4, noise="constant") -> dict:
     from rjfit.pipeline.fit_dataset import fit_dataset
 
     data = layout_dataset(name, size, out)
     started = time.perf_counter()
-    summary = fit_dataset(data, out / f"{name}_{size}" / f"fit_b{beta}_r{rho}", allow_unvalidated=True,
+    suffix = "" if noise == "constant" else f"_{noise}"
+    summary = fit_dataset(data, out / f"{name}_{size}" / f"fit_b{beta}_r{rho}{suffix}", allow_unvalidated=True,
                           regions="materials", potts_beta=beta, potts_rho=rho, iterations=iterations,
-                          n_chains=chains, seed=seed, progress=False, figures=True, processes=workers)
-    return {"layout": name, "size": size, "beta": beta, "rho": rho, "true_K": summary["true_region_count"],
+                          n_chains=chains, seed=seed, progress=False, figures=True, processes=workers, noise=noise)
+    normal_error = summary["noise"].get("normal_error") or {}
+    return {"layout": name, "size": size, "beta": beta, "rho": rho, "noise": noise, "footprint_c": normal_error.get("c"),
+            "normal_error_deg": normal_error.get("sigma_n_deg"), "true_K": summary["true_region_count"],
             "label_accuracy": summary["label_accuracy"], "P(K=true)": summary["materials_right_probability"],
             "materials_posterior": summary["materials_posterior"], "rhat_max": summary["rhat_max"],
             "map_probability_mean": summary["map_probability_mean"], "seconds": time.perf_counter() - started,
@@ -166,6 +169,7 @@ def main(argv=None):
     parser.add_argument("--chains", type=int, default=4)
     parser.add_argument("--regions", choices=("materials", "changepoints"), default="materials",
                         help="changepoints: the paper's model at its default settings (--betas, --sweep unused)")
+    parser.add_argument("--noise", default="constant", help="noise model (--noise of rjfit fit), e.g. footprint")
     parser.add_argument("--out", type=Path, default=Path("validation_materials"))
     args = parser.parse_args(argv)
     settings = [(b, r) for b in (0.5, 1.0, 2.0) for r in (0.1, 1.0)] if args.sweep else [(b, 1.0) for b in args.betas]
@@ -186,13 +190,14 @@ def main(argv=None):
     for name in args.layouts:
         for beta, rho in settings:
             row = fit_layout(name, args.size, args.out, args.iterations, args.seed, beta, rho, args.workers,
-                             args.chains)
+                             args.chains, args.noise)
             rows.append(row)
-            print(f"{name:8s} beta {beta:3.1f} rho {rho:3.1f}: accuracy {row['label_accuracy']:.4f}, "
+            print(f"{name:8s} beta {beta:3.1f} rho {rho:3.1f} noise {args.noise}: accuracy {row['label_accuracy']:.4f}, "
                   f"P(K={row['true_K']}) {row['P(K=true)']:.3f}, K posterior {row['materials_posterior']}, "
                   f"R-hat {row['rhat_max']:.3f}, {row['seconds']:.0f} s", flush=True)
             # after every fit, so that a run stopped part way keeps the fits it made
-            write_text_atomic(args.out / "results.json", json.dumps(rows, indent=1))
+            results = "results.json" if args.noise == "constant" else f"results_{args.noise}.json"
+            write_text_atomic(args.out / results, json.dumps(rows, indent=1))
 
 
 if __name__ == "__main__":

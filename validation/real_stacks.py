@@ -59,6 +59,8 @@ VARIANTS = {
     "cp-preset": {"regions": "changepoints", "preset": "measured"},
     # the preset's parts with the change-point model's annealed warm-up kept (the preset turns it off)
     "cp-preset-anneal": {"regions": "changepoints", "noise": "normals", "likelihood_power": "auto", "calibrate": True},
+    # the preset with the footprint term added to the normals' noise (docs/measured-data.md, "The footprint term")
+    "measured-footprint": {"preset": "measured", "noise": "footprint"},
 }
 
 

@@ -25,6 +25,10 @@ floor that keeps every scale positive; ``m_i`` is a reference signal, see below)
     gradient of the prediction with respect to the normal, k by maximum likelihood
     (:mod:`rjfit.data.normal_error`, whose reference is a fit of small pixel tiles, not the
     per-pixel fit below). Needs ``Observations.cos_lh``.
+``footprint``
+    ``s_i^2 = 1 + k g_i^2 + t f_i^2``: ``normals`` plus a pixel's footprint, ``f_i^2`` the
+    squared gradient of the observed image over 12 (:mod:`rjfit.data.footprint`), k and t by
+    maximum likelihood together. One channel only.
 
 The reference signal ``m_i`` is not ``y_i`` itself (a weight built from the noisy value
 would favour observations that happen to fall low and bias the fit), but the prediction of
@@ -54,7 +58,7 @@ from rjfit.data.pixelfit import per_pixel_residuals
 __all__ = ["NOISE_MODELS", "DEFAULT_FLOOR", "reference_signal", "noise_scale", "weighted_observations",
            "describe_noise"]
 
-NOISE_MODELS = ("constant", "shot", "relative", "normals")
+NOISE_MODELS = ("constant", "shot", "relative", "normals", "footprint")
 DEFAULT_FLOOR = 0.05
 
 
@@ -82,7 +86,7 @@ def noise_scale(observations, model: str = "constant", floor: float = DEFAULT_FL
     Parameters
     ----------
     observations : rjfit.data.observations.Observations
-    model : {'constant', 'shot', 'relative', 'normals'}
+    model : {'constant', 'shot', 'relative', 'normals', 'footprint'}
         See the module docstring.
     floor : float
         ``c / ybar``: the floor added to the reference signal, as a fraction of the mean
@@ -107,8 +111,8 @@ def noise_scale(observations, model: str = "constant", floor: float = DEFAULT_FL
         raise ValueError(f"unknown noise model {model!r}: choose one of {', '.join(NOISE_MODELS)}")
     if model == "constant":
         return None
-    if model == "normals":
-        return normal_error_noise(observations)[0]
+    if model in ("normals", "footprint"):
+        return normal_error_noise(observations, footprint=model == "footprint")[0]
     if not (np.isfinite(floor) and floor > 0):
         raise ValueError(f"the noise floor must be a positive fraction of the mean value, got {floor}")
     y = np.asarray(observations.y, float)
@@ -142,11 +146,13 @@ def weighted_observations(observations, scale):
 def describe_noise(model: str, floor: float, scale=None) -> dict:
     """A JSON-ready record of the noise model (for summary.json)."""
     formula = {"constant": "var_i = sigma_r^2", "normals": "var_i = sigma_r^2 (1 + k g_i^2), g_i = |d mu_i / d n|",
+               "footprint": "var_i = sigma_r^2 (1 + k g_i^2 + t f_i^2), g_i = |d mu_i / d n|, f_i^2 = |grad_x y_i|^2 / 12",
                "shot": "var_i = sigma_r^2 (m_i + c) / ybar, c = floor * ybar",
                "relative": "sd_i = sigma_r (m_i + c) / ybar, c = floor * ybar"}[model]
-    reference = {"constant": None, "normals": "Lambert + one Blinn lobe fitted to each 5 x 5 pixel tile"}.get(
+    tiles = "Lambert + one Blinn lobe fitted to each 5 x 5 pixel tile"
+    reference = {"constant": None, "normals": tiles, "footprint": tiles}.get(
         model, "per-pixel least-squares fit (Lambert + one Blinn lobe)")
-    record = {"model": model, "formula": formula, "floor": None if model in ("constant", "normals") else float(floor),
+    record = {"model": model, "formula": formula, "floor": None if model in ("constant", "normals", "footprint") else float(floor),
               "reference": reference}
     if scale is not None:
         s = np.asarray(scale, float)

@@ -44,6 +44,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.data.footprint import (UNIFORM_OFFSET_VARIANCE, estimate_footprint_error, finite_squares,
+                                  image_gradient_squared)
 from rjfit.data.pixelfit import _golden_section, group_fit, patch_index
 from rjfit.model.blinn import blinn_normalisation
 
@@ -113,13 +115,7 @@ def estimate_normal_error(residuals, g2, known_variance=None) -> dict:
     ValueError
         If fewer than 3 finite residuals remain.
     """
-    r = np.asarray(residuals, float)
-    keep = np.isfinite(r)
-    if int(keep.sum()) < 3:
-        raise ValueError("need at least 3 finite residuals to estimate the normal error")
-    r2, g2 = r[keep] ** 2, np.asarray(g2, float)[keep]
-    q = np.zeros_like(r2) if known_variance is None else np.broadcast_to(np.asarray(known_variance, float),
-                                                                       keep.shape)[keep]
+    r2, q, g2 = finite_squares(residuals, known_variance, g2)
     scale = float(np.median(g2[g2 > 0])) if np.any(g2 > 0) else 1.0
 
     def profile(k):
@@ -146,8 +142,9 @@ def estimate_normal_error(residuals, g2, known_variance=None) -> dict:
             "log_likelihood_gain": float(nll0 - nll), "n": int(r2.size)}
 
 
-def normal_error_noise(observations, patch: int = DEFAULT_PATCH, known_variance=None) -> tuple[np.ndarray, dict]:
-    """Known scales ``s_i = sqrt(1 + k g_i^2 + q_i / sigma_r^2)`` of the normal-error noise model, and its record.
+def normal_error_noise(observations, patch: int = DEFAULT_PATCH, known_variance=None,
+                       footprint: bool = False) -> tuple[np.ndarray, dict]:
+    """Known scales ``s_i = sqrt(1 + k g_i^2 (+ t f_i^2) + q_i / sigma_r^2)`` of the normal-error noise model, and its record.
 
     Parameters
     ----------
@@ -157,26 +154,53 @@ def normal_error_noise(observations, patch: int = DEFAULT_PATCH, known_variance=
         Side of the reference fit's tiles in pixels.
     known_variance : ndarray (N,) or float, optional
         A known variance per observation (quantisation), in the units of ``y``.
+    footprint : bool
+        Add the footprint term ``t f_i^2`` (``--noise footprint``; :mod:`rjfit.data.footprint`):
+        ``f_i^2`` the observed image's squared gradient over 12, k and t estimated jointly.
+        False: the normals' term alone, as before.
 
     Returns
     -------
     scale : ndarray (N,)
     record : dict
-        The estimate (:func:`estimate_normal_error`), the rule and its caveat, for summary.json.
+        The estimate (:func:`estimate_normal_error` or
+        :func:`rjfit.data.footprint.estimate_footprint_error`), the rule and its caveat, for summary.json.
 
     Raises
     ------
     ValueError
-        As :func:`patch_reference` and :func:`estimate_normal_error`.
+        As :func:`patch_reference` and :func:`estimate_normal_error`; for a joint colour stack with
+        ``footprint``.
     """
     reference = patch_reference(observations, patch)
-    estimate = estimate_normal_error(reference["residuals"], reference["g2"], known_variance)
     q = 0.0 if known_variance is None else np.asarray(known_variance, float)
-    scale = np.sqrt(1.0 + estimate["k"] * reference["g2"] + q / estimate["sigma_r2"])
+    if footprint:
+        f2 = UNIFORM_OFFSET_VARIANCE * image_gradient_squared(observations)
+        estimate = estimate_footprint_error(reference["residuals"], reference["g2"], f2, known_variance)
+        scale = np.sqrt(1.0 + estimate["k"] * reference["g2"] + estimate["t"] * f2 + q / estimate["sigma_r2"])
+        estimate["footprint_share"] = _footprint_share(estimate, reference["g2"], f2, reference["residuals"])
+    else:
+        estimate = estimate_normal_error(reference["residuals"], reference["g2"], known_variance)
+        scale = np.sqrt(1.0 + estimate["k"] * reference["g2"] + q / estimate["sigma_r2"])
     record = {**estimate, "patch_px": patch, "tiles_fitted": reference["tiles_fitted"],
               "known_variance": None if known_variance is None else "quantisation",
               "rule": "var_i = sigma_r^2 (1 + k g_i^2) (+ q_i): g_i the tangential gradient of a Lambert + Blinn fit "
                       f"shared by each {patch} x {patch} pixel tile; k by maximum likelihood on those fits' residuals",
               "caveat": "first order in the normals' error; a lobe misfit that grows with the gradient is read as "
                         "normal error too, so sigma_n bounds the normals' error from above"}
+    if footprint:
+        record["rule"] = ("var_i = sigma_r^2 (1 + k g_i^2 + t f_i^2) (+ q_i): g_i as for --noise normals; f_i^2 = "
+                          "|grad_x y_i|^2 / 12 of the observed image by central differences, its noise bias removed "
+                          "per light; k and t by maximum likelihood on the tile fits' residuals")
+        record["caveat"] += ("; the footprint term reads any misfit that grows with the image gradient (the limb, an "
+                             "edge, a tile fit that straddles two materials) as footprint, and its noise-bias "
+                             "correction is one variance per light")
     return scale, record
+
+
+def _footprint_share(estimate, g2, f2, residuals) -> float:
+    """The footprint term's share of the modelled variance, summed over the fitted observations."""
+    keep = np.isfinite(residuals)
+    normal = estimate["k"] * float(np.sum(g2[keep]))
+    foot = estimate["t"] * float(np.sum(f2[keep]))
+    return float(foot / (int(keep.sum()) + normal + foot))

@@ -19,7 +19,7 @@ def noise_and_power(observations, options):
     """``(scale, suggestion, power, normal_error)``: the options' known noise scales (None for
     constant noise), the measured power suggestion (None where too few adjacent pixels measure
     it and the power is given), the likelihood power the fit uses, and the normals' error
-    record of ``--noise normals`` (else None).
+    record of ``--noise normals`` or ``footprint`` (else None).
 
     Raises
     ------
@@ -27,8 +27,8 @@ def noise_and_power(observations, options):
         If ``--likelihood-power auto`` cannot be measured (too few adjacent pixels).
     """
     normal_error = None
-    if options.noise == "normals":
-        scale, normal_error = normal_error_noise(observations)
+    if options.noise in ("normals", "footprint"):
+        scale, normal_error = normal_error_noise(observations, footprint=options.noise == "footprint")
     else:
         scale = noise_scale(observations, options.noise, options.noise_floor)
     try:

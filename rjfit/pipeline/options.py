@@ -163,7 +163,9 @@ class FitOptions:
         "noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: a multiplicative error). m_i: the "
         "prediction of a separate Lambert + Blinn fit of each pixel; ybar: the mean observed value; c = NOISE_FLOOR * "
         "ybar. normals: s_i^2 = 1 + k g_i^2, the normals' error as noise, g_i = |d mu_i / d n| of a Lambert + Blinn "
-        "fit of each 5 x 5 pixel tile, k by maximum likelihood (docs/measured-data.md). Weighted least squares: the "
+        "fit of each 5 x 5 pixel tile, k by maximum likelihood (docs/measured-data.md). footprint: s_i^2 = 1 + k g_i^2 + "
+        "t f_i^2, normals plus a pixel's footprint, f_i^2 = |grad_x y_i|^2 / 12 of the observed image (the limb of a "
+        "sphere), k and t by maximum likelihood (docs/measured-data.md). Weighted least squares: the "
         "sampler is unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
         "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS)
     noise_floor: float = cli_option(
@@ -233,9 +235,9 @@ class FitOptions:
             # the label moves' per-pixel likelihoods and cluster statistics see the plain lobe only
             raise ValueError("--effects and --effects-from work with --regions changepoints only (the material model's "
                              "label moves do not yet carry the effects' terms); drop one of them")
-        if self.channel == COLOUR and (self.noise == "normals" or self.likelihood_power == "area"):
+        if self.channel == COLOUR and (self.noise in ("normals", "footprint") or self.likelihood_power == "area"):
             # their tile fits would pool a pixel's channels as one channel's observations
-            raise ValueError("--noise normals (which --preset measured sets) and --likelihood-power area measure one channel: "
+            raise ValueError("--noise normals (which --preset measured sets), footprint and --likelihood-power area measure one channel: "
                              "not yet with --channel rgb; fit one channel (--channel mean) under the preset, or "
                              "--channel rgb without it")
         if self.channel == COLOUR and (self.regions != "materials" or self.sampler != "adaptive"):

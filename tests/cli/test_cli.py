@@ -24,9 +24,9 @@ def test_every_command_has_help():
 
 def test_fit_help_states_the_noise_models_and_their_floor():
     text = " ".join(CliRunner().invoke(main, ["fit", "--help"], terminal_width=200).output.split())
-    assert "--noise [constant|shot|relative|normals]" in text and "--noise-floor" in text
+    assert "--noise [constant|shot|relative|normals|footprint]" in text and "--noise-floor" in text
     for formula in ("s_i = 1", "s_i^2 = (m_i + c) / ybar", "s_i = (m_i + c) / ybar", "c = NOISE_FLOOR * ybar",
-                    "s_i^2 = 1 + k g_i^2"):
+                    "s_i^2 = 1 + k g_i^2", "s_i^2 = 1 + k g_i^2 + t f_i^2", "f_i^2 = |grad_x y_i|^2 / 12"):
         assert formula in text, formula
     result = CliRunner().invoke(main, ["fit", ".", "--out", "x", "--noise", "poisson"])
     assert result.exit_code != 0 and "poisson" in result.output

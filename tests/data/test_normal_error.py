@@ -60,9 +60,9 @@ def test_exact_normals_give_no_normal_error():
 def test_a_known_normal_error_is_recovered(paper_sphere_small):
     """Mitsuba's paper_sphere at 48 px with its normals turned by 1 and 2 degrees (sd per direction).
 
-    The clean render already reads as 0.6 degrees: a pixel spans about 2.4 degrees of normal at
-    the sphere's centre and Mitsuba integrates over it, while the loader gives the pixel centre's
-    normal. Independent errors add in quadrature, so sqrt(sd^2 - sd_clean^2) must recover the
+    The clean render already reads as 0.6 degrees: not a pixel footprint (the render traces the
+    pixel-centre rays; one material reads 0, tests/data/test_footprint.py) but the tile fits that
+    straddle the four quadrants' boundaries. Independent errors add in quadrature, so sqrt(sd^2 - sd_clean^2) must recover the
     turn within 10 % (first-order model; 18,000 observations).
     """
     dataset = load_dataset(paper_sphere_small)

@@ -108,7 +108,7 @@ SUMMARY = "{fit}/summary.json: not a summary `rjfit fit` wrote ({problem}); " + 
     (edit_summary(lambda s: s.update(channel="red")), "'channel' is 'red', not one of mean, R, G, B, luminance, rgb"),
     (edit_summary(lambda s: s.update(likelihood_power=2)), "'likelihood_power' is 2, not a number in (0, 1]"),
     (edit_summary(lambda s: s["noise"].update(model="loud")),
-     "'noise' entry 'model' is 'loud', not one of constant, shot, relative, normals"),
+     "'noise' entry 'model' is 'loud', not one of constant, shot, relative, normals, footprint"),
     (edit_summary(lambda s: s["noise"].update(model="shot", floor=-1)), "'noise' entry 'floor' is -1, not a positive number"),
 ], ids=["list", "regions", "map_model", "fit_id", "dataset", "region", "warning", "model_posterior", "channel",
         "likelihood_power", "noise_model", "noise_floor"])

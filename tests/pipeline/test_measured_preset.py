@@ -59,3 +59,22 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
         assert options["potts_beta"] >= 2.0 and 0 < options["potts_rho"] < 1
     else:       # change points have no Potts prior: the rule must not be recorded as if it applied
         assert (options["potts_beta"], options["potts_rho"]) == (FitOptions().potts_beta, FitOptions().potts_rho)
+
+
+def test_the_footprint_noise_is_kept_by_the_preset_and_refused_in_colour():
+    assert FitOptions(preset="measured", noise="footprint").noise == "footprint"
+    with pytest.raises(ValueError, match="footprint"):
+        FitOptions(regions="materials", channel="rgb", noise="footprint")
+
+
+def test_a_fit_with_the_footprint_term_records_it(paper_sphere_small, tmp_path):
+    """The preset with ``--noise footprint`` (1 chain x 30 iterations, about 15 s): the estimate is recorded
+    with both scale parameters, and the scales the sampler used are those the noise model gives."""
+    summary = fit_dataset(paper_sphere_small, tmp_path / "fit", FitOptions(
+        preset="measured", noise="footprint", regions="materials", n_chains=1, iterations=30, processes=1,
+        progress=False, figures=False), allow_unvalidated=True)
+    record = summary["noise"]["normal_error"]
+    assert summary["noise"]["model"] == "footprint" and "f_i^2" in summary["noise"]["formula"]
+    assert record["k"] >= 0 and record["t"] >= 0 and record["c"] == pytest.approx(record["t"] * record["sigma_r2"])
+    assert 0.0 <= record["footprint_share"] < 1.0
+    assert summary["noise"]["scale_min"] >= 1.0
