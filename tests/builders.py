@@ -390,3 +390,15 @@ def truth_fit_folder(dataset_path, folder: Path) -> Path:
     (folder / "summary.json").write_text(json.dumps({"dataset": str(dataset_path)}))
     write_exr(folder / "map_labels.exr", {"labels": load_dataset(dataset_path).truth_labels.astype(float)})
     return folder
+
+
+def perturbed_normals(normals, mask, degrees, seed):
+    """Unit normals turned by an isotropic tangential error of ``degrees`` sd per direction."""
+    rng = np.random.default_rng(seed)
+    first = np.cross(normals, [0.0, 0.0, 1.0])
+    first /= np.maximum(np.linalg.norm(first, axis=-1, keepdims=True), 1e-12)
+    second = np.cross(normals, first)
+    error = np.radians(degrees) * rng.standard_normal(normals.shape[:2] + (2,))
+    turned = normals + error[..., :1] * first + error[..., 1:] * second
+    turned /= np.maximum(np.linalg.norm(turned, axis=-1, keepdims=True), 1e-12)
+    return np.where(mask[..., None], turned, normals)

@@ -44,8 +44,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.data.footprint import (UNIFORM_OFFSET_VARIANCE, estimate_footprint_error, finite_squares,
-                                  image_gradient_squared)
+from rjfit.data.footprint import (
+    UNIFORM_OFFSET_VARIANCE,
+    estimate_footprint_error,
+    finite_squares,
+    image_gradient_squared,
+)
 from rjfit.data.pixelfit import _golden_section, group_fit, patch_index
 from rjfit.model.blinn import blinn_normalisation
 

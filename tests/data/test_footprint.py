@@ -13,7 +13,7 @@ from rjfit.data.normal_error import estimate_normal_error, normal_error_noise, p
 from rjfit.render.datasets import load_dataset
 from rjfit.render.render import load_scene_definition, render_dataset
 
-from tests.data.test_normal_error import _perturbed
+from builders import perturbed_normals
 
 NOISE_VARIANCE = 0.1
 
@@ -109,7 +109,7 @@ def test_the_joint_fit_keeps_the_normals_error(paper_sphere_small):
     """With no footprint term (f = 0) the joint fit is the normals' fit; with it the normals' turn still comes
     back in quadrature within 10 % (as tests/data/test_normal_error.py asks of the normals' term alone)."""
     dataset = load_dataset(paper_sphere_small)
-    turned = dataclasses.replace(dataset, normals=_perturbed(dataset.normals, dataset.object_mask, 2.0, 1))
+    turned = dataclasses.replace(dataset, normals=perturbed_normals(dataset.normals, dataset.object_mask, 2.0, 1))
     reference = patch_reference(turned.observations())
     alone = estimate_normal_error(reference["residuals"], reference["g2"])
     joint = estimate_footprint_error(reference["residuals"], reference["g2"], np.zeros_like(reference["g2"]))
@@ -117,7 +117,7 @@ def test_the_joint_fit_keeps_the_normals_error(paper_sphere_small):
     assert joint["k"] == pytest.approx(alone["k"], rel=1e-3)
     clean = normal_error_noise(dataset.observations(), footprint=True)[1]["sigma_n_deg"]
     for degrees in (1.0, 2.0):
-        turned = dataclasses.replace(dataset, normals=_perturbed(dataset.normals, dataset.object_mask, degrees, 1))
+        turned = dataclasses.replace(dataset, normals=perturbed_normals(dataset.normals, dataset.object_mask, degrees, 1))
         estimate = normal_error_noise(turned.observations(), footprint=True)[1]["sigma_n_deg"]
         assert np.sqrt(estimate ** 2 - clean ** 2) == pytest.approx(degrees, rel=0.10)
 

@@ -14,17 +14,7 @@ from rjfit.data.synthetic import sphere_stack
 from rjfit.model.blinn import blinn_normalisation
 from rjfit.render.datasets import load_dataset
 
-
-def _perturbed(normals, mask, degrees, seed):
-    """Unit normals turned by an isotropic tangential error of ``degrees`` sd per direction."""
-    rng = np.random.default_rng(seed)
-    first = np.cross(normals, [0.0, 0.0, 1.0])
-    first /= np.maximum(np.linalg.norm(first, axis=-1, keepdims=True), 1e-12)
-    second = np.cross(normals, first)
-    error = np.radians(degrees) * rng.standard_normal(normals.shape[:2] + (2,))
-    turned = normals + error[..., :1] * first + error[..., 1:] * second
-    turned /= np.maximum(np.linalg.norm(turned, axis=-1, keepdims=True), 1e-12)
-    return np.where(mask[..., None], turned, normals)
+from builders import perturbed_normals
 
 
 def test_the_tangential_gradient_is_the_derivative_of_the_prediction():
@@ -69,7 +59,7 @@ def test_a_known_normal_error_is_recovered(paper_sphere_small):
     clean = normal_error_noise(dataset.observations())[1]["sigma_n_deg"]
     assert clean < 1.0
     for degrees in (1.0, 2.0):
-        turned = dataclasses.replace(dataset, normals=_perturbed(dataset.normals, dataset.object_mask, degrees, 1))
+        turned = dataclasses.replace(dataset, normals=perturbed_normals(dataset.normals, dataset.object_mask, degrees, 1))
         estimate = normal_error_noise(turned.observations())[1]["sigma_n_deg"]
         assert np.sqrt(estimate ** 2 - clean ** 2) == pytest.approx(degrees, rel=0.10)
 
