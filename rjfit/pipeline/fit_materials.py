@@ -61,18 +61,25 @@ def summarise_materials(records, problem, options, burn: int):
 
 
 def material_number_warnings(materials, prior) -> list:
-    """The caveats of the material summaries' own numbers (:mod:`rjfit.posterior.caveats`): a mean beyond
-    its prior's plausible range, an interval at a bound of its prior's support, a pooled mean outside its
-    own interval. A colour fit's material is checked per channel (``"2 (G)"``), its gamma once."""
-    rows = []
+    """The caveats of the material summaries' own numbers (:mod:`rjfit.posterior.caveats`): a material without
+    a pixel in the MAP labels, a mean beyond its prior's plausible range, an interval at a bound of its prior's
+    support, a pooled mean outside its own interval. A colour fit's material is checked per channel
+    (``"2 (G)"``), its gamma once."""
+    rows, empty = [], []
     for material in materials:
+        if material.get("pixels") == 0:
+            # every state's materials hold pixels, but the pooled MAP labels (each pixel's most frequent
+            # relabelled material) can leave one without: it is a mode some chains hold, not a material here
+            empty.append(f"material {material['material']} of the MAP number of materials holds no pixel in the MAP "
+                         f"labels: the chains that hold it put it on pixels the others give to another material; read "
+                         f"chain_materials_posterior, and do not read its parameters as a material's")
         if "channels" not in material:
             rows.append(material)
             continue
         for index, (name, params) in enumerate(material["channels"].items()):
             rows.append({"region": f"{material['material']} ({name})", **params,
                          **({"gamma": material["gamma"]} if index == 0 else {})})
-    return (caveats.prior_range_warnings(rows, prior) + caveats.support_bound_warnings(rows, prior)
+    return (empty + caveats.prior_range_warnings(rows, prior) + caveats.support_bound_warnings(rows, prior)
             + caveats.pooled_interval_warnings(rows))
 
 

@@ -68,6 +68,9 @@ def test_a_colour_material_is_checked_per_channel_and_its_gamma_once():
     colour["channels"]["G"] = {**colour["channels"]["G"], "kd": {"mean": 0.03, "sd": 0.02, "q2.5": 0.001, "q97.5": 0.08}}
     warnings = material_number_warnings([plain, colour], PRIOR)
     assert len(warnings) == 2, warnings
+    # a material the pooled MAP labels leave without pixels (seen on a 4-chain ball fit: [15791, 0])
+    empty = material_number_warnings([plain, {**_region(1), "material": 1, "pixels": 0}], PRIOR)
+    assert len(empty) == 1 and empty[0].startswith("material 1 of the MAP number of materials holds no pixel")
     assert warnings[0].startswith("region 1 (R): gamma posterior mean 0.008 lies at or below")      # once, not per channel
     assert warnings[1].startswith("region 1 (G): kd's 95 % interval [0.001, 0.08] reaches its prior's bound 0")
 
