@@ -69,11 +69,7 @@ def suggest_likelihood_power(observations, noise_scale=None) -> dict:
     (2019) 1113-1125.
     """
     obs = weighted_observations(observations, noise_scale)
-    height, width = obs.image_shape
-    residuals = per_pixel_residuals(obs)
-    dense = np.full((obs.n_lights, height, width), np.nan)
-    pixel = np.asarray(obs.pixel, np.int64)
-    dense[np.asarray(obs.light), pixel // width, pixel % width] = residuals
+    dense = obs.dense(per_pixel_residuals(obs))
     rhos, pairs = [], 0
     for first, second in ((dense[:, :, :-1], dense[:, :, 1:]), (dense[:, :-1, :], dense[:, 1:, :])):
         keep = np.isfinite(first) & np.isfinite(second)

@@ -50,15 +50,6 @@ _LOG_GRID = np.linspace(np.log(1e-6), np.log(1e6), 25)   # k median(g^2) and t m
 _REFINE_ROUNDS = 3
 
 
-def _dense_images(observations) -> np.ndarray:
-    """The observations' values as images (L, H, W), NaN where an observation is not valid."""
-    height, width = observations.image_shape
-    dense = np.full((observations.n_lights, height * width), np.nan)
-    dense[np.asarray(observations.light, np.int64), np.asarray(observations.pixel, np.int64)] = \
-        np.asarray(observations.y, float)
-    return dense.reshape(observations.n_lights, height, width)
-
-
 def _neighbours(images, axis):
     """The values at -1 and +1 along ``axis`` (1 rows, 2 columns) of each pixel, NaN beyond the image."""
     before, after = np.full_like(images, np.nan), np.full_like(images, np.nan)
@@ -73,7 +64,7 @@ def _neighbours(images, axis):
 
 def light_noise_variance(observations) -> np.ndarray:
     """Per light, the pixel noise variance v from squared second differences (module docstring); 0 where none."""
-    images = _dense_images(observations)
+    images = observations.dense()
     squares = []
     for axis in (1, 2):
         before, after = _neighbours(images, axis)
@@ -105,7 +96,7 @@ def image_gradient_squared(observations, noise_variance=None) -> np.ndarray:
     """
     if observations.channel is not None:
         raise ValueError("the footprint term measures one channel's image gradient: not with --channel rgb")
-    images = _dense_images(observations)
+    images = observations.dense()
     v = light_noise_variance(observations) if noise_variance is None else np.asarray(noise_variance, float)
     v = v[:, None, None]
     total = np.zeros_like(images)

@@ -79,6 +79,16 @@ class Observations:
         height, width = self.image_shape
         return np.bincount(self.pixel, minlength=height * width).reshape(height, width)
 
+    def dense(self, values=None) -> np.ndarray:
+        """Per-observation ``values`` (default ``y``) scattered into images (L, H, W), NaN where none.
+
+        One channel only: a joint colour stack has several observations per pixel and light.
+        """
+        height, width = self.image_shape
+        out = np.full((self.n_lights, height, width), np.nan)
+        out[np.asarray(self.light, np.int64), self.row, self.col] = self.y if values is None else values
+        return out
+
     def subset(self, keep: np.ndarray) -> "Observations":
         """The observations selected by a boolean or index array over observations."""
         return Observations(
