@@ -124,6 +124,123 @@ def _material_maps(material_index_map, materials):
     return maps
 
 
+def _gate_scene(dataset, dataset_dir, out_dir, materials, max_depth):
+    """The gate's scene maker ``make_scene(lights, depth, light_format)``, the materials it renders
+    with, each part's material index and a sentence naming where the geometry comes from."""
+    from rjfit.render.mitsuba_scene import build_scene
+    from rjfit.render.render import scene_from_dataset_meta
+
+    meta = dataset.meta
+    if meta.get("meshes"):
+        materials = materials if materials is not None else meta.get("materials", PROBE_MATERIALS[:1])
+
+        def make_scene(scene_lights, depth, value_format="rgb"):
+            return scene_from_dataset_meta(meta, dataset_dir, materials=materials, lights=scene_lights,
+                                           max_depth=depth, light_format=value_format)
+        return make_scene, materials, [entry["material"] for entry in meta["meshes"]], "the data set's meshes"
+    # A normal-map data set has no mesh: each object pixel becomes a small facet with the
+    # pixel's normal, seen by the folder's camera (orthographic or a pinhole), so Mitsuba
+    # checks the conventions (axes, light directions and units, the view directions) the
+    # loader assumed.
+    materials = materials if materials is not None else PROBE_MATERIALS[:1]
+    facet_path = out_dir / "facets.ply"
+    height, width = dataset.image_shape
+    camera, principal_point = _facet_camera(meta.get("camera"), height, width)
+    with atomic_path(facet_path) as temporary:
+        _facet_mesh(dataset.normals, dataset.object_mask, principal_point=principal_point).export(
+            temporary, file_type="ply", vertex_normal=True)
+
+    def make_scene(scene_lights, depth, value_format="rgb"):
+        return build_scene(camera, (height, width), [(facet_path, 0)], materials, scene_lights,
+                           reference_intensity=dataset.reference_intensity, max_depth=depth,
+                           light_format=value_format)
+    return make_scene, materials, [0], "one facet per pixel from the normal map"
+
+
+def _trace_and_compare(dataset, make_scene, geometry_scene, traced, hit, material_maps, forward_model, *, max_depth,
+                       spp, seed, light_format, progress):
+    """Per light: the path-traced radiance, its worst colour channel and the closed form (0 off
+    ``hit``; the closed form also 0 where the shadow ray is blocked), each stacked (L, H, W)."""
+    from rjfit.render.mitsuba_scene import path_trace, shadow_visibility
+
+    positions = dataset.positions if dataset.positions is not None else np.zeros_like(dataset.normals)
+    path_stack, closed_stack, worst_stack = [], [], []
+    iterator = list(enumerate(dataset.lights))
+    if progress:            # a bar on a terminal, plain lines in a log
+        iterator = tracked(iterator, "validate", "light")
+    for light_index, light in iterator:
+        scene = make_scene([light], max_depth, light_format)
+        path_colour = path_trace(scene, spp=spp, seed=(seed, VALIDATE_STREAM, light_index))
+        path_radiance = path_colour.mean(axis=-1)
+        # The materials are grey, so every channel must match the closed form on its own; the
+        # worst channel's deviation is kept (a colour slip in the lights shows up here).
+        worst_channel = np.take_along_axis(
+            path_colour, np.abs(path_colour - path_radiance[..., None]).argmax(axis=-1)[..., None], axis=-1)[..., 0]
+        visible = shadow_visibility(geometry_scene, traced["_interaction"], light, hit.shape)
+        # The closed form sees the data set's own geometry, as the fitter will.
+        closed = forward_model(positions, dataset.normals, dataset.view_dirs, light, material_maps,
+                               dataset.reference_intensity)
+        path_stack.append(np.where(hit, path_radiance, 0.0))
+        worst_stack.append(np.where(hit, worst_channel, 0.0))
+        closed_stack.append(np.where(hit & visible, closed, 0.0))
+    return np.stack(path_stack), np.stack(closed_stack), np.stack(worst_stack)
+
+
+def _verdict(dataset_dir, hit, path_stack, closed_stack, worst_stack):
+    """The gate's figures from the stacks of :func:`_trace_and_compare` (the module docstring's
+    definitions): ``(result dict, compared, rel_err, unexplained_map)``.
+
+    Raises
+    ------
+    ValueError
+        If no lit object pixel is left to compare.
+    """
+    n_lights = path_stack.shape[0]
+    image_max = path_stack.reshape(n_lights, -1).max(axis=1)[:, None, None]
+    compared = hit[None] & (path_stack > _DARK_FRACTION * np.maximum(image_max, 1e-30))
+    rel_err = np.maximum(np.abs(path_stack - closed_stack), np.abs(worst_stack - closed_stack)) / np.where(
+        compared, path_stack, 1.0)
+    errors = rel_err[compared]
+    if errors.size == 0:
+        raise ValueError(f"{dataset_dir}: no lit object pixel to compare; check the lights and the camera")
+    missing = path_stack - closed_stack
+    unexplained_map = np.where(hit, (missing * compared).sum(0) / np.maximum((path_stack * compared).sum(0), 1e-30), 0)
+    result = {
+        "dataset": str(Path(dataset_dir).resolve()),
+        "dataset_sha256": dataset_fingerprint(dataset_dir),
+        "passed": bool(np.median(errors) <= MEDIAN_TOLERANCE and np.quantile(errors, 0.99) <= P99_TOLERANCE),
+        "median_rel_err": float(np.median(errors)),
+        "p99_rel_err": float(np.quantile(errors, 0.99)),
+        "max_rel_err": float(errors.max()),
+        "observations_compared": int(errors.size),
+        "pixels_compared": int(compared.any(axis=0).sum()),
+        "unexplained_fraction": float((missing * compared).sum() / (path_stack * compared).sum()),
+        "per_light_median_rel_err": [float(np.median(rel_err[i][compared[i]])) if compared[i].any() else None
+                                     for i in range(n_lights)],
+    }
+    return result, compared, rel_err, unexplained_map
+
+
+def _write_gate(out_dir, result, hit, compared, rel_err, unexplained_map):
+    """``validation.json`` and its maps, staged and published together."""
+    max_rel_map = np.where(compared.any(0), np.where(compared, rel_err, 0).max(0), 0)
+    maps = ("validation_maps.exr", "relative_error.png", "unexplained_fraction.png")
+    # staged and published together, validation.json last: a reader never pairs a verdict with
+    # another run's maps, and an interrupted validation leaves the previous one whole
+    with staging_dir(out_dir) as staging:
+        write_exr(staging / "validation_maps.exr", {
+            "max_rel_err": max_rel_map, "unexplained_fraction": unexplained_map,
+            **{f"rel_err_{i:03d}": np.where(compared[i], rel_err[i], 0) for i in range(rel_err.shape[0])}})
+        map_figure(staging / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
+                   f"log10 max relative error over lights\nmedian {result['median_rel_err']:.2e}, "
+                   f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0)
+        map_figure(staging / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
+                   f"radiance the closed form does not explain\n(total {result['unexplained_fraction']:.2%})",
+                   cmap="viridis")
+        write_json_atomic(staging / "validation.json", result)
+        publish(staging, out_dir, manifest="validation.json", names=maps, remove=maps)
+
+
 def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_radiance, materials=None,
                      max_depth=8, spp=4, seed=0, variant="auto", light_format="rgb", progress=False):
     """Path-trace a data set's scene and compare it with the closed form; write the gate's verdict.
@@ -154,123 +271,42 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     Raises
     ------
     FileNotFoundError, ValueError
-        If the data set cannot be loaded (see :func:`rjfit.render.datasets.load_dataset`).
+        If the data set cannot be loaded (see :func:`rjfit.render.datasets.load_dataset`), or
+        no lit object pixel is left to compare.
     """
     from rjfit.render.datasets import load_dataset
-    from rjfit.render.mitsuba_scene import activate, build_scene, path_trace, shadow_visibility, trace_pixels
-    from rjfit.render.render import scene_from_dataset_meta
+    from rjfit.render.mitsuba_scene import activate, trace_pixels
 
     started = time.perf_counter()
     dataset_dir = Path(dataset_dir)
     out_dir = Path(out_dir) if out_dir is not None else dataset_dir / "validation"
     dataset = load_dataset(dataset_dir)
-    meta = dataset.meta
-    lights = dataset.lights
-    reference = dataset.reference_intensity
     out_dir.mkdir(parents=True, exist_ok=True)
     mi_module = activate(variant)
-    if meta.get("meshes"):
-        materials = materials if materials is not None else meta.get("materials", PROBE_MATERIALS[:1])
-        part_materials = [entry["material"] for entry in meta["meshes"]]
-
-        def make_scene(scene_lights, depth, value_format="rgb"):
-            return scene_from_dataset_meta(meta, dataset_dir, materials=materials, lights=scene_lights,
-                                           max_depth=depth, light_format=value_format)
-        geometry_source = "the data set's meshes"
-    else:
-        # A normal-map data set has no mesh: each object pixel becomes a small facet with the
-        # pixel's normal, seen by the folder's camera (orthographic or a pinhole), so Mitsuba
-        # checks the conventions (axes, light directions and units, the view directions) the
-        # loader assumed.
-        materials = materials if materials is not None else PROBE_MATERIALS[:1]
-        facet_path = out_dir / "facets.ply"
-        out_dir.mkdir(parents=True, exist_ok=True)
-        height, width = dataset.image_shape
-        camera, principal_point = _facet_camera(meta.get("camera"), height, width)
-        with atomic_path(facet_path) as temporary:
-            _facet_mesh(dataset.normals, dataset.object_mask, principal_point=principal_point).export(
-                temporary, file_type="ply", vertex_normal=True)
-        part_materials = [0]
-
-        def make_scene(scene_lights, depth, value_format="rgb"):
-            return build_scene(camera, (height, width), [(facet_path, 0)], materials, scene_lights,
-                               reference_intensity=reference, max_depth=depth, light_format=value_format)
-        geometry_source = "one facet per pixel from the normal map"
+    make_scene, materials, part_materials, geometry_source = _gate_scene(dataset, dataset_dir, out_dir, materials,
+                                                                         max_depth)
     geometry_scene = make_scene([], max_depth)
     traced = trace_pixels(geometry_scene, part_materials)
     hit = traced["hit"] & dataset.object_mask
-    shape = hit.shape
     normal_angle = _angle_deg(traced["normals"], dataset.normals)
     view_angle = _angle_deg(traced["view_dirs"], dataset.view_dirs)
     material_maps = _material_maps(np.where(hit, traced["material"], -1), materials)
-    positions = dataset.positions if dataset.positions is not None else np.zeros_like(dataset.normals)
-    path_stack, closed_stack, worst_stack = [], [], []
-    iterator = list(enumerate(lights))
-    if progress:            # a bar on a terminal, plain lines in a log
-        iterator = tracked(iterator, "validate", "light")
-    for light_index, light in iterator:
-        scene = make_scene([light], max_depth, light_format)
-        path_colour = path_trace(scene, spp=spp, seed=(seed, VALIDATE_STREAM, light_index))
-        path_radiance = path_colour.mean(axis=-1)
-        # The materials are grey, so every channel must match the closed form on its own; the
-        # worst channel's deviation is kept (a colour slip in the lights shows up here).
-        worst_channel = np.take_along_axis(
-            path_colour, np.abs(path_colour - path_radiance[..., None]).argmax(axis=-1)[..., None], axis=-1)[..., 0]
-        visible = shadow_visibility(geometry_scene, traced["_interaction"], light, shape)
-        # The closed form sees the data set's own geometry, as the fitter will.
-        closed = forward_model(positions, dataset.normals, dataset.view_dirs, light, material_maps, reference)
-        path_stack.append(np.where(hit, path_radiance, 0.0))
-        worst_stack.append(np.where(hit, worst_channel, 0.0))
-        closed_stack.append(np.where(hit & visible, closed, 0.0))
-    path_stack, closed_stack, worst_stack = np.stack(path_stack), np.stack(closed_stack), np.stack(worst_stack)
-    image_max = path_stack.reshape(len(lights), -1).max(axis=1)[:, None, None]
-    compared = hit[None] & (path_stack > _DARK_FRACTION * np.maximum(image_max, 1e-30))
-    rel_err = np.maximum(np.abs(path_stack - closed_stack), np.abs(worst_stack - closed_stack)) / np.where(
-        compared, path_stack, 1.0)
-    errors = rel_err[compared]
-    if errors.size == 0:
-        raise ValueError(f"{dataset_dir}: no lit object pixel to compare; check the lights and the camera")
-    missing = path_stack - closed_stack
-    unexplained_map = np.where(hit, (missing * compared).sum(0) / np.maximum((path_stack * compared).sum(0), 1e-30), 0)
-    result = {
-        "dataset": str(Path(dataset_dir).resolve()),
-        "dataset_sha256": dataset_fingerprint(dataset_dir),
-        "passed": bool(np.median(errors) <= MEDIAN_TOLERANCE and np.quantile(errors, 0.99) <= P99_TOLERANCE),
-        "median_rel_err": float(np.median(errors)),
-        "p99_rel_err": float(np.quantile(errors, 0.99)),
-        "max_rel_err": float(errors.max()),
-        "observations_compared": int(errors.size),
-        "pixels_compared": int(compared.any(axis=0).sum()),
-        "unexplained_fraction": float((missing * compared).sum() / (path_stack * compared).sum()),
-        "per_light_median_rel_err": [float(np.median(rel_err[i][compared[i]])) if compared[i].any() else None
-                                     for i in range(len(lights))],
+    path_stack, closed_stack, worst_stack = _trace_and_compare(
+        dataset, make_scene, geometry_scene, traced, hit, material_maps, forward_model, max_depth=max_depth, spp=spp,
+        seed=seed, light_format=light_format, progress=progress)
+    result, compared, rel_err, unexplained_map = _verdict(dataset_dir, hit, path_stack, closed_stack, worst_stack)
+    result.update({
         "geometry": geometry_source,
         "max_normal_angle_deg": float(normal_angle[hit].max()) if hit.any() else None,
         "max_view_angle_deg": float(view_angle[hit].max()) if hit.any() else None,
         "thresholds": {"median_rel_err": MEDIAN_TOLERANCE, "p99_rel_err": P99_TOLERANCE},
-        "settings": {"integrator": "path", "max_depth": max_depth, "spp": spp, "seed": seed, "variant": mi_module.variant(),
-                     "rays": "one per pixel centre, shared by the path tracer and the closed form"},
+        "settings": {"integrator": "path", "max_depth": max_depth, "spp": spp, "seed": seed,
+                     "variant": mi_module.variant(), "rays": "one per pixel centre, shared by the path tracer and the closed form"},
         "maps": {"error_exr": "validation_maps.exr", "relative_error_png": "relative_error.png",
                  "unexplained_png": "unexplained_fraction.png"},
         "seconds": round(time.perf_counter() - started, 3),
-    }
-    out_dir.mkdir(parents=True, exist_ok=True)
-    max_rel_map = np.where(compared.any(0), np.where(compared, rel_err, 0).max(0), 0)
-    maps = ("validation_maps.exr", "relative_error.png", "unexplained_fraction.png")
-    # staged and published together, validation.json last: a reader never pairs a verdict with
-    # another run's maps, and an interrupted validation leaves the previous one whole
-    with staging_dir(out_dir) as staging:
-        write_exr(staging / "validation_maps.exr", {
-            "max_rel_err": max_rel_map, "unexplained_fraction": unexplained_map,
-            **{f"rel_err_{i:03d}": np.where(compared[i], rel_err[i], 0) for i in range(len(lights))}})
-        map_figure(staging / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
-                   f"log10 max relative error over lights\nmedian {result['median_rel_err']:.2e}, "
-                   f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0)
-        map_figure(staging / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
-                   f"radiance the closed form does not explain\n(total {result['unexplained_fraction']:.2%})",
-                   cmap="viridis")
-        write_json_atomic(staging / "validation.json", result)
-        publish(staging, out_dir, manifest="validation.json", names=maps, remove=maps)
+    })
+    _write_gate(out_dir, result, hit, compared, rel_err, unexplained_map)
     return result
 
 
