@@ -127,6 +127,92 @@ def check_replaceable(out_dir: Path) -> None:
                            f"pass a new or empty folder, or delete it yourself")
 
 
+def _render_settings(definition, resolution, seed, spp, noise_variance):
+    """``(seed, spp, noise_variance)`` from the arguments or the definition; ``definition``'s
+    resolution overridden in place.
+
+    Raises
+    ------
+    ValueError
+        For a resolution or spp below 1, or a negative noise variance.
+    """
+    if resolution is not None:
+        definition["resolution"] = [int(resolution), int(resolution)] if np.isscalar(resolution) else list(resolution)
+    seed = int(definition.get("seed", 0) if seed is None else seed)
+    spp = int(definition.get("spp", 1) if spp is None else spp)
+    noise_variance = float(definition.get("noise_variance", 0.0) if noise_variance is None else noise_variance)
+    if noise_variance < 0:
+        raise ValueError(f"noise variance must be >= 0, got {noise_variance}")
+    if spp < 1:
+        raise ValueError(f"spp (samples per pixel) must be >= 1, got {spp}")
+    if min(definition["resolution"]) < 1:
+        raise ValueError(f"resolution must be >= 1 pixel, got {definition['resolution']}")
+    return seed, spp, noise_variance
+
+
+def _write_geometry(staging, geometry_scene, traced, lights):
+    """The data set's truth: geometry.exr (P, N, V, mask), truth_labels.exr and visibility.exr."""
+    from rjfit.render.mitsuba_scene import shadow_visibility
+
+    height, width = traced["hit"].shape
+    write_exr(staging / "geometry.exr", {
+        **{f"P.{a}": traced["positions"][..., i] for i, a in enumerate("XYZ")},
+        **{f"N.{a}": traced["normals"][..., i] for i, a in enumerate("XYZ")},
+        **{f"V.{a}": traced["view_dirs"][..., i] for i, a in enumerate("XYZ")},
+        "mask": traced["hit"]})
+    write_exr(staging / "truth_labels.exr", {"label": traced["material"]})
+    write_exr(staging / "visibility.exr", {
+        f"light_{i:03d}": shadow_visibility(geometry_scene, traced["_interaction"], light, (height, width))
+        for i, light in enumerate(lights)})
+
+
+def _render_lights(meta, staging, lights, scene_args, shape, *, seed, spp, noise_variance, progress):
+    """The noisy (L, H, W, 3) stack: each light path-traced alone, plus achromatic Gaussian noise
+    drawn from ``seed``'s noise stream."""
+    from rjfit.render.mitsuba_scene import path_trace
+
+    height, width = shape
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EED]))
+    images = []
+    iterator = range(len(lights))
+    if progress:        # a bar on a terminal, plain lines in a log
+        iterator = tracked(iterator, f"render {meta['name']}", "light")
+    for light_index in iterator:
+        light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], **scene_args)
+        radiance = path_trace(light_scene, spp=spp, seed=(seed, RENDER_STREAM, light_index))
+        if radiance.shape[-1] == 1:
+            radiance = np.repeat(radiance, 3, axis=-1)
+        noise = rng.normal(0.0, np.sqrt(noise_variance), size=(height, width, 1)) if noise_variance else 0.0
+        images.append(radiance + noise)
+    return np.stack(images)
+
+
+def _dataset_meta(definition, lights, meshes, mi, *, noise_variance, seed, spp, hidden_effects):
+    """``dataset.json``'s contents but the render time: what was rendered, how, with which versions."""
+    from importlib.metadata import version
+
+    import drjit as dr
+
+    materials = [dict(m, sigma2=noise_variance) for m in definition["materials"]]
+    meta = {
+        "format": DATASET_FORMAT, "name": definition["name"], "kind": "synthetic",
+        "description": definition.get("description", ""), "units": definition.get("units", ""),
+        "resolution": definition["resolution"], "camera": definition["camera"],
+        "lights": [light.to_json() for light in lights],
+        "reference_intensity": float(definition.get("reference_intensity", 1.0)),
+        "materials": materials, "meshes": meshes, "geometry_definition": definition["geometry"],
+        "noise_variance": noise_variance, "seed": seed, "spp": spp,
+        "max_depth": int(definition.get("max_depth", 8)), "variant": mi.variant(),
+        "sampling": "one camera ray through each pixel centre; spp repeats it",
+        "noise": "achromatic Gaussian, the same draw in R, G, B",
+        "images": [f"images/light_{i:03d}.exr" for i in range(len(lights))],
+        "geometry": "geometry.exr", "visibility": "visibility.exr", "truth_labels": "truth_labels.exr",
+        "hidden_effects": list(hidden_effects),
+        "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__, "rjfit": version("rjfit")},
+    }
+    return meta
+
+
 def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, noise_variance=None,
                    variant="auto", progress=False, bsdf_override=None, extra=None, light_format="rgb",
                    post_process=None, hidden_effects=()):
@@ -171,76 +257,27 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
     ValueError
         For a resolution or spp below 1, or a negative noise variance.
     """
-    from importlib.metadata import version
-
-    from rjfit.render.mitsuba_scene import activate, path_trace, shadow_visibility, trace_pixels
+    from rjfit.render.mitsuba_scene import activate, trace_pixels
 
     started = time.perf_counter()
     definition = load_scene_definition(scene)
-    if resolution is not None:
-        definition["resolution"] = [int(resolution), int(resolution)] if np.isscalar(resolution) else list(resolution)
-    seed = int(definition.get("seed", 0) if seed is None else seed)
-    spp = int(definition.get("spp", 1) if spp is None else spp)
-    noise_variance = float(definition.get("noise_variance", 0.0) if noise_variance is None else noise_variance)
-    if noise_variance < 0:
-        raise ValueError(f"noise variance must be >= 0, got {noise_variance}")
-    if spp < 1:
-        raise ValueError(f"spp (samples per pixel) must be >= 1, got {spp}")
-    if min(definition["resolution"]) < 1:
-        raise ValueError(f"resolution must be >= 1 pixel, got {definition['resolution']}")
+    seed, spp, noise_variance = _render_settings(definition, resolution, seed, spp, noise_variance)
     out_dir = Path(out_dir).resolve()
     check_replaceable(out_dir)
     mi = activate(variant)
-    import drjit as dr
-
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
         meshes = write_mesh_parts(definition["geometry"], staging / "meshes")
         lights = [Light.from_json(entry) for entry in definition["lights"]]
-        materials = [dict(m, sigma2=noise_variance) for m in definition["materials"]]
-        meta = {
-            "format": DATASET_FORMAT, "name": definition["name"], "kind": "synthetic",
-            "description": definition.get("description", ""), "units": definition.get("units", ""),
-            "resolution": definition["resolution"], "camera": definition["camera"],
-            "lights": [light.to_json() for light in lights],
-            "reference_intensity": float(definition.get("reference_intensity", 1.0)),
-            "materials": materials, "meshes": meshes, "geometry_definition": definition["geometry"],
-            "noise_variance": noise_variance, "seed": seed, "spp": spp,
-            "max_depth": int(definition.get("max_depth", 8)), "variant": mi.variant(),
-            "sampling": "one camera ray through each pixel centre; spp repeats it",
-            "noise": "achromatic Gaussian, the same draw in R, G, B",
-            "images": [f"images/light_{i:03d}.exr" for i in range(len(lights))],
-            "geometry": "geometry.exr", "visibility": "visibility.exr", "truth_labels": "truth_labels.exr",
-            "hidden_effects": list(hidden_effects),
-            "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__, "rjfit": version("rjfit")},
-        }
+        meta = _dataset_meta(definition, lights, meshes, mi, noise_variance=noise_variance, seed=seed, spp=spp,
+                             hidden_effects=hidden_effects)
         scene_args = dict(light_format=light_format, bsdf_override=bsdf_override, extra=extra)
         geometry_scene = scene_from_dataset_meta(meta, staging, lights=[], **scene_args)
         traced = trace_pixels(geometry_scene, [entry["material"] for entry in meshes])
-        height, width = traced["hit"].shape
-        write_exr(staging / "geometry.exr", {
-            **{f"P.{a}": traced["positions"][..., i] for i, a in enumerate("XYZ")},
-            **{f"N.{a}": traced["normals"][..., i] for i, a in enumerate("XYZ")},
-            **{f"V.{a}": traced["view_dirs"][..., i] for i, a in enumerate("XYZ")},
-            "mask": traced["hit"]})
-        write_exr(staging / "truth_labels.exr", {"label": traced["material"]})
-        write_exr(staging / "visibility.exr", {
-            f"light_{i:03d}": shadow_visibility(geometry_scene, traced["_interaction"], light, (height, width))
-            for i, light in enumerate(lights)})
-        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EED]))
-        images = []
-        iterator = range(len(lights))
-        if progress:        # a bar on a terminal, plain lines in a log
-            iterator = tracked(iterator, f"render {definition['name']}", "light")
-        for light_index in iterator:
-            light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], **scene_args)
-            radiance = path_trace(light_scene, spp=spp, seed=(seed, RENDER_STREAM, light_index))
-            if radiance.shape[-1] == 1:
-                radiance = np.repeat(radiance, 3, axis=-1)
-            noise = rng.normal(0.0, np.sqrt(noise_variance), size=(height, width, 1)) if noise_variance else 0.0
-            images.append(radiance + noise)
-        images = np.stack(images)
+        _write_geometry(staging, geometry_scene, traced, lights)
+        images = _render_lights(meta, staging, lights, scene_args, traced["hit"].shape, seed=seed, spp=spp,
+                                noise_variance=noise_variance, progress=progress)
         if post_process is not None:
             images = post_process(images)
         for light_index, image in enumerate(images):
