@@ -12,7 +12,7 @@ from rjfit.data.noise import noise_scale, weighted_observations
 from rjfit.data.normal_error import normal_error_noise
 from rjfit.data.pixelfit import per_pixel_residuals
 
-__all__ = ["noise_and_power", "power_suggestion"]
+__all__ = ["noise_and_power", "power_suggestion", "channel_normal_error_noise"]
 
 
 def noise_and_power(observations, options):
@@ -28,7 +28,7 @@ def noise_and_power(observations, options):
     """
     normal_error = None
     if options.noise in ("normals", "footprint"):
-        scale, normal_error = normal_error_noise(observations, footprint=options.noise == "footprint")
+        scale, normal_error = channel_normal_error_noise(observations, footprint=options.noise == "footprint")
     else:
         scale = noise_scale(observations, options.noise, options.noise_floor)
     try:
@@ -44,6 +44,41 @@ def noise_and_power(observations, options):
     else:
         power = suggestion["likelihood_power"] if options.likelihood_power == "auto" else options.likelihood_power
     return scale, suggestion, power, normal_error
+
+
+def _one_channel(observations, c):
+    """Channel ``c`` of a joint colour stack as a single-channel one, and the mask of its observations."""
+    mine = observations.channel == c
+    return dataclasses.replace(observations.subset(mine), channel=None, n_channels=1), mine
+
+
+def channel_normal_error_noise(observations, footprint: bool = False):
+    """:func:`~rjfit.data.normal_error.normal_error_noise`; for a joint colour stack measured
+    per channel: each channel's scales from its own tile fits and its own maximum-likelihood
+    ``k`` (and ``t``), the record of each under ``channels``, and at the top the record of the
+    channel with the largest normals' error (the one that bounds it from above).
+
+    Why per channel: a tile fit pools a pixel's observations as one channel's, and the
+    channels differ in albedo and signal, so one ``sigma_r^2`` and ``k`` for all would
+    misweigh the darker channels.
+
+    Raises
+    ------
+    ValueError
+        As :func:`~rjfit.data.normal_error.normal_error_noise`, for any channel.
+    """
+    if observations.channel is None:
+        return normal_error_noise(observations, footprint=footprint)
+    scale = np.empty(observations.n_obs, np.float64)
+    records = []
+    for c in range(observations.n_channels):
+        single, mine = _one_channel(observations, c)
+        scale[mine], record = normal_error_noise(single, footprint=footprint)
+        records.append(record)
+    widest = max(records, key=lambda record: record["sigma_n_deg"])
+    return scale, {**widest, "channels": records,
+                   "channels_rule": "estimated per channel; the top-level figures are the channel with the largest "
+                                    "normals' error"}
 
 
 def power_suggestion(observations, scale):
@@ -62,8 +97,7 @@ def power_suggestion(observations, scale):
         return suggest_likelihood_power(observations, noise_scale=scale)
     per_channel, residuals = [], []
     for c in range(observations.n_channels):
-        mine = observations.channel == c
-        single = dataclasses.replace(observations.subset(mine), channel=None, n_channels=1)
+        single, mine = _one_channel(observations, c)
         weighed = single if scale is None else weighted_observations(single, scale[mine])
         per_channel.append(suggest_likelihood_power(single, noise_scale=None if scale is None else scale[mine]))
         by_observation = np.full(int(np.prod(single.image_shape)) * single.n_lights, np.nan)

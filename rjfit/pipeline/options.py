@@ -235,11 +235,10 @@ class FitOptions:
             # the label moves' per-pixel likelihoods and cluster statistics see the plain lobe only
             raise ValueError("--effects and --effects-from work with --regions changepoints only (the material model's "
                              "label moves do not yet carry the effects' terms); drop one of them")
-        if self.channel == COLOUR and (self.noise in ("normals", "footprint") or self.likelihood_power == "area"):
-            # their tile fits would pool a pixel's channels as one channel's observations
-            raise ValueError("--noise normals (which --preset measured sets), footprint and --likelihood-power area measure one channel: "
-                             "not yet with --channel rgb; fit one channel (--channel mean) under the preset, or "
-                             "--channel rgb without it")
+        if self.channel == COLOUR and self.likelihood_power == "area":
+            # its summed autocorrelation would pool a pixel's channels as one channel's observations
+            raise ValueError("--likelihood-power area measures one channel: not yet with --channel rgb; use "
+                             "--likelihood-power auto (what --preset measured sets) or fit one channel (--channel mean)")
         if self.channel == COLOUR and (self.regions != "materials" or self.sampler != "adaptive"):
             raise ValueError("--channel rgb (a joint colour fit) works with --regions materials and the adaptive "
                              "sampler only (the change-point model's passes see one channel): use --regions materials, "

@@ -91,9 +91,10 @@ def test_the_colour_power_divides_by_the_channels_design_effect():
     assert suggestion["likelihood_power"] > 0.9 * suggestion["most_misfit_channel"]["likelihood_power"]
 
 
-def test_the_measured_preset_is_refused_with_colour_in_one_line():
-    """Its normals noise and area power come from tile fits of one channel (not yet per channel)."""
+def test_the_measured_preset_takes_colour_and_the_area_power_is_refused_in_one_line():
+    """The preset's normals noise is measured per channel (tests/data/test_normal_error.py); the area
+    power's summed autocorrelation is of one channel still."""
+    options = FitOptions(regions="materials", channel="rgb", preset="measured")
+    assert options.noise == "normals" and options.likelihood_power == "auto"
     with pytest.raises(ValueError, match="not yet with --channel rgb"):
-        FitOptions(regions="materials", channel="rgb", preset="measured")
-    with pytest.raises(ValueError, match="not yet with --channel rgb"):
-        FitOptions(regions="materials", channel="rgb", noise="normals")
+        FitOptions(regions="materials", channel="rgb", likelihood_power="area")
