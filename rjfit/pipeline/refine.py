@@ -97,7 +97,7 @@ def _dataset_of(summary: dict, fit_dir: Path) -> Path:
 
 def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, progress=False, say=print,
            first_diagnosis_dir=None, **diagnose_options) -> dict:
-    """Diagnose, refit with what was named, diagnose again, until nothing more is named.
+    """Diagnose, refit with what was named (or revised), diagnose again, until nothing changes.
 
     Parameters
     ----------
@@ -155,9 +155,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         result["final_fit"] = str(current)
         say(_round_line(index, record))
         final, new = _final_model(diagnosis, record)
-        # a swapped or dropped effect leaves the list (it is in the round's "revisions")
-        kept = [name for name in result["named_effects"] if name not in record["dropped"]]
-        result["named_effects"] = kept + [name for name in new if name not in kept]
+        result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
         if (new or record["dropped"]) and options.regions != "changepoints":
             result["stopped"], warning = _cannot_sample(index, options.regions, diagnosis_dir)
         elif not (new or record["dropped"]) or index + 1 == max_rounds:
@@ -187,6 +185,13 @@ def _final_model(diagnosis: dict, record: dict) -> tuple:
     final = list((diagnosis.get("final_model") or {}).get("effects") or record["effects"] + record["named"])
     record["dropped"] = [name for name in record["effects"] if name not in final]
     return final, [name for name in final if name not in record["effects"]]
+
+
+def _named_after(named: list, dropped: list, new: list) -> list:
+    """The effects named so far after a round that dropped or swapped out ``dropped`` and named
+    ``new``: a revised effect leaves the list (the round's ``revisions`` keep it)."""
+    kept = [name for name in named if name not in dropped]
+    return kept + [name for name in new if name not in kept]
 
 
 def _cannot_sample(index: int, regions: str, diagnosis_dir: Path) -> tuple:
