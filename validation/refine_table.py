@@ -7,8 +7,9 @@ built-ins: a ``constant`` emitter, colour-science's sRGB curve, a ``blendbsdf`` 
 (:func:`rjfit.pipeline.refine.refine`). Prints and writes (``OUT/refine_table.json``) per case:
 the effects named (in order), the rounds, the regions and label accuracy before -> after the
 loop, the gap and simulated gap before -> after (each round's fitted model on its own MAP
-segmentation, diagnosis ``gap_plain``; simulated: Mitsuba's), the unexplained misfit (where
-the last diagnosis reports one) and the seconds (fit + refine).
+segmentation, diagnosis ``gap_plain``; simulated: Mitsuba's), the revisions (an effect swapped
+or dropped, and in which round), the unexplained misfit (where the last diagnosis reports one)
+and the seconds (fit + refine).
 
     .venv/bin/python validation/refine_table.py OUT_DIR [--only CASE,...] [--resolution 64]
                      [--chains 2] [--iterations 600] [--max-rounds 3]
@@ -49,8 +50,15 @@ def run_case(case, kind, out, args) -> dict:
             "regions": [first["n_regions"], last["n_regions"]],
             "label_accuracy": [first["label_accuracy"], last["label_accuracy"]],
             "gap": [first["gap"], last["gap"]], "gap_simulated": [first["gap_simulated"], last["gap_simulated"]],
+            "revisions": [_revision(index, r) for index, record in enumerate(refined["rounds"])
+                          for r in record.get("revisions") or []],
             "unexplained_misfit": (last_diagnosis.get("unexplained_misfit") or {}).get("text"),
             "warnings": refined["warnings"], "seconds": time.perf_counter() - started}
+
+
+def _revision(index, revision) -> str:
+    replaced = f" for {revision['replacement']}" if revision["action"] == "swapped" else ""
+    return f"{revision['effect']} {revision['action']}{replaced} in round {index + 1}"
 
 
 def _pair(values, spec) -> str:
@@ -75,7 +83,8 @@ def main():
     print("| case | named | rounds | regions | label accuracy | gap | simulated gap | seconds |")
     print("|---|---|---|---|---|---|---|---|")
     for row in rows:
-        print(f"| {row['case']} | {', '.join(row['named']) or 'none'} | {row['rounds']} | "
+        revised = f" ({'; '.join(row['revisions'])})" if row["revisions"] else ""
+        print(f"| {row['case']} | {', '.join(row['named']) or 'none'}{revised} | {row['rounds']} | "
               f"{_pair(row['regions'], 'd')} | {_pair(row['label_accuracy'], '.3f')} | {_pair(row['gap'], '.3g')} | "
               f"{_pair(row['gap_simulated'], '.3g')} | {row['seconds']:.0f} |")
 

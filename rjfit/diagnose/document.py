@@ -35,11 +35,14 @@ def not_told_apart_text(effect: str, log_bf: float, runners_up: list) -> str:
 
 def revision_text(revision: dict) -> str:
     """One revision of an earlier choice (:mod:`rjfit.diagnose.revisit`), in words."""
+    when = ("before step 1 (an effect the fit sampled, on its segmentation)" if revision["after_step"] is None
+            else f"after step {revision['after_step'] + 1}")
     if revision["action"] == "swapped":
-        return (f"after step {revision['after_step'] + 1}: {revision['effect']} swapped for {revision['replacement']} "
-                f"(log BF {revision['log_bayes_factor']:.1f} with the other effects present)")
-    return (f"after step {revision['after_step'] + 1}: {revision['effect']} dropped (log BF {revision['log_bayes_factor']:.1f} "
-            f"for keeping it, not decisive: the later effects explain its part)")
+        close = "; not told apart: within ln 100" if revision.get("not_told_apart") else ""
+        return (f"{when}: {revision['effect']} swapped for {revision['replacement']} "
+                f"(log BF {revision['log_bayes_factor']:.1f} with the other effects present{close})")
+    return (f"{when}: {revision['effect']} dropped (log BF {revision['log_bayes_factor']:.1f} "
+            f"for keeping it, not decisive: the other effects or the regions explain its part)")
 
 
 def gap_text(value) -> str:

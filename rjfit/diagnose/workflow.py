@@ -290,7 +290,9 @@ def _usable_candidates(ctx, settings):
 def _run_steps(ctx, plain, usable, sigma2_plain, settings) -> _SearchTrace:
     """The step loop: at each step every usable candidate not yet in the model (nor of a kind in
     it) is refitted and scored; the decisive one with the largest log BF is named and becomes
-    part of the current model. Stops when none is decisive or after ``max_steps`` steps."""
+    part of the current model, and the earlier effects are revisited
+    (:func:`rjfit.diagnose.revisit.revisit`). The fit's own effects (``base_effects``) are
+    revisited before the first step. Stops when none is decisive or after ``max_steps`` steps."""
     max_steps = settings.max_steps
     if max_steps == 0:
         stopped = "search skipped: max_steps is 0, so no candidate effect was tried; only the plain model's gap is measured"
@@ -300,6 +302,11 @@ def _run_steps(ctx, plain, usable, sigma2_plain, settings) -> _SearchTrace:
         stopped = (f"stopped after {max_steps} step{'s' if max_steps > 1 else ''} (max_steps): "
                    f"further missing effects were not searched for")
     trace = _SearchTrace(current=plain, stopped=stopped, plain=plain)
+    if plain.effects and max_steps > 0 and usable:
+        # the effects the fit sampled were chosen on another segmentation (rjfit refine's earlier
+        # round): revisit them on this one before searching for further effects
+        trace.current, trace.revisions = revisit(ctx, plain, None, usable, step=None, seed=settings.seed,
+                                                 threshold=settings.threshold, say=settings.say)
     for step in range(max_steps if usable else 0):
         found = _search_step(ctx, step, usable, sigma2_plain, settings, trace)
         if found is None:

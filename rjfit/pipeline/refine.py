@@ -2,10 +2,13 @@
 
 Diagnose the fit (:func:`rjfit.pipeline.diagnose.diagnose_fit`), fit the data set again with
 the effects the diagnosis named sampled jointly with the segmentation (``rjfit fit
---effects-from``), diagnose that fit (its search starts from the effects it sampled), and
-repeat until a diagnosis names nothing more, at most ``max_rounds`` diagnoses. A named effect
-thus reaches the segmentation: a fit that over-segmented to absorb a missing ambient term
-can return to the true regions once the ambient term is in its model.
+--effects-from``), diagnose that fit (its search starts from the effects it sampled, after revisiting them on
+its segmentation: :mod:`rjfit.diagnose.revisit`), and repeat until a diagnosis names, swaps
+and drops nothing, at most ``max_rounds`` diagnoses. A named effect thus reaches the
+segmentation: a fit that over-segmented to absorb a missing ambient term can return to the
+true regions once the ambient term is in its model; and an effect chosen on a wrong first
+segmentation (a power-law camera curve where the truth is sRGB) is swapped once a later
+round's segmentation tells the two apart.
 
 The refits use the original fit's options (``summary.json`` "fit_options") plus the effects;
 each round's fit and diagnosis go to ``DIR/round{k}/``; ``DIR/refine.json`` (rewritten
@@ -67,6 +70,7 @@ def _round_record(fit_dir: Path, summary: dict, diagnosis: dict, diagnosis_dir: 
             "label_accuracy": summary.get("label_accuracy"),
             "gap": diagnosis.get("gap_plain"), "gap_simulated": simulated,
             "named": list(diagnosis.get("named_effects") or []),
+            "revisions": list(diagnosis.get("revisions") or []),
             "fit_seconds": fit_seconds, "diagnosis_seconds": diagnosis.get("seconds"), "seconds": seconds}
 
 
@@ -93,7 +97,7 @@ def _dataset_of(summary: dict, fit_dir: Path) -> Path:
 
 def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, progress=False, say=print,
            first_diagnosis_dir=None, **diagnose_options) -> dict:
-    """Diagnose, refit with what was named, diagnose again, until nothing more is named.
+    """Diagnose, refit with what was named (or revised), diagnose again, until nothing changes.
 
     Parameters
     ----------
@@ -117,8 +121,10 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     dict
         The contents of ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``,
         ``effects`` sampled, ``map_model``, ``n_regions``, ``label_accuracy`` (null without
-        truth), ``gap``, ``gap_simulated`` (null without a mesh), ``named``, ``seconds``),
-        ``named_effects`` (in the order named), ``final_fit``, ``stopped`` and ``warnings``.
+        truth), ``gap``, ``gap_simulated`` (null without a mesh), ``named``, ``revisions``
+        (the diagnosis' swaps and drops), ``seconds``), ``named_effects`` (the effects of the
+        last diagnosis' final model, in the order named: a swapped or dropped one leaves the
+        list), ``final_fit``, ``stopped`` and ``warnings``.
 
     Raises
     ------
@@ -149,7 +155,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         result["final_fit"] = str(current)
         say(_round_line(index, record))
         final, new = _final_model(diagnosis, record)
-        result["named_effects"] += [name for name in new if name not in result["named_effects"]]
+        result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
         if (new or record["dropped"]) and options.regions != "changepoints":
             result["stopped"], warning = _cannot_sample(index, options.regions, diagnosis_dir)
         elif not (new or record["dropped"]) or index + 1 == max_rounds:
@@ -181,6 +187,13 @@ def _final_model(diagnosis: dict, record: dict) -> tuple:
     return final, [name for name in final if name not in record["effects"]]
 
 
+def _named_after(named: list, dropped: list, new: list) -> list:
+    """The effects named so far after a round that dropped or swapped out ``dropped`` and named
+    ``new``: a revised effect leaves the list (the round's ``revisions`` keep it)."""
+    kept = [name for name in named if name not in dropped]
+    return kept + [name for name in new if name not in kept]
+
+
 def _cannot_sample(index: int, regions: str, diagnosis_dir: Path) -> tuple:
     """Why the loop stops when its diagnosis named effects that the fit's region model cannot
     sample (the material model's label moves do not carry the effects' terms): ``(reason, warning)``."""
@@ -206,8 +219,15 @@ def _round_line(index: int, record: dict) -> str:
     simulated = "" if record["gap_simulated"] is None else f", simulated gap {record['gap_simulated']:.3g}"
     effects = ", ".join(record["effects"]) or "none"
     named = ", ".join(record["named"]) or "nothing"
+    revised = "".join(f"; {_revision_words(r)}" for r in record.get("revisions") or [])
     return (f"round {index + 1}: effects sampled {effects}; {record['n_regions']} regions{accuracy}; gap "
-            f"{record['gap']:.3g}{simulated}; diagnosis named {named}")
+            f"{record['gap']:.3g}{simulated}; diagnosis named {named}{revised}")
+
+
+def _revision_words(revision: dict) -> str:
+    if revision["action"] == "swapped":
+        return f"{revision['effect']} swapped for {revision['replacement']}"
+    return f"{revision['effect']} dropped"
 
 
 def _segmentation_figure(out_dir: Path, rounds: list, dataset_dir: Path) -> str:

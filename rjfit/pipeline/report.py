@@ -5,6 +5,7 @@ import base64
 import html
 from pathlib import Path
 
+from rjfit.diagnose.document import revision_text
 from rjfit.io import read_json, write_text_atomic
 from rjfit.pipeline.fit_folder import read_summary
 from rjfit.posterior.summary import RHAT_MAX
@@ -364,7 +365,7 @@ def _derived_text(sub: str, payload, markdown: Path) -> list[str]:
     return []
 
 
-_ROUND_COLUMNS = ("effects", "n_regions", "label_accuracy", "gap", "gap_simulated", "named", "seconds")
+_ROUND_COLUMNS = ("effects", "n_regions", "label_accuracy", "gap", "gap_simulated", "named", "revisions", "seconds")
 
 
 def _refine_section(folder: Path) -> list[str]:
@@ -386,6 +387,8 @@ def _refine_section(folder: Path) -> list[str]:
         cells = [str(index + 1)]
         for name in _ROUND_COLUMNS:
             value = record.get(name)
+            if name == "revisions":             # the diagnosis' swaps and drops, in words
+                value = [revision_text(revision) for revision in value or []]
             cells.append(html.escape(", ".join(value) or "none") if isinstance(value, list) else _fmt(value))
         rows.append("<tr>" + "".join(f"<td>{cell}</td>" for cell in cells) + "</tr>")
     parts.append(f"<table><tr>{header}</tr>{''.join(rows)}</table>")
