@@ -17,7 +17,7 @@ import numpy as np
 
 from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab
-from rjfit.sampler.moves.gamma import ls_profile
+from rjfit.sampler.moves.gamma import ls_profile_nonnegative
 from rjfit.sampler.moves.region_terms import giesen_norm
 
 __all__ = ["RegionProposalSettings", "LAPLACE_COARSE_OBS", "LAPLACE_GRID", "ssr_min", "sigma2_prior_as_invgamma",
@@ -86,11 +86,11 @@ def laplace_log_gamma(data, prior):
     integrated out under flat priors for (a, b). The mode is located on a coarse grid
     evaluated on a thinning of the region (at most :data:`LAPLACE_COARSE_OBS`
     observations), then refined by Newton steps with the closed-form derivatives of
-    :func:`~rjfit.sampler.moves.gamma.ls_profile`, first on the thinning, then on the whole
+    :func:`~rjfit.sampler.moves.gamma.ls_profile_nonnegative` (the profile of the least
+    squares over a, b >= 0, which ``SSR_min`` is), first on the thinning, then on the whole
     region from the thinning's mode: about 2 passes over the region instead of 18.
-    Where that fails (a non-concave or bounded profile) it falls back to finite
-    differences on the whole region. A function of the region's data only, as a
-    proposal's parameters must be.
+    Where that fails (a non-concave profile) it falls back to finite differences on the
+    whole region. A function of the region's data only, as a proposal's parameters must be.
     """
     n = data.n * data.weight       # observations count zeta each under a coarsened likelihood
     a0, b0 = sigma2_prior_as_invgamma(prior)
@@ -117,37 +117,85 @@ def laplace_log_gamma(data, prior):
     # a few posterior sds of its mode: about 2 of them instead of 4 to 5 from a grid point.
     start = grid[best]
     if coarse is not data:
-        coarse_mode = _laplace_newton(coarse, start, k, b0, prior_part)
+        coarse_mode = _laplace_newton([coarse], start, [k], b0, prior_part)
         if coarse_mode is not None:
             start = coarse_mode[0]
-    newton = _laplace_newton(data, start, k, b0, prior_part)
+    newton = _laplace_newton([data], start, [k], b0, prior_part)
     if newton is not None:
         return newton
     return _laplace_finite_differences(lambda ell: h_of_stats(data.stats_at(math.exp(ell)), ell), grid)
 
 
-def _laplace_newton(data, ell, k, b0, prior_part, max_steps=8, eps=1e-3):
-    syy, sya, saa = data.fixed[1], data.fixed[2], data.fixed[3]
-    for _ in range(max_steps):
-        g = math.exp(ell)
-        profile = ls_profile(sya, saa, data.b_sums_newton(g), g)
+def _laplace_derivatives(channels, ell, ks, b0, prior_part, eps=1e-3):
+    """``(h', h'', pieces)`` of the Laplace objective at ``ell`` summed over ``channels``, or None where undefined.
+
+    Each channel's terms from :func:`~rjfit.sampler.moves.gamma.ls_profile_nonnegative`, the
+    prior's by central differences (step ``eps``), once; ``pieces`` is the tuple of the
+    channels' faces (which piece of the constrained profile each is on).
+    """
+    g = math.exp(ell)
+    h1 = h2 = 0.0
+    pieces = []
+    for channel, k in zip(channels, ks):
+        syy, sya, saa = channel.fixed[1], channel.fixed[2], channel.fixed[3]
+        profile = ls_profile_nonnegative(sya, saa, channel.b_sums_newton(g), g)
         if profile is None:
             return None
-        f, f1, f2, det, det1, det2, ca, cb = profile
+        f, f1, f2, det, det1, det2, face = profile
         q = 0.5 * (syy - f) + b0
-        p0, pp, pm = prior_part(ell), prior_part(ell + eps), prior_part(ell - eps)
-        h1 = k * f1 / (2.0 * q) - 0.5 * det1 / det + (pp - pm) / (2.0 * eps)
-        h2 = (k * f2 / (2.0 * q) + k * f1 * f1 / (4.0 * q * q) - 0.5 * (det2 / det - (det1 / det) ** 2)
-              + (pp - 2.0 * p0 + pm) / eps ** 2)
-        if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0 and q > 0):
+        if not q > 0:
             return None
+        h1 += k * f1 / (2.0 * q) - 0.5 * det1 / det
+        h2 += k * f2 / (2.0 * q) + k * f1 * f1 / (4.0 * q * q) - 0.5 * (det2 / det - (det1 / det) ** 2)
+        pieces.append(face)
+    p0, pp, pm = prior_part(ell), prior_part(ell + eps), prior_part(ell - eps)
+    h1 += (pp - pm) / (2.0 * eps)
+    h2 += (pp - 2.0 * p0 + pm) / eps ** 2
+    return h1, h2, tuple(pieces)
+
+
+def _laplace_newton(channels, ell, ks, b0, prior_part, max_steps=8):
+    """Newton steps to the mode of the Laplace objective summed over ``channels``: (mean, sd), or None.
+
+    None where the objective is undefined or not concave at an iterate, or after
+    ``max_steps`` without convergence (a step below 0.2 sd: what is left is O(step^2)).
+    The constrained profile's curvature jumps where a face starts to bind, and a mode at
+    that kink would make plain Newton steps cycle between its two sides: each step is kept
+    inside the bracket of the iterates seen on either side of the mode (a secant step
+    between them where Newton's leaves it). A mode at a kink gets the mean and sd of the
+    two-piece normal with each side's curvature (:func:`_two_piece_moments`).
+    """
+    below = above = None            # (ell, h', h'', pieces) of the nearest iterates with h' > 0 and h' <= 0
+    for _ in range(max_steps):
+        derivs = _laplace_derivatives(channels, ell, ks, b0, prior_part)
+        if derivs is None:
+            return None
+        h1, h2, pieces = derivs
+        if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0):
+            return None
+        if h1 > 0:
+            below = (ell, h1, h2, pieces)
+        else:
+            above = (ell, h1, h2, pieces)
         sd = 1.0 / math.sqrt(-h2)
         step = min(max(-h1 / h2, -0.5), 0.5)
+        if below is not None and above is not None and below[0] < above[0] and not below[0] < ell + step < above[0]:
+            step = below[0] - below[1] * (above[0] - below[0]) / (above[1] - below[1]) - ell
         ell += step
-        if abs(step) < 0.2 * sd:        # what is left after this step is O(step^2): negligible
-            # only inside a, b > 0 is this unbounded profile the one h uses
-            return (ell, min(max(sd, 1e-4), 2.0)) if ca > 0 and cb > 0 else None
+        if abs(step) < 0.2 * sd:
+            side = above if h1 > 0 else below         # the nearest iterate on the mode's other side
+            if side is not None and side[3] != pieces and abs(side[0] - ell) < sd:
+                ell, sd = _two_piece_moments(ell, *((sd, 1.0 / math.sqrt(-side[2])) if h1 > 0
+                                                    else (1.0 / math.sqrt(-side[2]), sd)))
+            return ell, min(max(sd, 1e-4), 2.0)
     return None
+
+
+def _two_piece_moments(mode, sd_below, sd_above):
+    """Mean and sd of the two-piece normal with ``mode``, sd ``sd_below`` below it and ``sd_above`` above."""
+    mean = mode + math.sqrt(2.0 / math.pi) * (sd_above - sd_below)
+    var = (1.0 - 2.0 / math.pi) * (sd_above - sd_below) ** 2 + sd_below * sd_above
+    return mean, math.sqrt(var)
 
 
 def _laplace_finite_differences(h, grid):
