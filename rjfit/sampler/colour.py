@@ -115,7 +115,8 @@ def laplace_log_gamma_colour(data: PixelSetData, prior):
     independent given gamma. As there: the grid on a thinning of each channel (at most
     :data:`~rjfit.sampler.moves.region_proposals.LAPLACE_COARSE_OBS` observations), Newton
     steps with the closed-form derivatives (the channels' summed) on the thinning, then on
-    every observation; finite differences where Newton fails. A function of the data only.
+    every observation; finite differences from the thinning's mode where Newton fails. A function of
+    the data only.
     """
     a0, b0 = sigma2_prior_as_invgamma(prior)
     g_prior = prior.params[2]
@@ -148,7 +149,8 @@ def laplace_log_gamma_colour(data: PixelSetData, prior):
     if newton is not None:
         return newton
     return _laplace_finite_differences(
-        lambda ell: h_of_stats([channel.stats_at(math.exp(ell)) for channel in data.channels], ell), LAPLACE_GRID)
+        lambda ell: h_of_stats([channel.stats_at(math.exp(ell)) for channel in data.channels], ell), start,
+        LAPLACE_GRID[1] - LAPLACE_GRID[0])
 
 
 def _prior_in_q_coords(prior, theta_rows, conditional) -> float:

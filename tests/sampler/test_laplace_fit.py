@@ -150,11 +150,12 @@ def test_optimum_on_a_face_matches_a_dense_grid_and_the_finite_differences(gamma
     # spacing (a ninth of the grid's step) and its sd within 25 % (a secant curvature over
     # that spacing, tens of sds here).
     data = _region(-0.03, gamma)
-    fd = region_proposals._laplace_finite_differences(_objective(data), LAPLACE_GRID)
+    h = _objective(data)
+    old_start = LAPLACE_GRID[int(np.argmax([h(e) for e in LAPLACE_GRID]))]      # the old fallback's: the whole region's grid
+    fd = region_proposals._laplace_finite_differences(h, old_start, LAPLACE_GRID[1] - LAPLACE_GRID[0])
     _no_fallback(monkeypatch)
     mean, sd = laplace_log_gamma(data, PRIOR)
     assert _face_at(data, mean) == 1
-    h = _objective(data)
     grid = mean + sd * np.linspace(-6.0, 6.0, 241)
     values = np.array([h(e) for e in grid])
     best = int(np.argmax(values))
