@@ -142,12 +142,12 @@ def laplace_log_gamma_colour(data: PixelSetData, prior):
         return None
     start = LAPLACE_GRID[best]
     if any(c is not d for c, d in zip(coarse, data.channels)):
-        coarse_mode = _laplace_newton(coarse, start, ks, b0, prior_part)
-        if coarse_mode is not None:
-            start = coarse_mode[0]
+        coarse_fit = _laplace_newton(coarse, start, ks, b0, prior_part)
+        if coarse_fit is not None:
+            start = coarse_fit[2]
     newton = _laplace_newton(data.channels, start, ks, b0, prior_part)
     if newton is not None:
-        return newton
+        return newton[:2]
     return _laplace_finite_differences(
         lambda ell: h_of_stats([channel.stats_at(math.exp(ell)) for channel in data.channels], ell), start,
         LAPLACE_GRID[1] - LAPLACE_GRID[0])

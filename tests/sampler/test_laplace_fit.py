@@ -168,13 +168,13 @@ def test_optimum_on_a_face_matches_a_dense_grid_and_the_finite_differences(gamma
     assert abs(fd[1] / sd - 1.0) < 0.25
 
 
-def test_mode_at_the_kink_gets_the_two_piece_moments(monkeypatch):
+def test_mode_at_the_kink_gets_the_kinked_moments(monkeypatch):
     # gamma 0.5, kd < 0: the constraint a >= 0 starts to bind right at the mode, where the
     # curvature jumps about a hundredfold. Newton alone would cycle across the kink; the
-    # bracketed steps converge, and the fit is the two-piece normal's mean and sd. The
-    # reference: mean and sd of exp(h) on a dense grid. A proposal's sd is inflated by 1.5
-    # (birth_gamma_inflation) to cover such a misfit, so: mean within 1 sd, sd within a
-    # factor 1.5.
+    # kink is found and the fit is the mean and sd of the quadratic expansions on its two
+    # sides. The reference: mean and sd of exp(h) on a dense grid. A proposal's sd is
+    # inflated by 1.5 (birth_gamma_inflation) to cover such a misfit, so: mean within 1 sd,
+    # sd within a factor 1.5.
     data = _region(-0.03, 0.5)
     _no_fallback(monkeypatch)
     mean, sd = laplace_log_gamma(data, PRIOR)
@@ -191,11 +191,17 @@ def test_mode_at_the_kink_gets_the_two_piece_moments(monkeypatch):
     assert 1 / 1.5 < sd / ref_sd < 1.5
 
 
-def test_two_piece_moments_match_numerical_integration():
-    x = np.linspace(-30.0, 40.0, 700_001)
-    sd_below, sd_above = 0.5, 3.0
-    density = np.exp(-0.5 * (x / np.where(x < 0, sd_below, sd_above)) ** 2)
+@pytest.mark.parametrize("slope,curv_below,curv_above", [(0.0, -4.0, -1 / 9), (-26.0, -1.1e4, -29.0),
+                                                         (3.0, -50.0, -2.0), (0.0, -1.0, -1.0)])
+def test_kinked_moments_match_numerical_integration(slope, curv_below, curv_above):
+    # exp(slope t + curv t^2 / 2) with one curvature below 0 and another above, integrated
+    # on a grid of 2 million points over +-12 of the wider side's sd: 1e-6 relative.
+    width = 12.0 / math.sqrt(-max(curv_below, curv_above)) + abs(slope) / min(-curv_below, -curv_above)
+    t = np.linspace(-width, width, 2_000_001)
+    log_density = slope * t + 0.5 * np.where(t < 0, curv_below, curv_above) * t * t
+    density = np.exp(log_density - log_density.max())
     density /= density.sum()
-    mean = float(np.sum(density * x))
-    sd = math.sqrt(float(np.sum(density * (x - mean) ** 2)))
-    assert region_proposals._two_piece_moments(0.0, sd_below, sd_above) == pytest.approx((mean, sd), rel=1e-5)
+    mean = float(np.sum(density * t))
+    sd = math.sqrt(float(np.sum(density * (t - mean) ** 2)))
+    got = region_proposals._kinked_moments(0.0, slope, curv_below, curv_above)
+    assert got[0] == pytest.approx(mean, rel=1e-6, abs=1e-9 * sd) and got[1] == pytest.approx(sd, rel=1e-6)
