@@ -26,6 +26,8 @@ from rjfit.sampler.moves.region_proposals import (
 )
 from rjfit.sampler.priors import ParamPrior, Prior
 
+from builders import laplace_objective, parabola_at_grid_max
+
 PRIOR = Prior(params=(ParamPrior("lognormal", math.log(10.0), 1.0), ParamPrior("uniform", 0.0, 1.0),
                       ParamPrior("lognormal", math.log(8.0), 1.5), ParamPrior("invgamma", 2.0, 0.1)))
 
@@ -46,17 +48,8 @@ def _region(kd, gamma, n_pix=2000, n_lights=12, seed=0):
     return data
 
 
-def _objective(data, of=None):
-    """The Laplace objective h(l) of ``data``'s sums with the count of ``of`` (default ``data``), as the proposals'
-    definition has it (ssr_min at each gamma)."""
-    a0, b0 = sigma2_prior_as_invgamma(PRIOR)
-    of = data if of is None else of
-    k = 0.5 * of.n * of.weight - 1.0 + a0
-
-    def h(ell):
-        ssr, det = ssr_min(data.stats_at(math.exp(ell)))
-        return -k * math.log(0.5 * ssr + b0) - 0.5 * math.log(det) + PRIOR.params[2].logpdf_scalar(math.exp(ell)) + ell
-    return h
+def _objective(data, count_of=None):
+    return laplace_objective(data, PRIOR, count_of)
 
 
 def _face_at(data, ell):
@@ -132,7 +125,7 @@ def test_interior_optimum_gives_the_old_newton_result_bit_for_bit(kd, gamma, mon
         return PRIOR.params[2].logpdf_scalar(math.exp(ell)) + ell
 
     coarse = region_proposals._thinned(data, LAPLACE_COARSE_OBS)
-    grid_values = [_objective(coarse, of=data)(e) for e in LAPLACE_GRID]     # the thinning's sums, the region's n
+    grid_values = [_objective(coarse, data)(e) for e in LAPLACE_GRID]     # the thinning's sums, the region's n
     start = LAPLACE_GRID[int(np.argmax(grid_values))]
     coarse_mode = _old_newton(coarse, start, k, b0, prior_part)
     old = _old_newton(data, start if coarse_mode is None else coarse_mode[0], k, b0, prior_part)
@@ -156,12 +149,7 @@ def test_optimum_on_a_face_matches_a_dense_grid_and_the_finite_differences(gamma
     _no_fallback(monkeypatch)
     mean, sd = laplace_log_gamma(data, PRIOR)
     assert _face_at(data, mean) == 1
-    grid = mean + sd * np.linspace(-6.0, 6.0, 241)
-    values = np.array([h(e) for e in grid])
-    best = int(np.argmax(values))
-    assert 0 < best < grid.size - 1
-    c2, c1, _ = np.polyfit(grid[best - 1:best + 2] - grid[best], values[best - 1:best + 2], 2)
-    ref_mean, ref_sd = grid[best] - c1 / (2 * c2), 1.0 / math.sqrt(-2 * c2)
+    ref_mean, ref_sd = parabola_at_grid_max(h, mean, sd, 6.0, 241)
     assert abs(mean - ref_mean) < 0.2 * ref_sd
     assert abs(sd / ref_sd - 1.0) < 0.05
     assert abs(mean - fd[0]) < (LAPLACE_GRID[1] - LAPLACE_GRID[0]) / 9
