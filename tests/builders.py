@@ -6,6 +6,7 @@ that file. (pytest puts this folder on sys.path: ``pythonpath = ["tests"]`` in p
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from rjfit.data.exr import write_exr
 from rjfit.data.formats import DATASET_FORMAT
 from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
+from rjfit.sampler.moves.region_proposals import sigma2_prior_as_invgamma, ssr_min
 from rjfit.sampler.priors import ParamPrior, Prior
 from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 
@@ -360,6 +362,29 @@ def exact_changepoint_posterior(quad, jacobian_power=None, cp_prior="paper", log
     prob = dict(zip(keys, np.exp(log_w - norm)))
     return (prob, float(norm)) if log_norm else prob
 
+
+def laplace_objective(data, prior, count_of=None):
+    """The region proposals' Laplace objective h(l) of ``data``'s sums (the count of ``count_of``, default
+    ``data``), evaluated from its definition: ``ssr_min`` of the statistics at each gamma."""
+    a0, b0 = sigma2_prior_as_invgamma(prior)
+    count_of = data if count_of is None else count_of
+    k = 0.5 * count_of.n * count_of.weight - 1.0 + a0
+
+    def h(ell):
+        ssr, det = ssr_min(data.stats_at(math.exp(ell)))
+        return -k * math.log(0.5 * ssr + b0) - 0.5 * math.log(det) + prior.params[2].logpdf_scalar(math.exp(ell)) + ell
+    return h
+
+
+def parabola_at_grid_max(h, centre, scale, half_width, points):
+    """(mode, sd) of ``h`` from the parabola through the best three of ``points`` on ``centre +- half_width
+    scale``; the best point must lie inside the grid."""
+    grid = centre + scale * np.linspace(-half_width, half_width, points)
+    values = np.array([h(e) for e in grid])
+    best = int(np.argmax(values))
+    assert 0 < best < grid.size - 1
+    c2, c1, _ = np.polyfit(grid[best - 1:best + 2] - grid[best], values[best - 1:best + 2], 2)
+    return grid[best] - c1 / (2 * c2), 1.0 / np.sqrt(-2 * c2)
 
 # == criticism (rjfit.diagnose): hidden-effect data sets and fit folders for `rjfit diagnose` ========
 

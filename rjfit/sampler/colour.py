@@ -27,11 +27,11 @@ import numpy as np
 
 from rjfit.sampler.likelihood import LOG_2PI, STAT_N, RegionData, b_terms, log_likelihood_from_stats
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab
-from rjfit.sampler.moves.gamma import ls_profile
 from rjfit.sampler.moves.region_proposals import (
     LAPLACE_COARSE_OBS,
     LAPLACE_GRID,
     _laplace_finite_differences,
+    _laplace_newton,
     _sigma2_proposal,
     _thinned,
     laplace_log_gamma,
@@ -115,7 +115,8 @@ def laplace_log_gamma_colour(data: PixelSetData, prior):
     independent given gamma. As there: the grid on a thinning of each channel (at most
     :data:`~rjfit.sampler.moves.region_proposals.LAPLACE_COARSE_OBS` observations), Newton
     steps with the closed-form derivatives (the channels' summed) on the thinning, then on
-    every observation; finite differences where Newton fails. A function of the data only.
+    every observation; finite differences from the thinning's mode where Newton fails. A function of
+    the data only.
     """
     a0, b0 = sigma2_prior_as_invgamma(prior)
     g_prior = prior.params[2]
@@ -141,46 +142,15 @@ def laplace_log_gamma_colour(data: PixelSetData, prior):
         return None
     start = LAPLACE_GRID[best]
     if any(c is not d for c, d in zip(coarse, data.channels)):
-        coarse_mode = _newton_colour(coarse, start, ks, b0, prior_part)
-        if coarse_mode is not None:
-            start = coarse_mode[0]
-    newton = _newton_colour(data.channels, start, ks, b0, prior_part)
+        coarse_fit = _laplace_newton(coarse, start, ks, b0, prior_part)
+        if coarse_fit is not None:
+            start = coarse_fit[2]
+    newton = _laplace_newton(data.channels, start, ks, b0, prior_part)
     if newton is not None:
-        return newton
+        return newton[:2]
     return _laplace_finite_differences(
-        lambda ell: h_of_stats([channel.stats_at(math.exp(ell)) for channel in data.channels], ell), LAPLACE_GRID)
-
-
-def _newton_colour(channels, ell, ks, b0, prior_part, max_steps=8, eps=1e-3):
-    """Newton steps on the summed Laplace objective (each channel's terms as in the single channel's
-    ``_laplace_newton``, the prior once); (mean, sd) or None."""
-    for _ in range(max_steps):
-        g = math.exp(ell)
-        h1 = h2 = 0.0
-        inside = True
-        for channel, k in zip(channels, ks):
-            syy, sya, saa = channel.fixed[1], channel.fixed[2], channel.fixed[3]
-            profile = ls_profile(sya, saa, channel.b_sums_newton(g), g)
-            if profile is None:
-                return None
-            f, f1, f2, det, det1, det2, ca, cb = profile
-            q = 0.5 * (syy - f) + b0
-            if not q > 0:
-                return None
-            h1 += k * f1 / (2.0 * q) - 0.5 * det1 / det
-            h2 += k * f2 / (2.0 * q) + k * f1 * f1 / (4.0 * q * q) - 0.5 * (det2 / det - (det1 / det) ** 2)
-            inside = inside and ca > 0 and cb > 0
-        p0, pp, pm = prior_part(ell), prior_part(ell + eps), prior_part(ell - eps)
-        h1 += (pp - pm) / (2.0 * eps)
-        h2 += (pp - 2.0 * p0 + pm) / eps ** 2
-        if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0):
-            return None
-        sd = 1.0 / math.sqrt(-h2)
-        step = min(max(-h1 / h2, -0.5), 0.5)
-        ell += step
-        if abs(step) < 0.2 * sd:
-            return (ell, min(max(sd, 1e-4), 2.0)) if inside else None
-    return None
+        lambda ell: h_of_stats([channel.stats_at(math.exp(ell)) for channel in data.channels], ell), start,
+        LAPLACE_GRID[1] - LAPLACE_GRID[0])
 
 
 def _prior_in_q_coords(prior, theta_rows, conditional) -> float:

@@ -10,12 +10,7 @@ from rjfit.sampler.kernel import anneal_power, initial_state, make_state, step
 from rjfit.sampler.likelihood import RegionData, oracle_log_likelihood, region_stats
 from rjfit.sampler.moves.birth_death import birth_probability, propose_birth, propose_death
 from rjfit.sampler.moves.birth_death_free import propose_birth_free, propose_death_free
-from rjfit.sampler.moves.region_proposals import (
-    LAPLACE_COARSE_OBS,
-    laplace_log_gamma,
-    sigma2_prior_as_invgamma,
-    ssr_min,
-)
+from rjfit.sampler.moves.region_proposals import LAPLACE_COARSE_OBS, laplace_log_gamma
 from rjfit.sampler.priors import ParamPrior, Prior, make_prior
 from rjfit.sampler.regions.changepoint_grid import (
     Changepoints,
@@ -26,6 +21,8 @@ from rjfit.sampler.regions.changepoint_grid import (
     pixel_region_labels,
 )
 from rjfit.sampler.state import ChainState, SamplerConfig, Work
+
+from builders import laplace_objective, parabola_at_grid_max
 
 
 @pytest.fixture(scope="module")
@@ -168,8 +165,6 @@ def test_laplace_fit_of_a_large_region_finds_the_full_data_mode(region):
     # log marginal h evaluated on the whole region on a fine grid (parabola through the
     # best three points). The Newton iteration stops once a step is below 0.2 sd, so the
     # mean must agree within 0.2 sd; the sd is the curvature at that point (within 5 %).
-    import math
-
     obs, truth_labels, _ = sphere_stack(128, seed=3)
     problem = Problem.from_observations(obs)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
@@ -177,19 +172,6 @@ def test_laplace_fit_of_a_large_region_finds_the_full_data_mode(region):
     data = RegionData.gather(problem, np.flatnonzero(labels == region))
     assert data.n >= 2 * LAPLACE_COARSE_OBS          # the thinned path is the one under test
     mean, sd = laplace_log_gamma(data, prior)
-
-    a0, b0 = sigma2_prior_as_invgamma(prior)
-    k = 0.5 * data.n * data.weight - 1.0 + a0
-
-    def h(ell):
-        ssr, det = ssr_min(data.stats_at(math.exp(ell)))[:2]
-        return -k * math.log(0.5 * ssr + b0) - 0.5 * math.log(det) + prior.params[2].logpdf_scalar(math.exp(ell)) + ell
-
-    grid = mean + sd * np.linspace(-3.0, 3.0, 61)
-    values = np.array([h(e) for e in grid])
-    best = int(np.argmax(values))
-    assert 0 < best < grid.size - 1
-    c2, c1, _ = np.polyfit(grid[best - 1:best + 2] - grid[best], values[best - 1:best + 2], 2)
-    ref_mean, ref_sd = grid[best] - c1 / (2 * c2), 1.0 / math.sqrt(-2 * c2)
+    ref_mean, ref_sd = parabola_at_grid_max(laplace_objective(data, prior), mean, sd, 3.0, 61)
     assert abs(mean - ref_mean) < 0.2 * ref_sd
     assert abs(sd / ref_sd - 1.0) < 0.05

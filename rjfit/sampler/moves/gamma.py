@@ -20,7 +20,8 @@ from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab
 from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.moves.region_terms import giesen_norm, region_log_lik, set_region, stats_at_gamma
 
-__all__ = ["move_gamma_rw", "move_gamma_newton", "ls_profile", "newton_log_gamma", "log_q_log_gamma"]
+__all__ = ["move_gamma_rw", "move_gamma_newton", "ls_profile", "ls_profile_nonnegative", "ls_point_slopes",
+           "newton_log_gamma", "log_q_log_gamma"]
 
 
 def _accept_gamma_ab(work, r, rng, prior, cond_old, g_new, stats_new, log_q_ratio_gamma, info, kind):
@@ -65,6 +66,17 @@ def move_gamma_rw(work, r, rng, prior, problem, step, info):
     return _accept_gamma_ab(work, r, rng, prior, cond_old, g_new, stats_new, 0.0, info, "gamma_ab")
 
 
+def _l_derivatives(sums, g):
+    """First and second l-derivatives ``(SyB', SAB', SBB', SyB'', SAB'', SBB'')`` from :meth:`RegionData.b_sums_newton`.
+
+    ``dB/dl = g log<h.n> B``; the a-column does not depend on gamma (``s'_a = S'_aa = 0``).
+    """
+    yb1, ab1, bb1, yb2, ab2, bb2 = (float(x) for x in sums[3:])
+    g = float(g)
+    return (g * yb1, g * ab1, 2.0 * g * bb1,
+            g * yb1 + g * g * yb2, g * ab1 + g * g * ab2, 2.0 * g * bb1 + 4.0 * g * g * bb2)
+
+
 def ls_profile(sya, saa, sums, g):
     """``f = s.S^-1 s`` (so ``SSR_min = Syy - f`` without the a, b > 0 bound), ``det S``, and their l-derivatives.
 
@@ -82,15 +94,14 @@ def ls_profile(sya, saa, sums, g):
     (the same IEEE operations as NumPy's scalars, so the same bits) and is checked on its
     results.
     """
-    syb, sab, sbb, yb1, ab1, bb1, yb2, ab2, bb2 = (float(x) for x in sums)
+    syb, sab, sbb = (float(x) for x in sums[:3])
     sya, saa, g = float(sya), float(saa), float(g)
     det = saa * sbb - sab * sab
     if not (saa > 0 and sbb >= sys.float_info.min and det > 1e-10 * saa * sbb):
         return None
     ca = (sbb * sya - sab * syb) / det
     cb = (saa * syb - sab * sya) / det
-    s1b, S1ab, S1bb = g * yb1, g * ab1, 2.0 * g * bb1               # s'_a = S'_aa = 0
-    s2b, S2ab, S2bb = g * yb1 + g * g * yb2, g * ab1 + g * g * ab2, 2.0 * g * bb1 + 4.0 * g * g * bb2
+    s1b, S1ab, S1bb, s2b, S2ab, S2bb = _l_derivatives(sums, g)
     f = ca * sya + cb * syb
     f1 = 2.0 * cb * s1b - (2.0 * ca * cb * S1ab + cb * cb * S1bb)
     da = -S1ab * cb
@@ -101,6 +112,64 @@ def ls_profile(sya, saa, sums, g):
     det2 = saa * S2bb - 2.0 * S1ab * S1ab - 2.0 * sab * S2ab
     profile = (f, f1, f2, det, det1, det2, ca, cb)
     return profile if all(math.isfinite(x) for x in profile) else None
+
+
+def ls_profile_nonnegative(sya, saa, sums, g, piece=None):
+    """:func:`ls_profile` of the least squares over ``a, b >= 0``: ``(f, f', f'', det, det', det'', piece)``, or None.
+
+    This is the profile the region proposals' Laplace fit uses (``SSR = Syy - f`` as
+    :func:`~rjfit.sampler.moves.region_proposals.ssr_min` gives it). Where the unconstrained
+    least-squares point lies in ``a, b >= 0`` it is :func:`ls_profile`'s, bit for bit.
+    Elsewhere the constrained optimum lies on a face, chosen as ``ssr_min`` chooses it (the
+    larger of ``max(SyA, 0)^2 / SAA`` and ``max(SyB, 0)^2 / SBB``): on ``b = 0``,
+    ``f = SyA^2 / SAA`` does not depend on gamma (f' = f'' = 0); on ``a = 0``, with
+    ``c = SyB / SBB`` and ``d = SyB' - SBB' c``: ``f = c SyB``, ``f' = 2 c SyB' - c^2 SBB'``,
+    ``f'' = 2 d^2 / SBB + 2 c SyB'' - c^2 SBB''``. ``det`` and its derivatives are the full
+    matrix's on every face, as in the Laplace objective. The constrained minimum of a convex
+    quadratic is continuously differentiable in l; its f'' jumps where the face changes.
+    ``piece`` says which: 0 inside, 1 on ``a = 0``, 2 on ``b = 0``; given, that piece's
+    formula is evaluated wherever the point lies (both sides' curvatures at a kink).
+    """
+    profile = ls_profile(sya, saa, sums, g)
+    if profile is None:
+        return None
+    ca, cb = profile[6], profile[7]
+    if piece is None:
+        # as ab_conditional chooses the centre of ssr_min
+        piece = (0 if ca >= 0 and cb >= 0
+                 else 2 if max(float(sya), 0.0) ** 2 / float(saa) >= max(float(sums[0]), 0.0) ** 2 / float(sums[2])
+                 else 1)
+    if piece == 0:
+        return profile[:6] + (0,)
+    det, det1, det2 = profile[3:6]
+    sya, saa, syb, sbb = float(sya), float(saa), float(sums[0]), float(sums[2])
+    if piece == 2:
+        return max(sya, 0.0) ** 2 / saa, 0.0, 0.0, det, det1, det2, 2
+    s1b, _, S1bb, s2b, _, S2bb = _l_derivatives(sums, g)
+    c = max(syb, 0.0) / sbb
+    d = s1b - S1bb * c
+    face = (c * syb, 2.0 * c * s1b - c * c * S1bb, 2.0 * d * d / sbb + 2.0 * c * s2b - c * c * S2bb, det, det1, det2)
+    return face + (1,) if all(math.isfinite(x) for x in face) else None
+
+
+def ls_point_slopes(sya, saa, sums, g):
+    """The unconstrained least-squares ``(a, b)`` at ``g`` and their l-derivatives ``(a, b, a', b')``, or None.
+
+    Where ``a`` (``b``) crosses 0 the constrained profile of :func:`ls_profile_nonnegative`
+    changes piece; both are smooth in l, so Newton steps on them find that kink.
+    """
+    syb, sab, sbb = (float(x) for x in sums[:3])
+    sya, saa = float(sya), float(saa)
+    det = saa * sbb - sab * sab
+    if not (saa > 0 and sbb >= sys.float_info.min and det > 1e-10 * saa * sbb):
+        return None
+    s1b, S1ab, S1bb, _, _, _ = _l_derivatives(sums, g)
+    ca, cb = (sbb * sya - sab * syb) / det, (saa * syb - sab * sya) / det
+    det1 = saa * S1bb - 2.0 * sab * S1ab
+    ca1 = (S1bb * sya - S1ab * syb - sab * s1b - ca * det1) / det
+    cb1 = (saa * s1b - S1ab * sya - cb * det1) / det
+    out = (ca, cb, ca1, cb1)
+    return out if all(math.isfinite(x) for x in out) else None
 
 
 def newton_log_gamma(stats_r, sums, g, s2, scale):

@@ -17,7 +17,7 @@ import numpy as np
 
 from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab
-from rjfit.sampler.moves.gamma import ls_profile
+from rjfit.sampler.moves.gamma import ls_point_slopes, ls_profile_nonnegative
 from rjfit.sampler.moves.region_terms import giesen_norm
 
 __all__ = ["RegionProposalSettings", "LAPLACE_COARSE_OBS", "LAPLACE_GRID", "ssr_min", "sigma2_prior_as_invgamma",
@@ -86,10 +86,11 @@ def laplace_log_gamma(data, prior):
     integrated out under flat priors for (a, b). The mode is located on a coarse grid
     evaluated on a thinning of the region (at most :data:`LAPLACE_COARSE_OBS`
     observations), then refined by Newton steps with the closed-form derivatives of
-    :func:`~rjfit.sampler.moves.gamma.ls_profile`, first on the thinning, then on the whole
+    :func:`~rjfit.sampler.moves.gamma.ls_profile_nonnegative` (the profile of the least
+    squares over a, b >= 0, which ``SSR_min`` is), first on the thinning, then on the whole
     region from the thinning's mode: about 2 passes over the region instead of 18.
-    Where that fails (a non-concave or bounded profile) it falls back to finite
-    differences on the whole region. A function of the region's data only, as a
+    Where that fails (a non-concave profile) it falls back to finite differences on the
+    whole region, from the thinning's mode. A function of the region's data only, as a
     proposal's parameters must be.
     """
     n = data.n * data.weight       # observations count zeta each under a coarsened likelihood
@@ -117,43 +118,168 @@ def laplace_log_gamma(data, prior):
     # a few posterior sds of its mode: about 2 of them instead of 4 to 5 from a grid point.
     start = grid[best]
     if coarse is not data:
-        coarse_mode = _laplace_newton(coarse, start, k, b0, prior_part)
-        if coarse_mode is not None:
-            start = coarse_mode[0]
-    newton = _laplace_newton(data, start, k, b0, prior_part)
+        coarse_fit = _laplace_newton([coarse], start, [k], b0, prior_part)
+        if coarse_fit is not None:
+            start = coarse_fit[2]
+    newton = _laplace_newton([data], start, [k], b0, prior_part)
     if newton is not None:
-        return newton
-    return _laplace_finite_differences(lambda ell: h_of_stats(data.stats_at(math.exp(ell)), ell), grid)
+        return newton[:2]
+    # the fallback starts where the thinning put the mode: 1 + 2 to 9 passes, not the grid's 9 more
+    return _laplace_finite_differences(lambda ell: h_of_stats(data.stats_at(math.exp(ell)), ell), start,
+                                       grid[1] - grid[0])
 
 
-def _laplace_newton(data, ell, k, b0, prior_part, max_steps=8, eps=1e-3):
-    syy, sya, saa = data.fixed[1], data.fixed[2], data.fixed[3]
-    for _ in range(max_steps):
-        g = math.exp(ell)
-        profile = ls_profile(sya, saa, data.b_sums_newton(g), g)
+def _laplace_derivatives(channels, ell, ks, b0, prior_part, pieces=None, eps=1e-3):
+    """``(h', h'', pieces)`` of the Laplace objective at ``ell`` summed over ``channels``, or None where undefined.
+
+    Each channel's terms from :func:`~rjfit.sampler.moves.gamma.ls_profile_nonnegative` (on
+    the piece given in ``pieces``, else the one that applies), the prior's by central
+    differences (step ``eps``), once; ``pieces`` returned is the tuple of the channels' pieces.
+    """
+    g = math.exp(ell)
+    h1 = h2 = 0.0
+    used = []
+    for c, (channel, k) in enumerate(zip(channels, ks)):
+        syy, sya, saa = channel.fixed[1], channel.fixed[2], channel.fixed[3]
+        profile = ls_profile_nonnegative(sya, saa, channel.b_sums_newton(g), g, None if pieces is None else pieces[c])
         if profile is None:
             return None
-        f, f1, f2, det, det1, det2, ca, cb = profile
+        f, f1, f2, det, det1, det2, piece = profile
         q = 0.5 * (syy - f) + b0
-        p0, pp, pm = prior_part(ell), prior_part(ell + eps), prior_part(ell - eps)
-        h1 = k * f1 / (2.0 * q) - 0.5 * det1 / det + (pp - pm) / (2.0 * eps)
-        h2 = (k * f2 / (2.0 * q) + k * f1 * f1 / (4.0 * q * q) - 0.5 * (det2 / det - (det1 / det) ** 2)
-              + (pp - 2.0 * p0 + pm) / eps ** 2)
-        if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0 and q > 0):
+        if not q > 0:
             return None
+        h1 += k * f1 / (2.0 * q) - 0.5 * det1 / det
+        h2 += k * f2 / (2.0 * q) + k * f1 * f1 / (4.0 * q * q) - 0.5 * (det2 / det - (det1 / det) ** 2)
+        used.append(piece)
+    p0, pp, pm = prior_part(ell), prior_part(ell + eps), prior_part(ell - eps)
+    h1 += (pp - pm) / (2.0 * eps)
+    h2 += (pp - 2.0 * p0 + pm) / eps ** 2
+    return h1, h2, tuple(used)
+
+
+def _laplace_newton(channels, ell, ks, b0, prior_part, max_steps=8):
+    """Newton steps to the mode of the Laplace objective summed over ``channels``: (mean, sd, mode), or None.
+
+    None where the objective is undefined or not concave at an iterate, or after
+    ``max_steps`` without convergence (a step below 0.2 sd: what is left is O(step^2)).
+    The constrained profile's curvature jumps where a face starts to bind (often a
+    hundredfold), and a mode at that kink would make plain Newton steps cycle between its
+    two sides: each step is kept inside the bracket of the iterates seen on either side of
+    the mode; where Newton's leaves it and the bracket's ends lie on two pieces, the kink
+    between them is found (:func:`_kink`), and a mode within an sd of it gets the mean and
+    sd of the quadratic expansions on either side (:func:`_kinked_moments`); otherwise a
+    secant step. ``mode`` is where h peaks (the next fit's start).
+    """
+    below = above = None            # (ell, h', h'', pieces) of the nearest iterates with h' > 0 and h' <= 0
+    for _ in range(max_steps):
+        derivs = _laplace_derivatives(channels, ell, ks, b0, prior_part)
+        if derivs is None:
+            return None
+        h1, h2, pieces = derivs
+        if not (math.isfinite(h1) and math.isfinite(h2) and h2 < 0):
+            return None
+        if h1 > 0:
+            below = (ell, h1, h2, pieces)
+        else:
+            above = (ell, h1, h2, pieces)
         sd = 1.0 / math.sqrt(-h2)
         step = min(max(-h1 / h2, -0.5), 0.5)
+        if below is not None and above is not None and below[0] < above[0] and not below[0] < ell + step < above[0]:
+            kink = _kink(channels, below, above, ks, b0, prior_part) if below[3] != above[3] else None
+            if kink is not None:
+                at, h1, h2_below, h2_above = kink
+                mode = at - h1 / (h2_above if h1 > 0 else h2_below)
+                moments = _kinked_moments(at, h1, h2_below, h2_above)
+                if moments is not None and abs(mode - at) < 1.0 / math.sqrt(-(h2_above if h1 > 0 else h2_below)):
+                    return moments[0], min(max(moments[1], 1e-4), 2.0), mode
+                if h1 > 0:
+                    below = (at, h1, h2_above, above[3])
+                else:
+                    above = (at, h1, h2_below, below[3])
+                ell = mode
+                continue
+            step = below[0] - below[1] * (above[0] - below[0]) / (above[1] - below[1]) - ell
         ell += step
-        if abs(step) < 0.2 * sd:        # what is left after this step is O(step^2): negligible
-            # only inside a, b > 0 is this unbounded profile the one h uses
-            return (ell, min(max(sd, 1e-4), 2.0)) if ca > 0 and cb > 0 else None
+        if abs(step) < 0.2 * sd:
+            return ell, min(max(sd, 1e-4), 2.0), ell
     return None
 
 
-def _laplace_finite_differences(h, grid):
-    values = [h(e) for e in grid]
-    best = int(np.argmax(values))
-    centre, delta, h0 = grid[best], grid[1] - grid[0], values[best]
+def _kink(channels, below, above, ks, b0, prior_part, max_steps=6):
+    """Where the constrained profile changes piece between bracket ends ``below`` and ``above``.
+
+    Returns ``(ell, h', h'' below, h'' above)`` there (each side's curvature from its own
+    piece's formula), or None where the ends differ in more than one channel, neither is
+    inside (piece 0), or the search fails. The kink is where the unconstrained
+    least-squares a (piece 1) or b (piece 2) of that channel crosses 0: Newton steps on
+    that smooth function (:func:`~rjfit.sampler.moves.gamma.ls_point_slopes`), kept inside
+    the bracket, to within a hundredth of the narrower side's sd.
+    """
+    differ = [c for c, (p, q) in enumerate(zip(below[3], above[3])) if p != q]
+    if len(differ) != 1 or 0 not in (below[3][differ[0]], above[3][differ[0]]):
+        return None
+    c = differ[0]
+    which = 0 if max(below[3][c], above[3][c]) == 1 else 1          # a (piece 1) or b (piece 2) crosses 0
+    channel = channels[c]
+    lo, hi = below[0], above[0]
+    tol = 0.01 / math.sqrt(max(-below[2], -above[2]))
+    ell = lo if below[3][c] == 0 else hi
+    for _ in range(max_steps):
+        g = math.exp(ell)
+        slopes = ls_point_slopes(channel.fixed[2], channel.fixed[3], channel.b_sums_newton(g), g)
+        if slopes is None or slopes[2 + which] == 0:
+            return None
+        step = -slopes[which] / slopes[2 + which]
+        new = ell + step if lo < ell + step < hi else 0.5 * (lo + hi)
+        done = abs(new - ell) < tol
+        ell = new
+        if done:
+            break
+    else:
+        return None
+    sides = [_laplace_derivatives(channels, ell, ks, b0, prior_part, pieces) for pieces in (below[3], above[3])]
+    if any(side is None or not (math.isfinite(side[0]) and side[1] < 0) for side in sides):
+        return None
+    return ell, sides[0][0], sides[0][1], sides[1][1]
+
+
+def _kinked_moments(at, slope, curv_below, curv_above):
+    """Mean and sd of ``exp(h)`` for ``h(x) = slope t + curv t^2 / 2`` (``t = x - at``), ``curv`` one value below
+    ``at`` and another above: the quadratic expansion on each side of a kink, each side a truncated normal.
+
+    None where neither side has any mass in double precision.
+    """
+    pieces = []
+    for curv, upper in ((curv_below, False), (curv_above, True)):
+        s = 1.0 / math.sqrt(-curv)
+        mu = at - slope / curv                         # the side's own quadratic, completed
+        alpha = (at - mu) / s
+        z = 0.5 * math.erfc(alpha / math.sqrt(2.0)) if upper else 0.5 * math.erfc(-alpha / math.sqrt(2.0))
+        if z <= 0.0:
+            continue
+        ratio = math.exp(-0.5 * alpha * alpha) / math.sqrt(2.0 * math.pi) / z
+        sign = 1.0 if upper else -1.0
+        mean = mu + sign * s * ratio
+        var = s * s * (1.0 + sign * alpha * ratio - ratio * ratio)
+        pieces.append((math.log(s) + 0.5 * (slope * s) ** 2 + math.log(z), mean, max(var, 0.0)))
+    if not pieces:
+        return None
+    top = max(p[0] for p in pieces)
+    weights = [math.exp(p[0] - top) for p in pieces]
+    total = sum(weights)
+    mean = sum(w * p[1] for w, p in zip(weights, pieces)) / total
+    var = sum(w * (p[2] + (p[1] - mean) ** 2) for w, p in zip(weights, pieces)) / total
+    return mean, math.sqrt(var)
+
+
+def _laplace_finite_differences(h, centre, delta):
+    """(mean, sd) from parabolas through ``h`` at ``centre`` and ``centre +- delta``, three times, delta / 3 each.
+
+    The Laplace fit's fallback where Newton fails; ``centre`` is the thinning's mode (or
+    the coarse grid's best point) and ``delta`` the grid's step. None where ``h(centre)`` is
+    not finite; sd 2 where the curvature is not negative (a flat or rising profile).
+    """
+    h0 = h(centre)
     if not np.isfinite(h0):
         return None
     curvature = -1.0
