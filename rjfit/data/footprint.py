@@ -95,7 +95,8 @@ def image_gradient_squared(observations, noise_variance=None) -> np.ndarray:
         For a joint colour stack (its observations of one pixel and light are one per channel).
     """
     if observations.channel is not None:
-        raise ValueError("the footprint term measures one channel's image gradient: not with --channel rgb")
+        raise ValueError("the footprint term measures one channel's image gradient: split a joint colour stack into "
+                         "its channels first (rjfit.pipeline.fit_power.channel_normal_error_noise does)")
     images = observations.dense()
     v = light_noise_variance(observations) if noise_variance is None else np.asarray(noise_variance, float)
     v = v[:, None, None]

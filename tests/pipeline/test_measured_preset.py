@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from rjfit.cli import _likelihood_power
+from rjfit.data.normal_error import normal_error_noise
 from rjfit.pipeline.fit_dataset import GHOST_ODDS, GHOST_PIXELS, fit_dataset, ghost_material_prior
 from rjfit.pipeline.options import FitOptions
 
@@ -61,10 +62,21 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
         assert (options["potts_beta"], options["potts_rho"]) == (FitOptions().potts_beta, FitOptions().potts_rho)
 
 
-def test_the_footprint_noise_is_kept_by_the_preset_and_refused_in_colour():
+def test_the_footprint_noise_is_kept_by_the_preset_and_measured_per_channel_in_colour(paper_sphere_small):
+    """In a joint colour fit each channel gets its own footprint estimate (as for the normals' term,
+    tests/data/test_normal_error.py): the same numbers as the channel fitted alone."""
+    from rjfit.pipeline.fit_power import channel_normal_error_noise
+    from rjfit.render.datasets import load_dataset
+
     assert FitOptions(preset="measured", noise="footprint").noise == "footprint"
-    with pytest.raises(ValueError, match="footprint"):
-        FitOptions(regions="materials", channel="rgb", noise="footprint")
+    assert FitOptions(regions="materials", channel="rgb", noise="footprint").noise == "footprint"
+    dataset = load_dataset(paper_sphere_small)
+    colour = dataset.observations("rgb")
+    scale, record = channel_normal_error_noise(colour, footprint=True)
+    for c, name in enumerate("RGB"):
+        alone_scale, alone = normal_error_noise(dataset.observations(name), footprint=True)
+        np.testing.assert_array_equal(scale[colour.channel == c], alone_scale)
+        assert record["channels"][c]["t"] == alone["t"]
 
 
 def test_a_fit_with_the_footprint_term_records_it(paper_sphere_small, tmp_path):
