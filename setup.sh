@@ -20,4 +20,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[test]"
+# the sampler's Numba kernels compiled once into their on-disk cache (about 50 s on 2 cores), so the
+# first fit, each chain's worker process and each test worker start from it (rjfit/pipeline/precompile.py)
+.venv/bin/python -m rjfit.pipeline.precompile
 echo "rjfit set up in $(pwd)/.venv"
