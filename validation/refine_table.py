@@ -34,10 +34,10 @@ CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response", "sec
          "one light off": "light_calibration", "ambient + sRGB": "ambient+camera_response",
          "cast shadows": "cast_shadows", "dielectric lobe": "fresnel", "interreflection": "interreflection"}
 #: case -> samples per pixel where not render_hidden's default. Interreflection at 512 spp, the
-#: issue's number: at render_hidden's 16 spp the Monte Carlo noise of the indirect light is
-#: itself a misfit no effect explains; its variance falls as 1/spp, so at 512 spp it is ~32x
-#: smaller than at 16 and (on dented_plaster's indirect light, a few % of the direct) far under
-#: the added read noise (variance 0.1) that the fit's likelihood assumes.
+#: issue's number: dented_plaster's indirect light is ~14 % of its radiance, and its Monte Carlo
+#: variance per observation, measured 0.078 at render_hidden's 16 spp (two seeds, 32 x 32,
+#: 2026-11-26), is nearly the added read noise's 0.1, so the data's noise would not be the
+#: declared one; it falls as 1/spp, to ~0.0024 at 512 spp, 1/40 of the read noise.
 CASE_SPP = {"interreflection": 512}
 
 
