@@ -178,11 +178,9 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
     resolution, seed, noise_variance
         As :func:`rjfit.render.render.render_dataset`'s.
     spp : int, optional
-        Samples per pixel of every light's image (recorded as the data set's ``spp``); None:
-        each kind's default (``INTERREFLECTION_SPP`` for interreflection, ``CAST_SHADOWS_SPP``
-        for cast shadows, the scene definition's for the others), so data sets rendered before
-        this argument existed are unchanged. Only indirect light is random, so it matters for
-        interreflection; the ambient kind's environment image keeps its own ``AMBIENT_SPP``.
+        Samples per pixel of every light's image (the data set's ``spp``); None: each kind's
+        default (``INTERREFLECTION_SPP``, ``CAST_SHADOWS_SPP``, else the scene's), as before this
+        argument. Only indirect light is random; the ambient image keeps ``AMBIENT_SPP``.
 
     Raises
     ------
