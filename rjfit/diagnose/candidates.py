@@ -79,6 +79,14 @@ def try_candidates(ctx, current, effects, residuals, sigma2_hat, *, seed, thresh
     debug = bool(os.environ.get("RJFIT_DEBUG"))     # a programming error then shows its traceback
     outcomes = {}
     ready = []
+    for effect in current.effects:
+        # every candidate's refit prepares the current model's effects too: where one of them is
+        # a Mitsuba feature not yet in ctx's cache (interreflection's, after the search changed the
+        # materials it is rendered at), the workers would each render it at once, on their threads
+        # (measured: a segfault in rjfit refine's second round, or with RJFIT_DEBUG "jit_var_gather():
+        # attempted to gather from an empty array"). Rendered here instead, once.
+        if effect.needs_mitsuba:
+            effect.prepare(ctx)
     for effect in effects:
         try:
             if effect.needs_mitsuba:

@@ -13,7 +13,7 @@ camera_response    paper_sphere rendered noise-free, encoded with colour-science
                    brightest value, then read noise (variance 0.1) added to the stored values.
 light_calibration  paper_sphere with light 3 emitting 20 % more in Mitsuba than the data set's
                    JSON (what the fitter reads) says.
-interreflection    dented_plaster (concave), path integrator max_depth 8, 16 spp, visibility
+interreflection    dented_plaster (concave), path integrator max_depth 8, 16 spp (``spp``), visibility
                    kept (cast shadows are in the valid mask).
 cast_shadows       dented_plaster, direct light only (max_depth 2), its shadow-ray visibility
                    dropped from the data set (so shadowed observations look valid).
@@ -162,14 +162,38 @@ def hidden_post_process(ambient_image, camera, images):
     return encoded + rng.normal(0.0, math.sqrt(noise_variance), size=images.shape[:3] + (1,))
 
 
-def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1):
-    """Render the hidden-effect data set ``kind`` (see the module docstring) into ``out_dir``."""
+INTERREFLECTION_SPP = 16   # render_hidden's default for interreflection (its tests' data sets)
+CAST_SHADOWS_SPP = 1       # direct light only: one sample is exact (the same ray each time)
+
+
+def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1, spp=None):
+    """Render the hidden-effect data set ``kind`` (see the module docstring) into ``out_dir``.
+
+    Parameters
+    ----------
+    kind : str
+        One of ``HIDDEN``, or several joined by ``+`` where a builder exists.
+    out_dir : path
+        The data set folder.
+    resolution, seed, noise_variance
+        As :func:`rjfit.render.render.render_dataset`'s.
+    spp : int, optional
+        Samples per pixel of every light's image (the data set's ``spp``); None: each kind's
+        default (``INTERREFLECTION_SPP``, ``CAST_SHADOWS_SPP``, else the scene's), as before this
+        argument. Only indirect light is random; the ambient image keeps ``AMBIENT_SPP``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown kind, a combination without a builder, or an spp below 1.
+    """
     out_dir = Path(out_dir)
     kinds = set(kind.split("+"))
     unknown = kinds - set(HIDDEN)
     if unknown:
         raise ValueError(f"unknown hidden effect(s) {sorted(unknown)}; known: {HIDDEN}")
-    options = dict(resolution=resolution, seed=seed, noise_variance=noise_variance, hidden_effects=sorted(kinds))
+    options = dict(resolution=resolution, seed=seed, noise_variance=noise_variance, hidden_effects=sorted(kinds),
+                   spp=spp)
     if kinds <= {"ambient", "light_calibration", "clean", "camera_response"}:
         scene = load_scene_definition("paper_sphere")
         extra = None
@@ -201,11 +225,13 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         return render_dataset(scene, out_dir, bsdf_override=_second_lobe(scene["materials"], scene["reference_intensity"]),
                               **options)
     if kinds == {"interreflection"}:
-        return render_dataset("dented_plaster", out_dir, spp=16, **options)
+        options["spp"] = INTERREFLECTION_SPP if spp is None else spp
+        return render_dataset("dented_plaster", out_dir, **options)
     if kinds == {"cast_shadows"}:
         scene = load_scene_definition("dented_plaster")
         scene["max_depth"] = 2
-        path = render_dataset(scene, out_dir, spp=1, **options)
+        options["spp"] = CAST_SHADOWS_SPP if spp is None else spp
+        path = render_dataset(scene, out_dir, **options)
         (Path(path) / "visibility.exr").unlink()
         _edit_meta(path, lambda meta: meta.update(visibility=None))
         return path
