@@ -185,7 +185,7 @@ def test_main_job_runs_end_to_end_and_points_at_the_report(tmp_path, paper_spher
 def test_a_fit_killed_by_sigkill_resumes_to_the_uninterrupted_results(paper_sphere_small, tmp_path):
     """`rjfit fit` killed (SIGKILL, the whole process group) once a checkpoint exists, then run
     again with the same command, ends with the summary of a run never interrupted. The kill
-    lands at the first checkpoint (iteration 50 of 400, inside the burn-in), so the resumed run
+    lands at the first checkpoint (iteration 25 of 200, inside the burn-in), so the resumed run
     crosses the burn-in's end and the whole sampling phase."""
     import os
     import shutil
@@ -198,7 +198,7 @@ def test_a_fit_killed_by_sigkill_resumes_to_the_uninterrupted_results(paper_sphe
 
     def command(out):
         return [sys.executable, "-m", "rjfit", "fit", str(dataset), "--out", str(out), "--chains", "2",
-                "--iterations", "400", "--checkpoint-every", "50", "--seed", "4"]
+                "--iterations", "200", "--checkpoint-every", "25", "--seed", "4"]
 
     subprocess.run(command(tmp_path / "whole"), check=True, capture_output=True)
     killed = subprocess.Popen(command(tmp_path / "killed"), start_new_session=True, stdout=subprocess.DEVNULL,
