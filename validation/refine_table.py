@@ -24,6 +24,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from rjfit.diagnose.document import revision_text  # noqa: E402
 from rjfit.io import write_json_atomic  # noqa: E402
 from rjfit.pipeline.fit_dataset import fit_dataset  # noqa: E402
 from rjfit.pipeline.refine import refine  # noqa: E402
@@ -63,8 +64,7 @@ def run_case(case, kind, out, args) -> dict:
 
 
 def _revision(index, revision) -> str:
-    replaced = f" for {revision['replacement']}" if revision["action"] == "swapped" else ""
-    return f"{revision['effect']} {revision['action']}{replaced} in round {index + 1}"
+    return f"{revision_text(revision, brief=True)} in round {index + 1}"
 
 
 def _pair(values, spec) -> str:

@@ -33,8 +33,12 @@ def not_told_apart_text(effect: str, log_bf: float, runners_up: list) -> str:
             f"either explains the data about as well")
 
 
-def revision_text(revision: dict) -> str:
-    """One revision of an earlier choice (:mod:`rjfit.diagnose.revisit`), in words."""
+def revision_text(revision: dict, brief: bool = False) -> str:
+    """One revision of an earlier choice (:mod:`rjfit.diagnose.revisit`), in words; ``brief``:
+    what changed only ("camera_gamma swapped for camera_srgb"), for one-line summaries."""
+    if brief:
+        replaced = f" for {revision['replacement']}" if revision["action"] == "swapped" else ""
+        return f"{revision['effect']} {revision['action']}{replaced}"
     when = ("before step 1 (an effect the fit sampled, on its segmentation)" if revision["after_step"] is None
             else f"after step {revision['after_step'] + 1}")
     if revision["action"] == "swapped":

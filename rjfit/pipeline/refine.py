@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.diagnose.document import revision_text
 from rjfit.errors import DatasetError
 from rjfit.io import write_json_atomic
 from rjfit.pipeline.diagnose import diagnose_fit
@@ -219,15 +220,9 @@ def _round_line(index: int, record: dict) -> str:
     simulated = "" if record["gap_simulated"] is None else f", simulated gap {record['gap_simulated']:.3g}"
     effects = ", ".join(record["effects"]) or "none"
     named = ", ".join(record["named"]) or "nothing"
-    revised = "".join(f"; {_revision_words(r)}" for r in record.get("revisions") or [])
+    revised = "".join(f"; {revision_text(r, brief=True)}" for r in record.get("revisions") or [])
     return (f"round {index + 1}: effects sampled {effects}; {record['n_regions']} regions{accuracy}; gap "
             f"{record['gap']:.3g}{simulated}; diagnosis named {named}{revised}")
-
-
-def _revision_words(revision: dict) -> str:
-    if revision["action"] == "swapped":
-        return f"{revision['effect']} swapped for {revision['replacement']}"
-    return f"{revision['effect']} dropped"
 
 
 def _segmentation_figure(out_dir: Path, rounds: list, dataset_dir: Path) -> str:
