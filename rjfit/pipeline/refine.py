@@ -108,24 +108,22 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         ``round{k}/diagnosis`` and ``round{k}/fit`` (k >= 2), ``refine.json`` and
         ``segmentations.png`` go there (created).
     max_rounds : int >= 1
-        Most diagnoses; when the last one still names an effect the record says the cap bound.
+        Most diagnoses; the record says when the last one still named an effect (the cap bound).
     seed, max_steps, progress, **diagnose_options
         Of each diagnosis (:func:`rjfit.diagnose.workflow.diagnose`).
     say : callable
         Receives a line per round and the cap's warning.
     first_diagnosis_dir : path, optional
-        Where the first round's diagnosis goes (default ``out_dir/round1/diagnosis``; `rjfit
-        run` puts it in ``FIT/diagnosis``, where the report looks).
+        The first diagnosis' folder (default ``out_dir/round1/diagnosis``; `rjfit run`: ``FIT/diagnosis``).
 
     Returns
     -------
     dict
-        The contents of ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``,
-        ``effects`` sampled, ``map_model``, ``n_regions``, ``label_accuracy`` (null without
-        truth), ``gap``, ``gap_simulated`` (null without a mesh), ``named``, ``revisions``
-        (the diagnosis' swaps and drops), ``seconds``), ``named_effects`` (the effects of the
-        last diagnosis' final model, in the order named: a swapped or dropped one leaves the
-        list), ``final_fit``, ``stopped`` and ``warnings``.
+        ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``, ``effects`` sampled,
+        ``map_model``, ``n_regions``, ``label_accuracy``, ``gap``, ``gap_simulated`` (null
+        without truth, a mesh), ``named``, ``revisions`` (swaps, drops), ``seconds``),
+        ``named_effects`` (the last final model's, in the order named), ``final_fit``,
+        ``stopped`` and ``warnings``.
 
     Raises
     ------
