@@ -77,7 +77,8 @@ def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None, *, dpi=
     return save_figure(figure, path, dpi=dpi)
 
 
-EXCLUSION_TITLES = {"unlit": "light behind or grazing the surface", "shadowed": "cast shadow (shadow rays)",
+EXCLUSION_TITLES = {"unlit": "light behind or grazing the surface", "grazing_view": "seen at a grazing angle (rim)",
+                    "shadowed": "cast shadow (shadow rays)",
                     "saturated": "saturated (clipped)", "too_dark": "too dark (declared threshold)",
                     "not_finite": "NaN or Inf"}
 

@@ -76,6 +76,10 @@ class Dataset:
         cast shadow, the background, the sensor's floor: no measurement of the surface's
         reflectance), never entering the likelihood. Set by the loaders from ``dark`` in
         ``dataset.json``, ``stack.json`` or a photometric-stereo folder's ``rjfit.json``.
+    max_view_angle : float or None
+        Degrees: observations of pixels seen further than this from their normal are left out
+        (rule ``grazing_view``); None keeps every view. ``rjfit fit --preset measured`` sets it
+        (:data:`rjfit.data.observations.RIM_COS`: docs/measured-data.md).
     response : {"linear", "sRGB", "unknown"}
         How the stored values relate to radiance: ``linear`` (rendered data, linear counts),
         ``sRGB`` (decoded by the loader: the images are linear) or ``unknown`` (raw camera codes,
@@ -102,6 +106,7 @@ class Dataset:
     saturation: float | None = None
     saturated: np.ndarray | None = None
     too_dark: np.ndarray | None = None
+    max_view_angle: float | None = None
     response: str = "linear"
     quantisation_variance: np.ndarray | None = None
 
@@ -179,12 +184,14 @@ class Dataset:
         rows, cols = np.nonzero(self.object_mask)
         normals, view_dirs = self.normals[rows, cols], self.view_dirs[rows, cols]
         positions = self.positions[rows, cols] if self.positions is not None else np.zeros_like(normals)
+        cos_view = np.sum(normals * view_dirs, axis=-1)
+        min_cos_view = None if self.max_view_angle is None else float(np.cos(np.radians(self.max_view_angle)))
         for index, light in enumerate(self.lights):
             cos_ln, cos_hn, irradiance = geometry_terms(positions, normals, view_dirs, light, self.reference_intensity)
             pixels = self.images[index][rows, cols]
             y = self._channel_of(pixels, channel)
             visible = self.visibility[index][rows, cols] if self.visibility is not None else None
-            reasons = exclusion_reasons(y, cos_ln, visible, dark=dark)
+            reasons = exclusion_reasons(y, cos_ln, visible, dark=dark, cos_view=cos_view, min_cos_view=min_cos_view)
             if self.saturation is not None:
                 # A pixel is saturated when any of its channels is clipped.
                 reasons["saturated"] |= (pixels >= self.saturation).any(axis=-1)
@@ -199,15 +206,16 @@ class Dataset:
         """Per object pixel, how many lights' observations each stated rule leaves out, and how many are valid.
 
         Each left-out observation counts under the first rule that applies, in the order of the
-        returned dict, so on the object ``valid + unlit + shadowed + saturated + too_dark +
-        not_finite`` is the number of lights.
+        returned dict, so on the object ``valid + unlit + grazing_view + shadowed + saturated +
+        too_dark + not_finite`` is the number of lights.
 
         Returns
         -------
         dict of str -> ndarray of int, shape (H, W)
             ``valid`` (the paper's valid images per pixel, Fig. 8); ``unlit`` (the light is
             behind the surface or grazes it: ``<l.n> <=``
-            :data:`rjfit.data.observations.MIN_COS`); ``shadowed`` (a shadow ray is blocked);
+            :data:`rjfit.data.observations.MIN_COS`); ``grazing_view`` (the pixel is seen more
+            than ``max_view_angle`` from its normal); ``shadowed`` (a shadow ray is blocked);
             ``saturated`` (clipped in some channel); ``too_dark`` (at or below the declared dark
             threshold in every channel); ``not_finite`` (the channel's value is NaN or Inf).
             Zero off the object.

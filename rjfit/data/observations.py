@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Observations", "valid_observation_mask", "exclusion_reasons", "observations_from_stack", "stack_channels",
-           "valid_images_per_pixel", "MIN_COS", "EXCLUSION_RULES"]
+           "valid_images_per_pixel", "MIN_COS", "RIM_COS", "EXCLUSION_RULES"]
 
 
 @dataclass(frozen=True)
@@ -102,18 +102,24 @@ class Observations:
 
 # <l.n> at or below which the light grazes or is behind the surface: no usable observation
 MIN_COS = 1e-3
+#: <v.n> below which a pixel is seen at a grazing angle (more than 72.5 degrees from its normal):
+#: the rim, where a measured normal's error, a pixel's footprint and the object's edge (pixels
+#: partly background) change the radiance most, and a rough surface's retro-reflection lives
+RIM_COS = 0.3
 # the rules that leave an observation out, in the order :func:`exclusion_reasons` returns them
-EXCLUSION_RULES = ("unlit", "shadowed", "saturated", "too_dark", "not_finite")
+EXCLUSION_RULES = ("unlit", "grazing_view", "shadowed", "saturated", "too_dark", "not_finite")
 
 
-def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, min_cos=MIN_COS) -> dict:
+def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, min_cos=MIN_COS, cos_view=None,
+                      min_cos_view=None) -> dict:
     """Why observations may not enter the likelihood: one bool array per rule, in this order.
 
-    ``unlit`` (the surface does not face the light: ``<l.n> <= min_cos``), ``shadowed`` (the
+    ``unlit`` (the surface does not face the light: ``<l.n> <= min_cos``), ``grazing_view``
+    (the camera sees the surface at a grazing angle: ``<v.n> < min_cos_view``), ``shadowed`` (the
     light is occluded: not ``visible``), ``saturated`` (at or above ``saturation``: a clipped
     value is a bound, not a measurement), ``too_dark`` (at or below ``dark``) and
-    ``not_finite``. A rule without its input (``visible``, ``saturation`` or ``dark`` None)
-    flags nothing. The rules are the complements of the valid tests, so an observation is
+    ``not_finite``. A rule without its input (``visible``, ``saturation``, ``dark`` or
+    ``cos_view`` and ``min_cos_view`` None) flags nothing. The rules are the complements of the valid tests, so an observation is
     valid exactly when no rule flags it (:func:`valid_observation_mask`).
 
     Parameters
@@ -121,6 +127,10 @@ def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, mi
     images, cos_ln : ndarray, shape (L, H, W) (or any one shape)
     visible : ndarray of bool of that shape, or None (no cast shadows known)
     saturation, dark : float or None
+    cos_view : ndarray broadcastable to that shape, or None
+        ``<v.n>`` per observation (per pixel, broadcast over lights).
+    min_cos_view : float or None
+        The least ``<v.n>`` kept (e.g. :data:`RIM_COS`); None keeps every view.
 
     Returns
     -------
@@ -131,7 +141,10 @@ def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, mi
     def none():     # a fresh array per rule: callers add their own flags to a rule in place
         return np.zeros(images.shape, dtype=bool)
 
+    grazing = (np.broadcast_to(np.asarray(cos_view) < min_cos_view, images.shape).copy()
+               if cos_view is not None and min_cos_view is not None else none())
     return {"unlit": ~(np.asarray(cos_ln) > min_cos),
+            "grazing_view": grazing,
             "shadowed": ~np.asarray(visible, dtype=bool) if visible is not None else none(),
             "saturated": ~(images < saturation) if saturation is not None else none(),
             "too_dark": ~(images > dark) if dark is not None else none(),

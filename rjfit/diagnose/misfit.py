@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.data.observations import RIM_COS
 from rjfit.diagnose.document import gap_text
 from rjfit.diagnose.gap import gap, gap_breakdown
 
@@ -28,7 +29,6 @@ __all__ = ["UNEXPLAINED_GAP", "HIGHLIGHT_FRACTION", "RIM_COS", "describe_misfit"
 #: carrying a tenth of the noise power; the gap's own sampling error is ~sqrt(2 / N), far below)
 UNEXPLAINED_GAP = 0.1
 HIGHLIGHT_FRACTION = 0.1
-RIM_COS = 0.3
 #: a part "concentrates" the misfit when its gap is at least this many times the rest's
 CONCENTRATION = 2.0
 

@@ -2,6 +2,7 @@
 segmentation the fit recorded."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from rjfit.data.calibrate import replay_calibration
@@ -93,5 +94,7 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
         # a fit under --preset measured saw transformed data (pixels left out, the response
         # linearised, the lights' gains divided out): criticise the data it saw
         dataset = replay_calibration(dataset, summary["calibration"], source=str(fit_dir / "summary.json"))
+    if summary.get("max_view_angle") is not None:   # the rim the fit left out (--max-view-angle)
+        dataset = dataclasses.replace(dataset, max_view_angle=float(summary["max_view_angle"]))
     labels = read_map_labels(fit_dir, dataset.object_mask)
     return diagnose(dataset, labels, out_dir, **options)

@@ -6,6 +6,7 @@ sets are independent fits, run one per Dask task when a scheduler is given.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from pathlib import Path
@@ -82,6 +83,8 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     calibration = None
     if options.calibrate:
         dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
+    if options.max_view_angle < 90.0:
+        dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
     if options.preset == "measured" and options.regions == "materials" and options.potts_rho == 1.0:  # Potts rule
         beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
         options = options.replace(potts_beta=beta, potts_rho=rho)
@@ -103,6 +106,8 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
         entries["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
     if calibration is not None:
         entries["calibration"] = calibration
+    if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again (replay_view_limit)
+        entries["max_view_angle"] = dataset.max_view_angle
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)

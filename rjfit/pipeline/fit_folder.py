@@ -129,6 +129,8 @@ SUMMARY_FIELDS = {
     "crop": (dict, "where the maps sit in the original frame (row0, col0)"),
     "calibration": (dict, "the data transforms applied before the fit (--preset measured): isolated pixels left "
                           "out, the estimated camera response and light gains with their uncertainty"),
+    "max_view_angle": (_NUMBER, "degrees: pixels seen further than this from their normal (the rim) gave no "
+                                "observation (--max-view-angle; --preset measured)"),
     "validation": (dict, "the cross-check the fit was made under: passed, errors, path, note"),
 }
 _TYPE_NAMES = {str: "a string", dict: "an object", list: "a list", float: "a number", int: "an integer",

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from rjfit.data.formats import CHANNELS, COLOUR
 from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
+from rjfit.data.observations import RIM_COS
 from rjfit.diagnose.effects import EFFECTS
 from rjfit.sampler.priors import PRESETS
 from rjfit.sampler.state import REGION_MODELS
@@ -57,10 +58,12 @@ def _effect_names(value) -> tuple:
 
 
 POWER_RULES = ("auto", "area")
+#: degrees: the rim's edge, arccos(RIM_COS) = 72.5 (rjfit.data.observations.RIM_COS)
+RIM_VIEW_ANGLE = round(math.degrees(math.acos(RIM_COS)), 2)
 #: What ``--preset measured`` sets, where an option is left at its default (docs/measured-data.md); the
 #: Potts beta and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
-                   "cluster_material_seed": 0.5}
+                   "cluster_material_seed": 0.5, "max_view_angle": RIM_VIEW_ANGLE}
 
 
 def _likelihood_power_value(value):
@@ -118,7 +121,7 @@ class FitOptions:
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
         "unknown response or intensities), sets --noise normals and --likelihood-power auto where they are left at "
-        "their defaults, no annealed warm-up, with --regions materials the Potts beta and rho by a rule on the mask "
+        "their defaults, no annealed warm-up, the rim left out (--max-view-angle 72.5), with --regions materials the Potts beta and rho by a rule on the mask "
         "and half the cluster moves' seeds drawn per material, and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
         "estimated before the fit and applied to the images), as measured in docs/measured-data.md.", "choice",
         choices=("none", "measured"))
@@ -168,6 +171,12 @@ class FitOptions:
         "sphere), k and t by maximum likelihood (docs/measured-data.md). Weighted least squares: the "
         "sampler is unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
         "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS)
+    max_view_angle: float = cli_option(
+        90.0, "--max-view-angle",
+        "Degrees: observations of pixels seen further than this from their normal (the rim) are left out; their "
+        "labels follow their neighbours'. --preset measured sets 72.5 (<v.n> < 0.3), where measured normals' error, "
+        "a pixel's footprint and pixels partly background change the radiance most (docs/measured-data.md); 90 keeps "
+        "every view.", "float")
     noise_floor: float = cli_option(
         DEFAULT_FLOOR, "--noise-floor",
         "c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, as a fraction "
@@ -226,6 +235,8 @@ class FitOptions:
             raise ValueError(f"effect_every (--effect-every) must be >= 1, got {self.effect_every}")
         if not 0.0 <= self.anneal <= 1.0:
             raise ValueError(f"anneal is the fraction of the burn-in run tempered, in [0, 1], got {self.anneal}")
+        if not (math.isfinite(self.max_view_angle) and 0.0 < self.max_view_angle <= 90.0):
+            raise ValueError(f"--max-view-angle is in degrees, in (0, 90], got {self.max_view_angle}")
         if not (math.isfinite(self.noise_floor) and self.noise_floor > 0):
             raise ValueError(f"noise floor (--noise-floor) must be a positive number, got {self.noise_floor}")
         if not (math.isfinite(self.potts_beta) and self.potts_beta >= 0 and self.potts_rho > 0):

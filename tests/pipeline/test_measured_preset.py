@@ -12,7 +12,7 @@ import pytest
 from rjfit.cli import _likelihood_power
 from rjfit.data.normal_error import normal_error_noise
 from rjfit.pipeline.fit_dataset import GHOST_ODDS, GHOST_PIXELS, fit_dataset, ghost_material_prior
-from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.options import RIM_VIEW_ANGLE, FitOptions
 
 
 def test_the_preset_sets_the_measured_defaults_and_survives_a_round_trip():
@@ -54,6 +54,7 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
     assert summary["calibration"]["response"] is None          # a linear render: nothing to estimate
     assert summary["calibration"]["isolated_pixels"]["pixels_dropped"] >= 0
     assert summary["anneal_iterations"] == 0
+    assert summary["max_view_angle"] == RIM_VIEW_ANGLE          # the rim rule, recorded for `rjfit diagnose`
     options = summary["fit_options"]
     assert options["preset"] == "measured"
     if regions == "materials":
