@@ -325,7 +325,8 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
                                                      problem.object_mask),
     }
     summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
-    summary["warnings"] = (post.convergence_warnings(diag, summary["chain_model_posterior"], options.n_chains)
+    summary["warnings"] = (post.convergence_warnings(diag, summary["chain_model_posterior"], options.n_chains,
+                                                     post.chain_log_posterior_means(records, burn))
                            + number_warnings(summary, labels, problem, prior, config))
     summary["warnings"] += _fit_warnings(problem, prior, suggestion)
     if truth_labels is not None:

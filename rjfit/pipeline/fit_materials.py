@@ -52,7 +52,8 @@ def summarise_materials(records, problem, options, burn: int):
         "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
         "chain_materials_posterior": chain_posteriors,
     }
-    summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains)
+    summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
+                                                    post.chain_log_posterior_means(records, burn))
     cap = mat.cap_warning(posterior, options.max_materials)
     if cap:
         summary["warnings"].append(cap)

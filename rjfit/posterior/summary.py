@@ -14,6 +14,7 @@ from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
            "object_region_count_probability", "to_inference_data", "model_key", "convergence_warnings",
+           "chain_log_posterior_means",
            "RHAT_MAX", "ESS_PER_CHAIN_MIN", "TV_MAX", "chain_region_summaries",
            "posterior_mean_prediction"]
 
@@ -146,7 +147,24 @@ def _nan_min(values) -> float:
     return float(np.nanmin(values)) if np.any(np.isfinite(values)) else float("nan")
 
 
-def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_chains: int) -> list:
+def chain_log_posterior_means(records, burn: int) -> list:
+    """Each chain's mean log posterior density over its kept draws (NaN for a chain with none)."""
+    return [float(np.mean(r.log_post[burn:])) if len(r.log_post) > burn else float("nan") for r in records]
+
+
+def _best_chain_note(chain_log_posteriors, modal) -> str:
+    """Which chain's draws sit highest in the target, and how far above the lowest (empty if not finite)."""
+    values = np.asarray(chain_log_posteriors, dtype=float)
+    if values.size < 2 or not np.all(np.isfinite(values)):
+        return ""
+    best, worst = int(np.argmax(values)), int(np.argmin(values))
+    return (f"; chain {best}'s draws (model {modal[best]}) have the highest mean log posterior, "
+            f"{values[best] - values[worst]:.4g} above chain {worst}'s (model {modal[worst]}): a chain that never "
+            "reached that mode counts against it in the pooled posterior")
+
+
+def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_chains: int,
+                         chain_log_posteriors=None) -> list:
     """Plain-language warnings where the chains do not support the fit's summaries.
 
     Checks, in order: that there are at least two chains (R-hat needs them); that no two
@@ -165,6 +183,10 @@ def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_cha
     chain_model_posteriors : list of dict
         :func:`model_posterior` of each chain alone.
     n_chains : int
+    chain_log_posteriors : list of float, optional
+        :func:`chain_log_posterior_means`: when the chains disagree, the warning says which
+        chain's model sits highest in the target (a density, so a guide across models whose
+        dimensions differ by a few parameters, not a Bayes factor).
 
     Returns
     -------
@@ -183,8 +205,9 @@ def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_cha
     if tv_max > TV_MAX:
         modal = [max(p, key=p.get) for p in chain_model_posteriors]
         per_chain = ", ".join(f"chain {c}: {m} ({p[m]:.2f})" for c, (m, p) in enumerate(zip(modal, chain_model_posteriors)))
+        best = "" if chain_log_posteriors is None else _best_chain_note(chain_log_posteriors, modal)
         warnings.append(f"the chains disagree on the model ({per_chain}): the pooled model posterior reflects "
-                        "where they started, not the data; run longer (--iterations) or with more chains")
+                        f"where they started, not the data{best}; run longer (--iterations) or with more chains")
     used = diagnostics_result.get("chains_used", 0)
     if n_chains >= 2 and used < 2:
         warnings.append(f"only {used} of {n_chains} chains visit the MAP model after burn-in (4 draws needed): "
