@@ -286,6 +286,10 @@ def _echo_fit(folder, summary: dict) -> None:
                       + (f", footprint c {normal_error['c']:.3g}" if "c" in normal_error else "") + "), " if normal_error
                       else f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), ")
         click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
+    if summary.get("rim_pixels"):
+        click.echo(f"  the rim: {summary['rim_pixels']} object pixels seen more than {summary['max_view_angle']:g} "
+                   f"deg from their normal gave no observation; their labels follow their neighbours' "
+                   f"(--max-view-angle)")
     if summary.get("region_model") == "materials":
         k = summary["map_materials"]
         model = (f"MAP number of materials {k} (posterior {summary['materials_posterior'][str(k)]:.3f}), mean "

@@ -106,8 +106,11 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
         entries["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
     if calibration is not None:
         entries["calibration"] = calibration
-    if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again (replay_view_limit)
+    if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again
         entries["max_view_angle"] = dataset.max_view_angle
+        cos_view = np.sum(dataset.normals * dataset.view_dirs, axis=-1)
+        entries["rim_pixels"] = int(np.count_nonzero(
+            dataset.object_mask & (cos_view < np.cos(np.radians(dataset.max_view_angle)))))
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)

@@ -131,6 +131,8 @@ SUMMARY_FIELDS = {
                           "out, the estimated camera response and light gains with their uncertainty"),
     "max_view_angle": (_NUMBER, "degrees: pixels seen further than this from their normal (the rim) gave no "
                                 "observation (--max-view-angle; --preset measured)"),
+    "rim_pixels": (int, "object pixels beyond max_view_angle: no observation, their labels follow their "
+                        "neighbours'"),
     "validation": (dict, "the cross-check the fit was made under: passed, errors, path, note"),
 }
 _TYPE_NAMES = {str: "a string", dict: "an object", list: "a list", float: "a number", int: "an integer",

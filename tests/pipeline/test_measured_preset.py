@@ -11,8 +11,10 @@ import pytest
 
 from rjfit.cli import _likelihood_power
 from rjfit.data.normal_error import normal_error_noise
+from rjfit.data.observations import RIM_COS
 from rjfit.pipeline.fit_dataset import GHOST_ODDS, GHOST_PIXELS, fit_dataset, ghost_material_prior
 from rjfit.pipeline.options import RIM_VIEW_ANGLE, FitOptions
+from rjfit.render.datasets import load_dataset
 
 
 def test_the_preset_sets_the_measured_defaults_and_survives_a_round_trip():
@@ -55,6 +57,9 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
     assert summary["calibration"]["isolated_pixels"]["pixels_dropped"] >= 0
     assert summary["anneal_iterations"] == 0
     assert summary["max_view_angle"] == RIM_VIEW_ANGLE          # the rim rule, recorded for `rjfit diagnose`
+    sphere = load_dataset(paper_sphere_small)
+    rim = sphere.object_mask & (np.sum(sphere.normals * sphere.view_dirs, axis=-1) < RIM_COS)
+    assert summary["rim_pixels"] == rim.sum() > 0
     options = summary["fit_options"]
     assert options["preset"] == "measured"
     if regions == "materials":
