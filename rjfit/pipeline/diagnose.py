@@ -89,12 +89,18 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     # the effects the fit sampled: the search starts from them and names only further ones
     options.setdefault("base_effects", [entry["name"] for entry in summary.get("effects") or []])
     options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
-    dataset = dataset if hasattr(dataset, "images") else load_dataset(dataset)
+    dataset = _data_the_fit_saw(dataset if hasattr(dataset, "images") else load_dataset(dataset), summary,
+                                fit_dir / "summary.json")
+    labels = read_map_labels(fit_dir, dataset.object_mask)
+    return diagnose(dataset, labels, out_dir, **options)
+
+
+def _data_the_fit_saw(dataset, summary: dict, source):
+    """The data set as the fit recorded in ``summary`` transformed and limited it (``--preset measured``)."""
     if summary.get("calibration"):
         # a fit under --preset measured saw transformed data (pixels left out, the response
         # linearised, the lights' gains divided out): criticise the data it saw
-        dataset = replay_calibration(dataset, summary["calibration"], source=str(fit_dir / "summary.json"))
+        dataset = replay_calibration(dataset, summary["calibration"], source=str(source))
     if summary.get("max_view_angle") is not None:   # the rim the fit left out (--max-view-angle)
         dataset = dataclasses.replace(dataset, max_view_angle=float(summary["max_view_angle"]))
-    labels = read_map_labels(fit_dir, dataset.object_mask)
-    return diagnose(dataset, labels, out_dir, **options)
+    return dataset

@@ -79,15 +79,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     check_validation_file(dataset_dir, validation_path)
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
     dataset = load_dataset(dataset_dir)
-    options = options.replace(burn_in=options.burn_in_for(measured=dataset.meta.get("kind") == "measured"))
-    calibration = None
-    if options.calibrate:
-        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
-    if options.max_view_angle < 90.0:
-        dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
-    if options.preset == "measured" and options.regions == "materials" and options.potts_rho == 1.0:  # Potts rule
-        beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
-        options = options.replace(potts_beta=beta, potts_rho=rho)
+    dataset, options, calibration = _prepared(dataset, options)
     chain_runner = None
     if scheduler is not None or client is not None:
         from rjfit.pipeline.distributed import dask_map  # Dask: only when asked for
@@ -107,10 +99,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     if calibration is not None:
         entries["calibration"] = calibration
     if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again
-        entries["max_view_angle"] = dataset.max_view_angle
-        cos_view = np.sum(dataset.normals * dataset.view_dirs, axis=-1)
-        entries["rim_pixels"] = int(np.count_nonzero(
-            dataset.object_mask & (cos_view < np.cos(np.radians(dataset.max_view_angle)))))
+        entries.update(max_view_angle=dataset.max_view_angle, rim_pixels=_rim_pixels(dataset))
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)
@@ -122,6 +111,31 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     return fit(observations, out_dir, options, truth_labels=dataset.truth_labels,
                truth_params=dataset.truth_params, chain_runner=chain_runner, source=source, sampler_effects=effects,
                effect_source=effect_source)
+
+
+def _prepared(dataset, options: FitOptions):
+    """The data set and options a fit runs on, and the calibration record (None without one).
+
+    The burn-in for the data's kind; under ``options.calibrate`` the calibrated images; the
+    rim limit (``--max-view-angle``); under ``--preset measured`` with materials, the Potts
+    rule's beta and rho (unless ``--potts-rho`` was given).
+    """
+    options = options.replace(burn_in=options.burn_in_for(measured=dataset.meta.get("kind") == "measured"))
+    calibration = None
+    if options.calibrate:
+        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
+    if options.max_view_angle < 90.0:
+        dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
+    if options.preset == "measured" and options.regions == "materials" and options.potts_rho == 1.0:  # Potts rule
+        beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
+        options = options.replace(potts_beta=beta, potts_rho=rho)
+    return dataset, options, calibration
+
+
+def _rim_pixels(dataset) -> int:
+    """Object pixels seen further than ``dataset.max_view_angle`` from their normal."""
+    cos_view = np.sum(dataset.normals * dataset.view_dirs, axis=-1)
+    return int(np.count_nonzero(dataset.object_mask & (cos_view < np.cos(np.radians(dataset.max_view_angle)))))
 
 
 def ghost_material_prior(object_mask, beta: float) -> tuple[float, float]:
