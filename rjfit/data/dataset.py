@@ -430,22 +430,7 @@ def load_rjfit_layout(path) -> Dataset:
         visibility = np.stack(_read_channels(visibility_file, [f"light_{i:03d}" for i in range(len(lights))], shape,
                                              "the shadow-ray visibility (one channel per light)",
                                              description_path)) > 0.5
-    truth_labels = truth_params = None
-    if meta.get("truth_labels"):
-        labels_file = path / meta["truth_labels"]
-        (labels,) = _read_channels(labels_file, ["label"], shape, "the truth labels", description_path)
-        check_finite(labels, labels_file, "labels")
-        truth_labels = np.rint(labels).astype(np.int32)
-        n_materials = len(meta["materials"])
-        outside = (truth_labels < -1) | (truth_labels >= n_materials)
-        if outside.any():
-            rows, cols = np.nonzero(outside)
-            raise DatasetError(f"{labels_file}: {int(outside.sum())} labels are outside [-1, {n_materials - 1}] "
-                               f"(first {truth_labels[rows[0], cols[0]]} at row {rows[0]}, column {cols[0]}); a label "
-                               f"is -1 off the object or an index into the {n_materials} entries of 'materials' in "
-                               f"{description_path}")
-        truth_params = [{key: float(material[key]) for key in ("I0", "kd", "gamma", "sigma2")}
-                        for material in meta["materials"]]
+    truth_labels, truth_params = _read_truth(path, meta, shape, description_path)
     dataset = Dataset(path=path, meta=meta, images=np.stack(images), normals=stack3("N"),
                       view_dirs=stack3("V"), positions=stack3("P"), visibility=visibility, object_mask=object_mask,
                       lights=lights, truth_labels=truth_labels, truth_params=truth_params,
@@ -456,3 +441,24 @@ def load_rjfit_layout(path) -> Dataset:
                              lambda i: str(description_path) if i is None else f"{description_path} lights[{i}] "
                              f"({lights[i].kind}, {lights[i].position or lights[i].direction})")
     return dataset
+
+
+def _read_truth(path, meta, shape, description_path):
+    """``(truth labels, truth parameters per material)`` named by ``meta``; ``(None, None)`` without them."""
+    if not meta.get("truth_labels"):
+        return None, None
+    labels_file = path / meta["truth_labels"]
+    (labels,) = _read_channels(labels_file, ["label"], shape, "the truth labels", description_path)
+    check_finite(labels, labels_file, "labels")
+    truth_labels = np.rint(labels).astype(np.int32)
+    n_materials = len(meta["materials"])
+    outside = (truth_labels < -1) | (truth_labels >= n_materials)
+    if outside.any():
+        rows, cols = np.nonzero(outside)
+        raise DatasetError(f"{labels_file}: {int(outside.sum())} labels are outside [-1, {n_materials - 1}] "
+                           f"(first {truth_labels[rows[0], cols[0]]} at row {rows[0]}, column {cols[0]}); a label "
+                           f"is -1 off the object or an index into the {n_materials} entries of 'materials' in "
+                           f"{description_path}")
+    truth_params = [{key: float(material[key]) for key in ("I0", "kd", "gamma", "sigma2")}
+                    for material in meta["materials"]]
+    return truth_labels, truth_params
