@@ -65,6 +65,18 @@ def default_light_positions(n_lights: int = 10, *, distance: float = 2.2, seed: 
     return distance * directions
 
 
+def _point_light_terms(position, normals, view):
+    """``<l.n>``, ``<h.n>``, the irradiance 1 / d^2 and ``<l.h>`` of a unit point light at ``position``
+    over the unit sphere (surface points = normals), seen from direction ``view``."""
+    to_light = position[None, None, :] - normals
+    dist2 = np.sum(to_light**2, axis=-1)
+    light_dir = to_light / np.sqrt(dist2)[..., None]
+    half = light_dir + view
+    half /= np.linalg.norm(half, axis=-1, keepdims=True)
+    return (np.sum(light_dir * normals, axis=-1), np.sum(half * normals, axis=-1), 1.0 / dist2,
+            np.sum(light_dir * half, axis=-1))
+
+
 def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_positions=None,
                  truth=PAPER_TABLE2_TRUTH, seed: int = 0, extent: float = 1.1,
                  min_cos: float = 1e-3):
@@ -129,14 +141,7 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
 
     images, cos_ln_all, cos_hn_all, irr_all, cos_lh_all = [], [], [], [], []
     for position in lights:
-        to_light = position[None, None, :] - normals
-        dist2 = np.sum(to_light**2, axis=-1)
-        light_dir = to_light / np.sqrt(dist2)[..., None]
-        half = light_dir + view
-        half /= np.linalg.norm(half, axis=-1, keepdims=True)
-        cos_ln = np.sum(light_dir * normals, axis=-1)
-        cos_hn = np.sum(half * normals, axis=-1)
-        irradiance = 1.0 / dist2
+        cos_ln, cos_hn, irradiance, cos_lh = _point_light_terms(position, normals, view)
         mu = radiance(params["I0"][region], params["kd"][region], params["gamma"][region],
                       cos_ln, cos_hn, irradiance)
         noise = rng.normal(0.0, 1.0, size=mu.shape) * np.sqrt(params["sigma2"][region])
@@ -144,7 +149,7 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
         cos_ln_all.append(cos_ln)
         cos_hn_all.append(cos_hn)
         irr_all.append(irradiance)
-        cos_lh_all.append(np.sum(light_dir * half, axis=-1))
+        cos_lh_all.append(cos_lh)
     images = np.stack(images)
     cos_ln = np.stack(cos_ln_all)
     valid = object_mask[None] & (cos_ln > min_cos)
