@@ -21,6 +21,7 @@ import hashlib
 import os
 import pickle
 import sys
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
@@ -436,5 +437,26 @@ def run_chains(specs, *, processes: int | None = None, threads: int | None = Non
         threads = default_threads(at_once)
     if at_once == 1:
         return [run_chain(spec, threads) for spec in specs]
-    with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn")) as pool:
+    with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"),
+                             initializer=_exit_with_parent, initargs=(os.getpid(),)) as pool:
         return list(pool.map(functools.partial(run_chain, threads=threads), specs))
+
+
+#: seconds between a chain worker's checks that the process that started it is alive
+PARENT_CHECK_SECONDS = 1.0
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """In a chain worker: end this process once ``parent_pid`` is no longer its parent.
+
+    A fit stopped by SIGTERM or SIGKILL sent to its main process alone (``kill PID``, a job
+    scheduler's time limit) cannot shut its pool down, and the workers would run their whole
+    chains on, orphaned, writing checkpoints that the resumed fit writes too. Checkpoints are
+    written atomically, so ending at any moment loses at most the iterations since the last one.
+    """
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_CHECK_SECONDS)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="rjfit-parent-watch", daemon=True).start()

@@ -219,6 +219,38 @@ def test_a_fit_killed_by_sigkill_resumes_to_the_uninterrupted_results(paper_sphe
         {key: value for key, value in whole.items() if key not in timings}
 
 
+def test_a_fit_whose_main_process_alone_is_killed_leaves_no_chain_worker_running(paper_sphere_small, tmp_path):
+    """SIGKILL to `rjfit fit`'s main process only (not its group; what a job scheduler or `kill -9 PID`
+    does): its chain workers end within seconds instead of running their chains on, orphaned, and
+    writing the checkpoints a resumed fit writes too. Before the fix they ran to the chain's end."""
+    import os
+    import signal
+    import time
+
+    from rjfit.sampler.runner import PARENT_CHECK_SECONDS
+
+    fit = subprocess.Popen([sys.executable, "-m", "rjfit", "fit", str(paper_sphere_small), "--out",
+                            str(tmp_path / "fit"), "--chains", "2", "--iterations", "100000", "--checkpoint-every",
+                            "25", "--allow-unvalidated"], start_new_session=True, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
+    checkpoint = tmp_path / "fit" / "checkpoints" / "chain_0.pkl"
+    deadline = time.monotonic() + 300
+    while not checkpoint.exists() and fit.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert checkpoint.exists(), "the workers never wrote a checkpoint"
+    os.kill(fit.pid, signal.SIGKILL)
+    fit.wait()
+    deadline = time.monotonic() + 10 * PARENT_CHECK_SECONDS + 5
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(fit.pid, 0)           # the session's group: the workers, while any is alive
+        except ProcessLookupError:
+            return
+        time.sleep(0.1)
+    os.killpg(fit.pid, signal.SIGKILL)      # clean up before failing
+    raise AssertionError("chain workers still ran 15 s after their fit's main process was killed")
+
+
 def test_fit_each_channel_fits_r_g_and_b_into_their_own_folders(paper_sphere_small, tmp_path):
     """--channel each: one fit per colour channel, each of its own channel's values."""
     import math
