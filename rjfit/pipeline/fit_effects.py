@@ -26,7 +26,7 @@ import numpy as np
 
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import get_effect
-from rjfit.diagnose.effects.interreflection import feature_record
+from rjfit.diagnose.effects.interreflection import FEATURE_SPP, feature_record
 from rjfit.errors import DatasetError
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 
@@ -151,6 +151,7 @@ def fit_effects(dataset, observations, options) -> tuple[list, dict]:
     if "interreflection" in names:
         params, feature_model = _feature_params(ctx, diagnosis, labels, table)
         ctx.features["fit_region_params"] = params
+        ctx.features["indirect_spp"] = FEATURE_SPP
         source["interreflection"].update(feature_model=feature_model,
                                          feature_region_params=np.round(params[:, :3], 6).tolist())
     for effect in library:

@@ -54,7 +54,8 @@ def _feature_at(dataset, fit_dir, table, options, observations):
     ctx = build_context(dataset, read_map_labels(fit_dir, dataset.object_mask), channel=options.channel,
                         seed=options.seed)
     ctx.features["fit_region_params"] = table
-    return Interreflection().feature(ctx, FEATURE_SPP)[_order_in(ctx, observations)]
+    ctx.features["indirect_spp"] = FEATURE_SPP
+    return Interreflection().prepare(ctx)[_order_in(ctx, observations)]
 
 
 def test_the_refit_s_feature_is_rendered_at_the_diagnosis_final_model(plaster, tmp_path):

@@ -41,7 +41,7 @@ from rjfit.model.priors import LogNormal
 from rjfit.render.scene_change import MitsubaChange
 from rjfit.sampler.effects import IndirectLight
 
-__all__ = ["Interreflection", "INDIRECT_SPP", "FEATURE_SPP", "INDIRECT_DEPTH", "feature_record"]
+__all__ = ["Interreflection", "INDIRECT_SPP", "FEATURE_SPP", "INDIRECT_DEPTH", "feature_key", "feature_record"]
 
 INDIRECT_SPP = 64      # the diagnosis' feature: beta attenuated <= 5 % (module docstring)
 FEATURE_SPP = 256      # the refit's feature: beta attenuated <= 2 % (module docstring)
@@ -59,11 +59,10 @@ class Interreflection(Effect):
         return [Param("beta", LogNormal(loc=0.0, scale=1.0), init=1.0, null=0.0)]
 
     def prepare(self, ctx):
-        return self.feature(ctx, INDIRECT_SPP)
-
-    def feature(self, ctx, spp):
-        """The indirect light at each observation of ``ctx``, rendered at ``spp`` samples per pixel for
-        the region parameters ``ctx.features['fit_region_params']`` (cached in ``ctx`` per both).
+        """The indirect light at each observation of ``ctx``, rendered at ``ctx.features['indirect_spp']``
+        (default ``INDIRECT_SPP``; a refit's context: ``FEATURE_SPP``) samples per pixel for the region
+        parameters ``ctx.features['fit_region_params']`` (cached in ``ctx`` per both; its Monte Carlo
+        error beside it, and in ``ctx.features['indirect_se']`` for the gate).
 
         Raises
         ------
@@ -74,12 +73,16 @@ class Interreflection(Effect):
         if region_params is None:
             raise RuntimeError("interreflection needs the current fit's region parameters in "
                                "ctx.features['fit_region_params'] (the workflow sets them)")
-        indirect, se = ctx.feature(("indirect", int(spp), np.asarray(region_params).tobytes()),
-                                   lambda: (indirect_radiance(ctx, region_params, spp=spp, max_depth=INDIRECT_DEPTH),
-                                            ctx.features["indirect_se"]))
-        ctx.features["indirect_se"] = se        # the Monte Carlo error of the feature last used
+        spp = int(ctx.features.get("indirect_spp", INDIRECT_SPP))
+        key = feature_key(region_params, spp)
+        se_key = ("indirect_se",) + key[1:]
+        if key not in ctx.features:
+            ctx.features[key] = indirect_radiance(ctx, region_params, spp=spp, max_depth=INDIRECT_DEPTH)
+            ctx.features[se_key] = ctx.features["indirect_se"]
+        if se_key in ctx.features:      # the error of the feature last used
+            ctx.features["indirect_se"] = ctx.features[se_key]
         width = ctx.image_shape[1]
-        return indirect[ctx.light, ctx.pixel // width, ctx.pixel % width]
+        return ctx.features[key][ctx.light, ctx.pixel // width, ctx.pixel % width]
 
     def apply(self, terms, theta, features, ctx):
         terms["indirect"] = terms["indirect"] + theta[0] * features
@@ -88,17 +91,23 @@ class Interreflection(Effect):
         return MitsubaChange(max_depth=INDIRECT_DEPTH, stochastic=True)
 
     def sampler_effect(self, ctx):
-        """A known offset ``beta F`` (:class:`rjfit.sampler.effects.IndirectLight`): F the indirect light, at
-        ``FEATURE_SPP``, of the fitted model whose region parameters ``ctx.features['fit_region_params']``
-        holds, a fixed feature of the fit."""
-        return IndirectLight(params=self.fit_params(ctx), feature=self.feature(ctx, FEATURE_SPP))
+        """A known offset ``beta F`` (:class:`rjfit.sampler.effects.IndirectLight`): F the indirect light
+        (:meth:`prepare`; a refit sets ``ctx.features['indirect_spp']`` to ``FEATURE_SPP``) of the fitted
+        model whose region parameters ``ctx.features['fit_region_params']`` holds, a fixed feature of the fit."""
+        return IndirectLight(params=self.fit_params(ctx), feature=self.prepare(ctx))
 
 
-def feature_record(ctx, spp=FEATURE_SPP) -> dict:
-    """What the summary records of the refit's feature (after :meth:`Interreflection.sampler_effect`):
+def feature_key(region_params, spp) -> tuple:
+    """The key of the indirect light rendered at ``spp`` for ``region_params`` in a context's feature cache."""
+    return ("indirect", int(spp), np.asarray(region_params, dtype=float).tobytes())
+
+
+def feature_record(ctx) -> dict:
+    """What the summary records of the feature :meth:`Interreflection.prepare` gives on ``ctx``:
     ``feature_spp``, its Monte Carlo variance per observation and the share by which that attenuates
     beta, ``v_mc / (v_mc + v_signal)`` (module docstring)."""
-    feature = Interreflection().feature(ctx, spp)
+    feature = Interreflection().prepare(ctx)
+    spp = int(ctx.features.get("indirect_spp", INDIRECT_SPP))
     width = ctx.image_shape[1]
     v_mc = float(np.mean(ctx.features["indirect_se"][ctx.light, ctx.pixel // width, ctx.pixel % width] ** 2))
     centred = feature.copy()
