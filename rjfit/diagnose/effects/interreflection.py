@@ -15,9 +15,10 @@ a share ``v_mc / (v_mc + v_signal)`` of beta is lost, where ``v_mc`` is the feat
 Carlo variance per observation (from its independent batches; it falls as 1 / spp) and
 ``v_signal`` the variance of the indirect light across the observations of a region (what
 tells beta from the region's own parameters). The share does not depend on the resolution
-(both are per pixel). Measured on dented_plaster at its true materials (2026-11-26, 64 x 64
-x 8 lights and 128 x 128 x 12): 9.4 % at 32 spp, 5.0 % at 64, 2.6 % at 128, 1.3 % at 256;
-``v_mc`` 0.036 at 32 spp against the data's noise variance 0.1. Hence:
+(both are per pixel). Measured on dented_plaster at its true materials and segmentation
+(2026-11-26; 64 x 64 x 8 lights, and 128 x 128 x 12): 9.4 % (9.7) at 32 spp, 5.0 % (5.1) at
+64, 2.6 % (2.6) at 128, 1.3 % (1.3) at 256; ``v_mc`` 0.036 at 32 spp against the data's noise
+variance 0.1. Hence:
 
 - ``INDIRECT_SPP`` (the diagnosis' candidate test and its final model): share <= 5 %; what is
   decided there is whether interreflection is there (log Bayes factors in the thousands) and
@@ -27,9 +28,10 @@ x 8 lights and 128 x 128 x 12): 9.4 % at 32 spp, 5.0 % at 64, 2.6 % at 128, 1.3 
   segmentation): share <= 2 %, so that the fit's beta and the regions' albedos it frees are
   within 2 % of the indirect light.
 
-Seconds per render (LLVM, 2 shared cores): 64 x 64 x 8 lights 4.5 (32 spp), 6.7 (64), 13.7
-(256); 128 x 128 x 12: 11.9 (32), see docs/criticism.md. :func:`feature_record` measures the
-share on the feature rendered (the summary records it).
+Seconds per render (LLVM, 2 shared cores, load 2 to 3): 64 x 64 x 8 lights 4.5 (32 spp), 6.7
+(64), 9.5 (128), 13.7 (256); 128 x 128 x 12 lights 11.9, 20.4, 34.8, 48.5. :func:`feature_record`
+measures the share on the feature a refit renders (its summary records it: on an over-segmented
+fit's regions the per-region signal variance is smaller and the share larger, 4 % measured).
 """
 from __future__ import annotations
 
