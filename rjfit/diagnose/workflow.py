@@ -233,11 +233,13 @@ def _search(dataset, labels, figure_dir, settings):
     settings.say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions{weighed}: the plain model's "
                  f"refit, then one refit per candidate effect and step (each a few seconds to minutes, growing with "
                  f"the observations)")
-    if any(effect.name == "interreflection" for effect in settings.base_effects):
-        # its feature is the indirect light of a model: that of the plain model's materials
-        ctx.features["fit_region_params"] = refit(ctx, (), seed=settings.seed).region_params()
+    with_indirect = any(effect.name == "interreflection" for effect in settings.base_effects)
+    # interreflection's feature: the plain model's indirect light, then (as in _name_effect) the refit's
+    ctx.features["fit_region_params"] = refit(ctx, (), seed=settings.seed).region_params() if with_indirect else None
     plain = refit(ctx, settings.base_effects, seed=settings.seed)
     ctx.features["fit_region_params"] = plain.region_params()
+    if with_indirect:
+        plain = refit(ctx, plain.effects, start=plain, seed=settings.seed)
     # The noise estimate of the plain model's residuals only scores the candidates' signatures
     # during the search; every gap reported (printed, in diagnosis.json and diagnosis.md) uses
     # the final model's estimate, computed once the search is over (see GAP_DEFINITION).

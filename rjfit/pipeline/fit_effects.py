@@ -9,9 +9,13 @@ computed once, by the code the criticism uses, and put in the order of the fit's
 observations.
 
 Interreflection's feature is the indirect light of a fitted model: with ``--effects-from``
-it is rendered at the region parameters (posterior means) and on the MAP segmentation of
-the fit the diagnosis was made from. It is a fixed feature of the fit, not resampled with
-the regions (the summary says so).
+it is rendered on the MAP segmentation of the fit the diagnosis was made from, at the region
+parameters of the diagnosis' final model (MAP, fitted WITH the effects it named: its
+materials no longer absorb the indirect light, as the plain fit's do, whose over-segmented
+regions come out brighter where light bounces); a diagnosis that records no such parameters
+(an older one) falls back to the fit's posterior means. It is a fixed feature of the fit,
+not resampled with the regions; the summary records which parameters it was rendered at,
+with how many samples, and the share by which its Monte Carlo noise attenuates beta.
 """
 from __future__ import annotations
 
@@ -22,14 +26,18 @@ import numpy as np
 
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import get_effect
+from rjfit.diagnose.effects.interreflection import FEATURE_SPP, feature_record
 from rjfit.errors import DatasetError
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 
 __all__ = ["effect_names", "fit_effects", "INTERREFLECTION_NOTE"]
 
-INTERREFLECTION_NOTE = ("the indirect light F is rendered by Mitsuba once, at the region parameters and MAP segmentation "
-                        "of the fit the diagnosis was made from: a fixed feature of this fit, not resampled with its "
-                        "regions")
+INTERREFLECTION_NOTE = ("the indirect light F is rendered by Mitsuba once, on the MAP segmentation of the fit the "
+                        "diagnosis was made from, at the region parameters named in 'feature_model': a fixed feature "
+                        "of this fit, not resampled with its regions")
+#: ``feature_model`` values: where the region parameters the feature was rendered at came from
+FINAL_MODEL = "the diagnosis' final model (MAP, with the effects it named)"
+FIT_MEANS = "the diagnosed fit's posterior means (the diagnosis records no final-model region parameters)"
 
 
 def _diagnosis(folder: Path) -> dict:
@@ -73,6 +81,27 @@ def _previous_fit(diagnosis, dataset):
     for index, region in enumerate(summary.get("regions") or []):
         table[int(region.get("region", index))] = [region[name]["mean"] for name in ("I0", "kd", "gamma", "sigma2")]
     return Path(fit_dir), labels, table
+
+
+def _final_model_params(diagnosis, n_regions: int):
+    """(R, 4) I0, kd, gamma, sigma2 (MAP) of the diagnosis' final model, in the order of its
+    context's regions; None where it records none for ``n_regions`` regions (an older diagnosis)."""
+    parameters = ((diagnosis or {}).get("final_model") or {}).get("parameters") or {}
+    names = [f"{name}[{r}]" for r in range(n_regions) for name in ("I0", "kd", "gamma", "sigma2")]
+    if (diagnosis or {}).get("n_regions") != n_regions or not all(isinstance(parameters.get(n), dict) for n in names):
+        return None
+    return np.array([parameters[n]["map"] for n in names], dtype=float).reshape(n_regions, 4)
+
+
+def _feature_params(ctx, diagnosis, labels, table) -> tuple[np.ndarray, str]:
+    """The region parameters (in ``ctx``'s region order) interreflection's feature is rendered
+    at, and where they came from (``FINAL_MODEL`` or ``FIT_MEANS``)."""
+    final = _final_model_params(diagnosis, ctx.n_regions)
+    if final is not None:
+        # the diagnosis numbered the regions as ctx does: the same fit's MAP labels, in label order
+        return final, FINAL_MODEL
+    first_pixel = [int(np.flatnonzero(ctx.labels.ravel() == r)[0]) for r in range(ctx.n_regions)]
+    return table[labels.ravel()[first_pixel]], FIT_MEANS
 
 
 def _order_in(ctx, observations) -> np.ndarray:
@@ -120,15 +149,19 @@ def fit_effects(dataset, observations, options) -> tuple[list, dict]:
         source["interreflection"] = {"fit": str(fit_dir), "note": INTERREFLECTION_NOTE}
     ctx = build_context(dataset, labels, channel=options.channel, seed=options.seed)
     if "interreflection" in names:
-        # the context numbers the regions 0..R-1 in the order of their labels
-        first_pixel = [int(np.flatnonzero(ctx.labels.ravel() == r)[0]) for r in range(ctx.n_regions)]
-        ctx.features["fit_region_params"] = table[labels.ravel()[first_pixel]]
+        params, feature_model = _feature_params(ctx, diagnosis, labels, table)
+        ctx.features["fit_region_params"] = params
+        ctx.features["indirect_spp"] = FEATURE_SPP
+        source["interreflection"].update(feature_model=feature_model,
+                                         feature_region_params=np.round(params[:, :3], 6).tolist())
     for effect in library:
         ok, why = effect.available(ctx)
         if not ok:
             raise ValueError(f"effect {effect.name} cannot be fitted on {dataset.path}: {why}")
     order = _order_in(ctx, observations)
     effects = [effect.sampler_effect(ctx).in_order(order) for effect in library]
+    if "interreflection" in names:
+        source["interreflection"].update(feature_record(ctx))
     for effect in library:
         entry = source.setdefault(effect.name, {})
         entry["requested_by"] = "--effects" if effect.name in options.effects else "--effects-from"

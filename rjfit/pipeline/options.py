@@ -189,8 +189,8 @@ class FitOptions:
         "text", show_default=False)
     effects_from: Path | None = cli_option(
         None, "--effects-from",
-        "A diagnosis folder (rjfit diagnose --out): the effects it named are sampled too, and the fit it diagnosed "
-        "gives the region parameters at which interreflection's Mitsuba feature is rendered.", "dir",
+        "A diagnosis folder (rjfit diagnose --out): the effects it named are sampled too; interreflection's Mitsuba "
+        "feature is rendered on the diagnosed fit's MAP segmentation at the diagnosis' final-model materials.", "dir",
         show_default=False)
     effect_every: int = cli_option(1, "--effect-every", "Iterations between the effects' moves (one move per effect).",
                                    "int", low=1)

@@ -19,6 +19,7 @@ import pytest
 
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects import EFFECTS
+from rjfit.diagnose.effects.interreflection import INDIRECT_SPP, feature_key
 from rjfit.diagnose.model import fit_prediction, predict
 
 THETAS = {"fresnel": [0.1], "masking": [0.8], "cast_shadows": [0.7], "interreflection": [1.3], "ambient": [0.03],
@@ -41,7 +42,7 @@ def _context(dataset, noise):
     params = np.array([[materials[m]["I0"], materials[m]["kd"], materials[m]["gamma"], 1.0] for m in used])
     ctx.features["fit_region_params"] = params
     ctx.features["mitsuba_visibility"] = (rng.random(ctx.valid.shape) < 0.7).astype(float)
-    ctx.features[("indirect", params.tobytes())] = rng.uniform(0.0, 0.05, ctx.valid.shape) * float(np.max(ctx.y))
+    ctx.features[feature_key(params, INDIRECT_SPP)] = rng.uniform(0.0, 0.05, ctx.valid.shape) * float(np.max(ctx.y))
     return ctx, params
 
 
