@@ -13,13 +13,14 @@ import json
 import numpy as np
 import pytest
 
-from builders import truth_fit_folder
 from rjfit.diagnose.context import build_context
 from rjfit.diagnose.effects.interreflection import FEATURE_SPP, Interreflection
 from rjfit.pipeline.fit_effects import FINAL_MODEL, FIT_MEANS, _order_in, fit_effects
-from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.fit_folder import read_map_labels
+from rjfit.pipeline.options import FitOptions
 from rjfit.render.datasets import load_dataset
+
+from builders import truth_fit_folder
 
 # I0, kd, gamma, sigma2 per region: the plain fit's (brightened by the indirect light it misses)
 # and the diagnosis' final model's (dented_plaster's true materials)
