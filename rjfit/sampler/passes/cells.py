@@ -76,7 +76,9 @@ def _per_pixel_parts(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_la
                          right_case, left_case, bounds[p], bounds[p + 1], ext, rows)
 
 
-@njit(cache=True, nogil=True)
+# Plain Python, not jitted: it calls a parallel=True kernel, and Numba 0.68 mis-compiles such a call
+# made from inside another jitted function (with effects' lobe terms its first call returned zero sums,
+# and its cached form crashed); dispatched from Python the kernel compiles and runs on its own.
 def per_pixel_two_cases(y, C, log_cos_hn, line_of, along_of, labels, x_old, step_label, theta, size,
                         right_case, left_case, ext=None):
     """Per-pixel log-likelihood sums with one vector's element right of the pixel and left of it.

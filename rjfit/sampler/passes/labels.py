@@ -67,7 +67,9 @@ def _pixel_log_lik_parts(y, C, log_cos_hn, pixel, coef, out, bounds):
         _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, bounds[p], bounds[p + 1])
 
 
-@njit(cache=True, nogil=True)
+# Plain Python, not jitted: it calls a parallel=True kernel, and Numba 0.68 mis-compiles such a call
+# made from inside another jitted function (with effects' lobe terms its first call returned zero sums,
+# and its cached form crashed); dispatched from Python the kernel compiles and runs on its own.
 def pixel_log_lik(y, C, log_cos_hn, pixel, theta, n_pixels):
     """(K, n_pixels): the sum of each pixel's observations' log densities under each material (unweighted).
 
@@ -284,7 +286,9 @@ def _colour_pixel_log_lik_parts(y, C, log_cos_hn, channel_start, coef, n_channel
                                     bounds[part + 1])
 
 
-@njit(cache=True, nogil=True)
+# Plain Python, not jitted: it calls a parallel=True kernel, and Numba 0.68 mis-compiles such a call
+# made from inside another jitted function (with effects' lobe terms its first call returned zero sums,
+# and its cached form crashed); dispatched from Python the kernel compiles and runs on its own.
 def pixel_log_lik_colour(y, C, log_cos_hn, channel_start, theta, n_channels, n_pixels):
     """(K, n_pixels): each pixel's log densities summed over its observations and channels, under each material.
 

@@ -121,7 +121,6 @@ def split_runs(starts, ends):
     return piece_starts[:j], piece_ends[:j], offsets
 
 
-@njit(cache=True, nogil=True)
 def b_sums(y, C, log_cos_hn, starts, ends, gamma, ext=None):
     """``(SyB, SAB, SBB)`` (unscaled, float64) of the observations in the runs ``[starts[k], ends[k])``.
 
@@ -134,7 +133,6 @@ def b_sums(y, C, log_cos_hn, starts, ends, gamma, ext=None):
     return out
 
 
-@njit(cache=True, nogil=True)
 def b_sums_many(y, C, log_cos_hn, starts, ends, gammas, ext=None):
     """:func:`b_sums` at each of ``gammas``: (G, 3)."""
     out = np.empty((gammas.shape[0], 3))
@@ -211,24 +209,32 @@ def _gamma_sums_parts(y, C, log_cos_hn, starts, ends, offsets, gamma, newton, pa
                          ext, row)
 
 
-@njit(cache=True, nogil=True)
+# Plain Python, not jitted: it calls a parallel=True kernel, and Numba 0.68 mis-compiles such a call
+# made from inside another jitted function (with effects' lobe terms its first call returned zero sums,
+# and its cached form crashed); dispatched from Python the kernel compiles and runs on its own.
 def _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, newton, ext):
     """:func:`_gamma_sums_part` over all the runs, in :func:`split_runs`' pieces, the pieces added in order."""
+    if int(np.sum(ends - starts)) < PARALLEL_MIN_OBS:       # one part: one jitted call, no parallel kernel
+        return _gamma_sums_whole(y, C, log_cos_hn, starts, ends, gamma, newton, ext)
     row = lobe_row(ext, gamma)
     piece_starts, piece_ends, offsets = split_runs(starts, ends)
-    parts = offsets.shape[0] - 1
-    part_sums = np.zeros((parts, 9 if newton else 3))
-    if parts == 1:
-        _gamma_sums_part(y, C, log_cos_hn, starts, ends, 0, starts.shape[0], gamma, newton, part_sums[0], ext, row)
-    else:
-        _gamma_sums_parts(y, C, log_cos_hn, piece_starts, piece_ends, offsets, gamma, newton, part_sums, ext, row)
+    part_sums = np.zeros((offsets.shape[0] - 1, 9 if newton else 3))
+    _gamma_sums_parts(y, C, log_cos_hn, piece_starts, piece_ends, offsets, gamma, newton, part_sums, ext, row)
     out = np.zeros(part_sums.shape[1])
-    for p in range(parts):
-        out += part_sums[p]
+    for sums_of_part in part_sums:       # in order, so the sums do not depend on the threads
+        out += sums_of_part
     return out
 
 
 @njit(cache=True, nogil=True)
+def _gamma_sums_whole(y, C, log_cos_hn, starts, ends, gamma, newton, ext):
+    """:func:`_gamma_sums` of runs with fewer than :data:`PARALLEL_MIN_OBS` observations: one part."""
+    out = np.zeros(9 if newton else 3)
+    row = lobe_row(ext, gamma)
+    _gamma_sums_part(y, C, log_cos_hn, starts, ends, 0, starts.shape[0], gamma, newton, out, ext, row)
+    return out
+
+
 def b_sums_newton(y, C, log_cos_hn, starts, ends, gamma, ext=None):
     """:func:`b_sums` plus the same three sums weighted by ``log <h.n>`` and by its square (9 values).
 
