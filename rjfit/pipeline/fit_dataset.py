@@ -124,7 +124,7 @@ def _prepared(dataset, options: FitOptions):
     calibration = None
     if options.calibrate:
         dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
-    if options.max_view_angle < 90.0:
+    if options.max_view_angle is not None and options.max_view_angle < 90.0:
         dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
     if options.preset == "measured" and options.regions == "materials" and options.potts_rho == 1.0:  # Potts rule
         beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)

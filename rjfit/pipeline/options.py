@@ -171,12 +171,12 @@ class FitOptions:
         "sphere), k and t by maximum likelihood (docs/measured-data.md). Weighted least squares: the "
         "sampler is unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
         "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS)
-    max_view_angle: float = cli_option(
-        90.0, "--max-view-angle",
+    max_view_angle: float | None = cli_option(
+        None, "--max-view-angle",
         "Degrees: observations of pixels seen further than this from their normal (the rim) are left out; their "
-        "labels follow their neighbours'. --preset measured sets 72.5 (<v.n> < 0.3), where measured normals' error, "
-        "a pixel's footprint and pixels partly background change the radiance most (docs/measured-data.md); 90 keeps "
-        "every view.", "float")
+        "labels follow their neighbours'. Default: 90 (every view kept), and --preset measured sets 72.5 (<v.n> < "
+        "0.3), where measured normals' error, a pixel's footprint and pixels partly background change the radiance "
+        "most (docs/measured-data.md); give 90 to keep every view under the preset.", "float", show_default=False)
     noise_floor: float = cli_option(
         DEFAULT_FLOOR, "--noise-floor",
         "c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, as a fraction "
@@ -235,7 +235,8 @@ class FitOptions:
             raise ValueError(f"effect_every (--effect-every) must be >= 1, got {self.effect_every}")
         if not 0.0 <= self.anneal <= 1.0:
             raise ValueError(f"anneal is the fraction of the burn-in run tempered, in [0, 1], got {self.anneal}")
-        if not (math.isfinite(self.max_view_angle) and 0.0 < self.max_view_angle <= 90.0):
+        if self.max_view_angle is not None and not (math.isfinite(self.max_view_angle)
+                                                    and 0.0 < self.max_view_angle <= 90.0):
             raise ValueError(f"--max-view-angle is in degrees, in (0, 90], got {self.max_view_angle}")
         if not (math.isfinite(self.noise_floor) and self.noise_floor > 0):
             raise ValueError(f"noise floor (--noise-floor) must be a positive number, got {self.noise_floor}")

@@ -55,8 +55,10 @@ def test_the_preset_sets_the_rim_rule_and_diagnose_replays_it(tmp_path, monkeypa
     import rjfit.pipeline.diagnose as pipeline_diagnose
 
     assert FitOptions(preset="measured").max_view_angle == RIM_VIEW_ANGLE
-    assert FitOptions().max_view_angle == 90.0
+    assert FitOptions().max_view_angle is None                    # every view kept
     assert FitOptions(preset="measured", max_view_angle=80.0).max_view_angle == 80.0   # a given option stays
+    # 90 keeps every view under the preset too: a value equal to a default must not be taken for "not given"
+    assert FitOptions(preset="measured", max_view_angle=90.0).max_view_angle == 90.0
     with pytest.raises(ValueError, match="--max-view-angle"):
         FitOptions(max_view_angle=95.0)
     dataset = _with_a_rim(load_dataset(make_ps_folder(tmp_path / "ps")))
