@@ -214,8 +214,9 @@ def _gamma_sums_parts(y, C, log_cos_hn, starts, ends, offsets, gamma, newton, pa
 # and its cached form crashed); dispatched from Python the kernel compiles and runs on its own.
 def _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, newton, ext):
     """:func:`_gamma_sums_part` over all the runs, in :func:`split_runs`' pieces, the pieces added in order."""
-    if int(np.sum(ends - starts)) < PARALLEL_MIN_OBS:       # one part: one jitted call, no parallel kernel
-        return _gamma_sums_whole(y, C, log_cos_hn, starts, ends, gamma, newton, ext)
+    out = _gamma_sums_whole(y, C, log_cos_hn, starts, ends, gamma, newton, ext)
+    if out.shape[0]:            # fewer than PARALLEL_MIN_OBS observations: done in one jitted call
+        return out
     row = lobe_row(ext, gamma)
     piece_starts, piece_ends, offsets = split_runs(starts, ends)
     part_sums = np.zeros((offsets.shape[0] - 1, 9 if newton else 3))
@@ -228,7 +229,13 @@ def _gamma_sums(y, C, log_cos_hn, starts, ends, gamma, newton, ext):
 
 @njit(cache=True, nogil=True)
 def _gamma_sums_whole(y, C, log_cos_hn, starts, ends, gamma, newton, ext):
-    """:func:`_gamma_sums` of runs with fewer than :data:`PARALLEL_MIN_OBS` observations: one part."""
+    """:func:`_gamma_sums` of runs with fewer than :data:`PARALLEL_MIN_OBS` observations (one part); an
+    empty array for more (the caller runs the parallel kernel)."""
+    total = 0
+    for k in range(starts.shape[0]):
+        total += ends[k] - starts[k]
+    if total >= PARALLEL_MIN_OBS:
+        return np.zeros(0)
     out = np.zeros(9 if newton else 3)
     row = lobe_row(ext, gamma)
     _gamma_sums_part(y, C, log_cos_hn, starts, ends, 0, starts.shape[0], gamma, newton, out, ext, row)
