@@ -170,6 +170,13 @@ class Dataset:
             return colour.RGB_luminance(image, space.primaries, space.whitepoint)
         return image[..., "RGB".index(channel)]
 
+    def rim_pixels(self) -> np.ndarray:
+        """(H, W) bool: object pixels seen further than ``max_view_angle`` from their normal (none if it is None)."""
+        if self.max_view_angle is None:
+            return np.zeros(self.image_shape, dtype=bool)
+        cos_view = np.sum(self.normals * self.view_dirs, axis=-1)
+        return self.object_mask & (cos_view < np.cos(np.radians(self.max_view_angle)))
+
     def _object_pixel_lights(self, channel: str, dark: float | None):
         """Per light, on object pixels only: (light index, valid, y, cos_ln, cos_hn, irradiance, reasons).
 
@@ -184,14 +191,13 @@ class Dataset:
         rows, cols = np.nonzero(self.object_mask)
         normals, view_dirs = self.normals[rows, cols], self.view_dirs[rows, cols]
         positions = self.positions[rows, cols] if self.positions is not None else np.zeros_like(normals)
-        cos_view = np.sum(normals * view_dirs, axis=-1)
-        min_cos_view = None if self.max_view_angle is None else float(np.cos(np.radians(self.max_view_angle)))
+        grazing = self.rim_pixels()[rows, cols] if self.max_view_angle is not None else None
         for index, light in enumerate(self.lights):
             cos_ln, cos_hn, irradiance = geometry_terms(positions, normals, view_dirs, light, self.reference_intensity)
             pixels = self.images[index][rows, cols]
             y = self._channel_of(pixels, channel)
             visible = self.visibility[index][rows, cols] if self.visibility is not None else None
-            reasons = exclusion_reasons(y, cos_ln, visible, dark=dark, cos_view=cos_view, min_cos_view=min_cos_view)
+            reasons = exclusion_reasons(y, cos_ln, visible, dark=dark, grazing=grazing)
             if self.saturation is not None:
                 # A pixel is saturated when any of its channels is clipped.
                 reasons["saturated"] |= (pixels >= self.saturation).any(axis=-1)

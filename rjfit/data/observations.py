@@ -110,16 +110,16 @@ RIM_COS = 0.3
 EXCLUSION_RULES = ("unlit", "grazing_view", "shadowed", "saturated", "too_dark", "not_finite")
 
 
-def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, min_cos=MIN_COS, cos_view=None,
-                      min_cos_view=None) -> dict:
+def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, min_cos=MIN_COS,
+                      grazing=None) -> dict:
     """Why observations may not enter the likelihood: one bool array per rule, in this order.
 
     ``unlit`` (the surface does not face the light: ``<l.n> <= min_cos``), ``grazing_view``
-    (the camera sees the surface at a grazing angle: ``<v.n> < min_cos_view``), ``shadowed`` (the
+    (the camera sees the surface at a grazing angle: ``grazing``), ``shadowed`` (the
     light is occluded: not ``visible``), ``saturated`` (at or above ``saturation``: a clipped
     value is a bound, not a measurement), ``too_dark`` (at or below ``dark``) and
     ``not_finite``. A rule without its input (``visible``, ``saturation``, ``dark`` or
-    ``cos_view`` and ``min_cos_view`` None) flags nothing. The rules are the complements of the valid tests, so an observation is
+    ``grazing`` None) flags nothing. The rules are the complements of the valid tests, so an observation is
     valid exactly when no rule flags it (:func:`valid_observation_mask`).
 
     Parameters
@@ -127,10 +127,8 @@ def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, mi
     images, cos_ln : ndarray, shape (L, H, W) (or any one shape)
     visible : ndarray of bool of that shape, or None (no cast shadows known)
     saturation, dark : float or None
-    cos_view : ndarray broadcastable to that shape, or None
-        ``<v.n>`` per observation (per pixel, broadcast over lights).
-    min_cos_view : float or None
-        The least ``<v.n>`` kept (e.g. :data:`RIM_COS`); None keeps every view.
+    grazing : ndarray of bool broadcastable to that shape, or None
+        Pixels seen at a grazing angle (e.g. :meth:`rjfit.data.dataset.Dataset.rim_pixels`).
 
     Returns
     -------
@@ -141,10 +139,9 @@ def exclusion_reasons(images, cos_ln, visible, *, saturation=None, dark=None, mi
     def none():     # a fresh array per rule: callers add their own flags to a rule in place
         return np.zeros(images.shape, dtype=bool)
 
-    grazing = (np.broadcast_to(np.asarray(cos_view) < min_cos_view, images.shape).copy()
-               if cos_view is not None and min_cos_view is not None else none())
     return {"unlit": ~(np.asarray(cos_ln) > min_cos),
-            "grazing_view": grazing,
+            "grazing_view": np.broadcast_to(np.asarray(grazing, dtype=bool), images.shape).copy()
+            if grazing is not None else none(),
             "shadowed": ~np.asarray(visible, dtype=bool) if visible is not None else none(),
             "saturated": ~(images < saturation) if saturation is not None else none(),
             "too_dark": ~(images > dark) if dark is not None else none(),

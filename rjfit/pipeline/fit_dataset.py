@@ -99,7 +99,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     if calibration is not None:
         entries["calibration"] = calibration
     if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again
-        entries.update(max_view_angle=dataset.max_view_angle, rim_pixels=_rim_pixels(dataset))
+        entries.update(max_view_angle=dataset.max_view_angle, rim_pixels=int(dataset.rim_pixels().sum()))
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)
@@ -130,12 +130,6 @@ def _prepared(dataset, options: FitOptions):
         beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
         options = options.replace(potts_beta=beta, potts_rho=rho)
     return dataset, options, calibration
-
-
-def _rim_pixels(dataset) -> int:
-    """Object pixels seen further than ``dataset.max_view_angle`` from their normal."""
-    cos_view = np.sum(dataset.normals * dataset.view_dirs, axis=-1)
-    return int(np.count_nonzero(dataset.object_mask & (cos_view < np.cos(np.radians(dataset.max_view_angle)))))
 
 
 def ghost_material_prior(object_mask, beta: float) -> tuple[float, float]:
