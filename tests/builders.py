@@ -417,6 +417,22 @@ def truth_fit_folder(dataset_path, folder: Path) -> Path:
     return folder
 
 
+def data_diagnose_sees(dataset, summary: dict, folder: Path, monkeypatch):
+    """The data set ``rjfit diagnose`` hands its workflow for a fit whose ``summary.json`` holds
+    ``summary`` (and the channel, mean), one material as its MAP labels: the workflow itself is
+    replaced by a recorder, so only ``diagnose_fit``'s preparation of the data runs."""
+    import rjfit.pipeline.diagnose as pipeline_diagnose
+
+    fit_dir = folder / "fit"
+    fit_dir.mkdir()
+    (fit_dir / "summary.json").write_text(json.dumps({"channel": "mean", **summary}))
+    write_exr(fit_dir / "map_labels.exr", {"labels": np.where(dataset.object_mask, 0.0, -1.0).astype(np.float32)})
+    seen = {}
+    monkeypatch.setattr(pipeline_diagnose, "diagnose", lambda data, labels, out, **options: seen.update(data=data))
+    pipeline_diagnose.diagnose_fit(fit_dir, folder / "diagnosis", dataset=dataset)
+    return seen["data"]
+
+
 def perturbed_normals(normals, mask, degrees, seed):
     """Unit normals turned by an isotropic tangential error of ``degrees`` sd per direction."""
     rng = np.random.default_rng(seed)

@@ -8,6 +8,8 @@ import pytest
 from rjfit.data.calibrate import calibrate_measured, replay_calibration
 from rjfit.render.datasets import load_dataset
 
+from builders import data_diagnose_sees
+
 
 def test_a_recorded_calibration_replays_to_the_data_the_fit_saw(paper_sphere_small):
     """``rjfit diagnose`` on a ``--preset measured`` fit replays the fit's calibration record:
@@ -38,19 +40,10 @@ def test_a_recorded_calibration_replays_to_the_data_the_fit_saw(paper_sphere_sma
 def test_diagnose_of_a_calibrated_fit_sees_the_calibrated_data(paper_sphere_small, tmp_path, monkeypatch):
     """The wiring: ``diagnose_fit`` hands the workflow the replayed data set, not the raw one
     (before, a ``--preset measured`` fit of a psm stack was criticised on its raw codes)."""
-    import rjfit.pipeline.diagnose as pipeline_diagnose
-    from rjfit.data.exr import write_exr
-
     dataset = load_dataset(paper_sphere_small)
     gains = np.linspace(0.9, 1.1, dataset.n_lights)
     raw = dataclasses.replace(dataset, images=dataset.images * gains[:, None, None, None])
     record = {"isolated_pixels": {"min_component": 5, "components_dropped": 0, "pixels_dropped": 0},
               "response": None, "light_gains": {"gains": gains.tolist()}}
-    fit_dir = tmp_path / "fit"
-    fit_dir.mkdir()
-    (fit_dir / "summary.json").write_text(json.dumps({"calibration": record, "channel": "mean"}))
-    write_exr(fit_dir / "map_labels.exr", {"labels": np.where(dataset.object_mask, 0.0, -1.0).astype(np.float32)})
-    seen = {}
-    monkeypatch.setattr(pipeline_diagnose, "diagnose", lambda data, labels, out, **options: seen.update(data=data))
-    pipeline_diagnose.diagnose_fit(fit_dir, tmp_path / "diagnosis", dataset=raw)
-    np.testing.assert_allclose(seen["data"].images, dataset.images, rtol=1e-12, atol=1e-12)
+    seen = data_diagnose_sees(raw, {"calibration": record}, tmp_path, monkeypatch)
+    np.testing.assert_allclose(seen.images, dataset.images, rtol=1e-12, atol=1e-12)

@@ -8,17 +8,15 @@ by its neighbours. The fit records the bound and ``rjfit diagnose`` leaves the s
 observations out. About 1 s.
 """
 import dataclasses
-import json
 
 import numpy as np
 import pytest
 
-from rjfit.data.exr import write_exr
 from rjfit.data.observations import RIM_COS
 from rjfit.pipeline.options import RIM_VIEW_ANGLE, FitOptions
 from rjfit.render.datasets import load_dataset
 
-from builders import make_ps_folder
+from builders import data_diagnose_sees, make_ps_folder
 
 
 def _with_a_rim(dataset):
@@ -36,6 +34,8 @@ def test_the_rim_rule_leaves_out_every_observation_of_a_pixel_seen_at_a_grazing_
     rim = dataset.object_mask & (cos_view < RIM_COS)
     assert 0 < rim.sum() < dataset.object_mask.sum()        # the test needs both kinds of pixel
     limited = dataclasses.replace(dataset, max_view_angle=RIM_VIEW_ANGLE)
+    np.testing.assert_array_equal(limited.rim_pixels(), rim)
+    assert not dataset.rim_pixels().any()                    # no bound: no rim
     plain_valid, valid = dataset.valid_mask(), limited.valid_mask()
     assert not valid[:, rim].any()
     np.testing.assert_array_equal(valid[:, ~rim], plain_valid[:, ~rim])
@@ -50,10 +50,8 @@ def test_the_rim_rule_leaves_out_every_observation_of_a_pixel_seen_at_a_grazing_
 
 
 def test_the_preset_sets_the_rim_rule_and_diagnose_replays_it(tmp_path, monkeypatch):
-    """The preset's bound is the rim's (72.5 degrees); 90 (the default) keeps every view; ``diagnose_fit``
+    """The preset's bound is the rim's (72.5 degrees); none (the default) or 90 keeps every view; ``diagnose_fit``
     hands the workflow the data set with the bound its fit recorded."""
-    import rjfit.pipeline.diagnose as pipeline_diagnose
-
     assert FitOptions(preset="measured").max_view_angle == RIM_VIEW_ANGLE
     assert FitOptions().max_view_angle is None                    # every view kept
     assert FitOptions(preset="measured", max_view_angle=80.0).max_view_angle == 80.0   # a given option stays
@@ -62,11 +60,5 @@ def test_the_preset_sets_the_rim_rule_and_diagnose_replays_it(tmp_path, monkeypa
     with pytest.raises(ValueError, match="--max-view-angle"):
         FitOptions(max_view_angle=95.0)
     dataset = _with_a_rim(load_dataset(make_ps_folder(tmp_path / "ps")))
-    fit_dir = tmp_path / "fit"
-    fit_dir.mkdir()
-    (fit_dir / "summary.json").write_text(json.dumps({"max_view_angle": RIM_VIEW_ANGLE, "channel": "mean"}))
-    write_exr(fit_dir / "map_labels.exr", {"labels": np.where(dataset.object_mask, 0.0, -1.0).astype(np.float32)})
-    seen = {}
-    monkeypatch.setattr(pipeline_diagnose, "diagnose", lambda data, labels, out, **options: seen.update(data=data))
-    pipeline_diagnose.diagnose_fit(fit_dir, tmp_path / "diagnosis", dataset=dataset)
-    assert seen["data"].max_view_angle == RIM_VIEW_ANGLE
+    seen = data_diagnose_sees(dataset, {"max_view_angle": RIM_VIEW_ANGLE}, tmp_path, monkeypatch)
+    assert seen.max_view_angle == RIM_VIEW_ANGLE
