@@ -22,8 +22,8 @@ def _echo_json(payload: dict, keys) -> None:
             click.echo(f"  {key:<24} {value:.4g}" if isinstance(value, float) else f"  {key:<24} {value}")
 
 
-def _likelihood_power(text: str):
-    if text in ("auto", "area"):
+def _likelihood_power(text: str | None):
+    if text is None or text in ("auto", "area"):        # None: not given (the default, or the preset's)
         return text
     try:
         value = float(text)
@@ -215,7 +215,6 @@ def _click_option(name, default, spec):
              "choice": click.Choice(spec.choices), "text": str,
              "power": click.STRING, "path": click.Path(dir_okay=False, path_type=Path),
              "dir": click.Path(file_okay=False, path_type=Path)}
-    default = "1" if spec.kind == "power" and default == 1.0 else default
     if spec.kind == "text" and isinstance(default, tuple):      # a list option's default, as it is typed
         default = ",".join(default)
     return click.option(spec.flag, name, type=types[spec.kind], default=default, help=spec.help,

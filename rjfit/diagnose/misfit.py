@@ -93,7 +93,10 @@ def _fmt(value) -> str:
 def _text(total, gap_highlight, gap_diffuse, gap_rim, gap_interior, worst, lag1, where) -> str:
     lights = ", ".join(f"{w['light']} ({w['share_of_excess']:.0%})" for w in worst if w["share_of_excess"] is not None)
     located = ", ".join(where) if where else "spread over the observations (no part concentrates it)"
+    # no grazing observation: the fit left the rim out (--max-view-angle, --preset measured), or there is none
+    rim = (f"rim (grazing view) {_fmt(gap_rim)} vs interior {_fmt(gap_interior)}" if gap_rim is not None else
+           "no observation at a grazing view (the rim left out of the fit, or none)")
     return (f"unexplained misfit (gap {_fmt(total)}): {located}. Gap on highlight observations {_fmt(gap_highlight)} "
-            f"vs diffuse {_fmt(gap_diffuse)}; rim (grazing view) {_fmt(gap_rim)} vs interior {_fmt(gap_interior)}; "
+            f"vs diffuse {_fmt(gap_diffuse)}; {rim}; "
             f"lights carrying most of the excess: {lights or 'none'}; lag-1 correlation of the mean residual map "
             f"{_fmt(lag1)} (about 0 for white noise)")

@@ -126,9 +126,9 @@ def _prepared(dataset, options: FitOptions):
         dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
     if options.max_view_angle is not None and options.max_view_angle < 90.0:
         dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
-    if options.preset == "measured" and options.regions == "materials" and options.potts_rho == 1.0:  # Potts rule
+    if options.potts_rule:      # --preset measured, --regions materials, no --potts-rho given
         beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
-        options = options.replace(potts_beta=beta, potts_rho=rho)
+        options = options.replace(potts_beta=beta, potts_rho=rho, potts_rule=False)
     return dataset, options, calibration
 
 

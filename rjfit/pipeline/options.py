@@ -60,10 +60,13 @@ def _effect_names(value) -> tuple:
 POWER_RULES = ("auto", "area")
 #: degrees: the rim's edge, arccos(RIM_COS) = 72.5 (rjfit.data.observations.RIM_COS)
 RIM_VIEW_ANGLE = round(math.degrees(math.acos(RIM_COS)), 2)
-#: What ``--preset measured`` sets, where an option is left at its default (docs/measured-data.md); the
-#: Potts beta and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
+#: What ``--preset measured`` sets, where an option is not given (docs/measured-data.md); the Potts beta
+#: and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
                    "cluster_material_seed": 0.5, "max_view_angle": RIM_VIEW_ANGLE}
+#: The value of an option whose field default is None ("not given") when no preset sets it. A given value,
+#: even one equal to these, is kept under a preset (``--preset measured --noise constant`` fits constant noise).
+PLAIN_DEFAULTS = {"noise": "constant", "likelihood_power": 1.0, "potts_rho": 1.0, "max_view_angle": None}
 
 
 def _likelihood_power_value(value):
@@ -112,11 +115,12 @@ class FitOptions:
                                    "(--regions materials). Keep it above log(1 + sqrt(--max-materials)), the "
                                    "Potts model's critical coupling (1.34 for 8): below it the prior favours "
                                    "materials scattered pixel by pixel (docs/materials.md).", "float")
-    potts_rho: float = cli_option(
-        1.0, "--potts-rho",
-        "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). 1: a material costs only its "
-        "parameters' prior; --preset measured sets 1 / (labelled pixels), so that the prior's expected number of "
-        "one-pixel materials does not grow with the image (docs/measured-data.md).", "float")
+    potts_rho: float | None = cli_option(
+        None, "--potts-rho",
+        "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 1: a material costs "
+        "only its parameters' prior; --preset measured sets beta and rho by a rule on the mask unless --potts-rho "
+        "is given (docs/measured-data.md).", "float", show_default=False)
+    potts_rule: bool = False            # set when --preset measured's mask rule is to choose beta and rho
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
@@ -151,17 +155,18 @@ class FitOptions:
         "Colour channel fitted (luminance: CIE Y, sRGB primaries); each: R, G and B fitted separately, into "
         "OUT/R, OUT/G and OUT/B (OUT/NAME/R, ... for several data sets); rgb: R, G and B fitted jointly (one "
         "segmentation, one lobe exponent per material, per-channel amplitudes and noise; --regions materials).", "choice", choices=FIT_CHANNELS)
-    likelihood_power: float | str = cli_option(
-        1.0, "--likelihood-power",
+    likelihood_power: float | str | None = cli_option(
+        None, "--likelihood-power",
         "zeta in (0, 1] of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each observation "
         "counts as zeta observations, so a BRDF misfit shared by neighbouring pixels of measured data does not split "
         "a uniform material into regions. 'auto': zeta = ((1-rho)/(1+rho))^2 from the lag-1 spatial correlation rho "
         "of per-pixel-fit residuals (about 1 for white noise). 'area': zeta = 1 / (the residuals' spatial "
         "autocorrelation summed over lags within +-40 px: an effective number of independent observations; residuals "
-        "of 5 x 5 pixel tile fits, standardised by the noise model's scales). 1: the plain posterior.", "power")
-    noise: str = cli_option(
-        "constant", "--noise",
-        "Noise model y_i ~ N(mu_i, sigma_r^2 s_i^2), s_i known per observation: constant: s_i = 1 (homoscedastic per "
+        "of 5 x 5 pixel tile fits, standardised by the noise model's scales). 1 (the default; --preset measured: "
+        "auto): the plain posterior.", "power", show_default=False)
+    noise: str | None = cli_option(
+        None, "--noise",
+        "Noise model (default constant; --preset measured: normals) y_i ~ N(mu_i, sigma_r^2 s_i^2), s_i known per observation: constant: s_i = 1 (homoscedastic per "
         "region, the paper's); shot: s_i^2 = (m_i + c) / ybar (variance grows with the signal: photon plus read "
         "noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: a multiplicative error). m_i: the "
         "prediction of a separate Lambert + Blinn fit of each pixel; ybar: the mean observed value; c = NOISE_FLOOR * "
@@ -170,7 +175,8 @@ class FitOptions:
         "t f_i^2, normals plus a pixel's footprint, f_i^2 = |grad_x y_i|^2 / 12 of the observed image (the limb of a "
         "sphere), k and t by maximum likelihood (docs/measured-data.md). Weighted least squares: the "
         "sampler is unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
-        "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS)
+        "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS,
+        show_default=False)
     max_view_angle: float | None = cli_option(
         None, "--max-view-angle",
         "Degrees: observations of pixels seen further than this from their normal (the rim) are left out; their "
@@ -216,10 +222,7 @@ class FitOptions:
         if self.n_chains < 1 or self.iterations < 10:
             raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got "
                              f"{self.n_chains}, {self.iterations}")
-        if self.preset == "measured":       # defaults for measured data: only options left at their defaults change
-            for name, value in MEASURED_PRESET.items():
-                if getattr(self, name) == FitOptions.__dataclass_fields__[name].default:
-                    object.__setattr__(self, name, value)
+        self._apply_preset()
         for name, what in (("preset", "preset"), ("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
                            ("channel", "channel"),
                            ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
@@ -259,6 +262,21 @@ class FitOptions:
             raise ValueError(f"--max-materials must lie in 1 .. 127, got {self.max_materials}")
         if self.max_u < 0 or self.max_v < 0:
             raise ValueError(f"max_u and max_v (--max-u, --max-v) must be >= 0, got {self.max_u}, {self.max_v}")
+
+    def _apply_preset(self):
+        """Fill the options not given: the preset's value, else the plain default (:data:`PLAIN_DEFAULTS`)."""
+        measured = self.preset == "measured"
+        if measured and self.regions == "materials" and self.potts_rho is None:
+            object.__setattr__(self, "potts_rule", True)
+        for name, value in MEASURED_PRESET.items():
+            if name in PLAIN_DEFAULTS:          # None: not given
+                if getattr(self, name) is None:
+                    object.__setattr__(self, name, value if measured else PLAIN_DEFAULTS[name])
+            elif measured and getattr(self, name) == FitOptions.__dataclass_fields__[name].default:
+                object.__setattr__(self, name, value)   # an option the command line does not offer
+        for name, value in PLAIN_DEFAULTS.items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
 
     @classmethod
     def cli(cls, name: str) -> CliSpec | None:

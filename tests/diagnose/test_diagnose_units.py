@@ -514,3 +514,24 @@ def test_a_weight_at_its_physical_end_is_not_a_prior_data_conflict():
     assert prior_conflicts(z, 1, effects, params, "cast_shadows") == []
     assert prior_conflicts(z, 1, effects, params, "masking") == []
     assert [c["param"] for c in prior_conflicts(z, 1, effects, params, "fresnel")] == ["fresnel.F0"]
+
+
+def test_the_misfit_description_says_so_when_the_fit_left_the_rim_out(tmp_path):
+    """Under the rim rule (--max-view-angle, --preset measured) a diagnosis sees no grazing
+    observation: the description says the rim was left out instead of printing 'n/a vs ...'."""
+    import dataclasses
+
+    from rjfit.diagnose.context import build_context
+    from rjfit.diagnose.misfit import describe_misfit
+    from rjfit.render.datasets import load_dataset
+    from rjfit.render.render import render_dataset
+
+    dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "d", resolution=12))
+    for max_view_angle, rim_seen in ((None, True), (72.5, False)):
+        seen = dataset if max_view_angle is None else dataclasses.replace(dataset, max_view_angle=max_view_angle)
+        ctx = build_context(seen, seen.truth_labels)
+        residuals = np.random.default_rng(0).normal(size=ctx.y.shape)
+        described = describe_misfit(ctx, residuals, 1.0)
+        assert (described["rim"] is not None) == rim_seen
+        assert ("n/a" in described["text"]) is False
+        assert ("the rim left out of the fit" in described["text"]) == (not rim_seen)

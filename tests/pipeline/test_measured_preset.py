@@ -8,8 +8,9 @@ fits 5 s and 1 s), 57 s with compilation on the loaded 2-core machine.
 """
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
-from rjfit.cli import _likelihood_power
+from rjfit.cli import _likelihood_power, main
 from rjfit.data.normal_error import normal_error_noise
 from rjfit.data.observations import RIM_COS
 from rjfit.pipeline.fit_dataset import GHOST_ODDS, GHOST_PIXELS, fit_dataset, ghost_material_prior
@@ -28,6 +29,27 @@ def test_the_preset_sets_the_measured_defaults_and_survives_a_round_trip():
     assert _likelihood_power("area") == "area"
     with pytest.raises(ValueError, match="preset"):
         FitOptions(preset="rendered")
+
+
+def test_an_option_given_at_its_plain_default_is_kept_under_the_preset(monkeypatch):
+    """`--preset measured --noise constant --likelihood-power 1 --potts-rho 1 --max-view-angle 90` fits
+    what was given: a value equal to the plain default is a choice, not "left out"."""
+    given = FitOptions(preset="measured", regions="materials", noise="constant", likelihood_power=1.0,
+                       potts_rho=1.0, max_view_angle=90.0)
+    assert (given.noise, given.likelihood_power, given.potts_rho, given.max_view_angle) == ("constant", 1.0, 1.0, 90.0)
+    assert not given.potts_rule                 # a given rho keeps beta and rho
+    ruled = FitOptions(preset="measured", regions="materials")
+    assert ruled.potts_rule and not FitOptions(preset="measured").potts_rule      # the rule is the material model's
+    assert FitOptions.from_json(given.to_json()) == given
+    # the command line passes a flag it was given, and None for one it was not
+    import rjfit.pipeline.fit_dataset as fit_dataset_module
+    seen = []
+    monkeypatch.setattr(fit_dataset_module, "fit_datasets", lambda datasets, out, options, **kw: seen.append(options)
+                        or [])
+    result = CliRunner().invoke(main, ["fit", ".", "--out", "x", "--preset", "measured", "--noise", "constant",
+                                       "--likelihood-power", "1"])
+    assert result.exit_code == 0, result.output
+    assert (seen[0].noise, seen[0].likelihood_power, seen[0].max_view_angle) == ("constant", 1.0, RIM_VIEW_ANGLE)
 
 
 def test_the_ghost_rule_bounds_a_twin_materials_prior_pixels_and_odds():
