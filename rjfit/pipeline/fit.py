@@ -58,6 +58,7 @@ from rjfit.sampler.forward import LambertBlinnPhong, Problem
 from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.regions.changepoint_grid import model_number
+from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.runner import ChainSpec, run_chains
 from rjfit.sampler.state import SamplerConfig, flat_option_applies
 
@@ -248,6 +249,11 @@ def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, trut
         if fixed_segmentation is not None:     # (u, v) change points, or (H, W) material labels
             chain_start.setdefault("pixel_labels" if options.regions == "materials" else "changepoints",
                                    fixed_segmentation)
+        elif options.regions == "materials" and "pixel_labels" not in chain_start:
+            # starts stratified over K0 = 1 .. min(4, K_max), not drawn: on a large image a jump between
+            # numbers of materials is rare once a chain has settled, so a mode at a K that no chain started
+            # near could be missed by all of them, and R-hat would not show it
+            chain_start.setdefault("n_materials", MaterialRegions.stratified_start(c, options.max_materials))
         specs.append(ChainSpec(problem=problem, prior=prior, config=config, seed=options.seed, chain=c,
                                n_chains=options.n_chains, iterations=options.iterations,
                                checkpoint_path=str(out_dir / "checkpoints" / f"chain_{c}.pkl"),

@@ -128,7 +128,7 @@ def _prepared(dataset, options: FitOptions):
         dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
     if options.potts_rule:      # --preset measured, --regions materials, no --potts-rho given
         beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
-        options = options.replace(potts_beta=beta, potts_rho=rho, potts_rule=False)
+        options = options.replace(potts_beta=beta, potts_rho=rho)
     return dataset, options, calibration
 
 

@@ -63,7 +63,7 @@ RIM_VIEW_ANGLE = round(math.degrees(math.acos(RIM_COS)), 2)
 #: What ``--preset measured`` sets, where an option is not given (docs/measured-data.md); the Potts beta
 #: and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
-                   "cluster_material_seed": 0.5, "max_view_angle": RIM_VIEW_ANGLE}
+                   "max_view_angle": RIM_VIEW_ANGLE}
 #: The value of an option whose field default is None ("not given") when no preset sets it. A given value,
 #: even one equal to these, is kept under a preset (``--preset measured --noise constant`` fits constant noise).
 PLAIN_DEFAULTS = {"noise": "constant", "likelihood_power": 1.0, "potts_rho": 1.0, "max_view_angle": None}
@@ -110,27 +110,30 @@ class FitOptions:
     max_materials: int = cli_option(8, "--max-materials",
                                     "Most materials (--regions materials); the summary warns when the posterior "
                                     "puts mass on it.", "int", low=1)
-    potts_beta: float = cli_option(2.0, "--potts-beta",
+    potts_beta: float = cli_option(3.0, "--potts-beta",
                                    "Potts prior strength per pair of neighbouring pixels of different materials "
                                    "(--regions materials). Keep it above log(1 + sqrt(--max-materials)), the "
                                    "Potts model's critical coupling (1.34 for 8): below it the prior favours "
-                                   "materials scattered pixel by pixel (docs/materials.md).", "float")
+                                   "materials scattered pixel by pixel; 3 is the smallest of 1, 2, 3 that kept "
+                                   "extra materials of one or two pixels off four rendered layouts "
+                                   "(docs/materials.md).", "float")
     potts_rho: float | None = cli_option(
         None, "--potts-rho",
         "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 1: a material costs "
         "only its parameters' prior; --preset measured sets beta and rho by a rule on the mask unless --potts-rho "
         "is given (docs/measured-data.md).", "float", show_default=False)
-    potts_rule: bool = False            # set when --preset measured's mask rule is to choose beta and rho
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
         "unknown response or intensities), sets --noise normals and --likelihood-power auto where they are left at "
-        "their defaults, no annealed warm-up, the rim left out (--max-view-angle 72.5), with --regions materials the Potts beta and rho by a rule on the mask "
-        "and half the cluster moves' seeds drawn per material, and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
+        "their defaults, no annealed warm-up, the rim left out (--max-view-angle 72.5), with --regions materials the Potts beta and rho by a rule on the mask, "
+        "and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
         "estimated before the fit and applied to the images), as measured in docs/measured-data.md.", "choice",
         choices=("none", "measured"))
     calibrate: bool = False
-    cluster_material_seed: float = 0.0
+    # half the material model's cluster seeds drawn per material (first under --preset measured, now every
+    # material fit's: one-pixel leftovers die within tens of iterations; docs/materials.md)
+    cluster_material_seed: float = 0.5
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)
     sampler: str = cli_option("adaptive", "--sampler",
@@ -215,6 +218,9 @@ class FitOptions:
     processes: int | None = None
     figures: bool = True
     progress: bool = True
+    # the options of PLAIN_DEFAULTS that were not given, filled by the preset or the plain default: a copy
+    # (replace) fills them again, so that a preset given later still sets them
+    unset: tuple = ()
 
     def __post_init__(self):
         if self.burn_in is not None and not 0.0 <= self.burn_in < 1.0:
@@ -266,17 +272,21 @@ class FitOptions:
     def _apply_preset(self):
         """Fill the options not given: the preset's value, else the plain default (:data:`PLAIN_DEFAULTS`)."""
         measured = self.preset == "measured"
-        if measured and self.regions == "materials" and self.potts_rho is None:
-            object.__setattr__(self, "potts_rule", True)
-        for name, value in MEASURED_PRESET.items():
-            if name in PLAIN_DEFAULTS:          # None: not given
-                if getattr(self, name) is None:
-                    object.__setattr__(self, name, value if measured else PLAIN_DEFAULTS[name])
-            elif measured and getattr(self, name) == FitOptions.__dataclass_fields__[name].default:
-                object.__setattr__(self, name, value)   # an option the command line does not offer
-        for name, value in PLAIN_DEFAULTS.items():
-            if getattr(self, name) is None:
+        unset = set(self.unset) | {name for name in PLAIN_DEFAULTS if getattr(self, name) is None}
+        for name in PLAIN_DEFAULTS:
+            if name in unset:
+                value = MEASURED_PRESET.get(name, PLAIN_DEFAULTS[name]) if measured else PLAIN_DEFAULTS[name]
                 object.__setattr__(self, name, value)
+        for name, value in MEASURED_PRESET.items():     # options the command line does not offer
+            if measured and name not in PLAIN_DEFAULTS and getattr(self, name) == FitOptions.__dataclass_fields__[
+                    name].default:
+                object.__setattr__(self, name, value)
+        object.__setattr__(self, "unset", tuple(sorted(unset)))
+
+    @property
+    def potts_rule(self) -> bool:
+        """Whether --preset measured's mask rule chooses the Potts beta and rho (no --potts-rho given)."""
+        return self.preset == "measured" and self.regions == "materials" and "potts_rho" in self.unset
 
     @classmethod
     def cli(cls, name: str) -> CliSpec | None:
@@ -302,8 +312,10 @@ class FitOptions:
         return options.replace(**changes) if changes else options
 
     def replace(self, **changes) -> "FitOptions":
-        """A copy with ``changes`` (checked like the original)."""
-        return dataclasses.replace(self, **changes)
+        """A copy with ``changes`` (checked like the original); the options not given stay so (see ``unset``)."""
+        refill = {name: None for name in self.unset if name not in changes}
+        unset = tuple(name for name in self.unset if name not in changes)
+        return dataclasses.replace(self, **refill, **changes, unset=unset)
 
     def to_json(self) -> dict:
         """Every option as JSON values (``summary.json`` "fit_options": what `rjfit refine` fits again with)."""

@@ -80,3 +80,25 @@ def test_files_maps_and_chains(fitted):
     assert {"materials", "materials_histogram", "reflectance"} <= set(summary["figures"])
     assert all((out / path).is_file() for path in summary["figures"].values())
     assert json.loads((out / "summary.json").read_text())["fit_id"] == summary["fit_id"]
+
+
+def test_the_chains_start_stratified_over_the_number_of_materials(tmp_path):
+    """A fit's chains start at K0 = 1, 2, 3, 4, 1, ... materials (capped by --max-materials), so
+    that a mode at a small K is started near by some chain whatever the seed; a fixed
+    segmentation or a given start is kept."""
+    from rjfit.pipeline.fit import chain_specs, prepare_problem, sampler_config
+    from rjfit.pipeline.options import FitOptions
+    from rjfit.sampler.kernel import initial_state
+    from rjfit.sampler.priors import make_prior
+
+    obs, truth = stack()
+    for max_materials, expected in ((8, [1, 2, 3, 4, 1, 2]), (3, [1, 2, 3, 1, 2, 3])):
+        options = FitOptions(regions="materials", n_chains=6, max_materials=max_materials, iterations=20)
+        problem = prepare_problem(obs, options)[0]
+        prior, config = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A), sampler_config(options)
+        specs = chain_specs(problem, prior, config, options, tmp_path, None, None, None)
+        starts = [initial_state(problem, prior, config, np.random.default_rng(s.chain), **s.start).layout.n_materials
+                  for s in specs]
+        assert starts == expected
+    fixed = chain_specs(problem, prior, config, options, tmp_path, None, None, truth)
+    assert all("n_materials" not in s.start and s.start["pixel_labels"] is truth for s in fixed)

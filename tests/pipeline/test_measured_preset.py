@@ -21,7 +21,7 @@ from rjfit.render.datasets import load_dataset
 def test_the_preset_sets_the_measured_defaults_and_survives_a_round_trip():
     options = FitOptions(preset="measured")
     assert (options.noise, options.likelihood_power, options.calibrate, options.anneal,
-            options.cluster_material_seed) == ("normals", "auto", True, 0.0, 0.5)
+            options.cluster_material_seed) == ("normals", "auto", True, 0.0, 0.5)      # seeds: every material fit's
     assert FitOptions(preset="measured", likelihood_power="area").likelihood_power == "area"     # a given option stays
     assert FitOptions.from_json(options.to_json()) == options
     plain = FitOptions()
@@ -41,6 +41,13 @@ def test_an_option_given_at_its_plain_default_is_kept_under_the_preset(monkeypat
     ruled = FitOptions(preset="measured", regions="materials")
     assert ruled.potts_rule and not FitOptions(preset="measured").potts_rule      # the rule is the material model's
     assert FitOptions.from_json(given.to_json()) == given
+    # the Python API builds options by replacing the defaults' (fit_dataset(..., preset="measured")): what was
+    # not given is still the preset's, and what was given stays given through a copy
+    built = FitOptions.build(None, preset="measured", regions="materials")
+    assert (built.noise, built.likelihood_power, built.max_view_angle, built.potts_rule) == (
+        "normals", "auto", RIM_VIEW_ANGLE, True)
+    assert FitOptions(noise="constant").replace(preset="measured").noise == "constant"
+    assert FitOptions.from_json(built.to_json()).replace(preset="none").noise == "constant"
     # the command line passes a flag it was given, and None for one it was not
     import rjfit.pipeline.fit_dataset as fit_dataset_module
     seen = []

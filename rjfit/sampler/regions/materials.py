@@ -16,13 +16,15 @@ posterior mass sits on it). Every label is in use: no state has an empty materia
 - Each material k has its own parameters ``theta_k = (I0, kd, gamma, sigma^2)``, drawn iid
   from the fit's region prior (:func:`rjfit.sampler.priors.make_prior`), shared by every
   pixel that carries it, connected or not.
-- beta and rho are fixed: ``beta = 2`` per neighbour pair and ``rho = 1`` by default. The
-  rule: beta well above the critical coupling of the K_max-state Potts model on the square
-  lattice, ``log(1 + sqrt(K_max))`` (1.34 for K_max = 8; beta 2 is above it for K_max up to
-  40). Below it the prior's mass lies on labellings scattered pixel by pixel, which with K
-  free means K_max "twins" of one paint (measured at beta 1: K = K_max on every synthetic
-  layout; ``validation/materials.py``, docs/materials.md). rho = 1: a material costs
-  nothing beyond its parameters' prior and its K!.
+- beta and rho are fixed: ``beta = 3`` per neighbour pair and ``rho = 1`` by default. Why:
+  beta must lie above the critical coupling of the K_max-state Potts model on the square
+  lattice, ``log(1 + sqrt(K_max))`` (1.34 for K_max = 8). Below it the prior's mass lies on
+  labellings scattered pixel by pixel, which with K free means K_max "twins" of one paint
+  (measured at beta 1: K = K_max on every synthetic layout; ``validation/materials.py``,
+  docs/materials.md). Of beta 1, 2, 3 measured on four rendered layouts, 3 is the smallest
+  at which extra materials of one or two boundary pixels did not take a tenth of the
+  posterior on any of them; the measured preset's mask rule gives 2.8 to 3.5 on real masks.
+  rho = 1: a material costs nothing beyond its parameters' prior and its K!.
 - Observations enter through the change-point model's likelihood (likelihood power zeta,
   known noise scales): materials are regions.
 
@@ -40,7 +42,8 @@ unchanged), in order:
    and separates a second paint hidden in a material.
 
 Each leaves the posterior invariant on its own. The kernel's annealed warm-up tempers the
-likelihood for these moves as for change points. Start: K0 uniform on
+likelihood for these moves as for change points. Start: K0 given (a fit's chains are
+stratified over 1 .. min(4, K_max), :meth:`MaterialRegions.stratified_start`) or uniform on
 1 .. min(4, K_max), labels from a k-means (seeded by the chain's generator) of the per-pixel
 features the bonds use; parameters as the change-point start draws them.
 
@@ -67,7 +70,11 @@ from rjfit.sampler.regions.material_labels import (
     bond_probabilities,
     kmeans_labels,
     labelled_pixels,
+    majority_labels,
 )
+
+#: the starts' numbers of materials range over 1 .. this (at most K_max)
+START_MATERIALS = 4
 
 __all__ = ["MaterialRegions"]
 
@@ -144,13 +151,19 @@ class MaterialRegions(RegionModel):
                 raise ValueError("start pixel_labels leave a material 0 .. K - 1 without a pixel")
         else:
             if n_materials is None:
-                n_materials = int(rng.integers(1, min(4, self.max_materials) + 1))
+                n_materials = int(rng.integers(1, min(START_MATERIALS, self.max_materials) + 1))
             n_materials = min(int(n_materials), int(labelled.sum()))
             pixels = np.full(labelled.shape, -1, np.int8)
             pixels[labelled] = kmeans_labels(bonds.features[labelled.ravel()], n_materials, rng)
+            pixels, n_materials = majority_labels(pixels, n_materials)      # compact, as the Potts prior likes
         if n_materials > self.max_materials:
             raise ValueError(f"start has {n_materials} materials, more than max_materials={self.max_materials}")
         return MaterialLabels(pixels, int(n_materials), bonds)
+
+    @staticmethod
+    def stratified_start(chain: int, max_materials: int) -> int:
+        """K0 of chain ``chain`` in a fit's stratified starts: 1, 2, 3, 4, 1, ... (at most ``max_materials``)."""
+        return 1 + chain % min(START_MATERIALS, max_materials)
 
     def log_prior(self, problem, layout) -> float:
         return self.potts.log_density(layout.pixels, layout.n_materials)
