@@ -87,7 +87,7 @@ def _rendered_draws(ctx, fit, picks, seed, spp_stochastic):
     (:meth:`rjfit.diagnose.refit.FitResult.cached`): a diagnosis renders the same fits more than
     once (the naming rule the current model of each step and each candidate that passed rules 1
     to 3, the simulation record the plain and final models), and the render of one seed is the
-    same every time. The context is kept with the renders, so another context never reads them.
+    same every time.
     """
     def render(_fit):
         width = ctx.image_shape[1]
@@ -102,9 +102,9 @@ def _rendered_draws(ctx, fit, picks, seed, spp_stochastic):
             sims.append(stack[at])
         return ctx, np.stack(sims)
 
+    # the context is kept with its renders, so no other context can take its id while they are kept
     key = ("mitsuba_renders", id(ctx), tuple(int(i) for i in picks), seed, spp_stochastic)
-    rendered_for, sims = fit.cached(key, render)
-    return sims if rendered_for is ctx else render(fit)[1]
+    return fit.cached(key, render)[1]
 
 
 def simulation_record(ctx, plain, current, sigma2_hat, *, n_draws, seed, figure_dir=None) -> dict:
