@@ -42,19 +42,9 @@ def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, sp
                          "or a mesh stack)")
     rng = np.random.default_rng(seed)
     picks = rng.choice(fit.draws.shape[0], size=min(n_draws, fit.draws.shape[0]), replace=False)
-    width = ctx.image_shape[1]
-    at = (ctx.light, ctx.pixel // width, ctx.pixel % width)
-    sims, sigma2s = [], []
-    for k, index in enumerate(picks):
-        z = fit.draws[index]
-        region = fit.region_params(z)
-        thetas = fit.effect_thetas(z)
-        change = merge_changes([e.mitsuba_change(t, ctx) for e, t in zip(fit.effects, thetas)])
-        stack = render_model(*model_scene(ctx, region), change,
-                             spp=spp_stochastic if change.stochastic else 1, seed=(seed, SIMULATION_STREAM, k))
-        sims.append(stack[at])
-        sigma2s.append(region[ctx.region, 3] * (1.0 if ctx.noise_scale is None else ctx.noise_scale ** 2))
-    sims, sigma2s = np.stack(sims), np.stack(sigma2s)              # (S, N)
+    sims = _rendered_draws(ctx, fit, picks, seed, spp_stochastic)                  # (S, N)
+    scale = 1.0 if ctx.noise_scale is None else ctx.noise_scale ** 2
+    sigma2s = np.stack([fit.region_params(fit.draws[index])[ctx.region, 3] * scale for index in picks])
     mean = sims.mean(axis=0)
     var_sim = sims.var(axis=0, ddof=1) if sims.shape[0] > 1 else np.zeros_like(mean)
     residuals = ctx.y - mean
@@ -88,6 +78,33 @@ def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, sp
         "ppc_fraction_below_0.01": float(np.nanmean(p_values[observed] < 0.01)),
         "simulation_sd_mean": float(np.sqrt(var_sim).mean()),
     }
+
+
+def _rendered_draws(ctx, fit, picks, seed, spp_stochastic):
+    """Mitsuba's radiance of ``fit``'s draws ``picks`` at the observations of ``ctx``: (S, N).
+
+    Rendered once per fit, context, draws and seed, and kept on the fit
+    (:meth:`rjfit.diagnose.refit.FitResult.cached`): a diagnosis renders the same fits more than
+    once (the naming rule the current model of each step and each candidate that passed rules 1
+    to 3, the simulation record the plain and final models), and the render of one seed is the
+    same every time.
+    """
+    def render(_fit):
+        width = ctx.image_shape[1]
+        at = (ctx.light, ctx.pixel // width, ctx.pixel % width)
+        sims = []
+        for k, index in enumerate(picks):
+            z = fit.draws[index]
+            thetas = fit.effect_thetas(z)
+            change = merge_changes([e.mitsuba_change(t, ctx) for e, t in zip(fit.effects, thetas)])
+            stack = render_model(*model_scene(ctx, fit.region_params(z)), change,
+                                 spp=spp_stochastic if change.stochastic else 1, seed=(seed, SIMULATION_STREAM, k))
+            sims.append(stack[at])
+        return ctx, np.stack(sims)
+
+    # the context is kept with its renders, so no other context can take its id while they are kept
+    key = ("mitsuba_renders", id(ctx), tuple(int(i) for i in picks), seed, spp_stochastic)
+    return fit.cached(key, render)[1]
 
 
 def simulation_record(ctx, plain, current, sigma2_hat, *, n_draws, seed, figure_dir=None) -> dict:
