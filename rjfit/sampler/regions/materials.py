@@ -155,7 +155,9 @@ class MaterialRegions(RegionModel):
             n_materials = min(int(n_materials), int(labelled.sum()))
             pixels = np.full(labelled.shape, -1, np.int8)
             pixels[labelled] = kmeans_labels(bonds.features[labelled.ravel()], n_materials, rng)
-            pixels, n_materials = majority_labels(pixels, n_materials)      # compact, as the Potts prior likes
+            compact, kept = majority_labels(pixels, n_materials)      # compact, as the Potts prior likes
+            if kept == n_materials:     # the start's K is its own (a fixed-K chain cannot regain a lost one)
+                pixels = compact
         if n_materials > self.max_materials:
             raise ValueError(f"start has {n_materials} materials, more than max_materials={self.max_materials}")
         return MaterialLabels(pixels, int(n_materials), bonds)
