@@ -21,9 +21,10 @@ def main(argv=None):
     from rjfit.model.blinn import radiance
     from rjfit.sampler.forward import Problem
     from rjfit.sampler.kernel import initial_state
-    from rjfit.sampler.moves.cluster_swc import propose_cluster_move
+    from rjfit.sampler.moves.cluster_swc import CLUSTER_KINDS, propose_cluster_move
     from rjfit.sampler.moves.label_gibbs import sweep_labels
     from rjfit.sampler.moves.merge_split import propose_merge_split
+    from rjfit.sampler.moves.segment_move import SEGMENT_KINDS, propose_segment_move
     from rjfit.sampler.priors import make_prior
     from rjfit.sampler.runner import numba_threads
     from rjfit.sampler.state import SamplerConfig, StepInfo, Work
@@ -66,9 +67,10 @@ def main(argv=None):
             changed = sweep_labels(work, rng, problem, config.regions.potts, StepInfo())
             if repeat:
                 times.append(time.perf_counter() - start)
-        proposal_times = {"split": [], "merge": [], "cluster": [], "cluster_birth": [], "cluster_death": []}
+        proposal_times = {kind: [] for kind in ("split", "merge", *CLUSTER_KINDS, *SEGMENT_KINDS)}
         regions = config.regions
-        moves = ((propose_merge_split, regions.merge_split), (propose_cluster_move, regions.cluster))
+        moves = ((propose_merge_split, regions.merge_split), (propose_cluster_move, regions.cluster),
+                 (propose_segment_move, regions.cluster.new_prob))
         for repeat in range(args.repeats + 1):
             for propose, settings in moves:
                 start = time.perf_counter()

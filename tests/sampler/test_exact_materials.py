@@ -14,12 +14,14 @@ posterior by a chi-square test scaled by the effective sample size
 outcome deterministic); so are the frequencies of K. The parameters of pixel 0's material
 are compared with their exact marginal (a mixture over partitions of the blocks'
 quadrature marginals) by one-sample KS tests on draws thinned to about one per effective
-sample, level 0.001. K changes by the cluster moves' births and deaths and by the merge/split
-moves of whole materials (:mod:`rjfit.sampler.moves.merge_split`), together and, in one
-test, by merges and splits alone. The negative controls must be rejected with p < 1e-6:
-the cluster moves without their cut products (their ``log(1 - q)`` sums) with bonds near
-q_max, and the merge/split moves with the split probability q(X, Y) missing the coin's
-second half.
+sample, level 0.001. K changes by the cluster moves' births and deaths, by the segment
+moves' (:mod:`rjfit.sampler.moves.segment_move`; on these images the family's superpixels
+are single pixels) and by the merge/split moves of whole materials
+(:mod:`rjfit.sampler.moves.merge_split`), together and, in three tests, by one family alone.
+The negative controls must be rejected with p < 1e-6: the segment moves without the Potts
+change, the cluster moves without their cut products (their ``log(1 - q)`` sums) with
+bonds near q_max, and the merge/split moves with the split probability q(X, Y) missing the
+coin's second half.
 """
 import dataclasses
 
@@ -30,7 +32,7 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.moves import cluster_swc, merge_split
+from rjfit.sampler.moves import cluster_swc, merge_split, segment_move
 from rjfit.sampler.passes.labels import allocate_split
 from rjfit.sampler.regions.material_labels import boundary_count
 from rjfit.sampler.state import SamplerConfig
@@ -139,15 +141,17 @@ def materials_config(**options):
     return SamplerConfig.from_flat(**flat)
 
 
-# K moved by every jump move, by the cluster moves' births and deaths alone, by merges and splits alone
-# (and by the cluster moves alone with half their seeds drawn as a material, then a pixel of it)
-JUMP_MOVES = {"all": {"merge_split_moves": 1}, "cluster": {"merge_split_moves": 0},
-              "merge_split": {"cluster_moves": 0, "merge_split_moves": 1},
-              "cluster_material_seeds": {"merge_split_moves": 0, "cluster_material_seed": 0.5}}
+# K moved by every jump move, by the cluster moves' births and deaths alone, by merges and splits alone,
+# by the segment moves' births and deaths alone (and by the cluster moves alone with half their seeds
+# drawn as a material, then a pixel of it)
+JUMP_MOVES = {"all": {"merge_split_moves": 1}, "cluster": {"merge_split_moves": 0, "segment_moves": 0},
+              "merge_split": {"cluster_moves": 0, "segment_moves": 0, "merge_split_moves": 1},
+              "segment": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 2},
+              "cluster_material_seeds": {"merge_split_moves": 0, "segment_moves": 0, "cluster_material_seed": 0.5}}
 
 
 @pytest.mark.parametrize("jumps,beta,rho,seed", [("all", 1.0, 1.0, 1), ("cluster", 0.5, 0.1, 2),
-                                                 ("merge_split", 2.0, 0.5, 4),
+                                                 ("merge_split", 2.0, 0.5, 4), ("segment", 1.0, 0.5, 3),
                                                  ("cluster_material_seeds", 0.5, 0.1, 2)])
 def test_partitions_k_and_parameters_match_enumeration(square, jumps, beta, rho, seed):
     """All 15 partitions of the 2 x 2 image, K_max 4: Gibbs sweeps and the jump moves ``jumps``."""
@@ -169,7 +173,7 @@ def test_partitions_k_and_parameters_match_enumeration(square, jumps, beta, rho,
 
 
 def test_fixed_k_gibbs_and_cluster_moves_match_enumeration():
-    """The 31 two-block partitions of a 2 x 3 image: labels moved by Gibbs sweeps and cluster moves only (K = 2)."""
+    """The 31 two-block partitions of a 2 x 3 image: labels moved by Gibbs sweeps, cluster and segment moves (K = 2)."""
     obs, prior = tiny_problem(width=3)
     problem, quad = Problem.from_observations(obs), Quadrature(obs, prior, points=61)
     exact = exact_partition_posterior(quad, (2, 3), 1.0, 1.0, n_blocks=2)
@@ -224,6 +228,20 @@ def test_split_probability_without_the_coins_second_half_is_detected(square, mon
 
     monkeypatch.setattr(merge_split, "split_log_prob", half_coin)
     wrong, _ = run(problem, prior, config, STUCK_ITERATIONS, 8)
+    p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
+    print(p_wrong, details_wrong)
+    assert p_wrong < 1e-6, details_wrong
+
+
+def test_segment_moves_without_their_potts_change_are_detected(square, monkeypatch):
+    """Negative control: the segment moves' edges to each label taken as none (the Potts change left
+    out of their ratio), segment moves the only jumps. The right chain of this setting is the
+    enumeration test's ``segment`` case (same beta, rho and moves), which passes."""
+    prior, problem, quad = square
+    exact = exact_partition_posterior(quad, (2, 2), 1.0, 0.5)
+    config = materials_config(max_materials=4, potts_beta=1.0, potts_rho=0.5, **JUMP_MOVES["segment"])
+    monkeypatch.setattr(segment_move, "edges_to_labels", lambda pixels, members, n_labels: np.zeros(n_labels, int))
+    wrong, _ = run(problem, prior, config, CONTROL_ITERATIONS, 9)
     p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
     print(p_wrong, details_wrong)
     assert p_wrong < 1e-6, details_wrong

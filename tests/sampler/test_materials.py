@@ -2,8 +2,8 @@
 
 The passes are compared with :mod:`rjfit.sampler.reference` on a 9 x 11 problem of three
 materials (tolerance 1e-9 relative: float64 sums of float32 data in another order). The
-bookkeeping test runs long random move sequences (Gibbs sweeps, cluster moves with births
-and deaths, within-material moves) with no refresh, and compares every material's
+bookkeeping test runs long random move sequences (Gibbs sweeps, cluster and segment moves
+with births and deaths, within-material moves) with no refresh, and compares every material's
 statistics and log-likelihood with a full recompute (1e-9 relative, as the brief states).
 """
 import numpy as np
@@ -156,20 +156,22 @@ def test_start_checks():
 
 @pytest.mark.parametrize("power", [1.0, 0.3])
 def test_incremental_statistics_match_full_recompute(power):
-    """Three chains of 300 iterations (no refresh), every move accepted in one or another: stats and log-likelihood
+    """Four chains of 300 iterations (no refresh), every move accepted in one or another: stats and log-likelihood
     equal a full recompute to 1e-9 relative at the end.
 
     One starts with 5 materials for 3 (twins: cluster moves between them, and without
     merges and splits, so that cluster moves kill them); two under an annealed warm-up
     (likelihood power rising from 1e-3 over 200 iterations, statistics rescaled at every
     step; beta 2: compact materials), one from 4 materials with every move, one from 6, the
-    cap, with merges and splits the only jumps.
+    cap, with merges and splits the only jumps; one from 1 with segment moves the only jumps.
     """
     problem, truth = material_problem(likelihood_power=power)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     kinds = set()
     annealed = {"burn_in": 200, "anneal": 200, "potts_beta": 2.0}
-    chains = ((5, {"merge_split_moves": 0, "potts_beta": 1.0}), (4, annealed), (6, {**annealed, "cluster_moves": 0}))
+    # the last: one material at the start, segment moves the only jumps (so that they are accepted)
+    chains = ((5, {"merge_split_moves": 0, "potts_beta": 1.0}), (4, annealed), (6, {**annealed, "cluster_moves": 0}),
+              (1, {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 4}))
     for start, flat in chains:
         config = SamplerConfig.from_flat(region_model="materials", max_materials=6, refresh_every=0,
                                          **{"burn_in": 0, "cluster_moves": 6, **flat})
@@ -187,6 +189,7 @@ def test_incremental_statistics_match_full_recompute(power):
         np.testing.assert_allclose(state.log_lik, log_likelihood_from_stats(full, state.theta), rtol=1e-9)
         assert state.total_log_lik == pytest.approx(oracle_log_likelihood(problem, labels, state.theta), rel=1e-9)
     assert {"label_gibbs", "cluster", "cluster_birth", "cluster_death", "split", "merge"} <= kinds, kinds
+    assert {"segment", "segment_birth", "segment_death"} & kinds, kinds
 
 
 def test_allocate_split_matches_reference_and_evaluates_its_own_draws():

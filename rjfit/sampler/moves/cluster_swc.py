@@ -56,7 +56,11 @@ from rjfit.sampler.likelihood import log_likelihood_from_stats
 from rjfit.sampler.moves.proposal import Proposal
 from rjfit.sampler.passes.labels import grow_cluster
 
-__all__ = ["ClusterSettings", "label_choice", "cluster_data", "stats_rows", "with_rows", "propose_cluster_move"]
+__all__ = ["ClusterSettings", "label_choice", "cluster_data", "stats_rows", "with_rows", "propose_cluster_move",
+           "propose_set_move", "CLUSTER_KINDS"]
+
+#: the names a cluster move is counted under: moved, born, dying
+CLUSTER_KINDS = ("cluster", "cluster_birth", "cluster_death")
 
 
 @dataclass(frozen=True)
@@ -157,29 +161,54 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
         seed = layout.bonds.draw_seed(rng)
     key = np.uint64(rng.integers(0, 2 ** 63))
     members, n_to, cut_to = grow_cluster(flat, flat >= 0, layout.bonds.q, key, seed, height, width, n_mat)
-    old = int(flat[seed])
-    p_new, p_other = label_choice(n_mat, max_materials, settings.new_prob, jumps)
+
+    def seed_ratio(new, n_after):
+        return _seed_log_ratio(settings, layout, members, flat, int(flat[seed]), new, n_after)
+
+    return propose_set_move(work, rng, problem, prior, (members, n_to, cut_to, seed_ratio), settings.new_prob,
+                            proposals, potts, max_materials, jumps, CLUSTER_KINDS)
+
+
+def propose_set_move(work, rng, problem, prior, pixel_set, new_prob: float, proposals, potts, max_materials: int,
+                     jumps: bool, kinds=None):
+    """A set V0 of pixels of one label moved to another label or to a NEW material: ``(Proposal, kind)``,
+    or ``(None, kind)`` when there is no move to test.
+
+    ``pixel_set`` is ``(members, n_to, cut_to, seed_ratio)``: V0's pixels (ascending), per
+    label the number of edges from V0 to that label's pixels outside it and the sum of their
+    ``log(1 - q)`` (zeros for a set drawn without bonds), and a function ``(new, n_after)``
+    giving the log of the reverse move's chance of drawing V0 over this move's (``new`` None
+    for a birth). The label choice, births and deaths are the cluster moves' (module
+    docstring); ``kinds`` names the moved, born and dying cases (default the cluster moves').
+    """
+    kinds = CLUSTER_KINDS if kinds is None else kinds
+    members, n_to, cut_to, seed_ratio = pixel_set
+    layout = work.layout
+    n_mat = layout.n_materials
+    height, width = layout.pixels.shape
+    flat = layout.pixels.ravel()
+    old = int(flat[members[0]])
+    p_new, p_other = label_choice(n_mat, max_materials, new_prob, jumps)
     if p_new == 0.0 and n_mat == 1:
-        return None, "cluster"
+        return None, kinds[0]
     birth = rng.random() < p_new
     whole = members.size == int(np.count_nonzero(flat == old))
     if birth and whole:
-        return None, "cluster_birth"          # a renaming of material `old`: the same partition
+        return None, kinds[1]                 # a renaming of material `old`: the same partition
     if not birth and whole and not jumps:
-        return None, "cluster_death"          # K fixed: a material may not be emptied
+        return None, kinds[2]                 # K fixed: a material may not be emptied
     n_ch = problem.n_channels
     rows_old = material_rows(old, n_ch)
     data = cluster_data(problem, members)
     stats_old = stats_rows(data, work.theta[old * n_ch, 2])
     log_lik_old = material_log_lik(stats_old, work.theta[rows_old])
     if birth:
-        seed_ratio = _seed_log_ratio(settings, layout, members, flat, old, None, n_mat + 1)
-        return _birth(work, rng, problem, prior, settings, proposals, potts, max_materials,
+        return _birth(work, rng, problem, prior, new_prob, proposals, potts, max_materials,
                       (members, n_to, cut_to, old, data, stats_old, log_lik_old, p_new),
-                      seed_ratio), "cluster_birth"
+                      seed_ratio(None, n_mat + 1)), kinds[1]
     pick = int(rng.integers(n_mat - 1))
     new = pick if pick < old else pick + 1
-    seed_ratio = _seed_log_ratio(settings, layout, members, flat, old, new, n_mat - 1 if whole else n_mat)
+    log_seed = seed_ratio(new, n_mat - 1 if whole else n_mat)
     rows_new = material_rows(new, n_ch)
     stats_new = stats_rows(data, work.theta[new * n_ch, 2])
     delta_lik = material_log_lik(stats_new, work.theta[rows_new]) - log_lik_old
@@ -193,11 +222,11 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
         stats[rows_old] -= stats_old
         stats[rows_new] += stats_new
         return _proposal(work, problem, pixels.reshape(height, width), n_mat, work.theta.copy(), stats,
-                         delta_lik + delta_potts + cut_ratio + seed_ratio), "cluster"
+                         delta_lik + delta_potts + cut_ratio + log_seed), kinds[0]
     # death of `old`: its parameters evaluated under the proposal built from V0's data
     _, term = material_term(data, work.theta[rows_old], prior, proposals)
-    p_new_back = label_choice(n_mat - 1, max_materials, settings.new_prob, jumps)[0]
-    log_ratio = (delta_lik + delta_potts + cut_ratio + seed_ratio
+    p_new_back = label_choice(n_mat - 1, max_materials, new_prob, jumps)[0]
+    log_ratio = (delta_lik + delta_potts + cut_ratio + log_seed
                  - math.log(potts.rho) + math.log(n_mat)          # rho^K and the labelled state's 1 / K!
                  - term
                  + math.log(p_new_back) - math.log(n_mat)         # the reverse birth: NEW, then slot `old` of K
@@ -207,7 +236,7 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
     pixels[pixels > old] -= 1
     keep = np.repeat(np.arange(n_mat) != old, n_ch)
     return _proposal(work, problem, pixels.reshape(height, width), n_mat - 1, work.theta[keep].copy(), stats[keep],
-                     log_ratio), "cluster_death"
+                     log_ratio), kinds[2]
 
 
 def _seed_log_ratio(settings, layout, members, flat, old, new, n_after) -> float:
@@ -231,7 +260,7 @@ def _seed_log_ratio(settings, layout, members, flat, old, new, n_after) -> float
     return math.log(reverse) - math.log(forward)
 
 
-def _birth(work, rng, problem, prior, settings, proposals, potts, max_materials, cluster, seed_ratio) -> Proposal:
+def _birth(work, rng, problem, prior, new_prob, proposals, potts, max_materials, cluster, seed_ratio) -> Proposal:
     """The birth of a material for the cluster (see the module docstring)."""
     members, n_to, cut_to, old, data, stats_old, log_lik_old, p_new = cluster
     layout = work.layout
@@ -246,7 +275,7 @@ def _birth(work, rng, problem, prior, settings, proposals, potts, max_materials,
     if theta_born is None:
         return Proposal.invalid(layout.with_pixels(pixels, n_mat + 1))
     stats_born = stats_rows(data, theta_born[0, 2])
-    p_other_back = label_choice(n_mat + 1, max_materials, settings.new_prob)[1]
+    p_other_back = label_choice(n_mat + 1, max_materials, new_prob)[1]
     log_ratio = (material_log_lik(stats_born, theta_born) - log_lik_old + seed_ratio
                  - potts.beta * n_to[old]                        # every edge from V0 to `old` is cut
                  + math.log(potts.rho) - math.log(n_mat + 1)      # rho^K and the labelled state's 1 / K!

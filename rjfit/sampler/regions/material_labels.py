@@ -48,7 +48,8 @@ class Bonds(NamedTuple):
     ``q`` (2 H W,): the bond probabilities of the cluster moves, edge ``2 p`` to the right of
     p, ``2 p + 1`` below it; ``features`` (H W, 2): :func:`pixel_features`, which the bonds
     and the split proposals' guides use; ``seed_cdf`` (H W,): the cumulative seed weights of
-    the cluster moves (:func:`seed_weights`).
+    the cluster moves (:func:`seed_weights`); ``segments``: the segment moves' candidate sets
+    (:class:`~rjfit.sampler.regions.material_segments.Segments`; None without segment moves).
     """
 
     q: np.ndarray
@@ -56,6 +57,7 @@ class Bonds(NamedTuple):
     tau: float
     features: np.ndarray
     seed_cdf: np.ndarray
+    segments: object = None
 
     def draw_seed(self, rng) -> int:
         """A cluster move's seed pixel, drawn with the seed weights by one uniform of ``rng``."""

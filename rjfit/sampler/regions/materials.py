@@ -36,7 +36,13 @@ unchanged), in order:
 2. ``cluster.moves`` Swendsen-Wang-cut cluster moves: a cluster of one label, grown by
    data-driven bonds, moved to another label or to a NEW material (a birth), a whole
    material moved (a death) (:mod:`rjfit.sampler.moves.cluster_swc`);
-3. ``merge_split.moves`` merges of two whole materials and their reverse, splits of one by
+3. ``segments.moves`` segment moves: a region of the image drawn from a fixed, data-driven
+   family (the nodes of a Ward hierarchy of superpixels,
+   :mod:`rjfit.sampler.regions.material_segments`), when all of it carries one material,
+   moved to another material or to a NEW one (:mod:`rjfit.sampler.moves.segment_move`):
+   what proposes a compact region of a second paint whose per-pixel features are too noisy
+   for the bonds to follow its outline (measured stacks);
+4. ``merge_split.moves`` merges of two whole materials and their reverse, splits of one by
    sequential allocation guided by a deterministic 2-means of its pixels (with ``jumps``;
    :mod:`rjfit.sampler.moves.merge_split`): what removes twins (two materials of one paint)
    and separates a second paint hidden in a material.
@@ -63,6 +69,7 @@ from rjfit.sampler.moves.cluster_swc import ClusterSettings, propose_cluster_mov
 from rjfit.sampler.moves.label_gibbs import sweep_labels
 from rjfit.sampler.moves.merge_split import MergeSplitSettings, propose_merge_split
 from rjfit.sampler.moves.region_proposals import RegionProposalSettings
+from rjfit.sampler.moves.segment_move import SEGMENT_KINDS, SegmentSettings, propose_segment_move
 from rjfit.sampler.regions.base import RegionModel
 from rjfit.sampler.regions.material_labels import (
     MaterialLabels,
@@ -72,6 +79,7 @@ from rjfit.sampler.regions.material_labels import (
     labelled_pixels,
     majority_labels,
 )
+from rjfit.sampler.regions.material_segments import segment_family
 
 #: the starts' numbers of materials range over 1 .. this (at most K_max)
 START_MATERIALS = 4
@@ -96,6 +104,8 @@ class MaterialRegions(RegionModel):
         Gibbs sweeps per iteration.
     cluster : ClusterSettings
         Of the cluster moves (and their bonds).
+    segments : SegmentSettings
+        Of the segment moves (and their family of candidate sets).
     merge_split : MergeSplitSettings
         Of the merge/split moves of whole materials (made only with ``jumps``).
     proposals : RegionProposalSettings
@@ -108,6 +118,7 @@ class MaterialRegions(RegionModel):
     jumps: bool = True
     sweeps: int = 1
     cluster: ClusterSettings = field(default_factory=ClusterSettings)
+    segments: SegmentSettings = field(default_factory=SegmentSettings)
     merge_split: MergeSplitSettings = field(default_factory=MergeSplitSettings)
     proposals: RegionProposalSettings = field(default_factory=RegionProposalSettings)
 
@@ -140,6 +151,9 @@ class MaterialRegions(RegionModel):
         """
         bonds = bond_probabilities(problem, self.cluster.q_max(self.potts.beta), self.cluster.bond_tau)
         labelled = labelled_pixels(problem)
+        if self.segments.moves and self.update_labels:
+            bonds = bonds._replace(segments=segment_family(bonds.features, labelled, self.segments.superpixel_size,
+                                                           self.segments.max_regions))
         if pixel_labels is not None:
             pixel_labels = np.asarray(pixel_labels)
             if pixel_labels.shape != labelled.shape or np.any(pixel_labels[labelled] < 0):
@@ -178,6 +192,10 @@ class MaterialRegions(RegionModel):
         for _ in range(self.cluster.moves):
             self._test(work, rng, info, *propose_cluster_move(work, rng, problem, prior, self.cluster, self.proposals,
                                                               self.potts, self.max_materials, self.jumps))
+        for _ in range(self.segments.moves):
+            self._test(work, rng, info, *propose_segment_move(work, rng, problem, prior, self.cluster.new_prob,
+                                                              self.proposals, self.potts, self.max_materials,
+                                                              self.jumps))
         for _ in range(self.merge_split.moves if self.jumps else 0):
             self._test(work, rng, info, *propose_merge_split(work, rng, problem, prior, self.merge_split,
                                                              self.proposals, self.potts, self.max_materials))
@@ -192,7 +210,7 @@ class MaterialRegions(RegionModel):
         info.count(kind, accepted)
         if accepted:
             work.take(proposal)
-            if kind != "cluster":
+            if kind not in ("cluster", SEGMENT_KINDS[0]):     # a move that changed K
                 info.jump = kind
 
     def snapshot(self, layout) -> dict:
