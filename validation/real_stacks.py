@@ -61,6 +61,8 @@ VARIANTS = {
     "cp-preset-anneal": {"regions": "changepoints", "noise": "normals", "likelihood_power": "auto", "calibrate": True},
     # the preset with the footprint term added to the normals' noise (docs/measured-data.md, "The footprint term")
     "measured-footprint": {"preset": "measured", "noise": "footprint"},
+    # the preset without the material model's segment moves (docs/measured-data.md, "Segment moves")
+    "measured-nosegments": {"preset": "measured", "segment_moves": 0},
 }
 
 

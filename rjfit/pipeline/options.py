@@ -134,6 +134,9 @@ class FitOptions:
     # half the material model's cluster seeds drawn per material (first under --preset measured, now every
     # material fit's: one-pixel leftovers die within tens of iterations; docs/materials.md)
     cluster_material_seed: float = 0.5
+    # the material model's segment moves per iteration (data-driven regions moved or born whole;
+    # rjfit/sampler/moves/segment_move.py); 0 for the comparison in docs/measured-data.md
+    segment_moves: int = 2
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)
     sampler: str = cli_option("adaptive", "--sampler",
