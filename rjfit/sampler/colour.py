@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from rjfit.sampler.likelihood import LOG_2PI, STAT_N, RegionData, b_terms, log_likelihood_from_stats
+from rjfit.sampler.likelihood import LOG_2PI, STAT_N, RegionData, b_terms, log_likelihood_from_stats, memoised
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab
 from rjfit.sampler.moves.region_proposals import (
     LAPLACE_COARSE_OBS,
@@ -67,6 +67,7 @@ class PixelSetData:
 
     def __init__(self, channels):
         self.channels = list(channels)
+        self.memo = {}      # what is derived from these observations alone (rjfit.sampler.likelihood.memoised)
 
     @property
     def n(self) -> int:
@@ -116,8 +117,13 @@ def laplace_log_gamma_colour(data: PixelSetData, prior):
     :data:`~rjfit.sampler.moves.region_proposals.LAPLACE_COARSE_OBS` observations), Newton
     steps with the closed-form derivatives (the channels' summed) on the thinning, then on
     every observation; finite differences from the thinning's mode where Newton fails. A function of
-    the data only.
+    the data only (kept in ``data.memo``).
     """
+    return memoised(data, "laplace", (prior,), lambda: _laplace_colour(data, prior))
+
+
+def _laplace_colour(data: PixelSetData, prior):
+    """:func:`laplace_log_gamma_colour` computed."""
     a0, b0 = sigma2_prior_as_invgamma(prior)
     g_prior = prior.params[2]
     ks = [0.5 * channel.n * channel.weight - 1.0 + a0 for channel in data.channels]

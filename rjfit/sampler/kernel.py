@@ -33,6 +33,7 @@ from rjfit.sampler.forward import Problem, transformed
 from rjfit.sampler.likelihood import log_likelihood_from_stats, region_stats
 from rjfit.sampler.moves.effects import initial_effect_state, move_effects
 from rjfit.sampler.moves.within import adapt_log_g_scale, update_regions
+from rjfit.sampler.pixel_sets import PixelSets
 from rjfit.sampler.priors import PARAM_NAMES
 from rjfit.sampler.state import ChainState, KernelSettings, SamplerConfig, StepInfo, Work
 
@@ -50,7 +51,8 @@ class ChainContext:
     structure moves leave the labels alone hands them on to the next step through this
     object, keyed by the labels array's identity (a state's arrays are never written to, so
     the same array means the same labels). For a problem with effects it also keeps the
-    problem transformed at the state's effect parameters, keyed by their array's identity.
+    problem transformed at the state's effect parameters, keyed by their array's identity,
+    and the label moves' pixel sets (:class:`~rjfit.sampler.pixel_sets.PixelSets`).
     A fresh context gives the same draws.
     """
 
@@ -60,6 +62,7 @@ class ChainContext:
     region_index: dict = field(default_factory=dict)
     effect_z: np.ndarray | None = None
     effect_problem: Problem | None = None
+    pixel_sets: PixelSets = field(default_factory=PixelSets)
 
     def transformed_problem(self, problem: Problem, effects) -> Problem:
         """``problem`` transformed at the effect parameters of ``effects`` (an ``EffectState``), kept for the next step."""
@@ -215,7 +218,8 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
         problem = replace(problem, likelihood_power=problem.likelihood_power * factor)
     log_lik = state.log_lik if factor == previous else log_likelihood_from_stats(stats, state.theta)
     work = Work(layout=state.layout, theta=state.theta.copy(), stats=stats.copy(), log_lik=np.array(log_lik, float),
-                labels=state.labels, region_index=context.region_index_for(problem, state.labels))
+                labels=state.labels, region_index=context.region_index_for(problem, state.labels),
+                pixel_sets=context.pixel_sets.valid_for(problem))
 
     # 1. within-region moves for every region
     g_acc = update_regions(work, rng, prior, problem, config.within, float(np.exp(state.log_g_scale)), info)

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["standardised", "lloyd", "kmeans_labels", "two_means_labels"]
+from rjfit.sampler.passes.lloyd import MAX_FEATURES, MIN_FEATURES, lloyd_iterations
+
+__all__ = ["standardised", "lloyd", "lloyd_numpy", "kmeans_labels", "two_means_labels"]
 
 
 def standardised(features) -> np.ndarray:
@@ -25,8 +27,19 @@ def lloyd(x, centres, iterations: int = 20) -> np.ndarray:
 
     A cluster left empty takes the row farthest from its centre, so every label 0 .. k - 1
     is used (needs at least k rows). Stops early once the labels repeat (what further
-    iterations would give).
+    iterations would give). Compiled (:func:`~rjfit.sampler.passes.lloyd.lloyd_iterations`,
+    the same numbers) where the features' count allows, else :func:`lloyd_numpy`.
     """
+    x = np.asarray(x)
+    compiled = (MIN_FEATURES <= x.shape[1] <= MAX_FEATURES and x.dtype == np.float64 and centres.dtype == np.float64
+                and centres.flags.c_contiguous)
+    if compiled:
+        return lloyd_iterations(np.ascontiguousarray(x), centres, int(iterations))
+    return lloyd_numpy(x, centres, iterations)
+
+
+def lloyd_numpy(x, centres, iterations: int = 20) -> np.ndarray:
+    """:func:`lloyd` in NumPy: the reference of the compiled form, and the form for one or many features."""
     n_clusters = centres.shape[0]
     labels = np.full(x.shape[0], -1, np.int64)
     for _ in range(iterations):

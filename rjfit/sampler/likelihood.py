@@ -32,7 +32,7 @@ from rjfit.sampler.passes import sums
 
 __all__ = ["STAT_N", "STAT_YY", "STAT_YA", "STAT_AA", "STAT_YB", "STAT_AB", "STAT_BB", "LOG_2PI", "region_stats",
            "log_likelihood_from_stats", "log_lik_large_ab", "AB_PLAIN_MAX", "MEAN_NORM_MAX", "oracle_log_likelihood",
-           "ab_from_theta", "b_terms", "index_dtype", "RegionData", "label_runs", "lobe_column"]
+           "ab_from_theta", "b_terms", "index_dtype", "RegionData", "label_runs", "lobe_column", "memoised"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -117,7 +117,8 @@ class RegionData:
     run, ``gathered_idx`` their indices in the problem). Each sum is one compiled pass over
     the runs (:mod:`rjfit.sampler.passes.sums`), every product and sum in float64 without a float64
     copy; the gamma-free sums ``(n, Syy, SyA, SAA)`` (:attr:`fixed`) are computed on first
-    use only, since the within-model moves never need them.
+    use only, since the within-model moves never need them. ``memo`` holds what other modules
+    derive from these observations alone (:func:`memoised`).
     """
 
     y: np.ndarray
@@ -128,6 +129,8 @@ class RegionData:
     gathered_idx: np.ndarray | None = None
     lobe: object = None            # the Problem's lobe terms (rjfit.sampler.passes.lobe), None for the plain model
     newton_memo: dict = field(default_factory=dict, repr=False)
+    b_memo: dict = field(default_factory=dict, repr=False)
+    memo: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def gather(cls, problem: Problem, idx) -> RegionData:
@@ -182,8 +185,13 @@ class RegionData:
         return self.weight * np.array([self.n, yy, yc / np.pi, cc / np.pi ** 2])
 
     def b_sums(self, gamma: float) -> np.ndarray:
-        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.passes.sums.b_sums`)."""
-        return self.weight * sums.b_sums(self.y, self.C, self.log_cos_hn, *self.runs, float(gamma), self.lobe)
+        """``(SyB, SAB, SBB)`` at exponent ``gamma`` (float64; one compiled pass, :func:`rjfit.sampler.passes.sums.b_sums`).
+
+        The last two gammas asked are memoised, as in :meth:`b_sums_newton`: a
+        region proposal's draw and the move that made it ask for the drawn gamma's sums twice.
+        """
+        return _remembered(self.b_memo, float(gamma), lambda g: self.weight * sums.b_sums(
+            self.y, self.C, self.log_cos_hn, *self.runs, g, self.lobe))
 
     def b_sums_newton(self, gamma: float) -> np.ndarray:
         """:meth:`b_sums` and their weightings by ``log <h.n>`` and its square (9,); the last two gammas asked are memoised.
@@ -191,14 +199,8 @@ class RegionData:
         A function of the region's data and ``gamma`` only, so the memo (which lets a gamma
         move reuse the sums of the point it starts from) never changes a result.
         """
-        gamma = float(gamma)
-        hit = self.newton_memo.get(gamma)
-        if hit is None:
-            hit = self.weight * sums.b_sums_newton(self.y, self.C, self.log_cos_hn, *self.runs, gamma, self.lobe)
-            if len(self.newton_memo) >= 2:
-                self.newton_memo.pop(next(iter(self.newton_memo)))
-            self.newton_memo[gamma] = hit
-        return hit
+        return _remembered(self.newton_memo, float(gamma), lambda g: self.weight * sums.b_sums_newton(
+            self.y, self.C, self.log_cos_hn, *self.runs, g, self.lobe))
 
     def stats_at(self, gamma: float) -> np.ndarray:
         """The seven sufficient statistics at exponent ``gamma``."""
@@ -209,6 +211,32 @@ class RegionData:
         gammas = np.ascontiguousarray(gammas, dtype=float)
         b_sums = self.weight * sums.b_sums_many(self.y, self.C, self.log_cos_hn, *self.runs, gammas, self.lobe)
         return np.hstack([np.broadcast_to(self.fixed, (gammas.size, self.fixed.size)), b_sums])
+
+
+def _remembered(memo: dict, gamma: float, compute) -> np.ndarray:
+    """``compute(gamma)``, kept in ``memo`` with the previous gamma's (callers share it: they only read it)."""
+    hit = memo.get(gamma)
+    if hit is None:
+        hit = compute(gamma)
+        if len(memo) >= 2:
+            memo.pop(next(iter(memo)))
+        memo[gamma] = hit
+    return hit
+
+
+def memoised(data, name: str, key: tuple, compute):
+    """``compute()`` for a pixel set's ``data`` (anything with a ``memo`` dict), kept there under ``name``.
+
+    For what is a function of the data and of the objects in ``key`` alone (a proposal's
+    Laplace fit given the prior, a split's guide): recomputed only when ``key`` holds other
+    objects (compared by identity), so a memoised value is the value computed afresh.
+    """
+    held = data.memo.get(name)
+    if held is not None and len(held[0]) == len(key) and all(a is b for a, b in zip(held[0], key)):
+        return held[1]
+    value = compute()
+    data.memo[name] = (key, value)
+    return value
 
 
 def region_stats(problem: Problem, labels, gammas, n_regions: int):

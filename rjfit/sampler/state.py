@@ -85,7 +85,8 @@ class Work:
     (its observations as runs of the problem's arrays) for the current ``labels``; it is
     filled on first use, and dropped whenever the labels change. ``labels_owned`` says
     whether ``labels`` is this step's own array (else it is the state's and must be copied
-    before an in-place change).
+    before an in-place change). ``pixel_sets`` is the chain's memo of pixel sets'
+    observations (:class:`~rjfit.sampler.pixel_sets.PixelSets`; None: none kept).
     """
 
     layout: object
@@ -95,6 +96,7 @@ class Work:
     labels: np.ndarray
     labels_owned: bool = False
     region_index: dict | None = None  # region -> RegionData, valid for ``labels``
+    pixel_sets: object = None
 
     def region_data(self, r: int, problem):
         """:class:`RegionData` of region r; every region's runs come from one read of the labels, once per labelling."""

@@ -6,6 +6,8 @@ bookkeeping test runs long random move sequences (Gibbs sweeps, cluster and segm
 with births and deaths, within-material moves) with no refresh, and compares every material's
 statistics and log-likelihood with a full recompute (1e-9 relative, as the brief states).
 """
+import dataclasses
+
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
@@ -15,10 +17,11 @@ from rjfit.model.blinn import radiance
 from rjfit.sampler import reference
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.kmeans import two_means_labels
+from rjfit.sampler.kmeans import lloyd, lloyd_numpy, standardised, two_means_labels
 from rjfit.sampler.likelihood import log_likelihood_from_stats, oracle_log_likelihood, region_stats
 from rjfit.sampler.moves import merge_split
 from rjfit.sampler.passes import labels as passes
+from rjfit.sampler.pixel_sets import PixelSets
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.regions import material_labels
 from rjfit.sampler.regions.material_labels import PottsPrior, bond_probabilities, boundary_count, kmeans_labels
@@ -229,6 +232,43 @@ def test_split_guide_is_a_function_of_the_pixel_set_and_finds_the_two_paints():
     disc = truth.ravel()[members] == 1
     assert len(set(prefers[disc])) == 1 and len(set(prefers[~disc])) == 1 and prefers[disc][0] != prefers[~disc][0]
     assert two_means_labels(np.ones((5, 2))) is None
+
+
+@pytest.mark.parametrize("n_features", [2, 3, 6])
+def test_compiled_lloyd_gives_numpys_labels_and_centres_to_the_last_bit(n_features):
+    """The split guide's 2-means is compiled: the same numbers, or a chain's draws would change."""
+    rng = np.random.default_rng(n_features)
+    for trial in range(60):
+        n, k = int(rng.integers(3, 300)), int(rng.integers(2, 4))
+        x = rng.normal(size=(n, n_features)) * rng.exponential(size=n_features)
+        if trial % 3 == 1:
+            x = np.round(x, 1)          # ties between distances
+        if trial % 3 == 2:
+            x[: n // 2] = x[0]          # repeated rows: clusters left empty
+        x = standardised(x)
+        start = x[rng.choice(n, k, replace=False)]
+        compiled, plain = start.copy(), start.copy()
+        np.testing.assert_array_equal(lloyd(x, compiled), lloyd_numpy(x, plain))
+        np.testing.assert_array_equal(compiled, plain)
+
+
+def test_pixel_sets_hand_out_one_data_object_per_set_and_its_values_are_those_computed_afresh():
+    """The chain's memo of pixel sets: the same set, the same object (its Laplace fit and split guide kept);
+    another problem (likelihood power) empties it."""
+    problem, truth = material_problem()
+    prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
+    features = bond_probabilities(problem).features
+    members = np.flatnonzero(truth.ravel() != 2)
+    sets = PixelSets(capacity=3).valid_for(problem)      # the set and its guide's two clusters
+    guide = merge_split.split_guide(problem, prior, members, features, sets)
+    np.testing.assert_array_equal(guide, merge_split.split_guide(problem, prior, members, features))
+    assert merge_split.split_guide(problem, prior, members, features, sets) is guide
+    assert sets.data(problem, members.copy()) is sets.data(problem, members)
+    for first in (0, 5, 10):
+        sets.data(problem, np.arange(first, first + 5))     # three other sets: the least recently used go
+    assert sets.data(problem, members).memo == {}
+    weaker = dataclasses.replace(problem, likelihood_power=0.5)
+    assert sets.valid_for(weaker).data(weaker, members).weight == 0.5
 
 
 def test_slab_material_map_assigns_faces_by_texel():

@@ -120,11 +120,12 @@ def label_choice(n_materials: int, max_materials: int, new_prob: float, jumps: b
     return p_new, p_other
 
 
-def cluster_data(problem, members):
+def cluster_data(problem, members, pixel_sets=None):
     """The observations of the pixels ``members`` (ascending) as runs of the problem's arrays: a
     :class:`~rjfit.sampler.likelihood.RegionData`, or for a joint colour fit one per channel
-    (:func:`rjfit.sampler.colour.pixel_set_data`)."""
-    return pixel_set_data(problem, members)
+    (:func:`rjfit.sampler.colour.pixel_set_data`); from ``pixel_sets`` (the chain's
+    :class:`~rjfit.sampler.pixel_sets.PixelSets`, where the step has one) the one handed out before."""
+    return pixel_set_data(problem, members) if pixel_sets is None else pixel_sets.data(problem, members)
 
 
 def stats_rows(data, gamma) -> np.ndarray:
@@ -199,7 +200,7 @@ def propose_set_move(work, rng, problem, prior, pixel_set, new_prob: float, prop
         return None, kinds[2]                 # K fixed: a material may not be emptied
     n_ch = problem.n_channels
     rows_old = material_rows(old, n_ch)
-    data = cluster_data(problem, members)
+    data = cluster_data(problem, members, work.pixel_sets)
     stats_old = stats_rows(data, work.theta[old * n_ch, 2])
     log_lik_old = material_log_lik(stats_old, work.theta[rows_old])
     if birth:

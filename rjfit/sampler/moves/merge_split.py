@@ -57,9 +57,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rjfit.sampler.colour import guide_rows, material_log_lik, material_rows, material_term
+from rjfit.sampler.colour import PixelSetData, guide_rows, material_log_lik, material_rows, material_term
 from rjfit.sampler.kmeans import two_means_labels
-from rjfit.sampler.likelihood import log_likelihood_from_stats
+from rjfit.sampler.likelihood import log_likelihood_from_stats, memoised
 from rjfit.sampler.moves.cluster_swc import cluster_data, stats_rows, with_rows
 from rjfit.sampler.moves.proposal import Proposal
 from rjfit.sampler.passes.labels import allocate_split, pixel_log_lik, pixel_log_lik_colour
@@ -99,30 +99,39 @@ def split_probability(n_materials: int, max_materials: int, split_prob: float, j
     return 1.0 if n_materials == 1 else split_prob
 
 
-def _guide_theta(problem, prior, members):
+def _guide_theta(problem, prior, members, pixel_sets=None):
     """The deterministic fit (rows of (I0, kd, gamma, sigma^2), one per channel) of the pixels ``members``
     (see the module docstring), or None."""
-    data = cluster_data(problem, members)
+    data = cluster_data(problem, members, pixel_sets)
     if data.n == 0:
         return None
     return guide_rows(data, prior, GUIDE_FALLBACK_GAMMA)
 
 
-def split_guide(problem, prior, members, features) -> np.ndarray:
+def split_guide(problem, prior, members, features, pixel_sets=None) -> np.ndarray:
     """(2, n): the guide log-likelihood of each of the pixels ``members`` (ascending) under the two guides.
 
     A function of the pixel set, the data and the prior only. Zeros (no guide) when the
     2-means or a cluster's fit fails. ``features`` (H W, 2) are the per-pixel features.
+    With ``pixel_sets`` (the chain's :class:`~rjfit.sampler.pixel_sets.PixelSets`) it is
+    kept with the set's data for the next split or merge of the same set (callers only read it).
     """
+    data = cluster_data(problem, members, pixel_sets)
+    return memoised(data, "split_guide", (prior, features),
+                    lambda: _split_guide(problem, prior, members, features, data, pixel_sets))
+
+
+def _split_guide(problem, prior, members, features, data, pixel_sets):
+    """:func:`split_guide` computed (``data``: the observations of ``members``)."""
     guide = np.zeros((2, members.size))
     featured = members[np.all(np.isfinite(features[members]), axis=1)]
     clusters = two_means_labels(features[featured]) if featured.size >= 2 else None
     if clusters is None:
         return guide
-    thetas = [_guide_theta(problem, prior, featured[clusters == c]) for c in (0, 1)]
+    thetas = [_guide_theta(problem, prior, featured[clusters == c], pixel_sets) for c in (0, 1)]
     if thetas[0] is None or thetas[1] is None:
         return guide
-    idx = cluster_data(problem, members).idx
+    idx = _observations(data)
     n_pix, n_ch = problem.height * problem.width, problem.n_channels
     if n_ch == 1:
         per_pixel = pixel_log_lik(problem.y[idx], problem.C[idx], problem.log_cos_hn[idx], problem.pixel[idx],
@@ -133,6 +142,14 @@ def split_guide(problem, prior, members, features) -> np.ndarray:
         per_pixel = pixel_log_lik_colour(problem.y[idx], problem.C[idx], problem.log_cos_hn[idx], bounds,
                                          np.concatenate(thetas), n_ch, n_pix)
     return per_pixel[:, members]
+
+
+def _observations(data) -> np.ndarray:
+    """The observation indices (ascending) of a pixel set's ``data``, not kept on it (a memoised set's data
+    would hold them: 8 bytes per observation)."""
+    if isinstance(data, PixelSetData):
+        return np.sort(np.concatenate([channel.positions() for channel in data.channels]))
+    return data.positions()
 
 
 def split_log_prob(members, guide, in_first, problem, beta) -> float:
@@ -194,7 +211,7 @@ def _split(work, rng, problem, prior, settings, proposals, potts, max_materials,
         return None
     k = int(rng.integers(m + 1, n_mat + 1))
     swap = rng.random() < 0.5
-    guide = split_guide(problem, prior, members, work.layout.bonds.features)
+    guide = split_guide(problem, prior, members, work.layout.bonds.features, work.pixel_sets)
     parts, _ = allocate_split(members, guide, float(problem.likelihood_power), float(potts.beta),
                               problem.height, problem.width, rng.random(members.size),
                               np.full(members.size, -1, np.int8))
@@ -206,13 +223,14 @@ def _split(work, rng, problem, prior, settings, proposals, potts, max_materials,
         return Proposal.invalid(work.layout.with_pixels(pixels.reshape(work.layout.pixels.shape), n_mat + 1))
     n_ch = problem.n_channels
     rows_m = material_rows(m, n_ch)
-    data_x, data_y = cluster_data(problem, members[stay]), cluster_data(problem, members[~stay])
+    data_x, data_y = (cluster_data(problem, members[stay], work.pixel_sets),
+                      cluster_data(problem, members[~stay], work.pixel_sets))
     theta_x, term_x = material_term(data_x, None, prior, proposals, draw_rng=rng)
     theta_y, term_y = (material_term(data_y, None, prior, proposals, draw_rng=rng) if theta_x is not None
                        else (None, 0))
     if theta_x is None or theta_y is None:
         return Proposal.invalid(work.layout.with_pixels(pixels.reshape(work.layout.pixels.shape), n_mat + 1))
-    _, term_m = material_term(cluster_data(problem, members), work.theta[rows_m], prior, proposals)
+    _, term_m = material_term(cluster_data(problem, members, work.pixel_sets), work.theta[rows_m], prior, proposals)
     stats_x, stats_y = stats_rows(data_x, theta_x[0, 2]), stats_rows(data_y, theta_y[0, 2])
     delta_lik = (material_log_lik(stats_x, theta_x) + material_log_lik(stats_y, theta_y)
                  - float(np.sum(work.log_lik[rows_m])))
@@ -235,7 +253,7 @@ def _merge(work, rng, problem, prior, settings, proposals, potts, max_materials,
     members = np.flatnonzero((flat == j) | (flat == k))
     n_ch = problem.n_channels
     rows_j, rows_k = material_rows(j, n_ch), material_rows(k, n_ch)
-    data = cluster_data(problem, members)
+    data = cluster_data(problem, members, work.pixel_sets)
     theta_m, term_m = material_term(data, None, prior, proposals, draw_rng=rng)
     pixels = flat.copy()
     pixels[pixels == k] = j
@@ -243,13 +261,15 @@ def _merge(work, rng, problem, prior, settings, proposals, potts, max_materials,
     if theta_m is None:
         return Proposal.invalid(work.layout.with_pixels(pixels.reshape(work.layout.pixels.shape), n_mat - 1))
     in_j = flat[members] == j
-    _, term_j = material_term(cluster_data(problem, members[in_j]), work.theta[rows_j], prior, proposals)
-    _, term_k = material_term(cluster_data(problem, members[~in_j]), work.theta[rows_k], prior, proposals)
+    _, term_j = material_term(cluster_data(problem, members[in_j], work.pixel_sets), work.theta[rows_j], prior,
+                              proposals)
+    _, term_k = material_term(cluster_data(problem, members[~in_j], work.pixel_sets), work.theta[rows_k], prior,
+                              proposals)
     stats_m = stats_rows(data, theta_m[0, 2])
     log_lik_jk = (float(work.log_lik[j] + work.log_lik[k]) if n_ch == 1
                   else float(np.sum(work.log_lik[rows_j]) + np.sum(work.log_lik[rows_k])))
     delta_lik = material_log_lik(stats_m, theta_m) - log_lik_jk
-    guide = split_guide(problem, prior, members, work.layout.bonds.features)
+    guide = split_guide(problem, prior, members, work.layout.bonds.features, work.pixel_sets)
     p_split_back = split_probability(n_mat - 1, max_materials, settings.split_prob)
     log_ratio = (delta_lik - math.log(potts.rho) + math.log(n_mat)
                  + potts.beta * _edges_between(problem.image_shape, members[in_j], members[~in_j])

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData
+from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData, memoised
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab
 from rjfit.sampler.moves.gamma import ls_point_slopes, ls_profile_nonnegative
 from rjfit.sampler.moves.region_terms import giesen_norm
@@ -91,8 +91,14 @@ def laplace_log_gamma(data, prior):
     region from the thinning's mode: about 2 passes over the region instead of 18.
     Where that fails (a non-concave profile) it falls back to finite differences on the
     whole region, from the thinning's mode. A function of the region's data only, as a
-    proposal's parameters must be.
+    proposal's parameters must be: kept in ``data.memo`` for the next proposal of the same
+    pixel set (:class:`~rjfit.sampler.pixel_sets.PixelSets`).
     """
+    return memoised(data, "laplace", (prior,), lambda: _laplace_log_gamma(data, prior))
+
+
+def _laplace_log_gamma(data, prior):
+    """:func:`laplace_log_gamma` computed."""
     n = data.n * data.weight       # observations count zeta each under a coarsened likelihood
     a0, b0 = sigma2_prior_as_invgamma(prior)
     g_prior = prior.params[2]

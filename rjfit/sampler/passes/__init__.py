@@ -6,7 +6,8 @@
 - :mod:`~rjfit.sampler.passes.shifts`: element moves (observations that change region);
 - :mod:`~rjfit.sampler.passes.cells`: per-pixel and per-cell sums of change-point vectors;
 - :mod:`~rjfit.sampler.passes.paths`: forward filtering, backward sampling, rank chains;
-- :mod:`~rjfit.sampler.passes.sweep`: the element sweep's proposals.
+- :mod:`~rjfit.sampler.passes.sweep`: the element sweep's proposals;
+- :mod:`~rjfit.sampler.passes.lloyd`: Lloyd's k-means iterations (the split guide's 2-means).
 
 Why a JIT: profiling the full kernel (``validation/bench_sampler.py``'s
 segmentation-sampled row, 256 x 256 chains) showed it spending its time in NumPy passes
