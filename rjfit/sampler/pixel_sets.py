@@ -18,11 +18,14 @@ import numpy as np
 
 from rjfit.sampler.colour import pixel_set_data
 
-__all__ = ["PixelSets", "PIXEL_SETS_KEPT"]
+__all__ = ["PixelSets", "PIXEL_SETS_KEPT", "PIXELS_KEPT_PER_IMAGE"]
 
 #: sets kept (the least recently used goes first): an iteration asks for about ten, mostly the cluster
 #: moves' random sets, which must not push out the whole-material sets the next iteration asks for again
 PIXEL_SETS_KEPT = 32
+#: and at most this many images' worth of pixels over all kept sets (a set holds 24 bytes per pixel:
+#: its key and runs), so that on a 2048 x 2048 stack the memo holds a few whole-object sets, not 32
+PIXELS_KEPT_PER_IMAGE = 4
 
 
 class PixelSets:
@@ -32,11 +35,16 @@ class PixelSets:
     ----------
     capacity : int
         Sets kept; the least recently used is dropped first.
+    images : float
+        Pixels kept over all sets, in units of the problem's image size: the least recently
+        used sets are dropped first until the rest fit (the set just asked for always stays).
     """
 
-    def __init__(self, capacity: int = PIXEL_SETS_KEPT):
+    def __init__(self, capacity: int = PIXEL_SETS_KEPT, images: float = PIXELS_KEPT_PER_IMAGE):
         self.capacity = int(capacity)
+        self.images = float(images)
         self._sets = {}
+        self._pixels = 0
         self._problem_key = None
 
     def valid_for(self, problem) -> PixelSets:
@@ -44,7 +52,7 @@ class PixelSets:
         key = (problem.y, problem.C, problem.log_cos_hn, problem.lobe, float(problem.likelihood_power))
         held = self._problem_key
         if held is None or not all(a is b for a, b in zip(held[:4], key[:4])) or held[4] != key[4]:
-            self._sets, self._problem_key = {}, key
+            self._sets, self._pixels, self._problem_key = {}, 0, key
         return self
 
     def data(self, problem, members):
@@ -54,7 +62,11 @@ class PixelSets:
         data = self._sets.pop(key, None)
         if data is None:
             data = pixel_set_data(problem, members)
-            if len(self._sets) >= self.capacity:
-                self._sets.pop(next(iter(self._sets)))
+            self._pixels += members.size
+        limit = self.images * problem.height * problem.width
+        while self._sets and (len(self._sets) >= self.capacity or self._pixels > limit):
+            oldest = next(iter(self._sets))
+            self._pixels -= len(oldest[1]) // np.dtype(oldest[0]).itemsize
+            del self._sets[oldest]
         self._sets[key] = data          # (re)inserted last: the most recently used
         return data

@@ -254,7 +254,7 @@ def test_compiled_lloyd_gives_numpys_labels_and_centres_to_the_last_bit(n_featur
 
 def test_pixel_sets_hand_out_one_data_object_per_set_and_its_values_are_those_computed_afresh():
     """The chain's memo of pixel sets: the same set, the same object (its Laplace fit and split guide kept);
-    another problem (likelihood power) empties it."""
+    another problem (likelihood power) empties it; the pixels it holds are bounded."""
     problem, truth = material_problem()
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     features = bond_probabilities(problem).features
@@ -269,6 +269,11 @@ def test_pixel_sets_hand_out_one_data_object_per_set_and_its_values_are_those_co
     assert sets.data(problem, members).memo == {}
     weaker = dataclasses.replace(problem, likelihood_power=0.5)
     assert sets.valid_for(weaker).data(weaker, members).weight == 0.5
+    # a bound on the pixels held: at one image's worth, a whole-image set pushes out every other
+    bounded = PixelSets(capacity=32, images=1.0).valid_for(problem)
+    small = bounded.data(problem, np.arange(5))
+    bounded.data(problem, np.arange(problem.height * problem.width))
+    assert bounded.data(problem, np.arange(5)) is not small
 
 
 def test_slab_material_map_assigns_faces_by_texel():
