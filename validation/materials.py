@@ -164,7 +164,8 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--layouts", nargs="*", default=list(LAYOUTS))
     parser.add_argument("--sweep", action="store_true", help="beta in {0.5, 1, 2} x rho in {0.1, 1}")
-    parser.add_argument("--betas", type=float, nargs="*", default=[1.0], help="Potts beta values (rho 1)")
+    parser.add_argument("--betas", type=float, nargs="*", default=[1.0], help="Potts beta values")
+    parser.add_argument("--rho", type=float, default=1.0, help="Potts rho (prior factor per material) with --betas")
     parser.add_argument("--workers", type=int, default=2, help="chains run at once (worker processes; 1: in this one)")
     parser.add_argument("--chains", type=int, default=4)
     parser.add_argument("--regions", choices=("materials", "changepoints"), default="materials",
@@ -172,7 +173,7 @@ def main(argv=None):
     parser.add_argument("--noise", default="constant", help="noise model (--noise of rjfit fit), e.g. footprint")
     parser.add_argument("--out", type=Path, default=Path("validation_materials"))
     args = parser.parse_args(argv)
-    settings = [(b, r) for b in (0.5, 1.0, 2.0) for r in (0.1, 1.0)] if args.sweep else [(b, 1.0) for b in args.betas]
+    settings = [(b, r) for b in (0.5, 1.0, 2.0) for r in (0.1, 1.0)] if args.sweep else [(b, args.rho) for b in args.betas]
     rows = []
     if args.regions == "changepoints":
         for name in args.layouts:
@@ -192,11 +193,12 @@ def main(argv=None):
             row = fit_layout(name, args.size, args.out, args.iterations, args.seed, beta, rho, args.workers,
                              args.chains, args.noise)
             rows.append(row)
-            print(f"{name:8s} beta {beta:3.1f} rho {rho:3.1f} noise {args.noise}: accuracy {row['label_accuracy']:.4f}, "
+            print(f"{name:8s} beta {beta:3.1f} rho {rho:g} noise {args.noise}: accuracy {row['label_accuracy']:.4f}, "
                   f"P(K={row['true_K']}) {row['P(K=true)']:.3f}, K posterior {row['materials_posterior']}, "
                   f"R-hat {row['rhat_max']:.3f}, {row['seconds']:.0f} s", flush=True)
             # after every fit, so that a run stopped part way keeps the fits it made
-            results = "results.json" if args.noise == "constant" else f"results_{args.noise}.json"
+            results = "results" + ("" if args.noise == "constant" else f"_{args.noise}") + (
+                "" if args.rho == 1.0 else f"_rho{args.rho:g}") + ".json"
             write_text_atomic(args.out / results, json.dumps(rows, indent=1))
 
 

@@ -66,7 +66,12 @@ MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0
                    "max_view_angle": RIM_VIEW_ANGLE}
 #: The value of an option whose field default is None ("not given") when no preset sets it. A given value,
 #: even one equal to these, is kept under a preset (``--preset measured --noise constant`` fits constant noise).
-PLAIN_DEFAULTS = {"noise": "constant", "likelihood_power": 1.0, "potts_rho": 1.0, "max_view_angle": None}
+#: The Potts prior's factor per material without the preset: prior odds 1:100 for each further material, so
+#: that one takes half the posterior only with a decisive Bayes factor (Jeffreys), as under the preset's rule
+#: (rjfit.pipeline.fit_dataset.GHOST_ODDS). At rho = 1 (until 2026-11-27) materials of one pixel whose own
+#: parameters fit its noise held 15 to 21 % of two of four rendered layouts' posteriors (docs/materials.md).
+PLAIN_POTTS_RHO = 0.01
+PLAIN_DEFAULTS = {"noise": "constant", "likelihood_power": 1.0, "potts_rho": PLAIN_POTTS_RHO, "max_view_angle": None}
 
 
 def _likelihood_power_value(value):
@@ -119,9 +124,9 @@ class FitOptions:
                                    "(docs/materials.md).", "float")
     potts_rho: float | None = cli_option(
         None, "--potts-rho",
-        "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 1: a material costs "
-        "only its parameters' prior; --preset measured sets beta and rho by a rule on the mask unless --potts-rho "
-        "is given (docs/measured-data.md).", "float", show_default=False)
+        "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 0.01: prior odds "
+        "1:100 for each further material, which then needs a decisive Bayes factor; --preset measured sets beta and "
+        "rho by a rule on the mask unless --potts-rho is given (docs/measured-data.md).", "float", show_default=False)
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "

@@ -25,7 +25,7 @@ def test_the_preset_sets_the_measured_defaults_and_survives_a_round_trip():
     assert FitOptions(preset="measured", likelihood_power="area").likelihood_power == "area"     # a given option stays
     assert FitOptions.from_json(options.to_json()) == options
     plain = FitOptions()
-    assert (plain.noise, plain.likelihood_power, plain.calibrate, plain.potts_rho) == ("constant", 1.0, False, 1.0)
+    assert (plain.noise, plain.likelihood_power, plain.calibrate, plain.potts_rho) == ("constant", 1.0, False, 0.01)
     assert _likelihood_power("area") == "area"
     with pytest.raises(ValueError, match="preset"):
         FitOptions(preset="rendered")

@@ -16,7 +16,9 @@ posterior mass sits on it). Every label is in use: no state has an empty materia
 - Each material k has its own parameters ``theta_k = (I0, kd, gamma, sigma^2)``, drawn iid
   from the fit's region prior (:func:`rjfit.sampler.priors.make_prior`), shared by every
   pixel that carries it, connected or not.
-- beta and rho are fixed: ``beta = 3`` per neighbour pair and ``rho = 1`` by default. Why:
+- beta and rho are fixed: ``beta = 3`` per neighbour pair by default and, in a fit, ``rho = 0.01``
+  (:data:`rjfit.pipeline.options.PLAIN_POTTS_RHO`; this class's own default, 1, is the neutral
+  prior the exactness tests use). Why beta:
   beta must lie above the critical coupling of the K_max-state Potts model on the square
   lattice, ``log(1 + sqrt(K_max))`` (1.34 for K_max = 8). Below it the prior's mass lies on
   labellings scattered pixel by pixel, which with K free means K_max "twins" of one paint
@@ -24,7 +26,8 @@ posterior mass sits on it). Every label is in use: no state has an empty materia
   docs/materials.md). Of beta 1, 2, 3 measured on four rendered layouts, 3 is the smallest
   at which extra materials of one or two boundary pixels did not take a tenth of the
   posterior on any of them; the measured preset's mask rule gives 2.8 to 3.5 on real masks.
-  rho = 1: a material costs nothing beyond its parameters' prior and its K!.
+  rho = 0.01: each further material has prior odds 1:100, so it needs a decisive Bayes factor
+  (at 1, materials of one pixel fitting its noise held up to a fifth of a layout's posterior).
 - Observations enter through the change-point model's likelihood (likelihood power zeta,
   known noise scales): materials are regions.
 
