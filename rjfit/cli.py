@@ -274,6 +274,14 @@ def _ess_text(summary: dict) -> str:
     return f"ESS min {summary['ess_min']:.0f}" if _finite(summary.get("ess_min")) else "ESS: not computable"
 
 
+def _normal_error_text(normal_error: dict) -> str:
+    """``normal error sd 0.42 deg, footprint c 0.52``; an estimate at its bound 0 says what that means."""
+    text = f"normal error sd {normal_error['sigma_n_deg']:.3g} deg"
+    if normal_error.get("k") == 0.0:        # the maximum-likelihood k at its bound: constant noise in effect
+        text += " (at its bound 0: no excess variance along the shading gradient, so the noise is constant here)"
+    return text + (f", footprint c {normal_error['c']:.3g}" if "c" in normal_error else "")
+
+
 def _echo_fit(folder, summary: dict) -> None:
     """A fit's one-paragraph summary: model, regions, convergence, time, warnings."""
     click.echo(f"fit of {summary['dataset']} ({summary['channel']}) -> {folder}")
@@ -281,8 +289,7 @@ def _echo_fit(folder, summary: dict) -> None:
     if noise_model != "constant" or summary["likelihood_power"] != 1.0:
         normal_error = summary["noise"].get("normal_error")
         noise_text = ("" if noise_model == "constant" else
-                      f"noise model {noise_model} (normal error sd {normal_error['sigma_n_deg']:.3g} deg"
-                      + (f", footprint c {normal_error['c']:.3g}" if "c" in normal_error else "") + "), " if normal_error
+                      f"noise model {noise_model} ({_normal_error_text(normal_error)}), " if normal_error
                       else f"noise model {noise_model} (floor {summary['noise']['floor']:g} x mean), ")
         click.echo(f"  {noise_text}likelihood power (zeta) {summary['likelihood_power']:.4g}")
     if summary.get("rim_pixels"):

@@ -33,6 +33,16 @@ def test_fit_help_states_the_noise_models_and_their_floor():
     assert "--preset [none|measured]" in text and "'area'" in text
 
 
+def test_a_normal_error_estimated_at_its_bound_says_so():
+    """`rjfit fit`'s summary line: a normals' noise k at 0 (psm-horse's) is read as constant noise, not as a measured 0 deg."""
+    from rjfit.cli import _normal_error_text
+
+    at_bound = _normal_error_text({"k": 0.0, "sigma_n_deg": 0.0})
+    assert at_bound.startswith("normal error sd 0 deg (at its bound 0") and "constant" in at_bound
+    inside = _normal_error_text({"k": 2e-5, "sigma_n_deg": 0.42, "c": 0.52})
+    assert inside == "normal error sd 0.42 deg, footprint c 0.52"
+
+
 def test_python_dash_m_works():
     result = subprocess.run([sys.executable, "-m", "rjfit", "--help"], capture_output=True, text=True, check=False)
     assert result.returncode == 0 and "validate" in result.stdout
