@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.io import write_text_atomic
+from rjfit.pipeline.options import PLAIN_POTTS_RHO
 
 MATERIALS = [{"name": "white paint", "I0": 100.0, "kd": 0.85, "gamma": 8.0},
              {"name": "grey glaze", "I0": 70.0, "kd": 0.6, "gamma": 20.0},
@@ -86,7 +87,8 @@ def scene(name: str, size: int) -> dict:
     return definition
 
 
-def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=1.0, workers=2, chains=4, noise="constant") -> dict:
+def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=PLAIN_POTTS_RHO, workers=2, chains=4,
+               noise="constant") -> dict:
     from rjfit.pipeline.fit_dataset import fit_dataset
 
     data = layout_dataset(name, size, out)
@@ -165,7 +167,8 @@ def main(argv=None):
     parser.add_argument("--layouts", nargs="*", default=list(LAYOUTS))
     parser.add_argument("--sweep", action="store_true", help="beta in {0.5, 1, 2} x rho in {0.1, 1}")
     parser.add_argument("--betas", type=float, nargs="*", default=[1.0], help="Potts beta values")
-    parser.add_argument("--rho", type=float, default=1.0, help="Potts rho (prior factor per material) with --betas")
+    parser.add_argument("--rho", type=float, default=PLAIN_POTTS_RHO,
+                        help="Potts rho (prior factor per material) with --betas; default: a fit's")
     parser.add_argument("--workers", type=int, default=2, help="chains run at once (worker processes; 1: in this one)")
     parser.add_argument("--chains", type=int, default=4)
     parser.add_argument("--regions", choices=("materials", "changepoints"), default="materials",
@@ -198,7 +201,7 @@ def main(argv=None):
                   f"R-hat {row['rhat_max']:.3f}, {row['seconds']:.0f} s", flush=True)
             # after every fit, so that a run stopped part way keeps the fits it made
             results = "results" + ("" if args.noise == "constant" else f"_{args.noise}") + (
-                "" if args.rho == 1.0 else f"_rho{args.rho:g}") + ".json"
+                "" if args.rho == PLAIN_POTTS_RHO else f"_rho{args.rho:g}") + ".json"
             write_text_atomic(args.out / results, json.dumps(rows, indent=1))
 
 

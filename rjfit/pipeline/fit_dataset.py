@@ -19,7 +19,7 @@ from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.data.formats import COLOUR
 from rjfit.pipeline.fit import FitSource, fit
 from rjfit.pipeline.fit_effects import fit_effects
-from rjfit.pipeline.options import EACH_CHANNEL, FitOptions
+from rjfit.pipeline.options import EACH_CHANNEL, FURTHER_MATERIAL_ODDS, FitOptions
 from rjfit.render.datasets import load_dataset
 from rjfit.render.gate import require_validated
 from rjfit.sampler.runner import run_chain
@@ -30,11 +30,10 @@ __all__ = ["fit_dataset", "fit_datasets", "check_validation_file", "validation_r
 # --preset measured's Potts rule (docs/measured-data.md): a material whose parameters equal an existing one's
 # holds about S(beta) = sum_p exp(-beta n_p) scattered pixels under the prior (n_p: p's labelled 4-neighbours);
 # beta is raised until S <= GHOST_PIXELS, so such a material shrinks to its last pixel often enough for the
-# cluster moves to remove it, and rho makes its prior odds rho S / 2 = GHOST_ODDS. 1:100: a further material
-# takes half the posterior only with a Bayes factor of 100 ("decisive" on Jeffreys' scale). At 1:20 the
-# outlier pixels of one-material stacks (1 to 11 px materials, Bayes factors of a few) held 2 to 23 % of it.
+# cluster moves to remove it, and rho makes its prior odds rho S / 2 = GHOST_ODDS, the odds every further
+# material has (FURTHER_MATERIAL_ODDS, 1:100; 1:20 until 2026-11-27).
 GHOST_PIXELS = 1.0
-GHOST_ODDS = 0.01
+GHOST_ODDS = FURTHER_MATERIAL_ODDS
 
 
 def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, validation_path=None,

@@ -66,11 +66,14 @@ MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0
                    "max_view_angle": RIM_VIEW_ANGLE}
 #: The value of an option whose field default is None ("not given") when no preset sets it. A given value,
 #: even one equal to these, is kept under a preset (``--preset measured --noise constant`` fits constant noise).
-#: The Potts prior's factor per material without the preset: prior odds 1:100 for each further material, so
-#: that one takes half the posterior only with a decisive Bayes factor (Jeffreys), as under the preset's rule
-#: (rjfit.pipeline.fit_dataset.GHOST_ODDS). At rho = 1 (until 2026-11-27) materials of one pixel whose own
-#: parameters fit its noise held 15 to 21 % of two of four rendered layouts' posteriors (docs/materials.md).
-PLAIN_POTTS_RHO = 0.01
+#: The prior odds of each further material, with and without the preset: 1:100, so that one takes half the
+#: posterior only with a decisive Bayes factor (Jeffreys). At 1:1 (plain, until 2026-11-27) materials of one
+#: pixel whose own parameters fit its noise held 15 to 21 % of two of four rendered layouts' posteriors; at 1:20
+#: (the preset) those of outlier pixels held 2 to 23 % of the one-material stacks' (docs/materials.md,
+#: docs/measured-data.md).
+FURTHER_MATERIAL_ODDS = 0.01
+#: The Potts prior's factor per material without the preset (the preset's rule: rjfit.pipeline.fit_dataset).
+PLAIN_POTTS_RHO = FURTHER_MATERIAL_ODDS
 PLAIN_DEFAULTS = {"noise": "constant", "likelihood_power": 1.0, "potts_rho": PLAIN_POTTS_RHO, "max_view_angle": None}
 
 
