@@ -22,6 +22,7 @@ from rjfit.model.blinn import radiance
 from rjfit.sampler.moves.region_proposals import sigma2_prior_as_invgamma, ssr_min
 from rjfit.sampler.priors import ParamPrior, Prior
 from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
+from rjfit.sampler.regions.material_labels import boundary_count
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"     # ../shared beside the checkout (measured data)
@@ -361,6 +362,40 @@ def exact_changepoint_posterior(quad, jacobian_power=None, cp_prior="paper", log
     norm = np.logaddexp.reduce(log_w)
     prob = dict(zip(keys, np.exp(log_w - norm)))
     return (prob, float(norm)) if log_norm else prob
+
+
+def set_partitions(n):
+    """Every set partition of n items as a restricted growth string (first appearance order)."""
+    if n == 0:
+        yield ()
+        return
+    for rest in set_partitions(n - 1):
+        for label in range(max(rest, default=-1) + 2):
+            yield rest + (label,)
+
+
+def canonical(labels):
+    """A labelling's partition: labels renumbered in order of first appearance."""
+    seen = {}
+    return tuple(seen.setdefault(int(z), len(seen)) for z in labels)
+
+
+def exact_partition_posterior(quad, shape, beta, rho, n_blocks=None, max_blocks=None, log_norm=False):
+    """{partition: probability} over the partitions of the pixels of ``shape`` (optionally K fixed or capped)
+    under the material model's prior (Potts beta, rho per material); with ``log_norm`` also the log
+    of the sum of the unnormalised weights (the evidence up to the prior's partition-free constant)."""
+    log_w = {}
+    for part in set_partitions(shape[0] * shape[1]):
+        k = max(part) + 1
+        if (n_blocks is not None and k != n_blocks) or (max_blocks is not None and k > max_blocks):
+            continue
+        z = np.array(part).reshape(shape)
+        log_w[part] = (k * np.log(rho) - beta * boundary_count(z)
+                       + sum(quad.log_evidence(np.flatnonzero(z.ravel() == b)) for b in range(k)))
+    values = np.array(list(log_w.values()))
+    total = float(np.logaddexp.reduce(values))
+    probs = dict(zip(log_w, np.exp(values - total)))
+    return (probs, total) if log_norm else probs
 
 
 def laplace_objective(data, prior, count_of=None):

@@ -12,7 +12,7 @@ or dropped, and in which round), the unexplained misfit (where the last diagnosi
 and the seconds (fit + refine).
 
     .venv/bin/python validation/refine_table.py OUT_DIR [--only CASE,...] [--resolution 64]
-                     [--chains 2] [--iterations 600] [--max-rounds 3]
+                     [--chains 2] [--iterations 600] [--max-rounds 3] [--regions materials]
 """
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def run_case(case, kind, out, args) -> dict:
     started = time.perf_counter()
     fit_dir = out / kind / "fit"
     fit_dataset(dataset, fit_dir, allow_unvalidated=True, n_chains=args.chains, iterations=args.iterations,
-                seed=0, progress=False, figures=False)
+                seed=0, progress=False, figures=False, regions=args.regions)
     refined = refine(fit_dir, out / kind / "refine", max_rounds=args.max_rounds, max_steps=2, say=print)
     first, last = refined["rounds"][0], refined["rounds"][-1]
     last_diagnosis = json.loads((Path(last["diagnosis"]) / "diagnosis.json").read_text())
@@ -79,6 +79,8 @@ def main():
     parser.add_argument("--chains", type=int, default=2)
     parser.add_argument("--iterations", type=int, default=600)
     parser.add_argument("--max-rounds", type=int, default=3)
+    parser.add_argument("--regions", choices=("changepoints", "materials"), default="changepoints",
+                        help="the region model of every fit (the refits inherit it)")
     args = parser.parse_args()
     cases = {k: v for k, v in CASES.items() if args.only is None or k in args.only.split(",")}
     rows = []

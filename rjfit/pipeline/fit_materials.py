@@ -90,8 +90,8 @@ def write_material_files(staging: Path, result, records, options) -> None:
     idata = mat.to_inference_data(records, burn, result.extra["draws"])
     idata.posterior.attrs.update({
         "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
-        "materials": f"the kept draws with a label snapshot and K = {summary['map_materials']} (the MAP K), "
-                     f"relabelled: {mat.RELABELLING}",
+        "materials": f"the kept draws with K = {summary['map_materials']} (the MAP K), relabelled: "
+                     f"{mat.RELABELLING}",
         "parameters": PARAMETERS_ATTR})
     idata.to_netcdf(str(staging / "chains.nc"))
     save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"))

@@ -263,10 +263,10 @@ class FitOptions:
         if not (math.isfinite(self.potts_beta) and self.potts_beta >= 0 and self.potts_rho > 0):
             raise ValueError(f"Potts strength (--potts-beta) must be a number >= 0 and rho > 0, got "
                              f"{self.potts_beta}, {self.potts_rho}")
-        if self.regions == "materials" and (self.effects or self.effects_from is not None):
-            # the label moves' per-pixel likelihoods and cluster statistics see the plain lobe only
-            raise ValueError("--effects and --effects-from work with --regions changepoints only (the material model's "
-                             "label moves do not yet carry the effects' terms); drop one of them")
+        if self.channel == COLOUR and (self.effects or self.effects_from is not None):
+            # the effects' features and the criticism are of one channel (a colour fit is diagnosed on its mean)
+            raise ValueError("--effects and --effects-from are for single-channel fits, not yet --channel rgb: fit "
+                             "one channel (--channel mean) with the effects")
         if self.channel == COLOUR and self.likelihood_power == "area":
             # its summed autocorrelation would pool a pixel's channels as one channel's observations
             raise ValueError("--likelihood-power area measures one channel: not yet with --channel rgb; use "

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.data.formats import COLOUR
 from rjfit.diagnose.document import revision_text
 from rjfit.errors import DatasetError
 from rjfit.io import write_json_atomic
@@ -155,8 +156,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         say(_round_line(index, record))
         final, new = _final_model(diagnosis, record)
         result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
-        if (new or record["dropped"]) and options.regions != "changepoints":
-            result["stopped"], warning = _cannot_sample(index, options.regions, diagnosis_dir)
+        if (new or record["dropped"]) and options.channel == COLOUR:
+            result["stopped"], warning = _cannot_sample(index, diagnosis_dir)
         elif not (new or record["dropped"]) or index + 1 == max_rounds:
             result["stopped"], warning = _stop(index, max_rounds, new, record["dropped"], current)
         if result["stopped"]:
@@ -193,12 +194,12 @@ def _named_after(named: list, dropped: list, new: list) -> list:
     return kept + [name for name in new if name not in kept]
 
 
-def _cannot_sample(index: int, regions: str, diagnosis_dir: Path) -> tuple:
-    """Why the loop stops when its diagnosis named effects that the fit's region model cannot
-    sample (the material model's label moves do not carry the effects' terms): ``(reason, warning)``."""
-    return (f"round {index + 1}'s diagnosis named effects, which the material model cannot sample",
-            f"the fit is of --regions {regions}, which cannot sample effects yet: refine stopped after round "
-            f"{index + 1}'s diagnosis ({diagnosis_dir}); fit with --regions changepoints --effects-from "
+def _cannot_sample(index: int, diagnosis_dir: Path) -> tuple:
+    """Why the loop stops when its diagnosis named effects that a joint colour fit cannot sample
+    (the effects are of one channel): ``(reason, warning)``."""
+    return (f"round {index + 1}'s diagnosis named effects, which a joint colour fit cannot sample",
+            f"the fit is of --channel rgb, which cannot sample effects yet: refine stopped after round "
+            f"{index + 1}'s diagnosis ({diagnosis_dir}); fit one channel (--channel mean) with --effects-from "
             f"{diagnosis_dir} to sample what it named with the regions")
 
 

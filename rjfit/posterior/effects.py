@@ -19,7 +19,7 @@ __all__ = ["effect_draws", "effect_summaries", "effects_prediction"]
 
 def effect_draws(records, burn_in: int) -> np.ndarray:
     """Kept draws of the effect parameters, (chains, draws, K) (constrained)."""
-    T = min(len(r.n_u) for r in records)
+    T = min(len(r.effects) for r in records)
     return np.stack([r.effects[burn_in:T] for r in records])
 
 

@@ -9,7 +9,12 @@ the draw and j in the reference, ``scipy.optimize.linear_sum_assignment``). The 
 is the kept snapshot of highest log posterior; the MAP material of a pixel is then its most
 frequent relabelled material, and its probability is that frequency. One matching pass:
 the reference is a single draw, so pixels it misassigns can shift a matching where
-materials overlap little.
+materials overlap little. The parameter summaries also use the draws between snapshots:
+a chain numbers its materials the same way until a step changes their number (births,
+deaths, merges, splits: ``ChainRecord.jumped``; label sweeps and cluster moves between
+materials keep every material's row), so each snapshot's matching carries to the draws
+after it up to the first such step. Before 2026-11-27 only the snapshots counted, one draw
+in ``cp_thin``: R-hat and ESS then came from a tenth of the draws.
 """
 from __future__ import annotations
 
@@ -24,8 +29,9 @@ __all__ = ["materials_posterior", "map_materials", "RelabelledDraws", "relabelle
            "to_inference_data", "cap_warning", "RELABELLING"]
 
 #: How draws are matched to the MAP labelling (written into the summary).
-RELABELLING = ("kept draws with a label snapshot and K = MAP K, each relabelled to the snapshot of highest log "
-               "posterior by the optimal one-to-one matching of pixel overlaps (Hungarian assignment)")
+RELABELLING = ("kept draws with K = MAP K, each label snapshot relabelled to the snapshot of highest log posterior by "
+               "the optimal one-to-one matching of pixel overlaps (Hungarian assignment), and the draws after a "
+               "snapshot that number the materials as it does (no jump in between) by the snapshot's matching")
 
 
 def materials_posterior(records, burn_in: int) -> dict:
@@ -50,14 +56,15 @@ def map_materials(records, burn_in: int) -> int:
 
 
 class RelabelledDraws:
-    """The kept snapshot draws at the MAP K, relabelled to one labelling (see the module docstring).
+    """The kept draws at the MAP K, relabelled to one labelling (see the module docstring).
 
     Attributes
     ----------
-    theta : list of ndarray (S_c, K, 4)
-        Per chain, the relabelled parameters of its snapshot draws at K.
+    theta : list of ndarray (D_c, K, 4)
+        Per chain, the relabelled parameters of its draws at K: each snapshot draw and the
+        draws after it that number the materials as it does (no jump in between).
     labels : list of ndarray (S_c, H, W)
-        Per chain, their relabelled pixel labels (-1 unlabelled).
+        Per chain, the relabelled pixel labels of its snapshot draws at K (-1 unlabelled).
     reference : ndarray (H, W)
         The reference labelling.
     """
@@ -82,8 +89,21 @@ def _snapshots(rec, burn_in, k):
             yield t, np.nan_to_num(rec.material_labels[s], nan=-1.0).astype(np.int64)
 
 
+def _rows_as_at(rec, t: int) -> np.ndarray:
+    """The kept draws that number their materials as snapshot draw ``t`` does: ``t`` and the draws
+    after it, up to the next snapshot, while no step has changed the number of materials (only
+    those steps renumber them: births, deaths, merges and splits). Only ``t`` where the chain
+    did not record its jumps."""
+    if rec.jumped is None:
+        return np.array([t])
+    thin = int(rec.cp_iteration[1] - rec.cp_iteration[0]) if len(rec.cp_iteration) > 1 else 1
+    end = min(t + thin, len(rec.jumped))
+    later = np.flatnonzero(rec.jumped[t + 1:end])
+    return np.arange(t, t + 1 + (later[0] if later.size else end - t - 1))
+
+
 def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1) -> RelabelledDraws:
-    """The snapshot draws at ``k`` materials relabelled to the reference (see the module docstring).
+    """The draws at ``k`` materials relabelled to the reference (see the module docstring and :class:`RelabelledDraws`).
 
     A joint colour fit (``n_channels`` > 1) records a row per material and channel: its
     draws are then (S_c, K, C, 4).
@@ -111,9 +131,10 @@ def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1) -> Rela
             rows, cols = linear_sum_assignment(-overlap)
             to_reference = np.empty(k, np.int64)
             to_reference[rows] = cols
-            theta = np.empty((k, n_channels, 4))
-            theta[to_reference] = rec.theta[t, :k * n_channels].reshape(k, n_channels, 4)
-            theta_c.append(theta if n_channels > 1 else theta[:, 0])
+            rows = _rows_as_at(rec, t)
+            theta = np.empty((rows.size, k, n_channels, 4))
+            theta[:, to_reference] = rec.theta[rows, :k * n_channels].reshape(rows.size, k, n_channels, 4)
+            theta_c.extend(theta if n_channels > 1 else theta[:, :, 0])
             labels_c.append(np.where(labelled, to_reference[np.clip(labels, 0, None)], -1))
         thetas.append(np.array(theta_c).reshape(-1, k, *((n_channels,) if n_channels > 1 else ()), 4))
         all_labels.append(np.array(labels_c).reshape(-1, *reference.shape))
@@ -159,7 +180,7 @@ def cap_warning(posterior: dict, max_materials: int, threshold: float = 0.05) ->
 
 
 def to_inference_data(records, burn_in: int, draws: RelabelledDraws):
-    """ArviZ InferenceData: the relabelled snapshot draws (chain, draw, material, parameter) and K per iteration.
+    """ArviZ InferenceData: the relabelled draws (chain, draw, material, parameter) and K per iteration.
 
     Chains are cut to the shortest chain's number of relabelled draws (ArviZ needs equal
     lengths; a chain with none is left out of ``posterior``); ``n_materials`` and

@@ -91,7 +91,7 @@ def pixel_set_data(problem, members):
         ends = problem.pixel_start[members + 1].astype(np.int64)
         keep = ends > starts
         return RegionData(y=problem.y, C=problem.C, log_cos_hn=problem.log_cos_hn, runs=(starts[keep], ends[keep]),
-                          weight=problem.likelihood_power)
+                          weight=problem.likelihood_power, lobe=problem.lobe)
     bounds = problem.channel_start
     channels = []
     for c in range(n_ch):

@@ -96,10 +96,13 @@ class ChainRecord:
     n_materials: np.ndarray | None = None       # (T,) int: materials
     material_labels: np.ndarray | None = None   # (S, H, W) float32, NaN off the labelled pixels
     effects: np.ndarray | None = None           # (T, K) constrained effect parameters (EffectData.names); None: none
+    # (T,) int8: 1 if the step accepted a move that changed the number of regions (rows may be renumbered
+    # there), 0 if not; None: not recorded (a chain resumed from an older checkpoint records 1 before it)
+    jumped: np.ndarray | None = None
 
     #: fields with one entry per draw, and per snapshot (what :meth:`truncated` cuts)
     PER_DRAW = ("theta", "log_lik", "log_post", "exact_truth", "true_regions", "object_regions", "n_u", "n_v",
-                "n_materials", "effects")
+                "n_materials", "effects", "jumped")
     PER_SNAPSHOT = ("cp_iteration", "cp_u", "cp_v", "material_labels")
 
     @property
@@ -160,6 +163,7 @@ class ChainRecorder:
         # the effects' priors hold their transforms to the constrained values (small: checkpoints pickle them)
         self.effect_priors = None if problem.effects is None else problem.effects.priors()
         self.effects = None if problem.effects is None else np.full((T, problem.effects.n_params), np.nan)
+        self.jumped = np.zeros(T, np.int8)
         self._truth_setup(spec)
 
     def _truth_setup(self, spec):
@@ -207,11 +211,17 @@ class ChainRecorder:
         self._exact_memo = (memo_key, (exact, true_regions, n_object))
         return exact, true_regions, n_object
 
-    def record(self, t: int, state: ChainState, log_post: float, log_lik_constant: float = 0.0):
+    def record(self, t: int, state: ChainState, log_post: float, log_lik_constant: float = 0.0,
+               jumped: bool = True):
         """Store draw ``t``; ``log_lik_constant`` (the Problem's known-noise-scale term) is added
-        to the recorded log-likelihood and log-posterior, so they are the full densities."""
+        to the recorded log-likelihood and log-posterior, so they are the full densities;
+        ``jumped``: whether the step that made it changed the number of regions
+        (:attr:`StepInfo.jump <rjfit.sampler.state.StepInfo>`)."""
         for name, value in zip(self.regions.key_names, state.layout.model_key):
             self.keys[name][t] = value
+        if getattr(self, "jumped", None) is None:       # a recorder pickled before the field: its past is unknown
+            self.jumped = np.ones(len(self.log_lik), np.int8)
+        self.jumped[t] = bool(jumped)
         self.theta[t, :state.n_regions] = state.theta
         self.log_lik[t] = state.total_log_lik + log_lik_constant
         self.log_post[t] = log_post + log_lik_constant
@@ -236,7 +246,8 @@ class ChainRecorder:
                           true_regions=self.true_regions, object_regions=self.object_regions,
                           cp_iteration=self.cp_iteration, accepted=self.accepted, proposed=self.proposed,
                           seconds=self.seconds, iterations_done=done, resumed_from=tuple(self.resumed_from),
-                          nan_rejected=self.nan_rejected, effects=self.effects, **self.keys, **self.snapshots)
+                          nan_rejected=self.nan_rejected, effects=self.effects, jumped=getattr(self, "jumped", None),
+                          **self.keys, **self.snapshots)
         return rec.truncated(done)
 
 
@@ -397,7 +408,7 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
             constant = problem.log_likelihood_constant
             if state.effects is not None:      # the raw data's log-likelihood: with the effects' log-Jacobian
                 constant += effect_log_likelihood(problem, state)
-            recorder.record(t, state, log_posterior(problem, prior, state, config), constant)
+            recorder.record(t, state, log_posterior(problem, prior, state, config), constant, bool(info.jump))
             if bar is not None:
                 bar.update(1, functools.partial(_model_text, spec.config.regions, state))
             done = t + 1

@@ -5,6 +5,7 @@ patches; 2 chains of 200 iterations (about 10 s). The checks are on what the fit
 (schema, shapes, ranges), plus that the MAP materials put both patches in one material
 (the data separate the three materials by far: noise sd 0.14 against differences of 4 in I0).
 """
+import dataclasses
 import json
 
 import numpy as np
@@ -102,3 +103,32 @@ def test_the_chains_start_stratified_over_the_number_of_materials(tmp_path):
         assert starts == expected
     fixed = chain_specs(problem, prior, config, options, tmp_path, None, None, truth)
     assert all("n_materials" not in s.start and s.start["pixel_labels"] is truth for s in fixed)
+
+
+def test_relabelled_draws_carry_a_snapshots_matching_to_the_draws_after_it_up_to_a_jump():
+    """Draws between label snapshots count (not one in cp_thin only), each numbered as the snapshot
+    before it, and none after a step that changed the number of materials before the next snapshot
+    (there the rows may be renumbered). A chain whose rows swap at a recorded jump (t = 12)."""
+    from rjfit.posterior.materials import relabelled_draws
+    from rjfit.sampler.runner import ChainRecord
+
+    T, thin, k = 20, 5, 2
+    labels = np.array([[0, 0, 1]], float)
+    a, b = [10.0, 0.8, 5.0, 0.02], [6.0, 0.4, 30.0, 0.02]
+    theta = np.array([[a, b]] * 12 + [[b, a]] * 8)                 # rows swapped from t = 12 on
+    snapshots = np.array([labels, labels, labels, 1 - labels])     # t = 0, 5, 10, 15
+    jumped = np.zeros(T, np.int8)
+    jumped[12] = 1
+    record = ChainRecord(theta=theta, log_lik=np.zeros(T), log_post=np.arange(T, dtype=float),
+                         exact_truth=np.full(T, -1, np.int8), true_regions=np.full(T, -1, np.int8),
+                         object_regions=np.full(T, k, np.int16), cp_iteration=np.arange(0, T, thin), accepted={},
+                         proposed={}, seconds=0.0, iterations_done=T, n_materials=np.full(T, k),
+                         material_labels=snapshots.astype(np.float32), jumped=jumped)
+    draws = relabelled_draws([record], 0, k)
+    (chain,) = draws.theta
+    assert len(chain) == T - 3                      # draws 12, 13, 14: after the jump, before snapshot 15
+    reference_material_of_a = 1                     # the reference: snapshot 15 (highest log posterior)
+    np.testing.assert_array_equal(chain[:, reference_material_of_a], np.tile(a, (len(chain), 1)))
+    assert len(draws.labels[0]) == 4                # labels: the snapshots only
+    older = relabelled_draws([dataclasses.replace(record, jumped=None)], 0, k)
+    assert len(older.theta[0]) == 4                 # a chain that did not record its jumps: snapshots only

@@ -42,6 +42,8 @@ def test_a_new_field_becomes_a_flag_without_touching_the_command():
     ({"prior": "flat"}, "--prior"), ({"noise": "poisson"}, "--noise"), ({"channel": "alpha"}, "--channel"),
     ({"likelihood_power": 1.5}, "--likelihood-power"), ({"likelihood_power": "often"}, "--likelihood-power"),
     ({"noise_floor": -0.1}, "--noise-floor"), ({"max_u": -1}, "--max-u"),
+    # effects are of one channel: a joint colour fit takes none (the material model does, since 2026-11-27)
+    ({"channel": "rgb", "regions": "materials", "effects": ("ambient",)}, "--effects"),
 ])
 def test_an_option_out_of_range_names_its_flag(changes, flag):
     with pytest.raises(ValueError, match=flag):

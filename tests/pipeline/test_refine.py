@@ -74,16 +74,21 @@ def test_refine_refuses_a_fit_without_recorded_options_in_one_line(tmp_path):
         refine(fit_dir, tmp_path / "out", max_rounds=0)
 
 
-def test_refine_of_a_material_fit_stops_after_a_diagnosis_that_names_effects(ambient_dataset, tmp_path):
-    """The material model cannot sample effects: refine says so (a warning naming the diagnosis and
-    the command that would) instead of failing at the refit. One candidate keeps it short (25 s)."""
+def test_refine_of_a_material_fit_samples_the_named_effect_with_the_material_labels(ambient_dataset, tmp_path):
+    """A material fit (--regions materials) refines as a change-point fit does: round 2 samples
+    ambient light with the material labels (its summary reports the effect beside the
+    materials). One candidate and one step keep it short."""
     fit_dir = tmp_path / "materials_fit"
     fit_dataset(ambient_dataset, fit_dir, allow_unvalidated=True, **{**FIT, "iterations": 40}, regions="materials")
-    lines = []
-    result = refine(fit_dir, tmp_path / "refine", max_rounds=2, max_steps=1, say=lines.append,
+    result = refine(fit_dir, tmp_path / "refine", max_rounds=2, max_steps=1, say=lambda line: None,
                     candidates=("ambient",))
-    assert result["rounds"][0]["named"] == ["ambient"] and len(result["rounds"]) == 1
-    assert "cannot sample" in result["stopped"]
-    (warning,) = result["warnings"]
-    assert "--regions changepoints --effects-from" in warning and str(result["rounds"][0]["diagnosis"]) in warning
-    assert any(line.startswith("warning: ") for line in lines)
+    assert result["rounds"][0]["named"] == ["ambient"] and len(result["rounds"]) == 2
+    second = read_summary(result["rounds"][1]["fit"])
+    assert second["fit_options"]["regions"] == "materials"
+    (ambient,) = second["effects"]
+    assert ambient["name"] == "ambient"
+    # the stack's ambient light is 0.03 in the fit's units; a 40-draw chain pins it to a few %
+    assert 0.02 < ambient["parameters"][0]["mean"] < 0.04
+    # the point of the loop: with the effect in the likelihood the labels come nearer the truth
+    # (measured 0.46 -> 0.93: 2 materials, then paper_sphere's 4)
+    assert result["rounds"][1]["label_accuracy"] > result["rounds"][0]["label_accuracy"]

@@ -24,6 +24,7 @@ from test_passes import (  # noqa: F401
 from rjfit.data.synthetic import sphere_stack
 from rjfit.model.effects import ALBEDO_LOG_GAMMA, albedo_table, cos_v_weights
 from rjfit.model.priors import LogitNormal, LogNormal, Normal
+from rjfit.sampler import reference
 from rjfit.sampler.effects import (
     AmbientLight,
     CameraCurve,
@@ -34,6 +35,8 @@ from rjfit.sampler.effects import (
     LobeMasking,
 )
 from rjfit.sampler.forward import EffectParam, LambertBlinnPhong, transformed
+from rjfit.sampler.likelihood import region_stats
+from rjfit.sampler.passes.labels import pixel_log_lik, relabel_pixels
 
 
 def every_effect(observations, seed=0):
@@ -68,3 +71,36 @@ def problem():
     effect_problem, _ = transformed(base, z)
     assert effect_problem.lobe.mask_w > 0 and effect_problem.lobe.amb.size == obs.n_obs
     return effect_problem
+
+
+def test_material_label_passes_carry_the_lobe_terms(problem):
+    """The material model's passes with every effect's lobe terms: per-pixel log-likelihoods
+    against the NumPy twin (whole, and over a subset of observations as the split guide takes
+    them), relabelled statistics against a full recompute. Tolerances as the plain passes'
+    (``test_materials.py``): float64 sums in another order."""
+    n_pix = problem.height * problem.width
+    theta = np.array([[1.2, 0.6, 20.0, 0.02], [0.8, 0.3, 5.0, 0.05], [1.5, 0.9, 60.0, 0.01]])
+    got = pixel_log_lik(problem.y, problem.C, problem.log_cos_hn, problem.pixel, theta, n_pix, problem.lobe)
+    want = reference.pixel_log_lik(problem, theta)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+    assert np.max(np.abs(got - pixel_log_lik(problem.y, problem.C, problem.log_cos_hn, problem.pixel, theta,
+                                             n_pix))) > 1.0, "the lobe terms must change the densities to bite"
+    rng = np.random.default_rng(4)
+    members = np.flatnonzero(rng.random(n_pix) < 0.3)
+    idx = np.flatnonzero(np.isin(problem.pixel, members))
+    subset = pixel_log_lik(problem.y[idx], problem.C[idx], problem.log_cos_hn[idx], problem.pixel[idx], theta, n_pix,
+                           problem.lobe.take(idx))
+    np.testing.assert_allclose(subset[:, members], want[:, members], rtol=1e-9, atol=1e-9)
+
+    pixel_labels = rng.integers(0, 3, n_pix)
+    labels = pixel_labels[problem.pixel].astype(np.int32)
+    gammas = np.ascontiguousarray(theta[:, 2])
+    stats = region_stats(problem, labels, gammas, 3)
+    moved = np.flatnonzero(rng.random(n_pix) < 0.2)
+    new = (pixel_labels[moved] + rng.integers(1, 3, moved.size)) % 3
+    relabel_pixels(problem.y, problem.C, problem.log_cos_hn, problem.pixel_start, moved, pixel_labels[moved], new,
+                   gammas, stats, float(problem.likelihood_power), labels, problem.lobe)
+    pixel_labels[moved] = new
+    np.testing.assert_array_equal(labels, pixel_labels[problem.pixel])
+    want_stats = region_stats(problem, labels, gammas, 3)
+    np.testing.assert_allclose(stats, want_stats, rtol=1e-9, atol=1e-9 * np.max(np.abs(want_stats)))

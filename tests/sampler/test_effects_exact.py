@@ -1,7 +1,7 @@
 """Exactness of the kernel with effects inside the likelihood (issue 26), as the plain kernel's is tested.
 
 - **Incremental statistics** against a full recompute: after every step of a chain with one
-  effect of each kind and busy structure moves, the cached statistics, log-likelihood and
+  effect of each kind and busy structure moves (change points; material labels), the cached statistics, log-likelihood and
   log-Jacobian equal those recomputed on the problem transformed at the state's effect
   parameters (and the oracle), to 1e-9 of their scale.
 - **Quadrature** on the tiny problem of ``test_exact_rj.py`` (one region, fixed segmentation):
@@ -13,7 +13,9 @@
   effective sample, level 0.001 (fixed seeds).
 - **Enumeration** with ambient light: model and change-point frequencies (ESS-scaled
   chi-square) and the ambient term's marginal (KS) against the exact posterior, the
-  enumeration of ``builders.exact_changepoint_posterior`` integrated over the ambient term.
+  enumeration of ``builders.exact_changepoint_posterior`` integrated over the ambient term;
+  for the material model, the frequencies of the 15 partitions of the 2 x 2 image and of K
+  (``builders.exact_partition_posterior`` integrated over the ambient term).
 - **SBC** (Talts et al. 2018) with a light gain, ambient light and the sRGB camera at once,
   data simulated from the extended model (noise on the linearised scale, as the fit's
   likelihood has it): the ranks of all seven true parameters among 19 thinned draws must be
@@ -22,6 +24,8 @@
 A control shows the tests bite: leaving the camera's log-Jacobian out of the effect move's
 ratio moves the white level's marginal far from the exact one (p < 1e-6).
 """
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -47,29 +51,47 @@ from rjfit.sampler.likelihood import oracle_log_likelihood, region_stats
 from rjfit.sampler.moves import effects as effect_moves
 from rjfit.sampler.state import SamplerConfig
 
-from builders import Quadrature, ess_scaled_chi2, exact_changepoint_posterior, tiny_problem
+from builders import (
+    Quadrature,
+    canonical,
+    ess_scaled_chi2,
+    exact_changepoint_posterior,
+    exact_partition_posterior,
+    tiny_problem,
+)
 
 LEVEL = 1e-3           # per test: the suite's many exactness tests stay unlikely to fail by chance together
 GRID = np.array([ALBEDO_LOG_GAMMA[0], ALBEDO_LOG_GAMMA[-1], ALBEDO_LOG_GAMMA[1] - ALBEDO_LOG_GAMMA[0]])
 Z_POINTS = 31
 
 
-def test_incremental_statistics_equal_a_full_recompute_with_effects():
+STRUCTURE_MOVES = {
+    "changepoints": dict(max_u=2, max_v=2, jump_prob=0.7, block_prob=0.4, vector_prob=0.7, cp_uniform_prob=0.3),
+    # the material model: Gibbs sweeps, cluster, merge/split and segment moves
+    "materials": dict(region_model="materials", max_materials=5, cluster_moves=2, merge_split_moves=1,
+                      segment_moves=2, potts_beta=1.0),
+}
+
+
+@pytest.mark.parametrize("regions", ["changepoints", "materials"])
+def test_incremental_statistics_equal_a_full_recompute_with_effects(regions):
     obs, _, _ = sphere_stack(12, n_lights=5, seed=4)
     problem = LambertBlinnPhong(every_effect(obs, seed=2)).problem(obs, likelihood_power=0.7)
     from rjfit.sampler.priors import make_prior
 
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
-    config = SamplerConfig.from_flat(max_u=2, max_v=2, jump_prob=0.7, block_prob=0.4, vector_prob=0.7,
-                                     cp_uniform_prob=0.3, burn_in=60, anneal=0, refresh_every=0)
+    config = SamplerConfig.from_flat(burn_in=60, anneal=0, refresh_every=0, **STRUCTURE_MOVES[regions])
     rng = np.random.default_rng(11)
-    state = initial_state(problem, prior, config, rng)
+    # change points start with vectors to move (from one region no birth is accepted on this stack)
+    state = initial_state(problem, prior, config, rng, **({"model": (1, 1)} if regions == "changepoints" else {}))
     context = ChainContext()
-    accepted = 0
+    accepted, relabelled = 0, 0
     with threadpool_limits(1):
         for _ in range(120):
+            labels_before = state.labels
             state, info = step(state, rng, problem, prior, config, context)
             accepted += sum(v for k, v in info.accepted.items() if k.startswith("effect_"))
+            relabelled += int(np.any(state.labels != labels_before))
             current, log_jacobian = transformed(problem, state.effects.z)
             stats = region_stats(current, state.labels, state.theta[:, 2], state.n_regions)
             scale = np.maximum(1.0, np.abs(stats))
@@ -78,6 +100,7 @@ def test_incremental_statistics_equal_a_full_recompute_with_effects():
                                                         rel=1e-9, abs=1e-6)
             assert state.effects.log_jacobian == pytest.approx(log_jacobian, rel=1e-12, abs=1e-9)
     assert accepted > 20, "the effect moves must be accepted for the test to bite"
+    assert relabelled > 20, "the structure moves must relabel observations for the test to bite"
 
 
 def test_camera_log_jacobian_is_the_log_slope_of_the_inverse():
@@ -299,6 +322,53 @@ def test_model_changepoint_and_ambient_frequencies_match_enumeration():
     p_u = np.array([sum(p for k, p in joint.items() if k[0] == 1 and k[2] == c) for c in range(3)])
     p_value, freq, n_eff = ess_scaled_chi2([0, 1, 2], u0[with_u], p_u / p_u.sum())
     assert p_value > LEVEL, (freq, p_u / p_u.sum(), n_eff)
+    assert stats.kstest(_thinned(z), exact.z_cdf(weights)).pvalue > LEVEL
+
+
+def test_material_partition_and_ambient_frequencies_match_enumeration():
+    """The material model with ambient light sampled: all 15 partitions of the 2 x 2 image (K_max 4;
+    Gibbs sweeps, cluster and merge/split moves, the effect move), their frequencies and K's
+    against the exact posterior (the enumeration of ``builders.exact_partition_posterior``
+    integrated over the ambient term), and the ambient term's marginal (KS)."""
+    obs, prior, effect, z_prior, extra = _case("ambient")
+    # the data hold ambient light 0.3 (the prior's centre), so its lobe term (up to about 4 noise sd here)
+    # weighs in every material's likelihood: label moves that left it out would sample another posterior
+    right = (obs.pixel % 2 == 1)
+    I0, kd, gamma = 10.0, np.where(right, 0.3, 0.75), np.where(right, 15.0, 4.0)
+    obs = dataclasses.replace(obs, y=obs.y + 0.3 * I0 * (kd + (1 - kd) * lobe_albedo(gamma, extra["cos_v"])))
+    problem = LambertBlinnPhong([effect]).problem(obs)
+    exact = EffectQuadrature(obs, prior, "ambient", z_prior, points=41, **extra)
+    beta, rho = 1.0, 0.5
+    posteriors = {}
+
+    def log_evidence_at(quad, z):
+        posteriors[z], log_norm = exact_partition_posterior(quad, (2, 2), beta, rho, log_norm=True)
+        return log_norm
+
+    weights = exact.z_weights(log_evidence_at)
+    joint = {part: sum(w * posteriors[z][part] for z, w in zip(exact.z, weights)) for part in posteriors[exact.z[0]]}
+    config = SamplerConfig.from_flat(region_model="materials", max_materials=4, potts_beta=beta, potts_rho=rho,
+                                     cluster_moves=2, merge_split_moves=1, burn_in=300, anneal=0)
+    rng = np.random.default_rng(6)
+    state = initial_state(problem, prior, config, rng)
+    iterations, burn = 4000, 300
+    parts, z = [], np.zeros(iterations)
+    context = ChainContext()
+    with threadpool_limits(1):
+        for t in range(iterations):
+            state, _ = step(state, rng, problem, prior, config, context)
+            parts.append(canonical(state.layout.pixels.ravel()))
+            z[t] = state.effects.z[0]
+    parts, z = parts[burn:], z[burn:]
+    cells = list(joint)
+    p_value, freq, n_eff = ess_scaled_chi2(list(range(len(cells))), np.array([cells.index(p) for p in parts]),
+                                           np.array([joint[c] for c in cells]))
+    assert p_value > LEVEL, (freq, n_eff)
+    ks = sorted({max(p) + 1 for p in cells})
+    p_k = np.array([sum(v for p, v in joint.items() if max(p) + 1 == k) for k in ks])
+    assert np.sort(p_k)[-2] > 0.05, "the exact posterior should spread over K for the test to bite"
+    p_value, freq, n_eff = ess_scaled_chi2(ks, np.array([max(p) + 1 for p in parts]), p_k)
+    assert p_value > LEVEL, (freq, p_k, n_eff)
     assert stats.kstest(_thinned(z), exact.z_cdf(weights)).pvalue > LEVEL
 
 

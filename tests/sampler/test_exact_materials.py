@@ -37,43 +37,12 @@ from rjfit.sampler.passes.labels import allocate_split
 from rjfit.sampler.regions.material_labels import boundary_count
 from rjfit.sampler.state import SamplerConfig
 
-from builders import Quadrature, ess_scaled_chi2, tiny_problem
+from builders import Quadrature, canonical, ess_scaled_chi2, exact_partition_posterior, set_partitions, tiny_problem
 
 LEVEL = 1e-3
 ENUMERATION_ITERATIONS, ENUMERATION_BURN = 3000, 300
 CONTROL_ITERATIONS, CONTROL_BURN = 1500, 150
 STUCK_ITERATIONS = 600       # the coin control's wrong chain reaches K = 4 within its first iterations and stays
-
-
-def set_partitions(n):
-    """Every set partition of n items as a restricted growth string (first appearance order)."""
-    if n == 0:
-        yield ()
-        return
-    for rest in set_partitions(n - 1):
-        for label in range(max(rest, default=-1) + 2):
-            yield rest + (label,)
-
-
-def canonical(labels):
-    """A labelling's partition: labels renumbered in order of first appearance."""
-    seen = {}
-    return tuple(seen.setdefault(int(z), len(seen)) for z in labels)
-
-
-def exact_partition_posterior(quad, shape, beta, rho, n_blocks=None, max_blocks=None):
-    """{partition: probability} over the partitions of the pixels of ``shape`` (optionally K fixed or capped)."""
-    log_w = {}
-    for part in set_partitions(shape[0] * shape[1]):
-        k = max(part) + 1
-        if (n_blocks is not None and k != n_blocks) or (max_blocks is not None and k > max_blocks):
-            continue
-        z = np.array(part).reshape(shape)
-        log_w[part] = (k * np.log(rho) - beta * boundary_count(z)
-                       + sum(quad.log_evidence(np.flatnonzero(z.ravel() == b)) for b in range(k)))
-    values = np.array(list(log_w.values()))
-    probs = np.exp(values - np.logaddexp.reduce(values))
-    return dict(zip(log_w, probs))
 
 
 def run(problem, prior, config, iterations, seed, **start):

@@ -17,7 +17,7 @@ import textwrap
 SCRIPT = textwrap.dedent("""
     import json
     import numpy as np
-    from rjfit.sampler.passes import cells, sums
+    from rjfit.sampler.passes import cells, labels as label_passes, sums
     from rjfit.sampler.passes.lobe import LobeTerms
 
     rng = np.random.default_rng(0)
@@ -53,12 +53,18 @@ SCRIPT = textwrap.dedent("""
         cells.per_pixel_two_cases(y[a:b], C[a:b], log_cos_hn[a:b], row[a:b], col[a:b], labels[a:b], x_old, 1,
                                   theta, width, chunk_cases[0], chunk_cases[1], ext.take(np.arange(a, b)))
 
+    n_pix = height * width
+    whole_pixels = label_passes.pixel_log_lik(y, C, log_cos_hn, pixel, theta, n_pix, ext)
+    chunk_pixels = sum(label_passes.pixel_log_lik(y[a:b], C[a:b], log_cos_hn[a:b], pixel[a:b], theta, n_pix,
+                                                  ext.take(np.arange(a, b))) for a, b in chunks)
+
     def rel(first, second):
         first, second = np.asarray(first), np.asarray(second)
         return float(np.max(np.abs(first - second)) / np.max(np.abs(second)))
 
     print(json.dumps({"sums_rel": rel(whole_sums, chunk_sums), "sums_zero": bool(np.all(whole_sums == 0)),
-                      "cases_rel": max(rel(w, c) for w, c in zip(whole_cases, chunk_cases))}))
+                      "cases_rel": max(rel(w, c) for w, c in zip(whole_cases, chunk_cases)),
+                      "pixels_rel": rel(whole_pixels, chunk_pixels)}))
 """)
 
 
@@ -71,3 +77,4 @@ def test_parallel_passes_with_lobe_terms_match_the_serial_sums_on_a_fresh_compil
     # the same float64 sums of the same float32 terms in another grouping: rounding only (~1e-13 relative)
     assert result["sums_rel"] < 1e-9, result
     assert result["cases_rel"] < 1e-9, result
+    assert result["pixels_rel"] < 1e-9, result

@@ -43,7 +43,8 @@ def sweep_labels(work, rng, problem, potts, info) -> int:
     labelled = old >= 0
     n_ch = problem.n_channels
     if n_ch == 1:
-        log_lik = pixel_log_lik(problem.y, problem.C, problem.log_cos_hn, problem.pixel, work.theta, n_pix)
+        log_lik = pixel_log_lik(problem.y, problem.C, problem.log_cos_hn, problem.pixel, work.theta, n_pix,
+                                problem.lobe)
     else:       # a joint colour fit: a pixel's log-likelihood sums its channels' under the material's rows
         log_lik = pixel_log_lik_colour(problem.y, problem.C, problem.log_cos_hn, problem.channel_start, work.theta,
                                        n_ch, n_pix)
@@ -61,7 +62,7 @@ def sweep_labels(work, rng, problem, potts, info) -> int:
         if n_ch == 1:
             relabel_pixels(problem.y, problem.C, problem.log_cos_hn, problem.pixel_start, moved, old[moved],
                            pixels[moved], np.ascontiguousarray(work.theta[:, 2]), work.stats,
-                           float(problem.likelihood_power), labels)
+                           float(problem.likelihood_power), labels, problem.lobe)
         else:
             relabel_pixels_colour(problem.y, problem.C, problem.log_cos_hn, problem.pixel_start, problem.channel,
                                   n_ch, moved, old[moved], pixels[moved], np.ascontiguousarray(work.theta[:, 2]),

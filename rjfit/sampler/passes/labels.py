@@ -31,7 +31,8 @@ from numba import njit, prange
 
 from rjfit.sampler.passes.cells import pixel_cuts
 from rjfit.sampler.passes.densities import coefficients, log_densities_into
-from rjfit.sampler.passes.shifts import add_obs_terms
+from rjfit.sampler.passes.lobe import lobe_at, lobe_rows
+from rjfit.sampler.passes.shifts import add_lobe_terms, add_obs_terms
 from rjfit.sampler.passes.special import INV_PI, fast_exp
 from rjfit.sampler.passes.sums import BLOCK, PARALLEL_MIN_OBS, PARTS
 
@@ -40,13 +41,13 @@ __all__ = ["pixel_log_lik", "gibbs_sweep", "relabel_pixels", "grow_cluster", "ed
 
 
 @njit(cache=True, nogil=True)
-def _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, lo, hi):
+def _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, lo, hi, ext, rows):
     density = np.empty(BLOCK)
     for start in range(lo, hi, BLOCK):
         m = min(BLOCK, hi - start)
         ys, cs, ls, ps = y[start:start + m], C[start:start + m], log_cos_hn[start:start + m], pixel[start:start + m]
         for k in range(coef.shape[0]):
-            log_densities_into(ys, cs, ls, coef, k, density[:m])
+            log_densities_into(ys, cs, ls, coef, k, density[:m], ext, rows, start)
             # observations are sorted by pixel: sum a pixel's in a register, write once
             key = -1
             total = 0.0
@@ -61,30 +62,33 @@ def _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, lo, hi):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _pixel_log_lik_parts(y, C, log_cos_hn, pixel, coef, out, bounds):
+def _pixel_log_lik_parts(y, C, log_cos_hn, pixel, coef, out, bounds, ext, rows):
     # parts start at a pixel's first observation: no two parts write one pixel's entries
     for p in prange(bounds.shape[0] - 1):
-        _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, bounds[p], bounds[p + 1])
+        _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, bounds[p], bounds[p + 1], ext, rows)
 
 
 # Plain Python, not jitted: it calls a parallel=True kernel, and Numba 0.68 mis-compiles such a call
 # made from inside another jitted function (with effects' lobe terms its first call returned zero sums,
 # and its cached form crashed); dispatched from Python the kernel compiles and runs on its own.
-def pixel_log_lik(y, C, log_cos_hn, pixel, theta, n_pixels):
+def pixel_log_lik(y, C, log_cos_hn, pixel, theta, n_pixels, ext=None):
     """(K, n_pixels): the sum of each pixel's observations' log densities under each material (unweighted).
 
     ``theta`` (K, 4) are the materials' parameters; a pixel without observations gets 0.
+    ``ext``: the lobe terms of a problem with effects (``Problem.lobe``, in the order of
+    ``y``; None for the plain lobe).
     In :data:`~rjfit.sampler.passes.sums.PARTS` pieces on the chain's threads for large
     problems, each cut at a pixel's first observation (the pieces do not depend on the
     threads, so neither do the sums).
     """
     coef = coefficients(theta)
+    rows = lobe_rows(ext, np.ascontiguousarray(coef[:, 2]))
     out = np.zeros((theta.shape[0], n_pixels))
     n = y.shape[0]
     if n < PARALLEL_MIN_OBS:
-        _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, 0, n)
+        _pixel_log_lik_range(y, C, log_cos_hn, pixel, coef, out, 0, n, ext, rows)
     else:
-        _pixel_log_lik_parts(y, C, log_cos_hn, pixel, coef, out, pixel_cuts(pixel, pixel))
+        _pixel_log_lik_parts(y, C, log_cos_hn, pixel, coef, out, pixel_cuts(pixel, pixel), ext, rows)
     return out
 
 
@@ -141,13 +145,17 @@ def gibbs_sweep(pixel_labels, labelled, log_lik, power, beta, height, width, cou
 
 
 @njit(cache=True, nogil=True)
-def relabel_pixels(y, C, log_cos_hn, pixel_start, pixels, old, new, gammas, stats, weight, obs_labels):
+def relabel_pixels(y, C, log_cos_hn, pixel_start, pixels, old, new, gammas, stats, weight, obs_labels, ext=None):
     """Move the observations of ``pixels`` from material ``old[j]`` to ``new[j]``: statistics and labels, in place.
 
     ``stats`` (K, 7) loses ``weight`` (the likelihood power) times each observation's terms
     in its old material and gains them in its new one (at each material's gamma);
-    ``obs_labels`` gets the new label.
+    ``obs_labels`` gets the new label. ``ext``: the lobe terms of a problem with effects
+    (None: the plain lobe).
     """
+    if ext is not None:
+        _relabel_pixels_lobe(y, C, log_cos_hn, pixel_start, pixels, old, new, gammas, stats, weight, obs_labels, ext)
+        return
     for j in range(pixels.shape[0]):
         p = pixels[j]
         for i in range(pixel_start[p], pixel_start[p + 1]):
@@ -156,6 +164,31 @@ def relabel_pixels(y, C, log_cos_hn, pixel_start, pixels, old, new, gammas, stat
             add_obs_terms(stats, old[j], -weight, yv, c, a, lh, gammas[old[j]])
             add_obs_terms(stats, new[j], weight, yv, c, a, lh, gammas[new[j]])
             obs_labels[i] = new[j]
+
+
+@njit(cache=True, nogil=True)
+def _relabel_pixels_lobe(y, C, log_cos_hn, pixel_start, pixels, old, new, gammas, stats, weight, obs_labels, ext):
+    """:func:`relabel_pixels` with an effects' lobe column (:mod:`rjfit.sampler.passes.lobe`)."""
+    n = 0
+    for j in range(pixels.shape[0]):
+        n += pixel_start[pixels[j] + 1] - pixel_start[pixels[j]]
+    idx = np.empty(n, np.int64)
+    r_old, r_new = np.empty(n, np.int64), np.empty(n, np.int64)
+    k = 0
+    for j in range(pixels.shape[0]):
+        for i in range(pixel_start[pixels[j]], pixel_start[pixels[j] + 1]):
+            idx[k], r_old[k], r_new[k] = i, old[j], new[j]
+            k += 1
+    rows = lobe_rows(ext, gammas)
+    b_old, b_new = np.empty(n), np.empty(n)
+    lobe_at(ext, idx, log_cos_hn, gammas, rows, r_old, b_old)
+    lobe_at(ext, idx, log_cos_hn, gammas, rows, r_new, b_new)
+    for k in range(n):
+        i = idx[k]
+        yv, a = np.float64(y[i]), np.float64(C[i]) * INV_PI
+        add_lobe_terms(stats, r_old[k], -weight, yv, a, b_old[k])
+        add_lobe_terms(stats, r_new[k], weight, yv, a, b_new[k])
+        obs_labels[i] = r_new[k]
 
 
 @njit(cache=True, nogil=True)

@@ -20,7 +20,7 @@ from rjfit.sampler.passes.densities import coefficients, log_density
 from rjfit.sampler.passes.lobe import lobe_at, lobe_rows
 from rjfit.sampler.passes.special import INV_PI
 
-__all__ = ["element_shift", "obs_log_density_delta", "add_obs_terms", "shift_stats"]
+__all__ = ["element_shift", "obs_log_density_delta", "add_obs_terms", "add_lobe_terms", "shift_stats"]
 
 
 @njit(cache=True, nogil=True)
@@ -115,11 +115,11 @@ def _obs_log_density_delta_lobe(y, C, log_cos_hn, order, use_order, starts, ends
 @njit(cache=True, nogil=True)
 def add_obs_terms(stats, r, sign, yv, c, a, lh, gamma):
     """Add ``sign`` times one observation's seven sufficient-statistic terms to region ``r``."""
-    _add_terms_lobe(stats, r, sign, yv, a, c * math.exp(gamma * lh))
+    add_lobe_terms(stats, r, sign, yv, a, c * math.exp(gamma * lh))
 
 
 @njit(cache=True, nogil=True)
-def _add_terms_lobe(stats, r, sign, yv, a, b):
+def add_lobe_terms(stats, r, sign, yv, a, b):
     """Add ``sign`` times one observation's seven terms to region ``r``, its lobe column ``b`` given."""
     stats[r, 0] += sign
     stats[r, 1] += sign * yv * yv
@@ -166,6 +166,6 @@ def _shift_stats_lobe(y, C, log_cos_hn, order, use_order, starts, ends, labels, 
             i = idx[k]
             yv = np.float64(y[i])
             a = np.float64(C[i]) * INV_PI
-            _add_terms_lobe(stats, old[k], -weight, yv, a, b_old[k])
-            _add_terms_lobe(stats, new[k], weight, yv, a, b_new[k])
+            add_lobe_terms(stats, old[k], -weight, yv, a, b_old[k])
+            add_lobe_terms(stats, new[k], weight, yv, a, b_new[k])
             labels[i] = new[k]
