@@ -63,6 +63,10 @@ VARIANTS = {
     "measured-footprint": {"preset": "measured", "noise": "footprint"},
     # the preset without the material model's segment moves (docs/measured-data.md, "Segment moves")
     "measured-nosegments": {"preset": "measured", "segment_moves": 0},
+    # the preset with effects sampled inside the material fit (since 2026-11-27): the light gains (the preset
+    # estimates them once before the fit), and those with the lobe's masking (the ball's diagnosis' runners-up)
+    "measured-lights": {"preset": "measured", "effects": ("light_calibration",)},
+    "measured-lights-masking": {"preset": "measured", "effects": ("light_calibration", "masking")},
 }
 
 

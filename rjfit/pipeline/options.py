@@ -205,7 +205,8 @@ class FitOptions:
         (), "--effects",
         "Effects sampled jointly with the segmentation and the region BRDFs, comma-separated names of the criticism's "
         "library (ambient, camera_gamma, camera_srgb, cast_shadows, fresnel, interreflection, light_calibration, "
-        "masking), each with the library's priors; see docs/sampler.md. Interreflection needs --effects-from.",
+        "masking), each with the library's priors; see docs/sampler.md. Interreflection needs --effects-from. Either "
+        "region model; a single channel (not --channel rgb).",
         "text", show_default=False)
     effects_from: Path | None = cli_option(
         None, "--effects-from",
