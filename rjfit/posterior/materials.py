@@ -96,8 +96,8 @@ def _rows_as_at(rec, t: int) -> np.ndarray:
     did not record its jumps."""
     if rec.jumped is None:
         return np.array([t])
-    thin = int(rec.cp_iteration[1] - rec.cp_iteration[0]) if len(rec.cp_iteration) > 1 else 1
-    end = min(t + thin, len(rec.jumped))
+    next_snapshots = rec.cp_iteration[rec.cp_iteration > t]
+    end = int(next_snapshots[0]) if next_snapshots.size else len(rec.jumped)
     later = np.flatnonzero(rec.jumped[t + 1:end])
     return np.arange(t, t + 1 + (later[0] if later.size else end - t - 1))
 

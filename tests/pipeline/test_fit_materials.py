@@ -132,3 +132,10 @@ def test_relabelled_draws_carry_a_snapshots_matching_to_the_draws_after_it_up_to
     assert len(draws.labels[0]) == 4                # labels: the snapshots only
     older = relabelled_draws([dataclasses.replace(record, jumped=None)], 0, k)
     assert len(older.theta[0]) == 4                 # a chain that did not record its jumps: snapshots only
+    # a chain shorter than the snapshot interval: its one snapshot carries to all its draws
+    short = dataclasses.replace(record, theta=theta[:4], log_lik=np.zeros(4), log_post=np.zeros(4),
+                                exact_truth=record.exact_truth[:4], true_regions=record.true_regions[:4],
+                                object_regions=record.object_regions[:4], cp_iteration=np.array([0]),
+                                n_materials=np.full(4, k), material_labels=snapshots[:1].astype(np.float32),
+                                jumped=np.zeros(4, np.int8), iterations_done=4)
+    assert len(relabelled_draws([short], 0, k).theta[0]) == 4
