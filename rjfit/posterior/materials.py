@@ -89,7 +89,7 @@ def _snapshots(rec, burn_in, k):
             yield t, np.nan_to_num(rec.material_labels[s], nan=-1.0).astype(np.int64)
 
 
-def _rows_as_at(rec, t: int) -> np.ndarray:
+def _numbered_as_at(rec, t: int) -> np.ndarray:
     """The kept draws that number their materials as snapshot draw ``t`` does: ``t`` and the draws
     after it, up to the next snapshot, while no step has changed the number of materials (only
     those steps renumber them: births, deaths, merges and splits). Only ``t`` where the chain
@@ -131,9 +131,9 @@ def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1) -> Rela
             rows, cols = linear_sum_assignment(-overlap)
             to_reference = np.empty(k, np.int64)
             to_reference[rows] = cols
-            rows = _rows_as_at(rec, t)
-            theta = np.empty((rows.size, k, n_channels, 4))
-            theta[:, to_reference] = rec.theta[rows, :k * n_channels].reshape(rows.size, k, n_channels, 4)
+            same_numbering = _numbered_as_at(rec, t)
+            theta = np.empty((same_numbering.size, k, n_channels, 4))
+            theta[:, to_reference] = rec.theta[same_numbering, :k * n_channels].reshape(-1, k, n_channels, 4)
             theta_c.extend(theta if n_channels > 1 else theta[:, :, 0])
             labels_c.append(np.where(labelled, to_reference[np.clip(labels, 0, None)], -1))
         thetas.append(np.array(theta_c).reshape(-1, k, *((n_channels,) if n_channels > 1 else ()), 4))

@@ -219,8 +219,6 @@ class ChainRecorder:
         (:attr:`StepInfo.jump <rjfit.sampler.state.StepInfo>`)."""
         for name, value in zip(self.regions.key_names, state.layout.model_key):
             self.keys[name][t] = value
-        if getattr(self, "jumped", None) is None:       # a recorder pickled before the field: its past is unknown
-            self.jumped = np.ones(len(self.log_lik), np.int8)
         self.jumped[t] = bool(jumped)
         self.theta[t, :state.n_regions] = state.theta
         self.log_lik[t] = state.total_log_lik + log_lik_constant
@@ -246,7 +244,7 @@ class ChainRecorder:
                           true_regions=self.true_regions, object_regions=self.object_regions,
                           cp_iteration=self.cp_iteration, accepted=self.accepted, proposed=self.proposed,
                           seconds=self.seconds, iterations_done=done, resumed_from=tuple(self.resumed_from),
-                          nan_rejected=self.nan_rejected, effects=self.effects, jumped=getattr(self, "jumped", None),
+                          nan_rejected=self.nan_rejected, effects=self.effects, jumped=self.jumped,
                           **self.keys, **self.snapshots)
         return rec.truncated(done)
 
@@ -386,6 +384,8 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
             state = payload["state"]
             rng.bit_generator.state = payload["rng_state"]
             recorder = payload["recorder"]
+            if getattr(recorder, "jumped", None) is None:       # pickled before the field: its past is unknown
+                recorder.jumped = np.ones(len(recorder.log_lik), np.int8)
             start_t = payload["t"]
             # recorded, so that a resume can be told from a restart (both give the same samples)
             recorder.resumed_from = tuple(recorder.resumed_from) + (start_t,)

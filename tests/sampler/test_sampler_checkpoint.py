@@ -29,7 +29,8 @@ def _spec(checkpoint_path=None, **kwargs):
 
 
 def _assert_same(a, b):
-    for name in ("n_u", "n_v", "theta", "log_lik", "log_post", "exact_truth", "cp_iteration", "cp_u", "cp_v"):
+    for name in ("n_u", "n_v", "theta", "log_lik", "log_post", "exact_truth", "cp_iteration", "cp_u", "cp_v",
+                 "jumped"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
     assert a.accepted == b.accepted and a.proposed == b.proposed
 
@@ -67,6 +68,24 @@ def test_resume_after_stop_yields_identical_samples(tmp_path, uninterrupted):
     assert _mark(path) == 125
     resumed = run_chain(_spec(path))                      # resumes from the checkpoint at 125
     _assert_resumed(uninterrupted, resumed)
+
+
+def test_a_checkpoint_from_before_the_jump_record_resumes_with_its_past_unknown(tmp_path, uninterrupted):
+    """A recorder pickled before ChainRecord.jumped existed: the resumed chain records its earlier
+    iterations as jumps (unknown: their draws then count through their own snapshots only) and
+    its later ones as they happen."""
+    path = str(tmp_path / "chain.pkl")
+    run_chain(_spec(path, stop_after=137))
+    with open(path, "rb") as handle:
+        payload = pickle.load(handle)
+    del payload["recorder"].jumped
+    with open(path, "wb") as handle:
+        pickle.dump(payload, handle)
+    resumed = run_chain(_spec(path))
+    t = payload["t"]
+    assert np.all(resumed.jumped[:t] == 1)
+    np.testing.assert_array_equal(resumed.jumped[t:], uninterrupted.jumped[t:])
+    np.testing.assert_array_equal(resumed.theta, uninterrupted.theta)
 
 
 def test_resume_after_sigkill_yields_identical_samples(tmp_path, uninterrupted):

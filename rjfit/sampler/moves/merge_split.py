@@ -134,8 +134,9 @@ def _split_guide(problem, prior, members, features, data, pixel_sets):
     idx = _observations(data)
     n_pix, n_ch = problem.height * problem.width, problem.n_channels
     if n_ch == 1:
+        lobe = None if problem.lobe is None else problem.lobe.take(idx)
         per_pixel = pixel_log_lik(problem.y[idx], problem.C[idx], problem.log_cos_hn[idx], problem.pixel[idx],
-                                  np.concatenate(thetas), n_pix, None if problem.lobe is None else problem.lobe.take(idx))
+                                  np.concatenate(thetas), n_pix, lobe)
     else:
         key = problem.pixel[idx].astype(np.int64) * n_ch + problem.channel[idx]
         bounds = np.searchsorted(key, np.arange(n_pix * n_ch + 1)).astype(np.int64)
