@@ -67,6 +67,9 @@ VARIANTS = {
     # estimates them once before the fit), and those with the lobe's masking (the ball's diagnosis' runners-up)
     "measured-lights": {"preset": "measured", "effects": ("light_calibration",)},
     "measured-lights-masking": {"preset": "measured", "effects": ("light_calibration", "masking")},
+    # the preset at a larger likelihood power than its lag-1 rule gives (0.011 to 0.027 on the three stacks): what
+    # resolving smaller painted details costs (docs/materials.md, "Resolution")
+    "measured-power0.03": {"preset": "measured", "likelihood_power": 0.03},
 }
 
 

@@ -71,6 +71,9 @@ SUMMARY_FIELDS = {
     "max_materials": (int, "materials: the most materials a state may have (a cap; warned about when it binds)"),
     "potts_beta": (_NUMBER, "materials: Potts prior strength per neighbour pair of different materials"),
     "potts_rho": (_NUMBER, "materials: prior factor per material (rho^K)"),
+    "material_resolution": (dict, "materials: the smallest disc of half the albedo of the largest material that the "
+                                  "fit would give a material of its own (radius_px, pixels; "
+                                  "rjfit.posterior.resolution)"),
     "materials_right_probability": (_NUMBER, "materials: posterior probability of the true number of materials"),
     "rhat_max": (_NUMBER, "largest R-hat over the MAP model's parameters (null: not computable)"),
     "rhat_reason": (str, "why rhat_max is null (null when it is a number)"),

@@ -19,12 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.model.blinn import blinn_normalisation
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
 from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
+from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 
-__all__ = ["summarise_materials", "material_number_warnings", "write_material_files", "EMPTY_MATERIALS_NOTE"]
+__all__ = ["summarise_materials", "material_resolution", "resolution_warning", "material_number_warnings", "write_material_files", "EMPTY_MATERIALS_NOTE"]
 
 EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
@@ -57,8 +59,41 @@ def summarise_materials(records, problem, options, burn: int):
     cap = mat.cap_warning(posterior, options.max_materials)
     if cap:
         summary["warnings"].append(cap)
+    resolution = material_resolution(problem, summaries, labels, options)
+    if resolution is not None:
+        summary["material_resolution"] = resolution
+        if RESOLUTION_WARN_PIXELS < resolution["pixels"] < np.inf:
+            summary["warnings"].append(resolution_warning(resolution))
     prediction = post.posterior_mean_prediction(records, burn, problem)
     return summary, labels, prediction, {"map_probability": probability, "draws": draws}
+
+
+def material_resolution(problem, materials, labels, options) -> dict | None:
+    """The smallest region of half the albedo that the fit would give a material of its own inside its largest
+    material (:func:`rjfit.posterior.resolution.smallest_material`, at that material's posterior means and on
+    the plain forward model: effects are left out of the prediction). None for a joint colour fit."""
+    if problem.n_channels > 1 or not materials:
+        return None
+    largest = max(materials, key=lambda m: m["pixels"])
+    I0, kd, gamma, sigma2 = (largest[name]["mean"] for name in ("I0", "kd", "gamma", "sigma2"))
+    mine = np.asarray(labels).ravel()[problem.pixel] == largest["material"]
+    lobe = I0 * (1.0 - kd) * blinn_normalisation(gamma) * np.exp(gamma * problem.log_cos_hn[mine].astype(float))
+    mu = problem.C[mine].astype(float) * (I0 * kd / np.pi + lobe)
+    return {"material": int(largest["material"]), "likelihood_power": float(problem.likelihood_power),
+            "potts_beta": float(options.potts_beta), "potts_rho": float(options.potts_rho),
+            **smallest_material(mu, problem.pixel[mine], sigma2, float(problem.likelihood_power),
+                                options.potts_beta, options.potts_rho, len(materials))}
+
+
+def resolution_warning(resolution: dict) -> str:
+    """The caveat of a fit whose material model cannot resolve small details (``resolution`` from
+    :func:`material_resolution`)."""
+    return (f"materials smaller than about {resolution['pixels']:.0f} pixels (a disc of radius "
+            f"{resolution['radius_px']:.1f} px) are not resolved: a region of {resolution['contrast']:g} times material "
+            f"{resolution['material']}'s albedo must be that large before its evidence (likelihood power "
+            f"{resolution['likelihood_power']:.3g}) pays for its boundary (Potts beta {resolution['potts_beta']:.3g}) and the "
+            f"prior odds of one more material (rho {resolution['potts_rho']:.3g}), so smaller painted details are merged into "
+            f"the material around them (docs/materials.md, 'Resolution')")
 
 
 def material_number_warnings(materials, prior) -> list:

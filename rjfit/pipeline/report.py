@@ -290,6 +290,11 @@ def _posterior_section(summary: dict) -> list[str]:
                               "likelihood_power",
                               "exact_truth_probability", "label_accuracy",
                               "rhat_max", "rhat_reason", "ess_min", "iterations", "seconds"]))
+    resolution = summary.get("material_resolution")
+    if resolution and resolution.get("pixels") is not None:
+        parts.append(f"<p>Resolution: a region of {resolution['contrast']:g} times material {resolution['material']}'s "
+                     f"albedo gets a material of its own from about {resolution['pixels']:.0f} pixels (a disc of radius "
+                     f"{resolution['radius_px']:.1f} px); smaller ones are merged into the material around them.</p>")
     model_posterior = summary.get("model_posterior") or {}
     if model_posterior:
         rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{v:.4f}</td></tr>"

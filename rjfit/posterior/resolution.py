@@ -1,0 +1,94 @@
+"""How small a material a fit of the material model can find: the size at which a region of another
+paint pays for itself.
+
+A region of ``n`` pixels whose paint has ``c`` times the albedo of the material around it (both
+amplitudes, diffuse and lobe, scaled by ``c``) gains about
+
+    G(n) = n e,   e = zeta / (2 sigma^2) * mean over pixels of sum over lights of ((1 - c) mu_i)^2
+
+log-likelihood units when it gets a material of its own (``mu_i`` the material's prediction on
+the noise scales' units, ``sigma^2`` its residual variance, ``zeta`` the fit's likelihood power),
+and costs its Potts boundary, ``beta`` per pair of 4-neighbours across it (about ``8 R`` pairs for
+a digital disc of radius ``R``: 100 on the measured discs of radius 12), the prior odds of one more
+material, ``-log rho``, and the labellings' ``log(K + 1)``. A disc is worth a material when
+``pi R^2 e >= 8 beta R - log rho + log(K + 1)``: :func:`smallest_material` solves that for ``R``.
+The parameters' own Occam factor is left out, so a region at the returned size is at the edge
+of being found, not sure to be.
+
+Measured (docs/materials.md, "Resolution"): psm-horse under ``--preset measured`` with two
+painted discs of a quarter of its albedo: predicted radius 12.5 px; discs of radius 6 and 9 were
+not found, of 12 one of the two in each chain, of 16 both in every chain.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["smallest_material", "disc_radius", "RESOLUTION_CONTRAST", "RESOLUTION_WARN_PIXELS"]
+
+#: the paint a fit's resolution is stated for: half (or, alike, 1.5 times) the material's albedo
+RESOLUTION_CONTRAST = 0.5
+#: a fit warns when a region of that paint must hold more pixels than this (an 11 x 11 patch: a painted
+#: eye or a label on a 512-pixel-wide capture is smaller)
+RESOLUTION_WARN_PIXELS = 100.0
+
+
+def smallest_material(mu, pixel, sigma2: float, power: float, beta: float, rho: float, n_materials: int,
+                      contrast: float = RESOLUTION_CONTRAST) -> dict:
+    """The smallest disc of another paint that a material fit finds in a material (module docstring).
+
+    Parameters
+    ----------
+    mu : ndarray, shape (N,)
+        The material's prediction for each of its observations, divided by the observations'
+        known noise scales (as the fit's likelihood sees it).
+    pixel : ndarray of int, shape (N,)
+        The pixel of each observation (only the number of distinct pixels is used).
+    sigma2 : float
+        The material's residual variance (on the same scale as ``mu``).
+    power, beta, rho : float
+        The fit's likelihood power zeta and Potts prior (beta per unlike neighbour pair, rho per material).
+    n_materials : int
+        K, the fit's (MAP) number of materials.
+    contrast : float
+        The other paint's albedo as a multiple of this one's (positive, not 1).
+
+    Returns
+    -------
+    dict
+        ``contrast``, ``evidence_per_pixel`` (e above), ``radius_px`` and ``pixels`` (pi R^2) of
+        the smallest such disc; ``radius_px`` is inf where the material has no observation.
+
+    Raises
+    ------
+    ValueError
+        If ``mu`` and ``pixel`` differ in length, or ``sigma2``, ``power``, ``rho`` or
+        ``contrast`` is not positive and finite, ``contrast`` is 1, or ``beta`` is negative.
+    """
+    mu = np.asarray(mu, dtype=float)
+    pixel = np.asarray(pixel)
+    if mu.shape != pixel.shape:
+        raise ValueError(f"mu and pixel must have one entry per observation, got {mu.shape} and {pixel.shape}")
+    for name, value in (("sigma2", sigma2), ("power", power), ("rho", rho), ("contrast", contrast)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be positive and finite, got {value}")
+    if contrast == 1.0 or not beta >= 0:
+        raise ValueError(f"contrast must differ from 1 and beta be >= 0, got {contrast}, {beta}")
+    n_pixels = np.unique(pixel).size
+    if n_pixels == 0:
+        return {"contrast": contrast, "evidence_per_pixel": 0.0, "radius_px": math.inf, "pixels": math.inf}
+    evidence = power * float(np.sum(((1.0 - contrast) * mu) ** 2)) / (2.0 * sigma2) / n_pixels
+    radius = disc_radius(evidence, beta, rho, n_materials)
+    return {"contrast": contrast, "evidence_per_pixel": evidence, "radius_px": radius,
+            "pixels": math.pi * radius ** 2}
+
+
+def disc_radius(evidence: float, beta: float, rho: float, n_materials: int) -> float:
+    """The radius R at which a disc's gain ``pi R^2 evidence`` equals its cost ``8 beta R - log rho + log(K + 1)``
+    (inf for no evidence). The evidence of another contrast ``c`` is this one's times ``(1 - c)^2 / (1 - c0)^2``."""
+    if not evidence > 0:
+        return math.inf
+    fixed_cost = max(-math.log(rho) + math.log(n_materials + 1), 0.0)
+    # pi e R^2 - 8 beta R - fixed_cost = 0, the positive root
+    return (8.0 * beta + math.sqrt(64.0 * beta ** 2 + 4.0 * math.pi * evidence * fixed_cost)) / (2.0 * math.pi * evidence)
