@@ -152,9 +152,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
     result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels)
-    if problem.effects is not None:
-        result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
-        result.summary["warnings"] += effect_warnings(result.summary["effects"])
+    _add_checks(result, records, config, options, observations, effect_source)
     if truth_params is not None:
         result.summary["truth_params"] = truth_params
     result.summary["fit_options"] = options.to_json()        # what `rjfit refine` fits again with
@@ -291,6 +289,21 @@ def run_entries(records, problem, prior, options: FitOptions, burn: int, suggest
         "chain_threads": [r.threads for r in records],
         "chain_resumed_from": [list(r.resumed_from) for r in records],
     }
+
+
+def _add_checks(result, records, config, options: FitOptions, observations, effect_source) -> None:
+    """The summary entries that need more than the chains: the effects' summaries, and whether the data step
+    where a material fit's MAP materials meet (:func:`rjfit.pipeline.fit_materials.material_boundaries`)."""
+    problem = result.problem
+    if problem.effects is not None:
+        result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
+        result.summary["warnings"] += effect_warnings(result.summary["effects"])
+    if options.regions == "materials":
+        from rjfit.pipeline.fit_materials import material_boundaries
+
+        entries, warnings = material_boundaries(problem, observations, result.summary["regions"], result.labels)
+        result.summary.update(entries)
+        result.summary["warnings"] += warnings
 
 
 def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels):

@@ -71,6 +71,10 @@ SUMMARY_FIELDS = {
     "max_materials": (int, "materials: the most materials a state may have (a cap; warned about when it binds)"),
     "potts_beta": (_NUMBER, "materials: Potts prior strength per neighbour pair of different materials"),
     "potts_rho": (_NUMBER, "materials: prior factor per material (rho^K)"),
+    "boundaries": (list, "materials: per pair of adjacent MAP materials, whether the data step where they meet "
+                         "(log_likelihood_ratio > 0; rjfit.posterior.boundaries)"),
+    "edge_supported_materials": (int, "materials: the number of groups left when MAP materials that meet without an "
+                                      "edge in the data are joined"),
     "material_resolution": (dict, "materials: the smallest disc of half the albedo of the largest material that the "
                                   "fit would give a material of its own (radius_px, pixels; "
                                   "rjfit.posterior.resolution)"),

@@ -24,9 +24,10 @@ from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
 from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
+from rjfit.posterior.boundaries import boundary_support, unsupported_boundary_warnings
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 
-__all__ = ["summarise_materials", "material_resolution", "resolution_warning", "material_number_warnings", "write_material_files", "EMPTY_MATERIALS_NOTE"]
+__all__ = ["summarise_materials", "material_resolution", "material_boundaries", "resolution_warning", "material_number_warnings", "write_material_files", "EMPTY_MATERIALS_NOTE"]
 
 EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
@@ -83,6 +84,36 @@ def material_resolution(problem, materials, labels, options) -> dict | None:
             "potts_beta": float(options.potts_beta), "potts_rho": float(options.potts_rho),
             **smallest_material(mu, problem.pixel[mine], sigma2, float(problem.likelihood_power),
                                 options.potts_beta, options.potts_rho, len(materials))}
+
+
+def material_boundaries(problem, observations, materials, labels) -> tuple[dict, list]:
+    """Whether the data step where the MAP materials meet (:func:`rjfit.posterior.boundaries.boundary_support`).
+
+    Returns the summary entries ``boundaries`` (a row per pair of adjacent materials) and
+    ``edge_supported_materials`` (the number of groups left when materials that meet without an
+    edge are joined), and a warning per boundary without one; nothing for one material, a joint
+    colour fit or a fit with effects (whose plain prediction the check would compare with the
+    data in place of the fit's own).
+    """
+    if problem.n_channels > 1 or problem.effects is not None or len(materials) < 2:
+        return {}, []
+    # the problem holds the observations sorted stably by pixel (rjfit.sampler.forward.LambertBlinnPhong.problem)
+    light = np.asarray(observations.light)[np.argsort(observations.pixel, kind="stable")]
+    params = np.array([[m[name]["mean"] for name in ("I0", "kd", "gamma")] for m in materials])
+    rows = boundary_support(labels, params, problem.y, problem.C, problem.log_cos_hn, problem.pixel, light,
+                            int(observations.n_lights))
+    group = list(range(len(materials)))
+
+    def root(m):
+        while group[m] != m:
+            m = group[m]
+        return m
+    for row in rows:
+        if not row["log_likelihood_ratio"] > 0:
+            j, k = row["materials"]
+            group[root(j)] = root(k)
+    return ({"boundaries": rows, "edge_supported_materials": len({root(m) for m in range(len(materials))})},
+            unsupported_boundary_warnings(rows))
 
 
 def resolution_warning(resolution: dict) -> str:

@@ -295,6 +295,12 @@ def _posterior_section(summary: dict) -> list[str]:
         parts.append(f"<p>Resolution: a region of {resolution['contrast']:g} times material {resolution['material']}'s "
                      f"albedo gets a material of its own from about {resolution['pixels']:.0f} pixels (a disc of radius "
                      f"{resolution['radius_px']:.1f} px); smaller ones are merged into the material around them.</p>")
+    boundaries = summary.get("boundaries")
+    if boundaries:
+        supported = sum(1 for row in boundaries if (row.get("log_likelihood_ratio") or 0) > 0)
+        parts.append(f"<p>Boundaries: {supported} of the {len(boundaries)} boundaries between MAP materials show a "
+                     f"step in the data; joined where they do not, the materials form "
+                     f"{summary.get('edge_supported_materials')} group(s).</p>")
     model_posterior = summary.get("model_posterior") or {}
     if model_posterior:
         rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{v:.4f}</td></tr>"

@@ -89,6 +89,8 @@ def test_a_chain_finds_a_disc_larger_than_the_stated_size_and_merges_a_smaller_o
     if found:
         assert summary["map_materials"] == 2 and summary["label_accuracy"] >= 0.97
         assert summary["material_resolution"]["radius_px"] < 5
+        # the disc's outline is a step in the data: its boundary is supported (rjfit.posterior.boundaries)
+        assert summary["edge_supported_materials"] == 2 and summary["boundaries"][0]["log_likelihood_ratio"] > 0
     else:
         assert summary["map_materials"] == 1 and summary["materials_posterior"]["1"] >= 0.9
-        assert summary["material_resolution"]["radius_px"] > 5
+        assert summary["material_resolution"]["radius_px"] > 5 and "boundaries" not in summary

@@ -1,0 +1,159 @@
+"""Whether the data show an edge where two materials meet: a check of a material fit's MAP boundaries.
+
+A change of paint is a step in the data between neighbouring pixels, under every light. A region
+that one material's misfit bought (the lobe's shape, the normals' error, a light's fall-off
+across the object: docs/measured-data.md, "What the ball's split is") has no such step: the
+misfit is smooth, so neighbours across the boundary differ as neighbours inside a material do,
+and the two materials' predictions, which jump there, fit those differences worse than either
+material alone. The tempered likelihood of the fit cannot tell the two apart (each pixel counts
+alone); the neighbours' differences can, since they cancel what varies smoothly.
+
+For materials j and k adjacent in the MAP labels, over their boundary pairs (p in j, q in k, 3 px
+apart along a row or a column: :data:`EDGE_GAP`) and every light that lit both:
+
+    d = y_p - y_q,  SS_two = sum (d - (mu_j(p) - mu_k(q)))^2,
+    SS_one = min over m in {j, k} of sum (d - (mu_m(p) - mu_m(q)))^2,
+
+and ``log_likelihood_ratio = (SS_one - SS_two) / (2 s_d^2)``, ``s_d^2`` the mean of the same squared
+difference residuals over pairs inside materials. Positive: the data step where the materials
+meet. ``mu`` at each material's posterior means on the plain forward model (effects left out).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rjfit.model.blinn import blinn_normalisation
+
+__all__ = ["boundary_support", "unsupported_boundary_warnings", "EDGE_GAP", "INSIDE_PAIRS"]
+
+#: the pixels of a pair lie this far apart along a row or a column: a measured edge is spread over a pixel or two
+#: (optics, the pixel footprint, a blurred paint line), so neighbours across a boundary straddle part of the step
+#: only, while a smooth misfit changes little over 3 px
+EDGE_GAP = 3
+#: pairs inside materials that estimate the differences' noise (every n-th of them, n chosen to keep about this many)
+INSIDE_PAIRS = 20000
+
+
+def _pairs(labels, gap: int):
+    """(p, q) flat indices of the labelled pixels ``gap`` apart along a row (q right of p) or a column (q below)."""
+    height, width = labels.shape
+    flat = labels.ravel()
+    p = np.arange(height * width)
+    shifted_right = np.concatenate([flat[gap:], np.full(gap, -1)])
+    shifted_down = np.concatenate([flat[gap * width:], np.full(min(gap * width, flat.size), -1)])[:flat.size]
+    right = (p % width < width - gap) & (flat >= 0) & (shifted_right >= 0)
+    down = (p < (height - gap) * width) & (flat >= 0) & (shifted_down >= 0)
+    return np.concatenate([p[right], p[down]]), np.concatenate([p[right] + gap, p[down] + gap * width])
+
+
+def _matched(pixel, light, first, second, n_lights):
+    """Observation indices (i, j) of every light seen by both pixels of each pair, and the pair of each match."""
+    involved = np.unique(np.concatenate([first, second]))
+    table = np.full((involved.size, n_lights), -1, np.int64)
+    keep = np.isin(pixel, involved)
+    table[np.searchsorted(involved, pixel[keep]), light[keep]] = np.flatnonzero(keep)
+    a, b = table[np.searchsorted(involved, first)], table[np.searchsorted(involved, second)]
+    both = (a >= 0) & (b >= 0)
+    return a[both], b[both], np.nonzero(both)[0]
+
+
+def _prediction(params, C, log_cos_hn, index):
+    """mu of observations ``index`` under one material's (I0, kd, gamma)."""
+    I0, kd, gamma = params
+    lobe = I0 * (1.0 - kd) * blinn_normalisation(gamma) * np.exp(gamma * log_cos_hn[index])
+    return C[index] * (I0 * kd / np.pi + lobe)
+
+
+def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: int, gap: int = EDGE_GAP) -> list:
+    """Per pair of adjacent materials of ``labels``: whether the data step where they meet (module docstring).
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        MAP material per pixel, -1 where no pixel is labelled.
+    params : ndarray, shape (K, 3)
+        Each material's (I0, kd, gamma).
+    y, C, log_cos_hn : ndarray, shape (N,)
+        Observations and their columns (``E <l.n>``, ``log <h.n>``), on one scale (the fit's
+        problem divides both y and C by the known noise scales).
+    pixel, light : ndarray of int, shape (N,)
+        Each observation's flat pixel and light.
+    n_lights : int
+    gap : int
+        How far apart the pixels of a pair lie (:data:`EDGE_GAP`).
+
+    Returns
+    -------
+    list of dict
+        ``materials`` [j, k], ``pairs`` (boundary pairs), ``observations`` (matched lights over them),
+        ``log_likelihood_ratio`` and ``step_explained`` (``1 - SS_two / SS_one``); empty with one
+        material or no matched observation.
+
+    Raises
+    ------
+    ValueError
+        If the observation arrays differ in length or a label has no row of ``params``.
+    """
+    labels = np.asarray(labels)
+    params = np.asarray(params, dtype=float)
+    arrays = [np.asarray(a) for a in (y, C, log_cos_hn, pixel, light)]
+    if len({a.shape for a in arrays}) != 1:
+        raise ValueError("y, C, log_cos_hn, pixel and light must have one entry per observation")
+    if labels.max(initial=-1) >= len(params):
+        raise ValueError(f"labels name material {labels.max()}, but params has {len(params)} rows")
+    y, C, log_cos_hn = (a.astype(np.float64) for a in arrays[:3])
+    pixel, light = arrays[3].astype(np.int64), arrays[4].astype(np.int64)
+    first, second = _pairs(labels, gap)
+    flat = labels.ravel()
+    across = flat[first] != flat[second]
+    if not np.any(across):
+        return []
+    inside = np.flatnonzero(~across)
+    inside = inside[::max(1, inside.size // INSIDE_PAIRS)]
+    # the differences' noise: pairs inside materials, each at its material
+    a, b, which = _matched(pixel, light, first[inside], second[inside], n_lights)
+    material = flat[first[inside]][which]
+    residual = np.zeros(a.size)
+    for m in np.unique(material):
+        sel = material == m
+        residual[sel] = (y[a[sel]] - y[b[sel]]) - (_prediction(params[m], C, log_cos_hn, a[sel])
+                                                     - _prediction(params[m], C, log_cos_hn, b[sel]))
+    noise = float(np.mean(residual ** 2)) if residual.size else np.nan
+    a, b, which = _matched(pixel, light, first[across], second[across], n_lights)
+    j_of, k_of = flat[first[across]][which], flat[second[across]][which]
+    low, high = np.minimum(j_of, k_of), np.maximum(j_of, k_of)
+    pair_of = np.flatnonzero(across)[which]
+    rows = []
+    for j, k in sorted(set(zip(low.tolist(), high.tolist()))):
+        sel = (low == j) & (high == k)
+        row = _step_fit(params, C, log_cos_hn, j, k, a[sel], b[sel], j_of[sel], y[a[sel]] - y[b[sel]], noise)
+        rows.append({"materials": [int(j), int(k)], "pairs": int(np.unique(pair_of[sel]).size), **row})
+    return rows
+
+
+def _step_fit(params, C, log_cos_hn, j, k, first, second, first_material, step, noise) -> dict:
+    """The log-likelihood ratio and share explained of the materials' step against either material alone, over
+    matched observations (``first`` in ``first_material``, ``second`` in the other of j, k)."""
+    two, one_j, one_k = np.empty(first.size), np.empty(first.size), np.empty(first.size)
+    for m_a, m_b in ((j, k), (k, j)):         # p in m_a, q in m_b
+        s = first_material == m_a
+        mu_p = _prediction(params[m_a], C, log_cos_hn, first[s])
+        mu_q = _prediction(params[m_b], C, log_cos_hn, second[s])
+        two[s] = mu_p - mu_q
+        same_as_p = mu_p - _prediction(params[m_a], C, log_cos_hn, second[s])
+        same_as_q = _prediction(params[m_b], C, log_cos_hn, first[s]) - mu_q
+        one_j[s], one_k[s] = (same_as_p, same_as_q) if m_a == j else (same_as_q, same_as_p)
+    ss_two = float(np.sum((step - two) ** 2))
+    ss_one = min(float(np.sum((step - one_j) ** 2)), float(np.sum((step - one_k) ** 2)))
+    return {"observations": int(first.size), "log_likelihood_ratio": (ss_one - ss_two) / (2.0 * noise),
+            "step_explained": 1.0 - ss_two / ss_one if ss_one > 0 else float("nan")}
+
+
+def unsupported_boundary_warnings(rows) -> list:
+    """A warning per pair of materials whose boundary the data's steps do not support (log ratio <= 0)."""
+    return [f"materials {j} and {k} meet where the data show no edge: across their {row['pairs']} boundary pairs a "
+            f"step between their predictions fits the neighbours' differences worse than either material alone (log "
+            f"likelihood ratio {row['log_likelihood_ratio']:.3g}), so the boundary follows the model's smooth misfit "
+            f"rather than a change of paint; read them as one material unless `rjfit diagnose` closes the gap "
+            f"(docs/materials.md, 'Boundaries')"
+            for row in rows for j, k in [row["materials"]] if not row["log_likelihood_ratio"] > 0]
