@@ -99,8 +99,7 @@ def material_boundaries(problem, observations, materials, labels) -> tuple[dict,
         return {}, []
     # the problem holds the observations sorted stably by pixel (rjfit.sampler.forward.LambertBlinnPhong.problem)
     light = np.asarray(observations.light)[np.argsort(observations.pixel, kind="stable")]
-    params = np.array([[m[name]["mean"] for name in ("I0", "kd", "gamma")] for m in materials])
-    rows = boundary_support(labels, params, problem.y, problem.C, problem.log_cos_hn, problem.pixel, light,
+    rows = boundary_support(labels, None, problem.y, problem.C, problem.log_cos_hn, problem.pixel, light,
                             int(observations.n_lights))
     group = list(range(len(materials)))
 

@@ -16,7 +16,9 @@ apart along a row or a column: :data:`EDGE_GAP`) and every light that lit both:
 
 and ``log_likelihood_ratio = (SS_one - SS_two) / (2 s_d^2)``, ``s_d^2`` the mean of the same squared
 difference residuals over pairs inside materials. Positive: the data step where the materials
-meet. ``mu`` at each material's posterior means on the plain forward model (effects left out).
+meet. ``mu`` is each labelled material's least-squares Lambert + Blinn fit on the plain forward
+model (:func:`least_squares_params`; effects left out): a check of the labels, which holds where
+chains that disagree leave pooled posterior means that no chain holds.
 """
 from __future__ import annotations
 
@@ -24,12 +26,15 @@ import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation
 
-__all__ = ["boundary_support", "unsupported_boundary_warnings", "EDGE_GAP", "INSIDE_PAIRS"]
+__all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "EDGE_GAP", "INSIDE_PAIRS",
+           "LS_GAMMAS"]
 
 #: the pixels of a pair lie this far apart along a row or a column: a measured edge is spread over a pixel or two
 #: (optics, the pixel footprint, a blurred paint line), so neighbours across a boundary straddle part of the step
 #: only, while a smooth misfit changes little over 3 px
 EDGE_GAP = 3
+#: the exponents :func:`least_squares_params` tries (the model's range, log-spaced)
+LS_GAMMAS = np.geomspace(0.1, 5000.0, 40)
 #: pairs inside materials that estimate the differences' noise (every n-th of them, n chosen to keep about this many)
 INSIDE_PAIRS = 20000
 
@@ -64,6 +69,38 @@ def _prediction(params, C, log_cos_hn, index):
     return C[index] * (I0 * kd / np.pi + lobe)
 
 
+def least_squares_params(labels, y, C, log_cos_hn, pixel) -> np.ndarray:
+    """(K, 3): each material of ``labels``' (I0, kd, gamma) by least squares over its observations: the amplitudes
+    of ``C`` and ``C N(g) <h.n>^g`` (each clipped at 0) at the best of :data:`LS_GAMMAS` (NaN without observations)."""
+    flat = np.asarray(labels).ravel()[np.asarray(pixel, np.int64)]
+    out = np.full((int(np.max(labels, initial=-1)) + 1, 3), np.nan)
+    for m in range(out.shape[0]):
+        mine = flat == m
+        if not np.any(mine):
+            continue
+        ym, Cm, lc = (np.asarray(a, np.float64)[mine] for a in (y, C, log_cos_hn))
+        best = None
+        for gamma in LS_GAMMAS:
+            lobe = Cm * blinn_normalisation(gamma) * np.exp(gamma * lc)
+            gram = np.array([[Cm @ Cm, Cm @ lobe], [Cm @ lobe, lobe @ lobe]])
+            rhs = np.array([Cm @ ym, lobe @ ym])
+            try:
+                amp = np.linalg.solve(gram, rhs)
+            except np.linalg.LinAlgError:
+                continue
+            if amp[0] < 0 or amp[1] < 0:        # the better of the two one-column fits
+                amp = max((np.array([max(rhs[0], 0) / gram[0, 0], 0.0]), np.array([0.0, max(rhs[1], 0) / gram[1, 1]])),
+                          key=lambda x: 2 * x @ rhs - x @ gram @ x)
+            score = 2 * amp @ rhs - amp @ gram @ amp      # the sum of squares' reduction
+            if best is None or score > best[0]:
+                best = (score, gamma, amp)
+        if best is not None and best[2].sum() > 0:
+            diffuse, lobe_amp = best[2]      # I0 kd / pi and I0 (1 - kd)
+            I0 = np.pi * diffuse + lobe_amp
+            out[m] = (I0, np.pi * diffuse / I0, best[1])
+    return out
+
+
 def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: int, gap: int = EDGE_GAP) -> list:
     """Per pair of adjacent materials of ``labels``: whether the data step where they meet (module docstring).
 
@@ -71,8 +108,8 @@ def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: i
     ----------
     labels : ndarray of int, shape (H, W)
         MAP material per pixel, -1 where no pixel is labelled.
-    params : ndarray, shape (K, 3)
-        Each material's (I0, kd, gamma).
+    params : ndarray, shape (K, 3), or None
+        Each material's (I0, kd, gamma); None: :func:`least_squares_params`.
     y, C, log_cos_hn : ndarray, shape (N,)
         Observations and their columns (``E <l.n>``, ``log <h.n>``), on one scale (the fit's
         problem divides both y and C by the known noise scales).
@@ -95,10 +132,10 @@ def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: i
         If the observation arrays differ in length or a label has no row of ``params``.
     """
     labels = np.asarray(labels)
-    params = np.asarray(params, dtype=float)
     arrays = [np.asarray(a) for a in (y, C, log_cos_hn, pixel, light)]
     if len({a.shape for a in arrays}) != 1:
         raise ValueError("y, C, log_cos_hn, pixel and light must have one entry per observation")
+    params = least_squares_params(labels, y, C, log_cos_hn, pixel) if params is None else np.asarray(params, float)
     if labels.max(initial=-1) >= len(params):
         raise ValueError(f"labels name material {labels.max()}, but params has {len(params)} rows")
     y, C, log_cos_hn = (a.astype(np.float64) for a in arrays[:3])

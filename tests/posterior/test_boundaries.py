@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rjfit.model.blinn import radiance
-from rjfit.posterior.boundaries import boundary_support, unsupported_boundary_warnings
+from rjfit.posterior.boundaries import boundary_support, least_squares_params, unsupported_boundary_warnings
 from tests.builders import raises
 
 KD, GAMMA, NOISE_SD = 0.8, 5.0, 0.05
@@ -96,3 +96,16 @@ def test_pairs_lie_gap_apart(gap):
     (row,) = boundary_support(labels, fitted_params(labels, y, C, log_cos_hn, pixel), y, C, log_cos_hn, pixel, light,
                               8, gap=gap)
     assert row["pairs"] == gap * 12 and row["observations"] == gap * 12 * 8
+
+
+def test_without_params_each_material_is_fitted_by_least_squares():
+    """The fit passes no parameters: pooled posterior means of chains that disagree belong to no chain. Least
+    squares over each labelled material recover I0 within 5 % (gamma on a grid 1.32 apart) and give the step and
+    the ramp the same verdicts as the simulated parameters."""
+    labels = halves()
+    y, C, log_cos_hn, pixel, light = stack(np.where(labels == 1, 8.0, 4.0))
+    params = least_squares_params(labels, y, C, log_cos_hn, pixel)
+    assert params[:, 0] == pytest.approx([4.0, 8.0], rel=0.05)
+    assert boundary_support(labels, None, y, C, log_cos_hn, pixel, light, 8)[0]["log_likelihood_ratio"] > 1000
+    y, C, log_cos_hn, pixel, light = stack(np.tile(np.linspace(4.0, 8.0, 24), (24, 1)))
+    assert boundary_support(labels, None, y, C, log_cos_hn, pixel, light, 8)[0]["log_likelihood_ratio"] < 0
