@@ -304,6 +304,11 @@ def _add_checks(result, records, config, options: FitOptions, observations, effe
         entries, warnings = material_boundaries(problem, observations, result.summary["regions"], result.labels)
         result.summary.update(entries)
         result.summary["warnings"] += warnings
+        if "material_groups" in entries:     # maps.exr's edge_group: the MAP labels with those groups joined
+            group_of = np.empty(len(result.summary["regions"]))
+            for index, members in enumerate(entries["material_groups"]):
+                group_of[members] = index
+            result.extra["edge_group"] = np.where(result.labels >= 0, group_of[np.maximum(result.labels, 0)], np.nan)
 
 
 def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels):
@@ -412,7 +417,7 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
             write_material_files(staging, result, records, options)
         else:
             write_changepoint_files(staging, result, records, options)
-        extra = {"map_probability": result.extra["map_probability"]} if "map_probability" in result.extra else None
+        extra = {name: result.extra[name] for name in ("map_probability", "edge_group") if name in result.extra} or None
         summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra)
         if source is not None:
             record_source(summary, source, staging, options)

@@ -74,7 +74,8 @@ SUMMARY_FIELDS = {
     "boundaries": (list, "materials: per pair of adjacent MAP materials, whether the data step where they meet "
                          "(log_likelihood_ratio > 0; rjfit.posterior.boundaries)"),
     "edge_supported_materials": (int, "materials: the number of groups left when MAP materials that meet without an "
-                                      "edge in the data are joined"),
+                                      "edge in the data are joined (per pixel: maps.exr channel edge_group)"),
+    "material_groups": (list, "materials: the MAP materials of each such group"),
     "material_resolution": (dict, "materials: the smallest disc of half the albedo of the largest material that the "
                                   "fit would give a material of its own (radius_px, pixels; "
                                   "rjfit.posterior.resolution)"),

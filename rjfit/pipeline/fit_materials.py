@@ -89,9 +89,10 @@ def material_resolution(problem, materials, labels, options) -> dict | None:
 def material_boundaries(problem, observations, materials, labels) -> tuple[dict, list]:
     """Whether the data step where the MAP materials meet (:func:`rjfit.posterior.boundaries.boundary_support`).
 
-    Returns the summary entries ``boundaries`` (a row per pair of adjacent materials) and
-    ``edge_supported_materials`` (the number of groups left when materials that meet without an
-    edge are joined), and a warning per boundary without one; nothing for one material, a joint
+    Returns the summary entries ``boundaries`` (a row per pair of adjacent materials),
+    ``material_groups`` (the materials joined where they meet without an edge; each group's
+    materials in order, the groups by their first) and ``edge_supported_materials`` (their
+    number), and a warning per boundary without an edge; nothing for one material, a joint
     colour fit or a fit with effects (whose plain prediction the check would compare with the
     data in place of the fit's own).
     """
@@ -111,8 +112,11 @@ def material_boundaries(problem, observations, materials, labels) -> tuple[dict,
         if not row["log_likelihood_ratio"] > 0:
             j, k = row["materials"]
             group[root(j)] = root(k)
-    return ({"boundaries": rows, "edge_supported_materials": len({root(m) for m in range(len(materials))})},
-            unsupported_boundary_warnings(rows))
+    groups = {}
+    for m in range(len(materials)):
+        groups.setdefault(root(m), []).append(m)
+    return ({"boundaries": rows, "edge_supported_materials": len(groups),
+             "material_groups": sorted(groups.values())}, unsupported_boundary_warnings(rows))
 
 
 def resolution_warning(resolution: dict) -> str:
