@@ -11,7 +11,7 @@ import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation
 
-__all__ = ["per_pixel_residuals", "group_fit", "patch_index", "GAMMA_GRID"]
+__all__ = ["per_pixel_residuals", "group_fit", "fit_groups", "patch_index", "GAMMA_GRID"]
 
 GAMMA_GRID = np.geomspace(0.5, 500.0, 16)
 
@@ -60,11 +60,19 @@ def group_fit(observations, group, n_groups, gammas=GAMMA_GRID, refine_steps=GOL
         group, bool) and ``residuals`` (per observation, NaN where its group has no fit).
     """
     obs = observations
-    group = np.asarray(group, np.int64)
-    y = np.asarray(obs.y, float)
     C = np.asarray(obs.irradiance, float) * np.asarray(obs.cos_ln, float)
-    A = C / np.pi
     log_hn = np.log(np.clip(np.asarray(obs.cos_hn, float), 1e-300, None))
+    return fit_groups(obs.y, C, log_hn, group, n_groups, gammas, refine_steps)
+
+
+def fit_groups(y, C, log_hn, group, n_groups, gammas=GAMMA_GRID, refine_steps=GOLDEN_STEPS) -> dict:
+    """:func:`group_fit` on the columns themselves: ``C = E <l.n>`` and ``log <h.n>`` per observation (a
+    fit's problem holds them, divided by the noise scales)."""
+    group = np.asarray(group, np.int64)
+    y = np.asarray(y, float)
+    C = np.asarray(C, float)
+    log_hn = np.asarray(log_hn, float)
+    A = C / np.pi
     count = np.bincount(group, minlength=n_groups)
 
     def sums(w):

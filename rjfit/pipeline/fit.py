@@ -151,8 +151,10 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation)
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
-    result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels)
-    _add_checks(result, records, config, options, observations, effect_source)
+    result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels, observations)
+    if problem.effects is not None:
+        result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
+        result.summary["warnings"] += effect_warnings(result.summary["effects"])
     if truth_params is not None:
         result.summary["truth_params"] = truth_params
     result.summary["fit_options"] = options.to_json()        # what `rjfit refine` fits again with
@@ -291,31 +293,12 @@ def run_entries(records, problem, prior, options: FitOptions, burn: int, suggest
     }
 
 
-def _add_checks(result, records, config, options: FitOptions, observations, effect_source) -> None:
-    """The summary entries that need more than the chains: the effects' summaries, and whether the data step
-    where a material fit's MAP materials meet (:func:`rjfit.pipeline.fit_materials.material_boundaries`)."""
-    problem = result.problem
-    if problem.effects is not None:
-        result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
-        result.summary["warnings"] += effect_warnings(result.summary["effects"])
-    if options.regions == "materials":
-        from rjfit.pipeline.fit_materials import material_boundaries
-
-        entries, warnings = material_boundaries(problem, observations, result.summary["regions"], result.labels)
-        result.summary.update(entries)
-        result.summary["warnings"] += warnings
-        if "material_groups" in entries:     # maps.exr's edge_group: the MAP labels with those groups joined
-            group_of = np.empty(len(result.summary["regions"]))
-            for index, members in enumerate(entries["material_groups"]):
-                group_of[members] = index
-            result.extra["edge_group"] = np.where(result.labels >= 0, group_of[np.maximum(result.labels, 0)], np.nan)
-
-
-def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels):
-    """The posterior summaries of the chains' kept draws, with the settings they ran with."""
+def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels,
+              observations):
+    """The chains' kept draws summarised, with their settings (and a material fit's boundary check)."""
     burn = config.kernel.burn_in
     if options.regions == "materials":
-        from rjfit.pipeline.fit_materials import material_number_warnings, summarise_materials
+        from rjfit.pipeline.fit_materials import add_boundary_check, material_number_warnings, summarise_materials
 
         summary, labels, prediction, extra = summarise_materials(records, problem, options, burn)
         summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
@@ -325,8 +308,10 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
             summary.update(truth_summary(records, burn, labels, truth_labels))
             summary["materials_right_probability"] = summary["materials_posterior"].get(
                 str(summary["true_region_count"]), 0.0)
-        return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
-                         model=(summary["map_materials"],), extra=extra)
+        result = FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
+                           model=(summary["map_materials"],), extra=extra)
+        add_boundary_check(result, observations)
+        return result
     n_u, n_v = post.map_model(records, burn)
     draws = post.map_model_draws(records, burn, (n_u, n_v))
     labels = post.map_labels(records, burn, (n_u, n_v), problem.image_shape, problem.object_mask)

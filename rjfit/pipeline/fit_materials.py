@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.model.blinn import blinn_normalisation
+from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
 from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
@@ -27,7 +27,7 @@ from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, unsupported_boundary_warnings
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 
-__all__ = ["summarise_materials", "material_resolution", "material_boundaries", "resolution_warning", "material_number_warnings", "write_material_files", "EMPTY_MATERIALS_NOTE"]
+__all__ = ["summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check", "resolution_warning", "material_number_warnings", "write_material_files", "EMPTY_MATERIALS_NOTE"]
 
 EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
@@ -78,8 +78,8 @@ def material_resolution(problem, materials, labels, options) -> dict | None:
     largest = max(materials, key=lambda m: m["pixels"])
     I0, kd, gamma, sigma2 = (largest[name]["mean"] for name in ("I0", "kd", "gamma", "sigma2"))
     mine = np.asarray(labels).ravel()[problem.pixel] == largest["material"]
-    lobe = I0 * (1.0 - kd) * blinn_normalisation(gamma) * np.exp(gamma * problem.log_cos_hn[mine].astype(float))
-    mu = problem.C[mine].astype(float) * (I0 * kd / np.pi + lobe)
+    # eq. 2 on the problem's columns: C = E <l.n> (divided by the noise scales) stands for <l.n> at irradiance 1
+    mu = radiance(I0, kd, gamma, problem.C[mine], np.exp(problem.log_cos_hn[mine].astype(float)), 1.0)
     return {"material": int(largest["material"]), "likelihood_power": float(problem.likelihood_power),
             "potts_beta": float(options.potts_beta), "potts_rho": float(options.potts_rho),
             **smallest_material(mu, problem.pixel[mine], sigma2, float(problem.likelihood_power),
@@ -117,6 +117,19 @@ def material_boundaries(problem, observations, materials, labels) -> tuple[dict,
         groups.setdefault(root(m), []).append(m)
     return ({"boundaries": rows, "edge_supported_materials": len(groups),
              "material_groups": sorted(groups.values())}, unsupported_boundary_warnings(rows))
+
+
+def add_boundary_check(result, observations) -> None:
+    """:func:`material_boundaries` into ``result``: its summary entries and warnings, and ``edge_group`` (the MAP
+    labels with the joined materials' group per pixel, for ``maps.exr``)."""
+    entries, warnings = material_boundaries(result.problem, observations, result.summary["regions"], result.labels)
+    result.summary.update(entries)
+    result.summary["warnings"] += warnings
+    if "material_groups" in entries:
+        group_of = np.empty(len(result.summary["regions"]))
+        for index, members in enumerate(entries["material_groups"]):
+            group_of[members] = index
+        result.extra["edge_group"] = np.where(result.labels >= 0, group_of[np.maximum(result.labels, 0)], np.nan)
 
 
 def resolution_warning(resolution: dict) -> str:

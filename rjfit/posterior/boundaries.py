@@ -24,17 +24,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.data.pixelfit import fit_groups
 from rjfit.model.blinn import blinn_normalisation
 
-__all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "EDGE_GAP", "INSIDE_PAIRS",
-           "LS_GAMMAS"]
+__all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "EDGE_GAP", "INSIDE_PAIRS"]
 
 #: the pixels of a pair lie this far apart along a row or a column: a measured edge is spread over a pixel or two
 #: (optics, the pixel footprint, a blurred paint line), so neighbours across a boundary straddle part of the step
 #: only, while a smooth misfit changes little over 3 px
 EDGE_GAP = 3
-#: the exponents :func:`least_squares_params` tries (the model's range, log-spaced)
-LS_GAMMAS = np.geomspace(0.1, 5000.0, 40)
 #: pairs inside materials that estimate the differences' noise (every n-th of them, n chosen to keep about this many)
 INSIDE_PAIRS = 20000
 
@@ -70,35 +68,19 @@ def _prediction(params, C, log_cos_hn, index):
 
 
 def least_squares_params(labels, y, C, log_cos_hn, pixel) -> np.ndarray:
-    """(K, 3): each material of ``labels``' (I0, kd, gamma) by least squares over its observations: the amplitudes
-    of ``C`` and ``C N(g) <h.n>^g`` (each clipped at 0) at the best of :data:`LS_GAMMAS` (NaN without observations)."""
-    flat = np.asarray(labels).ravel()[np.asarray(pixel, np.int64)]
-    out = np.full((int(np.max(labels, initial=-1)) + 1, 3), np.nan)
-    for m in range(out.shape[0]):
-        mine = flat == m
-        if not np.any(mine):
-            continue
-        ym, Cm, lc = (np.asarray(a, np.float64)[mine] for a in (y, C, log_cos_hn))
-        best = None
-        for gamma in LS_GAMMAS:
-            lobe = Cm * blinn_normalisation(gamma) * np.exp(gamma * lc)
-            gram = np.array([[Cm @ Cm, Cm @ lobe], [Cm @ lobe, lobe @ lobe]])
-            rhs = np.array([Cm @ ym, lobe @ ym])
-            try:
-                amp = np.linalg.solve(gram, rhs)
-            except np.linalg.LinAlgError:
-                continue
-            if amp[0] < 0 or amp[1] < 0:        # the better of the two one-column fits
-                amp = max((np.array([max(rhs[0], 0) / gram[0, 0], 0.0]), np.array([0.0, max(rhs[1], 0) / gram[1, 1]])),
-                          key=lambda x: 2 * x @ rhs - x @ gram @ x)
-            score = 2 * amp @ rhs - amp @ gram @ amp      # the sum of squares' reduction
-            if best is None or score > best[0]:
-                best = (score, gamma, amp)
-        if best is not None and best[2].sum() > 0:
-            diffuse, lobe_amp = best[2]      # I0 kd / pi and I0 (1 - kd)
-            I0 = np.pi * diffuse + lobe_amp
-            out[m] = (I0, np.pi * diffuse / I0, best[1])
-    return out
+    """(K, 3): each material of ``labels``' (I0, kd, gamma) from one Lambert + Blinn least-squares fit over its
+    observations (:func:`rjfit.data.pixelfit.fit_groups`: amplitudes unconstrained, gamma on a grid refined by
+    golden section); NaN for a material without a fit. ``I0 kd`` and ``I0 (1 - kd)`` are the fit's two
+    amplitudes, so the prediction is the fit's even where an amplitude is negative."""
+    n_materials = int(np.max(labels, initial=-1)) + 1
+    group = np.asarray(labels).ravel()[np.asarray(pixel, np.int64)]
+    labelled = group >= 0
+    fitted = fit_groups(np.asarray(y)[labelled], np.asarray(C)[labelled], np.asarray(log_cos_hn)[labelled],
+                        group[labelled], n_materials)
+    I0 = fitted["a"] + fitted["b"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        kd = fitted["a"] / I0
+    return np.where(fitted["fitted"][:, None], np.column_stack([I0, kd, fitted["gamma"]]), np.nan)
 
 
 def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: int, gap: int = EDGE_GAP) -> list:
