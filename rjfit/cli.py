@@ -308,6 +308,10 @@ def _echo_fit(folder, summary: dict) -> None:
                f"{summary['seconds']:.1f} s")
     if "label_accuracy" in summary:
         click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
+    if summary.get("edge_groups_posterior"):
+        shares = ", ".join(f"{n}: {share:.2f}" for n, share in summary["edge_groups_posterior"].items())
+        click.echo(f"  edge-supported material groups (materials that meet without a step in the data joined, "
+                   f"{summary['edge_groups_snapshots']} snapshots): {shares}")
     for effect in summary.get("effects", []):
         values = ", ".join(f"{p['name']} {p['mean']:.4g} (95 % {p['q2.5']:.4g} to {p['q97.5']:.4g})"
                            for p in effect["parameters"])

@@ -96,6 +96,7 @@ def run(dataset: Path, variant: str, chains: int, iterations: int, out: Path, ta
     if options.regions == "materials":
         row.update(posterior=summary["materials_posterior"], map=summary["map_materials"],
                    chains_posterior=summary["chain_materials_posterior"],
+                   edge_groups=summary.get("edge_groups_posterior"),
                    pixels=[region["pixels"] for region in summary["regions"]])
     else:
         row.update(posterior=summary["model_posterior"], map=summary["map_model"],
@@ -123,15 +124,16 @@ def summarise(table: Path) -> str:
     changepoints = [r for r in rows if isinstance(r["map"], dict)]
     lines = []
     if materials:
-        lines += ["| data set | variant | chains x iter. | zeta | normal error (deg) | K posterior | per chain | MAP | "
-                  "MAP pixels | R-hat | s |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+        lines += ["| data set | variant | chains x iter. | zeta | normal error (deg) | K posterior | per chain | "
+                  "edge groups | MAP | MAP pixels | R-hat | s |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in materials:
         error = "-" if row["normal_error_deg"] is None else f"{row['normal_error_deg']:.2f}"
         rhat = "-" if row["rhat_max"] is None else f"{row['rhat_max']:.2f}"
         chains = ", ".join("/".join(k for k, v in sorted(c.items(), key=lambda kv: -kv[1]) if v >= 0.1)
                            for c in row["chains_posterior"])
         lines.append(f"| {row['dataset']} | {row['variant']} | {row['chains']} x {row['iterations']} | "
-                     f"{row['likelihood_power']:.3g} | {error} | {_top(row['posterior'])} | {chains} | {row['map']} | "
+                     f"{row['likelihood_power']:.3g} | {error} | {_top(row['posterior'])} | {chains} | "
+                     f"{_top(row['edge_groups']) if row.get('edge_groups') else '-'} | {row['map']} | "
                      f"{row['pixels']} | {rhat} | {row['seconds']:.0f} |")
     if changepoints:
         lines += ["" if lines else None, "| data set | variant | chains x iter. | zeta | normal error (deg) | "

@@ -310,7 +310,7 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
                 str(summary["true_region_count"]), 0.0)
         result = FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
                            model=(summary["map_materials"],), extra=extra)
-        add_boundary_check(result, observations)
+        add_boundary_check(result, observations, records)
         return result
     n_u, n_v = post.map_model(records, burn)
     draws = post.map_model_draws(records, burn, (n_u, n_v))

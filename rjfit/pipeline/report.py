@@ -8,6 +8,7 @@ from pathlib import Path
 from rjfit.diagnose.document import revision_text
 from rjfit.io import read_json, write_text_atomic
 from rjfit.pipeline.fit_folder import read_summary
+from rjfit.posterior.boundaries import is_edge
 from rjfit.posterior.summary import RHAT_MAX
 
 __all__ = ["build_report"]
@@ -297,10 +298,15 @@ def _posterior_section(summary: dict) -> list[str]:
                      f"{resolution['radius_px']:.1f} px); smaller ones are merged into the material around them.</p>")
     boundaries = summary.get("boundaries")
     if boundaries:
-        supported = sum(1 for row in boundaries if (row.get("log_likelihood_ratio") or 0) > 0)
+        supported = sum(1 for row in boundaries if is_edge(row))
         parts.append(f"<p>Boundaries: {supported} of the {len(boundaries)} boundaries between MAP materials show a "
                      f"step in the data; joined where they do not, the materials form "
                      f"{summary.get('edge_supported_materials')} group(s).</p>")
+    edge_groups = summary.get("edge_groups_posterior")
+    if edge_groups:
+        shares = ", ".join(f"{n}: {share:.2f}" for n, share in edge_groups.items())
+        parts.append(f"<p>Edge-supported groups over {summary.get('edge_groups_snapshots')} label snapshots (materials "
+                     f"that meet without a step in the data joined): {shares}.</p>")
     model_posterior = summary.get("model_posterior") or {}
     if model_posterior:
         rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{v:.4f}</td></tr>"

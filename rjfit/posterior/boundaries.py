@@ -15,8 +15,8 @@ apart along a row or a column: :data:`EDGE_GAP`) and every light that lit both:
     SS_one = min over m in {j, k} of sum (d - (mu_m(p) - mu_m(q)))^2,
 
 and ``log_likelihood_ratio = (SS_one - SS_two) / (2 s_d^2)``, ``s_d^2`` the mean of the same squared
-difference residuals over pairs inside materials. Positive: the data step where the materials
-meet. ``mu`` is each labelled material's least-squares Lambert + Blinn fit on the plain forward
+difference residuals over pairs inside materials. Above ``log 100`` (:data:`EDGE_LOG_ODDS`): the data
+step where the materials meet. ``mu`` is each labelled material's least-squares Lambert + Blinn fit on the plain forward
 model (:func:`least_squares_params`; effects left out): a check of the labels, which holds where
 chains that disagree leave pooled posterior means that no chain holds.
 """
@@ -27,14 +27,24 @@ import numpy as np
 from rjfit.data.pixelfit import fit_groups
 from rjfit.model.blinn import blinn_normalisation
 
-__all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "EDGE_GAP", "INSIDE_PAIRS"]
+__all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "edge_groups",
+           "edge_group_count", "is_edge", "EDGE_GAP", "INSIDE_PAIRS", "FIT_OBSERVATIONS", "EDGE_LOG_ODDS"]
 
 #: the pixels of a pair lie this far apart along a row or a column: a measured edge is spread over a pixel or two
 #: (optics, the pixel footprint, a blurred paint line), so neighbours across a boundary straddle part of the step
 #: only, while a smooth misfit changes little over 3 px
 EDGE_GAP = 3
+#: a boundary is an edge when the data favour the materials' step over either material alone by odds above 100:1
+#: ("decisive" on Jeffreys' scale, the odds the measured preset's Potts rule asks of a further material): two
+#: materials fitted to one paint read log ratios of -1 to +2 (their fits' own noise; tests/posterior/test_boundaries.py),
+#: which a threshold of 0 would call edges about half the time
+EDGE_LOG_ODDS = float(np.log(100.0))
 #: pairs inside materials that estimate the differences' noise (every n-th of them, n chosen to keep about this many)
 INSIDE_PAIRS = 20000
+#: :func:`edge_group_count` fits each material by least squares on every n-th of its observations, n chosen to keep
+#: about this many: two amplitudes and an exponent are settled long before a material of the ball's 1.3 million
+#: observations, and a small material (a speck of a few pixels) keeps all of its own
+FIT_OBSERVATIONS = 50_000
 
 
 def _pairs(labels, gap: int):
@@ -168,11 +178,59 @@ def _step_fit(params, C, log_cos_hn, j, k, first, second, first_material, step, 
             "step_explained": 1.0 - ss_two / ss_one if ss_one > 0 else float("nan")}
 
 
+def is_edge(row) -> bool:
+    """Whether a row of :func:`boundary_support` is an edge: its log ratio above :data:`EDGE_LOG_ODDS` (NaN: not)."""
+    return bool(row["log_likelihood_ratio"] > EDGE_LOG_ODDS)
+
+
 def unsupported_boundary_warnings(rows) -> list:
-    """A warning per pair of materials whose boundary the data's steps do not support (log ratio <= 0)."""
+    """A warning per pair of materials whose boundary the data's steps do not support (:func:`is_edge`)."""
     return [f"materials {j} and {k} meet where the data show no edge: across their {row['pairs']} boundary pairs a "
             f"step between their predictions fits the neighbours' differences worse than either material alone (log "
-            f"likelihood ratio {row['log_likelihood_ratio']:.3g}), so the boundary follows the model's smooth misfit "
+            f"likelihood ratio {row['log_likelihood_ratio']:.3g}, an edge needs log 100), so the boundary follows the model's smooth misfit "
             f"rather than a change of paint; read them as one material unless `rjfit diagnose` closes the gap "
             f"(docs/materials.md, 'Boundaries')"
-            for row in rows for j, k in [row["materials"]] if not row["log_likelihood_ratio"] > 0]
+            for row in rows for j, k in [row["materials"]] if not is_edge(row)]
+
+
+def edge_groups(rows, n_materials: int) -> list:
+    """The materials 0 .. n_materials - 1 joined wherever :func:`boundary_support`'s ``rows`` find no edge
+    (:func:`is_edge`): each group's materials in order, the groups by their first."""
+    parent = list(range(n_materials))
+
+    def root(m):
+        while parent[m] != m:
+            m = parent[m]
+        return m
+    for row in rows:
+        if not is_edge(row):
+            j, k = row["materials"]
+            parent[root(j)] = root(k)
+    groups = {}
+    for m in range(n_materials):
+        groups.setdefault(root(m), []).append(m)
+    return sorted(groups.values())
+
+
+def edge_group_count(labels, y, C, log_cos_hn, pixel, light, n_lights: int) -> int:
+    """How many groups the materials of one label map form once those that meet without an edge are joined.
+
+    ``labels`` may number its materials with gaps (a state's labels); -1 or NaN marks unlabelled
+    pixels. A group whose materials hold no observation (pixels labelled by their neighbours alone, such as the
+    rim under ``--max-view-angle``) is not counted. Each material's fit is :func:`least_squares_params` on every
+    n-th of its observations
+    (:data:`FIT_OBSERVATIONS` per material); the check itself (:func:`boundary_support`) uses every pair.
+    """
+    labels = np.asarray(labels, dtype=float)
+    labels = np.where(np.isfinite(labels), labels, -1).astype(np.int64)
+    present = np.unique(labels[labels >= 0])
+    if present.size < 2:
+        return int(present.size)
+    compact = np.where(labels >= 0, np.searchsorted(present, labels), -1)
+    group = compact.ravel()[np.asarray(pixel, np.int64)]
+    subset = np.concatenate([members[::max(1, members.size // FIT_OBSERVATIONS)]
+                             for members in (np.flatnonzero(group == m) for m in range(present.size))])
+    params = least_squares_params(compact, *(np.asarray(a)[subset] for a in (y, C, log_cos_hn, pixel)))
+    rows = boundary_support(compact, params, y, C, log_cos_hn, pixel, light, n_lights)
+    fitted = np.all(np.isfinite(params), axis=1)
+    return sum(1 for members in edge_groups(rows, int(present.size)) if np.any(fitted[members]))

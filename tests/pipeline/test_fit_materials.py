@@ -59,6 +59,33 @@ def test_summary_has_the_material_entries(fitted):
     assert "map_model" not in summary and "changepoints.npz" not in {p.name for p in out.iterdir()}
 
 
+def test_the_three_materials_form_three_edge_groups_in_every_counted_snapshot(fitted):
+    """The data separate the three materials by far (I0 6, 10, 14 against noise sd 0.14), so every boundary between
+    them is an edge in every snapshot; a twin of a material, if a chain held one, would be joined to it."""
+    _, summary, _ = fitted
+    assert summary["edge_groups_posterior"] == {"3": 1.0}
+    assert summary["edge_groups_snapshots"] == 2 * 10 and len(summary["chain_edge_groups_posterior"]) == 2
+
+
+def test_the_command_line_states_the_edge_groups(fitted, capsys):
+    from rjfit.cli import _echo_fit
+
+    out, summary, _ = fitted
+    _echo_fit(out, {**summary, "dataset": "in-code stack", "channel": "mean"})     # what fit_dataset adds
+    assert ("edge-supported material groups (materials that meet without a step in the data joined, 20 snapshots): "
+            "3: 1.00") in capsys.readouterr().out
+
+
+def test_the_report_states_the_boundaries_and_the_edge_groups(fitted, tmp_path):
+    from rjfit.pipeline.report import build_report
+
+    out, _, _ = fitted
+    text = build_report(out, tmp_path / "report.html").read_text()
+    assert "Boundaries: 3 of the 3 boundaries between MAP materials show a step in the data" in text
+    assert ("Edge-supported groups over 20 label snapshots (materials that meet without a step in the data joined): "
+            "3: 1.00.") in text
+
+
 def test_map_materials_keep_the_two_patches_together(fitted):
     out, summary, truth = fitted
     labels = np.rint(read_exr(out / "labels.exr")["labels"]).astype(int)
@@ -168,3 +195,5 @@ def test_a_smooth_ramp_split_into_materials_is_reported_as_one_group(tmp_path, p
     assert any("meet where the data show no edge" in w for w in summary["warnings"])
     edge_group = read_exr(tmp_path / "out" / "maps.exr")["edge_group"]
     assert np.all(edge_group == 0)
+    # every counted snapshot's bands, not only the MAP's, form one group
+    assert summary["edge_groups_posterior"] == {"1": 1.0} and summary["edge_groups_snapshots"] == 2 * 10
