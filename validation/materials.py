@@ -102,6 +102,7 @@ def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=PLAIN_POTTS_RHO,
             "normal_error_deg": normal_error.get("sigma_n_deg"), "true_K": summary["true_region_count"],
             "label_accuracy": summary["label_accuracy"], "P(K=true)": summary["materials_right_probability"],
             "materials_posterior": summary["materials_posterior"], "rhat_max": summary["rhat_max"],
+            "edge_groups_posterior": summary.get("edge_groups_posterior"),
             "map_probability_mean": summary["map_probability_mean"], "seconds": time.perf_counter() - started,
             "warnings": summary["warnings"]}
 

@@ -72,13 +72,14 @@ SUMMARY_FIELDS = {
     "potts_beta": (_NUMBER, "materials: Potts prior strength per neighbour pair of different materials"),
     "potts_rho": (_NUMBER, "materials: prior factor per material (rho^K)"),
     "boundaries": (list, "materials: per pair of adjacent MAP materials, whether the data step where they meet "
-                         "(log_likelihood_ratio > log 100; rjfit.posterior.boundaries)"),
-    "edge_supported_materials": (int, "materials: the number of groups left when MAP materials that meet without an "
-                                      "edge in the data are joined (per pixel: maps.exr channel edge_group)"),
+                         "(log_likelihood_ratio above log 100: an edge; below -log 100: none; "
+                         "rjfit.posterior.boundaries)"),
+    "edge_supported_materials": (int, "materials: the number of groups left when MAP materials that meet where the "
+                                      "data show no edge are joined (per pixel: maps.exr channel edge_group)"),
     "material_groups": (list, "materials: the MAP materials of each such group"),
     "edge_groups_posterior": (dict, "materials: share of kept label snapshots (edge_groups_snapshots of them) whose "
-                                    "materials form each number of groups once those that meet without an edge in the "
-                                    "data are joined (rjfit.posterior.boundaries.edge_group_count)"),
+                                    "materials form each number of groups once those that meet where the data show no "
+                                    "edge are joined (rjfit.posterior.boundaries.edge_group_count)"),
     "chain_edge_groups_posterior": (list, "materials: edge_groups_posterior of each chain"),
     "edge_groups_snapshots": (int, "materials: the label snapshots edge_groups_posterior counts"),
     "material_resolution": (dict, "materials: the smallest disc of half the albedo of the largest material that the "

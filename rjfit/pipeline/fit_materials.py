@@ -27,10 +27,13 @@ from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 
-__all__ = ["summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check", "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files", "EMPTY_MATERIALS_NOTE"]
+__all__ = ["summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
+           "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files",
+           "EMPTY_MATERIALS_NOTE"]
 
-#: label snapshots per chain whose edge groups are counted (evenly spaced over the kept ones): each costs a least-squares
-#: fit per material and the boundary check, 0.2 to 0.6 s on the DiLiGenT ball's 1.3 million observations
+#: label snapshots per chain whose edge groups are counted (evenly spaced over the kept ones): each costs a
+#: least-squares fit per material and the boundary check, 0.2 to 0.6 s on the DiLiGenT ball's 1.3 million
+#: observations
 EDGE_GROUP_SNAPSHOTS = 10
 
 EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "

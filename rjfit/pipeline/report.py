@@ -8,7 +8,7 @@ from pathlib import Path
 from rjfit.diagnose.document import revision_text
 from rjfit.io import read_json, write_text_atomic
 from rjfit.pipeline.fit_folder import read_summary
-from rjfit.posterior.boundaries import is_edge
+from rjfit.posterior.boundaries import edge_verdict
 from rjfit.posterior.summary import RHAT_MAX
 
 __all__ = ["build_report"]
@@ -298,9 +298,10 @@ def _posterior_section(summary: dict) -> list[str]:
                      f"{resolution['radius_px']:.1f} px); smaller ones are merged into the material around them.</p>")
     boundaries = summary.get("boundaries")
     if boundaries:
-        supported = sum(1 for row in boundaries if is_edge(row))
-        parts.append(f"<p>Boundaries: {supported} of the {len(boundaries)} boundaries between MAP materials show a "
-                     f"step in the data; joined where they do not, the materials form "
+        verdicts = [edge_verdict(row) for row in boundaries]
+        parts.append(f"<p>Boundaries: of the {len(boundaries)} boundaries between MAP materials, "
+                     f"{verdicts.count('edge')} show a step in the data and {verdicts.count('no edge')} show none "
+                     f"(odds of 100:1); joined where they show none, the materials form "
                      f"{summary.get('edge_supported_materials')} group(s).</p>")
     edge_groups = summary.get("edge_groups_posterior")
     if edge_groups:

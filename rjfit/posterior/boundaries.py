@@ -16,9 +16,11 @@ apart along a row or a column: :data:`EDGE_GAP`) and every light that lit both:
 
 and ``log_likelihood_ratio = (SS_one - SS_two) / (2 s_d^2)``, ``s_d^2`` the mean of the same squared
 difference residuals over pairs inside materials. Above ``log 100`` (:data:`EDGE_LOG_ODDS`): the data
-step where the materials meet. ``mu`` is each labelled material's least-squares Lambert + Blinn fit on the plain forward
-model (:func:`least_squares_params`; effects left out): a check of the labels, which holds where
-chains that disagree leave pooled posterior means that no chain holds.
+step where the materials meet (an edge); below ``-log 100``: they do not (no edge); between: the
+pairs do not decide (a contact of a few pixels, two fits of one paint). ``mu`` is each labelled
+material's least-squares Lambert + Blinn fit on the plain forward model (:func:`least_squares_params`;
+effects left out): a check of the labels, which holds where chains that disagree leave pooled
+posterior means that no chain holds.
 """
 from __future__ import annotations
 
@@ -28,16 +30,18 @@ from rjfit.data.pixelfit import fit_groups
 from rjfit.model.blinn import blinn_normalisation
 
 __all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "edge_groups",
-           "edge_group_count", "is_edge", "EDGE_GAP", "INSIDE_PAIRS", "FIT_OBSERVATIONS", "EDGE_LOG_ODDS"]
+           "edge_group_count", "edge_verdict", "is_edge", "EDGE_GAP", "INSIDE_PAIRS", "FIT_OBSERVATIONS",
+           "EDGE_LOG_ODDS"]
 
 #: the pixels of a pair lie this far apart along a row or a column: a measured edge is spread over a pixel or two
 #: (optics, the pixel footprint, a blurred paint line), so neighbours across a boundary straddle part of the step
 #: only, while a smooth misfit changes little over 3 px
 EDGE_GAP = 3
 #: a boundary is an edge when the data favour the materials' step over either material alone by odds above 100:1
-#: ("decisive" on Jeffreys' scale, the odds the measured preset's Potts rule asks of a further material): two
-#: materials fitted to one paint read log ratios of -1 to +2 (their fits' own noise; tests/posterior/test_boundaries.py),
-#: which a threshold of 0 would call edges about half the time
+#: ("decisive" on Jeffreys' scale, the odds the measured preset's Potts rule asks of a further material), and no
+#: edge when they favour either material alone by as much; two materials fitted to one paint read log ratios of
+#: -1 to +2 (their fits' own noise; tests/posterior/test_boundaries.py), and two discs of different paints that
+#: touch at one pixel -0.8 to +0.2 over their 2 or 3 pairs: a threshold of 0 decides both by chance
 EDGE_LOG_ODDS = float(np.log(100.0))
 #: pairs inside materials that estimate the differences' noise (every n-th of them, n chosen to keep about this many)
 INSIDE_PAIRS = 20000
@@ -178,24 +182,32 @@ def _step_fit(params, C, log_cos_hn, j, k, first, second, first_material, step, 
             "step_explained": 1.0 - ss_two / ss_one if ss_one > 0 else float("nan")}
 
 
+def edge_verdict(row) -> str:
+    """A row of :func:`boundary_support` read at odds of 100:1 (:data:`EDGE_LOG_ODDS`): ``"edge"``, ``"no edge"``
+    or ``"undecided"`` (between, or NaN)."""
+    ratio = row["log_likelihood_ratio"]
+    return "edge" if ratio > EDGE_LOG_ODDS else "no edge" if ratio < -EDGE_LOG_ODDS else "undecided"
+
+
 def is_edge(row) -> bool:
-    """Whether a row of :func:`boundary_support` is an edge: its log ratio above :data:`EDGE_LOG_ODDS` (NaN: not)."""
-    return bool(row["log_likelihood_ratio"] > EDGE_LOG_ODDS)
+    """Whether a row of :func:`boundary_support` is an edge (:func:`edge_verdict`)."""
+    return edge_verdict(row) == "edge"
 
 
 def unsupported_boundary_warnings(rows) -> list:
-    """A warning per pair of materials whose boundary the data's steps do not support (:func:`is_edge`)."""
+    """A warning per pair of materials whose boundary the data show not to be an edge (:func:`edge_verdict`)."""
     return [f"materials {j} and {k} meet where the data show no edge: across their {row['pairs']} boundary pairs a "
             f"step between their predictions fits the neighbours' differences worse than either material alone (log "
-            f"likelihood ratio {row['log_likelihood_ratio']:.3g}, an edge needs log 100), so the boundary follows the model's smooth misfit "
-            f"rather than a change of paint; read them as one material unless `rjfit diagnose` closes the gap "
-            f"(docs/materials.md, 'Boundaries')"
-            for row in rows for j, k in [row["materials"]] if not is_edge(row)]
+            f"likelihood ratio {row['log_likelihood_ratio']:.3g}, below -log 100), so the boundary follows the "
+            f"model's smooth misfit rather than a change of paint; read them as one material unless `rjfit diagnose` "
+            f"closes the gap (docs/materials.md, 'Boundaries')"
+            for row in rows for j, k in [row["materials"]] if edge_verdict(row) == "no edge"]
 
 
 def edge_groups(rows, n_materials: int) -> list:
-    """The materials 0 .. n_materials - 1 joined wherever :func:`boundary_support`'s ``rows`` find no edge
-    (:func:`is_edge`): each group's materials in order, the groups by their first."""
+    """The materials 0 .. n_materials - 1 joined wherever :func:`boundary_support`'s ``rows`` show no edge
+    (:func:`edge_verdict`; an undecided boundary joins nothing): each group's materials in order, the groups by
+    their first."""
     parent = list(range(n_materials))
 
     def root(m):
@@ -203,7 +215,7 @@ def edge_groups(rows, n_materials: int) -> list:
             m = parent[m]
         return m
     for row in rows:
-        if not is_edge(row):
+        if edge_verdict(row) == "no edge":
             j, k = row["materials"]
             parent[root(j)] = root(k)
     groups = {}

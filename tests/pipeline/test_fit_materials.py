@@ -81,7 +81,8 @@ def test_the_report_states_the_boundaries_and_the_edge_groups(fitted, tmp_path):
 
     out, _, _ = fitted
     text = build_report(out, tmp_path / "report.html").read_text()
-    assert "Boundaries: 3 of the 3 boundaries between MAP materials show a step in the data" in text
+    assert ("Boundaries: of the 3 boundaries between MAP materials, 3 show a step in the data and 0 show none "
+            "(odds of 100:1); joined where they show none, the materials form 3 group(s).") in text
     assert ("Edge-supported groups over 20 label snapshots (materials that meet without a step in the data joined): "
             "3: 1.00.") in text
 

@@ -9,7 +9,7 @@ from rjfit.posterior.boundaries import (
     boundary_support,
     edge_group_count,
     edge_groups,
-    is_edge,
+    edge_verdict,
     least_squares_params,
     unsupported_boundary_warnings,
 )
@@ -119,11 +119,15 @@ def test_without_params_each_material_is_fitted_by_least_squares():
     assert boundary_support(labels, None, y, C, log_cos_hn, pixel, light, 8)[0]["log_likelihood_ratio"] < 0
 
 
-def test_edge_groups_join_the_materials_that_meet_without_an_edge():
-    rows = [{"materials": [0, 1], "log_likelihood_ratio": -5.0}, {"materials": [1, 2], "log_likelihood_ratio": 40.0},
-            {"materials": [2, 3], "log_likelihood_ratio": float("nan")}]
-    assert edge_groups(rows, 5) == [[0, 1], [2, 3], [4]]
+def test_edge_groups_join_only_the_materials_that_meet_where_the_data_show_no_edge():
+    """Decisive either way at odds of 100:1 (log ratio beyond +-4.61); an undecided or NaN boundary joins nothing."""
+    ratios = [-5.0, 40.0, float("nan"), -4.0, -400.0]
+    rows = [{"materials": [m, m + 1], "pairs": 10, "log_likelihood_ratio": ratio} for m, ratio in enumerate(ratios)]
+    assert [edge_verdict(row) for row in rows] == ["no edge", "edge", "undecided", "undecided", "no edge"]
+    assert edge_groups(rows, 7) == [[0, 1], [2], [3], [4, 5], [6]]
     assert edge_groups([], 2) == [[0], [1]]
+    (warning,) = unsupported_boundary_warnings(rows[:4])
+    assert warning.startswith("materials 0 and 1 meet where the data show no edge")
 
 
 def test_a_label_maps_edge_groups_count_paint_steps_and_not_a_ramps_bands():
@@ -151,17 +155,19 @@ def test_a_material_without_observations_is_not_counted():
     labels[:, -2:] = 1
     seen = labels.ravel()[pixel] == 0
     assert edge_group_count(labels, y[seen], C[seen], log_cos_hn[seen], pixel[seen], light[seen], 8) == 1
-    assert edge_group_count(labels, y, C, log_cos_hn, pixel, light, 8) == 1       # seen: joined, no edge there
+    # the same band seen, and of a paint twice as bright: a group of its own
+    y, C, log_cos_hn, pixel, light = stack(np.where(labels == 1, 10.0, 5.0))
+    assert edge_group_count(labels, y, C, log_cos_hn, pixel, light, 8) == 2
 
 
 @pytest.mark.parametrize("seed", range(5))
 def test_two_materials_fitted_to_one_paint_are_no_edge(seed):
     """One uniform paint split into two materials, each fitted by least squares to its own pixels: the fits' own
     noise makes their step fit the differences slightly better or worse (log ratios -0.92 to +0.59 on these five
-    seeds; +1.4 to +1.9 for a band 2 px wide), far below the odds of 100:1 an edge needs; with a threshold of 0,
-    three of the five would read an edge."""
+    seeds; +1.4 to +1.9 for a band 2 px wide): undecided at odds of 100:1 either way, where a threshold of 0 would
+    call three of the five an edge and two no edge."""
     y, C, log_cos_hn, pixel, light = stack(np.full((24, 24), 5.0), seed=seed)
     labels = np.zeros((24, 24), int)
     labels[:, -4:] = 1
     (row,) = boundary_support(labels, None, y, C, log_cos_hn, pixel, light, 8)
-    assert abs(row["log_likelihood_ratio"]) < EDGE_LOG_ODDS and not is_edge(row)
+    assert abs(row["log_likelihood_ratio"]) < EDGE_LOG_ODDS and edge_verdict(row) == "undecided"
