@@ -36,7 +36,10 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.io import write_text_atomic
-from rjfit.pipeline.options import PLAIN_POTTS_RHO
+from rjfit.pipeline.options import PLAIN_POTTS_RHO, FitOptions
+
+#: a fit's own default (--potts-beta); before 2026-11-27 this script defaulted to 1, where every layout reads K = 8
+FIT_POTTS_BETA = FitOptions.build(None).potts_beta
 
 MATERIALS = [{"name": "white paint", "I0": 100.0, "kd": 0.85, "gamma": 8.0},
              {"name": "grey glaze", "I0": 70.0, "kd": 0.6, "gamma": 20.0},
@@ -87,7 +90,7 @@ def scene(name: str, size: int) -> dict:
     return definition
 
 
-def fit_layout(name, size, out, iterations, seed, beta=1.0, rho=PLAIN_POTTS_RHO, workers=2, chains=4,
+def fit_layout(name, size, out, iterations, seed, beta=FIT_POTTS_BETA, rho=PLAIN_POTTS_RHO, workers=2, chains=4,
                noise="constant") -> dict:
     from rjfit.pipeline.fit_dataset import fit_dataset
 
@@ -167,7 +170,8 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--layouts", nargs="*", default=list(LAYOUTS))
     parser.add_argument("--sweep", action="store_true", help="beta in {0.5, 1, 2} x rho in {0.1, 1}")
-    parser.add_argument("--betas", type=float, nargs="*", default=[1.0], help="Potts beta values")
+    parser.add_argument("--betas", type=float, nargs="*", default=[FIT_POTTS_BETA],
+                        help="Potts beta values (default: a fit's)")
     parser.add_argument("--rho", type=float, default=PLAIN_POTTS_RHO,
                         help="Potts rho (prior factor per material) with --betas; default: a fit's")
     parser.add_argument("--workers", type=int, default=2, help="chains run at once (worker processes; 1: in this one)")
