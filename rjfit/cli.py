@@ -310,7 +310,7 @@ def _echo_fit(folder, summary: dict) -> None:
         click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
     if summary.get("edge_groups_posterior"):
         shares = ", ".join(f"{n}: {share:.2f}" for n, share in summary["edge_groups_posterior"].items())
-        click.echo(f"  edge-supported material groups (materials that meet without a step in the data joined, "
+        click.echo(f"  edge-supported material groups (materials that meet where the data show no step joined, "
                    f"{summary['edge_groups_snapshots']} snapshots): {shares}")
     for effect in summary.get("effects", []):
         values = ", ".join(f"{p['name']} {p['mean']:.4g} (95 % {p['q2.5']:.4g} to {p['q97.5']:.4g})"

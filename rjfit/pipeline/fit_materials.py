@@ -128,7 +128,7 @@ def edge_groups_posterior(records, burn: int, problem, observations) -> tuple[di
     """The posterior over the number of edge-supported material groups, and a warning when the chains disagree.
 
     Over :data:`EDGE_GROUP_SNAPSHOTS` kept label snapshots per chain (evenly spaced), the share
-    whose materials form n groups once those that meet without an edge in the data are joined
+    whose materials form n groups once those that meet where the data show no edge are joined
     (:func:`rjfit.posterior.boundaries.edge_group_count`): a summary of the same draws as
     ``materials_posterior`` that counts a split along the model's smooth misfit as one material.
     Nothing for a joint colour fit or a fit with effects (as :func:`material_boundaries`).
@@ -145,21 +145,14 @@ def edge_groups_posterior(records, burn: int, problem, observations) -> tuple[di
     pooled = [n for counts in per_chain for n in counts]
     if not pooled:
         return {}, []
-    chain_posteriors = [_shares(counts) for counts in per_chain]
+    chain_posteriors = [mat.count_shares(counts) if counts else {} for counts in per_chain]
     modes = {next(iter(shares)) for shares in chain_posteriors if shares}
     warnings = [] if len(modes) < 2 else [
         f"the chains disagree on the number of edge-supported material groups (most frequent per chain: "
         f"{', '.join(next(iter(p)) if p else '-' for p in chain_posteriors)}): read edge_groups_posterior as a rough "
         f"guide and run longer or more chains"]
-    return ({"edge_groups_posterior": _shares(pooled), "chain_edge_groups_posterior": chain_posteriors,
+    return ({"edge_groups_posterior": mat.count_shares(pooled), "chain_edge_groups_posterior": chain_posteriors,
              "edge_groups_snapshots": len(pooled)}, warnings)
-
-
-def _shares(counts) -> dict:
-    """{str(n): share} of the values in ``counts``, most frequent first."""
-    values, frequency = np.unique(np.asarray(counts, np.int64), return_counts=True)
-    order = np.argsort(-frequency, kind="stable")
-    return {str(int(values[i])): float(frequency[i] / len(counts)) for i in order}
 
 
 def add_boundary_check(result, observations, records) -> None:

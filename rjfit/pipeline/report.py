@@ -307,7 +307,7 @@ def _posterior_section(summary: dict) -> list[str]:
     if edge_groups:
         shares = ", ".join(f"{n}: {share:.2f}" for n, share in edge_groups.items())
         parts.append(f"<p>Edge-supported groups over {summary.get('edge_groups_snapshots')} label snapshots (materials "
-                     f"that meet without a step in the data joined): {shares}.</p>")
+                     f"that meet where the data show no step joined): {shares}.</p>")
     model_posterior = summary.get("model_posterior") or {}
     if model_posterior:
         rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{v:.4f}</td></tr>"

@@ -30,7 +30,7 @@ from rjfit.data.pixelfit import fit_groups
 from rjfit.model.blinn import blinn_normalisation
 
 __all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "edge_groups",
-           "edge_group_count", "edge_verdict", "is_edge", "EDGE_GAP", "INSIDE_PAIRS", "FIT_OBSERVATIONS",
+           "edge_group_count", "edge_verdict", "EDGE_GAP", "INSIDE_PAIRS", "FIT_OBSERVATIONS",
            "EDGE_LOG_ODDS"]
 
 #: the pixels of a pair lie this far apart along a row or a column: a measured edge is spread over a pixel or two
@@ -189,11 +189,6 @@ def edge_verdict(row) -> str:
     return "edge" if ratio > EDGE_LOG_ODDS else "no edge" if ratio < -EDGE_LOG_ODDS else "undecided"
 
 
-def is_edge(row) -> bool:
-    """Whether a row of :func:`boundary_support` is an edge (:func:`edge_verdict`)."""
-    return edge_verdict(row) == "edge"
-
-
 def unsupported_boundary_warnings(rows) -> list:
     """A warning per pair of materials whose boundary the data show not to be an edge (:func:`edge_verdict`)."""
     return [f"materials {j} and {k} meet where the data show no edge: across their {row['pairs']} boundary pairs a "
@@ -225,13 +220,14 @@ def edge_groups(rows, n_materials: int) -> list:
 
 
 def edge_group_count(labels, y, C, log_cos_hn, pixel, light, n_lights: int) -> int:
-    """How many groups the materials of one label map form once those that meet without an edge are joined.
+    """How many groups the materials of one label map form once those that meet where the data show no edge are
+    joined (:func:`edge_groups`).
 
     ``labels`` may number its materials with gaps (a state's labels); -1 or NaN marks unlabelled
-    pixels. A group whose materials hold no observation (pixels labelled by their neighbours alone, such as the
-    rim under ``--max-view-angle``) is not counted. Each material's fit is :func:`least_squares_params` on every
-    n-th of its observations
-    (:data:`FIT_OBSERVATIONS` per material); the check itself (:func:`boundary_support`) uses every pair.
+    pixels. A group whose materials hold no observation (pixels labelled by their neighbours
+    alone, such as the rim under ``--max-view-angle``) is not counted. Each material's fit is
+    :func:`least_squares_params` on every n-th of its observations (:data:`FIT_OBSERVATIONS` per
+    material); the check itself (:func:`boundary_support`) uses every pair.
     """
     labels = np.asarray(labels, dtype=float)
     labels = np.where(np.isfinite(labels), labels, -1).astype(np.int64)

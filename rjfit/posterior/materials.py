@@ -25,8 +25,8 @@ from rjfit.data.formats import COLOUR_CHANNELS
 from rjfit.posterior.summary import _arviz, diagnostics, region_summaries
 from rjfit.sampler.priors import PARAM_NAMES
 
-__all__ = ["materials_posterior", "map_materials", "RelabelledDraws", "relabelled_draws", "material_summaries",
-           "to_inference_data", "cap_warning", "RELABELLING"]
+__all__ = ["materials_posterior", "count_shares", "map_materials", "RelabelledDraws", "relabelled_draws",
+           "material_summaries", "to_inference_data", "cap_warning", "RELABELLING"]
 
 #: How draws are matched to the MAP labelling (written into the summary).
 RELABELLING = ("kept draws with K = MAP K, each label snapshot relabelled to the snapshot of highest log posterior by "
@@ -45,9 +45,14 @@ def materials_posterior(records, burn_in: int) -> dict:
     ks = np.concatenate([r.n_materials[burn_in:] for r in records]).astype(np.int64)
     if ks.size == 0:
         raise ValueError("no draws after burn-in: lower the burn-in (--burn-in) or run more iterations (--iterations)")
-    values, counts = np.unique(ks, return_counts=True)
-    order = np.argsort(-counts, kind="stable")
-    return {str(int(values[i])): float(counts[i] / ks.size) for i in order}
+    return count_shares(ks)
+
+
+def count_shares(counts) -> dict:
+    """{"n": share} of the integers in ``counts`` (not empty), most frequent first (ties: smaller n first)."""
+    values, frequency = np.unique(np.asarray(counts, np.int64), return_counts=True)
+    order = np.argsort(-frequency, kind="stable")
+    return {str(int(values[i])): float(frequency[i] / frequency.sum()) for i in order}
 
 
 def map_materials(records, burn_in: int) -> int:

@@ -72,7 +72,7 @@ def test_the_command_line_states_the_edge_groups(fitted, capsys):
 
     out, summary, _ = fitted
     _echo_fit(out, {**summary, "dataset": "in-code stack", "channel": "mean"})     # what fit_dataset adds
-    assert ("edge-supported material groups (materials that meet without a step in the data joined, 20 snapshots): "
+    assert ("edge-supported material groups (materials that meet where the data show no step joined, 20 snapshots): "
             "3: 1.00") in capsys.readouterr().out
 
 
@@ -83,7 +83,7 @@ def test_the_report_states_the_boundaries_and_the_edge_groups(fitted, tmp_path):
     text = build_report(out, tmp_path / "report.html").read_text()
     assert ("Boundaries: of the 3 boundaries between MAP materials, 3 show a step in the data and 0 show none "
             "(odds of 100:1); joined where they show none, the materials form 3 group(s).") in text
-    assert ("Edge-supported groups over 20 label snapshots (materials that meet without a step in the data joined): "
+    assert ("Edge-supported groups over 20 label snapshots (materials that meet where the data show no step joined): "
             "3: 1.00.") in text
 
 
