@@ -71,6 +71,7 @@ SUMMARY_FIELDS = {
     "max_materials": (int, "materials: the most materials a state may have (a cap; warned about when it binds)"),
     "potts_beta": (_NUMBER, "materials: Potts prior strength per neighbour pair of different materials"),
     "potts_rho": (_NUMBER, "materials: prior factor per material (rho^K)"),
+    "edge_power": (_NUMBER, "materials: power of the edge term in the target (0: none; docs/materials.md)"),
     "boundaries": (list, "materials: per pair of adjacent MAP materials, whether the data step where they meet "
                          "(log_likelihood_ratio above log 100: an edge; below -log 100: none; "
                          "rjfit.posterior.boundaries)"),

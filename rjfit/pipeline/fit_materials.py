@@ -26,6 +26,8 @@ from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
+from rjfit.sampler.edges import edge_term
+from rjfit.sampler.regions.material_labels import labelled_pixels
 
 __all__ = ["summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
            "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files",
@@ -60,7 +62,7 @@ def summarise_materials(records, problem, options, burn: int):
         "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
         "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"], "diagnostics": diag,
         "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
-        "chain_materials_posterior": chain_posteriors,
+        "edge_power": edge_power_used(problem, options), "chain_materials_posterior": chain_posteriors,
     }
     summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
                                                     post.chain_log_posterior_means(records, burn))
@@ -74,6 +76,14 @@ def summarise_materials(records, problem, options, burn: int):
             summary["warnings"].append(resolution_warning(resolution))
     prediction = post.posterior_mean_prediction(records, burn, problem)
     return summary, labels, prediction, {"map_probability": probability, "draws": draws}
+
+
+def edge_power_used(problem, options) -> float:
+    """The power of the fit's edge term in the target (0: none; :mod:`rjfit.sampler.edges`): as given, or 'auto'
+    measured again as every chain measured it."""
+    if options.edge_power != "auto":
+        return float(options.edge_power)
+    return edge_term(problem, labelled_pixels(problem), "auto").power
 
 
 def material_resolution(problem, materials, labels, options) -> dict | None:

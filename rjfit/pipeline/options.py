@@ -63,7 +63,7 @@ RIM_VIEW_ANGLE = round(math.degrees(math.acos(RIM_COS)), 2)
 #: What ``--preset measured`` sets, where an option is not given (docs/measured-data.md); the Potts beta
 #: and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
-                   "max_view_angle": RIM_VIEW_ANGLE}
+                   "max_view_angle": RIM_VIEW_ANGLE, "edge_power": "auto"}
 #: The value of an option whose field default is None ("not given") when no preset sets it. A given value,
 #: even one equal to these, is kept under a preset (``--preset measured --noise constant`` fits constant noise).
 #: The prior odds of each further material, with and without the preset: 1:100, so that one takes half the
@@ -74,7 +74,8 @@ MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0
 FURTHER_MATERIAL_ODDS = 0.01
 #: The Potts prior's factor per material without the preset (the preset's rule: rjfit.pipeline.fit_dataset).
 PLAIN_POTTS_RHO = FURTHER_MATERIAL_ODDS
-PLAIN_DEFAULTS = {"noise": "constant", "likelihood_power": 1.0, "potts_rho": PLAIN_POTTS_RHO, "max_view_angle": None}
+PLAIN_DEFAULTS = {"noise": "constant", "likelihood_power": 1.0, "potts_rho": PLAIN_POTTS_RHO, "max_view_angle": None,
+                  "edge_power": 0.0}
 
 
 def _likelihood_power_value(value):
@@ -130,6 +131,13 @@ class FitOptions:
         "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 0.01: prior odds "
         "1:100 for each further material, which then needs a decisive Bayes factor; --preset measured sets beta and "
         "rho by a rule on the mask unless --potts-rho is given (docs/measured-data.md).", "float", show_default=False)
+    edge_power: float | str | None = cli_option(
+        None, "--edge-power",
+        "Power of the edge term in the target (--regions materials, one channel, no effects): a boundary between "
+        "two materials costs what their step misfits the data's differences across it (pixels 3 px apart) beyond "
+        "either material alone (docs/materials.md, 'The edge term'). A number >= 0, or 'auto' (the coarsening rule "
+        "on those differences). Default 0 (none); --preset measured sets auto, and leaves it out of joint colour "
+        "fits and fits with effects.", "power", show_default=False)
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
@@ -276,10 +284,30 @@ class FitOptions:
             raise ValueError("--channel rgb (a joint colour fit) works with --regions materials and the adaptive "
                              "sampler only (the change-point model's passes see one channel): use --regions materials, "
                              "or fit one channel (--channel mean, R, G, B or each)")
+        self._check_edge_power()
         if not 1 <= self.max_materials <= 127:
             raise ValueError(f"--max-materials must lie in 1 .. 127, got {self.max_materials}")
         if self.max_u < 0 or self.max_v < 0:
             raise ValueError(f"max_u and max_v (--max-u, --max-v) must be >= 0, got {self.max_u}, {self.max_v}")
+
+    def _check_edge_power(self):
+        """The edge term reads one channel's plain prediction: a preset's leaves it out elsewhere, a given one fails."""
+        if self.edge_power != "auto":
+            try:
+                power = float(self.edge_power)
+            except (TypeError, ValueError):
+                power = math.nan
+            if not (math.isfinite(power) and power >= 0):
+                raise ValueError(f"edge power (--edge-power) must be a number >= 0 or 'auto', got {self.edge_power!r}")
+            object.__setattr__(self, "edge_power", power)
+        other = (self.regions != "materials" or self.channel == COLOUR or bool(self.effects)
+                 or self.effects_from is not None or self.sampler != "adaptive")
+        if (self.edge_power == "auto" or self.edge_power > 0) and other:
+            if "edge_power" in self.unset:
+                object.__setattr__(self, "edge_power", 0.0)
+            else:
+                raise ValueError("--edge-power works with --regions materials, one channel, no effects and the "
+                                 "adaptive sampler: give --edge-power 0 or fit one channel without effects")
 
     def _apply_preset(self):
         """Fill the options not given: the preset's value, else the plain default (:data:`PLAIN_DEFAULTS`)."""

@@ -122,6 +122,7 @@ class Problem:
     effects: EffectData | None = None      # the effects sampled with the regions, and their raw data
     channel: np.ndarray | None = None      # int8 colour channel per observation (joint colour fit); None: one
     n_channels: int = 1
+    light: np.ndarray | None = None        # int16 light of each observation (the edge term's matches); None: unknown
 
     @cached_property
     def channel_start(self) -> np.ndarray:
@@ -450,6 +451,7 @@ class LambertBlinnPhong(ForwardModel):
                                  light=np.asarray(obs.light)[order].astype(np.int32),
                                  scale=None if scale is None else scale.astype(np.float64))
         channel = None if obs.channel is None else np.asarray(obs.channel)[order].astype(np.int8)
+        light = np.asarray(obs.light)[order].astype(np.int16 if obs.n_lights <= np.iinfo(np.int16).max else np.int32)
         del order
         line_dtype = np.int16 if max(height, width) <= np.iinfo(np.int16).max else np.int32
         row, col = (pixel // width).astype(line_dtype), (pixel % width).astype(line_dtype)
@@ -461,7 +463,7 @@ class LambertBlinnPhong(ForwardModel):
                        pixel=pixel, pixel_start=pixel_start, colmajor_order=colmajor_order,
                        colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool),
                        likelihood_power=float(likelihood_power), noise_scale=scale, effects=effects,
-                       channel=channel, n_channels=int(obs.n_channels))
+                       channel=channel, n_channels=int(obs.n_channels), light=light)
 
 
 def _columns(obs: Observations, order, noise_scale):

@@ -112,13 +112,17 @@ def refresh(problem: Problem, state: ChainState) -> ChainState:
 
 
 def log_posterior(problem: Problem, prior, state: ChainState, config: SamplerConfig) -> float:
-    """Log joint density (up to the constant model prior): likelihood, phi-space prior, layout prior, effects' prior.
+    """Log joint density (up to the constant model prior): likelihood, phi-space prior, layout prior, the region
+    model's edge term (if any), effects' prior.
 
     For a problem with effects, ``state.log_lik`` is on the transformed problem; the
     log-Jacobian is left out here (:func:`effect_log_likelihood`).
     """
     total = float(np.sum(state.log_lik) + log_prior_phi(prior, state.theta, problem.n_channels)
                   + config.regions.log_prior(problem, state.layout))
+    edges = config.regions.edge_term(state.layout)
+    if edges is not None:
+        total += edges.total(state.layout.pixels, state.theta)
     if state.effects is not None:
         total += problem.effects.log_prior(state.effects.z)
     return total
@@ -141,7 +145,9 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=
     Parameters
     ----------
     theta : ndarray (R, 4), optional
-        Starting parameters; default the prior's ``start`` (if any) or a dispersed draw:
+        Starting parameters; default the region model's own
+        (:meth:`~rjfit.sampler.regions.base.RegionModel.start_theta`: a material model with the
+        edge term starts at least-squares fits), else the prior's ``start`` (if any) or a dispersed draw:
         I0 near the prior's centre, kd uniform in (0.2, 0.8), gamma log-uniform in (2, 30),
         sigma^2 a tenth of var(y).
     **layout_start
@@ -160,6 +166,8 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=
     """
     layout = config.regions.initial_layout(problem, rng, **layout_start)
     R = layout.n_regions
+    if theta is None:
+        theta = config.regions.start_theta(problem, layout, prior)
     if theta is None:
         if prior.start is not None:
             theta = np.tile(prior.start, (R, 1))
@@ -219,7 +227,7 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
     log_lik = state.log_lik if factor == previous else log_likelihood_from_stats(stats, state.theta)
     work = Work(layout=state.layout, theta=state.theta.copy(), stats=stats.copy(), log_lik=np.array(log_lik, float),
                 labels=state.labels, region_index=context.region_index_for(problem, state.labels),
-                pixel_sets=context.pixel_sets.valid_for(problem))
+                pixel_sets=context.pixel_sets.valid_for(problem), edges=config.regions.edge_term(state.layout))
 
     # 1. within-region moves for every region
     g_acc = update_regions(work, rng, prior, problem, config.within, float(np.exp(state.log_g_scale)), info)

@@ -86,7 +86,9 @@ class Work:
     filled on first use, and dropped whenever the labels change. ``labels_owned`` says
     whether ``labels`` is this step's own array (else it is the state's and must be copied
     before an in-place change). ``pixel_sets`` is the chain's memo of pixel sets'
-    observations (:class:`~rjfit.sampler.pixel_sets.PixelSets`; None: none kept).
+    observations (:class:`~rjfit.sampler.pixel_sets.PixelSets`; None: none kept). ``edges``:
+    the region model's edge term in the target (:meth:`RegionModel.edge_term`), which the
+    parameter moves' ratios hold (:func:`rjfit.sampler.moves.region_terms.edge_delta`).
     """
 
     layout: object
@@ -97,6 +99,7 @@ class Work:
     labels_owned: bool = False
     region_index: dict | None = None  # region -> RegionData, valid for ``labels``
     pixel_sets: object = None
+    edges: object = None    # the material model's EdgeTerm (rjfit.sampler.edges); None: no edge term
 
     def region_data(self, r: int, problem):
         """:class:`RegionData` of region r; every region's runs come from one read of the labels, once per labelling."""
@@ -204,6 +207,7 @@ FLAT_OPTIONS = {
     "label_sweeps": ["regions.sweeps"], "cluster_moves": ["regions.cluster.moves"],
     "cluster_new_prob": ["regions.cluster.new_prob"], "cluster_material_seed": ["regions.cluster.material_seed"],
     "segment_moves": ["regions.segments.moves"], "merge_split_moves": ["regions.merge_split.moves"],
+    "edge_power": ["regions.edge_power"], "edge_gap": ["regions.edge_gap"],
     "burn_in": ["kernel.burn_in"], "anneal": ["kernel.anneal"], "anneal_start": ["kernel.anneal_start"],
     "refresh_every": ["kernel.refresh_every"],
     "effect_every": ["effects.every"], "effect_target_accept": ["effects.target_accept"],
@@ -232,6 +236,11 @@ class SamplerConfig:
     within: WithinSettings = field(default_factory=WithinSettings)
     kernel: KernelSettings = field(default_factory=KernelSettings)
     effects: EffectSettings = field(default_factory=EffectSettings)
+
+    def __post_init__(self):
+        if getattr(self.regions, "has_edge_term", False) and self.within.sampler != "adaptive":
+            raise ValueError("the edge term (--edge-power) is held by the 'adaptive' within-region moves only; "
+                             "give --edge-power 0 with the paper's sampler")
 
     @classmethod
     def from_flat(cls, region_model: str = "changepoints", **options) -> SamplerConfig:

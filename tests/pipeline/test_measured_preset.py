@@ -59,6 +59,22 @@ def test_an_option_given_at_its_plain_default_is_kept_under_the_preset(monkeypat
     assert (seen[0].noise, seen[0].likelihood_power, seen[0].max_view_angle) == ("constant", 1.0, RIM_VIEW_ANGLE)
 
 
+def test_the_preset_sets_the_edge_term_where_it_applies_and_a_given_one_is_checked():
+    """The preset's edge power ('auto') for one channel of the material model, none elsewhere; a given power
+    that cannot apply fails with the flag named."""
+    assert FitOptions(preset="measured", regions="materials").edge_power == "auto"
+    assert FitOptions(regions="materials").edge_power == 0.0
+    for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "channel": "rgb"}):
+        assert FitOptions(preset="measured", **elsewhere).edge_power == 0.0
+    assert FitOptions(regions="materials", edge_power="0.5").edge_power == 0.5
+    with pytest.raises(ValueError, match="--edge-power"):
+        FitOptions(regions="changepoints", edge_power=1.0)
+    with pytest.raises(ValueError, match="--edge-power"):
+        FitOptions(regions="materials", edge_power="-1")
+    given = FitOptions(preset="measured", regions="materials", edge_power=0.0)
+    assert given.edge_power == 0.0 and FitOptions.from_json(given.to_json()) == given
+
+
 def test_the_ghost_rule_bounds_a_twin_materials_prior_pixels_and_odds():
     mask = np.zeros((60, 80), bool)
     mask[5:55, 10:70] = True
@@ -93,6 +109,7 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
     assert options["preset"] == "measured"
     if regions == "materials":
         assert options["potts_beta"] >= 2.0 and 0 < options["potts_rho"] < 1
+        assert options["edge_power"] == "auto" and 0 < summary["edge_power"] <= 1      # as measured
     else:       # change points have no Potts prior: the rule must not be recorded as if it applied
         assert (options["potts_beta"], options["potts_rho"]) == (FitOptions().potts_beta, FitOptions().potts_rho)
 

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 from rjfit.sampler.likelihood import LOG_2PI
 from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.region_terms import giesen_norm, set_region
+from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm, set_region
 
 __all__ = ["ABConditional", "ab_conditional", "draw_ab", "log_q_ab", "log_target_ab", "move_ab"]
 
@@ -106,6 +106,8 @@ def move_ab(work, r, rng, prior, info):
     kd_new = a / I0_new
     log_alpha = (prior.logpdf_scalar(I0_new, kd_new, g, s2) - math.log(I0_new)
                  - prior.logpdf_scalar(I0, kd, g, s2) + math.log(I0))
+    if log_alpha > -math.inf:
+        log_alpha += edge_delta(work, r, (I0_new, kd_new, g, s2))
     if accept(log_u, log_alpha, info, "ab"):
         set_region(work, r, (I0_new, kd_new, g, s2))
         return True

@@ -10,7 +10,9 @@ no mass). Pixels of one checkerboard colour are not neighbours, so one colour is
 given the other; the per-pixel log-likelihoods under every material come from one compiled
 pass over the observations (:func:`rjfit.sampler.passes.labels.pixel_log_lik`), which the
 labels do not change. Every update is an exact Gibbs draw (accepted always); the step
-counts how many pixels changed label. The relabelled pixels' observations then move
+counts how many pixels changed label. With the edge term (:mod:`rjfit.sampler.edges`) a new
+label is then kept with probability ``min(1, exp(delta Phi))``
+(:func:`~rjfit.sampler.passes.edges.keep_new_label`). The relabelled pixels' observations then move
 between the materials' sufficient statistics (:func:`~rjfit.sampler.passes.labels.relabel_pixels`).
 A joint colour fit sums a pixel's channels under the material's rows and moves each
 observation between its channel's rows (the ``_colour`` passes).
@@ -34,7 +36,9 @@ __all__ = ["sweep_labels"]
 def sweep_labels(work, rng, problem, potts, info) -> int:
     """One checkerboard sweep (colour 0, then colour 1) of the labels in ``work`` (in place); returns pixels changed.
 
-    Draws one uniform per pixel and colour (``rng.random(H W)`` twice), whatever K.
+    Draws one uniform per pixel and colour (``rng.random(H W)`` twice), whatever K; with the target's
+    edge term (``work.edges``, :mod:`rjfit.sampler.edges`) a second one per pixel and colour, for
+    the delayed acceptance of a new label.
     """
     layout = work.layout
     height, width = problem.image_shape
@@ -51,10 +55,15 @@ def sweep_labels(work, rng, problem, potts, info) -> int:
     pixels = old.copy()
     counts = np.bincount(old[labelled], minlength=layout.n_materials).astype(np.int64)
     changed = 0
+    edge_arrays = None if work.edges is None else work.edges.sweep_arrays(work.theta)
     for parity in (0, 1):
         uniforms = rng.random(n_pix)
-        changed += gibbs_sweep(pixels, labelled, log_lik, float(problem.likelihood_power), float(potts.beta),
-                               height, width, counts, uniforms, parity)
+        if edge_arrays is None:
+            changed += gibbs_sweep(pixels, labelled, log_lik, float(problem.likelihood_power), float(potts.beta),
+                                   height, width, counts, uniforms, parity)
+        else:       # the edge term by delayed acceptance: a second uniform per pixel
+            changed += gibbs_sweep(pixels, labelled, log_lik, float(problem.likelihood_power), float(potts.beta),
+                                   height, width, counts, uniforms, parity, rng.random(n_pix), edge_arrays)
     info.count("label_gibbs", changed, proposed=int(np.count_nonzero(labelled)))
     moved = np.flatnonzero(pixels != old)
     if moved.size:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.region_terms import region_log_lik, set_region, stats_at_gamma
+from rjfit.sampler.moves.region_terms import edge_delta, region_log_lik, set_region, stats_at_gamma
 
 __all__ = ["move_phi_rw"]
 
@@ -34,7 +34,10 @@ def move_phi_rw(work, r, rng, prior, problem, step, info):
         stats_new = stats_at_gamma(work, r, problem, new[2]) if k == 2 else work.stats[r]
         ll_new = region_log_lik(stats_new, *new)
         log_prior_new = prior.logpdf_phi_scalar(phi_new)
-        if accept(log_u, ll_new + log_prior_new - work.log_lik[r] - log_prior, info, "phi_rw"):
+        log_alpha = ll_new + log_prior_new - work.log_lik[r] - log_prior
+        if k < 3 and log_alpha > -math.inf:     # sigma^2 (k = 3) does not enter the edge term
+            log_alpha += edge_delta(work, r, new)
+        if accept(log_u, log_alpha, info, "phi_rw"):
             set_region(work, r, new, stats_new if k == 2 else None, ll_new)
             phi, log_prior = phi_new, log_prior_new
             accepted += 1

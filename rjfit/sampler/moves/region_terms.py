@@ -9,7 +9,7 @@ import math
 
 from rjfit.sampler.likelihood import AB_PLAIN_MAX, LOG_2PI, STAT_AB, STAT_BB, STAT_YB, log_lik_large_ab
 
-__all__ = ["giesen_norm", "region_log_lik", "stats_at_gamma", "set_region"]
+__all__ = ["giesen_norm", "region_log_lik", "stats_at_gamma", "set_region", "edge_delta"]
 
 
 def giesen_norm(g: float) -> float:
@@ -38,6 +38,14 @@ def stats_at_gamma(work, r, problem, g):
     stats_new = work.stats[r].copy()
     stats_new[[STAT_YB, STAT_AB, STAT_BB]] = work.region_data(r, problem).b_sums(g)
     return stats_new
+
+
+def edge_delta(work, r, theta_r) -> float:
+    """The change of the target's edge term (:mod:`rjfit.sampler.edges`) when region ``r``'s parameters become
+    ``theta_r``; 0 without an edge term. A parameter move adds it to its log ratio."""
+    if work.edges is None:
+        return 0.0
+    return work.edges.region_delta(work.layout.pixels, work.theta, r, theta_r)
 
 
 def set_region(work, r, theta_r, stats_r=None, log_lik_r=None):

@@ -31,12 +31,14 @@ from numba import njit, prange
 
 from rjfit.sampler.passes.cells import pixel_cuts
 from rjfit.sampler.passes.densities import coefficients, log_densities_into
+from rjfit.sampler.passes.edges import edge_sums, keep_new_label
 from rjfit.sampler.passes.lobe import lobe_at, lobe_rows
 from rjfit.sampler.passes.shifts import add_lobe_terms, add_obs_terms
 from rjfit.sampler.passes.special import INV_PI, fast_exp
 from rjfit.sampler.passes.sums import BLOCK, PARALLEL_MIN_OBS, PARTS
 
-__all__ = ["pixel_log_lik", "gibbs_sweep", "relabel_pixels", "grow_cluster", "edge_uniform", "allocate_split",
+__all__ = ["pixel_log_lik", "gibbs_draw", "gibbs_sweep", "relabel_pixels", "grow_cluster", "edge_uniform",
+           "allocate_split",
            "pixel_log_lik_colour", "relabel_pixels_colour"]
 
 
@@ -93,17 +95,50 @@ def pixel_log_lik(y, C, log_cos_hn, pixel, theta, n_pixels, ext=None):
 
 
 @njit(cache=True, nogil=True)
-def gibbs_sweep(pixel_labels, labelled, log_lik, power, beta, height, width, counts, uniforms, parity):
+def gibbs_draw(p, r, c, pixel_labels, labelled, log_lik, power, beta, height, width, uniform, logits):
+    """Pixel p's (row r, column c) label drawn from ``power * log_lik[k, p] + beta * (4-neighbours labelled k)``
+    over the K materials by inverse CDF with ``uniform``; ``logits`` (K,) is scratch."""
+    n_labels = log_lik.shape[0]
+    for k in range(n_labels):
+        logits[k] = power * log_lik[k, p]
+    if r > 0 and labelled[p - width]:
+        logits[pixel_labels[p - width]] += beta
+    if r < height - 1 and labelled[p + width]:
+        logits[pixel_labels[p + width]] += beta
+    if c > 0 and labelled[p - 1]:
+        logits[pixel_labels[p - 1]] += beta
+    if c < width - 1 and labelled[p + 1]:
+        logits[pixel_labels[p + 1]] += beta
+    top = logits.max()
+    total = 0.0
+    for k in range(n_labels):
+        logits[k] = math.exp(logits[k] - top)
+        total += logits[k]
+    target = uniform * total
+    running = 0.0
+    for k in range(n_labels):
+        running += logits[k]
+        if target < running:
+            return k
+    return n_labels - 1
+
+
+@njit(cache=True, nogil=True)
+def gibbs_sweep(pixel_labels, labelled, log_lik, power, beta, height, width, counts, uniforms, parity,
+                second_uniforms=None, edge=None):
     """Gibbs updates of the labelled pixels with ``(r + c) % 2 == parity``, in row-major order; returns how many changed.
 
-    Pixel p's label is drawn from ``power * log_lik[k, p] + beta * (4-neighbours labelled k)``
-    over the K materials by inverse CDF with ``uniforms[p]``, unless p is the last pixel of
-    its material (``counts[label] == 1``): then it keeps its label, the conditional of the
-    target restricted to states with no empty material. ``pixel_labels`` and ``counts``
-    are updated in place.
+    Pixel p's label is drawn by :func:`gibbs_draw` with ``uniforms[p]``, unless p is the last
+    pixel of its material (``counts[label] == 1``): then it keeps its label, the conditional of
+    the target restricted to states with no empty material. ``pixel_labels`` and ``counts``
+    are updated in place. With the target's edge term (``edge``: the arrays of
+    :meth:`rjfit.sampler.edges.EdgeTerm.sweep_arrays`) a new label is then kept by delayed
+    acceptance with ``second_uniforms[p]`` (:func:`rjfit.sampler.passes.edges.keep_new_label`).
     """
-    n_labels = log_lik.shape[0]
-    logits = np.empty(n_labels)
+    logits = np.empty(log_lik.shape[0])
+    sums = np.zeros((0, 0, 3))
+    if edge is not None:
+        sums = edge_sums(pixel_labels, log_lik.shape[0], edge)
     changed = 0
     for r in range(height):
         for c in range((r + parity) % 2, width, 2):
@@ -113,34 +148,15 @@ def gibbs_sweep(pixel_labels, labelled, log_lik, power, beta, height, width, cou
             old = pixel_labels[p]
             if counts[old] <= 1:
                 continue
-            for k in range(n_labels):
-                logits[k] = power * log_lik[k, p]
-            if r > 0 and labelled[p - width]:
-                logits[pixel_labels[p - width]] += beta
-            if r < height - 1 and labelled[p + width]:
-                logits[pixel_labels[p + width]] += beta
-            if c > 0 and labelled[p - 1]:
-                logits[pixel_labels[p - 1]] += beta
-            if c < width - 1 and labelled[p + 1]:
-                logits[pixel_labels[p + 1]] += beta
-            top = logits.max()
-            total = 0.0
-            for k in range(n_labels):
-                logits[k] = math.exp(logits[k] - top)
-                total += logits[k]
-            target = uniforms[p] * total
-            new = n_labels - 1
-            running = 0.0
-            for k in range(n_labels):
-                running += logits[k]
-                if target < running:
-                    new = k
-                    break
-            if new != old:
-                counts[old] -= 1
-                counts[new] += 1
-                pixel_labels[p] = new
-                changed += 1
+            new = gibbs_draw(p, r, c, pixel_labels, labelled, log_lik, power, beta, height, width, uniforms[p], logits)
+            if new == old:
+                continue
+            if edge is not None and not keep_new_label(sums, p, old, new, pixel_labels, edge, second_uniforms[p]):
+                continue
+            counts[old] -= 1
+            counts[new] += 1
+            pixel_labels[p] = new
+            changed += 1
     return changed
 
 

@@ -103,6 +103,16 @@ class RegionModel(ABC):
     def log_prior(self, problem, layout) -> float:
         """Log prior density of ``layout`` (up to a constant the same for every layout of every model)."""
 
+    def start_theta(self, problem, layout, prior):
+        """A chain's starting parameters for ``layout`` where the model needs its own (None: the kernel's
+        dispersed draws; :func:`rjfit.sampler.kernel.initial_state`)."""
+        return None
+
+    def edge_term(self, layout):
+        """A term of the target beside the layout prior that the parameter moves must hold (the material
+        model's edge term, :mod:`rjfit.sampler.edges`); None (the default): none."""
+        return None
+
     @abstractmethod
     def structure_moves(self, work, rng, problem, prior, info) -> None:
         """Run one iteration's structure moves on the working copy ``work`` (in place)."""

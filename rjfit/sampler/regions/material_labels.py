@@ -49,7 +49,8 @@ class Bonds(NamedTuple):
     p, ``2 p + 1`` below it; ``features`` (H W, 2): :func:`pixel_features`, which the bonds
     and the split proposals' guides use; ``seed_cdf`` (H W,): the cumulative seed weights of
     the cluster moves (:func:`seed_weights`); ``segments``: the segment moves' candidate sets
-    (:class:`~rjfit.sampler.regions.material_segments.Segments`; None without segment moves).
+    (:class:`~rjfit.sampler.regions.material_segments.Segments`; None without segment moves);
+    ``edges``: the target's edge term (:class:`~rjfit.sampler.edges.EdgeTerm`; None without one).
     """
 
     q: np.ndarray
@@ -58,6 +59,7 @@ class Bonds(NamedTuple):
     features: np.ndarray
     seed_cdf: np.ndarray
     segments: object = None
+    edges: object = None
 
     def draw_seed(self, rng) -> int:
         """A cluster move's seed pixel, drawn with the seed weights by one uniform of ``rng``."""

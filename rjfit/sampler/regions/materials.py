@@ -50,6 +50,9 @@ unchanged), in order:
    :mod:`rjfit.sampler.moves.merge_split`): what removes twins (two materials of one paint)
    and separates a second paint hidden in a material.
 
+With ``edge_power`` > 0 the target also holds an edge term, a boundary's fit to the data's
+step (:mod:`rjfit.sampler.edges`), which every label move and parameter move holds.
+
 Each leaves the posterior invariant on its own. The kernel's annealed warm-up tempers the
 likelihood for these moves as for change points. Start: K0 given (a fit's chains are
 stratified over 1 .. min(4, K_max), :meth:`MaterialRegions.stratified_start`) or uniform on
@@ -67,6 +70,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rjfit.sampler.edges import EDGE_GAP, edge_term, start_theta
 from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.moves.cluster_swc import ClusterSettings, propose_cluster_move
 from rjfit.sampler.moves.label_gibbs import sweep_labels
@@ -113,6 +117,13 @@ class MaterialRegions(RegionModel):
         Of the merge/split moves of whole materials (made only with ``jumps``).
     proposals : RegionProposalSettings
         Of the proposals of a born (dying) material's parameters.
+    edge_power : float or 'auto'
+        The power of the target's edge term (:mod:`rjfit.sampler.edges`; flat option
+        ``edge_power``); 'auto': the coarsening rule on the data's differences
+        (:func:`~rjfit.sampler.edges.edge_term`); 0 (the default): no edge term, the model above.
+    edge_gap : int
+        How far apart (px, odd) the pixels of the edge term's pairs lie
+        (:data:`rjfit.sampler.edges.EDGE_GAP`; 1 on the exactness tests' tiny images).
     """
 
     max_materials: int = 8
@@ -124,6 +135,8 @@ class MaterialRegions(RegionModel):
     segments: SegmentSettings = field(default_factory=SegmentSettings)
     merge_split: MergeSplitSettings = field(default_factory=MergeSplitSettings)
     proposals: RegionProposalSettings = field(default_factory=RegionProposalSettings)
+    edge_power: float | str = 0.0
+    edge_gap: int = EDGE_GAP
 
     key_names = ("n_materials",)
 
@@ -134,6 +147,13 @@ class MaterialRegions(RegionModel):
             raise ValueError(f"potts beta must be >= 0 and rho > 0, got {self.potts.beta}, {self.potts.rho}")
         if self.sweeps < 0:
             raise ValueError(f"sweeps must be >= 0, got {self.sweeps}")
+        if self.edge_power != "auto" and not (isinstance(self.edge_power, (int, float)) and
+                                              np.isfinite(self.edge_power) and self.edge_power >= 0):
+            raise ValueError(f"edge power (--edge-power) must be a number >= 0 or 'auto', got {self.edge_power!r}")
+
+    @property
+    def has_edge_term(self) -> bool:
+        return self.edge_power == "auto" or self.edge_power > 0
 
     @property
     def max_regions(self) -> int:
@@ -157,6 +177,8 @@ class MaterialRegions(RegionModel):
         if self.segments.moves and self.update_labels:
             bonds = bonds._replace(segments=segment_family(bonds.features, labelled, self.segments.superpixel_size,
                                                            self.segments.max_regions))
+        if self.has_edge_term:
+            bonds = bonds._replace(edges=edge_term(problem, labelled, self.edge_power, self.edge_gap))
         if pixel_labels is not None:
             pixel_labels = np.asarray(pixel_labels)
             if pixel_labels.shape != labelled.shape or np.any(pixel_labels[labelled] < 0):
@@ -187,6 +209,14 @@ class MaterialRegions(RegionModel):
     def log_prior(self, problem, layout) -> float:
         return self.potts.log_density(layout.pixels, layout.n_materials)
 
+    def edge_term(self, layout):
+        return layout.bonds.edges
+
+    def start_theta(self, problem, layout, prior):
+        """With the edge term, each start material's least-squares fit (:func:`rjfit.sampler.edges.start_theta`)."""
+        return start_theta(problem, layout.pixels, layout.n_materials, prior) if layout.bonds.edges is not None \
+            else None
+
     def structure_moves(self, work, rng, problem, prior, info) -> None:
         if not self.update_labels:
             return
@@ -209,7 +239,11 @@ class MaterialRegions(RegionModel):
         if proposal is None:
             info.count(kind, False)
             return
-        accepted = accept(np.log(rng.random()), proposal.log_ratio, info, kind)
+        log_ratio = proposal.log_ratio
+        if work.edges is not None and log_ratio > -np.inf:      # the target's edge term (rjfit.sampler.edges)
+            log_ratio += (work.edges.total(proposal.layout.pixels, proposal.theta)
+                          - work.edges.total(work.layout.pixels, work.theta))
+        accepted = accept(np.log(rng.random()), log_ratio, info, kind)
         info.count(kind, accepted)
         if accepted:
             work.take(proposal)

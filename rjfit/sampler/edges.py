@@ -1,0 +1,241 @@
+"""The edge term of the material model's target: a boundary must be a step in the data.
+
+Why
+---
+A tempered, pixel-independent likelihood cannot tell a change of paint from a material's
+smooth misfit (the lobe's shape, the normals' error, a light's fall-off across the object):
+a split along the misfit gains as much as a pebble (docs/measured-data.md, "What the ball's
+split is"). Neighbours' differences can, since they cancel what varies smoothly: where two
+materials meet, the data step as the two materials' predictions do if the paint changes
+there, and not at all if the boundary follows the misfit.
+
+The term
+--------
+Over pairs of labelled pixels ``gap`` px apart along a row or a column (:data:`EDGE_GAP`, odd),
+and every light seen by both (the data's difference ``d = y_p - y_q``, on the fit's scale),
+with
+
+    SS_pq(a, b) = sum over the lights (d - mu_a(p) + mu_b(q))^2,
+
+the boundary between materials k and m (the pairs with one end in each) costs
+
+    Phi_km = -power max(0, SS_km - min(SS_kk, SS_mm)) / (2 s^2),
+
+``SS_km`` the sum over its pairs of SS with each end in its own material, ``SS_kk`` and
+``SS_mm`` with both ends in k, or in m: the Gaussian log-likelihood ratio of the boundary
+check (:mod:`rjfit.posterior.boundaries`) of the materials' step against either material
+alone, where it speaks against the step. A boundary the data step at costs nothing and earns
+nothing (so ``exp(Phi) <= 1``, the target stays proper, and no boundary is bought by the
+differences alone); pairs inside one material add nothing. ``s^2`` is the robust variance
+(1.4826 MAD, squared) of the differences' residuals under one material fitted by least
+squares to every observation: a constant of the data. ``power``: the coarsening rule of
+:func:`rjfit.data.coarsen.suggest_likelihood_power` applied to those residuals
+(:func:`edge_power`; ``((1 - rho) / (1 + rho))^2``, rho their lag-1 correlation between
+neighbouring pairs under one light), since the differences, though they cancel most of a
+smooth misfit, keep some of its gradient.
+
+The moves (each stays exact for the new target)
+-----------------------------------------------
+- the label sweep: each pixel's Gibbs draw without the term, then a delayed acceptance of a
+  new label with ``min(1, exp(delta Phi))``, the boundaries' sums updated pixel by pixel
+  (:func:`rjfit.sampler.passes.edges.keep_new_label`);
+- the cluster, segment and merge/split moves: ``delta Phi`` of the proposal in their log ratio
+  (:meth:`rjfit.sampler.regions.materials.MaterialRegions.structure_moves`);
+- a material's parameter moves: ``delta Phi`` of its new (I0, kd, gamma) in their log ratio
+  (:func:`rjfit.sampler.moves.region_terms.edge_delta`; sigma^2 does not enter the term).
+
+The term pins a material's parameters wherever its boundaries do not step (a shift of 1 %
+in its prediction changes the sums by thousands), so its parameter moves, proposed without
+the term, are rejected there: a chain started from parameters far from its start labels'
+(the dispersed draws) can stay where it started. Chains with the term start every material
+at its least-squares fit (:func:`start_theta`). For one channel without effects only (the
+term reads the plain forward model's prediction).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from rjfit.data.pixelfit import fit_groups
+from rjfit.model.blinn import blinn_normalisation
+from rjfit.sampler.passes.densities import coefficients
+from rjfit.sampler.passes.edges import boundary_sums, edge_value
+
+__all__ = ["EdgeTerm", "edge_term", "start_theta", "EDGE_GAP"]
+
+#: the pixels of a pair lie this far apart (odd, so that they are of the two checkerboard colours): a measured
+#: edge is spread over a pixel or two (optics, the pixel footprint, a blurred paint line), so neighbours across a
+#: boundary straddle part of the step only, while a smooth misfit changes little over 3 px
+EDGE_GAP = 3
+
+
+class EdgeTerm(NamedTuple):
+    """The pairs of the edge term and their matched observations (module docstring); built by :func:`edge_term`.
+
+    ``first``, ``second`` (P,): the pairs' flat pixels; ``start`` (P + 1,): each pair's matches;
+    ``d``, ``c_first``, ``c_second``, ``l_first``, ``l_second`` (M,): per match the difference and
+    both ends' ``C`` and ``log <h.n>``; ``pair_of`` (H W, 4):
+    each pixel's pairs (-1: none); ``scale`` = power / (2 s^2).
+    """
+
+    power: float
+    scale: float
+    first: np.ndarray
+    second: np.ndarray
+    start: np.ndarray
+    d: np.ndarray
+    c_first: np.ndarray
+    c_second: np.ndarray
+    l_first: np.ndarray
+    l_second: np.ndarray
+    pair_of: np.ndarray
+
+    def total(self, pixels, theta) -> float:
+        """The edge term of the labels ``pixels`` (H, W; -1 unlabelled) with materials' ``theta`` (K, 4)."""
+        theta = np.asarray(theta, float)
+        sums = boundary_sums(_flat(pixels), theta.shape[0], coefficients(theta), self.first, self.second, self.start,
+                             self.d, self.c_first, self.c_second, self.l_first, self.l_second)
+        return float(edge_value(sums, self.scale))
+
+    def region_delta(self, pixels, theta, r: int, theta_r) -> float:
+        """The change of the term when material ``r``'s row of ``theta`` becomes ``theta_r``."""
+        new = np.array(theta, float)
+        new[r] = theta_r
+        return self.total(pixels, new) - self.total(pixels, theta)
+
+    def sweep_arrays(self, theta):
+        """The ``edge`` argument of :func:`~rjfit.sampler.passes.labels.gibbs_sweep`."""
+        return (self.pair_of, coefficients(np.asarray(theta, float)), self.first, self.second, self.start, self.d,
+                self.c_first, self.c_second, self.l_first, self.l_second, self.scale)
+
+
+def _flat(pixels) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(pixels).ravel(), dtype=np.int64)
+
+
+def _pairs(labelled, gap: int):
+    """(p, q) of the labelled pixels ``gap`` apart along a row (q right of p), then along a column (q below), and
+    the number of the first kind."""
+    height, width = labelled.shape
+    flat = labelled.ravel()
+    p = np.arange(height * width)
+    right = (p % width < width - gap) & flat & np.concatenate([flat[gap:], np.zeros(gap, bool)])
+    below = np.concatenate([flat[gap * width:], np.zeros(min(gap * width, flat.size), bool)])[:flat.size]
+    down = (p < (height - gap) * width) & flat & below
+    return (np.concatenate([p[right], p[down]]), np.concatenate([p[right] + gap, p[down] + gap * width]),
+            int(np.count_nonzero(right)))
+
+
+def _matches(problem, first, second, chunk: int = 65536):
+    """Per pair, the observation indices (i of ``first``, j of ``second``) of each light both ends saw, and the
+    pairs' offsets into them (pairs taken ``chunk`` at a time: memory stays near the observations' own)."""
+    n_lights = int(problem.light.max()) + 1
+    key = np.asarray(problem.pixel, np.int64) * n_lights + np.asarray(problem.light, np.int64)
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    lights = np.arange(n_lights)
+
+    def lookup(pixels):
+        wanted = (pixels[:, None] * n_lights + lights[None, :]).ravel()
+        at = np.minimum(np.searchsorted(sorted_key, wanted), sorted_key.size - 1)
+        return np.where(sorted_key[at] == wanted, order[at], -1).reshape(pixels.size, n_lights)
+
+    i_parts, j_parts, counts = [], [], []
+    for lo in range(0, first.size, chunk):
+        a, b = lookup(first[lo:lo + chunk]), lookup(second[lo:lo + chunk])
+        both = (a >= 0) & (b >= 0)
+        i_parts.append(a[both])
+        j_parts.append(b[both])
+        counts.append(both.sum(axis=1))
+    counts = np.concatenate(counts) if counts else np.zeros(0, np.int64)
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    empty = np.zeros(0, np.int64)
+    return (np.concatenate(i_parts) if i_parts else empty), (np.concatenate(j_parts) if j_parts else empty), start
+
+
+def _neighbour_correlation(first, light, residual, n_lights: int, width: int) -> float:
+    """The lag-1 correlation of ``residual`` between pairs whose first pixels are neighbours along a row or a
+    column, under one light (pairs of one direction); NaN with fewer than 3 such neighbours."""
+    key = first.astype(np.int64) * n_lights + light
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    rhos = []
+    for step in (1, width):
+        if sorted_key.size == 0:
+            break
+        wanted = key + step * n_lights
+        at = np.minimum(np.searchsorted(sorted_key, wanted), sorted_key.size - 1)
+        hit = sorted_key[at] == wanted
+        if step == 1:       # not the next row's first pixel
+            hit &= first % width != width - 1
+        x, z = residual[hit], residual[order[at[hit]]]
+        rhos.append(float(np.corrcoef(x, z)[0, 1]) if x.size > 2 and np.std(x) > 0 and np.std(z) > 0 else np.nan)
+    return float(np.nanmean(rhos)) if np.any(np.isfinite(rhos)) else np.nan
+
+
+def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
+    """The edge term of ``problem`` over the ``labelled`` (H, W) pixels (module docstring).
+
+    ``power``: a positive number, or 'auto' for ``((1 - rho) / (1 + rho))^2`` (rho the lag-1
+    correlation of the reference's difference residuals between neighbouring pairs under one
+    light, floored at 0: the coarsening rule of :func:`rjfit.data.coarsen.suggest_likelihood_power`).
+
+    Raises
+    ------
+    ValueError
+        If ``power`` is neither positive nor 'auto', ``gap`` not odd and positive, or the problem
+        has no lights per observation, more than one channel or effects.
+    """
+    if power != "auto" and not (isinstance(power, (int, float)) and power > 0):
+        raise ValueError(f"edge power (--edge-power) must be positive or 'auto', got {power!r}")
+    if gap < 1 or gap % 2 == 0:
+        raise ValueError(f"the edge term's gap must be odd and positive (checkerboard colours), got {gap}")
+    if problem.light is None or problem.n_channels != 1 or problem.effects is not None:
+        raise ValueError("the edge term (--edge-power) needs a single-channel problem without effects, with each "
+                         "observation's light")
+    first, second, n_right = _pairs(np.asarray(labelled, bool), gap)
+    i, j, start = _matches(problem, first, second)
+    y, C, lch = (np.asarray(a, np.float64) for a in (problem.y, problem.C, problem.log_cos_hn))
+    fitted = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)
+    a, b, g = float(fitted["a"][0]), float(fitted["b"][0]), float(fitted["gamma"][0])
+    reference = C * (a / np.pi + b * blinn_normalisation(g) * np.exp(g * lch))
+    d = y[i] - y[j]
+    residual = d - (reference[i] - reference[j])
+    s = 1.4826 * float(np.median(np.abs(residual))) if residual.size else 1.0
+    if power == "auto":
+        pair = np.repeat(np.arange(first.size), np.diff(start))
+        light = np.asarray(problem.light, np.int64)[i]
+        n_lights = int(problem.light.max()) + 1
+        rho = np.nanmean([_neighbour_correlation(first[pair[part]], light[part], residual[part], n_lights,
+                                                 problem.width) for part in (pair < n_right, pair >= n_right)])
+        rho = max(0.0, float(rho)) if np.isfinite(rho) else 0.0
+        power = ((1.0 - rho) / (1.0 + rho)) ** 2
+    n_pix = problem.height * problem.width
+    pair_of = np.full((n_pix, 4), -1, np.int64)
+    ids = np.arange(first.size)
+    horizontal = ids < n_right
+    for slot, (ends, which) in enumerate(((first, horizontal), (first, ~horizontal), (second, horizontal),
+                                          (second, ~horizontal))):
+        pair_of[ends[which], slot] = ids[which]
+    return EdgeTerm(power=float(power), scale=float(power) / (2.0 * max(s, 1e-300) ** 2), first=first.astype(np.int64),
+                    second=second.astype(np.int64), start=start, d=d, c_first=C[i].astype(np.float32),
+                    c_second=C[j].astype(np.float32), l_first=lch[i].astype(np.float32),
+                    l_second=lch[j].astype(np.float32), pair_of=pair_of)
+
+
+def start_theta(problem, pixels, n_materials: int, prior) -> np.ndarray | None:
+    """(K, 4) each material's least-squares (I0, kd, gamma) and mean squared residual as sigma^2 under the start
+    labels ``pixels`` (H, W), where those lie inside the prior's support; None where any does not (the chain
+    then starts from the usual dispersed draws)."""
+    group = np.asarray(pixels).ravel()[np.asarray(problem.pixel, np.int64)]
+    keep = group >= 0
+    y, C, lch = (np.asarray(a, np.float64)[keep] for a in (problem.y, problem.C, problem.log_cos_hn))
+    fitted = fit_groups(y, C, lch, group[keep], n_materials)
+    a, b, g = fitted["a"], fitted["b"], fitted["gamma"]
+    counts = np.bincount(group[keep], minlength=n_materials)
+    ssr = np.bincount(group[keep], weights=np.nan_to_num(fitted["residuals"]) ** 2, minlength=n_materials)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        theta = np.column_stack([a + b, a / (a + b), g, ssr / np.maximum(counts, 1)])
+    inside = all(np.all(np.isfinite(p.logpdf(theta[:, k]))) for k, p in enumerate(prior.params))
+    return theta if fitted["fitted"].all() and inside else None

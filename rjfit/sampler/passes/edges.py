@@ -1,0 +1,126 @@
+"""Compiled passes of the material model's edge term (:mod:`rjfit.sampler.edges`).
+
+A pair ``j`` joins pixel ``first[j]`` to ``second[j]`` (``gap`` px to its right or below);
+its matched observations (one per light seen by both pixels) are ``start[j] .. start[j + 1]``
+of the per-match arrays: the data's difference ``d``, and each end's columns ``C`` and
+``log <h.n>``. A pair whose ends carry materials k != m adds to the boundary {k, m}'s sums
+(``sums[k, m]`` with k < m): ``sums[k, m, 0]`` += SS of the two materials' step,
+``sums[k, m, 1]`` += SS with both ends in k, ``sums[k, m, 2]`` += SS with both in m, where
+
+    SS(a at first, b at second) = sum over its matches (d - mu_a(first) + mu_b(second))^2,
+
+and the term is ``-scale * sum over boundaries of max(0, sums[., ., 0] - min(sums[., ., 1], sums[., ., 2]))``.
+``coef`` are the materials' constants of :func:`rjfit.sampler.passes.densities.coefficients`
+(``mu = C (coef0 + coef1 <h.n>^coef2)``).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["pair_sums", "boundary_sums", "edge_value", "edge_sums", "keep_new_label"]
+
+
+@njit(cache=True, nogil=True)
+def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second):
+    """(SS(k, m), SS(k, k), SS(m, m)) of pair ``j``: its first pixel in material k and its second in m, and both
+    in either one."""
+    a_k, b_k, g_k = coef[k, 0], coef[k, 1], coef[k, 2]
+    a_m, b_m, g_m = coef[m, 0], coef[m, 1], coef[m, 2]
+    two = 0.0
+    one_k = 0.0
+    one_m = 0.0
+    for i in range(start[j], start[j + 1]):
+        cf, cs = np.float64(c_first[i]), np.float64(c_second[i])
+        lf, ls = np.float64(l_first[i]), np.float64(l_second[i])
+        k_first, k_second = cf * (a_k + b_k * math.exp(g_k * lf)), cs * (a_k + b_k * math.exp(g_k * ls))
+        m_first, m_second = cf * (a_m + b_m * math.exp(g_m * lf)), cs * (a_m + b_m * math.exp(g_m * ls))
+        r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
+        two += r_two * r_two
+        one_k += r_k * r_k
+        one_m += r_m * r_m
+    return two, one_k, one_m
+
+
+@njit(cache=True, nogil=True)
+def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second):
+    """Add (``sign`` 1) or remove (-1) pair ``j`` with ends in (k, m), k != m, to its boundary's sums."""
+    two, one_k, one_m = pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
+    lo, hi = (k, m) if k < m else (m, k)
+    sums[lo, hi, 0] += sign * two
+    sums[lo, hi, 1] += sign * (one_k if k < m else one_m)
+    sums[lo, hi, 2] += sign * (one_m if k < m else one_k)
+
+
+@njit(cache=True, nogil=True)
+def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second):
+    """(K, K, 3) the sums of every boundary of flat ``labels`` (-1: unlabelled, in no pair's sums)."""
+    sums = np.zeros((n_materials, n_materials, 3))
+    for j in range(first.shape[0]):
+        k, m = labels[first[j]], labels[second[j]]
+        if k >= 0 and m >= 0 and k != m:
+            _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
+    return sums
+
+
+@njit(cache=True, nogil=True)
+def edge_value(sums, scale):
+    """The edge term of boundary sums ``sums`` (module docstring)."""
+    total = 0.0
+    for k in range(sums.shape[0]):
+        for m in range(k + 1, sums.shape[0]):
+            excess = sums[k, m, 0] - min(sums[k, m, 1], sums[k, m, 2])
+            if excess > 0.0:
+                total -= scale * excess
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
+                l_second):
+    """Add (``sign`` 1) or remove (-1) the pairs of pixel ``p`` with ``p`` in material ``label``."""
+    for slot in range(pair_of.shape[1]):
+        j = pair_of[p, slot]
+        if j < 0:
+            continue
+        if first[j] == p:
+            k, m = label, labels[second[j]]
+        else:
+            k, m = labels[first[j]], label
+        if k >= 0 and m >= 0 and k != m:
+            _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
+
+
+@njit(cache=True, nogil=True)
+def edge_sums(labels, n_materials, edge):
+    """:func:`boundary_sums` of ``edge``, the arrays of :meth:`rjfit.sampler.edges.EdgeTerm.sweep_arrays`."""
+    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, scale = edge
+    return boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second)
+
+
+@njit(cache=True, nogil=True)
+def keep_new_label(sums, p, old, new, labels, edge, uniform):
+    """The delayed acceptance of pixel p's Gibbs draw ``new`` (from ``old``) under the edge term: kept with
+    probability ``min(1, exp(delta))`` (by ``uniform``), ``delta`` the change of the term; ``sums`` follow.
+
+    A Gibbs draw is reversible for the target without the term, so this second stage makes the
+    update reversible for the target with it (Christen and Fox 2005). The boundaries' sums are
+    kept up to date pixel by pixel and each update sees the labels as they are then (a scan of
+    reversible updates).
+    """
+    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, scale = edge
+    before = edge_value(sums, scale)
+    _move_pixel(sums, -1.0, p, old, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
+                l_second)
+    _move_pixel(sums, 1.0, p, new, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
+                l_second)
+    delta = edge_value(sums, scale) - before
+    if delta < 0.0 and uniform >= math.exp(delta):
+        _move_pixel(sums, -1.0, p, new, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
+                    l_second)
+        _move_pixel(sums, 1.0, p, old, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
+                    l_second)
+        return False
+    return True

@@ -1,0 +1,348 @@
+"""The material model's edge term (rjfit.sampler.edges): its value, and the exactness of every move that holds it.
+
+Value: the compiled total against a direct sum over pixel pairs and lights written here from
+the definition; a boundary between two copies of one material costs nothing, the true step
+between two materials almost nothing and a boundary off it much more; a material's parameter
+change against a difference of totals.
+
+Exactness: on the 2 x 2 image of tests/sampler/test_exact_materials.py with pairs 1 px apart
+(4 pairs) and powers 4 and 30 (total variation 0.10 and 0.16 from the posterior without the
+term: at power 1 these tiny blocks' steps cost too little to move it), the target with the term is ``pi(S, theta) = pi_0(S, theta) exp(Phi(S, theta))``,
+so a partition's exact probability is ``pi_0(S) E[exp(Phi) | S]``, the expectation over the
+blocks' parameter posteriors without the term (independent draws from
+:class:`builders.Quadrature`'s grid, 20,000 per partition: their Monte Carlo error is far
+below the chains'), and pixel 0's material's I0 has the exact mean
+``sum_S pi(S) E[I0 exp(Phi) | S] / E[exp(Phi) | S]``. The chains' partition frequencies are
+compared with it by the ESS-scaled chi-square test and the I0 mean by a z-test on its ESS,
+level 0.001 each (fixed seeds make each outcome deterministic). The negative controls, the
+structure moves or the parameter moves run without the term, must be rejected with p < 1e-6.
+"""
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy import stats
+from threadpoolctl import threadpool_limits
+
+from rjfit.data.observations import Observations
+from rjfit.model.blinn import blinn_normalisation
+from rjfit.sampler.edges import edge_term
+from rjfit.sampler.forward import Problem
+from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.moves import ab_conditional, gamma, phi_walk
+from rjfit.sampler.regions import materials
+from rjfit.sampler.regions.material_labels import labelled_pixels
+from rjfit.sampler.state import SamplerConfig
+
+from builders import Quadrature, canonical, ess_scaled_chi2, exact_partition_posterior, tiny_problem
+
+LEVEL = 1e-3
+ITERATIONS, BURN = 2000, 200
+DRAWS = 20000
+
+
+def patchy_problem(seed=3, shape=(6, 7), n_lights=5):
+    """A 6 x 7 image of two materials (left three columns, the rest) under 5 lights, a fifth of the
+    observations dropped at random (so pairs match fewer lights)."""
+    rng = np.random.default_rng(seed)
+    height, width = shape
+    pixel = np.repeat(np.arange(height * width), n_lights)
+    light = np.tile(np.arange(n_lights), height * width)
+    keep = rng.random(pixel.size) > 0.2
+    pixel, light = pixel[keep], light[keep]
+    cos_ln, cos_hn = rng.uniform(0.3, 1.0, pixel.size), rng.uniform(0.6, 1.0, pixel.size)
+    irradiance = rng.uniform(0.5, 1.5, pixel.size)
+    right = (pixel % width) >= 3
+    I0, kd, g = np.where(right, 6.0, 10.0), np.where(right, 0.3, 0.75), np.where(right, 15.0, 4.0)
+    mu = irradiance * cos_ln * (I0 * kd / np.pi + I0 * (1 - kd) * blinn_normalisation(g) * cos_hn ** g)
+    obs = Observations(image_shape=shape, n_lights=n_lights, pixel=pixel.astype(np.int64), light=light.astype(np.int32),
+                       y=mu + rng.normal(0, 0.3, pixel.size), cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irradiance,
+                       object_mask=np.ones(shape, bool))
+    return Problem.from_observations(obs)
+
+
+def direct_total(problem, edges, labels, theta, gap):
+    """The edge term from its definition: every pair ``gap`` apart, every light both pixels saw."""
+    height, width = problem.image_shape
+    where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
+    y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
+
+    def mu(i, k):
+        I0, kd, g = theta[k, :3]
+        return C[i] * (I0 * kd / np.pi + I0 * (1 - kd) * blinn_normalisation(g) * np.exp(g * lch[i]))
+
+    def ss(matched, k, m):
+        return sum((y[i] - y[j] - mu(i, k) + mu(j, m)) ** 2 for i, j in matched)
+
+    sums = {}       # boundary {k, m} -> [SS of the step, SS with both ends in the lower, in the higher material]
+    for offset, ok in ((gap, lambda p: p % width < width - gap), (gap * width, lambda p: p < (height - gap) * width)):
+        for p in range(height * width):
+            if not ok(p):
+                continue
+            q = p + offset
+            k, m = labels.ravel()[p], labels.ravel()[q]
+            if k == m:
+                continue
+            matched = [(where[p, lt], where[q, lt]) for lt in range(int(problem.light.max()) + 1)
+                       if (p, lt) in where and (q, lt) in where]
+            lo, hi = min(k, m), max(k, m)
+            entry = sums.setdefault((lo, hi), [0.0, 0.0, 0.0])
+            entry[0] += ss(matched, k, m)
+            entry[1] += ss(matched, lo, lo)
+            entry[2] += ss(matched, hi, hi)
+    return -edges.scale * sum(max(0.0, two - min(one_lo, one_hi)) for two, one_lo, one_hi in sums.values())
+
+
+TRUTH = np.array([[10.0, 0.75, 4.0, 0.3], [6.0, 0.3, 15.0, 0.3]])
+
+
+def test_total_matches_the_definition():
+    problem = patchy_problem()
+    edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=3)
+    labels = np.random.default_rng(0).integers(0, 3, problem.image_shape)
+    theta = np.vstack([TRUTH, [8.0, 0.5, 8.0, 0.3]])
+    expected = direct_total(problem, edges, labels, theta, 3)
+    assert expected < -10.0, "the labels should cross many pairs"
+    assert edges.total(labels, theta) == pytest.approx(expected, rel=1e-9)
+
+
+def test_a_step_the_data_show_is_free_and_one_they_do_not_costs():
+    """The true split (columns 0-2 | 3-6) at the true parameters costs nothing (the data step there), the same
+    labels with two nearly equal materials (a step the data do not show) and a boundary two columns off the
+    true one cost more than 3 each; copies of one material cost nothing."""
+    problem = patchy_problem()
+    edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=3)
+    columns = np.arange(problem.width)[None, :].repeat(problem.height, 0)
+    true_labels, off_labels = (columns >= 3).astype(int), (columns >= 5).astype(int)
+    assert edges.total(true_labels, TRUTH) == 0.0
+    assert edges.total(true_labels, [[8.0, 0.5, 8.0, 0.3], [8.5, 0.5, 8.0, 0.3]]) < -3.0
+    assert edges.total(off_labels, TRUTH) < -3.0
+    assert edges.total(true_labels, [TRUTH[0], TRUTH[0]]) == 0.0
+
+
+def test_a_parameter_change_matches_the_definition():
+    """What a parameter move adds to its ratio, against the direct sums (a boundary off the true one, which costs
+    at both parameter values)."""
+    problem = patchy_problem()
+    edges = edge_term(problem, labelled_pixels(problem), power=2.0, gap=3)
+    labels = np.where(np.arange(problem.width) >= 5, 1, 0)[None, :].repeat(problem.height, 0)
+    moved = TRUTH.copy()
+    moved[1] = [7.0, 0.4, 11.0, 0.3]
+    expected = direct_total(problem, edges, labels, moved, 3) - direct_total(problem, edges, labels, TRUTH, 3)
+    assert abs(expected) > 1.0
+    assert edges.region_delta(labels, TRUTH, 1, moved[1]) == pytest.approx(expected, rel=1e-9)
+
+
+def test_the_term_refuses_what_it_cannot_read():
+    problem = patchy_problem()
+    labelled = labelled_pixels(problem)
+    with pytest.raises(ValueError, match="odd"):
+        edge_term(problem, labelled, gap=2)
+    with pytest.raises(ValueError, match="positive"):
+        edge_term(problem, labelled, power=0.0)
+    with pytest.raises(ValueError, match="light"):
+        edge_term(dataclasses.replace(problem, light=None), labelled)
+    with pytest.raises(ValueError, match="adaptive"):
+        SamplerConfig.from_flat(region_model="materials", edge_power=1.0, sampler="paper")
+
+
+# ---- exactness on the 2 x 2 image -------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def square():
+    obs, prior = tiny_problem()
+    problem = Problem.from_observations(obs)
+    return prior, problem, Quadrature(obs, prior)
+
+
+def block_draws(quad, pixels, n, rng):
+    """``n`` draws of a block's (I0, kd, gamma) from its posterior on the quadrature grid (sigma^2 integrated out)."""
+    f, _ = quad._log_integrand(np.flatnonzero(np.isin(quad.pixel, list(pixels))))
+    w = quad.weights[0][:, None, None] * quad.weights[1][None, :, None] * quad.weights[2][None, None, :]
+    p = (np.exp(f - f.max()) * w).ravel()
+    i, j, k = np.unravel_index(rng.choice(p.size, n, p=p / p.sum()), f.shape)
+    return np.exp(quad.axes[0][i]), 1 / (1 + np.exp(-quad.axes[1][j])), np.exp(quad.axes[2][k])
+
+
+def boundary_phi(edges, z, ss):
+    """The edge term per draw from its definition: ``ss(p, q, a, b)`` the pair's sums (one per draw) with p in a
+    and q in b, accumulated per boundary."""
+    sums = {}
+    for p, q in zip(edges.first, edges.second):
+        k, m = z[p], z[q]
+        if k != m:
+            lo, hi = min(k, m), max(k, m)
+            entry = sums.setdefault((lo, hi), [0.0, 0.0, 0.0])
+            entry[0] = entry[0] + ss(p, q, k, m)
+            entry[1] = entry[1] + ss(p, q, lo, lo)
+            entry[2] = entry[2] + ss(p, q, hi, hi)
+    phi = np.zeros(DRAWS)
+    for two, one_lo, one_hi in sums.values():
+        phi -= edges.scale * np.maximum(0.0, two - np.minimum(one_lo, one_hi))
+    return phi
+
+
+def exact_with_edges(quad, problem, edges, beta, rho, rng, n_blocks=None):
+    """{partition: probability} and pixel 0's material's I0 mean under the target with the edge term (K fixed at
+    ``n_blocks`` if given)."""
+    exact0 = exact_partition_posterior(quad, (2, 2), beta, rho, n_blocks=n_blocks)
+    y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
+    where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
+    weight, i0_mean = {}, {}
+    for part, p0 in exact0.items():
+        z = np.array(part)
+        draws = [block_draws(quad, np.flatnonzero(z == b), DRAWS, rng) for b in range(max(part) + 1)]
+
+        def mu(i, block):
+            I0, kd, g = draws[block]
+            return C[i] * (I0 * kd / np.pi + I0 * (1 - kd) * blinn_normalisation(g) * np.exp(g * lch[i]))
+
+        def ss(p, q, k, m):
+            return sum((y[where[p, lt]] - y[where[q, lt]] - mu(where[p, lt], k) + mu(where[q, lt], m)) ** 2
+                       for lt in range(3))
+
+        phi = boundary_phi(edges, z, ss)
+        w = np.exp(phi)
+        weight[part] = p0 * w.mean()
+        i0_mean[part] = np.mean(draws[z[0]][0] * w) / w.mean()
+    total = sum(weight.values())
+    exact = {part: value / total for part, value in weight.items()}
+    return exact0, exact, sum(exact[part] * i0_mean[part] for part in exact)
+
+
+def run_chain(problem, prior, config, seed, **start):
+    rng = np.random.default_rng(seed)
+    state = initial_state(problem, prior, config, rng, **start)
+    parts, i0 = [], []
+    with threadpool_limits(1):
+        for _ in range(ITERATIONS):
+            state, _ = step(state, rng, problem, prior, config)
+            z = state.layout.pixels.ravel()
+            parts.append(canonical(z))
+            i0.append(state.theta[z[0], 0])
+    return parts[BURN:], np.array(i0[BURN:])
+
+
+def check(parts, i0, exact, i0_exact):
+    import arviz as az
+
+    cells = list(exact)
+    index = {part: i for i, part in enumerate(cells)}
+    p_part, freq, n_eff = ess_scaled_chi2(list(range(len(cells))), np.array([index[p] for p in parts]),
+                                          np.array([exact[c] for c in cells]))
+    z = (i0.mean() - i0_exact) / (i0.std() / np.sqrt(float(az.ess(i0[None]))))
+    return p_part, float(2 * stats.norm.sf(abs(z))), {"n_eff": n_eff, "z": z}
+
+
+#: every label move, or the label sweep alone with K fixed at 2 (its delayed acceptance on its own)
+MOVES = {"all": {"cluster_moves": 2, "merge_split_moves": 1, "max_materials": 4},
+         "sweeps": {"cluster_moves": 0, "segment_moves": 0, "merge_split_moves": 0, "jumps": False,
+                    "max_materials": 2}}
+
+
+def edge_config(power, moves="all"):
+    return SamplerConfig.from_flat(region_model="materials", burn_in=0, potts_beta=1.0, potts_rho=1.0,
+                                   edge_power=power, edge_gap=1, **MOVES[moves])
+
+
+@pytest.mark.parametrize("moves,power,seed", [("all", 4.0, 1), ("all", 30.0, 2), ("sweeps", 30.0, 3)])
+def test_partitions_and_parameters_match_the_target_with_the_edge_term(square, moves, power, seed):
+    """All 15 partitions, K_max 4: Gibbs sweeps (delayed acceptance), cluster, segment and merge/split moves;
+    and the 7 two-block partitions under the sweeps alone."""
+    prior, problem, quad = square
+    config = edge_config(power, moves)
+    n_blocks = 2 if moves == "sweeps" else None
+    edges = initial_state(problem, prior, config, np.random.default_rng(0)).layout.bonds.edges
+    exact0, exact, i0_exact = exact_with_edges(quad, problem, edges, 1.0, 1.0, np.random.default_rng(10), n_blocks)
+    assert 0.5 * sum(abs(exact[p] - exact0[p]) for p in exact) > 0.08, "the term should move the posterior"
+    p_part, p_i0, details = check(*run_chain(problem, prior, config, seed, n_materials=n_blocks), exact, i0_exact)
+    print(power, p_part, p_i0, details)
+    assert p_part > LEVEL, details
+    assert p_i0 > LEVEL, details
+
+
+@pytest.mark.parametrize("left_out", ["sweep", "structure"])
+def test_label_moves_without_the_edge_term_are_detected(square, monkeypatch, left_out):
+    """Negative controls at power 30: the label sweep without its delayed acceptance, or the cluster, segment
+    and merge/split moves' ratios without the term's change."""
+    prior, problem, quad = square
+    config = edge_config(30.0, "sweeps" if left_out == "sweep" else "all")
+    n_blocks = 2 if left_out == "sweep" else None
+    edges = initial_state(problem, prior, config, np.random.default_rng(0)).layout.bonds.edges
+    _, exact, i0_exact = exact_with_edges(quad, problem, edges, 1.0, 1.0, np.random.default_rng(10), n_blocks)
+
+    def without_edges(move):
+        def run(work, *args):
+            kept, work.edges = work.edges, None
+            try:
+                return move(work, *args)
+            finally:
+                work.edges = kept
+        return run
+    if left_out == "sweep":
+        monkeypatch.setattr(materials, "sweep_labels", without_edges(materials.sweep_labels))
+    else:
+        monkeypatch.setattr(materials.MaterialRegions, "_test", staticmethod(without_edges(
+            materials.MaterialRegions._test)))
+    p_part, p_i0, details = check(*run_chain(problem, prior, config, 2, n_materials=n_blocks), exact, i0_exact)
+    print(left_out, p_part, p_i0, details)
+    assert p_part < 1e-6, details
+
+
+def fixed_labels_exact(quad, problem, edges, labels, rng):
+    """(mean, Monte Carlo standard error) of (I0, kd, gamma) of pixel 0's material given ``labels`` under the
+    target with the edge term: the blocks' posteriors without it, importance-weighted by exp(Phi)."""
+    y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
+    where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
+    z = np.asarray(labels).ravel()
+    draws = [block_draws(quad, np.flatnonzero(z == b), DRAWS, rng) for b in range(z.max() + 1)]
+
+    def ss(p, q, k, m):
+        def mu(i, block):
+            I0, kd, g = draws[block]
+            return C[i] * (I0 * kd / np.pi + I0 * (1 - kd) * blinn_normalisation(g) * np.exp(g * lch[i]))
+        return sum((y[where[p, lt]] - y[where[q, lt]] - mu(where[p, lt], k) + mu(where[q, lt], m)) ** 2
+                   for lt in range(3))
+
+    phi = boundary_phi(edges, z, ss)
+    w = np.exp(phi - phi.max())
+    w /= w.sum()
+    values = np.stack(draws[z[0]])
+    mean = values @ w
+    return mean, np.sqrt(((values - mean[:, None]) ** 2) @ (w ** 2))
+
+
+@pytest.mark.parametrize("left_out", [False, True])
+def test_parameter_moves_hold_the_edge_term(square, monkeypatch, left_out):
+    """Labels fixed at the true split (columns), power 30, where the term moves kd of pixel 0's material by 0.7
+    sd: the chain's means of (I0, kd, gamma) against the exact ones by z-tests on the chain's ESS and the
+    exact values' Monte Carlo error, level 0.001; with the parameter moves' ratios left without the term
+    (negative control) the smallest p must fall below 1e-6."""
+    import arviz as az
+
+    prior, problem, quad = square
+    config = dataclasses.replace(edge_config(30.0), regions=dataclasses.replace(
+        edge_config(30.0).regions, update_labels=False, jumps=False))
+    labels = np.array([[0, 1], [0, 1]])
+    edges = initial_state(problem, prior, config, np.random.default_rng(0), pixel_labels=labels).layout.bonds.edges
+    exact, exact_se = fixed_labels_exact(quad, problem, edges, labels, np.random.default_rng(11))
+    if left_out:
+        for module in (gamma, ab_conditional, phi_walk):
+            monkeypatch.setattr(module, "edge_delta", lambda work, r, theta_r: 0.0)
+    rng = np.random.default_rng(3)
+    state = initial_state(problem, prior, config, rng, pixel_labels=labels)
+    draws = []
+    with threadpool_limits(1):
+        for _ in range(ITERATIONS):
+            state, _ = step(state, rng, problem, prior, config)
+            draws.append(state.theta[state.layout.pixels.ravel()[0], :3].copy())
+    draws = np.array(draws[BURN:])
+    p_values = []
+    for j in range(3):
+        se = draws[:, j].std() / np.sqrt(float(az.ess(draws[None, :, j])))
+        p_values.append(float(2 * stats.norm.sf(abs(draws[:, j].mean() - exact[j]) / np.hypot(se, exact_se[j]))))
+    print(left_out, exact, draws.mean(axis=0), p_values)
+    if left_out:
+        assert min(p_values) < 1e-6, p_values
+    else:
+        assert min(p_values) > LEVEL, p_values
