@@ -169,14 +169,8 @@ def test_relabelled_draws_carry_a_snapshots_matching_to_the_draws_after_it_up_to
     assert len(relabelled_draws([short], 0, k).theta[0]) == 4
 
 
-@pytest.mark.parametrize("power", [0.05, 0.1])
-def test_a_smooth_ramp_split_into_materials_is_reported_as_one_group(tmp_path, power):
-    """One lobe whose I0 rises smoothly from 4 to 8 across a 24 x 24 image (noise sd 0.05): at likelihood powers
-    0.05 and 0.1 the fit buys two or three bands along the ramp, 8 to 14 px wide (the precondition, checked), and
-    the boundary check finds no step in the data where they meet (log ratios -230 to -1,150 with this seed), so it
-    warns and joins them into one group, which maps.exr's edge_group holds. (At power 0.25 the fit cuts five
-    bands about 5 px wide, and pairs 3 px apart then straddle a staircase step that matches the ramp's rise: the
-    check's limit, docs/materials.md, "Boundaries".)"""
+def ramp_stack():
+    """One lobe whose I0 rises smoothly from 4 to 8 across a 24 x 24 image under 8 lights (noise sd 0.05)."""
     rng = np.random.default_rng(4)
     size, lights = 24, 8
     pixel = np.repeat(np.arange(size * size), lights)
@@ -187,6 +181,18 @@ def test_a_smooth_ramp_split_into_materials_is_reported_as_one_group(tmp_path, p
     obs = Observations(image_shape=(size, size), n_lights=lights, pixel=pixel.astype(np.int64),
                        light=np.tile(np.arange(lights), size * size).astype(np.int32), y=y, cos_ln=cos_ln,
                        cos_hn=cos_hn, irradiance=irradiance, object_mask=np.ones((size, size), bool))
+    return obs
+
+
+@pytest.mark.parametrize("power", [0.05, 0.1])
+def test_a_smooth_ramp_split_into_materials_is_reported_as_one_group(tmp_path, power):
+    """One lobe whose I0 rises smoothly from 4 to 8 across a 24 x 24 image (noise sd 0.05): at likelihood powers
+    0.05 and 0.1 the fit buys two or three bands along the ramp, 8 to 14 px wide (the precondition, checked), and
+    the boundary check finds no step in the data where they meet (log ratios -230 to -1,150 with this seed), so it
+    warns and joins them into one group, which maps.exr's edge_group holds. (At power 0.25 the fit cuts five
+    bands about 5 px wide, and pairs 3 px apart then straddle a staircase step that matches the ramp's rise: the
+    check's limit, docs/materials.md, "Boundaries".)"""
+    obs = ramp_stack()
     summary = fit(obs, tmp_path / "out", regions="materials", iterations=200, n_chains=2, processes=1, progress=False,
                   seed=1, figures=False, likelihood_power=power)
     assert summary["map_materials"] >= 2
@@ -198,3 +204,22 @@ def test_a_smooth_ramp_split_into_materials_is_reported_as_one_group(tmp_path, p
     assert np.all(edge_group == 0)
     # every counted snapshot's bands, not only the MAP's, form one group
     assert summary["edge_groups_posterior"] == {"1": 1.0} and summary["edge_groups_snapshots"] == 2 * 10
+
+
+def test_with_the_edge_term_the_ramp_stays_one_material_and_three_paints_stay_three(tmp_path, capsys):
+    """The ramp above at likelihood power 0.1 (where the fit without the term buys two or three bands, checked
+    there) with the edge term at its 'auto' power: the bands' boundaries misfit the neighbours' differences, so
+    K = 1 takes at least 0.9 of the posterior; and the three-material stack keeps its three materials, every
+    boundary an edge, labels at least 98 % right. The command line states the term's power."""
+    from rjfit.cli import _echo_fit
+
+    ramp = fit(ramp_stack(), tmp_path / "ramp", regions="materials", iterations=200, n_chains=2, processes=1,
+               progress=False, seed=1, figures=False, likelihood_power=0.1, edge_power="auto")
+    assert 0 < ramp["edge_power"] <= 1
+    assert ramp["materials_posterior"].get("1", 0.0) >= 0.9, ramp["materials_posterior"]
+    obs, truth = stack()
+    paints = fit(obs, tmp_path / "paints", regions="materials", iterations=200, n_chains=2, processes=1,
+                 truth_labels=truth, progress=False, seed=3, figures=False, edge_power="auto")
+    assert paints["map_materials"] == 3 and paints["label_accuracy"] >= 0.98
+    _echo_fit(tmp_path / "ramp", {**ramp, "dataset": "in-code ramp", "channel": "mean"})
+    assert f"edge term in the target (power {ramp['edge_power']:.3g})" in capsys.readouterr().out
