@@ -7,7 +7,9 @@
 - :mod:`~rjfit.sampler.passes.cells`: per-pixel and per-cell sums of change-point vectors;
 - :mod:`~rjfit.sampler.passes.paths`: forward filtering, backward sampling, rank chains;
 - :mod:`~rjfit.sampler.passes.sweep`: the element sweep's proposals;
-- :mod:`~rjfit.sampler.passes.lloyd`: Lloyd's k-means iterations (the split guide's 2-means).
+- :mod:`~rjfit.sampler.passes.lloyd`: Lloyd's k-means iterations (the split guide's 2-means);
+- :mod:`~rjfit.sampler.passes.edges`: the material model's edge term (its boundaries' sums, the
+  label sweep's delayed acceptance).
 
 Why a JIT: profiling the full kernel (``validation/bench_sampler.py``'s
 segmentation-sampled row, 256 x 256 chains) showed it spending its time in NumPy passes

@@ -5,7 +5,8 @@
   that vectorises, then summed per pixel);
 - :func:`gibbs_sweep`: one colour of the checkerboard Gibbs sweep of pixel labels (pixels
   of one colour are not 4-neighbours, so each one's conditional depends only on the other
-  colour's labels);
+  colour's labels), with the edge term's delayed acceptance where the target holds one
+  (:func:`rjfit.sampler.passes.edges.keep_new_label`);
 - :func:`relabel_pixels`: move the observations of relabelled pixels between the
   materials' sufficient statistics (and relabel them);
 - :func:`grow_cluster`: a Swendsen-Wang-cut cluster from a seed pixel, with the counts and
