@@ -11,7 +11,7 @@ import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation
 
-__all__ = ["per_pixel_residuals", "group_fit", "fit_groups", "patch_index", "GAMMA_GRID"]
+__all__ = ["per_pixel_residuals", "group_fit", "fit_groups", "group_params", "patch_index", "GAMMA_GRID"]
 
 GAMMA_GRID = np.geomspace(0.5, 500.0, 16)
 
@@ -109,6 +109,18 @@ def fit_groups(y, C, log_hn, group, n_groups, gammas=GAMMA_GRID, refine_steps=GO
     fitted = np.isfinite(ssr)
     return {"a": a, "b": b, "gamma": g, "fitted": fitted, "residuals": np.where(fitted[group], residuals, np.nan)}
 
+
+def group_params(y, C, log_hn, group, n_groups) -> np.ndarray:
+    """(n_groups, 4): each group's Lambert + Blinn ``(I0, kd, gamma)`` from :func:`fit_groups` (its two amplitudes
+    are ``I0 kd`` and ``I0 (1 - kd)``, unconstrained, so the prediction is the fit's even where one is negative) and
+    its mean squared residual; a row of NaN for a group without a fit."""
+    group = np.asarray(group, np.int64)
+    fitted = fit_groups(y, C, log_hn, group, n_groups)
+    I0 = fitted["a"] + fitted["b"]
+    ssr = np.bincount(group, weights=np.nan_to_num(fitted["residuals"]) ** 2, minlength=n_groups)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rows = np.column_stack([I0, fitted["a"] / I0, fitted["gamma"], ssr / np.bincount(group, minlength=n_groups)])
+    return np.where(fitted["fitted"][:, None], rows, np.nan)
 
 def _golden_section(cost, low, high, steps):
     """Per element, the minimiser of ``cost`` (vectorised: an array of costs per array of points)

@@ -49,7 +49,7 @@ from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import staging_dir
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, publish_results, results_digest, save_chain_arrays, write_summary
-from rjfit.pipeline.fit_power import noise_and_power
+from rjfit.pipeline.fit_power import edge_power, noise_and_power
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
@@ -147,7 +147,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
     prior = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A)
-    config = sampler_config(options, fixed=fixed_segmentation is not None)
+    config = sampler_config(options, fixed=fixed_segmentation is not None, problem=problem)
     specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation)
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
@@ -221,15 +221,15 @@ def burn_in_iterations(options: FitOptions) -> int:
     return burn
 
 
-def sampler_config(options: FitOptions, *, fixed: bool = False) -> SamplerConfig:
-    """The kernel's settings from the fit's options; ``fixed``: the segmentation does not move."""
+def sampler_config(options: FitOptions, *, fixed: bool = False, problem=None) -> SamplerConfig:
+    """The kernel's settings from the options (``fixed``: no segmentation moves; ``problem``: measures edge power)."""
     burn = burn_in_iterations(options)
-    # a fit option named like a sampler setting of the fit's region model reaches the sampler as it is,
-    # so a new one is one FitOptions field; burn-in and the annealed warm-up are fractions here and
-    # iterations there
+    # a fit option named like a sampler setting of the fit's region model reaches the sampler as it is, so a new one
+    # is one FitOptions field; burn-in and the warm-up are fractions here and iterations there, --edge-power a number
     same_name = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)
                  if f.name not in ("burn_in", "anneal") and flat_option_applies(f.name, options.regions)}
     if options.regions == "materials":
+        same_name["edge_power"] = edge_power(problem, options) if problem is not None else options.edge_power
         return SamplerConfig.from_flat(region_model="materials", **same_name, burn_in=burn,
                                        anneal=int(round(options.anneal * burn)), update_labels=not fixed,
                                        jumps=not fixed)
@@ -300,7 +300,7 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
     if options.regions == "materials":
         from rjfit.pipeline.fit_materials import add_boundary_check, material_number_warnings, summarise_materials
 
-        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn)
+        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn, config)
         summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
         summary["warnings"] += material_number_warnings(summary["regions"], prior) + _fit_warnings(
             problem, prior, suggestion)

@@ -26,8 +26,6 @@ from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
-from rjfit.sampler.edges import edge_term
-from rjfit.sampler.regions.material_labels import labelled_pixels
 
 __all__ = ["summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
            "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files",
@@ -42,8 +40,9 @@ EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials ea
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
 
 
-def summarise_materials(records, problem, options, burn: int):
-    """The material model's summary entries and results: ``(summary, MAP labels, prediction, extra)``.
+def summarise_materials(records, problem, options, burn: int, config):
+    """The material model's summary entries and results: ``(summary, MAP labels, prediction, extra)``; ``config``:
+    the chains' sampler settings (the edge term's power as they took it).
 
     ``extra`` holds ``map_probability`` (H, W) and the relabelled ``draws``
     (:class:`rjfit.posterior.materials.RelabelledDraws`).
@@ -62,7 +61,7 @@ def summarise_materials(records, problem, options, burn: int):
         "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
         "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"], "diagnostics": diag,
         "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
-        "edge_power": edge_power_used(problem, options), "chain_materials_posterior": chain_posteriors,
+        "edge_power": float(config.regions.edge_power), "chain_materials_posterior": chain_posteriors,
     }
     summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
                                                     post.chain_log_posterior_means(records, burn))
@@ -76,14 +75,6 @@ def summarise_materials(records, problem, options, burn: int):
             summary["warnings"].append(resolution_warning(resolution))
     prediction = post.posterior_mean_prediction(records, burn, problem)
     return summary, labels, prediction, {"map_probability": probability, "draws": draws}
-
-
-def edge_power_used(problem, options) -> float:
-    """The power of the fit's edge term in the target (0: none; :mod:`rjfit.sampler.edges`): as given, or 'auto'
-    measured again as every chain measured it."""
-    if options.edge_power != "auto":
-        return float(options.edge_power)
-    return edge_term(problem, labelled_pixels(problem), "auto").power
 
 
 def material_resolution(problem, materials, labels, options) -> dict | None:
@@ -116,7 +107,7 @@ def material_boundaries(problem, observations, materials, labels) -> tuple[dict,
     if not _checkable(problem) or len(materials) < 2:
         return {}, []
     rows = boundary_support(labels, None, problem.y, problem.C, problem.log_cos_hn, problem.pixel,
-                            _problem_lights(problem, observations), int(observations.n_lights))
+                            problem.light, int(observations.n_lights))
     groups = edge_groups(rows, len(materials))
     return ({"boundaries": rows, "edge_supported_materials": len(groups), "material_groups": groups},
             unsupported_boundary_warnings(rows))
@@ -126,12 +117,6 @@ def _checkable(problem) -> bool:
     """Whether the boundary check applies: one channel and no effects (whose plain prediction the check would
     compare with the data in place of the fit's own)."""
     return problem.n_channels == 1 and problem.effects is None
-
-
-def _problem_lights(problem, observations) -> np.ndarray:
-    """Each of the problem's observations' light: the problem holds the observations sorted stably by pixel
-    (rjfit.sampler.forward.LambertBlinnPhong.problem)."""
-    return np.asarray(observations.light)[np.argsort(observations.pixel, kind="stable")]
 
 
 def edge_groups_posterior(records, burn: int, problem, observations) -> tuple[dict, list]:
@@ -145,7 +130,7 @@ def edge_groups_posterior(records, burn: int, problem, observations) -> tuple[di
     """
     if not _checkable(problem):
         return {}, []
-    light, per_chain = _problem_lights(problem, observations), []
+    light, per_chain = problem.light, []
     for record in records:
         kept = np.flatnonzero(record.cp_iteration >= burn)
         chosen = kept[np.unique(np.linspace(0, kept.size - 1, min(EDGE_GROUP_SNAPSHOTS, kept.size)).round()

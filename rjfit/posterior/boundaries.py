@@ -26,17 +26,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.data.pixelfit import fit_groups
+from rjfit.data.pixelfit import group_params
 from rjfit.model.blinn import blinn_normalisation
+from rjfit.sampler.edges import EDGE_GAP, matched_lights, pixel_pairs
 
 __all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "edge_groups",
            "edge_group_count", "edge_verdict", "EDGE_GAP", "INSIDE_PAIRS", "FIT_OBSERVATIONS",
            "EDGE_LOG_ODDS"]
 
-#: the pixels of a pair lie this far apart along a row or a column: a measured edge is spread over a pixel or two
-#: (optics, the pixel footprint, a blurred paint line), so neighbours across a boundary straddle part of the step
-#: only, while a smooth misfit changes little over 3 px
-EDGE_GAP = 3
 #: a boundary is an edge when the data favour the materials' step over either material alone by odds above 100:1
 #: ("decisive" on Jeffreys' scale, the odds the measured preset's Potts rule asks of a further material), and no
 #: edge when they favour either material alone by as much; two materials fitted to one paint read log ratios of
@@ -51,27 +48,10 @@ INSIDE_PAIRS = 20000
 FIT_OBSERVATIONS = 50_000
 
 
-def _pairs(labels, gap: int):
-    """(p, q) flat indices of the labelled pixels ``gap`` apart along a row (q right of p) or a column (q below)."""
-    height, width = labels.shape
-    flat = labels.ravel()
-    p = np.arange(height * width)
-    shifted_right = np.concatenate([flat[gap:], np.full(gap, -1)])
-    shifted_down = np.concatenate([flat[gap * width:], np.full(min(gap * width, flat.size), -1)])[:flat.size]
-    right = (p % width < width - gap) & (flat >= 0) & (shifted_right >= 0)
-    down = (p < (height - gap) * width) & (flat >= 0) & (shifted_down >= 0)
-    return np.concatenate([p[right], p[down]]), np.concatenate([p[right] + gap, p[down] + gap * width])
-
-
-def _matched(pixel, light, first, second, n_lights):
+def _matched(pixel, light, first, second):
     """Observation indices (i, j) of every light seen by both pixels of each pair, and the pair of each match."""
-    involved = np.unique(np.concatenate([first, second]))
-    table = np.full((involved.size, n_lights), -1, np.int64)
-    keep = np.isin(pixel, involved)
-    table[np.searchsorted(involved, pixel[keep]), light[keep]] = np.flatnonzero(keep)
-    a, b = table[np.searchsorted(involved, first)], table[np.searchsorted(involved, second)]
-    both = (a >= 0) & (b >= 0)
-    return a[both], b[both], np.nonzero(both)[0]
+    i, j, start = matched_lights(pixel, light, first, second)
+    return i, j, np.repeat(np.arange(first.size), np.diff(start))
 
 
 def _prediction(params, C, log_cos_hn, index):
@@ -89,12 +69,8 @@ def least_squares_params(labels, y, C, log_cos_hn, pixel) -> np.ndarray:
     n_materials = int(np.max(labels, initial=-1)) + 1
     group = np.asarray(labels).ravel()[np.asarray(pixel, np.int64)]
     labelled = group >= 0
-    fitted = fit_groups(np.asarray(y)[labelled], np.asarray(C)[labelled], np.asarray(log_cos_hn)[labelled],
-                        group[labelled], n_materials)
-    I0 = fitted["a"] + fitted["b"]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        kd = fitted["a"] / I0
-    return np.where(fitted["fitted"][:, None], np.column_stack([I0, kd, fitted["gamma"]]), np.nan)
+    return group_params(np.asarray(y)[labelled], np.asarray(C)[labelled], np.asarray(log_cos_hn)[labelled],
+                        group[labelled], n_materials)[:, :3]
 
 
 def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: int, gap: int = EDGE_GAP) -> list:
@@ -112,6 +88,7 @@ def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: i
     pixel, light : ndarray of int, shape (N,)
         Each observation's flat pixel and light.
     n_lights : int
+        The stack's number of lights (unused: pairs are matched by each observation's light).
     gap : int
         How far apart the pixels of a pair lie (:data:`EDGE_GAP`).
 
@@ -136,7 +113,7 @@ def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: i
         raise ValueError(f"labels name material {labels.max()}, but params has {len(params)} rows")
     y, C, log_cos_hn = (a.astype(np.float64) for a in arrays[:3])
     pixel, light = arrays[3].astype(np.int64), arrays[4].astype(np.int64)
-    first, second = _pairs(labels, gap)
+    first, second, _ = pixel_pairs(labels >= 0, gap)
     flat = labels.ravel()
     across = flat[first] != flat[second]
     if not np.any(across):
@@ -144,7 +121,7 @@ def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: i
     inside = np.flatnonzero(~across)
     inside = inside[::max(1, inside.size // INSIDE_PAIRS)]
     # the differences' noise: pairs inside materials, each at its material
-    a, b, which = _matched(pixel, light, first[inside], second[inside], n_lights)
+    a, b, which = _matched(pixel, light, first[inside], second[inside])
     material = flat[first[inside]][which]
     residual = np.zeros(a.size)
     for m in np.unique(material):
@@ -152,7 +129,7 @@ def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: i
         residual[sel] = (y[a[sel]] - y[b[sel]]) - (_prediction(params[m], C, log_cos_hn, a[sel])
                                                      - _prediction(params[m], C, log_cos_hn, b[sel]))
     noise = float(np.mean(residual ** 2)) if residual.size else np.nan
-    a, b, which = _matched(pixel, light, first[across], second[across], n_lights)
+    a, b, which = _matched(pixel, light, first[across], second[across])
     j_of, k_of = flat[first[across]][which], flat[second[across]][which]
     low, high = np.minimum(j_of, k_of), np.maximum(j_of, k_of)
     pair_of = np.flatnonzero(across)[which]

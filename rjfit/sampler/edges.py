@@ -57,12 +57,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rjfit.data.pixelfit import fit_groups
-from rjfit.model.blinn import blinn_normalisation
+from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.passes.edges import boundary_sums, edge_value
 
-__all__ = ["EdgeTerm", "edge_term", "start_theta", "EDGE_GAP"]
+__all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "EDGE_GAP"]
 
 #: the pixels of a pair lie this far apart (odd, so that they are of the two checkerboard colours): a measured
 #: edge is spread over a pixel or two (optics, the pixel footprint, a blurred paint line), so neighbours across a
@@ -114,7 +113,7 @@ def _flat(pixels) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(pixels).ravel(), dtype=np.int64)
 
 
-def _pairs(labelled, gap: int):
+def pixel_pairs(labelled, gap: int):
     """(p, q) of the labelled pixels ``gap`` apart along a row (q right of p), then along a column (q below), and
     the number of the first kind."""
     height, width = labelled.shape
@@ -127,31 +126,33 @@ def _pairs(labelled, gap: int):
             int(np.count_nonzero(right)))
 
 
-def _matches(problem, first, second, chunk: int = 65536):
-    """Per pair, the observation indices (i of ``first``, j of ``second``) of each light both ends saw, and the
-    pairs' offsets into them (pairs taken ``chunk`` at a time: memory stays near the observations' own)."""
-    n_lights = int(problem.light.max()) + 1
-    key = np.asarray(problem.pixel, np.int64) * n_lights + np.asarray(problem.light, np.int64)
+def matched_lights(pixel, light, first, second, chunk: int = 65536):
+    """Per pair (``first[k]``, ``second[k]``), the observation indices (i of the first pixel, j of the second) of
+    each light both saw, in the order of the lights, and the pairs' offsets into them: ``(i, j, start)``. ``pixel``
+    and ``light`` give each observation's; pairs are taken ``chunk`` at a time, so memory stays near the
+    observations' own."""
+    pixel, light = np.asarray(pixel, np.int64), np.asarray(light, np.int64)
+    n_lights = int(light.max(initial=-1)) + 1
+    key = pixel * n_lights + light
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]
     lights = np.arange(n_lights)
 
     def lookup(pixels):
         wanted = (pixels[:, None] * n_lights + lights[None, :]).ravel()
-        at = np.minimum(np.searchsorted(sorted_key, wanted), sorted_key.size - 1)
-        return np.where(sorted_key[at] == wanted, order[at], -1).reshape(pixels.size, n_lights)
+        at = np.minimum(np.searchsorted(sorted_key, wanted), max(sorted_key.size - 1, 0))
+        found = sorted_key[at] == wanted if sorted_key.size else np.zeros(wanted.size, bool)
+        return np.where(found, order[at] if sorted_key.size else -1, -1).reshape(pixels.size, n_lights)
 
-    i_parts, j_parts, counts = [], [], []
-    for lo in range(0, first.size, chunk):
-        a, b = lookup(first[lo:lo + chunk]), lookup(second[lo:lo + chunk])
+    i_parts, j_parts, counts = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for lo in range(0, len(first), chunk):
+        a, b = lookup(np.asarray(first[lo:lo + chunk], np.int64)), lookup(np.asarray(second[lo:lo + chunk], np.int64))
         both = (a >= 0) & (b >= 0)
         i_parts.append(a[both])
         j_parts.append(b[both])
         counts.append(both.sum(axis=1))
-    counts = np.concatenate(counts) if counts else np.zeros(0, np.int64)
-    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    empty = np.zeros(0, np.int64)
-    return (np.concatenate(i_parts) if i_parts else empty), (np.concatenate(j_parts) if j_parts else empty), start
+    start = np.concatenate([[0], np.cumsum(np.concatenate(counts))]).astype(np.int64)
+    return np.concatenate(i_parts), np.concatenate(j_parts), start
 
 
 def _neighbour_correlation(first, light, residual, n_lights: int, width: int) -> float:
@@ -194,15 +195,14 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     if problem.light is None or problem.n_channels != 1 or problem.effects is not None:
         raise ValueError("the edge term (--edge-power) needs a single-channel problem without effects, with each "
                          "observation's light")
-    first, second, n_right = _pairs(np.asarray(labelled, bool), gap)
-    i, j, start = _matches(problem, first, second)
+    first, second, n_right = pixel_pairs(np.asarray(labelled, bool), gap)
+    i, j, start = matched_lights(problem.pixel, problem.light, first, second)
     y, C, lch = (np.asarray(a, np.float64) for a in (problem.y, problem.C, problem.log_cos_hn))
-    fitted = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)
-    a, b, g = float(fitted["a"][0]), float(fitted["b"][0]), float(fitted["gamma"][0])
-    reference = C * (a / np.pi + b * blinn_normalisation(g) * np.exp(g * lch))
+    reference_residual = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
     d = y[i] - y[j]
-    residual = d - (reference[i] - reference[j])
+    residual = reference_residual[i] - reference_residual[j]      # d minus the reference's step
     s = 1.4826 * float(np.median(np.abs(residual))) if residual.size else 1.0
+    s = s if np.isfinite(s) else 1.0       # no reference fit (under 4 observations): the differences' own scale is moot
     if power == "auto":
         pair = np.repeat(np.arange(first.size), np.diff(start))
         light = np.asarray(problem.light, np.int64)[i]
@@ -230,12 +230,7 @@ def start_theta(problem, pixels, n_materials: int, prior) -> np.ndarray | None:
     then starts from the usual dispersed draws)."""
     group = np.asarray(pixels).ravel()[np.asarray(problem.pixel, np.int64)]
     keep = group >= 0
-    y, C, lch = (np.asarray(a, np.float64)[keep] for a in (problem.y, problem.C, problem.log_cos_hn))
-    fitted = fit_groups(y, C, lch, group[keep], n_materials)
-    a, b, g = fitted["a"], fitted["b"], fitted["gamma"]
-    counts = np.bincount(group[keep], minlength=n_materials)
-    ssr = np.bincount(group[keep], weights=np.nan_to_num(fitted["residuals"]) ** 2, minlength=n_materials)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        theta = np.column_stack([a + b, a / (a + b), g, ssr / np.maximum(counts, 1)])
+    theta = group_params(*(np.asarray(a, np.float64)[keep] for a in (problem.y, problem.C, problem.log_cos_hn)),
+                         group[keep], n_materials)
     inside = all(np.all(np.isfinite(p.logpdf(theta[:, k]))) for k, p in enumerate(prior.params))
-    return theta if fitted["fitted"].all() and inside else None
+    return theta if inside else None
