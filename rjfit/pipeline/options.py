@@ -16,7 +16,7 @@ from pathlib import Path
 from rjfit.data.formats import CHANNELS, COLOUR
 from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
 from rjfit.data.observations import RIM_COS
-from rjfit.diagnose.effects import EFFECTS
+from rjfit.effects import EFFECTS, effects_help
 from rjfit.sampler.priors import PRESETS
 from rjfit.sampler.state import REGION_MODELS
 
@@ -211,10 +211,9 @@ class FitOptions:
         "of the mean observed value. Unused for --noise constant.", "float")
     effects: tuple = cli_option(
         (), "--effects",
-        "Effects sampled jointly with the segmentation and the region BRDFs, comma-separated names of the criticism's "
-        "library (ambient, camera_gamma, camera_srgb, cast_shadows, fresnel, interreflection, light_calibration, "
-        "masking), each with the library's priors; see docs/sampler.md. Interreflection needs --effects-from. Either "
-        "region model; a single channel (not --channel rgb).",
+        "Effects sampled jointly with the segmentation and the region BRDFs, comma-separated names, each with the "
+        "library's priors (docs/sampler.md). Interreflection needs --effects-from. Either region model; a single "
+        "channel (not --channel rgb). The effects: " + effects_help(),
         "text", show_default=False)
     effects_from: Path | None = cli_option(
         None, "--effects-from",
