@@ -125,7 +125,7 @@ class FitOptions:
                                    "Potts model's critical coupling (1.34 for 8): below it the prior favours "
                                    "materials scattered pixel by pixel; 3 is the smallest of 1, 2, 3 that kept "
                                    "extra materials of one or two pixels off four rendered layouts "
-                                   "(docs/materials.md).", "float")
+                                   "(docs/results/materials.md).", "float")
     potts_rho: float | None = cli_option(
         None, "--potts-rho",
         "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 0.01: prior odds "
