@@ -35,22 +35,36 @@ def _likelihood_power(text: str | None):
     return value
 
 
+def _check_output(folder) -> None:
+    """Refuse an output folder that cannot be written before any work (:func:`rjfit.io.check_writable`,
+    imported here so that ``--help`` does not load NumPy)."""
+    from rjfit.io import check_writable
+
+    check_writable(folder)
+
+
 class _Group(click.Group):
-    """Turns the errors rjfit raises for bad input into one clear line (no traceback);
-    set RJFIT_DEBUG=1 to see the traceback."""
+    """Turns the errors rjfit raises for bad input, and every ``OSError`` (an output that
+    cannot be written, a file that cannot be read), into one clear line naming the path (no
+    traceback; exit status 1); set RJFIT_DEBUG=1 to see the traceback."""
 
     def invoke(self, ctx):
         import os
 
         from rjfit.errors import DatasetError
+        from rjfit.io import os_error_text
         from rjfit.render.gate import ValidationRequiredError
 
         try:
             return super().invoke(ctx)
-        except (ValidationRequiredError, DatasetError, FileNotFoundError, ValueError) as error:
+        except (ValidationRequiredError, DatasetError, ValueError) as error:
             if os.environ.get("RJFIT_DEBUG"):
                 raise
             raise click.ClickException(str(error)) from error
+        except OSError as error:        # no permission, not a folder, a full disk: the path and why
+            if os.environ.get("RJFIT_DEBUG"):
+                raise
+            raise click.ClickException(os_error_text(error)) from error
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -93,6 +107,7 @@ def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
     data set: one linear EXR per light, geometry, visibility, truth and dataset.json."""
     from rjfit.render.render import render_dataset
 
+    _check_output(out_dir.resolve().parent)       # the data set is staged beside it, then renamed
     _echo_render(render_dataset(scene, out_dir, resolution=resolution, seed=seed, spp=spp,
                                 noise_variance=noise_variance, variant=variant, progress=True))
 
@@ -120,6 +135,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
     Exits with status 1 when the gate fails (median rel. error > 1e-4 or p99 > 1e-3)."""
     from rjfit.render.gate import validate_dataset
 
+    _check_output(out_dir or dataset / "validation")
     result = validate_dataset(dataset, out_dir, spp=spp, max_depth=max_depth, seed=seed, variant=variant,
                               progress=True)
     click.echo(f"validation of {dataset} ({result['settings']['variant']}): {'PASSED' if result['passed'] else 'FAILED'}")
@@ -152,6 +168,7 @@ def run(scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidate
     from rjfit.pipeline.run import run as run_main_job
 
     out_dir = out_dir or Path("runs") / Path(scene).stem
+    _check_output(out_dir)
     echo = {"render": _echo_render,
             "validate": lambda result: click.echo(
                 f"  {'PASSED' if result['passed'] else 'FAILED'}: median rel. err. {result['median_rel_err']:.3g}, "
@@ -186,6 +203,7 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
     after Hungarian matching, and the runtime of each method."""
     from rjfit.pipeline.compare import compare_dataset
 
+    _check_output(out_dir)
     click.echo(f"comparing segmentations of {dataset}")
     _echo_comparison(compare_dataset(dataset, out_dir, fit_dir=fit_dir, seed=seed, channel=channel,
                                      progress=click.echo), out_dir, fit_dir)
@@ -253,6 +271,7 @@ def fit(datasets, out_dir, validation_path, allow_unvalidated, scheduler, worker
     from rjfit.pipeline.options import FitOptions
 
     options["likelihood_power"] = _likelihood_power(options["likelihood_power"])
+    _check_output(out_dir)
     summaries = fit_datasets(datasets, out_dir, FitOptions(**options), validation_path=validation_path,
                              allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers)
     for folder, summary in summaries:
@@ -337,6 +356,7 @@ def report(fit_dir, out_path, diagnosis_dir, comparison_dir):
     fit are flagged as stale, not shown)."""
     from rjfit.pipeline.report import build_report
 
+    _check_output((out_path or fit_dir / "report.html").parent)
     click.echo(f"report: {build_report(fit_dir, out_path, diagnosis_dir=diagnosis_dir, comparison_dir=comparison_dir)}")
 
 
@@ -377,6 +397,7 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
     from rjfit.pipeline.diagnose import diagnose_fit
 
     out_dir = out_dir or fit_dir / "diagnosis"
+    _check_output(out_dir)
     candidates = ALL_EFFECTS if not effects else [name.strip() for name in effects.split(",") if name.strip()]
     options = {} if likelihood_power is None else {"likelihood_power": likelihood_power}
     if noise is not None:
@@ -403,6 +424,7 @@ def refine(fit_dir, out_dir, max_rounds, max_steps, seed, no_simulate):
     fit, and repeat until nothing more is named."""
     from rjfit.pipeline.refine import refine as refine_fit
 
+    _check_output(out_dir)
     result = refine_fit(fit_dir, out_dir, max_rounds=max_rounds, max_steps=max_steps, seed=seed,
                         simulate=False if no_simulate else None, progress=True, say=click.echo)
     click.echo(f"named effects: {', '.join(result['named_effects']) or 'none'}; {result['stopped']}")

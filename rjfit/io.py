@@ -16,6 +16,11 @@ Atomic writing has two levels:
   moves them in with the manifest (``summary.json``, ``diagnosis.json``, ...) last, after
   removing the manifest and the previous run's files first. A folder without its manifest
   holds no results; one with it holds the results of that run only.
+
+Before any expensive work a command calls :func:`check_writable` on its output folder, so that
+a folder it cannot write is one line at the start (:class:`rjfit.errors.OutputError`), not a
+traceback after the work; :func:`os_error_text` turns any other ``OSError`` into one line
+naming the path.
 """
 from __future__ import annotations
 
@@ -25,14 +30,15 @@ import json
 import os
 import shutil
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.errors import DatasetError
+from rjfit.errors import DatasetError, OutputError
 
-__all__ = ["write_json_atomic", "read_json", "atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir", "publish", "STAGING_PREFIX"]
+__all__ = ["write_json_atomic", "read_json", "atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir",
+           "publish", "STAGING_PREFIX", "check_writable", "os_error_text"]
 
 #: name prefix of staging folders; the creating process's id follows, so that a later run can
 #: tell the leftover of a killed run from the staging folder of a run still going
@@ -227,6 +233,71 @@ def publish(staging, out_dir, *, manifest: str, names=None, remove=()) -> None:
     _fsync_dir(out_dir)
     os.replace(staging / manifest, out_dir / manifest)
     _fsync_dir(out_dir)
+
+
+# -- can the output be written? ---------------------------------------------------------------
+
+def os_error_text(error: OSError) -> str:
+    """One line for an ``OSError``: ``PATH: reason`` (``PATH -> TARGET: reason`` for a rename);
+    the error's own text where it names no path (rjfit's errors, which name it themselves)."""
+    if error.filename is None or isinstance(error, OutputError):
+        return str(error)
+    where = f"{error.filename} -> {error.filename2}" if error.filename2 is not None else str(error.filename)
+    return f"{where}: {error.strerror or error}"
+
+
+def _blocking_file(folder: Path) -> Path | None:
+    """The nearest ancestor of ``folder`` (or ``folder`` itself) that exists and is not a folder."""
+    for path in (folder, *folder.parents):
+        if os.path.lexists(path):
+            return None if path.is_dir() else path
+    return None
+
+
+def check_writable(folder, *, keep: bool = False) -> Path:
+    """Check that results can be written in ``folder``, before any expensive work.
+
+    Creates the missing folders, writes and removes a probe file in ``folder``, then (unless
+    ``keep``) removes the folders it created, so the file system is left as it was. A root user
+    passes permission checks, but not a path under a file (``--out FILE/sub``) or a full disk.
+
+    Parameters
+    ----------
+    folder : path-like
+        The output folder (it need not exist).
+    keep : bool
+        Leave the folder created (the caller writes into it next).
+
+    Returns
+    -------
+    Path
+        ``folder``.
+
+    Raises
+    ------
+    OutputError
+        If the folder cannot be created or a file cannot be written in it; the message names
+        the folder and why (the file in the way, no permission, a full disk).
+    """
+    folder = Path(folder)
+    missing = [path for path in (folder, *folder.parents) if not os.path.lexists(path)]
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        descriptor, probe = tempfile.mkstemp(dir=folder, prefix=".rjfit-probe.")
+        try:
+            os.write(descriptor, b"rjfit")      # a full disk refuses data, not always the name
+        finally:
+            os.close(descriptor)
+            os.unlink(probe)
+    except OSError as error:
+        blocking = _blocking_file(folder)
+        reason = f"{blocking} is a file, not a folder" if blocking is not None else error.strerror or str(error)
+        raise OutputError(f"{folder}: cannot write results there ({reason})") from None
+    finally:
+        for path in [] if keep and folder.is_dir() else missing:      # deepest first
+            with suppress(OSError):
+                path.rmdir()
+    return folder
 
 
 # -- strict JSON ------------------------------------------------------------------------------
