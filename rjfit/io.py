@@ -29,6 +29,7 @@ import functools
 import json
 import os
 import shutil
+import sys
 import tempfile
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -38,7 +39,7 @@ import numpy as np
 from rjfit.errors import DatasetError, OutputError
 
 __all__ = ["write_json_atomic", "read_json", "atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir",
-           "publish", "STAGING_PREFIX", "check_writable", "os_error_text"]
+           "publish", "STAGING_PREFIX", "check_writable", "os_error_text", "call_capturing_stderr"]
 
 #: name prefix of staging folders; the creating process's id follows, so that a later run can
 #: tell the leftover of a killed run from the staging folder of a run still going
@@ -298,6 +299,33 @@ def check_writable(folder, *, keep: bool = False) -> Path:
             with suppress(OSError):
                 path.rmdir()
     return folder
+
+
+# -- C libraries' messages -----------------------------------------------------------------------
+
+def call_capturing_stderr(function, *args):
+    """``(function(*args), text)``: what C libraries wrote to standard error meanwhile, captured.
+
+    A decoder such as libpng prints ``libpng error: ...`` on file descriptor 2 before it
+    returns a failure (OpenCV then gives None). Captured, the text becomes part of the one
+    line that names the file, instead of library noise before it. The capture swaps file
+    descriptor 2 for a temporary file for the call (the process's other threads' messages
+    meanwhile are captured too: a caller whose call succeeds writes the text back).
+    """
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                result = function(*args)
+            finally:
+                os.dup2(saved, 2)
+            sink.seek(0)
+            text = sink.read().decode("utf-8", errors="replace").strip()
+    finally:
+        os.close(saved)
+    return result, text
 
 
 # -- strict JSON ------------------------------------------------------------------------------

@@ -359,7 +359,8 @@ def check_dataset_description(meta, source) -> dict:
     ``materials`` (``{I0 > 0, kd in [0, 1], gamma > 0}`` per material, plus ``sigma2 >= 0`` when
     ``truth_labels`` is set, which then requires them), ``meshes`` (``{file, material}`` per
     part, the material an index into ``materials``), ``max_depth`` (integer >= 2) and
-    ``saturation`` (> 0, or null), ``dark`` (>= 0, or null). Other entries (name, units, versions, ...) are free.
+    ``saturation`` (> 0, or null), ``dark`` (>= 0, or null), ``noise_variance`` (>= 0, or null).
+    Other entries (name, units, versions, ...) are free.
 
     Parameters
     ----------
@@ -419,6 +420,9 @@ def check_dataset_description(meta, source) -> dict:
     if meta.get("saturation") is not None:
         check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
                      allowed="a value > 0 at which a pixel clips, or null")
+    if meta.get("noise_variance") is not None:      # how far below 0 its images may dip (rjfit.data.checks)
+        check.number(meta["noise_variance"], "noise_variance", low=0.0,
+                     allowed="a number >= 0 (the variance of the Gaussian noise in the images), or null")
     _check_dark(check, meta)
     return meta
 
