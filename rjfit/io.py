@@ -39,7 +39,8 @@ import numpy as np
 from rjfit.errors import DatasetError, OutputError
 
 __all__ = ["write_json_atomic", "read_json", "atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir",
-           "publish", "STAGING_PREFIX", "check_writable", "os_error_text", "call_capturing_stderr"]
+           "publish", "STAGING_PREFIX", "check_writable", "os_error_text", "raise_naming",
+           "call_capturing_stderr"]
 
 #: name prefix of staging folders; the creating process's id follows, so that a later run can
 #: tell the leftover of a killed run from the staging folder of a run still going
@@ -102,6 +103,8 @@ def atomic_path(path):
         _fsync_file(temporary)
         os.replace(temporary, path)
         replaced = True
+    except OSError as error:
+        raise_naming(error, path)
     finally:
         if not replaced:
             temporary.unlink(missing_ok=True)
@@ -158,6 +161,8 @@ def staging_dir(out_dir):
     staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}.", dir=out_dir))
     try:
         yield staging
+    except OSError as error:
+        raise_naming(error, out_dir)
     finally:
         shutil.rmtree(staging, ignore_errors=True)          # gone already once published, or a half-written run
 
@@ -238,13 +243,31 @@ def publish(staging, out_dir, *, manifest: str, names=None, remove=()) -> None:
 
 # -- can the output be written? ---------------------------------------------------------------
 
+def _result_path(name) -> str:
+    """``name`` as the result it is written for: a staging folder's part dropped
+    (``OUT/.staging.123.x/figures/a.png`` is ``OUT/figures/a.png``)."""
+    parts = Path(name).parts
+    return str(Path(*[part for part in parts if not part.startswith(STAGING_PREFIX)])) if parts else str(name)
+
+
 def os_error_text(error: OSError) -> str:
-    """One line for an ``OSError``: ``PATH: reason`` (``PATH -> TARGET: reason`` for a rename);
-    the error's own text where it names no path (rjfit's errors, which name it themselves)."""
+    """One line for an ``OSError``: ``PATH: reason`` (``PATH -> TARGET: reason`` for a rename), a
+    path inside a staging folder given as the result it is written for; the error's own text
+    where it names no path (rjfit's errors, which name it themselves)."""
     if error.filename is None or isinstance(error, OutputError):
         return str(error)
-    where = f"{error.filename} -> {error.filename2}" if error.filename2 is not None else str(error.filename)
+    where = _result_path(error.filename)
+    if error.filename2 is not None:
+        where += f" -> {_result_path(error.filename2)}"
     return f"{where}: {error.strerror or error}"
+
+
+def raise_naming(error: OSError, path) -> None:
+    """Raise ``error``; one that names no file (``write()`` on a full disk names none) as the same
+    kind of error naming ``path``, the file or folder being written."""
+    if error.filename is not None:
+        raise error
+    raise OSError(error.errno, error.strerror or str(error), str(path)) from error
 
 
 def _blocking_file(folder: Path) -> Path | None:
