@@ -336,7 +336,10 @@ def call_capturing_stderr(function, *args):
     meanwhile are captured too: a caller whose call succeeds writes the text back).
     """
     sys.stderr.flush()
-    saved = os.dup(2)
+    try:
+        saved = os.dup(2)
+    except OSError:             # no standard error to capture (closed): nothing to keep quiet
+        return function(*args), ""
     try:
         with tempfile.TemporaryFile() as sink:
             os.dup2(sink.fileno(), 2)

@@ -16,9 +16,9 @@ from rjfit.data.codes import BITS, ENCODINGS, RESPONSES, read_codes
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.io import call_capturing_stderr
 
-__all__ = ["require_file", "numbered_lines", "read_vectors", "size_text", "read_with_opencv", "read_raw_image", "check_depth",
-           "read_mask", "find_normal_map", "read_normal_map", "check_reading", "read_images", "NORMAL_MAP_NAMES",
-           "MAT_VARIABLES"]
+__all__ = ["require_file", "numbered_lines", "read_vectors", "size_text", "read_with_opencv", "read_raw_image",
+           "check_depth", "read_mask", "find_normal_map", "read_normal_map", "check_reading", "read_images",
+           "NORMAL_MAP_NAMES", "MAT_VARIABLES"]
 
 NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "normal")
                          for ext in ("mat", "npy", "exr"))
