@@ -35,22 +35,36 @@ def _likelihood_power(text: str | None):
     return value
 
 
+def _check_output(folder) -> None:
+    """Refuse an output folder that cannot be written before any work (:func:`rjfit.io.check_writable`,
+    imported here so that ``--help`` does not load NumPy)."""
+    from rjfit.io import check_writable
+
+    check_writable(folder)
+
+
 class _Group(click.Group):
-    """Turns the errors rjfit raises for bad input into one clear line (no traceback);
-    set RJFIT_DEBUG=1 to see the traceback."""
+    """Turns the errors rjfit raises for bad input, and every ``OSError`` (an output that
+    cannot be written, a file that cannot be read), into one clear line naming the path (no
+    traceback; exit status 1); set RJFIT_DEBUG=1 to see the traceback."""
 
     def invoke(self, ctx):
         import os
 
         from rjfit.errors import DatasetError
+        from rjfit.io import os_error_text
         from rjfit.render.gate import ValidationRequiredError
 
         try:
             return super().invoke(ctx)
-        except (ValidationRequiredError, DatasetError, FileNotFoundError, ValueError) as error:
+        except (ValidationRequiredError, DatasetError, ValueError) as error:
             if os.environ.get("RJFIT_DEBUG"):
                 raise
             raise click.ClickException(str(error)) from error
+        except OSError as error:        # no permission, not a folder, a full disk: the path and why
+            if os.environ.get("RJFIT_DEBUG"):
+                raise
+            raise click.ClickException(os_error_text(error)) from error
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -91,6 +105,7 @@ def _echo_cuda_fallback(variant_ran: str) -> None:
 def render(scene, out_dir, resolution, seed, spp, noise_variance, variant):
     """Render SCENE (a built-in name such as paper_sphere, or a scene JSON file) into a
     data set: one linear EXR per light, geometry, visibility, truth and dataset.json."""
+    _check_output(out_dir.resolve().parent)       # the data set is staged beside it, then renamed
     from rjfit.render.render import render_dataset
 
     _echo_render(render_dataset(scene, out_dir, resolution=resolution, seed=seed, spp=spp,
@@ -118,6 +133,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
     """Cross-check the closed form against Mitsuba's path tracer on DATASET.
 
     Exits with status 1 when the gate fails (median rel. error > 1e-4 or p99 > 1e-3)."""
+    _check_output(out_dir or dataset / "validation")
     from rjfit.render.gate import validate_dataset
 
     result = validate_dataset(dataset, out_dir, spp=spp, max_depth=max_depth, seed=seed, variant=variant,
@@ -149,9 +165,10 @@ def run(scene, out_dir, resolution, iterations, n_chains, seed, allow_unvalidate
     render -> validate -> fit -> compare -> diagnose and refine -> report.
 
     Stops with status 1 after a failed cross-check, unless --allow-unvalidated."""
+    out_dir = out_dir or Path("runs") / Path(scene).stem
+    _check_output(out_dir)
     from rjfit.pipeline.run import run as run_main_job
 
-    out_dir = out_dir or Path("runs") / Path(scene).stem
     echo = {"render": _echo_render,
             "validate": lambda result: click.echo(
                 f"  {'PASSED' if result['passed'] else 'FAILED'}: median rel. err. {result['median_rel_err']:.3g}, "
@@ -184,6 +201,7 @@ def compare(dataset, out_dir, fit_dir, seed, channel):
     normalized cuts on one image (k = 5..6, background included) and, with --fit, rjfit's
     MAP segmentation. Scores pixel accuracy, adjusted Rand index and boundary F1 (2 px)
     after Hungarian matching, and the runtime of each method."""
+    _check_output(out_dir)
     from rjfit.pipeline.compare import compare_dataset
 
     click.echo(f"comparing segmentations of {dataset}")
@@ -249,10 +267,11 @@ def fit(datasets, out_dir, validation_path, allow_unvalidated, scheduler, worker
     --allow-unvalidated is given. Writes summary.json, labels.exr (MAP labels), maps.exr,
     chains.nc, changepoints.npz and the paper's figures; an interrupted fit leaves the
     folder's previous results untouched and resumes from its checkpoints."""
+    options["likelihood_power"] = _likelihood_power(options["likelihood_power"])
+    _check_output(out_dir)
     from rjfit.pipeline.fit_dataset import fit_datasets
     from rjfit.pipeline.options import FitOptions
 
-    options["likelihood_power"] = _likelihood_power(options["likelihood_power"])
     summaries = fit_datasets(datasets, out_dir, FitOptions(**options), validation_path=validation_path,
                              allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers)
     for folder, summary in summaries:
@@ -335,6 +354,7 @@ def report(fit_dir, out_path, diagnosis_dir, comparison_dir):
     """Build one self-contained HTML report of a fit: figures, the paper's parameter table,
     validation, diagnosis and comparison results where present (those made from another
     fit are flagged as stale, not shown)."""
+    _check_output((out_path or fit_dir / "report.html").parent)
     from rjfit.pipeline.report import build_report
 
     click.echo(f"report: {build_report(fit_dir, out_path, diagnosis_dir=diagnosis_dir, comparison_dir=comparison_dir)}")
@@ -373,10 +393,11 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
                      jobs):
     """Criticise a fit: find where simulation and data disagree, name the missing effect
     (only when the evidence is decisive), add it, refit and show the gap shrink."""
+    out_dir = out_dir or fit_dir / "diagnosis"
+    _check_output(out_dir)
     from rjfit.effects import ALL_EFFECTS
     from rjfit.pipeline.diagnose import diagnose_fit
 
-    out_dir = out_dir or fit_dir / "diagnosis"
     candidates = ALL_EFFECTS if not effects else [name.strip() for name in effects.split(",") if name.strip()]
     options = {} if likelihood_power is None else {"likelihood_power": likelihood_power}
     if noise is not None:
@@ -401,6 +422,7 @@ def refine(fit_dir, out_dir, max_rounds, max_steps, seed, no_simulate):
     """Close the loop: diagnose FIT_DIR, fit its data set again with the named effects sampled
     jointly with the segmentation (the fit's own options plus --effects-from), diagnose that
     fit, and repeat until nothing more is named."""
+    _check_output(out_dir)
     from rjfit.pipeline.refine import refine as refine_fit
 
     result = refine_fit(fit_dir, out_dir, max_rounds=max_rounds, max_steps=max_steps, seed=seed,

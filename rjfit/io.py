@@ -16,6 +16,11 @@ Atomic writing has two levels:
   moves them in with the manifest (``summary.json``, ``diagnosis.json``, ...) last, after
   removing the manifest and the previous run's files first. A folder without its manifest
   holds no results; one with it holds the results of that run only.
+
+Before any expensive work a command calls :func:`check_writable` on its output folder, so that
+a folder it cannot write is one line at the start (:class:`rjfit.errors.OutputError`), not a
+traceback after the work; :func:`os_error_text` turns any other ``OSError`` into one line
+naming the path.
 """
 from __future__ import annotations
 
@@ -24,15 +29,18 @@ import functools
 import json
 import os
 import shutil
+import sys
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.errors import DatasetError
+from rjfit.errors import DatasetError, OutputError
 
-__all__ = ["write_json_atomic", "read_json", "atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir", "publish", "STAGING_PREFIX"]
+__all__ = ["write_json_atomic", "read_json", "atomic_path", "write_text_atomic", "write_bytes_atomic", "staging_dir",
+           "publish", "STAGING_PREFIX", "check_writable", "os_error_text", "raise_naming",
+           "call_capturing_stderr"]
 
 #: name prefix of staging folders; the creating process's id follows, so that a later run can
 #: tell the leftover of a killed run from the staging folder of a run still going
@@ -95,6 +103,8 @@ def atomic_path(path):
         _fsync_file(temporary)
         os.replace(temporary, path)
         replaced = True
+    except OSError as error:
+        raise_naming(error, path)
     finally:
         if not replaced:
             temporary.unlink(missing_ok=True)
@@ -151,6 +161,8 @@ def staging_dir(out_dir):
     staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}.", dir=out_dir))
     try:
         yield staging
+    except OSError as error:
+        raise_naming(error, out_dir)
     finally:
         shutil.rmtree(staging, ignore_errors=True)          # gone already once published, or a half-written run
 
@@ -227,6 +239,119 @@ def publish(staging, out_dir, *, manifest: str, names=None, remove=()) -> None:
     _fsync_dir(out_dir)
     os.replace(staging / manifest, out_dir / manifest)
     _fsync_dir(out_dir)
+
+
+# -- can the output be written? ---------------------------------------------------------------
+
+def _result_path(name) -> str:
+    """``name`` as the result it is written for: a staging folder's part dropped
+    (``OUT/.staging.123.x/figures/a.png`` is ``OUT/figures/a.png``)."""
+    parts = Path(name).parts
+    return str(Path(*[part for part in parts if not part.startswith(STAGING_PREFIX)])) if parts else str(name)
+
+
+def os_error_text(error: OSError) -> str:
+    """One line for an ``OSError``: ``PATH: reason`` (``PATH -> TARGET: reason`` for a rename), a
+    path inside a staging folder given as the result it is written for; the error's own text
+    where it names no path (rjfit's errors, which name it themselves)."""
+    if error.filename is None or isinstance(error, OutputError):
+        return str(error)
+    where = _result_path(error.filename)
+    if error.filename2 is not None:
+        where += f" -> {_result_path(error.filename2)}"
+    return f"{where}: {error.strerror or error}"
+
+
+def raise_naming(error: OSError, path) -> None:
+    """Raise ``error``; one that names no file (``write()`` on a full disk names none) as the same
+    kind of error naming ``path``, the file or folder being written."""
+    if error.filename is not None:
+        raise error
+    raise OSError(error.errno, error.strerror or str(error), str(path)) from error
+
+
+def _blocking_file(folder: Path) -> Path | None:
+    """The nearest ancestor of ``folder`` (or ``folder`` itself) that exists and is not a folder."""
+    for path in (folder, *folder.parents):
+        if os.path.lexists(path):
+            return None if path.is_dir() else path
+    return None
+
+
+def check_writable(folder, *, keep: bool = False) -> Path:
+    """Check that results can be written in ``folder``, before any expensive work.
+
+    Creates the missing folders, writes and removes a probe file in ``folder``, then (unless
+    ``keep``) removes the folders it created, so the file system is left as it was. A root user
+    passes permission checks, but not a path under a file (``--out FILE/sub``) or a full disk.
+
+    Parameters
+    ----------
+    folder : path-like
+        The output folder (it need not exist).
+    keep : bool
+        Leave the folder created (the caller writes into it next).
+
+    Returns
+    -------
+    Path
+        ``folder``.
+
+    Raises
+    ------
+    OutputError
+        If the folder cannot be created or a file cannot be written in it; the message names
+        the folder and why (the file in the way, no permission, a full disk).
+    """
+    folder = Path(folder)
+    missing = [path for path in (folder, *folder.parents) if not os.path.lexists(path)]
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        descriptor, probe = tempfile.mkstemp(dir=folder, prefix=".rjfit-probe.")
+        try:
+            os.write(descriptor, b"rjfit")      # a full disk refuses data, not always the name
+        finally:
+            os.close(descriptor)
+            os.unlink(probe)
+    except OSError as error:
+        blocking = _blocking_file(folder)
+        reason = f"{blocking} is a file, not a folder" if blocking is not None else error.strerror or str(error)
+        raise OutputError(f"{folder}: cannot write results there ({reason})") from None
+    finally:
+        for path in [] if keep and folder.is_dir() else missing:      # deepest first
+            with suppress(OSError):
+                path.rmdir()
+    return folder
+
+
+# -- C libraries' messages -----------------------------------------------------------------------
+
+def call_capturing_stderr(function, *args):
+    """``(function(*args), text)``: what C libraries wrote to standard error meanwhile, captured.
+
+    A decoder such as libpng prints ``libpng error: ...`` on file descriptor 2 before it
+    returns a failure (OpenCV then gives None). Captured, the text becomes part of the one
+    line that names the file, instead of library noise before it. The capture swaps file
+    descriptor 2 for a temporary file for the call (the process's other threads' messages
+    meanwhile are captured too: a caller whose call succeeds writes the text back).
+    """
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:             # no standard error to capture (closed): nothing to keep quiet
+        return function(*args), ""
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                result = function(*args)
+            finally:
+                os.dup2(saved, 2)
+            sink.seek(0)
+            text = sink.read().decode("utf-8", errors="replace").strip()
+    finally:
+        os.close(saved)
+    return result, text
 
 
 # -- strict JSON ------------------------------------------------------------------------------

@@ -1,8 +1,8 @@
 """Checks shared by the data set loaders: each raises :class:`DatasetError` naming the source.
 
 These are the checks that hold for every layout (rjfit's own and photometric-stereo
-folders): a non-empty object mask, finite unit normals on the object, and lights that
-illuminate at least part of the object.
+folders): images of finite, non-negative radiance, a non-empty object mask, finite unit
+normals on the object, and lights that illuminate at least part of the object.
 """
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ import numpy as np
 from rjfit.data.lights import geometry_terms
 from rjfit.errors import DatasetError
 
-__all__ = ["NORMAL_TOLERANCE", "check_finite", "check_mask", "check_unit_normals", "check_lights_face_object"]
+__all__ = ["NORMAL_TOLERANCE", "NOISE_FLOOR_SDS", "check_finite", "check_radiance", "radiance_floor", "check_mask",
+           "check_unit_normals", "check_lights_face_object"]
 
 NORMAL_TOLERANCE = 1e-3
 """Largest allowed ``| |n| - 1 |`` of a normal inside the object mask."""
@@ -50,6 +51,56 @@ def check_finite(array, source, what="pixels") -> None:
         row, col = _first_pixel(bad) if bad.ndim == 2 else (None, None)
         where = f" (first at row {row}, column {col})" if row is not None else ""
         raise DatasetError(f"{source}: {int(bad.sum())} {what} are NaN or Inf{where}")
+
+
+NOISE_FLOOR_SDS = 8.0
+"""How far below zero a data set's declared Gaussian noise may take a value, in standard deviations:
+radiance is >= 0, so a value below ``-8 sd`` has probability below 7e-16 (about 1e-6 over a stack of
+10^9 values); anything lower is not noise."""
+
+
+def radiance_floor(noise_variance) -> float:
+    """The lowest value an image may hold: 0, or ``-NOISE_FLOOR_SDS`` standard deviations of the
+    Gaussian noise a data set declares (``noise_variance`` in ``dataset.json``; None or 0: none)."""
+    return -NOISE_FLOOR_SDS * float(noise_variance) ** 0.5 if noise_variance else 0.0
+
+
+def check_radiance(image, source, floor: float = 0.0) -> None:
+    """Raise unless every value of ``image`` (H, W[, C]) is a finite radiance of at least ``floor``.
+
+    Radiance is not negative: a negative value is an unsubtracted or over-subtracted sensor
+    offset, or a broken file, not a measurement the model can explain. Only a data set that
+    declares Gaussian noise may dip below zero, by at most :data:`NOISE_FLOOR_SDS` of its
+    standard deviations (``floor``, from :func:`radiance_floor`).
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W) or (H, W, C)
+        The values as read (codes or radiance); integer images are checked too.
+    source : str or Path
+        What to name in the message (the file).
+    floor : float
+        The lowest value allowed (default 0).
+
+    Raises
+    ------
+    DatasetError
+        If a value is NaN or Inf (:func:`check_finite`), or below ``floor``: the message gives the
+        count of pixels, the first one's row, column and value, and the rule.
+    """
+    array = np.asarray(image)
+    check_finite(array, source)
+    below = array < floor
+    if below.ndim == 3:
+        below = below.any(axis=-1)
+    if below.any():
+        row, col = _first_pixel(below)
+        value = float(np.min(array[row, col]))
+        rule = (f"below {floor:.4g}, the floor of the declared noise ({NOISE_FLOOR_SDS:g} sd below 0)" if floor < 0
+                else "negative")
+        raise DatasetError(f"{source}: {int(below.sum())} pixels are {rule} (first at row {row}, column {col}: "
+                           f"{value:.4g}); radiance cannot be negative: subtract a sensor's black level only to zero, "
+                           f"not below it (docs/dataset-format.md, Bad input)")
 
 
 def check_mask(mask, source) -> None:

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.checks import check_finite, check_lights_face_object, check_mask, check_unit_normals
+from rjfit.data.checks import (check_finite, check_lights_face_object, check_mask, check_radiance,
+                               check_unit_normals, radiance_floor)
 from rjfit.data.descriptions import check_dataset_description
 from rjfit.data.exr import read_exr
 from rjfit.data.formats import CHANNELS, COLOUR, COLOUR_CHANNELS
@@ -421,8 +422,7 @@ def load_rjfit_layout(path) -> Dataset:
     for index, name in enumerate(meta["images"]):
         image = np.stack(_read_channels(path / name, "RGB", shape, f"the image of light {index} (images[{index}])",
                                         description_path), axis=-1)
-        bad = ~np.isfinite(image)
-        _require(not bad.any(), f"{path / name}: {int(bad.any(axis=-1).sum())} pixels are NaN or Inf")
+        check_radiance(image, path / name, radiance_floor(meta.get("noise_variance")))
         images.append(image)
     geometry_file = path / meta["geometry"]
     geometry_names = [f"{prefix}.{axis}" for prefix in "PNV" for axis in "XYZ"] + ["mask"]

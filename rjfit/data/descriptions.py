@@ -320,7 +320,7 @@ def _check_lights(check, lights):
 def check_stack_description(meta, source) -> dict:
     """Check a mesh stack's ``stack.json`` (:mod:`rjfit.render.mesh_stack`) by the rules it
     shares with a scene: format, resolution, camera, lights, reference intensity and the
-    optional saturation and dark levels; return it unchanged.
+    optional saturation and dark levels and noise variance; return it unchanged.
 
     Raises
     ------
@@ -343,7 +343,7 @@ def check_stack_description(meta, source) -> dict:
     if meta.get("saturation") is not None:
         check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
                      allowed="a raw value > 0 at which a pixel clips, or null")
-    _check_dark(check, meta)
+    _check_noise_and_dark(check, meta)
     return meta
 
 
@@ -359,7 +359,8 @@ def check_dataset_description(meta, source) -> dict:
     ``materials`` (``{I0 > 0, kd in [0, 1], gamma > 0}`` per material, plus ``sigma2 >= 0`` when
     ``truth_labels`` is set, which then requires them), ``meshes`` (``{file, material}`` per
     part, the material an index into ``materials``), ``max_depth`` (integer >= 2) and
-    ``saturation`` (> 0, or null), ``dark`` (>= 0, or null). Other entries (name, units, versions, ...) are free.
+    ``saturation`` (> 0, or null), ``dark`` (>= 0, or null), ``noise_variance`` (>= 0, or null).
+    Other entries (name, units, versions, ...) are free.
 
     Parameters
     ----------
@@ -419,11 +420,14 @@ def check_dataset_description(meta, source) -> dict:
     if meta.get("saturation") is not None:
         check.number(meta["saturation"], "saturation", low=0.0, low_open=True,
                      allowed="a value > 0 at which a pixel clips, or null")
-    _check_dark(check, meta)
+    _check_noise_and_dark(check, meta)
     return meta
 
 
-def _check_dark(check, meta):
+def _check_noise_and_dark(check, meta):
+    if meta.get("noise_variance") is not None:      # how far below 0 its images may dip (rjfit.data.checks)
+        check.number(meta["noise_variance"], "noise_variance", low=0.0,
+                     allowed="a number >= 0 (the variance of the Gaussian noise in the images), or null")
     if meta.get("dark") is not None:
         check.number(meta["dark"], "dark", low=0.0,
                      allowed="a value >= 0 at or below which an observation (every channel) is too dark, or null")

@@ -6,17 +6,19 @@ reader names the file (and line) in its error.
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.checks import check_finite
+from rjfit.data.checks import check_finite, check_radiance
 from rjfit.data.codes import BITS, ENCODINGS, RESPONSES, read_codes
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
+from rjfit.io import call_capturing_stderr
 
-__all__ = ["require_file", "numbered_lines", "read_vectors", "size_text", "read_raw_image", "check_depth",
-           "read_mask", "find_normal_map", "read_normal_map", "check_reading", "read_images", "NORMAL_MAP_NAMES",
-           "MAT_VARIABLES"]
+__all__ = ["require_file", "numbered_lines", "read_vectors", "size_text", "read_with_opencv", "read_raw_image",
+           "check_depth", "read_mask", "find_normal_map", "read_normal_map", "check_reading", "read_images",
+           "NORMAL_MAP_NAMES", "MAT_VARIABLES"]
 
 NORMAL_MAP_NAMES = tuple(f"{stem}.{ext}" for stem in ("Normal_gt", "normals", "normal")
                          for ext in ("mat", "npy", "exr"))
@@ -67,6 +69,20 @@ def size_text(array) -> str:
     return f"{array.shape[1]} x {array.shape[0]} (width x height)"
 
 
+def read_with_opencv(path: Path) -> np.ndarray:
+    """The file as OpenCV decodes it (unchanged depth and channels); a file it cannot decode is one
+    line naming it, with the decoder's own message (libpng's, libtiff's) in it instead of before it."""
+    import cv2
+
+    image, messages = call_capturing_stderr(cv2.imread, str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        detail = f": {' '.join(messages.split())}" if messages else ""
+        raise DatasetError(f"{path}: not a readable image (OpenCV could not decode it{detail})")
+    if messages:        # decoded after all (a warning): the messages are the library's to show
+        print(messages, file=sys.stderr)
+    return image
+
+
 def read_raw_image(path: Path) -> np.ndarray:
     """The image as stored: (H, W, 3) in R, G, B order, integer or float."""
     if path.suffix.lower() == ".exr":
@@ -78,11 +94,7 @@ def read_raw_image(path: Path) -> np.ndarray:
         if "Y" in channels:
             return np.repeat(channels["Y"][..., None], 3, axis=-1)
         raise DatasetError(f"{path}: needs channels R, G, B (or Y), has {sorted(channels)}")
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise DatasetError(f"{path}: not a readable image (OpenCV could not decode it)")
+    image = read_with_opencv(path)
     if image.ndim == 2:
         return np.repeat(image[..., None], 3, axis=-1)
     if image.shape[-1] != 3:
@@ -109,11 +121,7 @@ def read_mask(path: Path) -> np.ndarray:
     select the whole frame. Where the alpha itself varies and marks other pixels than the
     colour does, the file is ambiguous and refused.
     """
-    import cv2
-
-    mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if mask is None:
-        raise DatasetError(f"{path}: not a readable image (OpenCV could not decode it)")
+    mask = read_with_opencv(path)
     if np.issubdtype(mask.dtype, np.floating):
         check_finite(mask, path)
     alpha = None
@@ -233,7 +241,7 @@ def read_images(image_files, mask, mask_file, intensities, encoded, response, bi
                                f"mask, the normal map and every image must have one size")
         codes, max_code = check_depth(raw, image_file, encoded, reference, response, bits)
         reference = reference or (raw.dtype, image_file)
-        check_finite(codes, image_file)
+        check_radiance(codes, image_file)
         threshold = saturation if saturation is not None else max_code
         if threshold is not None:
             saturated[index] = (codes >= threshold).any(axis=-1)

@@ -34,9 +34,7 @@ observations cannot tell two regions apart make it ~0 even for a good fit).
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,9 +44,10 @@ import numpy as np
 from rjfit.data.coarsen import misfit_warning
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
-from rjfit.io import staging_dir
+from rjfit.io import check_writable, staging_dir
 from rjfit.model.blinn import radiance
-from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, publish_results, results_digest, save_chain_arrays, write_summary
+from rjfit.pipeline.fit_folder import (PARAMETERS_ATTR, kept_chains, publish_results, remove_checkpoints,
+                                      results_digest, save_chain_arrays, write_summary)
 from rjfit.pipeline.fit_power import edge_power, noise_and_power
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import caveats
@@ -141,7 +140,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         raise ValueError("effects (--effects, --effects-from) need the data set's geometry: fit the data set "
                          "(rjfit fit DATASET, rjfit.pipeline.fit_dataset.fit_dataset), or pass sampler_effects=")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    check_writable(out_dir, keep=True)        # before any chain runs, not after
     started = time.perf_counter()
     problem, suggestion, noise_record = prepare_problem(observations, options, sampler_effects)
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
@@ -158,19 +157,9 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     if truth_params is not None:
         result.summary["truth_params"] = truth_params
     result.summary["fit_options"] = options.to_json()        # what `rjfit refine` fits again with
-    write_results(out_dir, result, records, observations, options, source, before_publish, started)
-    remove_checkpoints(specs, out_dir)
+    write_results(out_dir, result, records, observations, options, source, before_publish, started,
+                  [spec.checkpoint_path for spec in specs])
     return result.summary
-
-
-def remove_checkpoints(specs, out_dir: Path) -> None:
-    """The results are written: the checkpoints (for resuming an interrupted run) have served,
-    and a later run into ``out_dir`` must start afresh, not resume them."""
-    for spec in specs:
-        if os.path.exists(spec.checkpoint_path):
-            os.remove(spec.checkpoint_path)
-    with contextlib.suppress(OSError):      # only when empty: a folder the user keeps files in stays
-        (out_dir / "checkpoints").rmdir()
 
 
 def effect_warnings(effects) -> list:
@@ -385,13 +374,22 @@ def truth_summary(records, burn, labels, truth_labels) -> dict:
 
 
 def write_results(out_dir: Path, result: FitResult, records, observations, options: FitOptions,
-                  source: FitSource | None, before_publish, started: float) -> None:
-    """Stage every result file and publish them together, ``summary.json`` last.
+                  source: FitSource | None, before_publish, started: float, checkpoints) -> None:
+    """Stage every result file and publish them together, ``summary.json`` last; then remove the
+    chains' ``checkpoints``, which have served.
 
     An interrupted run leaves the previous results whole or none: never labels of one run
     beside the summary of another. (``staging_dir`` removes the staging folders of runs
-    killed while they wrote their results.)
+    killed while they wrote their results.) A run whose results cannot be written keeps the
+    checkpoints and raises :class:`rjfit.errors.OutputError` saying how to publish them.
     """
+    with kept_chains(checkpoints, out_dir):
+        _stage_and_publish(out_dir, result, records, observations, options, source, before_publish, started)
+    remove_checkpoints(checkpoints, out_dir)
+
+
+def _stage_and_publish(out_dir: Path, result: FitResult, records, observations, options: FitOptions,
+                       source: FitSource | None, before_publish, started: float) -> None:
     summary = result.summary
     with staging_dir(out_dir) as staging:
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)})

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import numpy as np
@@ -20,11 +22,12 @@ import numpy as np
 from rjfit.data.exr import read_exr
 from rjfit.data.formats import CHANNELS, COLOUR
 from rjfit.data.noise import NOISE_MODELS
-from rjfit.errors import DatasetError, DatasetFileNotFoundError
-from rjfit.io import publish, read_json, write_json_atomic
+from rjfit.errors import DatasetError, DatasetFileNotFoundError, OutputError
+from rjfit.io import os_error_text, publish, read_json, write_json_atomic
 
 __all__ = ["SUMMARY_FIELDS", "write_summary", "read_summary", "read_map_labels", "results_digest", "publish_results",
-           "MAP_LABEL_FILES", "RESULT_FILES", "DERIVED_RESULTS", "PARAMETERS_ATTR", "save_chain_arrays"]
+           "MAP_LABEL_FILES", "RESULT_FILES", "DERIVED_RESULTS", "PARAMETERS_ATTR", "save_chain_arrays",
+           "kept_chains", "remove_checkpoints"]
 
 #: what chains.nc says its parameter dimension holds (either region model)
 PARAMETERS_ATTR = ("I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise variance), "
@@ -205,6 +208,35 @@ def publish_results(staging: Path, out_dir: Path) -> None:
     new ``summary.json`` appears (see :func:`rjfit.io.publish`).
     """
     publish(staging, out_dir, manifest="summary.json", names=RESULT_FILES, remove=RESULT_FILES + DERIVED_RESULTS)
+
+
+@contextmanager
+def kept_chains(checkpoint_paths, out_dir):
+    """Turn an ``OSError`` raised while a fit's results are written, after its chains ran, into
+    one line (:class:`~rjfit.errors.OutputError`): the path and why, that the folder keeps its
+    previous results, and where the sampled chains are kept (each chain's final checkpoint,
+    ``checkpoint_paths``) with how to publish them."""
+    try:
+        yield
+    except OSError as error:
+        out_dir = Path(out_dir)
+        if all(path and Path(path).is_file() for path in checkpoint_paths):
+            advice = (f"the sampled chains are kept in {out_dir / 'checkpoints'}: once that is fixed, run the same "
+                      f"command again to publish them without sampling again")
+        else:
+            advice = "the chains have no checkpoint to resume from, so running it again samples anew"
+        raise OutputError(f"{os_error_text(error)}; the fit's results were not written ({out_dir} keeps its previous "
+                          f"ones, if any); {advice}") from error
+
+
+def remove_checkpoints(checkpoint_paths, out_dir) -> None:
+    """The results are written: the checkpoints (for resuming an interrupted run) have served,
+    and a later run into ``out_dir`` must start afresh, not resume them."""
+    for path in checkpoint_paths:
+        if path and os.path.exists(path):
+            os.remove(path)
+    with suppress(OSError):      # only when empty: a folder the user keeps files in stays
+        (Path(out_dir) / "checkpoints").rmdir()
 
 
 def _again(fit_dir) -> str:

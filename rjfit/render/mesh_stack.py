@@ -45,7 +45,7 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
         pixels are NaN/Inf, 8-bit data is given as linear, the mesh has no faces, or the
         camera sees no part of the mesh.
     """
-    from rjfit.data.checks import check_lights_face_object
+    from rjfit.data.checks import check_lights_face_object, check_radiance, radiance_floor
     from rjfit.data.diligent_files import check_depth, read_raw_image
     from rjfit.data.mesh import load_mesh
     from rjfit.render.mitsuba_scene import activate, shadow_visibility, trace_pixels
@@ -75,8 +75,7 @@ def load_mesh_stack(path, *, variant: str = "auto") -> Dataset:
         if raw.shape[:2] != (height, width):
             raise DatasetError(f"{image_path}: image is {raw.shape[1]} x {raw.shape[0]}, {description} says "
                                f"{width} x {height}")
-        if not np.isfinite(raw).all():
-            raise DatasetError(f"{image_path}: {int((~np.isfinite(raw)).any(axis=-1).sum())} pixels are NaN or Inf")
+        check_radiance(raw, image_path, radiance_floor(meta.get("noise_variance")))
         images.append(raw)
     images = np.stack(images)
     saturation = meta.get("saturation")

@@ -414,8 +414,10 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
             if bar is not None:
                 bar.update(1, functools.partial(_model_text, spec.config.regions, state))
             done = t + 1
-            if spec.checkpoint_path and spec.checkpoint_every and done % spec.checkpoint_every == 0 \
-                    and done < spec.iterations:
+            # every checkpoint_every iterations, and at the end: a fit whose results cannot be written
+            # keeps its chains there, and running it again publishes them without sampling again
+            if spec.checkpoint_path and spec.checkpoint_every and (done % spec.checkpoint_every == 0
+                                                                   or done == spec.iterations):
                 recorder.seconds = seconds_before + time.perf_counter() - t0
                 payload = {"version": CHECKPOINT_VERSION, "fingerprint": fingerprint, "state": state, "rng_state": rng.bit_generator.state,
                            "recorder": recorder, "t": done}

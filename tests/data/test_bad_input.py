@@ -103,6 +103,63 @@ def test_nan_pixels(tmp_path):
         load_dataset(folder)
 
 
+def test_negative_radiance_is_refused_with_the_first_pixel_and_the_count(tmp_path):
+    """A float image with a negative value (an over-subtracted sensor offset): refused, naming the
+    file, the count of pixels, the first one and its value, before it reaches the likelihood. A
+    16-bit stack cannot hold one; a float image of zeros (no light) is fine."""
+    folder = make_ps_folder(tmp_path, images="exr")
+    image = np.ones((HEIGHT, WIDTH), np.float32)
+    image[3, 6] = image[5, 1] = -5.0
+    write_exr(folder / "002.exr", {"R": image, "G": np.ones_like(image), "B": np.ones_like(image)})
+    with raises(DatasetError, folder / "002.exr", "2 pixels are negative (first at row 3, column 6: -5); radiance cannot "
+                                                  "be negative"):
+        load_dataset(folder)
+    write_exr(folder / "002.exr", {c: np.zeros((HEIGHT, WIDTH), np.float32) for c in "RGB"})
+    assert load_dataset(folder).images[1].max() == 0.0
+
+
+def test_the_rjfit_layout_s_declared_noise_may_dip_below_zero_by_eight_sd(tmp_path):
+    """Rendered data carry the Gaussian noise their dataset.json declares (noise_variance), so dark
+    pixels dip below zero: allowed down to -8 sd (a draw below that has probability under 7e-16),
+    refused below it, and refused at any negative value where no noise is declared."""
+    folder = make_rjfit_folder(tmp_path)
+    edit_description(folder, lambda meta: meta.update(noise_variance=0.01))     # sd 0.1: the floor is -0.8
+    image = np.full((HEIGHT, WIDTH), 0.5, np.float32)
+    image[1, 2] = -0.79
+    write_exr(folder / "images/light_001.exr", {c: image for c in "RGB"})
+    assert load_dataset(folder).images[1, 1, 2, 0] == np.float32(-0.79)
+    image[4, 4] = -0.81
+    write_exr(folder / "images/light_001.exr", {c: image for c in "RGB"})
+    with raises(DatasetError, folder / "images/light_001.exr", "1 pixels are below -0.8, the floor of the declared noise "
+                                                               "(8 sd below 0) (first at row 4, column 4: -0.81)"):
+        load_dataset(folder)
+    edit_description(folder, lambda meta: meta.update(noise_variance=0.0))
+    with raises(DatasetError, folder / "images/light_001.exr", "2 pixels are negative (first at row 1, column 2: -0.79)"):
+        load_dataset(folder)
+
+
+def test_a_truncated_png_is_one_line_without_libpng_s_noise(tmp_path, capfd):
+    """libpng prints ``libpng error: Read Error`` on file descriptor 2 when a PNG ends early: the
+    loader captures it into its one line, so nothing else reaches the terminal (checked at the
+    descriptor level, where C libraries write)."""
+    import cv2
+
+    folder = make_ps_folder(tmp_path)
+    noisy = np.random.default_rng(2).integers(0, 65535, (HEIGHT * 40, WIDTH * 40, 3)).astype(np.uint16)
+    whole = tmp_path / "whole.png"
+    write_png(whole, noisy)
+    data = whole.read_bytes()
+    (tmp_path / "cut.png").write_bytes(data[: len(data) // 2])
+    capfd.readouterr()
+    assert cv2.imread(str(tmp_path / "cut.png"), cv2.IMREAD_UNCHANGED) is None
+    assert "libpng error" in capfd.readouterr().err          # the noise this test is about, read directly
+    (folder / "002.png").write_bytes(data[: len(data) // 2])     # decoding stops before the size is checked
+    with raises(DatasetError, folder / "002.png", "not a readable image (OpenCV could not decode it: libpng error"):
+        load_dataset(folder)
+    captured = capfd.readouterr()
+    assert captured.err == "" and captured.out == ""
+
+
 def test_nan_normals_and_directions(tmp_path):
     folder = make_ps_folder(tmp_path, normals_name="normals.npy")
     _, normals = sphere_geometry()

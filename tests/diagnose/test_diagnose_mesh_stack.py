@@ -39,7 +39,8 @@ def _as_mesh_stack(rendered, folder, mesh_name="object.ply"):
     (folder / "stack.json").write_text(json.dumps({
         "format": "rjfit-mesh-stack/1", "images": [Path(n).name for n in source["images"]], "mesh": mesh_name,
         "camera": source["camera"], "resolution": source["resolution"], "lights": source["lights"],
-        "reference_intensity": source["reference_intensity"]}))
+        "reference_intensity": source["reference_intensity"],
+        "noise_variance": source["noise_variance"]}))      # the rendered images' noise dips below 0
     return folder
 
 

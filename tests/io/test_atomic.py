@@ -3,6 +3,7 @@ file; staging folders of killed runs are cleared, those of running ones kept; a 
 published with its manifest last; the report page and figures are written through them."""
 from __future__ import annotations
 
+import errno
 import json
 import os
 import subprocess
@@ -10,7 +11,8 @@ import sys
 
 import pytest
 
-from rjfit.io import STAGING_PREFIX, atomic_path, publish, staging_dir, write_bytes_atomic, write_text_atomic
+from rjfit.io import (STAGING_PREFIX, atomic_path, os_error_text, publish, staging_dir, write_bytes_atomic,
+                      write_text_atomic)
 
 
 def _files(folder):
@@ -178,3 +180,18 @@ def test_maps_of_a_small_object_are_shown_in_its_window(tmp_path):
     zoom_to_object(axis, np.zeros_like(mask))           # nothing to show: limits left as they were
     assert (axis.get_xlim(), axis.get_ylim()) == untouched
     plt.close(figure)
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full (Linux), a device that is always full")
+def test_a_full_disk_is_one_line_naming_the_result_being_written(tmp_path):
+    """``write()`` on a full disk raises ENOSPC naming no file: the staging folder and the atomic
+    file name the result it was for (not the staging path), and leave nothing behind. /dev/full
+    gives the real error, for any user."""
+    out = tmp_path / "out"
+    with pytest.raises(OSError) as caught:
+        with staging_dir(out) as staging, atomic_path(staging / "figures" / "a.png"):
+            with open("/dev/full", "wb") as full:
+                full.write(b"results")
+    assert caught.value.errno == errno.ENOSPC
+    assert os_error_text(caught.value) == f"{out / 'figures' / 'a.png'}: No space left on device"
+    assert list(out.iterdir()) == []
