@@ -124,7 +124,7 @@ def _prepared(dataset, options: FitOptions):
     options = options.replace(burn_in=options.burn_in_for(measured=dataset.meta.get("kind") == "measured"))
     calibration = None
     if options.calibrate:
-        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
+        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed, progress=options.progress)
     if options.max_view_angle is not None and options.max_view_angle < 90.0:
         dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
     if options.potts_rule:      # --preset measured, --regions materials, no --potts-rho given
