@@ -5,7 +5,7 @@ from pathlib import Path
 
 from rjfit.io import atomic_path
 
-__all__ = ["pyplot", "save_figure", "map_figure", "exclusion_figure", "object_window", "zoom_to_object",
+__all__ = ["pyplot", "save_figure", "pixel_axes", "map_figure", "exclusion_figure", "object_window", "zoom_to_object",
            "region_colours", "region_colormap", "label_image"]
 
 
@@ -33,6 +33,13 @@ def save_figure(figure, path, *, dpi=100, tight=False) -> Path:
     finally:
         pyplot().close(figure)
     return path
+
+
+def pixel_axes(axis) -> None:
+    """Label an image panel's axes with the files' pixel coordinates (columns across, rows down)."""
+    axis.set_xlabel("column (px)", fontsize=8)
+    axis.set_ylabel("row (px)", fontsize=8)
+    axis.tick_params(labelsize=7)
 
 
 def object_window(mask, margin: int = 3):
