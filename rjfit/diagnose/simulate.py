@@ -126,7 +126,8 @@ def simulation_record(ctx, plain, current, sigma2_hat, *, n_draws, seed, figure_
             f"Mitsuba, plain (gap {sim['plain']['gap']:.3g})", f"Mitsuba, final (gap {final['gap']:.3g})",
             label="mean standardised residual over lights")
         sim_figs["ppc"] = map_figure(figure_dir / "ppc_p_values.png", final["ppc_p_values"],
-                                     "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1)
+                                     "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1,
+                                     unit="p-value (small: the data lie outside the simulations)")
         for label, s in sim.items():
             sim_figs[f"per_image_{label}"] = per_image_figure(
                 figure_dir / f"mitsuba_per_image_{label}.png", s["standardised"],

@@ -31,7 +31,7 @@ th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
 figure{display:inline-block;margin:.4em;vertical-align:top}figure img{max-width:520px;border:1px solid #ddd}
 figure.wide{display:block}figure.wide img{max-width:100%}
 figcaption{font-size:.85em;color:#555;max-width:520px}figure.wide figcaption{max-width:none}
-td.note{text-align:left;font-size:.85em;color:#444;max-width:560px}.pass{color:#070;font-weight:bold}.fail{color:#b00;font-weight:bold}
+td.note,th.note{text-align:left;font-size:.85em;color:#444;max-width:560px}.pass{color:#070;font-weight:bold}.fail{color:#b00;font-weight:bold}
 code{background:#f4f4f4;padding:0 .2em}
 """
 
@@ -154,7 +154,8 @@ def _result_table(summary: dict) -> str:
     rows = "".join(f"<tr><td>{html.escape(name)}</td><td>{_fmt(value)}</td><td class='note'>{html.escape(meaning)}"
                    f"</td></tr>" for name, value, meaning in result_rows(summary))
     note = truth_note(summary)
-    return (f"<table><tr><th>quantity</th><th>value</th><th>what it means, when it is good</th></tr>{rows}</table>"
+    return ("<table><tr><th>quantity</th><th>value</th><th class='note'>what it means, when it is good</th></tr>"
+            f"{rows}</table>"
             + (f"<p>{html.escape(note)}</p>" if note else ""))
 
 
@@ -424,6 +425,10 @@ def _derived_text(sub: str, payload, markdown: Path) -> list[str]:
 
 
 _ROUND_COLUMNS = ("effects", "n_regions", "label_accuracy", "gap", "gap_simulated", "named", "revisions", "seconds")
+#: each round's column in words (refine.json's keys)
+_ROUND_HEADERS = {"effects": "effects sampled", "n_regions": "regions", "label_accuracy": "label accuracy",
+                  "gap": "gap (misfit beyond noise)", "gap_simulated": "gap, Mitsuba simulation",
+                  "named": "effects named", "revisions": "revisions", "seconds": "seconds"}
 
 
 def _refine_section(folder: Path) -> list[str]:
@@ -439,7 +444,7 @@ def _refine_section(folder: Path) -> list[str]:
              f"ground truth.</p>"]
     for warning in refined.get("warnings") or []:
         parts.append(f'<p class="fail">{html.escape(str(warning))}</p>')
-    header = "".join(f"<th>{name}</th>" for name in ("round",) + _ROUND_COLUMNS)
+    header = "".join(f"<th>{_ROUND_HEADERS.get(name, name)}</th>" for name in ("round",) + _ROUND_COLUMNS)
     rows = []
     for index, record in enumerate(refined["rounds"]):
         cells = [str(index + 1)]

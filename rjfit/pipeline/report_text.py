@@ -190,7 +190,8 @@ def fit_settings(summary: dict) -> list:
               if isinstance(summary.get("n_observations"), int) else None),
              ("crop (first row, column of the files)", f"{crop.get('row0')}, {crop.get('col0')}"
               if isinstance(crop, dict) else None),
-             ("forward-model cross-check", validation.get("note") or ("passed" if validation.get("passed") else None)),
+             ("forward-model cross-check", f"the forward model {validation['note']}" if validation.get("note")
+              else ("passed" if validation.get("passed") else None)),
              ("fit id", summary.get("fit_id"))]
     return [(name, value) for name, value in rows if value is not None]
 

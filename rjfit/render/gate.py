@@ -232,10 +232,11 @@ def _write_gate(out_dir, result, hit, compared, rel_err, unexplained_map):
             **{f"rel_err_{i:03d}": np.where(compared[i], rel_err[i], 0) for i in range(rel_err.shape[0])}})
         map_figure(staging / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
                    f"log10 max relative error over lights\nmedian {result['median_rel_err']:.2e}, "
-                   f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0)
+                   f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0,
+                   unit="log10 relative error")
         map_figure(staging / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
                    f"radiance the closed form does not explain\n(total {result['unexplained_fraction']:.2%})",
-                   cmap="viridis")
+                   cmap="viridis", unit="fraction of the pixel's radiance")
         write_json_atomic(staging / "validation.json", result)
         publish(staging, out_dir, manifest="validation.json", names=maps, remove=maps)
 

@@ -4,7 +4,7 @@ The phases (issue 43): the calibration (camera response, per-light gains), the n
 estimate, the likelihood power, the edge term's power, the summary after the chains, the gate
 and the diagnosis. Each test runs the real thing on the session's 48 x 48 paper_sphere render
 and reads what it wrote to stderr (capfd: the chains and Mitsuba write from other threads).
-Cost: about 40 s on the loaded 2-core machine once Numba's cache is warm.
+Cost: about 50 s alone once Numba's cache is warm, 2 min beside a running fit on the 2-core machine.
 """
 import dataclasses
 import io
@@ -64,7 +64,7 @@ def test_the_calibration_announces_each_step_and_gives_the_same_result(paper_sph
     assert record == quiet_record
 
 
-def test_a_measured_fit_announces_its_estimates_and_its_summary(paper_sphere_small, tmp_path, capfd):
+def test_a_measured_fit_announces_its_loading_estimates_and_summary(paper_sphere_small, tmp_path, capfd):
     options = FitOptions(preset="measured", regions="materials", n_chains=1, iterations=30, processes=1,
                          figures=False, seed=3)
     quiet = fit_dataset(paper_sphere_small, tmp_path / "quiet", options.replace(progress=False),
@@ -72,7 +72,8 @@ def test_a_measured_fit_announces_its_estimates_and_its_summary(paper_sphere_sma
     assert capfd.readouterr().err == ""
     loud = fit_dataset(paper_sphere_small, tmp_path / "loud", options, allow_unvalidated=True)
     err = capfd.readouterr().err
-    for desc in ("noise model normals: estimating the normals' error (5 x 5 pixel tile fits)",
+    for desc in (f"loading the data set {paper_sphere_small}",
+                 "noise model normals: estimating the normals' error (5 x 5 pixel tile fits)",
                  "likelihood power: spatial correlation of per-pixel fits' residuals",
                  "edge term: measuring its power (--edge-power auto)",
                  "summarising the chains (MAP labels, posterior mean prediction, checks)",
@@ -81,6 +82,22 @@ def test_a_measured_fit_announces_its_estimates_and_its_summary(paper_sphere_sma
     assert re.search(r"^chain 0: iteration 30 of 30, .*done$", err, re.M), err
     for key in ("regions", "materials_posterior", "likelihood_power", "edge_power", "noise", "map_materials"):
         assert loud[key] == quiet[key], key
+
+
+
+def test_a_diagnosis_announces_its_loading_and_its_simulations(paper_sphere_small, tmp_path, capfd):
+    """The plain model's gap only (no candidate), with Mitsuba's posterior predictive of it (3 draws)."""
+    from rjfit.pipeline.diagnose import diagnose_fit
+
+    fit_dataset(paper_sphere_small, tmp_path / "fit", FitOptions(n_chains=1, iterations=30, processes=1,
+                                                                 figures=False, progress=False),
+                allow_unvalidated=True)
+    capfd.readouterr()
+    diagnose_fit(tmp_path / "fit", tmp_path / "diagnosis", max_steps=0, simulate=True, progress=True, jobs=1,
+                 make_figures=False)
+    err = capfd.readouterr().err
+    assert _announced(err, "diagnosis: loading the data set (and replaying the fit's calibration)"), err
+    assert _announced(err, "diagnosis: Mitsuba posterior predictive of the plain model (3 draws rendered)"), err
 
 
 def test_the_gate_announces_its_geometry_and_counts_its_lights(paper_sphere_small, tmp_path, capfd):
