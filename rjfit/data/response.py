@@ -123,8 +123,7 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
     tile : int
         Side of the bootstrap's square tiles, in pixels (1: a bootstrap over single pixels).
     progress : bool
-        Count the per-pixel fits (one per kappa) and the bootstrap replicates on stderr
-        (:func:`rjfit.progress.tracked`); the estimate is the same either way.
+        Count the per-kappa fits and the bootstrap on stderr (:func:`rjfit.progress.tracked`); same estimate.
 
     Returns
     -------

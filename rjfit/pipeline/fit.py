@@ -124,15 +124,13 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     TypeError
         For a keyword that is not a fit option.
     ValueError
-        Before any chain runs: for an option out of range (:class:`FitOptions`);
-        ``likelihood_power='auto'`` that cannot be measured (no two adjacent pixels under one
-        light have a residual); ``truth_labels`` not of the images' shape (H, W); unusable
-        observations (none, some with ``<l.n> <= 0``, or a mean value that is not positive
-        under the 'shot' / 'relative' noise models); a burn-in that leaves no iteration; or
-        effects named in the options but not given (they need the data set: ``fit_dataset``).
-        While the chains start: if a ``start`` entry does not fit ``max_u``/``max_v``, or a
-        checkpoint in ``out_dir/checkpoints`` is unreadable, of another checkpoint version or
-        of another run (the message says to delete it).
+        Before any chain runs: for an option out of range (:class:`FitOptions`); ``likelihood_power='auto'`` that
+        cannot be measured (no two adjacent pixels under one light have a residual); ``truth_labels`` not of the
+        images' shape (H, W); unusable observations (none, some with ``<l.n> <= 0``, or a mean value that is not
+        positive under the 'shot' / 'relative' noise models); a burn-in that leaves no iteration; or effects named in
+        the options but not given (they need the data set: ``fit_dataset``). While the chains start: if a ``start``
+        entry does not fit ``max_u``/``max_v``, or a checkpoint in ``out_dir/checkpoints`` is unreadable, of another
+        checkpoint version or of another run (the message says to delete it).
     """
     options = FitOptions.build(options, **option_keywords)
     if (options.effects or options.effects_from is not None) and not sampler_effects:

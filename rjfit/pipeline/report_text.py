@@ -180,11 +180,12 @@ def fit_settings(summary: dict) -> list:
             ("preset", _preset(options) if options else None),
             ("Potts prior (beta, rho)", _potts(summary, options)),
             ("edge term power", _edge(summary, options)),
-            ("rim (max. view angle)", _rim(summary)),
-            ("calibration (response, gains)", _calibration(summary)),
+            # what a summary without its options (an older rjfit's) leaves unsaid is not guessed
+            ("rim (max. view angle)", _rim(summary) if options else None),
+            ("calibration (response, gains)", _calibration(summary) if options else None),
             ("noise model", _noise(summary)),
             ("likelihood power (zeta)", _power(summary, options)),
-            ("effects", _effects(summary))]
+            ("effects", _effects(summary) if options else None)]
     rows += _run(summary, options)
     rows += [("observations", f"{summary['n_observations']:,} (pixel, light) pairs"
               if isinstance(summary.get("n_observations"), int) else None),
