@@ -20,7 +20,7 @@ from rjfit.pipeline.report import build_report
 from rjfit.plotting import pyplot
 from rjfit.posterior import figures
 from rjfit.posterior import summary as post
-from rjfit.posterior.chain_figures import chain_figure, rank_counts
+from rjfit.posterior.chain_figures import chain_figure, chain_series, rank_counts
 from rjfit.render.datasets import load_dataset
 from rjfit.sampler.runner import run_chain
 
@@ -152,3 +152,23 @@ def test_rank_counts_pool_the_chains_and_skip_missing_draws():
     values = np.array([[0.0, 2.0, 4.0, 6.0], [1.0, 3.0, 5.0, np.nan]])
     counts = rank_counts(values, bins=7)
     np.testing.assert_array_equal(counts, [[1, 0, 1, 0, 1, 0, 1], [0, 1, 0, 1, 0, 1, 0]])
+
+
+def test_the_chain_figure_reads_either_layout_of_chains_nc():
+    """Today's layout (``theta`` with a parameter dimension, NaN-padded regions, ``log_post``) and the
+    standard one (a variable per parameter, ``sample_stats.lp``) give the same series."""
+    rng = np.random.default_rng(0)
+    theta = rng.normal(size=(2, 30, 3, 4))
+    theta[:, :, 2] = np.nan                                  # a padded region slot no draw uses
+    lp = rng.normal(size=(2, 30))
+    names = ["I0", "kd", "gamma", "sigma2"]
+    padded = az.from_dict(posterior={"theta": theta, "log_post": lp},
+                          coords={"region": np.arange(3), "parameter": names}, dims={"theta": ["region", "parameter"]})
+    standard = az.from_dict(posterior={name: theta[:, :, :2, k] for k, name in enumerate(names)},
+                            sample_stats={"lp": lp}, coords={"region": np.arange(2)},
+                            dims={name: ["region"] for name in names})
+    first, second = chain_series(padded, max_regions=3), chain_series(standard, max_regions=3)
+    assert [title for title, _, _ in first] == [title for title, _, _ in second]
+    assert len(first) == 1 + 2 * 4 and first[0][0].startswith("log posterior")
+    for (_, _, a), (_, _, b) in zip(first, second):
+        np.testing.assert_array_equal(a, b)
