@@ -77,9 +77,10 @@ def _region_table(summary: dict) -> str:
     truth = {str(region): truth_params[label] for region, label in (summary.get("label_matching") or {}).items()
              if isinstance(label, int) and 0 <= label < len(truth_params) and isinstance(truth_params[label], dict)}
     head = "".join(f"<th>{_LABELS[p]}</th>" for p in _PARAMETERS)
+    kind = "material" if summary.get("region_model") == "materials" else "region"
     rows = []
     for index, region in enumerate(regions):
-        name = region.get("name", f"region {region.get('region', index)}")
+        name = region.get("name", f"{kind} {region.get('region', index)}")
         cells = []
         for parameter in _PARAMETERS:
             stats = region.get(parameter, {})
@@ -96,7 +97,8 @@ def _region_table(summary: dict) -> str:
             cells.append(f"<td>{text}</td>")
         rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small></td>"
                     + "".join(cells) + "</tr>")
-    return f"<table><tr><th>region</th>{head}</tr>{''.join(rows)}</table>"
+    return (f"<p>Posterior mean &plusmn; sd of each {kind}'s parameters, their central 95 % interval below "
+            f"(kept draws of all chains).</p><table><tr><th>{kind}</th>{head}</tr>{''.join(rows)}</table>")
 
 
 def _chain_region_tables(summary: dict) -> str:
@@ -334,6 +336,12 @@ def _posterior_section(summary: dict) -> list[str]:
         parts.append("<p>The change-point models the chains visited, most probable first: n<sub>u</sub> vectors cut "
                      "the rows, n<sub>v</sub> the columns.</p><table><tr><th>model (n<sub>u</sub>, n<sub>v</sub>)</th>"
                      f"<th>posterior probability</th></tr>{rows}</table>")
+    materials = summary.get("materials_posterior") or {}
+    if isinstance(materials, dict) and materials:
+        rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{_number(v, '.4f')}</td></tr>"
+                       for k, v in sorted(materials.items(), key=lambda kv: -kv[1]) if isinstance(v, (int, float)))
+        parts.append("<table><tr><th>number of materials K</th><th>posterior probability</th></tr>"
+                     f"{rows}</table>")
     parts.append("<h2>Region parameters</h2>" + _region_table(summary))
     parts.append(_chain_region_tables(summary))
     parts.append(_effects_table(summary))

@@ -38,6 +38,11 @@ def _number(value, spec=".4g") -> str:
     return format(value, spec) if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)
 
 
+def _probability(value):
+    """A probability with three decimals (1.000, not 1: a rounded certainty is not a count), else as it is."""
+    return f"{value:.3f}" if _finite(value) else value
+
+
 def _finite(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
@@ -157,8 +162,9 @@ def _run(summary: dict, options: dict) -> list:
     burn = summary.get("burn_in")
     if isinstance(burn, int) and isinstance(summary.get("iterations"), int) and summary["iterations"]:
         anneal = summary.get("anneal_iterations")
-        rows.append(("burn-in", f"the first {burn:,} iterations of each chain ({100 * burn / summary['iterations']:.0f} "
-                                f"%) discarded" + (f", the first {anneal:,} of them annealed" if anneal else "")))
+        share = 100 * burn / summary["iterations"]
+        rows.append(("burn-in", f"the first {burn:,} iterations of each chain ({share:.0f} %) discarded"
+                     + (f", the first {anneal:,} of them annealed" if anneal else "")))
     rows.append(("seed", summary.get("seed")))
     rows.append(("prior", summary.get("prior", {}).get("name") if isinstance(summary.get("prior"), dict) else None))
     rows.append(("sampler", {"adaptive": "adaptive block moves within a model", "paper": "the paper's component-wise "
@@ -202,11 +208,12 @@ def _materials_rows(summary: dict) -> list:
     posterior = summary.get("materials_posterior") or {}
     rows = [("MAP number of materials K", k, "the K of highest posterior probability; its share "
              f"{_number(posterior.get(str(k), float('nan')), '.3f')} of the kept draws"),
-            ("mean probability of a pixel's MAP material", summary.get("map_probability_mean"),
+            ("mean probability of a pixel's MAP material", _probability(summary.get("map_probability_mean")),
              "over the object's pixels, the share of label snapshots that give a pixel its MAP material; near 1: the "
              "segmentation is certain, below 0.9: boundaries or whole materials are in doubt")]
     if "materials_right_probability" in summary:
-        rows.append(("probability of the true number of materials", summary["materials_right_probability"],
+        rows.append(("probability of the true number of materials",
+                     _probability(summary["materials_right_probability"]),
                      "posterior probability of K equal to the truth's (rendered data only); good near 1"))
     return rows
 
@@ -216,15 +223,15 @@ def _changepoint_rows(summary: dict) -> list:
     rows = [("MAP model (n_u, n_v)", f"({model.get('n_u')}, {model.get('n_v')})" if model else None,
              "the change-point model of highest posterior probability: n_u vectors cut the rows, n_v the columns")]
     if "true_regions_probability" in summary:
-        rows.append(("probability of the true regions", summary["true_regions_probability"],
+        rows.append(("probability of the true regions", _probability(summary["true_regions_probability"]),
                      "share of kept draws whose object pixels fall into exactly the true regions (one region per true "
                      "region, >= 99 % of pixels matched); good near 1"))
     if "four_region_probability" in summary:
-        rows.append(("probability of the true number of regions", summary["four_region_probability"],
+        rows.append(("probability of the true number of regions", _probability(summary["four_region_probability"]),
                      "share of kept draws with as many regions holding object pixels as the truth has (the count "
                      "only)"))
     if "exact_truth_probability" in summary:
-        rows.append(("probability of the exact true partition", summary["exact_truth_probability"],
+        rows.append(("probability of the exact true partition", _probability(summary["exact_truth_probability"]),
                      "share of kept draws whose partition equals the truth pixel for pixel: stricter, near 0 even for "
                      "a good fit (see the note below)"))
     return rows
@@ -234,16 +241,16 @@ def result_rows(summary: dict) -> list:
     """``(quantity, value, what it means and when it is good)`` for the fit's headline results."""
     rows = _materials_rows(summary) if summary.get("region_model") == "materials" else _changepoint_rows(summary)
     if "label_accuracy" in summary:
-        rows.append(("label accuracy", summary["label_accuracy"],
+        rows.append(("label accuracy", _probability(summary["label_accuracy"]),
                      "share of object pixels whose MAP label matches the truth after the best one-to-one matching "
                      "(rendered data only); good near 1"))
     rhat = summary.get("rhat_max")
-    rows.append(("largest split R-hat", rhat if _finite(rhat) else
+    rows.append(("largest split R-hat", f"{rhat:.3f}" if _finite(rhat) else
                  f"not computable ({summary.get('rhat_reason') or 'no reason recorded'})",
                  "the chains' agreement on every parameter of the MAP model (Vehtari et al. 2021): good at most "
                  "1.01; above it the chains disagree and the tables mix their modes"))
     ess = summary.get("ess_min")
-    rows.append(("smallest effective sample size", ess if _finite(ess) else "not computable",
+    rows.append(("smallest effective sample size", f"{ess:.0f}" if _finite(ess) else "not computable",
                  f"independent draws' worth in the worst parameter (bulk and tail): good at least 100 per chain "
                  f"({100 * summary['n_chains']} here)" if isinstance(summary.get("n_chains"), int) else
                  "independent draws' worth in the worst parameter: good at least 100 per chain"))

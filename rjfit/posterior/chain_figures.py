@@ -137,7 +137,9 @@ def chain_figure(idata, max_regions: int = 2, burn_in: int | None = None):
                         [f"chain {chain}" for chain in range(len(counts))], fontsize=7)
         rank.set_xticks([-0.5, len(counts[0]) - 0.5], ["lowest", "highest"], fontsize=7)
         rank.set_ylim(0, len(counts) * height * 1.1)
-    axes[0, 0].legend(fontsize=7, ncol=min(n_chains, 4), loc="upper right")
+    # above the first trace, right of its title: inside, it would hide the draws
+    axes[0, 0].legend(fontsize=7, ncol=min(n_chains, 4), loc="lower right", bbox_to_anchor=(1.0, 1.0),
+                      frameon=False)
     fig.suptitle("Traces of the kept draws (left) and rank plots (right: flat, equal histograms = the chains agree)",
                  fontsize=10)
     kept = "kept draw" + (f" (iterations after the burn-in of {burn_in})" if burn_in is not None else "")

@@ -24,8 +24,8 @@ PARAMETER_TITLES = {"I0": "I0: intensity x albedo (image units)", "kd": "kd: dif
                     "gamma": "gamma: Blinn-Phong exponent", "sigma2": "sigma2: noise variance (image units^2)"}
 
 __all__ = ["write_all", "model_histogram_figure", "reflectance_figure", "material_map_figure",
-           "materials_histogram_figure", "PARAMETER_TITLES", "model_histogram", "traces", "trace_figure", "kept_draw_limits", "changepoints", "reflectance",
-           "material_map", "materials_histogram"]
+           "materials_histogram_figure", "PARAMETER_TITLES", "model_histogram", "traces", "trace_figure",
+           "kept_draw_limits", "changepoints", "reflectance", "material_map", "materials_histogram"]
 
 
 def _plt():
@@ -179,8 +179,9 @@ def reflectance_figure(labels, prediction):
     shared = dict(vmin=float(np.nanmin([np.nanmin(fitted), np.nanmin(observed)])),
                   vmax=float(np.nanmax([np.nanmax(fitted), np.nanmax(observed)])))
     for ax, img, title, scale in zip(axes[:3], (fitted, observed, abs_err),
-                                     (f"posterior mean radiance (mean over lights; {prediction['draws']} draws)",
-                                      "observed radiance (mean over lights)", "absolute error |y - E[mu]|"),
+                                     (f"posterior mean radiance\n(mean over lights; {prediction['draws']} draws)",
+                                      "observed radiance\n(mean over lights)",
+                                      "absolute error |y - E[mu]|\n(mean over lights)"),
                                      (shared, shared, {})):
         im = ax.imshow(img, cmap="viridis", **scale)
         ax.set_title(title, fontsize=9)
@@ -210,8 +211,8 @@ def _reflectance_colour(labels, prediction):
     top = float(np.nanpercentile(observed, 99)) or 1.0
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.4), layout="constrained")
     for ax, img, title in zip(axes[:2], (fitted, observed),
-                              (f"posterior mean radiance, RGB (mean over lights; {prediction['draws']} draws)",
-                               f"observed radiance, RGB (white: {top:.3g} image units)")):
+                              (f"posterior mean radiance, RGB\n(mean over lights; {prediction['draws']} draws)",
+                               f"observed radiance, RGB\n(white: {top:.3g} image units)")):
         ax.imshow(np.clip(np.nan_to_num(img / top, nan=1.0), 0.0, 1.0))
         ax.set_title(title, fontsize=9)
     im = axes[2].imshow(prediction["abs_error"], cmap="viridis")
