@@ -48,6 +48,7 @@ def model_histogram_figure(records, burn_in):
     fig, ax = plt.subplots(figsize=(max(6, 0.7 * len(visited) + 2), 3.5))
     ax.bar(np.arange(len(visited)), counts / counts.sum(), color="tab:blue")
     ax.set_xticks(np.arange(len(visited)), [f"({u}, {v})" for u, v in visited])
+    ax.set_xlim(-0.8, len(visited) - 0.2)          # one bar is a bar, not a plane
     ax.set_xlabel("change-point model (n_u, n_v): n_u vectors cut the rows, n_v the columns")
     ax.set_ylabel("posterior probability")
     ax.set_title("Posterior over change-point models")
@@ -141,12 +142,12 @@ def changepoints(records, burn_in, model, image_shape, path):
                                        np.broadcast_to(rows + 0.5, U.transpose(0, 2, 1).shape).ravel(),
                                        bins=[min(width + 2, 200), min(height, 200)],
                                        range=[[-1, width + 1], [0, height]], cmap="magma")
-            fig.colorbar(image, ax=axes[1], label="kept snapshots x vectors")
+            fig.colorbar(image, ax=axes[1], label="count over kept snapshots")
         if n_v:
             *_, image = axes[2].hist2d(np.broadcast_to(cols + 0.5, V.transpose(0, 2, 1).shape).ravel(),
                                        V.transpose(0, 2, 1).ravel(), bins=[min(width, 200), min(height + 2, 200)],
                                        range=[[0, width], [-1, height + 1]], cmap="magma")
-            fig.colorbar(image, ax=axes[2], label="kept snapshots x vectors")
+            fig.colorbar(image, ax=axes[2], label="count over kept snapshots")
     axes[1].set_title("u change points: 2-D histogram (position, row)")
     axes[1].invert_yaxis()
     axes[2].set_title("v change points: 2-D histogram (column, position)")
