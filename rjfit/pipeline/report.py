@@ -97,8 +97,7 @@ def _region_table(summary: dict) -> str:
             cells.append(f"<td>{text}</td>")
         rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small></td>"
                     + "".join(cells) + "</tr>")
-    return (f"<p>Posterior mean &plusmn; sd of each {kind}'s parameters, their central 95 % interval below "
-            f"(kept draws of all chains).</p><table><tr><th>{kind}</th>{head}</tr>{''.join(rows)}</table>")
+    return f"<table><tr><th>{kind}</th>{head}</tr>{''.join(rows)}</table>"
 
 
 def _chain_region_tables(summary: dict) -> str:
@@ -342,7 +341,9 @@ def _posterior_section(summary: dict) -> list[str]:
                        for k, v in sorted(materials.items(), key=lambda kv: -kv[1]) if isinstance(v, (int, float)))
         parts.append("<table><tr><th>number of materials K</th><th>posterior probability</th></tr>"
                      f"{rows}</table>")
-    parts.append("<h2>Region parameters</h2>" + _region_table(summary))
+    kind = "material" if summary.get("region_model") == "materials" else "region"
+    parts.append(f"<h2>Region parameters</h2><p>Posterior mean &plusmn; sd of each {kind}'s parameters, their central "
+                 f"95 % interval below (the kept draws of all chains).</p>" + _region_table(summary))
     parts.append(_chain_region_tables(summary))
     parts.append(_effects_table(summary))
     return parts
