@@ -340,10 +340,10 @@ def report(fit_dir, out_path, diagnosis_dir, comparison_dir):
     click.echo(f"report: {build_report(fit_dir, out_path, diagnosis_dir=diagnosis_dir, comparison_dir=comparison_dir)}")
 
 
-def _effect_names():
-    from rjfit.diagnose.effects import ALL_EFFECTS
+def _effects_help():
+    from rjfit.effects import effects_help
 
-    return [getattr(effect, "name", effect) for effect in ALL_EFFECTS]
+    return effects_help()
 
 
 @main.command("diagnose")
@@ -355,7 +355,7 @@ def _effect_names():
               help="Most effects to add; 0 measures the plain model's gap and tries no candidate.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed of the refits and the simulations.")
 @click.option("--effects", default=None,
-              help="Comma-separated candidate names (default: all): " + ", ".join(_effect_names()) + ".")
+              help="Comma-separated candidate effects (default: all). " + _effects_help())
 @click.option("--dataset", "dataset_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="The fitted data set, if it has moved since the fit (default: the one summary.json names).")
 @click.option("--no-simulate", is_flag=True, help="Skip the Mitsuba posterior predictive rendering.")
@@ -373,7 +373,7 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
                      jobs):
     """Criticise a fit: find where simulation and data disagree, name the missing effect
     (only when the evidence is decisive), add it, refit and show the gap shrink."""
-    from rjfit.diagnose.effects import ALL_EFFECTS
+    from rjfit.effects import ALL_EFFECTS
     from rjfit.pipeline.diagnose import diagnose_fit
 
     out_dir = out_dir or fit_dir / "diagnosis"

@@ -14,7 +14,7 @@ PACKAGE = REPO_ROOT / "rjfit"
 # (module prefix, layer): a module may import its own package and any lower layer; packages
 # of one layer are ordered too (posterior may import sampler, not the other way round)
 LAYERS = [("rjfit.errors", 0.0), ("rjfit.io", 0.1), ("rjfit.progress", 0.15), ("rjfit.plotting", 0.2),
-          ("rjfit.model", 1), ("rjfit.data", 2), ("rjfit.render", 3), ("rjfit.sampler", 4.0), ("rjfit.posterior", 4.1),
+          ("rjfit.model", 1), ("rjfit.data", 2), ("rjfit.render", 3), ("rjfit.effects", 3.5), ("rjfit.sampler", 4.0), ("rjfit.posterior", 4.1),
           ("rjfit.baselines", 4.2), ("rjfit.diagnose", 4.3), ("rjfit.pipeline", 5), ("rjfit.cli", 6),
           ("rjfit.__main__", 7), ("rjfit", 8)]
 

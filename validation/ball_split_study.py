@@ -1,7 +1,7 @@
 """Why the measured DiLiGenT ball splits: the evidence for a split around its highlight, per noise model.
 
 For one material the posterior should keep one region; it keeps several
-(docs/measured-ball.md). This script measures the reason without a sampler: one Lambert + Blinn lobe
+(docs/results/measured-ball.md). This script measures the reason without a sampler: one Lambert + Blinn lobe
 fitted to the whole ball (exponent on a grid, amplitudes by non-negative least squares)
 against two, one inside a box around the highlight and one outside, each with its own
 sigma^2. The log-likelihood gain of that split, times the likelihood power zeta that

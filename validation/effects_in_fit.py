@@ -32,11 +32,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rjfit.diagnose.context import build_context  # noqa: E402
-from rjfit.diagnose.effects import EFFECTS  # noqa: E402
+from rjfit.effects import EFFECTS  # noqa: E402
 from rjfit.diagnose.gap import gap, noise_variance  # noqa: E402
 from rjfit.diagnose.model import fit_prediction, predict  # noqa: E402
 from rjfit.io import write_json_atomic  # noqa: E402
-from rjfit.model.effects import srgb_encode  # noqa: E402
+from rjfit.effects.camera_srgb import srgb_encode  # noqa: E402
 from rjfit.pipeline.fit_dataset import fit_dataset  # noqa: E402
 from rjfit.pipeline.fit_folder import read_map_labels  # noqa: E402
 from rjfit.render.datasets import load_dataset  # noqa: E402

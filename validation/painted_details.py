@@ -9,7 +9,7 @@ fit states (``summary.json["material_resolution"]``) rescaled to the discs' cont
 
     python validation/painted_details.py --radii 6 9 12 16 --out /tmp/painted      # about 2 min per fit
 
-docs/materials.md ("Resolution") has the measured table.
+docs/results/materials.md ("Resolution") has the measured table.
 """
 from __future__ import annotations
 

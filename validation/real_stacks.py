@@ -59,16 +59,16 @@ VARIANTS = {
     "cp-preset": {"regions": "changepoints", "preset": "measured"},
     # the preset's parts with the change-point model's annealed warm-up kept (the preset turns it off)
     "cp-preset-anneal": {"regions": "changepoints", "noise": "normals", "likelihood_power": "auto", "calibrate": True},
-    # the preset with the footprint term added to the normals' noise (docs/measured-data.md, "The footprint term")
+    # the preset with the footprint term added to the normals' noise (docs/results/measured-data.md, "The footprint term")
     "measured-footprint": {"preset": "measured", "noise": "footprint"},
-    # the preset without the material model's segment moves (docs/measured-data.md, "Segment moves")
+    # the preset without the material model's segment moves (docs/results/measured-data.md, "Segment moves")
     "measured-nosegments": {"preset": "measured", "segment_moves": 0},
     # the preset with effects sampled inside the material fit (since 2026-11-27): the light gains (the preset
     # estimates them once before the fit), and those with the lobe's masking (the ball's diagnosis' runners-up)
     "measured-lights": {"preset": "measured", "effects": ("light_calibration",)},
     "measured-lights-masking": {"preset": "measured", "effects": ("light_calibration", "masking")},
     # the preset at a larger likelihood power than its lag-1 rule gives (0.011 to 0.027 on the three stacks): what
-    # resolving smaller painted details costs (docs/materials.md, "Resolution")
+    # resolving smaller painted details costs (docs/results/materials.md, "Resolution")
     "measured-power0.03": {"preset": "measured", "likelihood_power": 0.03},
 }
 

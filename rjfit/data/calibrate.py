@@ -10,7 +10,7 @@ intervals are conditional on them.
    ``min_component`` pixels (default 5) are left out. Why: the Potts prior ties a pixel's
    material to its neighbours'; a pixel with none can take a material of its own at no
    boundary cost, and on ``psm-horse`` one such pixel (of 29,488) held a material of its own
-   in every chain of a fit (docs/measured-data.md).
+   in every chain of a fit (docs/results/measured-data.md).
 2. **Camera response** (``Dataset.response == "unknown"`` only). The exponent kappa of
    ``raw = k linear^(1/kappa)`` by :func:`rjfit.data.response.estimate_power_response`
    (per-pixel fits, block bootstrap over 16-pixel tiles), then every image becomes

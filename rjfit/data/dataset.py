@@ -79,7 +79,7 @@ class Dataset:
     max_view_angle : float or None
         Degrees: observations of pixels seen further than this from their normal are left out
         (rule ``grazing_view``); None keeps every view. ``rjfit fit --preset measured`` sets it
-        (:data:`rjfit.data.observations.RIM_COS`: docs/measured-data.md).
+        (:data:`rjfit.data.observations.RIM_COS`: docs/results/measured-data.md).
     response : {"linear", "sRGB", "unknown"}
         How the stored values relate to radiance: ``linear`` (rendered data, linear counts),
         ``sRGB`` (decoded by the loader: the images are linear) or ``unknown`` (raw camera codes,

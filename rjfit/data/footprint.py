@@ -1,6 +1,6 @@
 """A pixel's footprint as noise: the misfit where the signal changes fast across the image.
 
-Hypothesis (docs/measured-data.md, "The footprint term"; measured there, not assumed). A pixel
+Hypothesis (docs/results/measured-data.md, "The footprint term"; measured there, not assumed). A pixel
 integrates the surface over its footprint, while the model is evaluated at the pixel's centre
 (its normal, its material). Where the prediction changes fast across the image - along the
 limb of a sphere, where the normal turns by degrees within one pixel, or on the edge between
@@ -8,7 +8,7 @@ two paints, where a pixel holds some of each - the pixel's value differs from th
 model by about ``grad_x(mu) . dx``, with ``dx`` an unknown offset within the pixel (uniform over
 it: variance 1/12 px^2 per axis). No BRDF shared by a material fits such a pixel, and a fit
 then buys a material for the band of such pixels (the DiLiGenT ball's limb, 1-2 pixel
-materials on the paint edges of the synthetic layouts: docs/materials.md). Carried as noise,
+materials on the paint edges of the synthetic layouts: docs/results/materials.md). Carried as noise,
 
     var_i = sigma_r^2 + sigma_n^2 g_i^2 + c f_i^2,       f_i^2 = |grad_x y_i|^2 / 12,
 
@@ -29,7 +29,7 @@ not move; each axis' term is clipped at 0. Caveat: v is one value per light, so 
 noise grows with the signal (shot noise) bright pixels keep part of the bias and dark ones
 lose part of their gradient; on a smooth surface with little noise f_i is then small, not 0.
 
-Measured (docs/measured-data.md, "The footprint term"): on the DiLiGenT ball the term carries
+Measured (docs/results/measured-data.md, "The footprint term"): on the DiLiGenT ball the term carries
 part of the limb band's misfit (c about 0.5; the band halves but stays in 2 of 4 chains under
 ``--preset measured --noise footprint``); on psm-rock it replaces the normals' term (c about
 4) and 3 of 4 chains (two seeds) lost the large pebble, so the preset does not use it. The synthetic renders have

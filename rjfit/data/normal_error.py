@@ -4,7 +4,7 @@ Measured normals (photometric stereo, a scan) are a degree or two off. Where the
 changes fast with the normal (on and around a highlight whose lobe is about as wide as that
 error) a wrong normal gives a residual of the size of the highlight itself, spatially
 structured, that no BRDF shared by a material can follow: the fit then buys a material for
-the highlight (docs/measured-ball.md). This module carries that error in the noise instead.
+the highlight (docs/results/measured-ball.md). This module carries that error in the noise instead.
 
 Model. The normal used at observation i differs from the true one by a small tangential
 error, isotropic with standard deviation sigma_n (radians) per tangential direction. To

@@ -153,11 +153,11 @@ def _towards_physical_end(param, z) -> bool:
 def prior_conflicts(z, n_regions, effects, effect_params, effect_name):
     """The parameters of the effect ``effect_name`` whose MAP lies beyond :data:`PRIOR_CONFLICT_SD`
     prior sd of the prior's centre, away from the effect's null and from its physical ends
-    (:class:`rjfit.diagnose.effects.Param`): ``[{"param", "map",
+    (:class:`rjfit.effects.Param`): ``[{"param", "map",
     "prior_sd_from_centre"}]``.
 
     ``z`` is a refit's unconstrained MAP, with ``n_regions`` regions' 4 parameters first, then
-    each of ``effects``' parameters (``effect_params``: its :class:`rjfit.diagnose.effects.Param`
+    each of ``effects``' parameters (``effect_params``: its :class:`rjfit.effects.Param`
     list) in order; a :class:`rjfit.diagnose.refit.FitResult` gives them as ``fit.z``,
     ``fit.n_regions``, ``fit.objective.effects`` and ``fit.objective.effect_params``.
     """

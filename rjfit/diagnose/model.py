@@ -1,4 +1,4 @@
-"""The extended closed form: eq. 2 with effects composed in stages (see effects/base.py).
+"""The extended closed form: eq. 2 with effects composed in stages (:mod:`rjfit.effects.base`).
 
 Eq. 2 itself is :mod:`rjfit.model.blinn`'s: Giesen's normalisation is its
 ``blinn_normalisation``, and the lobe ``<h.n>^g`` is its ``log_cos_power`` bit for bit. What
@@ -19,7 +19,7 @@ is written out here, and why:
 
 :func:`fit_prediction` is the same mean as the FIT computes it with the effects inside its
 likelihood (issue 26): the sampler's forward model (:mod:`rjfit.sampler.forward`, built by
-each effect's ``sampler_effect``) transforms the problem, and the mean is ``f(offset + a A +
+each effect's ``fit_form``) transforms the problem, and the mean is ``f(offset + a A +
 b B(gamma))`` on the data's scale. It equals :func:`predict` to float32 rounding
 (``tests/diagnose/test_effects_in_fit.py``, per effect); the gate
 (:func:`rjfit.diagnose.gate.gate`) checks it against Mitsuba as well.
@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.data.observations import Observations
-from rjfit.diagnose.effects.base import STAGES
+from rjfit.effects.base import STAGES
 from rjfit.model.blinn import blinn_normalisation
 from rjfit.sampler.forward import LambertBlinnPhong, transformed
 from rjfit.sampler.likelihood import ab_from_theta, lobe_column
@@ -96,11 +96,11 @@ def predict(ctx, effects, region_params, effect_thetas, features):
 def fit_prediction(ctx, effects, region_params, effect_thetas):
     """Expected value of every observation of ``ctx`` as the fit's forward model computes it.
 
-    The arguments as :func:`predict`'s (without features: each effect's ``sampler_effect``
+    The arguments as :func:`predict`'s (without features: each effect's ``fit_form``
     computes its own). The fit's problem of the context's observations (with the context's
     noise scales) is transformed at the effects' parameters; the mean ``a A + b B(gamma)``
     of the transformed problem, times the noise scale, goes through the camera response
-    with the known offsets (:meth:`rjfit.sampler.forward.Columns.data_scale`). The data do
+    with the known offsets (:meth:`rjfit.effects.base.Columns.data_scale`). The data do
     not enter a mean: the problem is built with every value 1 (a camera's inverse needs
     positive values).
     """
@@ -108,7 +108,7 @@ def fit_prediction(ctx, effects, region_params, effect_thetas):
     observations = Observations(image_shape=ctx.image_shape, n_lights=ctx.n_lights, pixel=ctx.pixel, light=ctx.light,
                                 y=ones, cos_ln=ctx.cos_ln, cos_hn=ctx.cos_hn, irradiance=ctx.irradiance,
                                 object_mask=ctx.labels >= 0)
-    model = LambertBlinnPhong([effect.sampler_effect(ctx) for effect in effects])
+    model = LambertBlinnPhong([effect.fit_form(ctx) for effect in effects])
     problem = model.problem(observations, noise_scale=ctx.noise_scale)
     theta_of = {effect.name: np.atleast_1d(np.asarray(theta, dtype=float)) for effect, theta in zip(effects, effect_thetas)}
     # a parameter at its physical end (w = 1: full shadows) is +-inf unconstrained, and maps back exactly

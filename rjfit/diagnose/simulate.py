@@ -26,7 +26,7 @@ import numpy as np
 
 from rjfit.diagnose.figures import map_figure, per_image_figure, residual_pair_figure
 from rjfit.diagnose.gap import gap, gap_breakdown
-from rjfit.diagnose.scenes import model_scene
+from rjfit.effects.scenes import model_scene
 from rjfit.progress import phase
 from rjfit.render.effect_scenes import render_model
 from rjfit.render.scene_change import merge_changes

@@ -27,7 +27,7 @@ from rjfit.diagnose.candidates import (
     try_candidates,
 )
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.effects import ALL_EFFECTS, get_effect
+from rjfit.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
 from rjfit.diagnose.naming import NAMING_RULE, judge_candidates
@@ -59,7 +59,7 @@ def _check_count(value, name, minimum, meaning):
 @dataclass(frozen=True)
 class SearchSettings:
     """The options of one diagnosis' search, as :func:`diagnose` takes them (it documents each);
-    ``candidates`` are :class:`rjfit.diagnose.effects.Effect` objects, ``jobs`` an int >= 1."""
+    ``candidates`` are :class:`rjfit.effects.Effect` objects, ``jobs`` an int >= 1."""
 
     candidates: tuple
     seed: int = 0

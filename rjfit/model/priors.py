@@ -7,7 +7,7 @@ values in an interval, normal for real values). The criticism refits
 prior that is Gaussian in the coordinate the MAP and the Hessian are taken in. The fit's
 region priors (:mod:`rjfit.sampler.priors`, ``ParamPrior`` kinds lognormal / uniform / beta /
 invgamma) are another family, for the reasons listed in
-:func:`rjfit.diagnose.region_priors.region_priors` and ``docs/criticism.md``.
+:func:`rjfit.diagnose.region_priors.region_priors` and ``docs/results/criticism.md``.
 
 Every prior here is Gaussian in its unconstrained coordinate ``z``. So the density of ``z`` is
 

@@ -108,7 +108,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     before_publish : callable, optional
         ``before_publish(staging_dir, summary)``, called once every result is staged and
         before it replaces the folder's previous results (tests use it to interrupt a fit there).
-    sampler_effects : sequence of rjfit.sampler.forward.Effect, optional
+    sampler_effects : sequence of rjfit.effects.base.FitForm, optional
         Effects sampled with the regions, their features in the order of ``observations``
         (:func:`rjfit.pipeline.fit_effects.fit_effects` builds them from the data set for
         ``options.effects`` and ``options.effects_from``); ``effect_source`` says where each

@@ -28,7 +28,7 @@ from rjfit.sampler.runner import run_chain
 __all__ = ["fit_dataset", "fit_datasets", "check_validation_file", "validation_record", "ghost_material_prior",
            "GHOST_PIXELS", "GHOST_ODDS"]
 
-# --preset measured's Potts rule (docs/measured-data.md): a material whose parameters equal an existing one's
+# --preset measured's Potts rule (docs/results/measured-data.md): a material whose parameters equal an existing one's
 # holds about S(beta) = sum_p exp(-beta n_p) scattered pixels under the prior (n_p: p's labelled 4-neighbours);
 # beta is raised until S <= GHOST_PIXELS, so such a material shrinks to its last pixel often enough for the
 # cluster moves to remove it, and rho makes its prior odds rho S / 2 = GHOST_ODDS, the odds every further

@@ -1,8 +1,8 @@
 """The effects a fit samples with the regions (``rjfit fit --effects``, ``--effects-from``; issue 26).
 
 :func:`fit_effects` turns the names a user gives (and those a diagnosis named) into the
-sampler's effects (:mod:`rjfit.sampler.effects`) for one data set's observations: each
-library effect (:mod:`rjfit.diagnose.effects`) builds its sampler effect from a criticism
+effects' fit forms (:class:`rjfit.effects.base.FitForm`) for one data set's observations: each
+library effect (:mod:`rjfit.effects`) builds its fit form from a criticism
 context of the data set (:func:`rjfit.diagnose.context.build_context`), whose observations
 are the fit's, so the features (view angles, Mitsuba's visibility and indirect light) are
 computed once, by the code the criticism uses, and put in the order of the fit's
@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.effects import get_effect
-from rjfit.diagnose.effects.interreflection import FEATURE_SPP, feature_record
+from rjfit.effects import get_effect
+from rjfit.effects.interreflection import FEATURE_SPP, feature_record
 from rjfit.errors import DatasetError
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 
@@ -125,7 +125,7 @@ def _order_in(ctx, observations) -> np.ndarray:
 
 
 def fit_effects(dataset, observations, options) -> tuple[list, dict]:
-    """The sampler's effects for ``observations`` of ``dataset`` (in their order), and what the summary records.
+    """The effects' fit forms for ``observations`` of ``dataset`` (in their order), and what the summary records.
 
     Returns ``([], {})`` when no effect is asked for. The record maps each effect to where its
     features came from (``{"from": ...}``, and the diagnosis).
@@ -159,7 +159,7 @@ def fit_effects(dataset, observations, options) -> tuple[list, dict]:
         if not ok:
             raise ValueError(f"effect {effect.name} cannot be fitted on {dataset.path}: {why}")
     order = _order_in(ctx, observations)
-    effects = [effect.sampler_effect(ctx).in_order(order) for effect in library]
+    effects = [effect.fit_form(ctx).in_order(order) for effect in library]
     if "interreflection" in names:
         source["interreflection"].update(feature_record(ctx))
     for effect in library:

@@ -106,7 +106,7 @@ def power_suggestion(observations, scale):
 
     Why: the misfit of a pixel (a normal a few degrees off, a lobe the model lacks) is shared
     by its channels, so C channels then hold about as many independent discrepancies as one
-    (r near 1: the power divided by C; psm-rock, docs/materials.md: the matrix split along
+    (r near 1: the power divided by C; psm-rock, docs/results/materials.md: the matrix split along
     shading at the channels' power, one material at a third of it), while independent noise
     per channel (r near 0) is C times the information and keeps the channels' power (Kish's
     design effect for clusters of C equally correlated observations)."""

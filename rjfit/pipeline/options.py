@@ -16,7 +16,7 @@ from pathlib import Path
 from rjfit.data.formats import CHANNELS, COLOUR
 from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
 from rjfit.data.observations import RIM_COS
-from rjfit.diagnose.effects import EFFECTS
+from rjfit.effects import EFFECTS, effects_help
 from rjfit.sampler.priors import PRESETS
 from rjfit.sampler.state import REGION_MODELS
 
@@ -60,7 +60,7 @@ def _effect_names(value) -> tuple:
 POWER_RULES = ("auto", "area")
 #: degrees: the rim's edge, arccos(RIM_COS) = 72.5 (rjfit.data.observations.RIM_COS)
 RIM_VIEW_ANGLE = round(math.degrees(math.acos(RIM_COS)), 2)
-#: What ``--preset measured`` sets, where an option is not given (docs/measured-data.md); the Potts beta
+#: What ``--preset measured`` sets, where an option is not given (docs/results/measured-data.md); the Potts beta
 #: and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
                    "max_view_angle": RIM_VIEW_ANGLE, "edge_power": "auto"}
@@ -69,8 +69,8 @@ MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0
 #: The prior odds of each further material, with and without the preset: 1:100, so that one takes half the
 #: posterior only with a decisive Bayes factor (Jeffreys). At 1:1 (plain, until 2026-11-27) materials of one
 #: pixel whose own parameters fit its noise held 15 to 21 % of two of four rendered layouts' posteriors; at 1:20
-#: (the preset) those of outlier pixels held 2 to 23 % of the one-material stacks' (docs/materials.md,
-#: docs/measured-data.md).
+#: (the preset) those of outlier pixels held 2 to 23 % of the one-material stacks' (docs/results/materials.md,
+#: docs/results/measured-data.md).
 FURTHER_MATERIAL_ODDS = 0.01
 #: The Potts prior's factor per material without the preset (the preset's rule: rjfit.pipeline.fit_dataset).
 PLAIN_POTTS_RHO = FURTHER_MATERIAL_ODDS
@@ -125,7 +125,7 @@ class FitOptions:
                                    "Potts model's critical coupling (1.34 for 8): below it the prior favours "
                                    "materials scattered pixel by pixel; 3 is the smallest of 1, 2, 3 that kept "
                                    "extra materials of one or two pixels off four rendered layouts "
-                                   "(docs/materials.md).", "float")
+                                   "(docs/results/materials.md).", "float")
     potts_rho: float | None = cli_option(
         None, "--potts-rho",
         "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 0.01: prior odds "
@@ -135,7 +135,7 @@ class FitOptions:
         None, "--edge-power",
         "Power of the edge term in the target (--regions materials, one channel, no effects): a boundary between "
         "two materials costs what their step misfits the data's differences across it (pixels 3 px apart) beyond "
-        "either material alone (docs/materials.md, 'The edge term'). A number >= 0, or 'auto' (the coarsening rule "
+        "either material alone (docs/results/materials.md, 'The edge term'). A number >= 0, or 'auto' (the coarsening rule "
         "on those differences). Default 0 (none); --preset measured sets auto, and leaves it out of joint colour "
         "fits and fits with effects.", "power", show_default=False)
     preset: str = cli_option(
@@ -144,14 +144,14 @@ class FitOptions:
         "unknown response or intensities), sets --noise normals and --likelihood-power auto where they are left at "
         "their defaults, no annealed warm-up, the rim left out (--max-view-angle 72.5), with --regions materials the Potts beta and rho by a rule on the mask, "
         "and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
-        "estimated before the fit and applied to the images), as measured in docs/measured-data.md.", "choice",
+        "estimated before the fit and applied to the images), as measured in docs/results/measured-data.md.", "choice",
         choices=("none", "measured"))
     calibrate: bool = False
     # half the material model's cluster seeds drawn per material (first under --preset measured, now every
-    # material fit's: one-pixel leftovers die within tens of iterations; docs/materials.md)
+    # material fit's: one-pixel leftovers die within tens of iterations; docs/results/materials.md)
     cluster_material_seed: float = 0.5
     # the material model's segment moves per iteration (data-driven regions moved or born whole;
-    # rjfit/sampler/moves/segment_move.py); 0 for the comparison in docs/measured-data.md
+    # rjfit/sampler/moves/segment_move.py); 0 for the comparison in docs/results/measured-data.md
     segment_moves: int = 2
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)
@@ -193,9 +193,9 @@ class FitOptions:
         "noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: a multiplicative error). m_i: the "
         "prediction of a separate Lambert + Blinn fit of each pixel; ybar: the mean observed value; c = NOISE_FLOOR * "
         "ybar. normals: s_i^2 = 1 + k g_i^2, the normals' error as noise, g_i = |d mu_i / d n| of a Lambert + Blinn "
-        "fit of each 5 x 5 pixel tile, k by maximum likelihood (docs/measured-data.md). footprint: s_i^2 = 1 + k g_i^2 + "
+        "fit of each 5 x 5 pixel tile, k by maximum likelihood (docs/results/measured-data.md). footprint: s_i^2 = 1 + k g_i^2 + "
         "t f_i^2, normals plus a pixel's footprint, f_i^2 = |grad_x y_i|^2 / 12 of the observed image (the limb of a "
-        "sphere), k and t by maximum likelihood (docs/measured-data.md). Weighted least squares: the "
+        "sphere), k and t by maximum likelihood (docs/results/measured-data.md). Weighted least squares: the "
         "sampler is unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
         "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS,
         show_default=False)
@@ -204,17 +204,16 @@ class FitOptions:
         "Degrees: observations of pixels seen further than this from their normal (the rim) are left out; their "
         "labels follow their neighbours'. Default: 90 (every view kept), and --preset measured sets 72.5 (<v.n> < "
         "0.3), where measured normals' error, a pixel's footprint and pixels partly background change the radiance "
-        "most (docs/measured-data.md); give 90 to keep every view under the preset.", "float", show_default=False)
+        "most (docs/results/measured-data.md); give 90 to keep every view under the preset.", "float", show_default=False)
     noise_floor: float = cli_option(
         DEFAULT_FLOOR, "--noise-floor",
         "c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, as a fraction "
         "of the mean observed value. Unused for --noise constant.", "float")
     effects: tuple = cli_option(
         (), "--effects",
-        "Effects sampled jointly with the segmentation and the region BRDFs, comma-separated names of the criticism's "
-        "library (ambient, camera_gamma, camera_srgb, cast_shadows, fresnel, interreflection, light_calibration, "
-        "masking), each with the library's priors; see docs/sampler.md. Interreflection needs --effects-from. Either "
-        "region model; a single channel (not --channel rgb).",
+        "Effects sampled jointly with the segmentation and the region BRDFs, comma-separated names, each with the "
+        "library's priors (docs/sampler.md). Interreflection needs --effects-from. Either region model; a single "
+        "channel (not --channel rgb). The effects: " + effects_help(),
         "text", show_default=False)
     effects_from: Path | None = cli_option(
         None, "--effects-from",

@@ -2,7 +2,7 @@
 
 A change of paint is a step in the data between neighbouring pixels, under every light. A region
 that one material's misfit bought (the lobe's shape, the normals' error, a light's fall-off
-across the object: docs/measured-data.md, "What the ball's split is") has no such step: the
+across the object: docs/results/measured-data.md, "What the ball's split is") has no such step: the
 misfit is smooth, so neighbours across the boundary differ as neighbours inside a material do,
 and the two materials' predictions, which jump there, fit those differences worse than either
 material alone. The tempered likelihood of the fit cannot tell the two apart (each pixel counts

@@ -15,7 +15,7 @@ material, ``-log rho``, and the labellings' ``log(K + 1)``. A disc is worth a ma
 The parameters' own Occam factor is left out, so a region at the returned size is at the edge
 of being found, not sure to be.
 
-Measured (docs/materials.md, "Resolution"): psm-horse under ``--preset measured`` with two
+Measured (docs/results/materials.md, "Resolution"): psm-horse under ``--preset measured`` with two
 painted discs of a quarter of its albedo: predicted radius 12.5 px; discs of radius 6 and 9 were
 not found, of 12 one of the two in each chain, of 16 both in every chain.
 """

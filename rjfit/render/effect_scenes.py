@@ -8,8 +8,9 @@
 - :func:`render_indirect`: the indirect radiance (interreflection's feature);
 - :func:`mitsuba_visibility`: shadow-ray visibility (cast shadows' feature).
 
-Nothing here knows the criticism's context or effects (:mod:`rjfit.diagnose` calls these with
-its data set, labels and region parameters): the render layer imports nothing above it.
+Nothing here knows the criticism's context or effects (:mod:`rjfit.effects` and
+:mod:`rjfit.diagnose` call these with a data set, labels and region parameters): the render
+layer imports nothing above it.
 """
 from __future__ import annotations
 

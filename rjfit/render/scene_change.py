@@ -1,5 +1,5 @@
 """A change of a Mitsuba scene that a model extension asks for (an effect of the criticism
-library, :mod:`rjfit.diagnose.effects`), and how several combine.
+library, :mod:`rjfit.effects`), and how several combine.
 
 Plain data: building and rendering the changed scene is :mod:`rjfit.render.effect_scenes`'
 work. It lives in the render layer so that the renderer needs nothing from the criticism

@@ -4,7 +4,7 @@ Why
 ---
 A tempered, pixel-independent likelihood cannot tell a change of paint from a material's
 smooth misfit (the lobe's shape, the normals' error, a light's fall-off across the object):
-a split along the misfit gains as much as a pebble (docs/measured-data.md, "What the ball's
+a split along the misfit gains as much as a pebble (docs/results/measured-data.md, "What the ball's
 split is"). Neighbours' differences can, since they cancel what varies smoothly: where two
 materials meet, the data step as the two materials' predictions do if the paint changes
 there, and not at all if the boundary follows the misfit.

@@ -12,14 +12,15 @@ per-region variance. From three per-observation columns, ``y``, ``C = E <l.n>`` 
 (:mod:`rjfit.sampler.likelihood`), so every move of the sampler is cheap. A forward model
 turns observations into those columns: sorted by pixel, compacted (:class:`Problem`).
 
-Effects with global parameters inside the likelihood (issue 26). An :class:`Effect` changes
-the columns, never the region structure, at given parameters: a per-light gain or a
-shadowing factor scales ``C``; a camera response ``f`` replaces ``y`` by ``f^-1(y)`` and adds
-``sum log |(f^-1)'(y_i)|`` (the log-Jacobian); a known additive feature ``F_i`` (indirect
-light) times a weight replaces ``y`` by ``y - w F_i``; a Fresnel factor scales the lobe's own
-``C`` (``CB``); masking and ambient light make the lobe column gamma-dependent per
-observation (:mod:`rjfit.sampler.passes.lobe`). With effects the mean stays linear in
-(a, b) given gamma,
+Effects with global parameters inside the likelihood (issue 26). An effect's fit form
+(:class:`rjfit.effects.base.FitForm`; each effect of :mod:`rjfit.effects` states its own)
+changes the columns (:class:`rjfit.effects.base.Columns`), never the region structure, at
+given parameters: a per-light gain or a shadowing factor scales ``C``; a camera response
+``f`` replaces ``y`` by ``f^-1(y)`` and adds ``sum log |(f^-1)'(y_i)|`` (the log-Jacobian); a
+known additive feature ``F_i`` (indirect light) times a weight replaces ``y`` by
+``y - w F_i``; a Fresnel factor scales the lobe's own ``C`` (``CB``); masking and ambient
+light make the lobe column gamma-dependent per observation (:mod:`rjfit.sampler.passes.lobe`).
+With effects the mean stays linear in (a, b) given gamma,
 
     mu_i = a A_i + b B_i(gamma),   A_i = C_i / pi,
     B_i(gamma) = CB_i <h.n>_i^gamma M_i(gamma) + amb_i alb(gamma, v_i) / N(gamma),
@@ -48,11 +49,10 @@ from functools import cached_property
 import numpy as np
 
 from rjfit.data.observations import Observations
-from rjfit.model.effects import STAGES
+from rjfit.effects.base import STAGES, Columns
 from rjfit.sampler.passes.lobe import LobeTerms
 
-__all__ = ["Problem", "ForwardModel", "Effect", "EffectParam", "EffectData", "Columns", "LambertBlinnPhong",
-           "transformed", "CHUNK"]
+__all__ = ["Problem", "ForwardModel", "EffectData", "LambertBlinnPhong", "transformed", "CHUNK"]
 
 # Observations are processed in chunks of this many: the float64 temporaries of a chunk stay
 # in cache, and memory does not grow with the image (2048 x 2048 x 18 lights is 28M rows).
@@ -166,92 +166,6 @@ class Problem:
     def from_observations(cls, obs: Observations, likelihood_power: float = 1.0, noise_scale=None) -> Problem:
         """The plain forward model's problem: :meth:`LambertBlinnPhong.problem` (see there)."""
         return LambertBlinnPhong().problem(obs, likelihood_power=likelihood_power, noise_scale=noise_scale)
-
-
-@dataclass(frozen=True)
-class EffectParam:
-    """One scalar parameter of an effect: its prior (Gaussian in an unconstrained coordinate,
-    :mod:`rjfit.model.priors`) and the constrained value chains start near."""
-
-    name: str
-    prior: object
-    init: float
-
-
-class Effect(ABC):
-    """One effect with global parameters inside the likelihood: parameters -> transformed columns.
-
-    An effect changes the :class:`Columns` (float64, in the problem's order) in place at its
-    constrained parameters (:meth:`apply`), in the order of its ``stage``
-    (:data:`rjfit.model.effects.STAGES`, the criticism's order). A per-observation feature
-    the problem does not hold (a visibility, a view angle) the effect keeps itself, in the
-    order of the observations it was built from; :meth:`in_order` returns it in the
-    problem's order. Subclasses are frozen dataclasses (a chain's checkpoint digests them).
-
-    Attributes
-    ----------
-    name : str
-        The effect's name (as the criticism's library names it).
-    stage : str
-        One of :data:`~rjfit.model.effects.STAGES`.
-    params : tuple of EffectParam
-    """
-
-    name: str
-    stage: str
-    params: tuple
-
-    @property
-    def n_params(self) -> int:
-        return len(self.params)
-
-    @abstractmethod
-    def apply(self, columns: Columns, theta) -> None:
-        """Change ``columns`` in place at constrained parameters ``theta``."""
-
-    def in_order(self, order) -> Effect:
-        """This effect with its per-observation features taken at ``order`` (default: no feature, itself)."""
-        return self
-
-
-@dataclass
-class Columns:
-    """The columns while effects are applied (float64, the problem's order, before the noise scales).
-
-    The model is ``f(offset + a A + b B(gamma))`` on the data's scale with ``A = C / pi`` and
-    ``B`` as in the module docstring; ``y`` holds ``f^-1`` of the data once the camera stage
-    ran (the raw data before), ``log_jacobian`` the sum of ``log |(f^-1)'(y_i)|``, ``light``
-    the light of each observation (for per-light effects), ``curve`` the response ``f`` (None:
-    linear).
-    """
-
-    y: np.ndarray
-    C: np.ndarray
-    CB: np.ndarray
-    light: np.ndarray
-    offset: np.ndarray | None = None
-    mask_w: float = 0.0
-    tan: tuple | None = None            # (tan v, tan l) of masking
-    ambient: float | None = None        # ambient radiance a of the ambient stage
-    ambient_terms: tuple | None = None  # (column j, weight fy, table, grid) of the albedo interpolation
-    log_jacobian: float = 0.0
-    curve: object = None
-
-    def scale(self, factor) -> None:
-        """Multiply the direct and indirect light (``C``, ``CB`` and the offset) by per-observation ``factor``."""
-        self.C = self.C * factor
-        self.CB = self.CB * factor
-        if self.offset is not None:
-            self.offset = self.offset * factor
-
-    def add_offset(self, values) -> None:
-        """Add known light (on the linear scale, before the light stage) to every observation's mean."""
-        self.offset = values if self.offset is None else self.offset + values
-
-    def data_scale(self, mean):
-        """``f(offset + mean)``: a mean on the linearised scale (before noise scales) on the data's scale."""
-        mean = mean if self.offset is None else mean + self.offset
-        return mean if self.curve is None else self.curve(mean)
 
 
 @dataclass(frozen=True, eq=False)
@@ -380,7 +294,7 @@ class ForwardModel(ABC):
 class LambertBlinnPhong(ForwardModel):
     """The paper's model (eq. 2): Lambert plus energy-normalised Blinn-Phong, with ``effects`` (none: the paper's).
 
-    ``effects``: :class:`Effect` objects whose features are in the order of the observations
+    ``effects``: :class:`~rjfit.effects.base.FitForm` objects whose features are in the order of the observations
     the problem is built from; they are applied in stage order.
 
     Raises

@@ -26,7 +26,7 @@ from functools import cached_property
 import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation, radiance
-from rjfit.model.effects import beckmann_alpha, smith_g1_tan
+from rjfit.effects.masking import beckmann_alpha, smith_g1_tan
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.passes import sums
 

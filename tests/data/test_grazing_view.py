@@ -2,7 +2,7 @@
 
 On measured data the rim carries most of what the model cannot follow: a measured normal's
 error and a pixel's footprint change the radiance fastest there, and pixels partly background
-darken it (docs/measured-data.md). The rule leaves out every observation of a pixel whose
+darken it (docs/results/measured-data.md). The rule leaves out every observation of a pixel whose
 ``<v.n>`` is below the bound; the pixel stays in the object mask, so a material fit labels it
 by its neighbours. The fit records the bound and ``rjfit diagnose`` leaves the same
 observations out. About 1 s.

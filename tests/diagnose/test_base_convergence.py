@@ -8,7 +8,7 @@ import pytest
 
 from rjfit.diagnose.candidates import BASE_TOLERANCE, LOG_BF_THRESHOLD, converge_base
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.effects import get_effect
+from rjfit.effects import get_effect
 from rjfit.diagnose.gap import noise_variance
 from rjfit.diagnose.refit import refit, standardised_residuals
 from rjfit.diagnose.workflow import SearchSettings, _search_step, _SearchTrace

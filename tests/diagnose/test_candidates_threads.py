@@ -6,7 +6,7 @@ import numpy as np
 
 from rjfit.diagnose.candidates import LOG_BF_THRESHOLD, try_candidates
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.effects import get_effect
+from rjfit.effects import get_effect
 from rjfit.diagnose.gap import noise_variance
 from rjfit.diagnose.refit import refit, standardised_residuals
 from rjfit.render.datasets import load_dataset

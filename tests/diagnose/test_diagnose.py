@@ -66,7 +66,7 @@ def test_hidden_effect_is_named_and_gap_shrinks(hidden, tmp_path, kind, expected
     assert {"effect", "evidence", "gap_before", "gap_after"} <= set(on_disk["steps"][0])
     assert all("log_bayes_factor" in c or "error" in c for c in on_disk["candidates"])
     if kind == "light_calibration":        # and it finds the light that is 20 % off
-        from rjfit.diagnose.effects.calibration import light_scales
+        from rjfit.effects.light_calibration import light_scales
         from rjfit.render.hidden import CALIBRATED_LIGHT, CALIBRATION_ERROR
 
         theta = [v["map"] for v in result["steps"][0]["effect_params"].values()]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from rjfit.diagnose.effects import EFFECTS
+from rjfit.effects import EFFECTS
 from rjfit.diagnose.gate import gate
 
 

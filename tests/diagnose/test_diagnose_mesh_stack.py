@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.effects import get_effect
+from rjfit.effects import get_effect
 from rjfit.diagnose.workflow import LOG_BF_THRESHOLD, diagnose
 from rjfit.render.datasets import load_dataset
 from rjfit.render.hidden import render_hidden
@@ -65,7 +65,7 @@ def test_mesh_stack_features_equal_the_rendered_data_sets(scenes, tmp_path):
     rendered parts' exact boundary. (Rendering the stack's one mesh with one region's
     parameters, as before the mesh was cut by region, left 1.8 times the Monte Carlo error.)
     An OBJ copy of the mesh gives the same geometry."""
-    from rjfit.diagnose.scenes import indirect_radiance
+    from rjfit.effects.scenes import indirect_radiance
     from rjfit.render.effect_scenes import mitsuba_visibility
 
     rendered_dir, stack_dir = scenes["interreflection"]

@@ -21,7 +21,7 @@ def test_prior_density_in_unconstrained_coordinates_includes_jacobian(prior, z):
 
 
 def test_blinn_lobe_albedo_is_one_at_normal_view_and_table_matches_quadrature():
-    from rjfit.diagnose.effects.ambient import lobe_albedo, lobe_albedo_quadrature
+    from rjfit.effects.ambient import lobe_albedo, lobe_albedo_quadrature
 
     for gamma in (1.0, 10.0, 100.0):
         assert abs(lobe_albedo_quadrature(gamma, [1.0], n_u=128, n_phi=128)[0] - 1.0) < 2e-3   # Giesen's claim
@@ -34,7 +34,7 @@ def test_the_ambient_effect_interpolates_as_lobe_albedo():
     the same values as the table's bilinear interpolation per observation."""
     from types import SimpleNamespace
 
-    from rjfit.diagnose.effects.ambient import Ambient, lobe_albedo
+    from rjfit.effects.ambient import Ambient, lobe_albedo
 
     rng = np.random.default_rng(3)
     n, gammas = 5000, np.array([0.02, 0.7, 13.0, 480.0, 9000.0])     # beyond the table at both ends too
@@ -50,14 +50,14 @@ def test_the_ambient_effect_interpolates_as_lobe_albedo():
 def test_srgb_curve_matches_colour_science():
     import colour
 
-    from rjfit.diagnose.effects.camera import srgb_encode
+    from rjfit.effects.camera_srgb import srgb_encode
 
     x = np.linspace(0.0, 1.2, 101)
     assert np.allclose(srgb_encode(x), colour.cctf_encoding(x, function="sRGB"), atol=1e-9)
 
 
 def test_helmert_basis_fixes_geometric_mean():
-    from rjfit.diagnose.effects.calibration import helmert_basis, light_scales
+    from rjfit.effects.light_calibration import helmert_basis, light_scales
 
     basis = helmert_basis(7)
     assert np.allclose(basis.T @ basis, np.eye(6)) and np.allclose(basis.sum(axis=0), 0)
@@ -94,7 +94,7 @@ def test_laplace_evidence_agrees_with_importance_sampling(tmp_path):
     must agree with an importance-sampling estimate (proposal: the inflated Laplace Gaussian)
     to within 0.5 nat, for the plain model and for one with an extra effect."""
     from rjfit.diagnose.context import build_context
-    from rjfit.diagnose.effects import EFFECTS
+    from rjfit.effects import EFFECTS
     from rjfit.diagnose.evidence import evidence_by_importance_sampling
     from rjfit.diagnose.refit import refit
     from rjfit.render.datasets import load_dataset
@@ -119,7 +119,7 @@ def test_the_hessian_skips_only_pairs_that_never_meet(tmp_path):
     while the pairs it keeps are not, for the plain model and with effects of every stage
     that shares parameters across regions (light calibration) or not (Fresnel)."""
     from rjfit.diagnose.context import build_context
-    from rjfit.diagnose.effects import EFFECTS
+    from rjfit.effects import EFFECTS
     from rjfit.diagnose.hessian import coupled_pairs, finite_difference_hessian
     from rjfit.diagnose.refit import refit
     from rjfit.render.datasets import load_dataset
@@ -268,7 +268,7 @@ def test_a_per_light_effect_is_differenced_over_its_light_values(tmp_path):
     catch a wrong light's row or a missing factor of B). The normal equations the least
     squares solve, formed from per-light sums, equal the dense Jacobian's J'J and J'r."""
     from rjfit.diagnose.context import build_context
-    from rjfit.diagnose.effects import EFFECTS
+    from rjfit.effects import EFFECTS
     from rjfit.diagnose.hessian import block_hessian, finite_difference_hessian
     from rjfit.diagnose.refit import refit
     from rjfit.render.datasets import load_dataset
@@ -349,7 +349,7 @@ def test_loo_difference_reports_the_share_of_observations_with_an_unreliable_k_h
     import arviz as az
 
     from rjfit.diagnose.context import build_context
-    from rjfit.diagnose.effects import EFFECTS
+    from rjfit.effects import EFFECTS
     from rjfit.diagnose.loo import loo_difference, refit_loo
     from rjfit.diagnose.psis import good_k_threshold
     from rjfit.diagnose.refit import refit
@@ -377,7 +377,7 @@ def test_loo_difference_reports_the_share_of_observations_with_an_unreliable_k_h
 def test_a_bounded_logit_normal_stays_within_its_bounds():
     """Fresnel's F0 lives on (0.01, 1): however far the data pull its coordinate, F0 stays
     above the floor (on the measured ball an unbounded F0 went to 0.0000)."""
-    from rjfit.diagnose.effects.fresnel import F0_MIN, Fresnel
+    from rjfit.effects.fresnel import F0_MIN, Fresnel
 
     (param,) = Fresnel().params(None)
     z = np.array([-40.0, -10.0, 0.0, 10.0, 40.0])
@@ -395,7 +395,7 @@ def test_prior_data_conflicts_are_the_effect_parameters_beyond_3_prior_sd_away_f
 
     from rjfit.diagnose.candidates import PRIOR_CONFLICT_SD, prior_conflicts
     from rjfit.diagnose.document import candidate_line, prior_conflict_text
-    from rjfit.diagnose.effects.base import Param
+    from rjfit.effects.base import Param
 
     fresnel = [Param("F0", LogitNormal(-1.0, 2.0), init=0.5, null=1.0),          # null at z = +inf
                Param("far_side", LogitNormal(-1.0, 2.0), init=0.5, null=1.0),
@@ -443,7 +443,7 @@ def test_compiled_shadowing_masking_equals_the_numpy_smith_terms_bit_for_bit():
     """The masking effect's compiled pass (one per refit evaluation) against the NumPy form it
     replaced, over tangents from 0 (a = inf, G1 = 1) to grazing, both branches of Walter's fit
     (a < 1.6 and a >= 1.6) and roughnesses of sharp and broad lobes."""
-    from rjfit.diagnose.effects.masking import beckmann_alpha, shadowing_masking, smith_g1_tan, tangent
+    from rjfit.effects.masking import beckmann_alpha, shadowing_masking, smith_g1_tan, tangent
 
     rng = np.random.default_rng(5)
     n = 20000
@@ -501,7 +501,7 @@ def test_a_weight_at_its_physical_end_is_not_a_prior_data_conflict():
     from types import SimpleNamespace
 
     from rjfit.diagnose.candidates import prior_conflicts
-    from rjfit.diagnose.effects import get_effect
+    from rjfit.effects import get_effect
 
     ctx = SimpleNamespace(n_lights=3)
     shadows, masking, fresnel = (get_effect(name).params(ctx) for name in ("cast_shadows", "masking", "fresnel"))

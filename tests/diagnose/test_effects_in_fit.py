@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.effects import EFFECTS
-from rjfit.diagnose.effects.interreflection import INDIRECT_SPP, feature_key
+from rjfit.effects import EFFECTS
+from rjfit.effects.interreflection import INDIRECT_SPP, feature_key
 from rjfit.diagnose.model import fit_prediction, predict
 
 THETAS = {"fresnel": [0.1], "masking": [0.8], "cast_shadows": [0.7], "interreflection": [1.3], "ambient": [0.03],

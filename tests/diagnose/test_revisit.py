@@ -15,7 +15,7 @@ import pytest
 
 from rjfit.diagnose.candidates import LOG_BF_THRESHOLD
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.effects import get_effect
+from rjfit.effects import get_effect
 from rjfit.diagnose.refit import refit
 from rjfit.diagnose.revisit import revisit
 from rjfit.diagnose.workflow import diagnose

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from rjfit.diagnose.context import build_context
-from rjfit.diagnose.effects.interreflection import FEATURE_SPP, Interreflection
+from rjfit.effects.interreflection import FEATURE_SPP, Interreflection
 from rjfit.pipeline.fit_effects import FINAL_MODEL, FIT_MEANS, _order_in, fit_effects
 from rjfit.pipeline.fit_folder import read_map_labels
 from rjfit.pipeline.options import FitOptions

@@ -22,44 +22,41 @@ from test_passes import (  # noqa: F401
 )
 
 from rjfit.data.synthetic import sphere_stack
-from rjfit.model.effects import ALBEDO_LOG_GAMMA, albedo_table, cos_v_weights
+from rjfit.effects.ambient import ALBEDO_LOG_GAMMA, AmbientLight, albedo_table, cos_v_weights
+from rjfit.effects.base import Param
+from rjfit.effects.camera_srgb import SRGBCurve
+from rjfit.effects.cast_shadows import DirectFactor
+from rjfit.effects.fresnel import LobeFactor
+from rjfit.effects.interreflection import IndirectLight
+from rjfit.effects.light_calibration import LightGains
+from rjfit.effects.masking import LobeMasking
 from rjfit.model.priors import LogitNormal, LogNormal, Normal
 from rjfit.sampler import reference
-from rjfit.sampler.effects import (
-    AmbientLight,
-    CameraCurve,
-    DirectFactor,
-    IndirectLight,
-    LightGains,
-    LobeFactor,
-    LobeMasking,
-)
-from rjfit.sampler.forward import EffectParam, LambertBlinnPhong, transformed
+from rjfit.sampler.forward import LambertBlinnPhong, transformed
 from rjfit.sampler.likelihood import region_stats
 from rjfit.sampler.passes.labels import pixel_log_lik, relabel_pixels
 
 
 def every_effect(observations, seed=0):
-    """One sampler effect of each kind for ``observations``, with random features (in their order)."""
+    """One fit form of each kind for ``observations``, with random features (in their order)."""
     rng = np.random.default_rng(seed)
     n, n_lights = observations.n_obs, observations.n_lights
     column, weight = cos_v_weights(rng.uniform(0.05, 1.0, n))
     grid = np.array([ALBEDO_LOG_GAMMA[0], ALBEDO_LOG_GAMMA[-1], ALBEDO_LOG_GAMMA[1] - ALBEDO_LOG_GAMMA[0]])
     unit = LogitNormal(0.0, 2.0)
     return [
-        LobeFactor(params=(EffectParam("F0", LogitNormal(0.0, 2.0, low=0.01, high=1.0), 0.5),),
+        LobeFactor(params=(Param("F0", LogitNormal(0.0, 2.0, low=0.01, high=1.0), 0.5),),
                    fresnel_term=rng.uniform(0.0, 0.3, n) ** 2),
-        LobeMasking(params=(EffectParam("w_mask", unit, 0.5),), tan_v=rng.uniform(0.0, 3.0, n),
+        LobeMasking(params=(Param("w_mask", unit, 0.5),), tan_v=rng.uniform(0.0, 3.0, n),
                     tan_l=rng.uniform(0.0, 3.0, n)),
-        DirectFactor(params=(EffectParam("w_shadow", unit, 0.5),), visibility=(rng.random(n) < 0.8).astype(float)),
-        IndirectLight(params=(EffectParam("beta", LogNormal(0.0, 1.0), 1.0),),
+        DirectFactor(params=(Param("w_shadow", unit, 0.5),), visibility=(rng.random(n) < 0.8).astype(float)),
+        IndirectLight(params=(Param("beta", LogNormal(0.0, 1.0), 1.0),),
                       feature=rng.uniform(0.0, 0.05, n) * float(np.max(observations.y))),
-        LightGains(params=tuple(EffectParam(f"h{j}", Normal(0.0, 0.2), 0.0) for j in range(1, n_lights)),
+        LightGains(params=tuple(Param(f"h{j}", Normal(0.0, 0.2), 0.0) for j in range(1, n_lights)),
                    n_lights=n_lights),
-        AmbientLight(params=(EffectParam("ambient", LogNormal(np.log(0.05), 1.0), 0.05),), column=column.astype(np.int32),
+        AmbientLight(params=(Param("ambient", LogNormal(np.log(0.05), 1.0), 0.05),), column=column.astype(np.int32),
                      weight=weight, table=albedo_table(), grid=grid),
-        CameraCurve(params=(EffectParam("white_rel", LogNormal(0.0, 1.0), 1.0),), curve_kind="srgb",
-                    white_level=float(np.max(observations.y)), name="camera_srgb"),
+        SRGBCurve(params=(Param("white_rel", LogNormal(0.0, 1.0), 1.0),), white_level=float(np.max(observations.y))),
     ]
 
 

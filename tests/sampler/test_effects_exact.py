@@ -35,17 +35,13 @@ from threadpoolctl import threadpool_limits
 from rjfit.data.observations import Observations
 from rjfit.data.synthetic import sphere_stack
 from rjfit.model.blinn import radiance
-from rjfit.model.effects import (
-    ALBEDO_LOG_GAMMA,
-    albedo_table,
-    cos_v_weights,
-    lobe_albedo,
-    srgb_decode,
-    srgb_decode_log_slope,
-)
+from rjfit.effects.ambient import ALBEDO_LOG_GAMMA, AmbientLight, albedo_table, cos_v_weights, lobe_albedo
+from rjfit.effects.base import Param
+from rjfit.effects.camera_gamma import GammaCurve
+from rjfit.effects.camera_srgb import SRGBCurve, srgb_decode, srgb_decode_log_slope
+from rjfit.effects.light_calibration import LightGains
 from rjfit.model.priors import LogNormal, Normal
-from rjfit.sampler.effects import AmbientLight, CameraCurve, LightGains
-from rjfit.sampler.forward import EffectParam, LambertBlinnPhong, transformed
+from rjfit.sampler.forward import LambertBlinnPhong, transformed
 from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.likelihood import oracle_log_likelihood, region_stats
 from rjfit.sampler.moves import effects as effect_moves
@@ -106,8 +102,8 @@ def test_incremental_statistics_equal_a_full_recompute_with_effects(regions):
 def test_camera_log_jacobian_is_the_log_slope_of_the_inverse():
     """The camera curves' log-Jacobian against central differences of their inverses (relative step 1e-6)."""
     y = np.array([0.001, 0.02, 0.3, 0.7, 1.0, 1.4]) * 10.0
-    for kind, theta in (("srgb", 1.3), ("gamma", 2.2)):
-        effect = CameraCurve(params=(EffectParam("p", LogNormal(0.0, 1.0), 1.0),), curve_kind=kind, white_level=10.0)
+    for curve, theta in ((SRGBCurve, 1.3), (GammaCurve, 2.2)):
+        effect = curve(params=(Param("p", LogNormal(0.0, 1.0), 1.0),), white_level=10.0)
         problem = LambertBlinnPhong([effect]).problem(_observations(y))
         z = np.array([np.log(theta)])
         columns = problem.effects.columns(z)
@@ -131,7 +127,7 @@ class EffectQuadrature:
 
     At each value of ``z`` on a grid, a :class:`test_exact_rj.Quadrature` whose squared
     residuals are those of the extended model (computed here from eq. 2 and
-    :mod:`rjfit.model.effects`, independently of the sampler); the log-Jacobian of a camera
+    :mod:`rjfit.effects`' physics, independently of the sampler); the log-Jacobian of a camera
     adds to the evidence of the whole data set. The z grid: 17 points over the prior centre
     +- 6 prior sd, then :data:`Z_POINTS` over where the posterior is above e^-25 of its
     largest value (a spacing of about a third of the posterior sd: the trapezoid rule on the
@@ -233,18 +229,17 @@ def _case(kind):
                            y=obs.y[keep], cos_ln=obs.cos_ln[keep], cos_hn=obs.cos_hn[keep],
                            irradiance=obs.irradiance[keep], object_mask=obs.object_mask)
         z_prior = Normal(0.0, 0.3)
-        return obs, prior, LightGains(params=(EffectParam("h1", z_prior, 0.0),), n_lights=2), z_prior, {}
+        return obs, prior, LightGains(params=(Param("h1", z_prior, 0.0),), n_lights=2), z_prior, {}
     if kind == "ambient":
         z_prior = LogNormal(np.log(0.3), 0.5)
         cos_v = np.random.default_rng(8).uniform(0.3, 1.0, obs.n_obs)
         column, weight = cos_v_weights(cos_v)
-        effect = AmbientLight(params=(EffectParam("ambient", z_prior, 0.3),), column=column.astype(np.int32),
+        effect = AmbientLight(params=(Param("ambient", z_prior, 0.3),), column=column.astype(np.int32),
                               weight=weight, table=albedo_table(), grid=GRID)
         return obs, prior, effect, z_prior, {"cos_v": cos_v}
     z_prior = LogNormal(np.log(1.2), 0.3)
     white = float(np.max(obs.y))
-    effect = CameraCurve(params=(EffectParam("white_rel", z_prior, 1.2),), curve_kind="srgb", white_level=white,
-                         name="camera_srgb")
+    effect = SRGBCurve(params=(Param("white_rel", z_prior, 1.2),), white_level=white)
     return obs, prior, effect, z_prior, {"white": white}
 
 
@@ -376,11 +371,10 @@ def test_material_partition_and_ambient_frequencies_match_enumeration():
 
 def _sbc_effects(obs, cos_v):
     column, weight = cos_v_weights(cos_v)
-    return [LightGains(params=(EffectParam("h1", Normal(0.0, 0.3), 0.0),), n_lights=2),
-            AmbientLight(params=(EffectParam("ambient", LogNormal(np.log(0.3), 0.5), 0.3),),
+    return [LightGains(params=(Param("h1", Normal(0.0, 0.3), 0.0),), n_lights=2),
+            AmbientLight(params=(Param("ambient", LogNormal(np.log(0.3), 0.5), 0.3),),
                          column=column.astype(np.int32), weight=weight, table=albedo_table(), grid=GRID),
-            CameraCurve(params=(EffectParam("white_rel", LogNormal(np.log(1.5), 0.2), 1.5),), curve_kind="srgb",
-                        white_level=12.0, name="camera_srgb")]
+            SRGBCurve(params=(Param("white_rel", LogNormal(np.log(1.5), 0.2), 1.5),), white_level=12.0)]
 
 
 def _simulate(base, effects, theta, z, rng):

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from rjfit.data.synthetic import sphere_stack
+from rjfit.effects.base import FitForm, Param
 from rjfit.model.priors import LogNormal
-from rjfit.sampler.forward import Effect, EffectParam, ForwardModel, LambertBlinnPhong, Problem, transformed
+from rjfit.sampler.forward import ForwardModel, LambertBlinnPhong, Problem, transformed
 from rjfit.sampler.likelihood import log_likelihood_from_stats, oracle_log_likelihood, region_stats
 
 
@@ -30,10 +31,10 @@ def test_the_plain_model_builds_the_problem(observations):
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class _Gain(Effect):
+class _Gain(FitForm):
     """A global gain on the irradiance (the shape of the per-light gains, one light)."""
 
-    params: tuple = (EffectParam("gain", LogNormal(0.0, 1.0), 1.0),)
+    params: tuple = (Param("gain", LogNormal(0.0, 1.0), 1.0),)
     name: str = "gain"
     stage: str = "light"
 

@@ -2,7 +2,7 @@
 
 Why: the cluster moves grow a cluster along bonds pixel by pixel; where a paint's per-pixel
 features are noisy (measured stacks) the bonds cannot follow its outline, and a compact
-region of a second paint is never proposed (psm-rock's pebble; docs/materials.md). A
+region of a second paint is never proposed (psm-rock's pebble; docs/results/materials.md). A
 segment move proposes a whole region that pooled features single out.
 
 One move:

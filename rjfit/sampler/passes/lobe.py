@@ -2,7 +2,7 @@
 
 The plain model's lobe column is ``B_i(g) = C_i <h.n>_i^g`` with the same ``C`` as the
 diffuse column ``A_i = C_i / pi``. Effects inside the fit (issue 26,
-:mod:`rjfit.sampler.effects`) make it
+:mod:`rjfit.effects`, each effect's fit form) make it
 
     B_i(g) = CB_i <h.n>_i^g M_i(g) + amb_i alb(g, v_i) / N(g)
 
@@ -10,7 +10,7 @@ diffuse column ``A_i = C_i / pi``. Effects inside the fit (issue 26,
 - ``M_i(g) = (1 - w) + w G1(tan v_i, alpha(g)) G1(tan l_i, alpha(g))``: Smith-Beckmann
   shadowing / masking with the roughness of the region's gamma (``w = 0``: none);
 - ``amb_i alb(g, v_i) / N(g)``: the lobe's share of ambient light, its directional albedo
-  interpolated in the table of :func:`rjfit.model.effects.albedo_table` (``amb`` empty: none).
+  interpolated in the table of :func:`rjfit.effects.ambient.albedo_table` (``amb`` empty: none).
 
 A :class:`LobeTerms` holds those terms, in the problem's observation order; the problem
 carries it as ``Problem.lobe`` (None for the plain model). Every compiled pass takes it as
@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from rjfit.model.effects import g1_tan
+from rjfit.effects.masking import g1_tan
 from rjfit.sampler.passes.special import fast_exp
 
 __all__ = ["LobeTerms", "lobe_rows", "lobe_row", "lobe_scalar", "lobe_fill", "lobe_at", "plain_lobe_terms"]
@@ -76,7 +76,7 @@ def lobe_rows(ext, gammas):
     """Per region (R, 1 + J): the Beckmann roughness ``alpha(g)`` and the albedo row over the view angles / N(g).
 
     None for the plain model (``ext`` None). The albedo row is the table interpolated
-    linearly in log gamma (clipped to the table), as :func:`rjfit.model.effects.albedo_rows`.
+    linearly in log gamma (clipped to the table), as :func:`rjfit.effects.ambient.albedo_rows`.
     """
     if ext is None:
         return None

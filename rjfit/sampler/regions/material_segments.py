@@ -121,7 +121,7 @@ def _superpixels(image, labelled, superpixel_size):
         return out
     # compactness 0.1 on features in noise units: the features decide the superpixels'
     # outlines more than their extent (a blob 2 noise sd from its surround, per pixel: the
-    # best set's overlap with it 0.87 to 0.93 at 0.1, 0.76 to 0.83 at 1; docs/materials.md)
+    # best set's overlap with it 0.87 to 0.93 at 0.1, 0.76 to 0.83 at 1; docs/results/materials.md)
     raw = slic(image, n_segments=max(2, n_labelled // superpixel_size), compactness=0.1, mask=labelled,
                channel_axis=-1, start_label=1, sigma=0)
     raw = np.where(labelled, raw, 0)

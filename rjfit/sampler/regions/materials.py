@@ -23,7 +23,7 @@ posterior mass sits on it). Every label is in use: no state has an empty materia
   lattice, ``log(1 + sqrt(K_max))`` (1.34 for K_max = 8). Below it the prior's mass lies on
   labellings scattered pixel by pixel, which with K free means K_max "twins" of one paint
   (measured at beta 1: K = K_max on every synthetic layout; ``validation/materials.py``,
-  docs/materials.md). Of beta 1, 2, 3 measured on four rendered layouts, 3 is the smallest
+  docs/results/materials.md). Of beta 1, 2, 3 measured on four rendered layouts, 3 is the smallest
   at which extra materials of one or two boundary pixels did not take a tenth of the
   posterior on any of them; the measured preset's mask rule gives 2.8 to 3.5 on real masks.
   rho = 0.01: each further material has prior odds 1:100, so it needs a decisive Bayes factor

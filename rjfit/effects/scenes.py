@@ -1,4 +1,6 @@
-"""A context's fitted model in Mitsuba: the scene to render it on and the indirect-light feature.
+"""A criticism context's fitted model in Mitsuba: the scene to render it on and the indirect-light
+feature (interreflection's, :mod:`rjfit.effects.interreflection`; the posterior predictive
+simulation's scene, :mod:`rjfit.diagnose.simulate`).
 
 The rendering is the render layer's (:mod:`rjfit.render.effect_scenes`); what is per context
 stays here: the data set and segmentation it renders, the mesh cut by region (once per

@@ -6,8 +6,13 @@
 rjfit's plugin), path-traced by Mitsuba along the data set's own pixel-centre rays for every
 light. Direct light from a point or directional emitter is deterministic in Mitsuba, so the
 difference carries only the Monte Carlo noise of the indirect paths. beta = 1 is the physical
-value; beta = 0 the plain model. Mitsuba side: the path integrator's max_depth (8 instead of
-the direct-only 2). Needs the data set's mesh.
+value; beta = 0 the plain model. Needs the data set's mesh.
+
+- physics: the rendered feature (:func:`rjfit.effects.scenes.indirect_radiance`, the render-side
+  twin, :func:`rjfit.render.effect_scenes.render_indirect`);
+- criticism: :class:`Interreflection` (``beta F`` added to the indirect term);
+- fit: :class:`IndirectLight`, a known offset ``y -> y - beta F``;
+- Mitsuba: the path integrator's max_depth (8 instead of the direct-only 2).
 
 Samples per pixel. beta is a regression coefficient on a feature measured with Monte Carlo
 noise: errors in variables attenuate it by the factor ``v_signal / (v_signal + v_mc)``, i.e.
@@ -35,15 +40,17 @@ fit's regions the per-region signal variance is smaller and the share larger, 4 
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from rjfit.diagnose.effects.base import Effect, Param
-from rjfit.diagnose.scenes import indirect_radiance
+from rjfit.effects.base import Columns, Effect, FitForm, Param, take
+from rjfit.effects.scenes import indirect_radiance
 from rjfit.model.priors import LogNormal
 from rjfit.render.scene_change import MitsubaChange
-from rjfit.sampler.effects import IndirectLight
 
-__all__ = ["Interreflection", "INDIRECT_SPP", "FEATURE_SPP", "INDIRECT_DEPTH", "feature_key", "feature_record"]
+__all__ = ["Interreflection", "IndirectLight", "INDIRECT_SPP", "FEATURE_SPP", "INDIRECT_DEPTH", "feature_key",
+           "feature_record"]
 
 INDIRECT_SPP = 64      # the diagnosis' feature: beta attenuated <= 5 % (module docstring)
 FEATURE_SPP = 256      # the refit's feature: beta attenuated <= 2 % (module docstring)
@@ -92,11 +99,27 @@ class Interreflection(Effect):
     def mitsuba_change(self, theta, ctx=None):
         return MitsubaChange(max_depth=INDIRECT_DEPTH, stochastic=True)
 
-    def sampler_effect(self, ctx):
-        """A known offset ``beta F`` (:class:`rjfit.sampler.effects.IndirectLight`): F the indirect light
+    def fit_form(self, ctx):
+        """A known offset ``beta F`` (:class:`IndirectLight`): F the indirect light
         (:meth:`prepare`; a refit sets ``ctx.features['indirect_spp']`` to ``FEATURE_SPP``) of the fitted
         model whose region parameters ``ctx.features['fit_region_params']`` holds, a fixed feature of the fit."""
         return IndirectLight(params=self.fit_params(ctx), feature=self.prepare(ctx))
+
+
+@dataclass(frozen=True, eq=False)
+class IndirectLight(FitForm):
+    """Interreflection in the fit: a known indirect radiance ``feature`` (a fixed feature per fit) times beta added to the mean."""
+
+    params: tuple
+    feature: np.ndarray
+    name: str = "interreflection"
+    stage: str = "indirect"
+
+    def apply(self, columns: Columns, theta) -> None:
+        columns.add_offset(theta[0] * self.feature)
+
+    def in_order(self, order):
+        return take(self, order, "feature")
 
 
 def feature_key(region_params, spp) -> tuple:

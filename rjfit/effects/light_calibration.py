@@ -5,22 +5,41 @@
 H (L x L-1) is an orthonormal basis of the vectors that sum to zero (Helmert), so the
 geometric mean of the scales is fixed to 1: an overall scale is not identifiable apart from
 the regions' I0. The prior is the iid log-normal N(0, 0.2^2) on log s conditioned on that
-constraint (0.2: a 20 % error is one prior standard deviation). Mitsuba side: the emitters'
-intensities times s_l.
+constraint (0.2: a 20 % error is one prior standard deviation).
+
+- physics: :func:`helmert_basis`, :func:`light_scales` (both forms use them);
+- criticism: :class:`LightCalibration` (each light's mean times its scale);
+- fit: :class:`LightGains`, per-light gains on C, the lobe's C and the offset;
+- Mitsuba: the emitters' intensities times s_l.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from rjfit.diagnose.effects.base import Effect, Param
-from rjfit.model.effects import helmert_basis, light_scales
+from rjfit.effects.base import Columns, Effect, FitForm, Param
 from rjfit.model.priors import Normal
 from rjfit.render.scene_change import MitsubaChange
-from rjfit.sampler.effects import LightGains
 
-__all__ = ["LightCalibration", "helmert_basis", "light_scales", "PRIOR_SCALE"]
+__all__ = ["LightCalibration", "LightGains", "helmert_basis", "light_scales", "PRIOR_SCALE"]
 
 PRIOR_SCALE = 0.2
+
+
+def helmert_basis(n):
+    """(n, n-1) orthonormal columns, each orthogonal to the ones vector."""
+    basis = np.zeros((n, n - 1))
+    for j in range(1, n):
+        basis[:j, j - 1] = 1.0
+        basis[j, j - 1] = -j
+        basis[:, j - 1] /= np.sqrt(j * (j + 1))
+    return basis
+
+
+def light_scales(theta, n_lights):
+    """Per-light scales ``exp(H theta)`` (geometric mean 1) from the Helmert coordinates ``theta``."""
+    return np.exp(helmert_basis(n_lights) @ np.asarray(theta, dtype=float))
 
 
 class LightCalibration(Effect):
@@ -57,6 +76,22 @@ class LightCalibration(Effect):
     def mitsuba_change(self, theta, ctx):
         return MitsubaChange(light_scales=light_scales(theta, ctx.n_lights))
 
-    def sampler_effect(self, ctx):
-        """Per-light gains on C (:class:`rjfit.sampler.effects.LightGains`)."""
+    def fit_form(self, ctx):
+        """Per-light gains on C (:class:`LightGains`)."""
         return LightGains(params=self.fit_params(ctx), n_lights=ctx.n_lights)
+
+
+@dataclass(frozen=True, eq=False)
+class LightGains(FitForm):
+    """Light calibration in the fit: per-light gains :func:`light_scales` (their geometric mean 1) on all light of each image."""
+
+    params: tuple
+    n_lights: int
+    name: str = "light_calibration"
+    stage: str = "light"
+
+    def gains(self, theta) -> np.ndarray:
+        return light_scales(theta, self.n_lights)
+
+    def apply(self, columns: Columns, theta) -> None:
+        columns.scale(self.gains(theta)[columns.light])

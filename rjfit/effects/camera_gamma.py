@@ -1,0 +1,72 @@
+"""A nonlinear camera response, the power law: the stored values are not linear in radiance.
+
+    y = W (mu / W)^(1/k)
+
+W = the largest valid value (fixed: with a pure power law W only rescales I0, so it is not a
+free parameter); k = 1 is linear. Applied last (the camera stage). Of the kind "camera
+response", with :mod:`rjfit.effects.camera_srgb`; a fit takes one response.
+
+- physics: :func:`gamma_curve` (both forms use it);
+- criticism: :class:`CameraGamma` (the curve on the mean);
+- fit: :class:`GammaCurve`, a data transform: the data linearised by the curve's inverse
+  ``y -> W (y / W)^k`` with its log-Jacobian ``log k + (k - 1) log(y / W)``;
+- Mitsuba: the same curve as a post-process of the path-traced images.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rjfit.effects.base import CameraResponse, Columns, FitForm, Param
+from rjfit.model.priors import LogNormal
+
+__all__ = ["CameraGamma", "GammaCurve", "gamma_curve"]
+
+
+def gamma_curve(mu, k, white):
+    """``W (max(mu, 0) / W)^(1/k)``: linear radiance ``mu`` as the power-law camera stores it."""
+    return white * np.power(np.maximum(mu, 0.0) / white, 1.0 / k)
+
+
+class CameraGamma(CameraResponse):
+    name = "camera_gamma"
+    description = "power-law response y = W (mu/W)^(1/k) with W the data's white level"
+
+    def params(self, ctx):
+        return [Param("k", LogNormal(loc=0.0, scale=1.0), init=1.2, null=1.0)]
+
+    def curve(self, mu, theta, white):
+        return gamma_curve(mu, theta[0], white)
+
+    def fit_form(self, ctx):
+        """The data linearised by the curve's inverse, with its log-Jacobian (:class:`GammaCurve`)."""
+        return GammaCurve(params=self.fit_params(ctx), white_level=ctx.white_level)
+
+
+@dataclass(frozen=True, eq=False)
+class GammaCurve(FitForm):
+    """The power-law response in the fit: ``y = W (mu / W)^(1/k)`` inverted on the data with its log-Jacobian.
+
+    Raises
+    ------
+    ValueError
+        On :meth:`apply`, for values at or below 0 (the inverse has no finite slope there).
+    """
+
+    params: tuple
+    white_level: float
+    name: str = "camera_gamma"
+    stage: str = "camera"
+
+    def apply(self, columns: Columns, theta) -> None:
+        white = self.white_level
+        x = columns.y / white
+        if np.any(x <= 0):
+            raise ValueError(f"camera_gamma: {int(np.count_nonzero(x <= 0))} observations are <= 0, where the power "
+                             "law's inverse has no finite slope; leave dark values out (a dark threshold) or use "
+                             "camera_srgb")
+        k = float(theta[0])
+        columns.y = white * np.power(x, k)
+        columns.log_jacobian += float(x.size * np.log(k) + (k - 1.0) * np.sum(np.log(x)))
+        columns.curve = lambda mu: gamma_curve(mu, k, white)
