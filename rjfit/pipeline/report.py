@@ -48,16 +48,17 @@ def _number(value, spec=".4g") -> str:
 
 
 def _embed(path: Path, caption: str) -> str:
-    return _embed_bytes(path.read_bytes(), caption)
+    """The PNG at ``path`` embedded with ``caption``; its alt text names the figure (its file name in words)."""
+    return _embed_bytes(path.read_bytes(), caption, path.stem.replace("_", " "))
 
 
-def _embed_bytes(png: bytes, caption: str) -> str:
+def _embed_bytes(png: bytes, caption: str, alt: str) -> str:
     # a PNG's width and height are the big-endian words at bytes 16-24 (its IHDR chunk): a
     # figure of several panels side by side gets the page's full width instead of half
     width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
     wide = ' class="wide"' if height and (width > 2 * height or width > 1000) else ""
     data = base64.b64encode(png).decode("ascii")
-    return (f'<figure{wide}><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+    return (f'<figure{wide}><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
@@ -381,7 +382,7 @@ def _chains_section(fit_dir: Path, summary: dict) -> list[str]:
     return [_embed_bytes(buffer.getvalue(), "The chains in chains.nc: the log posterior and the parameters of the "
                          "first regions (materials), each chain in its own colour and line style; beside each trace, "
                          "the chains' rank histograms: chains that sample one distribution give flat histograms of "
-                         "equal height, a chain stuck elsewhere one piled at an end.")]
+                         "equal height, a chain stuck elsewhere one piled at an end.", "chains: traces and rank plots")]
 
 
 def _derived_section(sub: str, title: str, command: str, folder: Path, fit_dir: Path, summary: dict) -> list[str]:

@@ -91,6 +91,8 @@ def test_no_row_is_labelled_by_a_json_key_and_every_caption_says_what_it_shows(w
     for caption in captions:
         assert caption not in stems and len(caption.split()) >= 8, caption
     assert any("rank histograms" in caption for caption in captions)
+    # the alt text still names each figure (its file name in words), the caption says what it shows
+    assert all(f'alt="{stem}"' in page for stem in stems)
     assert "what it means, when it is good" in page
 
 
