@@ -5,7 +5,7 @@ from pathlib import Path
 
 from rjfit.io import atomic_path
 
-__all__ = ["pyplot", "save_figure", "map_figure", "exclusion_figure", "object_window", "zoom_to_object",
+__all__ = ["pyplot", "save_figure", "pixel_axes", "map_figure", "exclusion_figure", "object_window", "zoom_to_object",
            "region_colours", "region_colormap", "label_image"]
 
 
@@ -35,6 +35,13 @@ def save_figure(figure, path, *, dpi=100, tight=False) -> Path:
     return path
 
 
+def pixel_axes(axis) -> None:
+    """Label an image panel's axes with the files' pixel coordinates (columns across, rows down)."""
+    axis.set_xlabel("column (px)", fontsize=8)
+    axis.set_ylabel("row (px)", fontsize=8)
+    axis.tick_params(labelsize=7)
+
+
 def object_window(mask, margin: int = 3):
     """The bounding box of ``mask``'s True pixels plus ``margin``, as (row slice, column slice) within the image.
 
@@ -62,8 +69,11 @@ def zoom_to_object(axis, mask, margin: int = 3) -> None:
     axis.set_ylim(rows.stop - 0.5, rows.start - 0.5)       # image rows run downwards
 
 
-def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None, *, dpi=100) -> Path:
-    """One image with a colour bar and a title, saved with :func:`save_figure`; zoomed to its finite pixels."""
+def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None, *, dpi=100, unit="") -> Path:
+    """One image with a colour bar and a title, saved with :func:`save_figure`; zoomed to its finite pixels.
+
+    ``unit``: what the colour bar measures (its label); the axes are the files' pixel coordinates.
+    """
     import numpy as np
 
     plt = pyplot()
@@ -71,8 +81,8 @@ def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None, *, dpi=
     shown = axis.imshow(image, cmap=cmap, vmin=vmin, vmax=vmax)
     zoom_to_object(axis, np.isfinite(image))                # maps are NaN off the object
     axis.set_title(title, fontsize=9)
-    axis.axis("off")
-    figure.colorbar(shown, ax=axis, fraction=0.046)
+    pixel_axes(axis)
+    figure.colorbar(shown, ax=axis, fraction=0.046, label=unit)
     figure.tight_layout()
     return save_figure(figure, path, dpi=dpi)
 
@@ -102,12 +112,15 @@ def exclusion_figure(path, counts, object_mask, n_lights, *, dpi=100) -> Path:
         image = np.where(object_mask, counts[name], np.nan)[window]
         # a rule's own scale (it may take one image in 96 from a few pixels), the valid count's 0..L
         top = n_lights if name == "valid" else max(int(np.nanmax(image)), 1)
+        # the window drawn at the files' pixel coordinates (extent), so the axes' numbers are the files' rows, columns
+        rows, cols = window
+        extent = None if rows.start is None else (cols.start - 0.5, cols.stop - 0.5, rows.stop - 0.5, rows.start - 0.5)
         panel = axis.imshow(image, cmap="viridis" if name == "valid" else "magma", vmin=0, vmax=top,
-                            interpolation="nearest")
+                            interpolation="nearest", extent=extent)
         axis.set_title(f"{title}\n{int(counts[name][object_mask].sum()):,} of {n_lights * int(object_mask.sum()):,} "
                        f"observations", fontsize=9)
-        axis.axis("off")
-        figure.colorbar(panel, ax=axis, fraction=0.046, label="images")
+        pixel_axes(axis)
+        figure.colorbar(panel, ax=axis, fraction=0.046, label="images (lights) per pixel")
     figure.tight_layout()
     return save_figure(figure, path, dpi=dpi)
 

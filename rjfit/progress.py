@@ -10,12 +10,13 @@ left. Both have the same three methods (``update``, ``write``, ``close``).
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import sys
 import time
 
-__all__ = ["progress", "tracked", "LineProgress", "TerminalProgress", "line_interval", "INTERVAL_ENV",
+__all__ = ["progress", "tracked", "phase", "LineProgress", "TerminalProgress", "line_interval", "INTERVAL_ENV",
            "DEFAULT_INTERVAL"]
 
 #: environment variable that sets the seconds between two progress lines in a log
@@ -180,8 +181,36 @@ def _is_terminal(stream) -> bool:
         return False
 
 
-def tracked(items, desc: str, unit: str = "step"):
-    """Yield ``items`` (a sized sequence) with :func:`progress` counting them; closed when the loop ends or stops."""
+@contextlib.contextmanager
+def phase(desc: str, enabled: bool = True, stream=None, clock=time.perf_counter):
+    """Announce a step that can take long: ``desc ...`` when it starts, ``desc: done in 12 s`` when it ends.
+
+    Plain lines (one write each, like :class:`LineProgress`'s), on a terminal as in a log: a
+    step without a count of its own (a maximisation, a few array passes) is followed by when
+    it began and how long it took; a step with a count adds a :func:`tracked` loop inside.
+    Nothing is written when ``enabled`` is false (tests, the precompile run, Dask workers),
+    and nothing about the step changes either way.
+    """
+    stream = sys.stderr if stream is None else stream
+    if not enabled:
+        yield
+        return
+    started = clock()
+    stream.write(f"{desc} ...\n")
+    stream.flush()
+    yield
+    stream.write(f"{desc}: done in {_duration(clock() - started)}\n")
+    stream.flush()
+
+
+def tracked(items, desc: str, unit: str = "step", enabled: bool = True):
+    """Yield ``items`` (a sized sequence) with :func:`progress` counting them; closed when the loop ends or stops.
+
+    With ``enabled`` false the items are yielded as they are, without a bar or a line.
+    """
+    if not enabled:
+        yield from items
+        return
     bar = progress(len(items), desc, unit)
     try:
         for item in items:

@@ -39,6 +39,8 @@ from scipy import ndimage
 
 from rjfit.data.pixelfit import group_fit, patch_index
 from rjfit.data.response import estimate_power_response
+from rjfit.progress import phase, tracked
+from rjfit.progress import progress as progress_bar
 
 __all__ = ["calibrate_measured", "drop_small_components", "estimate_light_gains", "replay_calibration",
            "MIN_COMPONENT"]
@@ -76,8 +78,11 @@ def drop_small_components(dataset, min_component: int = MIN_COMPONENT):
     return dataclasses.replace(dataset, object_mask=dataset.object_mask & ~drop), record
 
 
-def estimate_light_gains(dataset, channel: str = "mean", seed: int = 0, n_bootstrap: int = 50) -> dict:
+def estimate_light_gains(dataset, channel: str = "mean", seed: int = 0, n_bootstrap: int = 50,
+                         progress: bool = False) -> dict:
     """Per-light gains ``G_l`` from 5 x 5 pixel tile fits (module docstring, step 3).
+
+    ``progress``: a line per round of tile fits (at most every few seconds) and the bootstrap counted on stderr.
 
     Returns
     -------
@@ -96,17 +101,23 @@ def estimate_light_gains(dataset, channel: str = "mean", seed: int = 0, n_bootst
                 / np.bincount(light[keep], weights=w * m * m, minlength=dataset.n_lights))
 
     total, rounds, step = np.ones(dataset.n_lights), 0, np.inf
+    # the rounds stop at a tolerance, so their count is a bound: the bar counts up to it and closes early
+    bar = progress_bar(_GAIN_ROUNDS, "light gains: tile fits", "round") if progress else None
     while rounds < _GAIN_ROUNDS and step > _GAIN_TOLERANCE:
         y = y0 / total[light]
         prediction = y - group_fit(dataclasses.replace(observations, y=y), tile, n_tiles)["residuals"]
         change = ratio(y, prediction, np.ones(n_tiles)) ** _OVER_RELAXATION
         total = total * change / np.exp(np.mean(np.log(total * change)))
         step, rounds = float(np.max(np.abs(np.log(change)))), rounds + 1
+        if bar is not None:
+            bar.update(1, detail=f"largest step {step:.2g} (stops below {_GAIN_TOLERANCE:g})")
+    if bar is not None:
+        bar.close()
     y = y0 / total[light]
     prediction = y - group_fit(dataclasses.replace(observations, y=y), tile, n_tiles)["residuals"]
     rng = np.random.default_rng(seed)
     draws = []
-    for _ in range(n_bootstrap):
+    for _ in tracked(range(n_bootstrap), "light gains: bootstrap", "replicate", enabled=progress):
         resampled = total * ratio(y, prediction, rng.multinomial(n_tiles, np.full(n_tiles, 1.0 / n_tiles)).astype(float))
         draws.append(resampled / np.exp(np.mean(np.log(resampled))))
     draws = np.asarray(draws)
@@ -127,7 +138,7 @@ def _flag_saturated(dataset):
 
 
 def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: bool | None = None,
-                       min_component: int = MIN_COMPONENT):
+                       min_component: int = MIN_COMPONENT, progress: bool = False):
     """The transforms of the module docstring, in order; the transformed data set and their record.
 
     Parameters
@@ -141,6 +152,9 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
         Estimate per-light gains; None: only when the response is unknown (uncalibrated stacks).
     min_component : int
         Smallest connected part of the object mask kept, in pixels.
+    progress : bool
+        Announce each step on stderr and count its passes (:mod:`rjfit.progress`): on a large
+        8-bit stack the calibration takes minutes. The result is the same either way.
 
     Returns
     -------
@@ -158,7 +172,8 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
     unknown = dataset.response == "unknown"
     if unknown:
         dataset = _flag_saturated(dataset)
-        response = estimate_power_response(dataset, channel, seed, kappas=_KAPPAS)
+        with phase("calibration: camera response (kappa of raw = k linear^(1/kappa))", progress):
+            response = estimate_power_response(dataset, channel, seed, kappas=_KAPPAS, progress=progress)
         dataset = _linearise(dataset, response["kappa"])
         record["response"] = {key: response[key] for key in ("kappa", "exponent", "kappa_std", "kappa_interval",
                                                              "at_grid_edge", "model", "errors", "caveat")}
@@ -166,7 +181,8 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
                                           "to the linearised values and is not used")
     if gains or (gains is None and unknown):
         dataset = _flag_saturated(dataset)
-        estimate = estimate_light_gains(dataset, channel, seed)
+        with phase("calibration: per-light gains", progress):
+            estimate = estimate_light_gains(dataset, channel, seed, progress=progress)
         dataset = _divide_by_gains(dataset, estimate["gains"])
         record["light_gains"] = estimate
     return dataset, record

@@ -39,6 +39,7 @@ import numpy as np
 
 from rjfit.data.pixelfit import per_pixel_residuals
 from rjfit.errors import DatasetError
+from rjfit.progress import tracked
 
 __all__ = ["estimate_power_response", "KAPPA_GRID", "ERROR_MODELS"]
 
@@ -48,14 +49,18 @@ ERROR_MODELS = ("linear", "codes")
 _MIN_PIXELS = 20
 
 
-def _per_pixel_sums(observations, kappas, errors):
-    """Per kappa and pixel: the squared residuals' sum (K, P); per pixel: observations and sum of log u."""
+def _per_pixel_sums(observations, kappas, errors, progress=False):
+    """Per kappa and pixel: the squared residuals' sum (K, P); per pixel: observations and sum of log u.
+
+    ``progress``: count the kappas on stderr (one per-pixel fit of the stack each: minutes on a large stack).
+    """
     n_pix = int(np.prod(observations.image_shape))
     u = np.asarray(observations.y, float) / float(np.max(observations.y))
     pixel = np.asarray(observations.pixel, np.int64)
     ssr = np.empty((len(kappas), n_pix))
     fitted = None
-    for index, kappa in enumerate(kappas):
+    for index in tracked(range(len(kappas)), "camera response: per-pixel fits", "kappa", enabled=progress):
+        kappa = kappas[index]
         linear = u ** kappa
         residuals = per_pixel_residuals(dataclasses.replace(observations, y=linear))
         # Whether a pixel has a fit depends on its geometry only (count, determinant), not on kappa.
@@ -94,7 +99,7 @@ def _minimum(kappas, profile):
 
 def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, errors: str = "linear",
                             dark: float | None = None, kappas=KAPPA_GRID, n_bootstrap: int = 200,
-                            tile: int = 16) -> dict:
+                            tile: int = 16, progress: bool = False) -> dict:
     """Estimate kappa of a power-law response ``raw = k * linear^(1/kappa)`` (linear = raw^kappa up to scale).
 
     Parameters
@@ -117,6 +122,8 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
         Block-bootstrap replicates (0: none).
     tile : int
         Side of the bootstrap's square tiles, in pixels (1: a bootstrap over single pixels).
+    progress : bool
+        Count the per-kappa fits and the bootstrap on stderr (:func:`rjfit.progress.tracked`); same estimate.
 
     Returns
     -------
@@ -146,7 +153,7 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
         raise ValueError(f"n_bootstrap must be >= 0 and tile >= 1, got {n_bootstrap} and {tile}")
     observations = dataset.observations(channel, dark)
     observations = observations.subset(np.asarray(observations.y) > 0)
-    ssr, count, log_u = _per_pixel_sums(observations, kappas, errors)
+    ssr, count, log_u = _per_pixel_sums(observations, kappas, errors, progress)
     used = count > 0
     if int(used.sum()) < _MIN_PIXELS:
         raise DatasetError(f"{dataset.path}: only {int(used.sum())} pixels have the 4 positive observations a "
@@ -164,7 +171,7 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
     n_tiles = int(tile_of.max()) + 1
     rng = np.random.default_rng(seed)
     draws = []
-    for _ in range(n_bootstrap):
+    for _ in tracked(range(n_bootstrap), "camera response: bootstrap", "replicate", enabled=progress):
         tile_weights = rng.multinomial(n_tiles, np.full(n_tiles, 1.0 / n_tiles))
         weights = np.zeros(ssr.shape[1])
         weights[pixels] = tile_weights[tile_of]

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from rjfit.plotting import map_figure as _map_figure
-from rjfit.plotting import pyplot, zoom_to_object
+from rjfit.plotting import pixel_axes, pyplot, zoom_to_object
 from rjfit.plotting import save_figure as _save_figure
 
 __all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure",
@@ -33,8 +33,8 @@ def residual_pair_figure(path, before, after, title_before, title_after, label="
         shown = axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
         zoom_to_object(axis, np.isfinite(before) | np.isfinite(after))
         axis.set_title(title, fontsize=9)
-        axis.axis("off")
-    figure.colorbar(shown, ax=axes, fraction=0.046, label=label)
+        pixel_axes(axis)
+    figure.colorbar(shown, ax=axes, fraction=0.046, label=label + " (noise sd)")
     return save_figure(figure, path)
 
 
@@ -46,8 +46,9 @@ def per_light_figure(path, before, after, title):
     a = np.array([np.nan if v is None else v for v in after], dtype=float)
     axis.bar(lights - 0.2, b, 0.4, label="before")
     axis.bar(lights + 0.2, a, 0.4, label="after")
-    axis.set_xlabel("light")
-    axis.set_ylabel("gap")
+    axis.set_xlabel("light (image index)")
+    axis.set_ylabel("gap: misfit beyond the noise")
+    axis.xaxis.get_major_locator().set_params(integer=True)     # lights are counted, not measured
     axis.set_title(title, fontsize=9)
     axis.legend(fontsize=8)
     figure.tight_layout()
@@ -68,14 +69,16 @@ def posterior_figure(path, panels):
             axis.hist(before, bins=25, alpha=0.6, density=True, label="before")
         axis.hist(after, bins=25, alpha=0.6, density=True, label="after")
         axis.set_title(name, fontsize=8)
+        axis.set_xlabel("parameter value", fontsize=7)
+        axis.set_ylabel("posterior density", fontsize=7)
         axis.tick_params(labelsize=7)
     axes.ravel()[0].legend(fontsize=7)
     figure.tight_layout()
     return save_figure(figure, path)
 
 
-def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None):
-    return _map_figure(path, image, title, cmap=cmap, vmin=vmin, vmax=vmax).name
+def map_figure(path, image, title, cmap="viridis", vmin=None, vmax=None, unit=""):
+    return _map_figure(path, image, title, cmap=cmap, vmin=vmin, vmax=vmax, unit=unit).name
 
 
 def signature_figure(path, residual, panels, title):
@@ -85,10 +88,11 @@ def signature_figure(path, residual, panels, title):
     limit = max(float(np.percentile(np.abs(finite), 99)) if finite.size else 1.0, 1e-6)
     figure, axes = plt.subplots(1, len(panels) + 1, figsize=(2.3 * (len(panels) + 1), 2.8), squeeze=False)
     for axis, (label, image) in zip(axes[0], [("residual", residual)] + list(panels)):
-        axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        shown = axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
         zoom_to_object(axis, np.isfinite(residual))
         axis.set_title(label, fontsize=7)
-        axis.axis("off")
+        pixel_axes(axis)
+    figure.colorbar(shown, ax=axes[0], fraction=0.046, label="standardised residual (noise sd)")
     figure.suptitle(title, fontsize=8)
     figure.tight_layout()
     return save_figure(figure, path)
@@ -105,10 +109,12 @@ def per_image_figure(path, stack, title):
     for i, axis in enumerate(axes.ravel()):
         axis.axis("off")
         if i < L:
-            axis.imshow(stack[i], cmap="RdBu_r", vmin=-limit, vmax=limit)
+            shown = axis.imshow(stack[i], cmap="RdBu_r", vmin=-limit, vmax=limit)
             zoom_to_object(axis, np.isfinite(stack).any(axis=0))
             axis.set_title(f"light {i}", fontsize=7)
-    figure.suptitle(title + f" (colour range +-{limit:.2g})", fontsize=9)
+    if L:       # one colour range for every light: one bar, in units of the noise's sd
+        figure.colorbar(shown, ax=axes, fraction=0.03, label="standardised residual (noise sd)")
+    figure.suptitle(title + f" (colour range +-{limit:.2g}; panels: the object's pixels)", fontsize=9)
     return save_figure(figure, path)
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from rjfit.diagnose.figures import map_figure, per_image_figure, residual_pair_figure
 from rjfit.diagnose.gap import gap, gap_breakdown
 from rjfit.effects.scenes import model_scene
+from rjfit.progress import phase
 from rjfit.render.effect_scenes import render_model
 from rjfit.render.scene_change import merge_changes
 
@@ -107,12 +108,16 @@ def _rendered_draws(ctx, fit, picks, seed, spp_stochastic):
     return fit.cached(key, render)[1]
 
 
-def simulation_record(ctx, plain, current, sigma2_hat, *, n_draws, seed, figure_dir=None) -> dict:
+def simulation_record(ctx, plain, current, sigma2_hat, *, n_draws, seed, figure_dir=None, progress=False) -> dict:
     """The Mitsuba posterior predictive of the plain and final models (``diagnosis.json``
-    "simulation"), with its figures in ``figure_dir`` where given."""
-    sim = {"plain": simulate_fit(ctx, plain, sigma2_hat, n_draws=n_draws, seed=seed)}
-    if current is not plain:
-        sim["final"] = simulate_fit(ctx, current, sigma2_hat, n_draws=n_draws, seed=seed)
+    "simulation"), with its figures in ``figure_dir`` where given; ``progress``: each model's
+    renders announced on stderr (:func:`rjfit.progress.phase`)."""
+    models = {"plain": plain} if current is plain else {"plain": plain, "final": current}
+    sim = {}
+    for label, fit in models.items():
+        with phase(f"diagnosis: Mitsuba posterior predictive of the {label} model ({n_draws} draws rendered)",
+                   progress):
+            sim[label] = simulate_fit(ctx, fit, sigma2_hat, n_draws=n_draws, seed=seed)
     sim_figs = {}
     if figure_dir is not None:
         final = sim.get("final", sim["plain"])
@@ -121,7 +126,8 @@ def simulation_record(ctx, plain, current, sigma2_hat, *, n_draws, seed, figure_
             f"Mitsuba, plain (gap {sim['plain']['gap']:.3g})", f"Mitsuba, final (gap {final['gap']:.3g})",
             label="mean standardised residual over lights")
         sim_figs["ppc"] = map_figure(figure_dir / "ppc_p_values.png", final["ppc_p_values"],
-                                     "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1)
+                                     "posterior predictive p-value per pixel (final model)", vmin=0, vmax=1,
+                                     unit="p-value (small: the data lie outside the simulations)")
         for label, s in sim.items():
             sim_figs[f"per_image_{label}"] = per_image_figure(
                 figure_dir / f"mitsuba_per_image_{label}.png", s["standardised"],

@@ -264,7 +264,7 @@ def _search(dataset, labels, figure_dir, settings):
     simulate = ctx.has_mesh if settings.simulate is None else settings.simulate
     if simulate and ctx.has_mesh:
         result["simulation"] = simulation_record(ctx, plain, trace.current, sigma2_hat, n_draws=settings.n_sim_draws,
-                                                 seed=settings.seed,
+                                                 seed=settings.seed, progress=settings.progress,
                                                  figure_dir=figure_dir if settings.make_figures else None)
     elif simulate:
         result["simulation_skipped"] = "no mesh: Mitsuba cannot render this data set's object"

@@ -11,6 +11,7 @@ from rjfit.data.formats import COLOUR
 from rjfit.data.noise import DEFAULT_FLOOR
 from rjfit.diagnose.workflow import diagnose
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
+from rjfit.progress import phase
 from rjfit.render.datasets import load_dataset
 
 __all__ = ["diagnose_fit"]
@@ -89,8 +90,9 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     # the effects the fit sampled: the search starts from them and names only further ones
     options.setdefault("base_effects", [entry["name"] for entry in summary.get("effects") or []])
     options["provenance"] = {"fit_dir": str(fit_dir.resolve()), "fit_id": summary.get("fit_id")}
-    dataset = _data_the_fit_saw(dataset if hasattr(dataset, "images") else load_dataset(dataset), summary,
-                                fit_dir / "summary.json")
+    with phase("diagnosis: loading the data set (and replaying the fit's calibration)", options.get("progress", False)):
+        dataset = _data_the_fit_saw(dataset if hasattr(dataset, "images") else load_dataset(dataset), summary,
+                                    fit_dir / "summary.json")
     labels = read_map_labels(fit_dir, dataset.object_mask)
     return diagnose(dataset, labels, out_dir, **options)
 

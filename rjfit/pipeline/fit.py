@@ -18,19 +18,16 @@ Outputs in ``out_dir`` (each written atomically):
   (:func:`write_parameter_maps`);
 - ``figures/*.png``: the paper's figures (see :mod:`rjfit.posterior.figures`).
 
-Change points that cut no object pixel. Regions with no observation contribute only their
-prior (proper), and split/merge is exactly balanced for them, so models with such regions
-get exactly the posterior mass the prior gives them: per row, an extra u element that cuts
-no object pixel must fall in the off-object part of that row, so such models carry the
-product over rows of the off-object fractions of [-1, W+1], which is tiny for an object
-that spans many rows. Reported beside the raw ``model_posterior``:
-``true_regions_probability`` (the issue's "the object's pixels fall into exactly the four
-true regions", whatever the model: one region holding object pixels per true region, and
-the optimal one-to-one matching agrees with the truth on >= 99 % of the observed object
-pixels), ``four_region_probability`` (only the count: as many regions holding object
-pixels as the truth has) and ``exact_truth_probability`` (stricter: the partition equals
-the true one pixel for pixel; the ~0.2 % of pixels at the silhouette whose few grazing
-observations cannot tell two regions apart make it ~0 even for a good fit).
+Change points that cut no object pixel. Regions with no observation contribute only their prior (proper), and
+split/merge is exactly balanced for them, so models with such regions get exactly the posterior mass the prior
+gives them: per row, an extra u element that cuts no object pixel must fall in the off-object part of that row, so
+such models carry the product over rows of the off-object fractions of [-1, W+1], which is tiny for an object that
+spans many rows. Reported beside the raw ``model_posterior``: ``true_regions_probability`` (the issue's "the
+object's pixels fall into exactly the four true regions", whatever the model: one region holding object pixels per
+true region, and the optimal one-to-one matching agrees with the truth on >= 99 % of the observed object pixels),
+``four_region_probability`` (only the count: as many regions holding object pixels as the truth has) and
+``exact_truth_probability`` (stricter: the partition equals the true one pixel for pixel; the ~0.2 % of pixels at
+the silhouette whose few grazing observations cannot tell two regions apart make it ~0 even for a good fit).
 """
 from __future__ import annotations
 
@@ -53,6 +50,7 @@ from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
 from rjfit.posterior.effects import effect_summaries
+from rjfit.progress import phase
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
 from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
@@ -125,15 +123,13 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     TypeError
         For a keyword that is not a fit option.
     ValueError
-        Before any chain runs: for an option out of range (:class:`FitOptions`);
-        ``likelihood_power='auto'`` that cannot be measured (no two adjacent pixels under one
-        light have a residual); ``truth_labels`` not of the images' shape (H, W); unusable
-        observations (none, some with ``<l.n> <= 0``, or a mean value that is not positive
-        under the 'shot' / 'relative' noise models); a burn-in that leaves no iteration; or
-        effects named in the options but not given (they need the data set: ``fit_dataset``).
-        While the chains start: if a ``start`` entry does not fit ``max_u``/``max_v``, or a
-        checkpoint in ``out_dir/checkpoints`` is unreadable, of another checkpoint version or
-        of another run (the message says to delete it).
+        Before any chain runs: for an option out of range (:class:`FitOptions`); ``likelihood_power='auto'`` that
+        cannot be measured (no two adjacent pixels under one light have a residual); ``truth_labels`` not of the
+        images' shape (H, W); unusable observations (none, some with ``<l.n> <= 0``, or a mean value that is not
+        positive under the 'shot' / 'relative' noise models); a burn-in that leaves no iteration; or effects named in
+        the options but not given (they need the data set: ``fit_dataset``). While the chains start: if a ``start``
+        entry does not fit ``max_u``/``max_v``, or a checkpoint in ``out_dir/checkpoints`` is unreadable, of another
+        checkpoint version or of another run (the message says to delete it).
     """
     options = FitOptions.build(options, **option_keywords)
     if (options.effects or options.effects_from is not None) and not sampler_effects:
@@ -150,7 +146,9 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation)
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
-    result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels, observations)
+    with phase("summarising the chains (MAP labels, posterior mean prediction, checks)", options.progress):
+        result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels,
+                           observations)
     if problem.effects is not None:
         result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
         result.summary["warnings"] += effect_warnings(result.summary["effects"])
@@ -391,7 +389,7 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
 def _stage_and_publish(out_dir: Path, result: FitResult, records, observations, options: FitOptions,
                        source: FitSource | None, before_publish, started: float) -> None:
     summary = result.summary
-    with staging_dir(out_dir) as staging:
+    with staging_dir(out_dir) as staging, phase("writing the results and figures", options.progress):
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)})
         summary["fit_id"] = results_digest(summary)
         if options.regions == "materials":

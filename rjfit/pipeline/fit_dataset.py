@@ -20,6 +20,7 @@ from rjfit.data.formats import COLOUR
 from rjfit.pipeline.fit import FitSource, fit
 from rjfit.pipeline.fit_effects import fit_effects
 from rjfit.pipeline.options import EACH_CHANNEL, FURTHER_MATERIAL_ODDS, FitOptions
+from rjfit.progress import phase
 from rjfit.render.datasets import load_dataset
 from rjfit.render.gate import require_validated
 from rjfit.sampler.runner import run_chain
@@ -79,7 +80,8 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     dataset_dir = Path(dataset_dir)
     check_validation_file(dataset_dir, validation_path)
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
-    dataset = load_dataset(dataset_dir)
+    with phase(f"loading the data set {dataset_dir}", options.progress):
+        dataset = load_dataset(dataset_dir)
     dataset, options, calibration = _prepared(dataset, options)
     chain_runner = None
     if scheduler is not None or client is not None:
@@ -124,7 +126,7 @@ def _prepared(dataset, options: FitOptions):
     options = options.replace(burn_in=options.burn_in_for(measured=dataset.meta.get("kind") == "measured"))
     calibration = None
     if options.calibrate:
-        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed)
+        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed, progress=options.progress)
     if options.max_view_angle is not None and options.max_view_angle < 90.0:
         dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
     if options.potts_rule:      # --preset measured, --regions materials, no --potts-rho given

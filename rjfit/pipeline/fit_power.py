@@ -12,6 +12,7 @@ from rjfit.data.coarsen import area_likelihood_power, suggest_likelihood_power
 from rjfit.data.noise import noise_scale, weighted_observations
 from rjfit.data.normal_error import normal_error_noise
 from rjfit.data.pixelfit import per_pixel_residuals
+from rjfit.progress import phase
 from rjfit.sampler.edges import edge_term
 from rjfit.sampler.regions.material_labels import labelled_pixels
 
@@ -23,7 +24,8 @@ def edge_power(problem, options):
     once on ``problem``, so that every chain takes that number and the summary records it."""
     if options.edge_power != "auto":
         return float(options.edge_power)
-    return edge_term(problem, labelled_pixels(problem), "auto").power
+    with phase("edge term: measuring its power (--edge-power auto)", options.progress):
+        return edge_term(problem, labelled_pixels(problem), "auto").power
 
 
 def noise_and_power(observations, options):
@@ -39,17 +41,21 @@ def noise_and_power(observations, options):
     """
     normal_error = None
     if options.noise in ("normals", "footprint"):
-        scale, normal_error = channel_normal_error_noise(observations, footprint=options.noise == "footprint")
+        with phase(f"noise model {options.noise}: estimating the normals' error (5 x 5 pixel tile fits)",
+                   options.progress):
+            scale, normal_error = channel_normal_error_noise(observations, footprint=options.noise == "footprint")
     else:
         scale = noise_scale(observations, options.noise, options.noise_floor)
     try:
-        suggestion = power_suggestion(observations, scale)
+        with phase("likelihood power: spatial correlation of per-pixel fits' residuals", options.progress):
+            suggestion = power_suggestion(observations, scale)
     except ValueError:
         if options.likelihood_power == "auto":
             raise
         suggestion = None      # too few adjacent pixels to measure it
     if options.likelihood_power == "area":
-        area = area_likelihood_power(observations, noise_scale=scale)
+        with phase("likelihood power area: residuals' autocorrelation summed within +-40 px", options.progress):
+            area = area_likelihood_power(observations, noise_scale=scale)
         suggestion = {**(suggestion or {}), "area": area}
         power = area["likelihood_power"]
     else:

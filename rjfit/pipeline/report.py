@@ -8,13 +8,20 @@ from pathlib import Path
 from rjfit.diagnose.document import revision_text
 from rjfit.io import read_json, write_text_atomic
 from rjfit.pipeline.fit_folder import read_summary
+from rjfit.pipeline.report_text import figure_caption, fit_settings, result_rows, truth_note
 from rjfit.posterior.boundaries import edge_verdict
 from rjfit.posterior.summary import RHAT_MAX
 
 __all__ = ["build_report"]
 
 _PARAMETERS = ("I0", "kd", "gamma", "sigma2")
-_LABELS = {"I0": "I<sub>0</sub>", "kd": "k<sub>d</sub>", "gamma": "&gamma;", "sigma2": "&sigma;<sup>2</sup>"}
+_LABELS = {"I0": "I<sub>0</sub> (intensity &times; albedo, image units)", "kd": "k<sub>d</sub> (diffuse fraction)",
+           "gamma": "&gamma; (Blinn-Phong exponent)", "sigma2": "&sigma;<sup>2</sup> (noise variance)"}
+#: the cross-check's numbers in words (validation.json's keys)
+_VALIDATION_LABELS = {"median_rel_err": "median relative error, closed form vs path tracer (good: <= 1e-4)",
+                      "p99_rel_err": "99th percentile of the relative error (good: <= 1e-3)",
+                      "max_rel_err": "largest relative error", "pixels_compared": "pixel observations compared",
+                      "unexplained_fraction": "share of the radiance the closed form does not explain"}
 
 _STYLE = """
 body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
@@ -23,7 +30,8 @@ table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #bbb;padding
 th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
 figure{display:inline-block;margin:.4em;vertical-align:top}figure img{max-width:520px;border:1px solid #ddd}
 figure.wide{display:block}figure.wide img{max-width:100%}
-figcaption{font-size:.85em;color:#555}.pass{color:#070;font-weight:bold}.fail{color:#b00;font-weight:bold}
+figcaption{font-size:.85em;color:#555;max-width:520px}figure.wide figcaption{max-width:none}
+td.note,th.note{text-align:left;font-size:.85em;color:#444;max-width:560px}.pass{color:#070;font-weight:bold}.fail{color:#b00;font-weight:bold}
 code{background:#f4f4f4;padding:0 .2em}
 """
 
@@ -40,13 +48,17 @@ def _number(value, spec=".4g") -> str:
 
 
 def _embed(path: Path, caption: str) -> str:
-    png = path.read_bytes()
+    """The PNG at ``path`` embedded with ``caption``; its alt text names the figure (its file name in words)."""
+    return _embed_bytes(path.read_bytes(), caption, path.stem.replace("_", " "))
+
+
+def _embed_bytes(png: bytes, caption: str, alt: str) -> str:
     # a PNG's width and height are the big-endian words at bytes 16-24 (its IHDR chunk): a
     # figure of several panels side by side gets the page's full width instead of half
     width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
     wide = ' class="wide"' if height and (width > 2 * height or width > 1000) else ""
     data = base64.b64encode(png).decode("ascii")
-    return (f'<figure{wide}><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+    return (f'<figure{wide}><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
@@ -66,9 +78,10 @@ def _region_table(summary: dict) -> str:
     truth = {str(region): truth_params[label] for region, label in (summary.get("label_matching") or {}).items()
              if isinstance(label, int) and 0 <= label < len(truth_params) and isinstance(truth_params[label], dict)}
     head = "".join(f"<th>{_LABELS[p]}</th>" for p in _PARAMETERS)
+    kind = "material" if summary.get("region_model") == "materials" else "region"
     rows = []
     for index, region in enumerate(regions):
-        name = region.get("name", f"region {region.get('region', index)}")
+        name = region.get("name", f"{kind} {region.get('region', index)}")
         cells = []
         for parameter in _PARAMETERS:
             stats = region.get(parameter, {})
@@ -85,7 +98,7 @@ def _region_table(summary: dict) -> str:
             cells.append(f"<td>{text}</td>")
         rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small></td>"
                     + "".join(cells) + "</tr>")
-    return f"<table><tr><th>region</th>{head}</tr>{''.join(rows)}</table>"
+    return f"<table><tr><th>{kind}</th>{head}</tr>{''.join(rows)}</table>"
 
 
 def _chain_region_tables(summary: dict) -> str:
@@ -130,9 +143,22 @@ def _effects_table(summary: dict) -> str:
             + (f"<ul>{notes}</ul>" if notes else ""))
 
 
-def _key_values(payload: dict, keys) -> str:
-    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{_fmt(payload.get(k))}</td></tr>" for k in keys if k in payload)
+def _key_values(payload: dict, keys, labels=None) -> str:
+    """A two-column table of ``payload``'s ``keys``, each named by ``labels`` (the key itself where it has none)."""
+    labels = labels or {}
+    rows = "".join(f"<tr><td>{html.escape(labels.get(k, k))}</td><td>{_fmt(payload.get(k))}</td></tr>"
+                   for k in keys if k in payload)
     return f"<table>{rows}</table>"
+
+
+def _result_table(summary: dict) -> str:
+    """The headline results, each with what it measures and when it is good (:func:`result_rows`)."""
+    rows = "".join(f"<tr><td>{html.escape(name)}</td><td>{_fmt(value)}</td><td class='note'>{html.escape(meaning)}"
+                   f"</td></tr>" for name, value, meaning in result_rows(summary))
+    note = truth_note(summary)
+    return ("<table><tr><th>quantity</th><th>value</th><th class='note'>what it means, when it is good</th></tr>"
+            f"{rows}</table>"
+            + (f"<p>{html.escape(note)}</p>" if note else ""))
 
 
 def _markdown_to_html(text: str) -> str:
@@ -227,7 +253,8 @@ def build_report(fit_dir, out_path=None, *, diagnosis_dir=None, comparison_dir=N
     parts += _posterior_section(summary) + _settings_section(summary)
     parts.append("<h2>Figures</h2>")
     for png in sorted(fit_dir.glob("*.png")) + sorted((fit_dir / "figures").glob("*.png")):
-        parts.append(_embed(png, png.stem.replace("_", " ")))
+        parts.append(_embed(png, figure_caption(png.stem)))
+    parts += _chains_section(fit_dir, summary)
     folders = {"diagnosis": Path(diagnosis_dir) if diagnosis_dir else fit_dir / "diagnosis",
                "comparison": Path(comparison_dir) if comparison_dir else fit_dir / "comparison"}
     for sub, title, command in (("diagnosis", "Model criticism", "rjfit diagnose"), ("comparison", "Baselines",
@@ -262,8 +289,7 @@ def _validation_section(summary: dict, dataset_dir) -> list[str]:
         return parts + ["<p>No validation found for this data set.</p>"]
     verdict = '<span class="pass">passed</span>' if validation.get("passed") else '<span class="fail">failed</span>'
     parts.append(f"<p>Closed form vs Mitsuba path tracer: {verdict}.</p>")
-    parts.append(_key_values(validation, ["median_rel_err", "p99_rel_err", "max_rel_err", "pixels_compared",
-                                          "unexplained_fraction"]))
+    parts.append(_key_values(validation, list(_VALIDATION_LABELS), _VALIDATION_LABELS))
     for name, caption in (("relative_error.png", "relative error"), ("unexplained_fraction.png",
                                                                     "unexplained fraction")):
         if (validation_dir / name).is_file():
@@ -285,12 +311,7 @@ def _posterior_section(summary: dict) -> list[str]:
                      "variation), and no number of the summary was flagged (region means inside their prior's central "
                      "99.9 % and their own 95 % intervals, no region without data, no binding model cap, no NaN "
                      "acceptance ratio).</p>")
-    map_model = summary.get("map_model", {})
-    parts.append(_key_values({**{f"map_model.{k}": v for k, v in map_model.items()}, **summary},
-                             ["map_model.n_u", "map_model.n_v", "map_model.m", "true_regions_probability", "four_region_probability",
-                              "likelihood_power",
-                              "exact_truth_probability", "label_accuracy",
-                              "rhat_max", "rhat_reason", "ess_min", "iterations", "seconds"]))
+    parts.append(_result_table(summary))
     resolution = summary.get("material_resolution")
     if resolution and resolution.get("pixels") is not None:
         parts.append(f"<p>Resolution: a region of {resolution['contrast']:g} times material {resolution['material']}'s "
@@ -310,28 +331,58 @@ def _posterior_section(summary: dict) -> list[str]:
                      f"that meet where the data show no step joined): {shares}.</p>")
     model_posterior = summary.get("model_posterior") or {}
     if model_posterior:
-        rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{v:.4f}</td></tr>"
+        rows = "".join(f"<tr><td>{html.escape(str(k).replace(',', ', '))}</td><td>{_number(v, '.4f')}</td></tr>"
                        for k, v in sorted(model_posterior.items(), key=lambda kv: -kv[1])[:12])
-        parts.append(f"<table><tr><th>model (n_u, n_v)</th><th>posterior</th></tr>{rows}</table>")
-    parts.append("<h2>Region parameters</h2>" + _region_table(summary))
+        parts.append("<p>The change-point models the chains visited, most probable first: n<sub>u</sub> vectors cut "
+                     "the rows, n<sub>v</sub> the columns.</p><table><tr><th>model (n<sub>u</sub>, n<sub>v</sub>)</th>"
+                     f"<th>posterior probability</th></tr>{rows}</table>")
+    materials = summary.get("materials_posterior") or {}
+    if isinstance(materials, dict) and materials:
+        rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{_number(v, '.4f')}</td></tr>"
+                       for k, v in sorted(materials.items(), key=lambda kv: -kv[1]) if isinstance(v, (int, float)))
+        parts.append("<table><tr><th>number of materials K</th><th>posterior probability</th></tr>"
+                     f"{rows}</table>")
+    kind = "material" if summary.get("region_model") == "materials" else "region"
+    parts.append(f"<h2>Region parameters</h2><p>Posterior mean &plusmn; sd of each {kind}'s parameters, their central "
+                 f"95 % interval below (the kept draws of all chains).</p>" + _region_table(summary))
     parts.append(_chain_region_tables(summary))
     parts.append(_effects_table(summary))
     return parts
 
 
 def _settings_section(summary: dict) -> list[str]:
-    """What the numbers above were computed with: two fits of one data set can differ in these."""
-    noise = summary.get("noise") or {}
-    settings = {"channel": summary.get("channel"), "chains": summary.get("n_chains"),
-                "iterations per chain": summary.get("iterations"), "burn-in iterations": summary.get("burn_in"),
-                "seed": summary.get("seed"), "sampler": summary.get("sampler"), "split map": summary.get("split_map"),
-                "noise model": noise.get("model"), "likelihood power (zeta)": summary.get("likelihood_power"),
-                "observations": summary.get("n_observations"),
-                "crop (row0, col0 of the files)": (f"{summary['crop'].get('row0')}, {summary['crop'].get('col0')}"
-                                                   if summary.get("crop") else None),
-                "fit id": summary.get("fit_id")}
-    shown = {k: v for k, v in settings.items() if v is not None}
-    return ["<h3>Fit settings</h3>" + _key_values(shown, list(shown))]
+    """What the numbers above were computed with, in words: two fits of one data set can differ in these."""
+    rows = "".join(f"<tr><td>{html.escape(name)}</td><td class='note'>{html.escape(str(value))}</td></tr>"
+                   for name, value in fit_settings(summary))
+    return ["<h3>Fit settings</h3><p>Every setting that shaped this fit (the command's options after the preset "
+            f"filled those not given, and what was estimated before the chains ran).</p><table>{rows}</table>"]
+
+
+def _chains_section(fit_dir: Path, summary: dict) -> list[str]:
+    """Traces beside rank plots of the chains in ``chains.nc`` (:func:`rjfit.posterior.chain_figures.chain_figure`)."""
+    import io
+
+    import arviz        # ArviZ and matplotlib: only when a report is built
+
+    from rjfit.plotting import pyplot
+    from rjfit.posterior.chain_figures import chain_figure
+
+    path = fit_dir / "chains.nc"
+    if not path.is_file():
+        return []
+    try:
+        figure = chain_figure(arviz.from_netcdf(str(path)), burn_in=summary.get("burn_in"))
+    except (OSError, ValueError, KeyError) as error:       # a damaged or foreign file: say so, keep the report
+        return [f'<p class="fail">chains.nc could not be drawn: {html.escape(str(error))}</p>']
+    if figure is None:
+        return []
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=90)
+    pyplot().close(figure)
+    return [_embed_bytes(buffer.getvalue(), "The chains in chains.nc: the log posterior and the parameters of the "
+                         "first regions (materials), each chain in its own colour and line style; beside each trace, "
+                         "the chains' rank histograms: chains that sample one distribution give flat histograms of "
+                         "equal height, a chain stuck elsewhere one piled at an end.", "chains: traces and rank plots")]
 
 
 def _derived_section(sub: str, title: str, command: str, folder: Path, fit_dir: Path, summary: dict) -> list[str]:
@@ -384,6 +435,10 @@ def _derived_text(sub: str, payload, markdown: Path) -> list[str]:
 
 
 _ROUND_COLUMNS = ("effects", "n_regions", "label_accuracy", "gap", "gap_simulated", "named", "revisions", "seconds")
+#: each round's column in words (refine.json's keys)
+_ROUND_HEADERS = {"effects": "effects sampled", "n_regions": "regions", "label_accuracy": "label accuracy",
+                  "gap": "gap (misfit beyond noise)", "gap_simulated": "gap, Mitsuba simulation",
+                  "named": "effects named", "revisions": "revisions", "seconds": "seconds"}
 
 
 def _refine_section(folder: Path) -> list[str]:
@@ -399,7 +454,7 @@ def _refine_section(folder: Path) -> list[str]:
              f"ground truth.</p>"]
     for warning in refined.get("warnings") or []:
         parts.append(f'<p class="fail">{html.escape(str(warning))}</p>')
-    header = "".join(f"<th>{name}</th>" for name in ("round",) + _ROUND_COLUMNS)
+    header = "".join(f"<th>{_ROUND_HEADERS.get(name, name)}</th>" for name in ("round",) + _ROUND_COLUMNS)
     rows = []
     for index, record in enumerate(refined["rounds"]):
         cells = [str(index + 1)]

@@ -15,11 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
-from rjfit.plotting import label_image, pyplot, region_colormap, region_colours, save_figure, zoom_to_object
+from rjfit.plotting import (label_image, pixel_axes, pyplot, region_colormap, region_colours, save_figure,
+                            zoom_to_object)
 from rjfit.sampler.priors import PARAM_NAMES
 
-__all__ = ["write_all", "model_histogram", "traces", "trace_figure", "kept_draw_limits", "changepoints", "reflectance",
-           "material_map", "materials_histogram"]
+#: a region parameter in words, with its unit
+PARAMETER_TITLES = {"I0": "I0: intensity x albedo (image units)", "kd": "kd: diffuse fraction",
+                    "gamma": "gamma: Blinn-Phong exponent", "sigma2": "sigma2: noise variance (image units^2)"}
+
+__all__ = ["write_all", "model_histogram_figure", "reflectance_figure", "material_map_figure",
+           "materials_histogram_figure", "PARAMETER_TITLES", "model_histogram", "traces", "trace_figure",
+           "kept_draw_limits", "changepoints", "reflectance", "material_map", "materials_histogram"]
 
 
 def _plt():
@@ -31,16 +37,22 @@ def _save(fig, path):
 
 
 def model_histogram(records, burn_in, max_v, path):
+    return _save(model_histogram_figure(records, burn_in), path)
+
+
+def model_histogram_figure(records, burn_in):
+    """The posterior over the visited change-point models, each bar labelled by its (n_u, n_v)."""
     plt = _plt()
-    m = np.concatenate([r.n_u[burn_in:].astype(int) * (max_v + 1) + r.n_v[burn_in:] + 1 for r in records])
-    values, counts = np.unique(m, return_counts=True)
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.bar(values, counts / counts.sum(), color="tab:blue")
-    ax.set_xlabel("model number m = n_u (max_v + 1) + n_v + 1")
+    models = np.concatenate([np.stack([r.n_u[burn_in:], r.n_v[burn_in:]], axis=1).astype(int) for r in records])
+    visited, counts = np.unique(models, axis=0, return_counts=True)
+    fig, ax = plt.subplots(figsize=(max(6, 0.7 * len(visited) + 2), 3.5))
+    ax.bar(np.arange(len(visited)), counts / counts.sum(), color="tab:blue")
+    ax.set_xticks(np.arange(len(visited)), [f"({u}, {v})" for u, v in visited])
+    ax.set_xlim(-0.8, len(visited) - 0.2)          # one bar is a bar, not a plane
+    ax.set_xlabel("change-point model (n_u, n_v): n_u vectors cut the rows, n_v the columns")
     ax.set_ylabel("posterior probability")
-    ax.set_xticks(values)
-    ax.set_title("Posterior over models")
-    return _save(fig, path)
+    ax.set_title("Posterior over change-point models")
+    return fig
 
 
 def kept_draw_limits(series, burn_in, margin=0.1):
@@ -78,7 +90,8 @@ def trace_figure(records, burn_in, model):
             for c, rec in enumerate(records):
                 in_model = (rec.n_u == model[0]) & (rec.n_v == model[1])
                 series.append(np.where(in_model, rec.theta[:, r, k], np.nan))
-                ax.plot(series[-1], lw=0.4, alpha=0.8, label=f"chain {c}")
+                # a colour and a line style per chain: overplotted, the last chain would hide the others
+                ax.plot(series[-1], lw=0.5, alpha=0.8, ls=("-", "--", ":", "-.")[c % 4], label=f"chain {c}")
             limits = kept_draw_limits(series, burn_in)
             if limits is not None:
                 ax.set_ylim(*limits)
@@ -86,10 +99,12 @@ def trace_figure(records, burn_in, model):
             ax.ticklabel_format(axis="y", useOffset=False)      # I0 near 100 reads 100.02, not 0.02 + 1e2
             ax.tick_params(labelsize=7)
             if r == 0:
-                ax.set_title(name, fontsize=9)
+                ax.set_title(PARAMETER_TITLES.get(name, name), fontsize=9)
             if k == 0:
-                ax.set_ylabel(f"region {r}", fontsize=9)
-    axes[-1, 0].set_xlabel("iteration (dashed: end of burn-in)")
+                ax.set_ylabel(f"region {r}: value", fontsize=9)
+    for ax in axes[-1]:
+        ax.set_xlabel("iteration (black dashed: end of burn-in)")
+    axes[0, -1].legend(fontsize=7, loc="upper right")
     fig.suptitle(f"Traces of the MAP model {model}; each y axis spans the kept draws "
                  "(burn-in excursions beyond them are cut off)")
     return fig
@@ -123,21 +138,33 @@ def changepoints(records, burn_in, model, image_shape, path):
             ax.plot(cols + 0.5, med, color="tab:blue", lw=1)
             ax.fill_between(cols + 0.5, lo, hi, color="tab:blue", alpha=0.3)
         if n_u:
-            axes[1].hist2d(U.reshape(len(U), -1, n_u).transpose(0, 2, 1).ravel(),
-                           np.broadcast_to(rows + 0.5, U.transpose(0, 2, 1).shape).ravel(),
-                           bins=[min(width + 2, 200), min(height, 200)], range=[[-1, width + 1], [0, height]], cmap="magma")
+            *_, image = axes[1].hist2d(U.reshape(len(U), -1, n_u).transpose(0, 2, 1).ravel(),
+                                       np.broadcast_to(rows + 0.5, U.transpose(0, 2, 1).shape).ravel(),
+                                       bins=[min(width + 2, 200), min(height, 200)],
+                                       range=[[-1, width + 1], [0, height]], cmap="magma")
+            fig.colorbar(image, ax=axes[1], label="count over kept snapshots")
         if n_v:
-            axes[2].hist2d(np.broadcast_to(cols + 0.5, V.transpose(0, 2, 1).shape).ravel(),
-                           V.transpose(0, 2, 1).ravel(),
-                           bins=[min(width, 200), min(height + 2, 200)], range=[[0, width], [-1, height + 1]], cmap="magma")
+            *_, image = axes[2].hist2d(np.broadcast_to(cols + 0.5, V.transpose(0, 2, 1).shape).ravel(),
+                                       V.transpose(0, 2, 1).ravel(), bins=[min(width, 200), min(height + 2, 200)],
+                                       range=[[0, width], [-1, height + 1]], cmap="magma")
+            fig.colorbar(image, ax=axes[2], label="count over kept snapshots")
     axes[1].set_title("u change points: 2-D histogram (position, row)")
     axes[1].invert_yaxis()
     axes[2].set_title("v change points: 2-D histogram (column, position)")
     axes[2].invert_yaxis()
+    for ax in axes:
+        pixel_axes(ax)
+    axes[1].set_xlabel("u change point: column where it cuts the row (px)", fontsize=8)
+    axes[2].set_ylabel("v change point: row where it cuts the column (px)", fontsize=8)
     return _save(fig, path)
 
 
 def reflectance(labels, prediction, path):
+    """:func:`reflectance_figure`, saved to ``path``."""
+    return _save(reflectance_figure(labels, prediction), path)
+
+
+def reflectance_figure(labels, prediction):
     """Posterior mean radiance vs observed radiance, their absolute difference and the MAP labels, mean over lights.
 
     ``prediction`` is :func:`rjfit.posterior.summary.posterior_mean_prediction`: the
@@ -147,56 +174,64 @@ def reflectance(labels, prediction, path):
     plt = _plt()
     fitted, observed, abs_err = prediction["radiance"], prediction["observed"], prediction["abs_error"]
     if "radiance_rgb" in prediction:        # a joint colour fit: the radiances in colour
-        return _reflectance_colour(labels, prediction, path)
-    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
+        return _reflectance_colour(labels, prediction)
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4.4), layout="constrained")
     # fitted and observed share one colour scale, so equal colours mean equal radiance
     shared = dict(vmin=float(np.nanmin([np.nanmin(fitted), np.nanmin(observed)])),
                   vmax=float(np.nanmax([np.nanmax(fitted), np.nanmax(observed)])))
     for ax, img, title, scale in zip(axes[:3], (fitted, observed, abs_err),
-                                     (f"posterior mean radiance (mean over lights; {prediction['draws']} draws)",
-                                      "observed radiance", "absolute error |y - E[mu]|"), (shared, shared, {})):
+                                     (f"posterior mean radiance\n(mean over lights; {prediction['draws']} draws)",
+                                      "observed radiance\n(mean over lights)",
+                                      "absolute error |y - E[mu]|\n(mean over lights)"),
+                                     (shared, shared, {})):
         im = ax.imshow(img, cmap="viridis", **scale)
         ax.set_title(title, fontsize=9)
-        fig.colorbar(im, ax=ax, shrink=0.85)
-    shown = np.where(np.asarray(labels) >= 0, labels, np.nan)
-    # one colour per region however many there are (a ten-colour map repeats from the eleventh)
-    cmap, norm = region_colormap(int(np.nanmax(shown)) + 1 if np.isfinite(shown).any() else 1)
-    im = axes[3].imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
+        fig.colorbar(im, ax=ax, shrink=0.85, label="radiance (image units)")
+    _labels_panel(fig, axes[3], labels)
     for ax in axes:
-        zoom_to_object(ax, np.isfinite(observed) | np.isfinite(shown))
-    axes[3].set_title("MAP labels", fontsize=9)
+        zoom_to_object(ax, np.isfinite(observed) | (np.asarray(labels) >= 0))
+        pixel_axes(ax)
+    return fig
+
+
+def _labels_panel(fig, ax, labels):
+    """The MAP labels with a colour bar of integer region ticks, one colour per region however many."""
+    shown = np.where(np.asarray(labels) >= 0, labels, np.nan)
+    cmap, norm = region_colormap(int(np.nanmax(shown)) + 1 if np.isfinite(shown).any() else 1)
+    im = ax.imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
+    ax.set_title("MAP labels", fontsize=9)
     regions = np.unique(np.asarray(labels)[np.asarray(labels) >= 0])
-    colorbar = fig.colorbar(im, ax=axes[3], shrink=0.85, ticks=regions)
-    colorbar.set_label("region")
-    return _save(fig, path)
+    fig.colorbar(im, ax=ax, shrink=0.85, ticks=regions, label="region (material)")
 
 
-def _reflectance_colour(labels, prediction, path):
-    """:func:`reflectance` of a joint colour fit: fitted and observed radiance as RGB images (one scale: the
+def _reflectance_colour(labels, prediction):
+    """:func:`reflectance_figure` of a joint colour fit: fitted and observed radiance as RGB images (one scale: the
     observed 99th percentile maps to white), the absolute error (channel mean) and the MAP labels."""
     plt = _plt()
     fitted, observed = prediction["radiance_rgb"], prediction["observed_rgb"]
     top = float(np.nanpercentile(observed, 99)) or 1.0
-    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4.4), layout="constrained")
     for ax, img, title in zip(axes[:2], (fitted, observed),
-                              (f"posterior mean radiance, RGB (mean over lights; {prediction['draws']} draws)",
-                               "observed radiance, RGB")):
+                              (f"posterior mean radiance, RGB\n(mean over lights; {prediction['draws']} draws)",
+                               f"observed radiance, RGB\n(white: {top:.3g} image units)")):
         ax.imshow(np.clip(np.nan_to_num(img / top, nan=1.0), 0.0, 1.0))
         ax.set_title(title, fontsize=9)
     im = axes[2].imshow(prediction["abs_error"], cmap="viridis")
     axes[2].set_title("absolute error |y - E[mu]| (mean over channels)", fontsize=9)
-    fig.colorbar(im, ax=axes[2], shrink=0.85)
-    shown = np.where(np.asarray(labels) >= 0, labels, np.nan)
-    cmap, norm = region_colormap(int(np.nanmax(shown)) + 1 if np.isfinite(shown).any() else 1)
-    im = axes[3].imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
+    fig.colorbar(im, ax=axes[2], shrink=0.85, label="radiance (image units)")
+    _labels_panel(fig, axes[3], labels)
     for ax in axes:
-        zoom_to_object(ax, np.isfinite(prediction["observed"]) | np.isfinite(shown))
-    axes[3].set_title("MAP labels", fontsize=9)
-    fig.colorbar(im, ax=axes[3], shrink=0.85, ticks=np.unique(np.asarray(labels)[np.asarray(labels) >= 0]))
-    return _save(fig, path)
+        zoom_to_object(ax, np.isfinite(prediction["observed"]) | (np.asarray(labels) >= 0))
+        pixel_axes(ax)
+    return fig
 
 
 def material_map(labels, path):
+    """:func:`material_map_figure`, saved to ``path``."""
+    return _save(material_map_figure(labels), path)
+
+
+def material_map_figure(labels):
     """The MAP material of every pixel as an image, one colour per material (white: unlabelled)."""
     plt = _plt()
     labels = np.asarray(labels)
@@ -206,17 +241,23 @@ def material_map(labels, path):
     fig, ax = plt.subplots(figsize=(6, 5.4))
     ax.imshow(image, interpolation="nearest")
     ax.set_title(f"MAP materials ({n_materials})", fontsize=10)
-    ax.set_xticks([])
-    ax.set_yticks([])
+    zoom_to_object(ax, labels >= 0)
+    pixel_axes(ax)
     from matplotlib.patches import Patch
 
-    ax.legend(handles=[Patch(color=colours[m], label=f"material {m}") for m in range(n_materials)],
+    pixels = np.bincount(labels[labels >= 0].astype(int), minlength=n_materials)
+    ax.legend(handles=[Patch(color=colours[m], label=f"material {m} ({pixels[m]:,} px)") for m in range(n_materials)],
               loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    return _save(fig, path)
+    return fig
 
 
 def materials_histogram(posterior: dict, path):
-    """The posterior over the number of materials K (``{"K": probability}``)."""
+    """:func:`materials_histogram_figure`, saved to ``path``."""
+    return _save(materials_histogram_figure(posterior), path)
+
+
+def materials_histogram_figure(posterior: dict):
+    """The posterior over the number of materials K (``{"K": probability}``), one integer tick per K."""
     plt = _plt()
     ks = sorted(int(k) for k in posterior)
     fig, ax = plt.subplots(figsize=(5, 3.2))
@@ -224,8 +265,10 @@ def materials_histogram(posterior: dict, path):
     ax.set_xlabel("number of materials K")
     ax.set_ylabel("posterior probability")
     ax.set_xticks(ks)
+    ax.set_xlim(min(ks) - 0.8, max(ks) + 0.8)       # one bar is a bar, not a plane
+    ax.set_ylim(0, 1.05)
     ax.set_title("Posterior over the number of materials")
-    return _save(fig, path)
+    return fig
 
 
 def write_all(folder, *, records, burn_in, model, labels, problem, prediction, max_v=3) -> dict:

@@ -33,7 +33,7 @@ from rjfit.data.loading import is_dataset
 from rjfit.io import atomic_path, publish, staging_dir, write_json_atomic
 from rjfit.model.blinn import radiance
 from rjfit.plotting import map_figure
-from rjfit.progress import tracked
+from rjfit.progress import phase, tracked
 
 # purpose tag of the validation's path-tracing streams (see rjfit.render.render.RENDER_STREAM)
 VALIDATE_STREAM = 2
@@ -165,9 +165,8 @@ def _trace_and_compare(dataset, make_scene, geometry_scene, traced, hit, materia
 
     positions = dataset.positions if dataset.positions is not None else np.zeros_like(dataset.normals)
     path_stack, closed_stack, worst_stack = [], [], []
-    iterator = list(enumerate(dataset.lights))
-    if progress:            # a bar on a terminal, plain lines in a log
-        iterator = tracked(iterator, "validate", "light")
+    # a bar on a terminal, plain lines in a log
+    iterator = tracked(list(enumerate(dataset.lights)), "validate: path tracing", "light", enabled=progress)
     for light_index, light in iterator:
         scene = make_scene([light], max_depth, light_format)
         path_colour = path_trace(scene, spp=spp, seed=(seed, VALIDATE_STREAM, light_index))
@@ -233,10 +232,11 @@ def _write_gate(out_dir, result, hit, compared, rel_err, unexplained_map):
             **{f"rel_err_{i:03d}": np.where(compared[i], rel_err[i], 0) for i in range(rel_err.shape[0])}})
         map_figure(staging / "relative_error.png", np.log10(np.maximum(max_rel_map, 1e-9)) * np.where(hit, 1, np.nan),
                    f"log10 max relative error over lights\nmedian {result['median_rel_err']:.2e}, "
-                   f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0)
+                   f"p99 {result['p99_rel_err']:.2e}", cmap="magma", vmin=-9, vmax=0,
+                   unit="log10 relative error")
         map_figure(staging / "unexplained_fraction.png", np.where(hit, unexplained_map, np.nan),
                    f"radiance the closed form does not explain\n(total {result['unexplained_fraction']:.2%})",
-                   cmap="viridis")
+                   cmap="viridis", unit="fraction of the pixel's radiance")
         write_json_atomic(staging / "validation.json", result)
         publish(staging, out_dir, manifest="validation.json", names=maps, remove=maps)
 
@@ -282,11 +282,12 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     out_dir = Path(out_dir) if out_dir is not None else dataset_dir / "validation"
     dataset = load_dataset(dataset_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    mi_module = activate(variant)
-    make_scene, materials, part_materials, geometry_source = _gate_scene(dataset, dataset_dir, out_dir, materials,
-                                                                         max_depth)
-    geometry_scene = make_scene([], max_depth)
-    traced = trace_pixels(geometry_scene, part_materials)
+    with phase(f"validate: building the scene's geometry and tracing the pixels ({variant})", progress):
+        mi_module = activate(variant)
+        make_scene, materials, part_materials, geometry_source = _gate_scene(dataset, dataset_dir, out_dir, materials,
+                                                                             max_depth)
+        geometry_scene = make_scene([], max_depth)
+        traced = trace_pixels(geometry_scene, part_materials)
     hit = traced["hit"] & dataset.object_mask
     normal_angle = _angle_deg(traced["normals"], dataset.normals)
     view_angle = _angle_deg(traced["view_dirs"], dataset.view_dirs)
