@@ -96,6 +96,8 @@ SUMMARY_FIELDS = {
     "acceptance": (dict, "acceptance rate of each move kind (effect_NAME: each effect's move)"),
     "acceptance_counts": (dict, "per move kind: proposed, accepted and nan_rejected (rejected because the acceptance "
                                 "ratio was NaN) over all chains"),
+    "data_defaults": (list, "what the data chose of the options not given, one line each: the measured default "
+                            "and how to opt out, a declared calibration applied (rjfit.pipeline.resolve)"),
     "fit_options": (dict, "every option of the fit (rjfit.pipeline.options.FitOptions.to_json): what `rjfit refine` "
                           "fits again with, plus the effects named"),
     "effects": (list, "per effect sampled with the regions (--effects): name, stage, and per parameter its prior and "
