@@ -91,8 +91,8 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     observations : rjfit.data.observations.Observations
     out_dir : path
     options : FitOptions, optional
-        The fit's options; ``option_keywords`` (any :class:`FitOptions` field, e.g. ``seed=1,
-        n_chains=2``) build or change them. A ``burn_in`` of None means 0.5.
+        The fit's options (``option_keywords``, e.g. ``seed=1, n_chains=2``, build or change them);
+        not yet resolved, they are resolved as a rendered data set's (:mod:`rjfit.pipeline.resolve`).
     truth_labels : ndarray (H, W), optional
         Ground-truth region per pixel (-1 off the object): adds label_accuracy and
         exact_truth_probability.
@@ -137,13 +137,11 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         of another run (the message says to delete it).
     """
     options = FitOptions.build(options, **option_keywords)
-    if not options.resolved:        # fit_dataset resolves them for its data set; here they fit rendered data's
-        options = resolve_options(options)
+    options = options if options.resolved else resolve_options(options)
     if (options.effects or options.effects_from is not None) and not sampler_effects:
         raise ValueError("effects (--effects, --effects-from) need the data set's geometry: fit the data set "
                          "(rjfit fit DATASET, rjfit.pipeline.fit_dataset.fit_dataset), or pass sampler_effects=")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir := Path(out_dir)).mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     problem, suggestion, noise_record = prepare_problem(observations, options, sampler_effects)
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):

@@ -91,14 +91,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     entries = {"dataset": str(dataset_dir.resolve()),
                "dataset_sha256": dataset_fingerprint(dataset_dir),     # what later commands check it against
                "channel": options.channel, "validation": record}
-    if dataset.meta.get("crop"):
-        entries["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
-    if calibration is not None:
-        entries["calibration"] = calibration
-    if default_lines(options, facts):
-        entries["data_defaults"] = default_lines(options, facts)
-    if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again
-        entries.update(max_view_angle=dataset.max_view_angle, rim_pixels=int(dataset.rim_pixels().sum()))
+    entries.update(_data_entries(dataset, calibration, default_lines(options, facts)))
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)
@@ -110,6 +103,20 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     return fit(observations, out_dir, options, truth_labels=dataset.truth_labels,
                truth_params=dataset.truth_params, chain_runner=chain_runner, source=source, sampler_effects=effects,
                effect_source=effect_source)
+
+
+def _data_entries(dataset, calibration, data_defaults) -> dict:
+    """The summary's entries of what the fit did to the data set and what the data chose."""
+    entries = {}
+    if dataset.meta.get("crop"):
+        entries["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
+    if calibration is not None:
+        entries["calibration"] = calibration
+    if data_defaults:
+        entries["data_defaults"] = data_defaults
+    if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again
+        entries.update(max_view_angle=dataset.max_view_angle, rim_pixels=int(dataset.rim_pixels().sum()))
+    return entries
 
 
 def _prepared(dataset, options: FitOptions):
