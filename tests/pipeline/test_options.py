@@ -88,3 +88,15 @@ def test_options_round_trip_through_their_json_record(tmp_path):
     assert FitOptions.from_json({**record, "a_newer_option": 1}) == options
     with pytest.raises(ValueError, match="--chains"):
         FitOptions.from_json({**record, "n_chains": 0})
+
+
+def test_a_record_of_an_older_rjfit_gives_the_options_that_fit_ran_with():
+    """Before 2026-11-28 a summary recorded every option filled (and no sources): its region model, preset and
+    every value off its default come back as given, the other model's defaults do not (they would be refused)."""
+    record = {**{name: FitOptions.default(name) for name in FitOptions.__dataclass_fields__ if name != "sources"},
+              "regions": "materials", "preset": "measured", "noise": "normals", "potts_beta": 3.45, "burn_in": 0.2,
+              "unset": ["noise"]}
+    options = FitOptions.from_json(json.loads(json.dumps(record, default=list)))
+    assert options.given() == {"regions": "materials", "preset": "measured", "noise": "normals", "potts_beta": 3.45,
+                               "burn_in": 0.2}
+    assert resolve_options(options).max_u == 3          # the change-point model's default, not given
