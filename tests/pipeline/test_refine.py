@@ -84,7 +84,7 @@ def test_refine_of_a_material_fit_samples_the_named_effect_with_the_material_lab
     fit_dir = tmp_path / "materials_fit"
     change_points = ("max_u", "max_v")       # the change-point model's: refused under materials
     fit_dataset(ambient_dataset, fit_dir, allow_unvalidated=True, regions="materials",
-                **{k: v for k, v in FIT.items() if k not in change_points}, iterations=40)
+                **{**{k: v for k, v in FIT.items() if k not in change_points}, "iterations": 40})
     result = refine(fit_dir, tmp_path / "refine", max_rounds=2, max_steps=1, say=lambda line: None,
                     candidates=("ambient",))
     assert result["rounds"][0]["named"] == ["ambient"] and len(result["rounds"]) == 2
