@@ -239,6 +239,15 @@ def _click_option(name, default, spec):
                         show_default=spec.show_default and default is not None)
 
 
+def _given(ctx, options: dict) -> dict:
+    """The options given on the command line (or by an environment variable): one left at its default is
+    not given, so that the data's kind, the preset or the plain default fills it (rjfit.pipeline.resolve)."""
+    from click.core import ParameterSource
+
+    return {name: value for name, value in options.items()
+            if ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)}
+
+
 def fit_options(command):
     """Add every command-line option of :class:`rjfit.pipeline.options.FitOptions` to ``command``."""
     from rjfit.pipeline.options import FitOptions
@@ -272,6 +281,9 @@ def fit(datasets, out_dir, validation_path, allow_unvalidated, scheduler, worker
     from rjfit.pipeline.fit_dataset import fit_datasets
     from rjfit.pipeline.options import FitOptions
 
+    options = _given(click.get_current_context(), options)
+    if "likelihood_power" in options:
+        options["likelihood_power"] = _likelihood_power(options["likelihood_power"])
     summaries = fit_datasets(datasets, out_dir, FitOptions(**options), validation_path=validation_path,
                              allow_unvalidated=allow_unvalidated, scheduler=scheduler, n_workers=workers)
     for folder, summary in summaries:
@@ -304,6 +316,14 @@ def _normal_error_text(normal_error: dict) -> str:
 def _echo_fit(folder, summary: dict) -> None:
     """A fit's one-paragraph summary: model, regions, convergence, time, warnings."""
     click.echo(f"fit of {summary['dataset']} ({summary['channel']}) -> {folder}")
+    for line in summary.get("data_defaults", []):
+        click.echo(f"  {line}")
+    response = (summary.get("calibration") or {}).get("response")
+    if response:
+        interval = response.get("kappa_interval")
+        spread = f" (95 % {interval[0]:.3g} to {interval[1]:.3g})" if interval else ""
+        click.echo(f"  camera response estimated: raw = k linear^(1/kappa), kappa {response['kappa']:.3g}{spread}; "
+                   f"the images were linearised with it before the fit")
     noise_model = summary.get("noise", {}).get("model", "constant")
     if noise_model != "constant" or summary["likelihood_power"] != 1.0:
         normal_error = summary["noise"].get("normal_error")

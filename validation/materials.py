@@ -39,7 +39,7 @@ from rjfit.io import write_text_atomic
 from rjfit.pipeline.options import PLAIN_POTTS_RHO, FitOptions
 
 #: a fit's own default (--potts-beta); before 2026-11-27 this script defaulted to 1, where every layout reads K = 8
-FIT_POTTS_BETA = FitOptions.build(None).potts_beta
+FIT_POTTS_BETA = FitOptions.default("potts_beta")
 
 MATERIALS = [{"name": "white paint", "I0": 100.0, "kd": 0.85, "gamma": 8.0},
              {"name": "grey glaze", "I0": 70.0, "kd": 0.6, "gamma": 20.0},

@@ -80,8 +80,9 @@ def run(dataset: Path, variant: str, chains: int, iterations: int, out: Path, ta
     if changes.get("potts_rho") == "ghost":
         mask = drop_small_components(load_dataset(dataset))[0].object_mask if changes.get("calibrate") else \
             load_dataset(dataset).object_mask
-        changes["potts_beta"], changes["potts_rho"] = ghost_material_prior(mask, FitOptions().potts_beta)
+        changes["potts_beta"], changes["potts_rho"] = ghost_material_prior(mask, FitOptions.default("potts_beta"))
     changes.setdefault("regions", "materials")
+    changes.setdefault("preset", "none")        # a variant names what it sets (the stacks' own default is the preset)
     options = FitOptions(n_chains=chains, iterations=iterations, seed=seed, progress=False, **changes)
     folder = out / f"{dataset.name}_{variant}_{chains}x{iterations}"
     started = time.perf_counter()

@@ -42,8 +42,8 @@ from rjfit.data.response import estimate_power_response
 from rjfit.progress import phase, tracked
 from rjfit.progress import progress as progress_bar
 
-__all__ = ["calibrate_measured", "drop_small_components", "estimate_light_gains", "replay_calibration",
-           "MIN_COMPONENT"]
+__all__ = ["calibrate_measured", "drop_small_components", "small_components", "estimate_light_gains",
+           "replay_calibration", "MIN_COMPONENT"]
 
 MIN_COMPONENT = 5
 # Alternating tile fits and gains converges slowly where a tile's lobe can take up part of a
@@ -58,6 +58,20 @@ _OVER_RELAXATION = 1.8
 _TILE = 5
 
 
+def small_components(object_mask, min_component: int = MIN_COMPONENT) -> np.ndarray:
+    """The pixels of the mask's connected parts (4-neighbours) under ``min_component`` pixels: what
+    :func:`drop_small_components` leaves out."""
+    return _small_components(object_mask, min_component)[0]
+
+
+def _small_components(object_mask, min_component: int):
+    labels, n = ndimage.label(object_mask)
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)
+    small = np.flatnonzero(sizes < min_component)
+    small = small[small > 0]
+    return np.isin(labels, small), int(small.size)
+
+
 def drop_small_components(dataset, min_component: int = MIN_COMPONENT):
     """The data set with the object mask's connected parts under ``min_component`` pixels left out.
 
@@ -66,13 +80,8 @@ def drop_small_components(dataset, min_component: int = MIN_COMPONENT):
     (Dataset, dict)
         The data set and a record: ``pixels_dropped``, ``components_dropped``, ``min_component``.
     """
-    labels, n = ndimage.label(dataset.object_mask)
-    sizes = np.bincount(labels.ravel(), minlength=n + 1)
-    small = np.flatnonzero(sizes < min_component)
-    small = small[small > 0]
-    drop = np.isin(labels, small)
-    record = {"min_component": min_component, "components_dropped": int(small.size),
-              "pixels_dropped": int(drop.sum())}
+    drop, n_small = _small_components(dataset.object_mask, min_component)
+    record = {"min_component": min_component, "components_dropped": n_small, "pixels_dropped": int(drop.sum())}
     if not drop.any():
         return dataset, record
     return dataclasses.replace(dataset, object_mask=dataset.object_mask & ~drop), record

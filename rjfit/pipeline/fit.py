@@ -31,7 +31,6 @@ the silhouette whose few grazing observations cannot tell two regions apart make
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,19 +44,20 @@ from rjfit.io import check_writable, staging_dir
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import (PARAMETERS_ATTR, kept_chains, publish_results, remove_checkpoints,
                                       results_digest, save_chain_arrays, write_summary)
-from rjfit.pipeline.fit_power import edge_power, noise_and_power
+from rjfit.pipeline.fit_power import noise_and_power
+from rjfit.pipeline.fit_settings import sampler_config
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.resolve import resolve_options
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
 from rjfit.posterior.effects import effect_summaries
 from rjfit.progress import phase
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
-from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.regions.changepoint_grid import model_number
 from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.runner import ChainSpec, run_chains
-from rjfit.sampler.state import SamplerConfig, flat_option_applies
+from rjfit.sampler.state import SamplerConfig
 
 __all__ = ["fit", "FitSource", "write_parameter_maps"]
 
@@ -88,8 +88,8 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     observations : rjfit.data.observations.Observations
     out_dir : path
     options : FitOptions, optional
-        The fit's options; ``option_keywords`` (any :class:`FitOptions` field, e.g. ``seed=1,
-        n_chains=2``) build or change them. A ``burn_in`` of None means 0.5.
+        The fit's options (``option_keywords``, e.g. ``seed=1, n_chains=2``, build or change them);
+        not yet resolved, they are resolved as a rendered data set's (:mod:`rjfit.pipeline.resolve`).
     truth_labels : ndarray (H, W), optional
         Ground-truth region per pixel (-1 off the object): adds label_accuracy and
         exact_truth_probability.
@@ -132,6 +132,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         checkpoint version or of another run (the message says to delete it).
     """
     options = FitOptions.build(options, **option_keywords)
+    options = options if options.resolved else resolve_options(options)
     if (options.effects or options.effects_from is not None) and not sampler_effects:
         raise ValueError("effects (--effects, --effects-from) need the data set's geometry: fit the data set "
                          "(rjfit fit DATASET, rjfit.pipeline.fit_dataset.fit_dataset), or pass sampler_effects=")
@@ -191,39 +192,6 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     if normal_error is not None:
         record["normal_error"] = normal_error
     return problem, suggestion, record
-
-
-def burn_in_iterations(options: FitOptions) -> int:
-    """Iterations discarded per chain (``burn_in`` of None: half, the paper's choice for synthetic data).
-
-    Raises
-    ------
-    ValueError
-        If the burn-in leaves no iteration to keep.
-    """
-    fraction = 0.5 if options.burn_in is None else options.burn_in
-    burn = int(round(fraction * options.iterations))
-    if options.iterations - burn < 1:
-        raise ValueError(f"burn-in {fraction} leaves no iteration of {options.iterations} to keep; lower --burn-in")
-    return burn
-
-
-def sampler_config(options: FitOptions, *, fixed: bool = False, problem=None) -> SamplerConfig:
-    """The kernel's settings from the options (``fixed``: no segmentation moves; ``problem``: measures edge power)."""
-    burn = burn_in_iterations(options)
-    # a fit option named like a sampler setting of the fit's region model reaches the sampler as it is, so a new one
-    # is one FitOptions field; burn-in and the warm-up are fractions here and iterations there, --edge-power a number
-    same_name = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)
-                 if f.name not in ("burn_in", "anneal") and flat_option_applies(f.name, options.regions)}
-    if options.regions == "materials":
-        same_name["edge_power"] = edge_power(problem, options) if problem is not None else options.edge_power
-        return SamplerConfig.from_flat(region_model="materials", **same_name, burn_in=burn,
-                                       anneal=int(round(options.anneal * burn)), update_labels=not fixed,
-                                       jumps=not fixed)
-    return SamplerConfig.from_flat(**same_name, burn_in=burn, anneal=int(round(options.anneal * burn)),
-                                   # reproducing the paper's omission: every jump must use its map
-                                   free_jump_prob=0.0 if options.drop_jacobian else BirthDeathSettings.free_prob,
-                                   update_changepoints=not fixed, jumps=not fixed)
 
 
 def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, truth_labels, start, fixed_segmentation):

@@ -19,7 +19,9 @@ from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.data.formats import COLOUR
 from rjfit.pipeline.fit import FitSource, fit
 from rjfit.pipeline.fit_effects import fit_effects
-from rjfit.pipeline.options import EACH_CHANNEL, FURTHER_MATERIAL_ODDS, FitOptions
+from rjfit.pipeline.options import EACH_CHANNEL, FitOptions
+from rjfit.pipeline.resolve import (GHOST_ODDS, GHOST_PIXELS, DataFacts, default_lines, ghost_material_prior,
+                                    resolve_options)
 from rjfit.progress import phase
 from rjfit.render.datasets import load_dataset
 from rjfit.render.gate import require_validated
@@ -27,15 +29,6 @@ from rjfit.sampler.runner import run_chain
 
 __all__ = ["fit_dataset", "fit_datasets", "check_validation_file", "validation_record", "ghost_material_prior",
            "GHOST_PIXELS", "GHOST_ODDS"]
-
-# --preset measured's Potts rule (docs/results/measured-data.md): a material whose parameters equal an existing one's
-# holds about S(beta) = sum_p exp(-beta n_p) scattered pixels under the prior (n_p: p's labelled 4-neighbours);
-# beta is raised until S <= GHOST_PIXELS, so such a material shrinks to its last pixel often enough for the
-# cluster moves to remove it, and rho makes its prior odds rho S / 2 = GHOST_ODDS, the odds every further
-# material has (FURTHER_MATERIAL_ODDS, 1:100; 1:20 until 2026-11-27).
-GHOST_PIXELS = 1.0
-GHOST_ODDS = FURTHER_MATERIAL_ODDS
-
 
 def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, validation_path=None,
                 allow_unvalidated=False, scheduler=None, n_workers=2, client=None, **option_keywords) -> dict:
@@ -50,10 +43,10 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     ----------
     dataset_dir, out_dir : path
     options : FitOptions, optional
-        The fit's options (``option_keywords`` build or change them). ``options.channel`` is
-        the colour channel fitted (see :meth:`rjfit.data.dataset.Dataset.channel_values`); a
-        ``burn_in`` of None means 0.5 for synthetic data and 0.2 for measured data (the
-        paper's choices).
+        The options given (``option_keywords`` build or change them), resolved for this data set
+        (:func:`rjfit.pipeline.resolve.resolve_options`: a measured stack's default is the
+        material model under ``--preset measured``). ``options.channel`` is the colour channel
+        fitted (see :meth:`rjfit.data.dataset.Dataset.channel_values`).
     validation_path : path, optional
         The gate's ``validation.json`` (default ``dataset_dir/validation/validation.json``).
     allow_unvalidated : bool
@@ -74,7 +67,8 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
         If the validation file is not a validation result (e.g. a fit's ``summary.json``), or
         the data set cannot be loaded (see :func:`rjfit.render.datasets.load_dataset`).
     ValueError
-        For an option out of range (:class:`FitOptions`).
+        For an option out of range (:class:`FitOptions`), or one the fit's models do not read
+        (:func:`rjfit.pipeline.resolve.resolve_options`).
     """
     options = FitOptions.build(options, **option_keywords)
     dataset_dir = Path(dataset_dir)
@@ -82,7 +76,9 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
     with phase(f"loading the data set {dataset_dir}", options.progress):
         dataset = load_dataset(dataset_dir)
-    dataset, options, calibration = _prepared(dataset, options)
+    facts = DataFacts.of(dataset)
+    options = resolve_options(options, facts)
+    dataset, calibration = _prepared(dataset, options)
     chain_runner = None
     if scheduler is not None or client is not None:
         from rjfit.pipeline.distributed import dask_map  # Dask: only when asked for
@@ -97,12 +93,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     entries = {"dataset": str(dataset_dir.resolve()),
                "dataset_sha256": dataset_fingerprint(dataset_dir),     # what later commands check it against
                "channel": options.channel, "validation": record}
-    if dataset.meta.get("crop"):
-        entries["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
-    if calibration is not None:
-        entries["calibration"] = calibration
-    if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again
-        entries.update(max_view_angle=dataset.max_view_angle, rim_pixels=int(dataset.rim_pixels().sum()))
+    entries.update(_data_entries(dataset, calibration, default_lines(options, facts)))
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)
@@ -116,40 +107,29 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
                effect_source=effect_source)
 
 
-def _prepared(dataset, options: FitOptions):
-    """The data set and options a fit runs on, and the calibration record (None without one).
+def _data_entries(dataset, calibration, data_defaults) -> dict:
+    """The summary's entries of what the fit did to the data set and what the data chose."""
+    entries = {}
+    if dataset.meta.get("crop"):
+        entries["crop"] = dataset.meta["crop"]      # where the maps sit in the original frame
+    if calibration is not None:
+        entries["calibration"] = calibration
+    if data_defaults:
+        entries["data_defaults"] = data_defaults
+    if dataset.max_view_angle is not None:     # what `rjfit diagnose` leaves out again
+        entries.update(max_view_angle=dataset.max_view_angle, rim_pixels=int(dataset.rim_pixels().sum()))
+    return entries
 
-    The burn-in for the data's kind; under ``options.calibrate`` the calibrated images; the
-    rim limit (``--max-view-angle``); under ``--preset measured`` with materials, the Potts
-    rule's beta and rho (unless ``--potts-rho`` was given).
-    """
-    options = options.replace(burn_in=options.burn_in_for(measured=dataset.meta.get("kind") == "measured"))
+
+def _prepared(dataset, options: FitOptions):
+    """The data set a fit runs on under its resolved options, and the calibration record (None without one):
+    under ``options.calibrate`` the calibrated images; the rim limit (``--max-view-angle``)."""
     calibration = None
     if options.calibrate:
         dataset, calibration = calibrate_measured(dataset, options.channel, options.seed, progress=options.progress)
     if options.max_view_angle is not None and options.max_view_angle < 90.0:
         dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
-    if options.potts_rule:      # --preset measured, --regions materials, no --potts-rho given
-        beta, rho = ghost_material_prior(dataset.object_mask, options.potts_beta)
-        options = options.replace(potts_beta=beta, potts_rho=rho)
-    return dataset, options, calibration
-
-
-def ghost_material_prior(object_mask, beta: float) -> tuple[float, float]:
-    """``(beta, rho)`` of the measured preset's Potts prior for this mask (the rule above ``GHOST_PIXELS``).
-
-    beta: the smallest of ``beta``, ``beta + 0.05``, ... with ``S(beta) <= GHOST_PIXELS`` (at most 8);
-    rho: ``2 GHOST_ODDS / S(beta)``. Pixels without a labelled neighbour are not counted: no beta
-    binds them (the preset's calibration leaves them out, :func:`rjfit.data.calibrate.drop_small_components`).
-    """
-    mask = np.asarray(object_mask, bool)
-    padded = np.pad(mask, 1)
-    neighbours = (padded[:-2, 1:-1].astype(int) + padded[2:, 1:-1] + padded[1:-1, :-2] + padded[1:-1, 2:])[mask]
-    neighbours = neighbours[neighbours > 0]
-    ghost_pixels = lambda b: float(np.sum(np.exp(-b * neighbours)))      # noqa: E731
-    while ghost_pixels(beta) > GHOST_PIXELS and beta < 8.0:
-        beta = round(beta + 0.05, 2)
-    return beta, 2.0 * GHOST_ODDS / ghost_pixels(beta)
+    return dataset, calibration
 
 
 def check_validation_file(dataset_dir, validation_path=None) -> None:

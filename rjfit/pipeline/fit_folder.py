@@ -99,8 +99,11 @@ SUMMARY_FIELDS = {
     "acceptance": (dict, "acceptance rate of each move kind (effect_NAME: each effect's move)"),
     "acceptance_counts": (dict, "per move kind: proposed, accepted and nan_rejected (rejected because the acceptance "
                                 "ratio was NaN) over all chains"),
-    "fit_options": (dict, "every option of the fit (rjfit.pipeline.options.FitOptions.to_json): what `rjfit refine` "
-                          "fits again with, plus the effects named"),
+    "data_defaults": (list, "what the data chose of the options not given, one line each: the measured default "
+                            "and how to opt out, a declared calibration applied (rjfit.pipeline.resolve)"),
+    "fit_options": (dict, "every option of the fit (rjfit.pipeline.options.FitOptions.to_json) and, under sources, "
+                          "where each value came from (given, data, preset, default): `rjfit refine` fits again with "
+                          "the given ones, plus the effects named"),
     "effects": (list, "per effect sampled with the regions (--effects): name, stage, and per parameter its prior and "
                       "posterior mean, sd, 95 % interval (constrained), R-hat and bulk ESS; per-light gains per light; "
                       "where its features came from"),

@@ -5,6 +5,13 @@ help text (:func:`cli_option`): ``rjfit fit`` builds its click options from thes
 Python API (:func:`rjfit.pipeline.fit.fit`, :func:`~rjfit.pipeline.fit.fit_datasets`) takes
 the same names as keyword arguments, and the summary records the options it ran with. Adding
 an option is one field here, plus the code that uses it.
+
+One rule for "not given": a field is None until it is given, for every field. What a fit was
+not given is filled once, by :func:`rjfit.pipeline.resolve.resolve_options` (the preset, the
+data's kind, the plain default: ``metadata["default"]`` of each field), which records where each
+value came from (``sources``). :data:`REGION_OPTIONS` and :data:`NOISE_OPTIONS` say which
+options each region model and noise model reads: a given option that the fit's models do not
+read is refused there.
 """
 from __future__ import annotations
 
@@ -20,11 +27,24 @@ from rjfit.effects import EFFECTS, effects_help
 from rjfit.sampler.priors import PRESETS
 from rjfit.sampler.state import REGION_MODELS
 
-__all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS"]
+__all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS", "REGION_OPTIONS", "NOISE_OPTIONS",
+           "EFFECT_OPTIONS", "GIVEN"]
 
 EACH_CHANNEL = ("R", "G", "B")                 # what ``channel="each"`` fits, one fit per channel
 FIT_CHANNELS = CHANNELS + ("each", COLOUR)
+GIVEN = "given"                                # a value's source (FitOptions.sources) when the user gave it
 
+#: The options each region model reads (``--regions``); a given one of another model is refused. Each
+#: model's set belongs with the model: it moves into the model's package with it.
+REGION_OPTIONS = {
+    "changepoints": frozenset({"max_u", "max_v", "split_map", "cp_prior", "drop_jacobian", "jump_prob"}),
+    "materials": frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "cluster_material_seed",
+                            "segment_moves"}),
+}
+#: The options each noise model reads beyond ``noise`` itself (``--noise``); models not named read none.
+NOISE_OPTIONS = {"shot": frozenset({"noise_floor"}), "relative": frozenset({"noise_floor"})}
+#: The options read only when effects are sampled (``--effects`` or ``--effects-from``).
+EFFECT_OPTIONS = frozenset({"effect_every"})
 
 @dataclass(frozen=True)
 class CliSpec:
@@ -42,9 +62,15 @@ class CliSpec:
     show_default: bool = True
 
 
+def option(default):
+    """A dataclass field that is None until given, with the value it takes when nothing else sets it."""
+    return field(default=None, metadata={"default": default})
+
+
 def cli_option(default, flag: str, help: str, kind: str, **spec):
-    """A dataclass field with its command-line flag and help (``metadata["cli"]``)."""
-    return field(default=default, metadata={"cli": CliSpec(flag=flag, help=help, kind=kind, **spec)})
+    """:func:`option` with its command-line flag and help (``metadata["cli"]``)."""
+    return field(default=None, metadata={"default": default,
+                                         "cli": CliSpec(flag=flag, help=help, kind=kind, **spec)})
 
 
 def _effect_names(value) -> tuple:
@@ -60,22 +86,14 @@ def _effect_names(value) -> tuple:
 POWER_RULES = ("auto", "area")
 #: degrees: the rim's edge, arccos(RIM_COS) = 72.5 (rjfit.data.observations.RIM_COS)
 RIM_VIEW_ANGLE = round(math.degrees(math.acos(RIM_COS)), 2)
-#: What ``--preset measured`` sets, where an option is not given (docs/results/measured-data.md); the Potts beta
-#: and rho follow from the data set's mask (rjfit.pipeline.fit_dataset.ghost_material_prior).
-MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
-                   "max_view_angle": RIM_VIEW_ANGLE, "edge_power": "auto"}
-#: The value of an option whose field default is None ("not given") when no preset sets it. A given value,
-#: even one equal to these, is kept under a preset (``--preset measured --noise constant`` fits constant noise).
 #: The prior odds of each further material, with and without the preset: 1:100, so that one takes half the
 #: posterior only with a decisive Bayes factor (Jeffreys). At 1:1 (plain, until 2026-11-27) materials of one
 #: pixel whose own parameters fit its noise held 15 to 21 % of two of four rendered layouts' posteriors; at 1:20
 #: (the preset) those of outlier pixels held 2 to 23 % of the one-material stacks' (docs/results/materials.md,
 #: docs/results/measured-data.md).
 FURTHER_MATERIAL_ODDS = 0.01
-#: The Potts prior's factor per material without the preset (the preset's rule: rjfit.pipeline.fit_dataset).
+#: The Potts prior's factor per material without the preset (the preset's rule: rjfit.pipeline.resolve).
 PLAIN_POTTS_RHO = FURTHER_MATERIAL_ODDS
-PLAIN_DEFAULTS = {"noise": "constant", "likelihood_power": 1.0, "potts_rho": PLAIN_POTTS_RHO, "max_view_angle": None,
-                  "edge_power": 0.0}
 
 
 def _likelihood_power_value(value):
@@ -91,14 +109,29 @@ def _likelihood_power_value(value):
     return number
 
 
+def _edge_power_value(value):
+    if value == "auto":
+        return value
+    try:
+        power = float(value)
+    except (TypeError, ValueError):
+        power = math.nan
+    if not (math.isfinite(power) and power >= 0):
+        raise ValueError(f"edge power (--edge-power) must be a number >= 0 or 'auto', got {value!r}")
+    return power
+
+
 @dataclass(frozen=True)
 class FitOptions:
-    """The options of one fit (or of each fit of a batch). All are checked when it is built.
+    """The options of one fit (or of each fit of a batch). Each given option is checked when it is built.
+
+    A field is None where it was not given; :func:`rjfit.pipeline.resolve.resolve_options` fills
+    every field and records each one's source in ``sources`` (empty: not resolved yet).
 
     Raises
     ------
     ValueError
-        If an option is out of range, naming its command-line flag: ``burn_in`` not in [0, 1),
+        If a given option is out of range, naming its command-line flag: ``burn_in`` not in [0, 1),
         ``n_chains < 1``, ``iterations < 10``, an unknown ``prior``, ``noise``, ``channel``,
         ``sampler``, ``split_map`` or ``cp_prior``, a ``likelihood_power`` that is neither
         'auto' nor in (0, 1], ``anneal`` not in [0, 1], ``noise_floor`` not positive,
@@ -109,52 +142,48 @@ class FitOptions:
     n_chains: int = cli_option(4, "--chains", "Chains from dispersed starts.", "int", low=1)
     iterations: int = cli_option(4000, "--iterations", "Iterations per chain.", "int", low=10)
     burn_in: float | None = cli_option(
-        None, "--burn-in", "Discarded fraction (default: 0.5 for synthetic data, 0.2 for measured, as in the paper).",
+        None, "--burn-in", "Discarded fraction (default: 0.5 for rendered data, 0.2 for measured, as in the paper).",
         "float", show_default=False)
     regions: str = cli_option(
         "changepoints", "--regions",
         "Region model: the paper's change points (changepoints), or free-form materials (materials): a material "
         "label per pixel under a Potts prior, K materials unknown, one BRDF per material shared by all its pixels, "
-        "connected or not.", "choice", choices=tuple(REGION_MODELS))
+        "connected or not. Default: changepoints for rendered data, materials for measured data.", "choice",
+        choices=tuple(REGION_MODELS), show_default=False)
     max_materials: int = cli_option(8, "--max-materials",
                                     "Most materials (--regions materials); the summary warns when the posterior "
                                     "puts mass on it.", "int", low=1)
     potts_beta: float = cli_option(3.0, "--potts-beta",
                                    "Potts prior strength per pair of neighbouring pixels of different materials "
-                                   "(--regions materials). Keep it above log(1 + sqrt(--max-materials)), the "
-                                   "Potts model's critical coupling (1.34 for 8): below it the prior favours "
-                                   "materials scattered pixel by pixel; 3 is the smallest of 1, 2, 3 that kept "
-                                   "extra materials of one or two pixels off four rendered layouts "
-                                   "(docs/results/materials.md).", "float")
-    potts_rho: float | None = cli_option(
-        None, "--potts-rho",
-        "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 0.01: prior odds "
-        "1:100 for each further material, which then needs a decisive Bayes factor; --preset measured sets beta and "
-        "rho by a rule on the mask unless --potts-rho is given (docs/measured-data.md).", "float", show_default=False)
-    edge_power: float | str | None = cli_option(
-        None, "--edge-power",
+                                   "(--regions materials); keep it above log(1 + sqrt(--max-materials)), the "
+                                   "critical coupling (docs/options.md).", "float")
+    potts_rho: float = cli_option(
+        PLAIN_POTTS_RHO, "--potts-rho",
+        "Prior factor per material (--regions materials): pi(S) ~ rho^K exp(-beta B). Default 0.01 (prior odds 1:100 "
+        "per further material); --preset measured sets beta and rho by a rule on the mask unless --potts-rho is "
+        "given (docs/options.md).", "float", show_default=False)
+    edge_power: float | str = cli_option(
+        0.0, "--edge-power",
         "Power of the edge term in the target (--regions materials, one channel, no effects): a boundary between "
-        "two materials costs what their step misfits the data's differences across it (pixels 3 px apart) beyond "
-        "either material alone (docs/results/materials.md, 'The edge term'). A number >= 0, or 'auto' (the coarsening rule "
-        "on those differences). Default 0 (none); --preset measured sets auto, and leaves it out of joint colour "
-        "fits and fits with effects.", "power", show_default=False)
+        "two materials costs what their step misfits the data's differences across it. A number >= 0, or 'auto' "
+        "(the coarsening rule on those differences). Default 0 (none); --preset measured sets auto where it "
+        "applies (docs/options.md).", "power", show_default=False)
     preset: str = cli_option(
         "none", "--preset",
-        "Defaults for a kind of data: none (the options as given); measured: for measured stacks (real normals, "
-        "unknown response or intensities), sets --noise normals and --likelihood-power auto where they are left at "
-        "their defaults, no annealed warm-up, the rim left out (--max-view-angle 72.5), with --regions materials the Potts beta and rho by a rule on the mask, "
-        "and calibrates (mask parts under 5 px left out; an unknown camera response and per-light gains "
-        "estimated before the fit and applied to the images), as measured in docs/results/measured-data.md.", "choice",
-        choices=("none", "measured"))
-    calibrate: bool = False
+        "Defaults for a kind of data: none (the options as given); measured: --noise normals, --likelihood-power "
+        "auto, no annealed warm-up, --max-view-angle 72.5, the Potts rule on the mask (--regions materials), the edge "
+        "term (auto) where it applies, and calibration (small mask parts left out; an unknown camera response and "
+        "per-light gains estimated and applied), each where not given (docs/options.md). Default: none for rendered "
+        "data, measured for measured data.", "choice", choices=("none", "measured"), show_default=False)
+    calibrate: bool = option(False)
     # half the material model's cluster seeds drawn per material (first under --preset measured, now every
     # material fit's: one-pixel leftovers die within tens of iterations; docs/results/materials.md)
-    cluster_material_seed: float = 0.5
+    cluster_material_seed: float = option(0.5)
     # the material model's segment moves per iteration (data-driven regions moved or born whole;
     # rjfit/sampler/moves/segment_move.py); 0 for the comparison in docs/results/measured-data.md
-    segment_moves: int = 2
-    max_u: int = cli_option(3, "--max-u", "Most u change-point vectors.", "int", low=0)
-    max_v: int = cli_option(3, "--max-v", "Most v change-point vectors.", "int", low=0)
+    segment_moves: int = option(2)
+    max_u: int = cli_option(3, "--max-u", "Most u change-point vectors (--regions changepoints).", "int", low=0)
+    max_v: int = cli_option(3, "--max-v", "Most v change-point vectors (--regions changepoints).", "int", low=0)
     sampler: str = cli_option("adaptive", "--sampler",
                               "Within-model moves: adaptive blocks (default) or the paper's component-wise MH.",
                               "choice", choices=("adaptive", "paper"))
@@ -162,53 +191,45 @@ class FitOptions:
                             "choice", choices=PRESETS)
     split_map: str = cli_option(
         "conditional", "--split-map",
-        "Parameters of regions born by a split: drawn from a data-driven proposal (conditional), or a bijective "
-        "map: mean (|det| 2) or the paper's eq. 10 (|det| 3), Jacobian included.",
+        "Parameters of regions born by a split (--regions changepoints): drawn from a data-driven proposal "
+        "(conditional), or a bijective map: mean (|det| 2) or the paper's eq. 10 (|det| 3), Jacobian included.",
         "choice", choices=("conditional", "mean", "paper"))
     cp_prior: str = cli_option("smooth", "--cp-prior",
-                               "Change-point prior: random walk along the vector (smooth) or independent uniform "
-                               "per row.", "choice", choices=("smooth", "paper"))
+                               "Change-point prior (--regions changepoints): random walk along the vector (smooth) "
+                               "or independent uniform per row.", "choice", choices=("smooth", "paper"))
     drop_jacobian: bool = cli_option(False, "--drop-jacobian",
                                      "Reproduce the paper's acceptance ratio without the split/merge Jacobian "
-                                     "(wrong; for study).", "flag")
-    jump_prob: float = 0.2
+                                     "(--regions changepoints; wrong; for study).", "flag")
+    jump_prob: float = option(0.2)
     channel: str = cli_option(
         "mean", "--channel",
         "Colour channel fitted (luminance: CIE Y, sRGB primaries); each: R, G and B fitted separately, into "
         "OUT/R, OUT/G and OUT/B (OUT/NAME/R, ... for several data sets); rgb: R, G and B fitted jointly (one "
-        "segmentation, one lobe exponent per material, per-channel amplitudes and noise; --regions materials).", "choice", choices=FIT_CHANNELS)
-    likelihood_power: float | str | None = cli_option(
-        None, "--likelihood-power",
+        "segmentation, one lobe exponent per material, per-channel amplitudes and noise; --regions materials).",
+        "choice", choices=FIT_CHANNELS)
+    likelihood_power: float | str = cli_option(
+        1.0, "--likelihood-power",
         "zeta in (0, 1] of the coarsened posterior (likelihood ** zeta, Miller and Dunson 2019): each observation "
-        "counts as zeta observations, so a BRDF misfit shared by neighbouring pixels of measured data does not split "
-        "a uniform material into regions. 'auto': zeta = ((1-rho)/(1+rho))^2 from the lag-1 spatial correlation rho "
-        "of per-pixel-fit residuals (about 1 for white noise). 'area': zeta = 1 / (the residuals' spatial "
-        "autocorrelation summed over lags within +-40 px: an effective number of independent observations; residuals "
-        "of 5 x 5 pixel tile fits, standardised by the noise model's scales). 1 (the default; --preset measured: "
-        "auto): the plain posterior.", "power", show_default=False)
-    noise: str | None = cli_option(
-        None, "--noise",
-        "Noise model (default constant; --preset measured: normals) y_i ~ N(mu_i, sigma_r^2 s_i^2), s_i known per observation: constant: s_i = 1 (homoscedastic per "
-        "region, the paper's); shot: s_i^2 = (m_i + c) / ybar (variance grows with the signal: photon plus read "
-        "noise); relative: s_i = (m_i + c) / ybar (sd grows with the signal: a multiplicative error). m_i: the "
-        "prediction of a separate Lambert + Blinn fit of each pixel; ybar: the mean observed value; c = NOISE_FLOOR * "
-        "ybar. normals: s_i^2 = 1 + k g_i^2, the normals' error as noise, g_i = |d mu_i / d n| of a Lambert + Blinn "
-        "fit of each 5 x 5 pixel tile, k by maximum likelihood (docs/results/measured-data.md). footprint: s_i^2 = 1 + k g_i^2 + "
-        "t f_i^2, normals plus a pixel's footprint, f_i^2 = |grad_x y_i|^2 / 12 of the observed image (the limb of a "
-        "sphere), k and t by maximum likelihood (docs/results/measured-data.md). Weighted least squares: the "
-        "sampler is unchanged. A model the noise does not follow splits regions: keep constant unless the noise is "
-        "known to grow with the signal or the normals are measured.", "choice", choices=NOISE_MODELS,
+        "counts as zeta observations, so a misfit shared by neighbouring pixels does not split a material. 'auto': "
+        "from the lag-1 spatial correlation of per-pixel-fit residuals; 'area': from their autocorrelation summed "
+        "over lags (docs/options.md). Default 1 (the plain posterior); --preset measured: auto.", "power",
+        show_default=False)
+    noise: str = cli_option(
+        "constant", "--noise",
+        "Noise model y_i ~ N(mu_i, sigma_r^2 s_i^2), s_i known per observation: constant (s_i = 1, the paper's); "
+        "shot (variance grows with the signal); relative (sd grows with the signal); normals (the measured normals' "
+        "error as noise); footprint (normals plus a pixel's footprint). Default constant; --preset measured: "
+        "normals. What each assumes and when to use it: docs/options.md.", "choice", choices=NOISE_MODELS,
         show_default=False)
     max_view_angle: float | None = cli_option(
         None, "--max-view-angle",
         "Degrees: observations of pixels seen further than this from their normal (the rim) are left out; their "
-        "labels follow their neighbours'. Default: 90 (every view kept), and --preset measured sets 72.5 (<v.n> < "
-        "0.3), where measured normals' error, a pixel's footprint and pixels partly background change the radiance "
-        "most (docs/results/measured-data.md); give 90 to keep every view under the preset.", "float", show_default=False)
+        "labels follow their neighbours'. Default 90 (every view kept); --preset measured sets 72.5 (give 90 to "
+        "keep every view under it; docs/options.md).", "float", show_default=False)
     noise_floor: float = cli_option(
         DEFAULT_FLOOR, "--noise-floor",
-        "c / ybar of the shot and relative noise models: the floor (read noise) added to the signal, as a fraction "
-        "of the mean observed value. Unused for --noise constant.", "float")
+        "c / ybar of the shot and relative noise models (--noise shot or relative): the floor (read noise) added to "
+        "the signal, as a fraction of the mean observed value.", "float")
     effects: tuple = cli_option(
         (), "--effects",
         "Effects sampled jointly with the segmentation and the region BRDFs, comma-separated names, each with the "
@@ -220,10 +241,11 @@ class FitOptions:
         "A diagnosis folder (rjfit diagnose --out): the effects it named are sampled too; interreflection's Mitsuba "
         "feature is rendered on the diagnosed fit's MAP segmentation at the diagnosis' final-model materials.", "dir",
         show_default=False)
-    effect_every: int = cli_option(1, "--effect-every", "Iterations between the effects' moves (one move per effect).",
+    effect_every: int = cli_option(1, "--effect-every",
+                                   "Iterations between the effects' moves (one move per effect; with --effects).",
                                    "int", low=1)
-    anneal: float = 0.5
-    cp_thin: int = 10
+    anneal: float = option(0.5)
+    cp_thin: int = option(10)
     seed: int = cli_option(0, "--seed", "Seed of every random draw.", "int", low=0)
     checkpoint_every: int = cli_option(
         2000, "--checkpoint-every",
@@ -234,98 +256,78 @@ class FitOptions:
         "Threads per chain for its large passes over the observations (default: the cores left to each chain that "
         "runs at once, e.g. 2 for one chain on 2 cores, 1 for 4 chains; 1 on Dask). The samples are the same for any "
         "number.", "int", low=1, show_default=False)
-    processes: int | None = None
-    figures: bool = True
-    progress: bool = True
-    # the options of PLAIN_DEFAULTS that were not given, filled by the preset or the plain default: a copy
-    # (replace) fills them again, so that a preset given later still sets them
-    unset: tuple = ()
+    processes: int | None = option(None)
+    figures: bool = option(True)
+    progress: bool = option(True)
+    # (name, source) of every field once resolved (rjfit.pipeline.resolve.resolve_options): 'given', 'preset',
+    # 'data' (the data's kind or its declared calibration need) or 'default'; () until then
+    sources: tuple = ()
 
     def __post_init__(self):
-        if self.burn_in is not None and not 0.0 <= self.burn_in < 1.0:
-            raise ValueError(f"burn_in (--burn-in) is a fraction in [0, 1), got {self.burn_in}")
-        if self.n_chains < 1 or self.iterations < 10:
-            raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got "
-                             f"{self.n_chains}, {self.iterations}")
-        self._apply_preset()
+        self._check_counts()
         for name, what in (("preset", "preset"), ("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
                            ("channel", "channel"),
                            ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
             spec = self.cli(name)
-            if getattr(self, name) not in spec.choices:
+            if getattr(self, name) is not None and getattr(self, name) not in spec.choices:
                 raise ValueError(f"unknown {what} {getattr(self, name)!r} ({spec.flag}): choose one of "
                                  f"{', '.join(spec.choices)}")
-        object.__setattr__(self, "likelihood_power", _likelihood_power_value(self.likelihood_power))
-        object.__setattr__(self, "effects", _effect_names(self.effects))
-        if self.effects_from is not None:
-            object.__setattr__(self, "effects_from", Path(self.effects_from))
-        if self.effect_every < 1:
+        self._convert("likelihood_power", _likelihood_power_value)
+        self._convert("edge_power", _edge_power_value)
+        self._convert("effects", _effect_names)
+        self._convert("effects_from", Path)
+        self._check_ranges()
+
+    def _convert(self, name, convert):
+        if getattr(self, name) is not None:
+            object.__setattr__(self, name, convert(getattr(self, name)))
+
+    def _check_counts(self):
+        if self.burn_in is not None and not 0.0 <= self.burn_in < 1.0:
+            raise ValueError(f"burn_in (--burn-in) is a fraction in [0, 1), got {self.burn_in}")
+        if (self.n_chains is not None and self.n_chains < 1) or (self.iterations is not None and self.iterations < 10):
+            raise ValueError(f"need n_chains >= 1 (--chains) and iterations >= 10 (--iterations), got "
+                             f"{self.n_chains}, {self.iterations}")
+        if self.effect_every is not None and self.effect_every < 1:
             raise ValueError(f"effect_every (--effect-every) must be >= 1, got {self.effect_every}")
-        if not 0.0 <= self.anneal <= 1.0:
+        if self.max_materials is not None and not 1 <= self.max_materials <= 127:
+            raise ValueError(f"--max-materials must lie in 1 .. 127, got {self.max_materials}")
+        if (self.max_u is not None and self.max_u < 0) or (self.max_v is not None and self.max_v < 0):
+            raise ValueError(f"max_u and max_v (--max-u, --max-v) must be >= 0, got {self.max_u}, {self.max_v}")
+
+    def _check_ranges(self):
+        if self.anneal is not None and not 0.0 <= self.anneal <= 1.0:
             raise ValueError(f"anneal is the fraction of the burn-in run tempered, in [0, 1], got {self.anneal}")
         if self.max_view_angle is not None and not (math.isfinite(self.max_view_angle)
                                                     and 0.0 < self.max_view_angle <= 90.0):
             raise ValueError(f"--max-view-angle is in degrees, in (0, 90], got {self.max_view_angle}")
-        if not (math.isfinite(self.noise_floor) and self.noise_floor > 0):
+        if self.noise_floor is not None and not (math.isfinite(self.noise_floor) and self.noise_floor > 0):
             raise ValueError(f"noise floor (--noise-floor) must be a positive number, got {self.noise_floor}")
-        if not (math.isfinite(self.potts_beta) and self.potts_beta >= 0 and self.potts_rho > 0):
-            raise ValueError(f"Potts strength (--potts-beta) must be a number >= 0 and rho > 0, got "
-                             f"{self.potts_beta}, {self.potts_rho}")
-        if self.channel == COLOUR and (self.effects or self.effects_from is not None):
-            # the effects' features and the criticism are of one channel (a colour fit is diagnosed on its mean)
-            raise ValueError("--effects and --effects-from are for single-channel fits, not yet --channel rgb: fit "
-                             "one channel (--channel mean) with the effects")
-        if self.channel == COLOUR and self.likelihood_power == "area":
-            # its summed autocorrelation would pool a pixel's channels as one channel's observations
-            raise ValueError("--likelihood-power area measures one channel: not yet with --channel rgb; use "
-                             "--likelihood-power auto (what --preset measured sets) or fit one channel (--channel mean)")
-        if self.channel == COLOUR and (self.regions != "materials" or self.sampler != "adaptive"):
-            raise ValueError("--channel rgb (a joint colour fit) works with --regions materials and the adaptive "
-                             "sampler only (the change-point model's passes see one channel): use --regions materials, "
-                             "or fit one channel (--channel mean, R, G, B or each)")
-        self._check_edge_power()
-        if not 1 <= self.max_materials <= 127:
-            raise ValueError(f"--max-materials must lie in 1 .. 127, got {self.max_materials}")
-        if self.max_u < 0 or self.max_v < 0:
-            raise ValueError(f"max_u and max_v (--max-u, --max-v) must be >= 0, got {self.max_u}, {self.max_v}")
-
-    def _check_edge_power(self):
-        """The edge term reads one channel's plain prediction: a preset's leaves it out elsewhere, a given one fails."""
-        if self.edge_power != "auto":
-            try:
-                power = float(self.edge_power)
-            except (TypeError, ValueError):
-                power = math.nan
-            if not (math.isfinite(power) and power >= 0):
-                raise ValueError(f"edge power (--edge-power) must be a number >= 0 or 'auto', got {self.edge_power!r}")
-            object.__setattr__(self, "edge_power", power)
-        other = (self.regions != "materials" or self.channel == COLOUR or bool(self.effects)
-                 or self.effects_from is not None or self.sampler != "adaptive")
-        if (self.edge_power == "auto" or self.edge_power > 0) and other:
-            if "edge_power" in self.unset:
-                object.__setattr__(self, "edge_power", 0.0)
-            else:
-                raise ValueError("--edge-power works with --regions materials, one channel, no effects and the "
-                                 "adaptive sampler: give --edge-power 0 or fit one channel without effects")
-
-    def _apply_preset(self):
-        """Fill the options not given: the preset's value, else the plain default (:data:`PLAIN_DEFAULTS`)."""
-        measured = self.preset == "measured"
-        unset = set(self.unset) | {name for name in PLAIN_DEFAULTS if getattr(self, name) is None}
-        for name in PLAIN_DEFAULTS:
-            if name in unset:
-                value = MEASURED_PRESET.get(name, PLAIN_DEFAULTS[name]) if measured else PLAIN_DEFAULTS[name]
-                object.__setattr__(self, name, value)
-        for name, value in MEASURED_PRESET.items():     # options the command line does not offer
-            if measured and name not in PLAIN_DEFAULTS and getattr(self, name) == FitOptions.__dataclass_fields__[
-                    name].default:
-                object.__setattr__(self, name, value)
-        object.__setattr__(self, "unset", tuple(sorted(unset)))
+        if self.potts_beta is not None and not (math.isfinite(self.potts_beta) and self.potts_beta >= 0):
+            raise ValueError(f"Potts strength (--potts-beta) must be a number >= 0, got {self.potts_beta}")
+        if self.potts_rho is not None and not self.potts_rho > 0:
+            raise ValueError(f"Potts factor per material (--potts-rho) must be > 0, got {self.potts_rho}")
 
     @property
-    def potts_rule(self) -> bool:
-        """Whether --preset measured's mask rule chooses the Potts beta and rho (no --potts-rho given)."""
-        return self.preset == "measured" and self.regions == "materials" and "potts_rho" in self.unset
+    def resolved(self) -> bool:
+        """Whether every field is filled (:func:`rjfit.pipeline.resolve.resolve_options`)."""
+        return bool(self.sources)
+
+    def source(self, name: str) -> str | None:
+        """Where field ``name``'s value came from once resolved ('given', 'preset', 'data', 'default'), else None."""
+        return dict(self.sources).get(name)
+
+    def given(self) -> dict:
+        """The options given (not None before resolution; those whose source is 'given' after it)."""
+        if self.resolved:
+            return {name: getattr(self, name) for name, source in self.sources if source == GIVEN}
+        return {f.name: getattr(self, f.name) for f in fields(self)
+                if f.name != "sources" and getattr(self, f.name) is not None}
+
+    @classmethod
+    def default(cls, name: str):
+        """The value field ``name`` takes when neither it is given nor a preset or the data sets it."""
+        return next(f.metadata["default"] for f in fields(cls) if f.name == name)
 
     @classmethod
     def cli(cls, name: str) -> CliSpec | None:
@@ -335,7 +337,7 @@ class FitOptions:
     @classmethod
     def cli_fields(cls):
         """``(name, default, CliSpec)`` of every option the command line offers, in declaration order."""
-        return [(f.name, f.default, f.metadata["cli"]) for f in fields(cls) if "cli" in f.metadata]
+        return [(f.name, f.metadata["default"], f.metadata["cli"]) for f in fields(cls) if "cli" in f.metadata]
 
     @classmethod
     def split(cls, keywords: dict) -> tuple[dict, dict]:
@@ -346,40 +348,54 @@ class FitOptions:
 
     @classmethod
     def build(cls, options: "FitOptions | None" = None, **changes) -> "FitOptions":
-        """``options`` (default: every default) with ``changes``; what the Python API's keyword arguments make."""
+        """``options`` (default: none given) with ``changes``; what the Python API's keyword arguments make."""
         options = options if options is not None else cls()
         return options.replace(**changes) if changes else options
 
     def replace(self, **changes) -> "FitOptions":
-        """A copy with ``changes`` (checked like the original); the options not given stay so (see ``unset``)."""
-        refill = {name: None for name in self.unset if name not in changes}
-        unset = tuple(name for name in self.unset if name not in changes)
-        return dataclasses.replace(self, **refill, **changes, unset=unset)
+        """The options given, with ``changes`` (checked like the original): not resolved, so that what was
+        not given is filled again (a preset given later still sets it)."""
+        return FitOptions(**{**self.given(), **changes})
 
     def to_json(self) -> dict:
-        """Every option as JSON values (``summary.json`` "fit_options": what `rjfit refine` fits again with)."""
+        """Every option as JSON values, and ``sources`` ({name: source}) where resolved (``summary.json``
+        "fit_options": what `rjfit refine` fits again with)."""
         record = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            record[f.name] = (str(value) if isinstance(value, Path) else list(value) if isinstance(value, tuple)
-                              else value)
+            record[f.name] = (str(value) if isinstance(value, Path) else dict(value) if f.name == "sources"
+                              else list(value) if isinstance(value, tuple) else value)
         return record
 
     @classmethod
     def from_json(cls, record: dict) -> "FitOptions":
-        """The options :meth:`to_json` recorded (names it does not know are ignored: a newer rjfit's).
+        """The options given to the fit :meth:`to_json` recorded (names it does not know are ignored: a newer
+        rjfit's). A record without sources (an rjfit before 2026-11-28) gives its region model, its preset and
+        every value that differs from its plain default.
 
         Raises
         ------
         ValueError
             If a recorded option is out of range (as the constructor).
         """
-        names = {f.name for f in fields(cls)}
+        names = {f.name for f in fields(cls)} - {"sources"}
         known = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in names}
-        return cls(**known)
+        sources = record.get("sources")
+        if isinstance(sources, dict) and sources:       # resolved: what was given
+            return cls(**{k: v for k, v in known.items() if sources.get(k) == GIVEN})
+        if isinstance(sources, dict):                   # not resolved: every value was given
+            return cls(**{k: v for k, v in known.items() if v is not None})
+        return cls(**{k: v for k, v in known.items()
+                      if k in ("regions", "preset") or (v is not None and v != cls.default(k)
+                                                        and _read_by(k, known))})
 
-    def burn_in_for(self, measured: bool) -> float:
-        """The burn-in fraction: the option, or the paper's default for the data's kind (0.2 measured, 0.5 synthetic)."""
-        if self.burn_in is not None:
-            return self.burn_in
-        return 0.2 if measured else 0.5
+
+def _read_by(name: str, values: dict) -> bool:
+    """Whether the region model and noise model of ``values`` read option ``name`` (:data:`REGION_OPTIONS`,
+    :data:`NOISE_OPTIONS`)."""
+    regions = values.get("regions") or FitOptions.default("regions")
+    modelled = set().union(*REGION_OPTIONS.values())
+    if name in modelled and name not in REGION_OPTIONS.get(regions, ()):
+        return False
+    noise = values.get("noise") or FitOptions.default("noise")
+    return name not in set().union(*NOISE_OPTIONS.values()) or name in NOISE_OPTIONS.get(noise, ())

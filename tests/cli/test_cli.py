@@ -2,11 +2,13 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 from click.testing import CliRunner
 
 from rjfit.cli import main
+from rjfit.data.noise import NOISE_MODELS
 
 COMMANDS = ("render", "validate", "fit", "diagnose", "refine", "compare", "report", "run")
 
@@ -25,9 +27,12 @@ def test_every_command_has_help():
 def test_fit_help_states_the_noise_models_and_their_floor():
     text = " ".join(CliRunner().invoke(main, ["fit", "--help"], terminal_width=200).output.split())
     assert "--noise [constant|shot|relative|normals|footprint]" in text and "--noise-floor" in text
-    for formula in ("s_i = 1", "s_i^2 = (m_i + c) / ybar", "s_i = (m_i + c) / ybar", "c = NOISE_FLOOR * ybar",
+    # the help says what each model does and points at the page that holds the formulas and measurements
+    assert "docs/options.md" in text and all(f"{model} (" in text for model in NOISE_MODELS)
+    page = (Path(__file__).parents[2] / "docs" / "options.md").read_text()
+    for formula in ("s_i = 1", "s_i^2 = (m_i + c) / ybar", "s_i = (m_i + c) / ybar", "c = `--noise-floor` x ybar",
                     "s_i^2 = 1 + k g_i^2", "s_i^2 = 1 + k g_i^2 + t f_i^2", "f_i^2 = |grad_x y_i|^2 / 12"):
-        assert formula in text, formula
+        assert formula in page, formula
     result = CliRunner().invoke(main, ["fit", ".", "--out", "x", "--noise", "poisson"])
     assert result.exit_code != 0 and "poisson" in result.output
     assert "--preset [none|measured]" in text and "'area'" in text

@@ -14,6 +14,7 @@ import pytest
 
 from rjfit.data.observations import RIM_COS
 from rjfit.pipeline.options import RIM_VIEW_ANGLE, FitOptions
+from rjfit.pipeline.resolve import resolve_options
 from rjfit.render.datasets import load_dataset
 
 from builders import data_diagnose_sees, make_ps_folder
@@ -52,11 +53,11 @@ def test_the_rim_rule_leaves_out_every_observation_of_a_pixel_seen_at_a_grazing_
 def test_the_preset_sets_the_rim_rule_and_diagnose_replays_it(tmp_path, monkeypatch):
     """The preset's bound is the rim's (72.5 degrees); none (the default) or 90 keeps every view; ``diagnose_fit``
     hands the workflow the data set with the bound its fit recorded."""
-    assert FitOptions(preset="measured").max_view_angle == RIM_VIEW_ANGLE
-    assert FitOptions().max_view_angle is None                    # every view kept
-    assert FitOptions(preset="measured", max_view_angle=80.0).max_view_angle == 80.0   # a given option stays
+    assert resolve_options(FitOptions(preset="measured")).max_view_angle == RIM_VIEW_ANGLE
+    assert resolve_options(FitOptions()).max_view_angle is None                    # every view kept
+    assert resolve_options(FitOptions(preset="measured", max_view_angle=80.0)).max_view_angle == 80.0   # given: kept
     # 90 keeps every view under the preset too: a value equal to a default must not be taken for "not given"
-    assert FitOptions(preset="measured", max_view_angle=90.0).max_view_angle == 90.0
+    assert resolve_options(FitOptions(preset="measured", max_view_angle=90.0)).max_view_angle == 90.0
     with pytest.raises(ValueError, match="--max-view-angle"):
         FitOptions(max_view_angle=95.0)
     dataset = _with_a_rim(load_dataset(make_ps_folder(tmp_path / "ps")))

@@ -16,6 +16,7 @@ from rjfit.data.observations import Observations, stack_channels
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit import fit
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.resolve import resolve_options
 
 HUES = np.array([[1.5, 0.8, 0.7], [0.75, 0.75, 1.5]])
 
@@ -64,9 +65,9 @@ def test_colour_fit_writes_per_channel_parameters(fitted):
 
 def test_colour_needs_the_material_model():
     with pytest.raises(ValueError, match="--channel rgb"):
-        FitOptions(channel="rgb")
+        resolve_options(FitOptions(channel="rgb"))
     with pytest.raises(ValueError, match="--channel rgb"):
-        FitOptions(channel="rgb", regions="materials", sampler="paper")
+        resolve_options(FitOptions(channel="rgb", regions="materials", sampler="paper"))
 
 
 def test_the_colour_power_divides_by_the_channels_design_effect():
@@ -94,7 +95,7 @@ def test_the_colour_power_divides_by_the_channels_design_effect():
 def test_the_measured_preset_takes_colour_and_the_area_power_is_refused_in_one_line():
     """The preset's normals noise is measured per channel (tests/data/test_normal_error.py); the area
     power's summed autocorrelation is of one channel still."""
-    options = FitOptions(regions="materials", channel="rgb", preset="measured")
+    options = resolve_options(FitOptions(regions="materials", channel="rgb", preset="measured"))
     assert options.noise == "normals" and options.likelihood_power == "auto"
     with pytest.raises(ValueError, match="not yet with --channel rgb"):
-        FitOptions(regions="materials", channel="rgb", likelihood_power="area")
+        resolve_options(FitOptions(regions="materials", channel="rgb", likelihood_power="area"))

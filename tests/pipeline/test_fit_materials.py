@@ -117,12 +117,14 @@ def test_the_chains_start_stratified_over_the_number_of_materials(tmp_path):
     segmentation or a given start is kept."""
     from rjfit.pipeline.fit import chain_specs, prepare_problem, sampler_config
     from rjfit.pipeline.options import FitOptions
+    from rjfit.pipeline.resolve import resolve_options
     from rjfit.sampler.kernel import initial_state
     from rjfit.sampler.priors import make_prior
 
     obs, truth = stack()
     for max_materials, expected in ((8, [1, 2, 3, 4, 1, 2]), (3, [1, 2, 3, 1, 2, 3])):
-        options = FitOptions(regions="materials", n_chains=6, max_materials=max_materials, iterations=20)
+        options = resolve_options(FitOptions(regions="materials", n_chains=6, max_materials=max_materials,
+                                             iterations=20))
         problem = prepare_problem(obs, options)[0]
         prior, config = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A), sampler_config(options)
         specs = chain_specs(problem, prior, config, options, tmp_path, None, None, None)

@@ -18,6 +18,7 @@ from rjfit.effects.interreflection import FEATURE_SPP, Interreflection
 from rjfit.pipeline.fit_effects import FINAL_MODEL, FIT_MEANS, _order_in, fit_effects
 from rjfit.pipeline.fit_folder import read_map_labels
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.resolve import resolve_options
 from rjfit.render.datasets import load_dataset
 
 from builders import truth_fit_folder
@@ -64,7 +65,7 @@ def test_the_refit_s_feature_is_rendered_at_the_diagnosis_final_model(plaster, t
              for r in range(2) for i, name in enumerate(("I0", "kd", "gamma", "sigma2"))}
     final["interreflection.beta"] = {"map": 0.97, "sd": 0.01}
     fit_dir, diagnosis_dir = _diagnosed_fit(plaster, tmp_path, final)
-    dataset, options = load_dataset(plaster), FitOptions(effects_from=diagnosis_dir)
+    dataset, options = load_dataset(plaster), resolve_options(FitOptions(effects_from=diagnosis_dir))
     observations = dataset.observations(options.channel)
     (effect,), source = fit_effects(dataset, observations, options)
     record = source["interreflection"]
@@ -79,7 +80,7 @@ def test_the_refit_s_feature_is_rendered_at_the_diagnosis_final_model(plaster, t
 
 def test_a_diagnosis_without_final_model_parameters_falls_back_to_the_fit_s_means(plaster, tmp_path):
     fit_dir, diagnosis_dir = _diagnosed_fit(plaster, tmp_path, {"interreflection.beta": {"map": 0.97}})
-    dataset, options = load_dataset(plaster), FitOptions(effects_from=diagnosis_dir)
+    dataset, options = load_dataset(plaster), resolve_options(FitOptions(effects_from=diagnosis_dir))
     _, source = fit_effects(dataset, dataset.observations(options.channel), options)
     assert source["interreflection"]["feature_model"] == FIT_MEANS
     np.testing.assert_allclose(source["interreflection"]["feature_region_params"], FIT_MEANS_TABLE[:, :3])

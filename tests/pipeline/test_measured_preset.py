@@ -13,66 +13,79 @@ from click.testing import CliRunner
 from rjfit.cli import _likelihood_power, main
 from rjfit.data.normal_error import normal_error_noise
 from rjfit.data.observations import RIM_COS
-from rjfit.pipeline.fit_dataset import GHOST_ODDS, GHOST_PIXELS, fit_dataset, ghost_material_prior
+from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.options import RIM_VIEW_ANGLE, FitOptions
+from rjfit.pipeline.resolve import GHOST_ODDS, GHOST_PIXELS, DataFacts, ghost_material_prior, resolve_options
 from rjfit.render.datasets import load_dataset
 
 
 def test_the_preset_sets_the_measured_defaults_and_survives_a_round_trip():
-    options = FitOptions(preset="measured")
+    options = resolve_options(FitOptions(preset="measured"))
     assert (options.noise, options.likelihood_power, options.calibrate, options.anneal,
             options.cluster_material_seed) == ("normals", "auto", True, 0.0, 0.5)      # seeds: every material fit's
-    assert FitOptions(preset="measured", likelihood_power="area").likelihood_power == "area"     # a given option stays
-    assert FitOptions.from_json(options.to_json()) == options
-    plain = FitOptions()
+    assert options.source("noise") == "preset" and options.source("preset") == "given"
+    assert resolve_options(FitOptions(preset="measured", likelihood_power="area")).likelihood_power == "area"
+    assert resolve_options(FitOptions.from_json(options.to_json())) == options
+    plain = resolve_options(FitOptions())
     assert (plain.noise, plain.likelihood_power, plain.calibrate, plain.potts_rho) == ("constant", 1.0, False, 0.01)
     assert _likelihood_power("area") == "area"
     with pytest.raises(ValueError, match="preset"):
         FitOptions(preset="rendered")
 
 
-def test_an_option_given_at_its_plain_default_is_kept_under_the_preset(monkeypatch):
-    """`--preset measured --noise constant --likelihood-power 1 --potts-rho 1 --max-view-angle 90` fits
-    what was given: a value equal to the plain default is a choice, not "left out"."""
-    given = FitOptions(preset="measured", regions="materials", noise="constant", likelihood_power=1.0,
-                       potts_rho=1.0, max_view_angle=90.0)
+def test_not_given_is_none_for_every_option_and_a_given_default_is_kept_under_the_preset(monkeypatch):
+    """One rule: None is "not given", for every field (anneal and calibrate too); a value equal to the plain
+    default is a choice. `--preset measured --noise constant --likelihood-power 1 --potts-rho 1
+    --max-view-angle 90` fits what was given."""
+    assert all(getattr(FitOptions(), name) is None for name in FitOptions.__dataclass_fields__ if name != "sources")
+    assert resolve_options(FitOptions(preset="measured", anneal=0.5)).anneal == 0.5      # was 0: compared to 0.5
+    assert resolve_options(FitOptions(preset="measured")).anneal == 0.0
+    assert resolve_options(FitOptions(preset="measured", calibrate=False)).calibrate is False
+    given = resolve_options(FitOptions(preset="measured", regions="materials", noise="constant",
+                                       likelihood_power=1.0, potts_rho=1.0, max_view_angle=90.0),
+                            DataFacts(object_mask=np.ones((8, 8), bool)))
     assert (given.noise, given.likelihood_power, given.potts_rho, given.max_view_angle) == ("constant", 1.0, 1.0, 90.0)
-    assert not given.potts_rule                 # a given rho keeps beta and rho
-    ruled = FitOptions(preset="measured", regions="materials")
-    assert ruled.potts_rule and not FitOptions(preset="measured").potts_rule      # the rule is the material model's
-    assert FitOptions.from_json(given.to_json()) == given
-    # the Python API builds options by replacing the defaults' (fit_dataset(..., preset="measured")): what was
-    # not given is still the preset's, and what was given stays given through a copy
+    assert given.potts_beta == 3.0 and given.source("potts_beta") == "default"      # a given rho keeps beta and rho
+    ruled = resolve_options(FitOptions(preset="measured", regions="materials"), DataFacts(object_mask=np.ones((8, 8), bool)))
+    assert ruled.source("potts_rho") == "preset" and (ruled.potts_beta, ruled.potts_rho) == ghost_material_prior(
+        np.ones((8, 8), bool), 3.0)
+    assert resolve_options(FitOptions.from_json(given.to_json()), DataFacts(object_mask=np.ones((8, 8), bool))) == given
+    # the Python API builds options by replacing (fit_dataset(..., preset="measured")): what was not given is
+    # still the preset's, and what was given stays given through a copy
     built = FitOptions.build(None, preset="measured", regions="materials")
-    assert (built.noise, built.likelihood_power, built.max_view_angle, built.potts_rule) == (
-        "normals", "auto", RIM_VIEW_ANGLE, True)
-    assert FitOptions(noise="constant").replace(preset="measured").noise == "constant"
-    assert FitOptions.from_json(built.to_json()).replace(preset="none").noise == "constant"
-    # the command line passes a flag it was given, and None for one it was not
+    assert built.replace(noise="constant").given() == {"preset": "measured", "regions": "materials", "noise": "constant"}
+    assert resolve_options(FitOptions(noise="constant").replace(preset="measured")).noise == "constant"
+    assert resolve_options(FitOptions.from_json(ruled.to_json()).replace(preset="none")).noise == "constant"
+    # the command line passes a flag it was given, and nothing for one it was not
     import rjfit.pipeline.fit_dataset as fit_dataset_module
     seen = []
     monkeypatch.setattr(fit_dataset_module, "fit_datasets", lambda datasets, out, options, **kw: seen.append(options)
                         or [])
     result = CliRunner().invoke(main, ["fit", ".", "--out", "x", "--preset", "measured", "--noise", "constant",
-                                       "--likelihood-power", "1"])
+                                       "--likelihood-power", "1", "--chains", "4"])
     assert result.exit_code == 0, result.output
-    assert (seen[0].noise, seen[0].likelihood_power, seen[0].max_view_angle) == ("constant", 1.0, RIM_VIEW_ANGLE)
+    assert seen[0].given() == {"preset": "measured", "noise": "constant", "likelihood_power": 1.0, "n_chains": 4}
 
 
 def test_the_preset_sets_the_edge_term_where_it_applies_and_a_given_one_is_checked():
-    """The preset's edge power ('auto') for one channel of the material model, none elsewhere; a given power
-    that cannot apply fails with the flag named."""
-    assert FitOptions(preset="measured", regions="materials").edge_power == "auto"
-    assert FitOptions(regions="materials").edge_power == 0.0
-    for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "channel": "rgb"}):
-        assert FitOptions(preset="measured", **elsewhere).edge_power == 0.0
-    assert FitOptions(regions="materials", edge_power="0.5").edge_power == 0.5
+    """The preset's edge power ('auto') for one channel of the material model; elsewhere the preset does not
+    set it (the plain 0, from the default); a given power that cannot apply fails with the flag named."""
+    resolved = resolve_options(FitOptions(preset="measured", regions="materials"))
+    assert resolved.edge_power == "auto" and resolved.source("edge_power") == "preset"
+    assert resolve_options(FitOptions(regions="materials")).edge_power == 0.0
+    for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "channel": "rgb"},
+                      {"regions": "materials", "sampler": "paper"}, {"regions": "materials", "effects": "ambient"}):
+        options = resolve_options(FitOptions(preset="measured", **elsewhere))
+        assert (options.edge_power, options.source("edge_power")) == (0.0, "default"), elsewhere
+    assert resolve_options(FitOptions(regions="materials", edge_power="0.5")).edge_power == 0.5
     with pytest.raises(ValueError, match="--edge-power"):
-        FitOptions(regions="changepoints", edge_power=1.0)
+        resolve_options(FitOptions(regions="changepoints", edge_power=1.0))
     with pytest.raises(ValueError, match="--edge-power"):
         FitOptions(regions="materials", edge_power="-1")
-    given = FitOptions(preset="measured", regions="materials", edge_power=0.0)
-    assert given.edge_power == 0.0 and FitOptions.from_json(given.to_json()) == given
+    with pytest.raises(ValueError, match="--edge-power"):
+        resolve_options(FitOptions(regions="materials", channel="rgb", edge_power=0.5))
+    given = resolve_options(FitOptions(preset="measured", regions="materials", edge_power=0.0))
+    assert given.edge_power == 0.0 and resolve_options(FitOptions.from_json(given.to_json())) == given
 
 
 def test_the_ghost_rule_bounds_a_twin_materials_prior_pixels_and_odds():
@@ -111,7 +124,8 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
         assert options["potts_beta"] >= 2.0 and 0 < options["potts_rho"] < 1
         assert options["edge_power"] == "auto" and 0 < summary["edge_power"] <= 1      # as measured
     else:       # change points have no Potts prior: the rule must not be recorded as if it applied
-        assert (options["potts_beta"], options["potts_rho"]) == (FitOptions().potts_beta, FitOptions().potts_rho)
+        assert (options["potts_beta"], options["potts_rho"]) == (FitOptions.default("potts_beta"),
+                                                                FitOptions.default("potts_rho"))
 
 
 def test_the_footprint_noise_is_kept_by_the_preset_and_measured_per_channel_in_colour(paper_sphere_small):
@@ -120,8 +134,8 @@ def test_the_footprint_noise_is_kept_by_the_preset_and_measured_per_channel_in_c
     from rjfit.pipeline.fit_power import channel_normal_error_noise
     from rjfit.render.datasets import load_dataset
 
-    assert FitOptions(preset="measured", noise="footprint").noise == "footprint"
-    assert FitOptions(regions="materials", channel="rgb", noise="footprint").noise == "footprint"
+    assert resolve_options(FitOptions(preset="measured", noise="footprint")).noise == "footprint"
+    assert resolve_options(FitOptions(regions="materials", channel="rgb", noise="footprint")).noise == "footprint"
     dataset = load_dataset(paper_sphere_small)
     colour = dataset.observations("rgb")
     scale, record = channel_normal_error_noise(colour, footprint=True)

@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from rjfit.cli import fit_options, main
 from rjfit.pipeline.fit_folder import SUMMARY_FIELDS, write_summary
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.resolve import resolve_options
 
 
 def test_every_command_line_option_of_fitoptions_is_a_flag_of_rjfit_fit():
@@ -47,12 +48,13 @@ def test_a_new_field_becomes_a_flag_without_touching_the_command():
 ])
 def test_an_option_out_of_range_names_its_flag(changes, flag):
     with pytest.raises(ValueError, match=flag):
-        FitOptions(**changes)
+        resolve_options(FitOptions(**changes))
 
 
 def test_build_takes_keywords_and_refuses_what_is_not_an_option():
     options = FitOptions.build(None, seed=3, n_chains=2)
-    assert (options.seed, options.n_chains, options.iterations) == (3, 2, FitOptions().iterations)
+    assert (options.seed, options.n_chains, options.iterations) == (3, 2, None)       # None: not given
+    assert resolve_options(options).iterations == FitOptions.default("iterations")
     assert FitOptions.build(options) is options
     assert FitOptions.build(options, likelihood_power="0.25").likelihood_power == 0.25
     with pytest.raises(TypeError):
@@ -86,3 +88,15 @@ def test_options_round_trip_through_their_json_record(tmp_path):
     assert FitOptions.from_json({**record, "a_newer_option": 1}) == options
     with pytest.raises(ValueError, match="--chains"):
         FitOptions.from_json({**record, "n_chains": 0})
+
+
+def test_a_record_of_an_older_rjfit_gives_the_options_that_fit_ran_with():
+    """Before 2026-11-28 a summary recorded every option filled (and no sources): its region model, preset and
+    every value off its default come back as given, the other model's defaults do not (they would be refused)."""
+    record = {**{name: FitOptions.default(name) for name in FitOptions.__dataclass_fields__ if name != "sources"},
+              "regions": "materials", "preset": "measured", "noise": "normals", "potts_beta": 3.45, "burn_in": 0.2,
+              "unset": ["noise"]}
+    options = FitOptions.from_json(json.loads(json.dumps(record, default=list)))
+    assert options.given() == {"regions": "materials", "preset": "measured", "noise": "normals", "potts_beta": 3.45,
+                               "burn_in": 0.2}
+    assert resolve_options(options).max_u == 3          # the change-point model's default, not given

@@ -1,0 +1,228 @@
+"""The options a fit runs with, resolved once: :func:`resolve_options`.
+
+Every option that was not given is filled here, and only here: by the data's kind (a measured
+stack's default is ``--regions materials --preset measured``), by the preset (:data:`MEASURED_PRESET`,
+and the Potts rule on the mask), by the data set's declared calibration need (``{"response":
+"unknown"}``: calibrated under every preset), else by the field's plain default. A given option
+that the fit's region model, noise model or effects do not read is refused, naming its flag. The
+result records where each value came from (``FitOptions.sources``), which the fit's summary keeps
+and the command line reports (:func:`default_lines`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rjfit.data.calibrate import small_components
+from rjfit.data.formats import COLOUR
+from rjfit.pipeline.options import (EFFECT_OPTIONS, FURTHER_MATERIAL_ODDS, GIVEN, NOISE_OPTIONS, REGION_OPTIONS,
+                                    RIM_VIEW_ANGLE, FitOptions)
+
+__all__ = ["resolve_options", "DataFacts", "MEASURED_DEFAULTS", "MEASURED_PRESET", "default_lines",
+           "ghost_material_prior", "GHOST_PIXELS", "GHOST_ODDS"]
+
+#: What a measured stack (anything `rjfit render` did not write) gets where not given.
+MEASURED_DEFAULTS = {"regions": "materials", "preset": "measured"}
+#: What ``--preset measured`` sets where an option is not given (docs/options.md); the edge term only where
+#: it applies (:func:`_edge_term_applies`), the Potts beta and rho by :func:`ghost_material_prior`.
+MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
+                   "max_view_angle": RIM_VIEW_ANGLE}
+#: the fraction of each chain discarded, by the data's kind (the paper's choices)
+BURN_IN = {"measured": 0.2, "rendered": 0.5}
+PRESET, DATA, DEFAULT = "preset", "data", "default"
+
+# --preset measured's Potts rule (docs/options.md): a material whose parameters equal an existing one's
+# holds about S(beta) = sum_p exp(-beta n_p) scattered pixels under the prior (n_p: p's labelled 4-neighbours);
+# beta is raised until S <= GHOST_PIXELS, so such a material shrinks to its last pixel often enough for the
+# cluster moves to remove it, and rho makes its prior odds rho S / 2 = GHOST_ODDS, the odds every further
+# material has (FURTHER_MATERIAL_ODDS, 1:100; 1:20 until 2026-11-27).
+GHOST_PIXELS = 1.0
+GHOST_ODDS = FURTHER_MATERIAL_ODDS
+
+
+@dataclass(frozen=True, eq=False)
+class DataFacts:
+    """What the options' resolution reads of the data set.
+
+    Attributes
+    ----------
+    kind : str
+        'measured' (anything `rjfit render` did not write) or 'rendered'.
+    layout : str
+        How the folder is laid out, for the printed line ('diligent', 'mesh-stack', ...).
+    object_mask : ndarray or None
+        The object's pixels (the Potts rule's); None: no rule.
+    response_unknown : bool
+        The data set declares an unknown camera response (``{"response": "unknown"}``): the fit
+        must calibrate it.
+    """
+
+    kind: str = "rendered"
+    layout: str = ""
+    object_mask: np.ndarray | None = None
+    response_unknown: bool = False
+
+    @classmethod
+    def of(cls, dataset) -> "DataFacts":
+        """The facts of a loaded :class:`rjfit.data.dataset.Dataset`."""
+        return cls(kind="measured" if dataset.meta.get("kind") == "measured" else "rendered",
+                   layout=str(dataset.meta.get("layout") or ""), object_mask=dataset.object_mask,
+                   response_unknown=dataset.response == "unknown")
+
+
+def resolve_options(options: FitOptions, data: DataFacts | None = None) -> FitOptions:
+    """Every option of ``options`` filled, with its source; the given ones checked against each other.
+
+    Parameters
+    ----------
+    options : FitOptions
+        The options given (an already resolved one is resolved again from what was given).
+    data : DataFacts, optional
+        The data set's kind, mask and calibration need (default: rendered, no mask).
+
+    Returns
+    -------
+    FitOptions
+        With ``sources``: per field 'given', 'data' (the data's kind or its calibration need),
+        'preset' or 'default'.
+
+    Raises
+    ------
+    ValueError
+        In one line naming the flag: a given option the fit's region model, noise model or effects
+        do not read; ``calibrate=False`` on a data set that declares an unknown response; an edge
+        power where the edge term cannot apply; a joint colour fit with effects, the area power, the
+        change-point model or the paper's sampler.
+    """
+    data = data if data is not None else DataFacts()
+    values = dict(options.given())
+    sources = dict.fromkeys(values, GIVEN)
+
+    def fill(name, value, source):
+        if name not in values:
+            values[name], sources[name] = value, source
+
+    for name, value in MEASURED_DEFAULTS.items():
+        if data.kind == "measured":
+            fill(name, value, DATA)
+    _check_calibration(values, data)
+    for name in ("preset", "regions", "channel", "effects", "effects_from", "sampler"):
+        fill(name, FitOptions.default(name), DEFAULT)
+    if values["preset"] == "measured":
+        for name, value in MEASURED_PRESET.items():
+            fill(name, value, PRESET)
+        if _edge_term_applies(values):
+            fill("edge_power", "auto", PRESET)
+        if values["regions"] == "materials" and "potts_rho" not in values and data.object_mask is not None:
+            mask = _fitted_mask(data.object_mask, values.get("calibrate", False))
+            beta, rho = ghost_material_prior(mask, values.get("potts_beta", FitOptions.default("potts_beta")))
+            sources.setdefault("potts_beta", PRESET)
+            values["potts_beta"], values["potts_rho"], sources["potts_rho"] = beta, rho, PRESET
+    if data.response_unknown:       # a declared need: applied under every preset (a given False is refused above)
+        fill("calibrate", True, DATA)
+    fill("burn_in", BURN_IN[data.kind], DATA if data.kind == "measured" else DEFAULT)
+    for name in (f for f in FitOptions.__dataclass_fields__ if f != "sources"):
+        fill(name, FitOptions.default(name), DEFAULT)
+    resolved = FitOptions(**values, sources=tuple(sorted(sources.items())))
+    _refuse_unread(resolved)
+    _check_combinations(resolved)
+    return resolved
+
+
+def _check_calibration(values: dict, data: DataFacts) -> None:
+    if data.response_unknown and values.get("calibrate") is False:
+        raise ValueError("the data set declares an unknown camera response ({\"response\": \"unknown\"}): its raw "
+                         "codes are not radiances; the fit must calibrate it (calibrate=True, what every preset does)")
+
+
+def _edge_term_applies(values: dict) -> bool:
+    """The edge term reads one channel's plain prediction under the material model's adaptive moves."""
+    return (values["regions"] == "materials" and values["channel"] != COLOUR and not values["effects"]
+            and values["effects_from"] is None and values["sampler"] == "adaptive")
+
+
+def _fitted_mask(object_mask, calibrate: bool) -> np.ndarray:
+    """The mask the fit sees: the calibration leaves small parts out (:func:`rjfit.data.calibrate.small_components`)."""
+    mask = np.asarray(object_mask, bool)
+    return mask & ~small_components(mask) if calibrate else mask
+
+
+def _refuse_unread(options: FitOptions) -> None:
+    """A given option that the chosen region model, noise model or effects do not read: refused, naming it."""
+    for name in options.given():
+        flag = FitOptions.cli(name).flag if FitOptions.cli(name) else name
+        readers = [model for model, names in REGION_OPTIONS.items() if name in names]
+        if readers and options.regions not in readers:
+            raise ValueError(f"{flag} is an option of --regions {' / '.join(readers)}, not of --regions "
+                             f"{options.regions} ({_chosen_by(options, 'regions')}): leave it out")
+        noise_readers = [model for model, names in NOISE_OPTIONS.items() if name in names]
+        if noise_readers and options.noise not in noise_readers:
+            raise ValueError(f"{flag} is an option of --noise {' / '.join(noise_readers)}, not of --noise "
+                             f"{options.noise} ({_chosen_by(options, 'noise')}): leave it out")
+        if name in EFFECT_OPTIONS and not options.effects and options.effects_from is None:
+            raise ValueError(f"{flag} is an option of sampled effects (--effects, --effects-from), and none are "
+                             f"sampled: leave it out")
+
+
+def _chosen_by(options: FitOptions, name: str) -> str:
+    """Why the option has its value, in words (for the refusal)."""
+    return {GIVEN: "given", PRESET: f"the preset {options.preset}'s", DATA: "the measured data's default",
+            DEFAULT: "the default"}[options.source(name)]
+
+
+def _check_combinations(options: FitOptions) -> None:
+    if options.edge_power == "auto" or options.edge_power > 0:
+        if not _edge_term_applies(vars(options)):
+            raise ValueError("--edge-power works with --regions materials, one channel, no effects and the "
+                             "adaptive sampler: give --edge-power 0 or fit one channel without effects")
+    if options.channel != COLOUR:
+        return
+    if options.effects or options.effects_from is not None:
+        # the effects' features and the criticism are of one channel (a colour fit is diagnosed on its mean)
+        raise ValueError("--effects and --effects-from are for single-channel fits, not yet --channel rgb: fit "
+                         "one channel (--channel mean) with the effects")
+    if options.likelihood_power == "area":
+        # its summed autocorrelation would pool a pixel's channels as one channel's observations
+        raise ValueError("--likelihood-power area measures one channel: not yet with --channel rgb; use "
+                         "--likelihood-power auto (what --preset measured sets) or fit one channel (--channel mean)")
+    if options.regions != "materials" or options.sampler != "adaptive":
+        raise ValueError("--channel rgb (a joint colour fit) works with --regions materials and the adaptive "
+                         "sampler only (the change-point model's passes see one channel): use --regions materials, "
+                         "or fit one channel (--channel mean, R, G, B or each)")
+
+
+def ghost_material_prior(object_mask, beta: float) -> tuple[float, float]:
+    """``(beta, rho)`` of the measured preset's Potts prior for this mask (the rule above ``GHOST_PIXELS``).
+
+    beta: the smallest of ``beta``, ``beta + 0.05``, ... with ``S(beta) <= GHOST_PIXELS`` (at most 8);
+    rho: ``2 GHOST_ODDS / S(beta)``. Pixels without a labelled neighbour are not counted: no beta
+    binds them (the preset's calibration leaves them out, :func:`rjfit.data.calibrate.drop_small_components`).
+    """
+    mask = np.asarray(object_mask, bool)
+    padded = np.pad(mask, 1)
+    neighbours = (padded[:-2, 1:-1].astype(int) + padded[2:, 1:-1] + padded[1:-1, :-2] + padded[1:-1, 2:])[mask]
+    neighbours = neighbours[neighbours > 0]
+    ghost_pixels = lambda b: float(np.sum(np.exp(-b * neighbours)))      # noqa: E731
+    while ghost_pixels(beta) > GHOST_PIXELS and beta < 8.0:
+        beta = round(beta + 0.05, 2)
+    return beta, 2.0 * GHOST_ODDS / ghost_pixels(beta)
+
+
+_LAYOUTS = {"diligent": "a photometric-stereo folder", "mesh-stack": "a mesh stack with photographs"}
+
+
+def default_lines(options: FitOptions, data: DataFacts) -> list[str]:
+    """What the fit says of the options the data chose (resolved ``options``): the measured default
+    and how to opt out, and a calibration applied because the data set declares it."""
+    lines = []
+    chosen = [name for name in MEASURED_DEFAULTS if options.source(name) == DATA]
+    if chosen:
+        what = " ".join(f"{FitOptions.cli(name).flag} {MEASURED_DEFAULTS[name]}" for name in chosen)
+        opt_out = " or ".join({"regions": "--regions changepoints", "preset": "--preset none"}[n] for n in chosen)
+        lines.append(f"measured data ({_LAYOUTS.get(data.layout, 'not written by rjfit render')}): fitted with the "
+                     f"measured default {what}; give {opt_out} to fit otherwise")
+    if options.source("calibrate") == DATA:
+        lines.append("the data set declares an unknown camera response (rjfit.json): the response and per-light "
+                     "gains are estimated and applied before the fit under every preset")
+    return lines

@@ -1,0 +1,107 @@
+"""The options a fit runs with, resolved once (rjfit.pipeline.resolve): a given option the fit's models do
+not read is refused in one line naming it; a measured stack gets the measured default without flags and says
+so; a declared unknown camera response is calibrated under every preset or the fit refuses.
+
+The refusals go through ``rjfit fit`` on a rendered paper_sphere (48 x 48): the data set is loaded and the
+options refused before any chain runs (about a second each). The default line is checked on a real fit of a
+four-light photometric-stereo folder (1 chain of 20 iterations, a few seconds).
+"""
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from rjfit.cli import main
+from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.resolve import DataFacts, default_lines, resolve_options
+
+from builders import make_ps_folder
+
+UNREAD = [
+    # flags of the change-point model, under --regions materials (silently ignored until 2026-11-28)
+    (["--regions", "materials", "--max-u", "2"], "--max-u"),
+    (["--regions", "materials", "--max-v", "2"], "--max-v"),
+    (["--regions", "materials", "--split-map", "mean"], "--split-map"),
+    (["--regions", "materials", "--cp-prior", "paper"], "--cp-prior"),
+    (["--regions", "materials", "--drop-jacobian"], "--drop-jacobian"),
+    # the material model's, under change points
+    (["--max-materials", "3"], "--max-materials"),
+    (["--potts-beta", "2"], "--potts-beta"),
+    (["--potts-rho", "0.5"], "--potts-rho"),
+    (["--edge-power", "0"], "--edge-power"),
+    # the shot and relative noise models', under the others
+    (["--noise-floor", "0.1"], "--noise-floor"),
+    (["--noise", "normals", "--noise-floor", "0.1"], "--noise-floor"),
+    # the effects', without effects
+    (["--effect-every", "5"], "--effect-every"),
+]
+
+
+@pytest.mark.parametrize("flags, flag", UNREAD, ids=[" ".join(f) for f, _ in UNREAD])
+def test_a_flag_the_fit_does_not_read_is_refused_in_one_line(paper_sphere_small, tmp_path, flags, flag):
+    result = CliRunner().invoke(main, ["fit", str(paper_sphere_small), "--out", str(tmp_path / "fit"),
+                                       "--allow-unvalidated", "--iterations", "20", *flags])
+    assert result.exit_code == 1, result.output
+    message = result.output.strip()
+    assert message.startswith("Error: ") and flag in message and "\n" not in message, message
+    assert "Traceback" not in result.output and not (tmp_path / "fit" / "summary.json").exists()
+
+
+def test_the_flags_are_read_where_they_apply():
+    """The negative control: each refused flag is taken by the model that reads it."""
+    for changes in ({"max_u": 2, "split_map": "mean", "cp_prior": "paper", "drop_jacobian": True},
+                    {"regions": "materials", "max_materials": 3, "potts_beta": 2.0, "potts_rho": 0.5, "edge_power": 0},
+                    {"noise": "shot", "noise_floor": 0.1}, {"noise": "relative", "noise_floor": 0.1},
+                    {"effects": ("ambient",), "effect_every": 5}):
+        resolved = resolve_options(FitOptions(**changes))
+        assert all(resolved.source(name) == "given" for name in changes)
+
+
+def test_a_measured_stack_gets_the_measured_default_without_flags_and_a_rendered_one_today_s():
+    mask = np.ones((12, 12), bool)
+    measured = DataFacts(kind="measured", layout="diligent", object_mask=mask)
+    options = resolve_options(FitOptions(), measured)
+    assert (options.regions, options.preset, options.noise, options.burn_in) == ("materials", "measured", "normals",
+                                                                                  0.2)
+    assert (options.source("regions"), options.source("preset")) == ("data", "data")
+    (line,) = default_lines(options, measured)
+    assert "--regions materials --preset measured" in line and "--regions changepoints or --preset none" in line
+    # opting out of one keeps the other, and the line names only what the data chose
+    opted = resolve_options(FitOptions(regions="changepoints"), measured)
+    assert (opted.regions, opted.preset) == ("changepoints", "measured")
+    assert "--preset measured" in default_lines(opted, measured)[0] and "--regions" not in default_lines(
+        opted, measured)[0].split(";")[0]
+    rendered = resolve_options(FitOptions(), DataFacts(kind="rendered", object_mask=mask))
+    assert (rendered.regions, rendered.preset, rendered.noise, rendered.burn_in) == ("changepoints", "none",
+                                                                                      "constant", 0.5)
+    assert default_lines(rendered, DataFacts()) == []
+
+
+def test_a_declared_unknown_response_is_calibrated_under_every_preset_or_refused():
+    """``{"response": "unknown"}`` (psm-horse): raw codes are not radiances. Under --preset none the fit
+    calibrates them and says so; a fit told not to calibrate refuses in one line."""
+    unknown = DataFacts(kind="measured", response_unknown=True)
+    for preset in ("none", "measured"):
+        options = resolve_options(FitOptions(preset=preset), unknown)
+        assert options.calibrate is True
+    plain = resolve_options(FitOptions(preset="none"), unknown)
+    assert plain.source("calibrate") == "data" and any("camera response" in line
+                                                       for line in default_lines(plain, unknown))
+    with pytest.raises(ValueError, match="unknown camera response"):
+        resolve_options(FitOptions(calibrate=False), unknown)
+    assert resolve_options(FitOptions(preset="none"), DataFacts(kind="measured")).calibrate is False
+
+
+def test_a_fit_of_a_measured_folder_prints_the_default_it_used(tmp_path):
+    folder = make_ps_folder(tmp_path / "ps")
+    out = tmp_path / "fit"
+    result = CliRunner().invoke(main, ["fit", str(folder), "--out", str(out), "--allow-unvalidated", "--preset",
+                                       "none", "--chains", "1", "--iterations", "20"])
+    assert result.exit_code == 0, result.output
+    assert ("measured data (a photometric-stereo folder): fitted with the measured default --regions materials; "
+            "give --regions changepoints to fit otherwise") in result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["region_model"] == "materials" and summary["fit_options"]["sources"]["regions"] == "data"
+    assert summary["data_defaults"] == [line.strip() for line in result.output.splitlines()
+                                        if line.strip().startswith("measured data")]
