@@ -6,7 +6,8 @@
 (``regions``, one entry per material, after relabelling: :mod:`rjfit.posterior.materials`),
 their R-hat and ESS, the cap warning, and the truth comparison of synthetic data.
 :func:`write_material_files` writes what differs from a change-point fit's folder:
-``chains.nc`` (dims chain, draw, material, parameter: the relabelled draws),
+``chains.nc`` (:mod:`rjfit.posterior.inference_data`; posterior dims chain, draw, material, parameter: the
+relabelled draws at the MAP K),
 ``materials.npz`` (every chain's label snapshots and K per iteration) and the figures
 (``materials.png``, the MAP material map, a distinct colour per material however many;
 ``materials_histogram.png``; ``reflectance.png``). ``labels.exr`` holds the MAP material
@@ -25,6 +26,7 @@ from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
+from rjfit.posterior.inference_data import chains_inference_data, log_likelihood_entry
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 
 __all__ = ["summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
@@ -199,17 +201,24 @@ def material_number_warnings(materials, prior) -> list:
             + caveats.pooled_interval_warnings(rows))
 
 
-def write_material_files(staging: Path, result, records, options) -> None:
-    """``chains.nc``, ``materials.npz`` and (with ``options.figures``) the figures, into ``staging``."""
-    summary, burn = result.summary, result.burn
-    idata = mat.to_inference_data(records, burn, result.extra["draws"])
+def write_material_files(staging: Path, result, records, options, attributes: dict) -> None:
+    """``chains.nc``, ``materials.npz`` and (with ``options.figures``) the figures, into ``staging``; the files with
+    ``attributes`` (:func:`rjfit.pipeline.fit_folder.file_attributes`)."""
+    summary, burn, draws = result.summary, result.burn, result.extra["draws"]
+    effects = result.problem.effects
+    idata = chains_inference_data(records, burn, result.problem, (draws.theta, draws.iterations),
+                                  region_dim="material", key_names=("n_materials",),
+                                  effect_names=() if effects is None else effects.names, attrs=attributes,
+                                  log_likelihood=effects is None)
     idata.posterior.attrs.update({
-        "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
+        "seed": options.seed, "burn_in_iterations": burn,
         "materials": f"the kept draws with K = {summary['map_materials']} (the MAP K), relabelled: "
-                     f"{mat.RELABELLING}",
+                     f"{mat.RELABELLING}; every kept draw's K is in sample_stats (n_materials)",
         "parameters": PARAMETERS_ATTR})
+    summary["log_likelihood"] = log_likelihood_entry(idata)
     idata.to_netcdf(str(staging / "chains.nc"))
-    save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"))
+    save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"),
+                      attributes)
     if options.figures:
         from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
 
