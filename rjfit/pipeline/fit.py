@@ -8,9 +8,7 @@ Outputs in ``out_dir`` (each written atomically):
 
 - ``summary.json``: see :data:`rjfit.pipeline.fit_folder.SUMMARY_FIELDS`;
 - ``labels.exr``: MAP labels (channel ``labels``, -1 off the object);
-- ``chains.nc``: the chains as ArviZ InferenceData (:mod:`rjfit.posterior.inference_data`: the MAP
-  model's region parameters in ``posterior``, ``lp`` and the model per kept iteration in
-  ``sample_stats``, the per-pixel-block ``log_likelihood``);
+- ``chains.nc``: the chains as ArviZ InferenceData (:mod:`rjfit.posterior.inference_data`);
 - ``changepoints.npz``: thinned change-point snapshots per chain;
 - with ``--regions materials`` (:mod:`rjfit.pipeline.fit_materials`): labels.exr holds the
   MAP material, chains.nc the relabelled draws at the MAP K (dims chain, draw, material, parameter),
@@ -19,10 +17,6 @@ Outputs in ``out_dir`` (each written atomically):
 - ``maps.exr``: per-pixel parameters, labels, valid-images count and residual RMS
   (:func:`write_parameter_maps`);
 - ``figures/*.png``: the paper's figures (see :mod:`rjfit.posterior.figures`).
-
-Every file records rjfit's version, the folder's schema version and the fit's options
-(:func:`rjfit.pipeline.fit_folder.file_attributes`); summary.json's paths are relative to
-the folder.
 
 Change points that cut no object pixel. Regions with no observation contribute only their
 prior (proper), and split/merge is exactly balanced for them, so models with such regions
@@ -54,14 +48,14 @@ from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import staging_dir
 from rjfit.model.blinn import radiance
-from rjfit.pipeline.fit_folder import (PARAMETERS_ATTR, SCHEMA_VERSION, file_attributes, publish_results,
-                                       relative_paths, results_digest, save_chain_arrays, write_summary)
+from rjfit.pipeline.fit_chains import write_chains
+from rjfit.pipeline.fit_folder import publish_results, relative_paths, save_chain_arrays, stamp, write_summary
 from rjfit.pipeline.fit_power import edge_power, noise_and_power
 from rjfit.pipeline.options import FitOptions
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
 from rjfit.posterior.effects import effect_summaries
-from rjfit.posterior.inference_data import changepoint_draws, chains_inference_data, log_likelihood_entry
+from rjfit.posterior.inference_data import changepoint_draws
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
 from rjfit.sampler.moves.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
@@ -402,9 +396,7 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
     """
     summary = result.summary
     with staging_dir(out_dir) as staging:
-        summary["fit_id"] = results_digest(summary)
-        summary.update(rjfit_version=file_attributes({})["rjfit_version"], schema_version=SCHEMA_VERSION)
-        attributes = file_attributes(summary["fit_options"], summary["fit_id"])
+        attributes = stamp(summary)         # fit_id, version and schema: in every file
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)}, attributes)
         if options.regions == "materials":
             from rjfit.pipeline.fit_materials import write_material_files
@@ -425,24 +417,13 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
 
 
 def write_changepoint_files(staging: Path, result: FitResult, records, options: FitOptions, attributes: dict) -> None:
-    """A change-point fit's ``chains.nc``, ``changepoints.npz`` and (with ``options.figures``) figures; every file
-    with ``attributes`` (:func:`rjfit.pipeline.fit_folder.file_attributes`)."""
+    """A change-point fit's ``chains.nc``, ``changepoints.npz`` and (``options.figures``) figures, all attributed."""
     summary, burn, max_v = result.summary, result.burn, options.max_v
-    effects = result.problem.effects
-    idata = chains_inference_data(records, burn, result.problem, changepoint_draws(records, burn, result.model),
-                                  region_dim="region", key_names=("n_u", "n_v"), max_v=max_v,
-                                  effect_names=() if effects is None else effects.names, attrs=attributes,
-                                  log_likelihood=effects is None)
-    n_u, n_v = result.model
-    idata.posterior.attrs.update({
-        "seed": options.seed, "burn_in_iterations": burn,
-        "regions": f"the kept draws of the MAP model (n_u, n_v) = ({n_u}, {n_v}), region r its cell r; every other "
-                   f"draw's model is in sample_stats (n_u, n_v, model_number), its regions in no group",
-        "parameters": PARAMETERS_ATTR})
-    summary["log_likelihood"] = log_likelihood_entry(idata)
-    idata.to_netcdf(str(staging / "chains.nc"))
-    save_chain_arrays(staging / "changepoints.npz", records, ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v"),
-                      attributes)
+    write_chains(staging / "chains.nc", records, result, changepoint_draws(records, burn, result.model), options,
+                 attributes, region_dim="region", key_names=("n_u", "n_v"), max_v=max_v,
+                 about=f"the kept draws of the MAP model (n_u, n_v) = {result.model}, region r its cell r; every other "
+                       f"draw's model is in sample_stats (n_u, n_v, model_number), its regions in no group")
+    save_chain_arrays(staging / "changepoints.npz", records, ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v"), attributes)
     if options.figures:
         from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
 

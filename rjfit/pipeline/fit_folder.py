@@ -34,7 +34,7 @@ from rjfit.io import publish, read_json, write_json_atomic
 
 __all__ = ["SUMMARY_FIELDS", "write_summary", "read_summary", "read_map_labels", "results_digest", "publish_results",
            "MAP_LABEL_FILES", "RESULT_FILES", "DERIVED_RESULTS", "PARAMETERS_ATTR", "save_chain_arrays",
-           "SCHEMA_VERSION", "file_attributes", "relative_paths", "resolved_paths", "PATH_ENTRIES"]
+           "SCHEMA_VERSION", "file_attributes", "stamp", "relative_paths", "resolved_paths", "PATH_ENTRIES"]
 
 #: the fit folder's schema: 1 before 2026-11-28 (absolute paths, chains.nc with NaN-padded regions and the log
 #: posterior in posterior); 2: paths relative to the folder, chains.nc in ArviZ's groups
@@ -66,6 +66,15 @@ def file_attributes(options_json: dict, fit_id: str | None = None) -> dict:
     if fit_id is not None:
         out["rjfit_fit_id"] = fit_id
     return out
+
+
+def stamp(summary: dict) -> dict:
+    """Add ``fit_id`` (:func:`results_digest`), ``rjfit_version`` and ``schema_version`` to a finished fit's
+    ``summary`` (with its ``fit_options``), and return its files' :func:`file_attributes`."""
+    summary["fit_id"] = results_digest(summary)
+    attributes = file_attributes(summary["fit_options"], summary["fit_id"])
+    summary.update(rjfit_version=attributes["rjfit_version"], schema_version=SCHEMA_VERSION)
+    return attributes
 
 
 def _path_entries(summary: dict):

@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.model.blinn import radiance
-from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
+from rjfit.pipeline.fit_chains import write_chains
+from rjfit.pipeline.fit_folder import save_chain_arrays
 from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
-from rjfit.posterior.inference_data import chains_inference_data, log_likelihood_entry
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 
 __all__ = ["summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
@@ -204,19 +204,11 @@ def material_number_warnings(materials, prior) -> list:
 def write_material_files(staging: Path, result, records, options, attributes: dict) -> None:
     """``chains.nc``, ``materials.npz`` and (with ``options.figures``) the figures, into ``staging``; the files with
     ``attributes`` (:func:`rjfit.pipeline.fit_folder.file_attributes`)."""
-    summary, burn, draws = result.summary, result.burn, result.extra["draws"]
-    effects = result.problem.effects
-    idata = chains_inference_data(records, burn, result.problem, (draws.theta, draws.iterations),
-                                  region_dim="material", key_names=("n_materials",),
-                                  effect_names=() if effects is None else effects.names, attrs=attributes,
-                                  log_likelihood=effects is None)
-    idata.posterior.attrs.update({
-        "seed": options.seed, "burn_in_iterations": burn,
-        "materials": f"the kept draws with K = {summary['map_materials']} (the MAP K), relabelled: "
-                     f"{mat.RELABELLING}; every kept draw's K is in sample_stats (n_materials)",
-        "parameters": PARAMETERS_ATTR})
-    summary["log_likelihood"] = log_likelihood_entry(idata)
-    idata.to_netcdf(str(staging / "chains.nc"))
+    summary, draws = result.summary, result.extra["draws"]
+    write_chains(staging / "chains.nc", records, result, (draws.theta, draws.iterations), options, attributes,
+                 region_dim="material", key_names=("n_materials",),
+                 about=f"the kept draws with K = {summary['map_materials']} (the MAP K), relabelled: "
+                       f"{mat.RELABELLING}; every kept draw's K is in sample_stats (n_materials)")
     save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"),
                       attributes)
     if options.figures:

@@ -261,6 +261,6 @@ def _log_likelihood_attrs(values, side: int, power: float) -> dict:
                            f"plain density); noise scales included; the material model's edge term is not in it")}
     if reff is not None:
         out["reff"] = reff
-        out["loo_note"] = ("az.loo(idata) takes r_eff from the posterior group's draws, which these thinned draws do not "
-                           "share; az.loo(idata, reff=idata.log_likelihood.attrs['reff']) uses the r_eff of these draws")
+        out["loo_note"] = ("az.loo(idata) takes r_eff from the posterior group's draws, which these thinned draws do "
+                           "not share; az.loo(idata, reff=idata.log_likelihood.attrs['reff']) uses these draws' r_eff")
     return out

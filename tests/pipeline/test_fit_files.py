@@ -106,7 +106,8 @@ def test_every_file_records_the_version_schema_and_options(fitted):
         assert header["rjfit_fit_options"] == options and header["rjfit_version"] == rjfit.__version__, name
     snapshots = "materials.npz" if summary["region_model"] == "materials" else "changepoints.npz"
     with np.load(out / snapshots) as arrays:
-        assert str(arrays["rjfit_schema_version"]) == str(SCHEMA_VERSION) and str(arrays["rjfit_fit_options"]) == options
+        assert str(arrays["rjfit_schema_version"]) == str(SCHEMA_VERSION)
+        assert str(arrays["rjfit_fit_options"]) == options
 
 
 def test_load_fit_round_trips(fitted):
