@@ -121,7 +121,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     Returns
     -------
     dict
-        The summary written to ``summary.json``.
+        The summary written to ``summary.json``, its paths absolute (the file's are relative to ``out_dir``).
 
     Raises
     ------
@@ -408,11 +408,10 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
         summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra, attributes)
         if source is not None:
             record_source(summary, source, staging, options)
-            relative_paths(summary, out_dir)
         if before_publish is not None:
             before_publish(staging, summary)
         summary["seconds"] = time.perf_counter() - started
-        write_summary(staging / "summary.json", summary)
+        write_summary(staging / "summary.json", relative_paths(summary, out_dir))     # the returned one: absolute
         publish_results(staging, out_dir)
 
 

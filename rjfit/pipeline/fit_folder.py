@@ -85,22 +85,29 @@ def _path_entries(summary: dict):
             yield holder, name
 
 
-def relative_paths(summary: dict, fit_dir) -> None:
-    """Store the summary's paths (:data:`PATH_ENTRIES`) relative to ``fit_dir``, in place (POSIX separators
-    kept as the platform writes them); a path on another drive stays absolute."""
+def relative_paths(summary: dict, fit_dir) -> dict:
+    """The summary with its paths (:data:`PATH_ENTRIES`) relative to ``fit_dir``, what summary.json stores (a
+    path on another drive stays absolute)."""
+    out = _copied(summary)
     base = Path(fit_dir).resolve()
-    for holder, name in _path_entries(summary):
+    for holder, name in _path_entries(out):
         try:
             holder[name] = os.path.relpath(Path(holder[name]).resolve(), base)
         except ValueError:          # another drive (Windows): no relative path
             pass
+    return out
+
+
+def _copied(summary: dict) -> dict:
+    """A copy of ``summary`` whose path entries (:data:`PATH_ENTRIES`) can be changed without changing it."""
+    return {key: dict(value) if isinstance(value, dict) and key in dict(PATH_ENTRIES) else value
+            for key, value in summary.items()}
 
 
 def resolved_paths(summary: dict, fit_dir) -> dict:
     """The summary with its relative paths (:data:`PATH_ENTRIES`) made absolute against ``fit_dir``; an absolute
     path (a fit folder of schema 1) is kept."""
-    out = {key: dict(value) if isinstance(value, dict) and key in dict(PATH_ENTRIES) else value
-           for key, value in summary.items()}
+    out = _copied(summary)
     base = Path(fit_dir).resolve()
     for holder, name in _path_entries(out):
         path = Path(holder[name])

@@ -145,7 +145,7 @@ def test_paths_are_stored_relative_and_read_back_absolute(tmp_path):
     fit_dir = tmp_path / "fits" / "ball"
     fit_dir.mkdir(parents=True)
     summary = {"dataset": str(data), "validation": {"passed": True, "path": str(data / "validation" / "v.json")}}
-    relative_paths(summary, fit_dir)
+    summary = relative_paths(summary, fit_dir)
     assert summary == {"dataset": "../../data/ball", "validation": {"passed": True,
                                                                     "path": "../../data/ball/validation/v.json"}}
     write_summary(fit_dir / "summary.json", summary)
