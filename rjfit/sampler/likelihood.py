@@ -32,7 +32,6 @@ from rjfit.sampler.passes import sums
 
 __all__ = ["STAT_N", "STAT_YY", "STAT_YA", "STAT_AA", "STAT_YB", "STAT_AB", "STAT_BB", "LOG_2PI", "region_stats",
            "log_likelihood_from_stats", "log_lik_large_ab", "AB_PLAIN_MAX", "MEAN_NORM_MAX", "oracle_log_likelihood",
-           "observation_log_density",
            "ab_from_theta", "b_terms", "index_dtype", "RegionData", "label_runs", "lobe_column", "memoised"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
@@ -315,15 +314,7 @@ def log_lik_large_ab(stats_r, a, b, s2) -> float:
 
 
 def oracle_log_likelihood(problem: Problem, labels, theta) -> float:
-    """Eq. 1-2 evaluated directly per observation (the plain full recompute), in float64: the
-    likelihood power times the sum of :func:`observation_log_density`."""
-    return problem.likelihood_power * float(np.sum(observation_log_density(problem, labels, theta)))
-
-
-def observation_log_density(problem: Problem, labels, theta) -> np.ndarray:
-    """Each observation's Gaussian log density of eq. 1-2 at its region's parameters, float64 (untempered).
-
-    ``labels`` gives each observation's row of ``theta`` (N,); ``theta`` is (R, 4).
+    """Eq. 1-2 evaluated directly per observation (the plain full recompute), in float64.
 
     Reads the Problem's own float32 arrays, the same data the sufficient statistics see:
     ``radiance`` with ``<l.n> E`` as one factor (``C``) and ``<h.n> = exp(log_cos_hn)``.
@@ -352,4 +343,4 @@ def observation_log_density(problem: Problem, labels, theta) -> np.ndarray:
             B *= problem.noise_scale.astype(np.float64)
         mu = a * C / np.pi + b * B
     resid = y - mu
-    return -0.5 * (LOG_2PI + np.log(var)) - 0.5 * resid * resid / var
+    return problem.likelihood_power * float(np.sum(-0.5 * (LOG_2PI + np.log(var)) - 0.5 * resid * resid / var))
