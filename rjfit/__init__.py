@@ -10,6 +10,7 @@ from rjfit.data.dataset import Dataset
 from rjfit.data.lights import Light, geometry_terms
 from rjfit.data.observations import Observations, observations_from_stack, valid_observation_mask
 from rjfit.model.blinn import blinn_normalisation, brdf, radiance
+from rjfit.pipeline.load import LoadedFit, load_fit
 from rjfit.render.datasets import load_dataset
 
 __version__ = _installed_version("rjfit")   # pyproject.toml is the one place the version is written
@@ -18,11 +19,13 @@ __all__ = [
     "__version__",
     "Dataset",
     "Light",
+    "LoadedFit",
     "Observations",
     "blinn_normalisation",
     "brdf",
     "geometry_terms",
     "load_dataset",
+    "load_fit",
     "observations_from_stack",
     "radiance",
     "valid_observation_mask",

@@ -8,10 +8,10 @@ Outputs in ``out_dir`` (each written atomically):
 
 - ``summary.json``: see :data:`rjfit.pipeline.fit_folder.SUMMARY_FIELDS`;
 - ``labels.exr``: MAP labels (channel ``labels``, -1 off the object);
-- ``chains.nc``: full chains as ArviZ InferenceData (dims chain, draw, region, parameter);
+- ``chains.nc``: the chains as ArviZ InferenceData (:mod:`rjfit.posterior.inference_data`);
 - ``changepoints.npz``: thinned change-point snapshots per chain;
 - with ``--regions materials`` (:mod:`rjfit.pipeline.fit_materials`): labels.exr holds the
-  MAP material, chains.nc the relabelled draws (dims chain, draw, material, parameter),
+  MAP material, chains.nc the relabelled draws at the MAP K (dims chain, draw, material, parameter),
   ``materials.npz`` the label snapshots instead of changepoints.npz, and maps.exr the
   per-pixel probability of the MAP material (``map_probability``);
 - ``maps.exr``: per-pixel parameters, labels, valid-images count and residual RMS
@@ -42,8 +42,10 @@ from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import check_writable, staging_dir
 from rjfit.model.blinn import radiance
-from rjfit.pipeline.fit_folder import (PARAMETERS_ATTR, kept_chains, publish_results, remove_checkpoints,
-                                      results_digest, save_chain_arrays, write_summary)
+from rjfit.pipeline.fit_chains import write_chains
+from rjfit.pipeline.fit_folder import (kept_chains, publish_results, relative_paths,
+                                      remove_checkpoints, save_chain_arrays, stamp,
+                                      write_summary)
 from rjfit.pipeline.fit_power import noise_and_power
 from rjfit.pipeline.fit_settings import sampler_config
 from rjfit.pipeline.options import FitOptions
@@ -51,6 +53,7 @@ from rjfit.pipeline.resolve import resolve_options
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
 from rjfit.posterior.effects import effect_summaries
+from rjfit.posterior.inference_data import changepoint_draws
 from rjfit.progress import phase
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
 from rjfit.sampler.priors import make_prior
@@ -116,7 +119,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     Returns
     -------
     dict
-        The summary written to ``summary.json``.
+        The summary written to ``summary.json``, its paths absolute (the file's are relative to ``out_dir``).
 
     Raises
     ------
@@ -358,37 +361,33 @@ def _stage_and_publish(out_dir: Path, result: FitResult, records, observations, 
                        source: FitSource | None, before_publish, started: float) -> None:
     summary = result.summary
     with staging_dir(out_dir) as staging, phase("writing the results and figures", options.progress):
-        write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)})
-        summary["fit_id"] = results_digest(summary)
+        attributes = stamp(summary)         # fit_id, version and schema: in every file
+        write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)}, attributes)
         if options.regions == "materials":
             from rjfit.pipeline.fit_materials import write_material_files
 
-            write_material_files(staging, result, records, options)
+            write_material_files(staging, result, records, options, attributes)
         else:
-            write_changepoint_files(staging, result, records, options)
+            write_changepoint_files(staging, result, records, options, attributes)
         extra = {name: result.extra[name] for name in ("map_probability", "edge_group") if name in result.extra} or None
-        summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra)
+        summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra, attributes)
         if source is not None:
             record_source(summary, source, staging, options)
         if before_publish is not None:
             before_publish(staging, summary)
         summary["seconds"] = time.perf_counter() - started
-        write_summary(staging / "summary.json", summary)
+        write_summary(staging / "summary.json", relative_paths(summary, out_dir))     # the returned one: absolute
         publish_results(staging, out_dir)
 
 
-def write_changepoint_files(staging: Path, result: FitResult, records, options: FitOptions) -> None:
-    """A change-point fit's ``chains.nc``, ``changepoints.npz`` and (with ``options.figures``) figures."""
+def write_changepoint_files(staging: Path, result: FitResult, records, options: FitOptions, attributes: dict) -> None:
+    """A change-point fit's ``chains.nc``, ``changepoints.npz`` and (``options.figures``) figures, all attributed."""
     summary, burn, max_v = result.summary, result.burn, options.max_v
-    effect_names = () if result.problem.effects is None else result.problem.effects.names
-    idata = post.to_inference_data(records, burn, max_v, effect_names)
-    idata.posterior.attrs.update({
-        "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
-        "regions": f"region r of a draw is cell r of its model (n_u, n_v); slots past (n_u + 1)(n_v + 1) "
-                   f"are NaN (the region dimension has room for the largest model, {options.max_u}, {max_v})",
-        "parameters": PARAMETERS_ATTR})
-    idata.to_netcdf(str(staging / "chains.nc"))
-    save_chain_arrays(staging / "changepoints.npz", records, ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v"))
+    write_chains(staging / "chains.nc", records, result, changepoint_draws(records, burn, result.model), options,
+                 attributes, region_dim="region", key_names=("n_u", "n_v"), max_v=max_v,
+                 about=f"the kept draws of the MAP model (n_u, n_v) = {result.model}, region r its cell r; every other "
+                       f"draw's model is in sample_stats (n_u, n_v, model_number), its regions in no group")
+    save_chain_arrays(staging / "changepoints.npz", records, ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v"), attributes)
     if options.figures:
         from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
 
@@ -411,7 +410,8 @@ def record_source(summary: dict, source: FitSource, staging: Path, options: FitO
     summary["warnings"][:0] = list(source.warnings)
 
 
-def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, extra_channels=None) -> str:
+def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, extra_channels=None,
+                         attributes=None) -> str:
     """Per-pixel maps of the MAP segmentation as one EXR: each region's posterior mean and sd
     of I0, kd, gamma, sigma^2, the label, the valid-images count (paper, Fig. 8) and the RMS
     over lights of the standardised residual ``(y - mu) / (sigma s)`` (``s`` the known noise
@@ -420,7 +420,7 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, 
     The residual is ``prediction["residual_rms"]`` when given (the posterior mean prediction,
     averaged draw by draw: :func:`rjfit.posterior.summary.posterior_mean_prediction`, what a
     fit passes), else computed at the summary's region means on these labels (a plug-in that
-    mixes modes when chains disagree)."""
+    mixes modes when chains disagree). ``attributes`` go into the file's header."""
     labels = np.rint(np.nan_to_num(read_exr(out_dir / "labels.exr")["labels"], nan=-1)).astype(int)
     names = ("I0", "kd", "gamma", "sigma2")
     colour = bool(summary["regions"]) and "channels" in summary["regions"][0]
@@ -452,7 +452,7 @@ def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, 
         rms = np.where(count > 0, np.sqrt(sum_squares / np.maximum(count, 1)), np.nan).reshape(labels.shape)
     channels.update(label=labels, valid_images=count.reshape(labels.shape), residual_rms=rms)
     channels.update(extra_channels or {})
-    write_exr(out_dir / "maps.exr", channels)
+    write_exr(out_dir / "maps.exr", channels, attributes)
     return "maps.exr"
 
 

@@ -11,7 +11,6 @@ import functools
 import math
 from pathlib import Path
 
-import numpy as np
 
 from rjfit.data.calibrate import calibrate_measured
 from rjfit.data.dataset import read_validation_result

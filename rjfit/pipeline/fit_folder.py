@@ -7,7 +7,14 @@ checks a folder's summary against it. Its readers (``rjfit report``, ``rjfit dia
 ``rjfit compare --fit``) get the contents, or one :class:`~rjfit.errors.DatasetError` that
 names the file, says what is wrong with it and what to do: a damaged or hand-edited file
 never reaches them as a traceback. (``chains.nc`` is read by ArviZ itself:
-``arviz.from_netcdf``.)
+``arviz.from_netcdf``; :func:`rjfit.pipeline.load.load_fit` reads the whole folder.)
+
+Every file a fit writes records rjfit's version, :data:`SCHEMA_VERSION` and the fit's
+options (:func:`file_attributes`): summary.json as entries, chains.nc in every group's
+attributes, the EXR files in their headers, the ``.npz`` files as arrays. Paths in
+summary.json (``dataset``, ``validation.path``) are relative to the fit folder
+(:func:`relative_paths`); :func:`read_summary` gives them back resolved, and reads the
+absolute paths of folders written before schema 2 as they are.
 """
 from __future__ import annotations
 
@@ -15,6 +22,7 @@ import hashlib
 import json
 import os
 from contextlib import contextmanager, suppress
+from importlib.metadata import version as installed_version
 from pathlib import Path
 
 import numpy as np
@@ -27,20 +35,86 @@ from rjfit.io import os_error_text, publish, read_json, write_json_atomic
 
 __all__ = ["SUMMARY_FIELDS", "write_summary", "read_summary", "read_map_labels", "results_digest", "publish_results",
            "MAP_LABEL_FILES", "RESULT_FILES", "DERIVED_RESULTS", "PARAMETERS_ATTR", "save_chain_arrays",
-           "kept_chains", "remove_checkpoints"]
+           "kept_chains", "remove_checkpoints",
+           "SCHEMA_VERSION", "file_attributes", "stamp", "relative_paths", "resolved_paths", "PATH_ENTRIES"]
+
+#: the fit folder's schema: 1 before 2026-11-28 (absolute paths, chains.nc with NaN-padded regions and the log
+#: posterior in posterior); 2: paths relative to the folder, chains.nc in ArviZ's groups
+#: (rjfit.posterior.inference_data), version, schema and options in every file
+SCHEMA_VERSION = 2
+#: the summary's paths, as (entry, key within it or None): stored relative to the fit folder
+PATH_ENTRIES = (("dataset", None), ("validation", "path"))
 
 #: what chains.nc says its parameter dimension holds (either region model)
 PARAMETERS_ATTR = ("I0 (intensity), kd (diffuse fraction), gamma (Blinn-Phong exponent), sigma2 (noise variance), "
                    "in the units of the observations")
 
 
-def save_chain_arrays(path, records, keys) -> None:
-    """Each chain's record fields ``keys`` into one compressed ``.npz`` (``chain{c}_{key}``)."""
-    import numpy as np
-
+def save_chain_arrays(path, records, keys, attributes=None) -> None:
+    """Each chain's record fields ``keys`` into one compressed ``.npz`` (``chain{c}_{key}``), with
+    ``attributes`` (:func:`file_attributes`) as 0-d string arrays of their names."""
     payload = {f"chain{c}_{k}": getattr(r, k) for c, r in enumerate(records) for k in keys}
+    payload.update({name: np.array(value) for name, value in (attributes or {}).items()})
     with open(path, "wb") as handle:
         np.savez_compressed(handle, **payload)
+
+
+def file_attributes(options_json: dict, fit_id: str | None = None) -> dict:
+    """What every file of a fit records of it, as strings: ``rjfit_version``, ``rjfit_schema_version``,
+    ``rjfit_fit_options`` (JSON of :meth:`FitOptions.to_json <rjfit.pipeline.options.FitOptions.to_json>`)
+    and, when given, ``rjfit_fit_id``."""
+    out = {"rjfit_version": installed_version("rjfit"), "rjfit_schema_version": str(SCHEMA_VERSION),
+           "rjfit_fit_options": json.dumps(options_json, sort_keys=True)}
+    if fit_id is not None:
+        out["rjfit_fit_id"] = fit_id
+    return out
+
+
+def stamp(summary: dict) -> dict:
+    """Add ``fit_id`` (:func:`results_digest`), ``rjfit_version`` and ``schema_version`` to a finished fit's
+    ``summary`` (with its ``fit_options``), and return its files' :func:`file_attributes`."""
+    summary["fit_id"] = results_digest(summary)
+    attributes = file_attributes(summary["fit_options"], summary["fit_id"])
+    summary.update(rjfit_version=attributes["rjfit_version"], schema_version=SCHEMA_VERSION)
+    return attributes
+
+
+def _path_entries(summary: dict):
+    """``(holder, key)`` of every path of :data:`PATH_ENTRIES` that ``summary`` holds as a string."""
+    for entry, key in PATH_ENTRIES:
+        holder, name = (summary, entry) if key is None else (summary.get(entry), key)
+        if isinstance(holder, dict) and isinstance(holder.get(name), str):
+            yield holder, name
+
+
+def relative_paths(summary: dict, fit_dir) -> dict:
+    """The summary with its paths (:data:`PATH_ENTRIES`) relative to ``fit_dir``, what summary.json stores (a
+    path on another drive stays absolute)."""
+    out = _copied(summary)
+    base = Path(fit_dir).resolve()
+    for holder, name in _path_entries(out):
+        try:
+            holder[name] = os.path.relpath(Path(holder[name]).resolve(), base)
+        except ValueError:          # another drive (Windows): no relative path
+            pass
+    return out
+
+
+def _copied(summary: dict) -> dict:
+    """A copy of ``summary`` whose path entries (:data:`PATH_ENTRIES`) can be changed without changing it."""
+    return {key: dict(value) if isinstance(value, dict) and key in dict(PATH_ENTRIES) else value
+            for key, value in summary.items()}
+
+
+def resolved_paths(summary: dict, fit_dir) -> dict:
+    """The summary with its relative paths (:data:`PATH_ENTRIES`) made absolute against ``fit_dir``; an absolute
+    path (a fit folder of schema 1) is kept."""
+    out = _copied(summary)
+    base = Path(fit_dir).resolve()
+    for holder, name in _path_entries(out):
+        path = Path(holder[name])
+        holder[name] = str(path if path.is_absolute() else os.path.normpath(base / path))
+    return out
 
 #: file names of the MAP labels in a fit folder, tried in this order (the fit writes labels.exr)
 MAP_LABEL_FILES = ("map_labels.exr", "labels.exr")
@@ -101,6 +175,10 @@ SUMMARY_FIELDS = {
                                 "ratio was NaN) over all chains"),
     "data_defaults": (list, "what the data chose of the options not given, one line each: the measured default "
                             "and how to opt out, a declared calibration applied (rjfit.pipeline.resolve)"),
+    "rjfit_version": (str, "the rjfit version that wrote the fit"),
+    "schema_version": (int, "the fit folder's schema (rjfit.pipeline.fit_folder.SCHEMA_VERSION; absent: 1)"),
+    "log_likelihood": (dict, "the size of chains.nc's log_likelihood group (points, block_pixels, chains, "
+                             "draws_per_chain, values, likelihood_power), or why it is absent (note)"),
     "fit_options": (dict, "every option of the fit (rjfit.pipeline.options.FitOptions.to_json) and, under sources, "
                           "where each value came from (given, data, preset, default): `rjfit refine` fits again with "
                           "the given ones, plus the effects named"),
@@ -144,7 +222,7 @@ SUMMARY_FIELDS = {
     "figures": (dict, "figure name -> file in the fit folder"),
     "maps": (str, "the per-pixel maps file"),
     # the data set it was made from
-    "dataset": (str, "the data set folder"),
+    "dataset": (str, "the data set folder, relative to the fit folder (schema 1: absolute)"),
     "dataset_sha256": (str, "digest of the data set's files"),
     "channel": (str, "the colour channel fitted"),
     "crop": (dict, "where the maps sit in the original frame (row0, col0)"),
@@ -154,7 +232,8 @@ SUMMARY_FIELDS = {
                                 "observation (--max-view-angle; --preset measured)"),
     "rim_pixels": (int, "object pixels beyond max_view_angle: no observation, their labels follow their "
                         "neighbours'"),
-    "validation": (dict, "the cross-check the fit was made under: passed, errors, path, note"),
+    "validation": (dict, "the cross-check the fit was made under: passed, errors, path (relative to the fit folder; "
+                         "schema 1: absolute), note"),
 }
 _TYPE_NAMES = {str: "a string", dict: "an object", list: "a list", float: "a number", int: "an integer",
                bool: "true or false", _NUMBER: "a number"}
@@ -272,6 +351,11 @@ def read_summary(fit_dir) -> dict:
         A folder ``rjfit fit`` wrote. No entry is required (a reader checks those it cannot
         do without); each entry of :data:`SUMMARY_FIELDS` that is there must have its type.
 
+    Returns
+    -------
+    dict
+        The summary, its paths (:data:`PATH_ENTRIES`) absolute (:func:`resolved_paths`).
+
     Raises
     ------
     DatasetFileNotFoundError
@@ -320,7 +404,7 @@ def read_summary(fit_dir) -> dict:
         problems.append(f"'channel' is {summary['channel']!r}, not one of {', '.join(CHANNELS + (COLOUR,))}")
     if problems:
         raise DatasetError(f"{path}: not a summary `rjfit fit` wrote ({'; '.join(problems)}); {_again(fit_dir)}")
-    return summary
+    return resolved_paths(summary, fit_dir)
 
 
 def read_map_labels(fit_dir, mask) -> np.ndarray:

@@ -6,7 +6,8 @@
 (``regions``, one entry per material, after relabelling: :mod:`rjfit.posterior.materials`),
 their R-hat and ESS, the cap warning, and the truth comparison of synthetic data.
 :func:`write_material_files` writes what differs from a change-point fit's folder:
-``chains.nc`` (dims chain, draw, material, parameter: the relabelled draws),
+``chains.nc`` (:mod:`rjfit.posterior.inference_data`; posterior dims chain, draw, material, parameter: the
+relabelled draws at the MAP K),
 ``materials.npz`` (every chain's label snapshots and K per iteration) and the figures
 (``materials.png``, the MAP material map, a distinct colour per material however many;
 ``materials_histogram.png``; ``reflectance.png``). ``labels.exr`` holds the MAP material
@@ -20,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.model.blinn import radiance
-from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, save_chain_arrays
+from rjfit.pipeline.fit_chains import write_chains
+from rjfit.pipeline.fit_folder import save_chain_arrays
 from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
@@ -199,17 +201,16 @@ def material_number_warnings(materials, prior) -> list:
             + caveats.pooled_interval_warnings(rows))
 
 
-def write_material_files(staging: Path, result, records, options) -> None:
-    """``chains.nc``, ``materials.npz`` and (with ``options.figures``) the figures, into ``staging``."""
-    summary, burn = result.summary, result.burn
-    idata = mat.to_inference_data(records, burn, result.extra["draws"])
-    idata.posterior.attrs.update({
-        "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
-        "materials": f"the kept draws with K = {summary['map_materials']} (the MAP K), relabelled: "
-                     f"{mat.RELABELLING}",
-        "parameters": PARAMETERS_ATTR})
-    idata.to_netcdf(str(staging / "chains.nc"))
-    save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"))
+def write_material_files(staging: Path, result, records, options, attributes: dict) -> None:
+    """``chains.nc``, ``materials.npz`` and (with ``options.figures``) the figures, into ``staging``; the files with
+    ``attributes`` (:func:`rjfit.pipeline.fit_folder.file_attributes`)."""
+    summary, draws = result.summary, result.extra["draws"]
+    write_chains(staging / "chains.nc", records, result, (draws.theta, draws.iterations), options, attributes,
+                 region_dim="material", key_names=("n_materials",),
+                 about=f"the kept draws with K = {summary['map_materials']} (the MAP K), relabelled: "
+                       f"{mat.RELABELLING}; every kept draw's K is in sample_stats (n_materials)")
+    save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"),
+                      attributes)
     if options.figures:
         from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
 

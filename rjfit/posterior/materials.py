@@ -22,11 +22,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from rjfit.data.formats import COLOUR_CHANNELS
-from rjfit.posterior.summary import _arviz, diagnostics, region_summaries
-from rjfit.sampler.priors import PARAM_NAMES
+from rjfit.posterior.summary import diagnostics, region_summaries
 
 __all__ = ["materials_posterior", "count_shares", "map_materials", "RelabelledDraws", "relabelled_draws",
-           "material_summaries", "to_inference_data", "cap_warning", "RELABELLING"]
+           "material_summaries", "cap_warning", "RELABELLING"]
 
 #: How draws are matched to the MAP labelling (written into the summary).
 RELABELLING = ("kept draws with K = MAP K, each label snapshot relabelled to the snapshot of highest log posterior by "
@@ -72,10 +71,12 @@ class RelabelledDraws:
         Per chain, the relabelled pixel labels of its snapshot draws at K (-1 unlabelled).
     reference : ndarray (H, W)
         The reference labelling.
+    iterations : list of ndarray (D_c,)
+        Per chain, the iteration of each of its draws in ``theta`` (None: not given).
     """
 
-    def __init__(self, theta, labels, reference):
-        self.theta, self.labels, self.reference = theta, labels, reference
+    def __init__(self, theta, labels, reference, iterations=None):
+        self.theta, self.labels, self.reference, self.iterations = theta, labels, reference, iterations
 
     def map_labels(self):
         """(MAP material per pixel, its posterior probability): the per-pixel mode of the relabelled labels."""
@@ -127,9 +128,9 @@ def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1) -> Rela
         raise ValueError(f"no label snapshot with {k} materials after burn-in: run more iterations")
     reference = best[1]
     labelled = reference >= 0
-    thetas, all_labels = [], []
+    thetas, all_labels, all_iterations = [], [], []
     for rec in records:
-        theta_c, labels_c = [], []
+        theta_c, labels_c, iterations_c = [], [], []
         for t, labels in _snapshots(rec, burn_in, k):
             overlap = np.zeros((k, k), np.int64)
             np.add.at(overlap, (labels[labelled], reference[labelled]), 1)
@@ -140,10 +141,12 @@ def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1) -> Rela
             theta = np.empty((same_numbering.size, k, n_channels, 4))
             theta[:, to_reference] = rec.theta[same_numbering, :k * n_channels].reshape(-1, k, n_channels, 4)
             theta_c.extend(theta if n_channels > 1 else theta[:, :, 0])
+            iterations_c.extend(same_numbering)
             labels_c.append(np.where(labelled, to_reference[np.clip(labels, 0, None)], -1))
         thetas.append(np.array(theta_c).reshape(-1, k, *((n_channels,) if n_channels > 1 else ()), 4))
         all_labels.append(np.array(labels_c).reshape(-1, *reference.shape))
-    return RelabelledDraws(thetas, all_labels, reference)
+        all_iterations.append(np.array(iterations_c, np.int64))
+    return RelabelledDraws(thetas, all_labels, reference, all_iterations)
 
 
 def material_summaries(draws: RelabelledDraws, map_labels) -> tuple[list, dict]:
@@ -182,26 +185,3 @@ def cap_warning(posterior: dict, max_materials: int, threshold: float = 0.05) ->
         return None
     return (f"the posterior puts {mass:.2f} on K = {max_materials} materials, the cap (--max-materials): the data may "
             "support more materials than the cap allows; refit with a higher --max-materials")
-
-
-def to_inference_data(records, burn_in: int, draws: RelabelledDraws):
-    """ArviZ InferenceData: the relabelled draws (chain, draw, material, parameter) and K per iteration.
-
-    Chains are cut to the shortest chain's number of relabelled draws (ArviZ needs equal
-    lengths; a chain with none is left out of ``posterior``); ``n_materials`` and
-    ``log_post`` of every kept iteration are in ``sample_stats``.
-    """
-    az = _arviz()
-    usable = [theta for theta in draws.theta if len(theta)]
-    length = min(len(theta) for theta in usable)
-    k = usable[0].shape[1]
-    posterior = {"theta": np.stack([theta[:length] for theta in usable])}
-    T = min(len(r.n_materials) for r in records)
-    sample_stats = {"n_materials": np.stack([r.n_materials[burn_in:T] for r in records]).astype(np.int64),
-                    "log_post": np.stack([r.log_post[burn_in:T] for r in records])}
-    coords = {"material": np.arange(k), "parameter": list(PARAM_NAMES)}
-    dims = ["material", "parameter"]
-    if usable[0].ndim == 4:       # a joint colour fit: (chain, draw, material, channel, parameter)
-        coords["channel"] = list(COLOUR_CHANNELS[:usable[0].shape[2]])
-        dims = ["material", "channel", "parameter"]
-    return az.from_dict(posterior=posterior, sample_stats=sample_stats, coords=coords, dims={"theta": dims})

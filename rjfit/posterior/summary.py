@@ -13,7 +13,7 @@ from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
 
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
-           "object_region_count_probability", "to_inference_data", "model_key", "convergence_warnings",
+           "object_region_count_probability", "model_key", "convergence_warnings",
            "chain_log_posterior_means",
            "RHAT_MAX", "ESS_PER_CHAIN_MIN", "TV_MAX", "chain_region_summaries",
            "posterior_mean_prediction"]
@@ -445,38 +445,5 @@ def object_region_count_probability(records, burn_in: int, n_regions: int) -> fl
     """Posterior probability that the observed object pixels fall into exactly ``n_regions`` non-empty regions."""
     counts = np.concatenate([r.object_regions[burn_in:] for r in records])
     return float(np.mean(counts == n_regions))
-
-
-def to_inference_data(records, burn_in: int, max_v: int, effect_names=()):
-    """ArviZ InferenceData of the full chains (warm-up included as ``warmup_posterior``).
-
-    ``posterior.theta`` has dims (chain, draw, region, parameter), NaN where a region does
-    not exist in the draw's model; ``n_u``, ``n_v``, ``model_number`` and ``log_lik`` are
-    per draw. A fit with effects adds ``effects`` (chain, draw, effect_parameter), each
-    parameter constrained and named ``effect.parameter`` (``effect_names``).
-    """
-    az = _arviz()
-
-    T = min(len(r.n_u) for r in records)
-
-    def stack(name):
-        return np.stack([getattr(r, name)[:T] for r in records])
-
-    n_u, n_v = stack("n_u").astype(np.int64), stack("n_v").astype(np.int64)
-    data = {"theta": stack("theta"), "n_u": n_u, "n_v": n_v,
-            "model_number": n_u * (max_v + 1) + n_v + 1, "log_lik": stack("log_lik"), "log_post": stack("log_post")}
-    r_max = data["theta"].shape[2]
-    coords = {"region": np.arange(r_max), "parameter": list(PARAM_NAMES)}
-    dims = {"theta": ["region", "parameter"]}
-    if effect_names:        # the effects sampled with the regions: one column per parameter, constrained
-        data["effects"] = stack("effects")
-        coords["effect_parameter"] = list(effect_names)
-        dims["effects"] = ["effect_parameter"]
-    posterior = {k: v[:, burn_in:] for k, v in data.items()}
-    warmup = {k: v[:, :burn_in] for k, v in data.items()}
-    stats = {"exact_truth": stack("exact_truth")[:, burn_in:], "true_regions": stack("true_regions")[:, burn_in:],
-             "object_regions": stack("object_regions")[:, burn_in:]}
-    return az.from_dict(posterior=posterior, warmup_posterior=warmup, sample_stats=stats, coords=coords, dims=dims,
-                        save_warmup=True)
 
 

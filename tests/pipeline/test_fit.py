@@ -46,7 +46,9 @@ def test_fit_writes_summary_labels_chains_and_figures(fitted):
     idata = az.from_netcdf(out / "chains.nc")
     assert idata.posterior["theta"].dims == ("chain", "draw", "region", "parameter")
     assert idata.posterior.attrs["rjfit_fit_id"] == on_disk["fit_id"]
-    assert idata.posterior["theta"].shape[:2] == (2, 500)
+    # the MAP model's draws of every kept iteration (the chains start in it), every iteration's lp beside them
+    assert idata.posterior["theta"].shape[:3] == (2, 500, 4)
+    assert idata.sample_stats["lp"].shape == (2, 500) and idata.warmup_sample_stats["lp"].shape == (2, 500)
     for name in ("model_histogram", "traces", "changepoints", "reflectance"):
         assert (out / "figures" / f"{name}.png").stat().st_size > 1000
     # checkpoints (every 250 of 1000 iterations) are cleared once the results are written,

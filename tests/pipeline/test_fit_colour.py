@@ -56,8 +56,14 @@ def test_colour_fit_writes_per_channel_parameters(fitted):
         assert {"mean", "sd", "q2.5", "q97.5"} <= set(region["channels"]["R"]["I0"])
     import arviz as az
 
-    theta = az.from_netcdf(str(out / "chains.nc")).posterior["theta"]
+    idata = az.from_netcdf(str(out / "chains.nc"))
+    theta = idata.posterior["theta"]
     assert theta.dims[2:] == ("material", "channel", "parameter") and list(theta["channel"].values) == ["R", "G", "B"]
+    # each draw's pointwise log likelihood (a row per material and channel) sums to the chain's own, 1e-8 relative
+    # (another order of float64 sums; tests/pipeline/test_fit_files.py says why that tolerance)
+    iterations = idata.log_likelihood["iteration"].values
+    chain_totals = idata.sample_stats["log_lik"].values[np.arange(2)[:, None], iterations - summary["burn_in"]]
+    np.testing.assert_allclose(idata.log_likelihood["y"].sum("pixel_block").values, chain_totals, rtol=1e-8)
     maps = read_exr(out / "maps.exr")
     assert {"gamma", "I0_R", "kd_B", "sigma2_G", "residual_rms"} <= set(maps)
     assert (out / summary["figures"]["reflectance"]).is_file()       # the colour reflectance figure

@@ -58,9 +58,13 @@ def test_chains_nc_holds_the_effect_draws_and_the_report_shows_them(fitted):
     out, summary = fitted
     idata = az.from_netcdf(str(out / "chains.nc"))
     assert list(idata.posterior["effects"].coords["effect_parameter"].values) == ["ambient.ambient"]
-    draws = idata.posterior["effects"].values
-    assert draws.shape[:2] == (1, summary["iterations"] - summary["burn_in"]) and (draws > 0).all()
-    assert idata.warmup_posterior["effects"].shape[1] == summary["burn_in"]
+    draws = idata.posterior["effects"].values       # at the MAP model's kept draws, beside their regions
+    kept = summary["iterations"] - summary["burn_in"]
+    assert draws.shape[0] == 1 and 0 < draws.shape[1] <= kept and (draws > 0).all()
+    assert idata.sample_stats["lp"].shape == (1, kept)
+    assert idata.warmup_sample_stats["lp"].shape == (1, summary["burn_in"])
+    # no pointwise log likelihood for a fit with effects (their per-observation transform is not recorded)
+    assert "log_likelihood" not in idata.groups() and "note" in summary["log_likelihood"]
     page = build_report(out).read_text()
     assert "Effects sampled with the regions" in page and "ambient" in page
 

@@ -32,11 +32,13 @@ def fitted(tmp_path_factory):
 
 @pytest.fixture
 def copy(fitted, tmp_path, monkeypatch):
-    """A copy of the fit folder to break, and the commands that read it (tracebacks off)."""
+    """A copy of the fit folder to break, beside a copy of its data set (the summary names the data set relative
+    to the fit folder), and the commands that read it (tracebacks off)."""
     monkeypatch.delenv("RJFIT_DEBUG", raising=False)
     dataset, fit = fitted
     shutil.copytree(fit, tmp_path / "fit")
-    fit = tmp_path / "fit"
+    shutil.copytree(dataset, tmp_path / dataset.name)
+    fit, dataset = tmp_path / "fit", tmp_path / dataset.name
     commands = {"report": ["report", str(fit)],
                 "diagnose": ["diagnose", str(fit), "--max-steps", "0", "--no-simulate", "--out", str(tmp_path / "d")],
                 "compare": ["compare", str(dataset), "--fit", str(fit), "--out", str(tmp_path / "c")]}
@@ -86,6 +88,20 @@ def truncate(fit):
 def test_the_unbroken_fit_folder_is_read_by_every_reader(copy):
     """Every failure below is due to the one thing broken."""
     fit, commands = copy
+    for name, command in commands.items():
+        result = CliRunner().invoke(main, command)
+        assert result.exit_code == 0, (name, result.output)
+
+
+def test_a_fit_folder_of_schema_1_with_absolute_paths_is_read_by_every_reader(copy):
+    """Fit folders written before paths became relative (schema 1) name their data set by its absolute path."""
+    fit, commands = copy
+    summary = json.loads((fit / "summary.json").read_text())
+    assert not summary["dataset"].startswith("/") and summary["schema_version"] == 2
+    summary["dataset"] = str((fit / summary["dataset"]).resolve())
+    for key in ("schema_version", "rjfit_version", "log_likelihood"):
+        summary.pop(key)
+    (fit / "summary.json").write_text(json.dumps(summary))
     for name, command in commands.items():
         result = CliRunner().invoke(main, command)
         assert result.exit_code == 0, (name, result.output)
@@ -172,7 +188,7 @@ def test_a_truncated_summary_is_named_by_every_reader(copy):
 def test_a_missing_summary_or_dataset_entry(copy):
     fit, commands = copy
     summary = json.loads((fit / "summary.json").read_text())
-    dataset = summary.pop("dataset")
+    dataset = (fit / summary.pop("dataset")).resolve()       # stored relative to the fit folder
     (fit / "summary.json").write_text(json.dumps(summary))
     assert one_error_line(commands["diagnose"]) == (f"Error: {fit}/summary.json: no 'dataset' entry; pass the data "
                                                     f"set (--dataset DIR)")
