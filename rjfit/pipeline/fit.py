@@ -55,9 +55,9 @@ from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
 from rjfit.posterior.effects import effect_summaries
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
-from rjfit.sampler.moves.birth_death import BirthDeathSettings
+from rjfit.sampler.regions.changepoints.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
-from rjfit.sampler.regions.changepoint_grid import model_number
+from rjfit.sampler.regions.changepoints.grid import model_number
 from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.runner import ChainSpec, run_chains
 from rjfit.sampler.state import SamplerConfig, flat_option_applies

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from rjfit.sampler.priors import PARAM_NAMES
-from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
+from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
 
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
@@ -277,7 +277,7 @@ def draw_labels(record, snapshot: int, problem) -> tuple[int, np.ndarray]:
     """(number of regions, region of every observation of ``problem``) of a chain's layout snapshot
     (change points, or material labels per pixel; for a joint colour fit parameter rows,
     ``material C + channel``, and their number)."""
-    from rjfit.sampler.regions.changepoint_grid import obs_region_labels
+    from rjfit.sampler.regions.changepoints.grid import obs_region_labels
 
     t = record.cp_iteration[snapshot]
     if getattr(record, "n_materials", None) is not None:      # materials: the snapshot holds the labels

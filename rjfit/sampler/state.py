@@ -2,7 +2,7 @@
 
 The state (:class:`ChainState`) is a frozen dataclass whose arrays the kernel never writes
 to: a step builds new arrays for what it changes. Its ``layout`` is the region model's
-structure (for change points :class:`~rjfit.sampler.regions.changepoint_grid.Changepoints`,
+structure (for change points :class:`~rjfit.sampler.regions.changepoints.grid.Changepoints`,
 the u and v vectors); ``labels`` (region per observation), ``stats`` and ``log_lik`` are
 functions of the layout and the parameters cached for speed;
 :func:`rjfit.sampler.kernel.refresh` recomputes them from scratch. During a step the kernel
@@ -99,7 +99,7 @@ class Work:
     labels_owned: bool = False
     region_index: dict | None = None  # region -> RegionData, valid for ``labels``
     pixel_sets: object = None
-    edges: object = None    # the material model's EdgeTerm (rjfit.sampler.edges); None: no edge term
+    edges: object = None    # the material model's EdgeTerm (rjfit.sampler.regions.materials.edges); None: no edge term
 
     def region_data(self, r: int, problem):
         """:class:`RegionData` of region r; every region's runs come from one read of the labels, once per labelling."""

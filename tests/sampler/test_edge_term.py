@@ -1,4 +1,4 @@
-"""The material model's edge term (rjfit.sampler.edges): its value, and the exactness of every move that holds it.
+"""The material model's edge term (rjfit.sampler.regions.materials.edges): its value, and the exactness of every move that holds it.
 
 Value: the compiled total against a direct sum over pixel pairs and lights written here from
 the definition; a boundary between two copies of one material costs nothing, the true step
@@ -26,12 +26,12 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.data.observations import Observations
 from rjfit.model.blinn import blinn_normalisation
-from rjfit.sampler.edges import edge_term
+from rjfit.sampler.regions.materials.edges import edge_term
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.moves import ab_conditional, gamma, phi_walk
-from rjfit.sampler.regions import materials
-from rjfit.sampler.regions.material_labels import labelled_pixels
+from rjfit.sampler.regions.materials import model as materials
+from rjfit.sampler.regions.materials.layout import labelled_pixels
 from rjfit.sampler.state import SamplerConfig
 
 from builders import Quadrature, canonical, ess_scaled_chi2, exact_partition_posterior, tiny_problem

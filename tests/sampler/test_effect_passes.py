@@ -36,7 +36,7 @@ from rjfit.sampler.effects import (
 )
 from rjfit.sampler.forward import EffectParam, LambertBlinnPhong, transformed
 from rjfit.sampler.likelihood import region_stats
-from rjfit.sampler.passes.labels import pixel_log_lik, relabel_pixels
+from rjfit.sampler.regions.materials.passes.labels import pixel_log_lik, relabel_pixels
 
 
 def every_effect(observations, seed=0):

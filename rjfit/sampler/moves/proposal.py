@@ -30,7 +30,7 @@ class Proposal(NamedTuple):
     log_lik : ndarray (R,) or None
     log_ratio : float
     shift : tuple or None
-        ``(starts, ends, delta)`` of :func:`rjfit.sampler.moves.sweeps.element_shift`
+        ``(starts, ends, delta)`` of :func:`rjfit.sampler.regions.changepoints.sweeps.element_shift`
         (incremental proposals only).
     """
 

@@ -46,7 +46,7 @@ What a second model needs (as free-form materials with a Potts prior do, issue 2
   Potts strength if it is sampled; ``n_regions`` = K (one BRDF per material, shared by every
   pixel that carries it, connected or not), ``model_key`` = (K,), ``labels(problem)`` =
   the pixel labels repeated per observation (``np.repeat(pixel_labels.ravel(),
-  np.diff(problem.pixel_start))``, as :func:`~rjfit.sampler.regions.changepoint_grid.obs_region_labels`
+  np.diff(problem.pixel_start))``, as :func:`~rjfit.sampler.regions.changepoints.grid.obs_region_labels`
   does).
 - :meth:`log_prior`: the Potts energy times its strength, plus the prior over K with the
   labels' exchangeability settled (materials numbered in a canonical order, or a 1/K!
@@ -110,7 +110,7 @@ class RegionModel(ABC):
 
     def edge_term(self, layout):
         """A term of the target beside the layout prior that the parameter moves must hold (the material
-        model's edge term, :mod:`rjfit.sampler.edges`); None (the default): none."""
+        model's edge term, :mod:`rjfit.sampler.regions.materials.edges`); None (the default): none."""
         return None
 
     @abstractmethod

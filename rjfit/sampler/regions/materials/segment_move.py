@@ -8,11 +8,11 @@ segment move proposes a whole region that pooled features single out.
 One move:
 
 1. a set S from the fixed family of candidate sets
-   (:func:`~rjfit.sampler.regions.material_segments.segment_family`: the nodes of a Ward
+   (:func:`~rjfit.sampler.regions.materials.segments.segment_family`: the nodes of a Ward
    hierarchy of superpixels of the data), drawn with its fixed weight w_S;
 2. if S's pixels do not all carry one label l, no move (counted as a rejection);
    otherwise V0 = S is moved as a cluster move moves its cluster
-   (:func:`~rjfit.sampler.moves.cluster_swc.propose_set_move`): to NEW with probability
+   (:func:`~rjfit.sampler.regions.materials.cluster_swc.propose_set_move`): to NEW with probability
    ``p_new(K)``, else to one of the K - 1 other labels uniformly; a birth when S is not all
    of l, a death when it is and the new label exists, no move when it is and the label is NEW.
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rjfit.sampler.moves.cluster_swc import propose_set_move
+from rjfit.sampler.regions.materials.cluster_swc import propose_set_move
 
 __all__ = ["SegmentSettings", "SEGMENT_KINDS", "edges_to_labels", "propose_segment_move"]
 

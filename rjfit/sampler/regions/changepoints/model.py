@@ -1,19 +1,19 @@
 """The paper's region model: two-dimensional change points (sec. 3.3) and their structure moves.
 
-Layout: :class:`~rjfit.sampler.regions.changepoint_grid.Changepoints` (u and v vectors; the
-geometry, labels and prior are in :mod:`rjfit.sampler.regions.changepoint_grid`). Each
+Layout: :class:`~rjfit.sampler.regions.changepoints.grid.Changepoints` (u and v vectors; the
+geometry, labels and prior are in :mod:`rjfit.sampler.regions.changepoints.grid`). Each
 iteration's structure moves, in order:
 
 1. sweeps of u change-point elements (one element per row; even rows, then odd rows) and
-   likewise of v elements (:mod:`rjfit.sampler.moves.sweeps`);
-2. with probability ``block.prob`` a block shift (:mod:`rjfit.sampler.moves.block_shift`);
+   likewise of v elements (:mod:`rjfit.sampler.regions.changepoints.sweeps`);
+2. with probability ``block.prob`` a block shift (:mod:`rjfit.sampler.regions.changepoints.block_shift`);
 3. with probability ``vector.prob`` a redraw of one whole vector
-   (:mod:`rjfit.sampler.moves.vector_redraw`);
+   (:mod:`rjfit.sampler.regions.changepoints.vector_redraw`);
 4. with probability ``birth_death.prob``, one birth or death of a change-point vector: with
    probability ``birth_death.free_prob`` the pair whose vector may sit at any rank of each
-   line (every region redrawn, :mod:`rjfit.sampler.moves.birth_death_free`), otherwise the
+   line (every region redrawn, :mod:`rjfit.sampler.regions.changepoints.birth_death_free`), otherwise the
    pair that keeps ranks (the regions the vector cuts redrawn or split,
-   :mod:`rjfit.sampler.moves.birth_death`).
+   :mod:`rjfit.sampler.regions.changepoints.birth_death`).
 
 Each is a valid Metropolis-Hastings move on its own, so their composition leaves the
 posterior invariant.
@@ -25,14 +25,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.birth_death import BirthDeathSettings, birth_probability, propose_birth, propose_death
-from rjfit.sampler.moves.birth_death_free import propose_birth_free, propose_death_free
-from rjfit.sampler.moves.block_shift import BlockSettings, propose_block_shift
+from rjfit.sampler.regions.changepoints.birth_death import BirthDeathSettings, birth_probability, propose_birth, propose_death
+from rjfit.sampler.regions.changepoints.birth_death_free import propose_birth_free, propose_death_free
+from rjfit.sampler.regions.changepoints.block_shift import BlockSettings, propose_block_shift
 from rjfit.sampler.moves.region_proposals import RegionProposalSettings
-from rjfit.sampler.moves.sweeps import SweepSettings, sweep_changepoints
-from rjfit.sampler.moves.vector_redraw import VectorSettings, accept_vector_redraw, propose_vector_redraw
+from rjfit.sampler.regions.changepoints.sweeps import SweepSettings, sweep_changepoints
+from rjfit.sampler.regions.changepoints.vector_redraw import VectorSettings, accept_vector_redraw, propose_vector_redraw
 from rjfit.sampler.regions.base import RegionModel
-from rjfit.sampler.regions.changepoint_grid import ChangepointPrior, Changepoints, n_regions
+from rjfit.sampler.regions.changepoints.grid import ChangepointPrior, Changepoints, n_regions
 
 __all__ = ["ChangepointRegions"]
 

@@ -5,10 +5,10 @@ probabilities", IEEE PAMI 27(8), 2005. One move:
 
 1. a seed pixel p, drawn with fixed data-driven weights (half uniform over the labelled
    pixels, half by the weakness of their bonds:
-   :func:`~rjfit.sampler.regions.material_labels.seed_weights`); its cluster V0: the pixels
+   :func:`~rjfit.sampler.regions.materials.layout.seed_weights`); its cluster V0: the pixels
    of its label l joined to it by bonds that are on, each edge between two pixels of one label on
-   with its data-driven probability q_e (:class:`~rjfit.sampler.regions.material_labels.Bonds`;
-   :func:`rjfit.sampler.passes.labels.grow_cluster`);
+   with its data-driven probability q_e (:class:`~rjfit.sampler.regions.materials.layout.Bonds`;
+   :func:`rjfit.sampler.regions.materials.passes.labels.grow_cluster`);
 2. a new label for V0: NEW with probability ``p_new(K)`` (0 at K = K_max, 1 at K = 1,
    else ``new_prob``), otherwise one of the K - 1 other labels, uniformly
    (:func:`label_choice`);
@@ -54,7 +54,7 @@ import numpy as np
 from rjfit.sampler.colour import material_log_lik, material_rows, material_term, pixel_set_data
 from rjfit.sampler.likelihood import log_likelihood_from_stats
 from rjfit.sampler.moves.proposal import Proposal
-from rjfit.sampler.passes.labels import grow_cluster
+from rjfit.sampler.regions.materials.passes.labels import grow_cluster
 
 __all__ = ["ClusterSettings", "label_choice", "cluster_data", "stats_rows", "with_rows", "propose_cluster_move",
            "propose_set_move", "CLUSTER_KINDS"]
@@ -82,7 +82,7 @@ class ClusterSettings:
         improbable, a lower one the clusters small).
     bond_tau : float
         The bond probabilities' width in units of the features' spread
-        (:func:`~rjfit.sampler.regions.material_labels.bond_probabilities`).
+        (:func:`~rjfit.sampler.regions.materials.layout.bond_probabilities`).
     material_seed : float
         Probability that a move's seed is drawn as a material (uniformly among the K) and
         then a pixel of it (uniformly), instead of by the fixed seed weights. Why: a

@@ -20,7 +20,7 @@ the differences between neighbours, most of which lie inside one material), and
 ``q_max / 2``. A joint colour fit's features are every channel's (a, b) (2 C of them), so
 the bonds and the split guides see hue. Every q lies in [0, q_max] with q_max < 1, so every cut weight
 ``log(1 - q)`` is finite; the cluster moves take ``q_max = 1 - exp(-beta)`` (Swendsen and
-Wang's bond for the Potts prior: see :class:`~rjfit.sampler.moves.cluster_swc.ClusterSettings`). The cluster moves are exact for any such q; q only decides which
+Wang's bond for the Potts prior: see :class:`~rjfit.sampler.regions.materials.cluster_swc.ClusterSettings`). The cluster moves are exact for any such q; q only decides which
 clusters they propose.
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ from scipy import ndimage
 from scipy.special import gammaln
 
 from rjfit.sampler.colour import colour_pixel_features
-from rjfit.sampler.kmeans import kmeans_labels
+from rjfit.sampler.regions.materials.kmeans import kmeans_labels
 from rjfit.sampler.likelihood import b_terms, index_dtype
 
 __all__ = ["MaterialLabels", "Bonds", "bond_probabilities", "pixel_features", "boundary_count", "labelled_pixels",
@@ -49,8 +49,8 @@ class Bonds(NamedTuple):
     p, ``2 p + 1`` below it; ``features`` (H W, 2): :func:`pixel_features`, which the bonds
     and the split proposals' guides use; ``seed_cdf`` (H W,): the cumulative seed weights of
     the cluster moves (:func:`seed_weights`); ``segments``: the segment moves' candidate sets
-    (:class:`~rjfit.sampler.regions.material_segments.Segments`; None without segment moves);
-    ``edges``: the target's edge term (:class:`~rjfit.sampler.edges.EdgeTerm`; None without one).
+    (:class:`~rjfit.sampler.regions.materials.segments.Segments`; None without segment moves);
+    ``edges``: the target's edge term (:class:`~rjfit.sampler.regions.materials.edges.EdgeTerm`; None without one).
     """
 
     q: np.ndarray
