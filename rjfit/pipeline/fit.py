@@ -10,7 +10,7 @@ Outputs in ``out_dir`` (each written atomically):
 - ``labels.exr``: MAP labels (channel ``labels``, -1 off the object);
 - ``chains.nc``: full chains as ArviZ InferenceData (dims chain, draw, region, parameter);
 - ``changepoints.npz``: thinned change-point snapshots per chain;
-- with ``--regions materials`` (:mod:`rjfit.pipeline.fit_materials`): labels.exr holds the
+- with ``--regions materials`` (:mod:`rjfit.pipeline.regions.materials`): labels.exr holds the
   MAP material, chains.nc the relabelled draws (dims chain, draw, material, parameter),
   ``materials.npz`` the label snapshots instead of changepoints.npz, and maps.exr the
   per-pixel probability of the MAP material (``map_probability``);
@@ -298,7 +298,7 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
     """The chains' kept draws summarised, with their settings (and a material fit's boundary check)."""
     burn = config.kernel.burn_in
     if options.regions == "materials":
-        from rjfit.pipeline.fit_materials import add_boundary_check, material_number_warnings, summarise_materials
+        from rjfit.pipeline.regions.materials import add_boundary_check, material_number_warnings, summarise_materials
 
         summary, labels, prediction, extra = summarise_materials(records, problem, options, burn, config)
         summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
@@ -397,7 +397,7 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)})
         summary["fit_id"] = results_digest(summary)
         if options.regions == "materials":
-            from rjfit.pipeline.fit_materials import write_material_files
+            from rjfit.pipeline.regions.materials import write_material_files
 
             write_material_files(staging, result, records, options)
         else:
