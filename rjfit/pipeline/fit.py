@@ -35,32 +35,28 @@ observations cannot tell two regions apart make it ~0 even for a good fit).
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.coarsen import misfit_warning
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import staging_dir
 from rjfit.model.blinn import radiance
-from rjfit.pipeline.fit_folder import PARAMETERS_ATTR, publish_results, results_digest, save_chain_arrays, write_summary
-from rjfit.pipeline.fit_power import edge_power, noise_and_power
+from rjfit.pipeline.fit_folder import publish_results, results_digest, write_summary
+from rjfit.pipeline.fit_power import noise_and_power
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.regions import FitResult, RegionFit, region_fit
+from rjfit.pipeline.regions.base import fit_warnings
 from rjfit.posterior import caveats
-from rjfit.posterior import summary as post
 from rjfit.posterior.effects import effect_summaries
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
-from rjfit.sampler.regions.changepoints.birth_death import BirthDeathSettings
 from rjfit.sampler.priors import make_prior
-from rjfit.sampler.regions.changepoints.grid import model_number
-from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.runner import ChainSpec, run_chains
-from rjfit.sampler.state import SamplerConfig, flat_option_applies
+from rjfit.sampler.state import SamplerConfig
 
 __all__ = ["fit", "FitSource", "write_parameter_maps"]
 
@@ -94,17 +90,15 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         The fit's options; ``option_keywords`` (any :class:`FitOptions` field, e.g. ``seed=1,
         n_chains=2``) build or change them. A ``burn_in`` of None means 0.5.
     truth_labels : ndarray (H, W), optional
-        Ground-truth region per pixel (-1 off the object): adds label_accuracy and
-        exact_truth_probability.
+        Ground-truth region per pixel (-1 off the object): adds label_accuracy and exact_truth_probability.
     truth_params : list of dict, optional
         Ground-truth parameters per true label (written beside the estimates).
     start : list of dict, optional
         Per chain keyword arguments of :func:`rjfit.sampler.kernel.initial_state`.
-    fixed_segmentation : (u, v), optional
-        Fix the change points (no element moves, no births/deaths).
+    fixed_segmentation : optional
+        The region model's layout held fixed ((u, v) change points, (H, W) material labels): no structure moves.
     chain_runner : callable, optional
-        ``chain_runner(specs) -> records``: runs :func:`rjfit.sampler.runner.run_chain` over
-        the chain specs elsewhere (e.g. on Dask); default: local worker processes.
+        ``chain_runner(specs) -> records``: runs :func:`rjfit.sampler.runner.run_chain` elsewhere (Dask).
     source : FitSource, optional
         The data set the observations come from (recorded in the summary).
     before_publish : callable, optional
@@ -137,6 +131,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         of another run (the message says to delete it).
     """
     options = FitOptions.build(options, **option_keywords)
+    region = region_fit(options)        # the region model's part (it may read its own input: refused early)
     if (options.effects or options.effects_from is not None) and not sampler_effects:
         raise ValueError("effects (--effects, --effects-from) need the data set's geometry: fit the data set "
                          "(rjfit fit DATASET, rjfit.pipeline.fit_dataset.fit_dataset), or pass sampler_effects=")
@@ -147,18 +142,19 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
     prior = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A)
-    config = sampler_config(options, fixed=fixed_segmentation is not None, problem=problem)
-    specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation)
+    config = sampler_config(options, fixed=fixed_segmentation is not None, problem=problem, region=region)
+    specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation, region)
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
-    result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels, observations)
+    result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels, observations,
+                       region)
     if problem.effects is not None:
         result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
         result.summary["warnings"] += effect_warnings(result.summary["effects"])
     if truth_params is not None:
         result.summary["truth_params"] = truth_params
     result.summary["fit_options"] = options.to_json()        # what `rjfit refine` fits again with
-    write_results(out_dir, result, records, observations, options, source, before_publish, started)
+    write_results(out_dir, result, records, observations, options, source, before_publish, started, region)
     remove_checkpoints(specs, out_dir)
     return result.summary
 
@@ -221,58 +217,31 @@ def burn_in_iterations(options: FitOptions) -> int:
     return burn
 
 
-def sampler_config(options: FitOptions, *, fixed: bool = False, problem=None) -> SamplerConfig:
-    """The kernel's settings from the options (``fixed``: no segmentation moves; ``problem``: measures edge power)."""
-    burn = burn_in_iterations(options)
-    # a fit option named like a sampler setting of the fit's region model reaches the sampler as it is, so a new one
-    # is one FitOptions field; burn-in and the warm-up are fractions here and iterations there, --edge-power a number
-    same_name = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)
-                 if f.name not in ("burn_in", "anneal") and flat_option_applies(f.name, options.regions)}
-    if options.regions == "materials":
-        same_name["edge_power"] = edge_power(problem, options) if problem is not None else options.edge_power
-        return SamplerConfig.from_flat(region_model="materials", **same_name, burn_in=burn,
-                                       anneal=int(round(options.anneal * burn)), update_labels=not fixed,
-                                       jumps=not fixed)
-    return SamplerConfig.from_flat(**same_name, burn_in=burn, anneal=int(round(options.anneal * burn)),
-                                   # reproducing the paper's omission: every jump must use its map
-                                   free_jump_prob=0.0 if options.drop_jacobian else BirthDeathSettings.free_prob,
-                                   update_changepoints=not fixed, jumps=not fixed)
+def sampler_config(options: FitOptions, *, fixed: bool = False, problem=None,
+                   region: RegionFit | None = None) -> SamplerConfig:
+    """The kernel's settings from the options (``fixed``: no segmentation moves; ``problem``: measures what the
+    region model measures on the data, such as the edge term's power; ``region``: the options' region fit)."""
+    region = region_fit(options) if region is None else region
+    return region.sampler_config(options, burn=burn_in_iterations(options), fixed=fixed, problem=problem)
 
 
-def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, truth_labels, start, fixed_segmentation):
-    """One :class:`~rjfit.sampler.runner.ChainSpec` per chain (its seed, start and checkpoint file)."""
+def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, truth_labels, start, fixed_segmentation,
+                region: RegionFit | None = None):
+    """One :class:`~rjfit.sampler.runner.ChainSpec` per chain (its seed, start (the region model's,
+    :meth:`~rjfit.pipeline.regions.base.RegionFit.chain_start`) and checkpoint file)."""
+    region = region_fit(options) if region is None else region
     # at least ~50 change-point snapshots after burn-in, so a short run still has its MAP labels
     cp_thin = max(1, min(options.cp_thin, (options.iterations - config.kernel.burn_in) // 50))
     specs = []
     for c in range(options.n_chains):
-        chain_start = dict(start[c]) if start is not None else {}
-        if fixed_segmentation is not None:     # (u, v) change points, or (H, W) material labels
-            chain_start.setdefault("pixel_labels" if options.regions == "materials" else "changepoints",
-                                   fixed_segmentation)
-        elif options.regions == "materials" and "pixel_labels" not in chain_start:
-            # starts stratified over K0 = 1 .. min(4, K_max), not drawn: on a large image a jump between
-            # numbers of materials is rare once a chain has settled, so a mode at a K that no chain started
-            # near could be missed by all of them, and R-hat would not show it
-            chain_start.setdefault("n_materials", MaterialRegions.stratified_start(c, options.max_materials))
+        chain_start = region.chain_start(options, c, dict(start[c]) if start is not None else {},
+                                         fixed_segmentation)
         specs.append(ChainSpec(problem=problem, prior=prior, config=config, seed=options.seed, chain=c,
                                n_chains=options.n_chains, iterations=options.iterations,
                                checkpoint_path=str(out_dir / "checkpoints" / f"chain_{c}.pkl"),
                                checkpoint_every=options.checkpoint_every, cp_thin=cp_thin, truth_labels=truth_labels,
                                start=chain_start, progress=options.progress))
     return specs
-
-
-@dataclass
-class FitResult:
-    """A fit's results in memory: the summary and what its files are made of."""
-
-    summary: dict
-    labels: np.ndarray          # MAP labels (H, W), -1 off the object
-    prediction: dict            # posterior mean prediction (rjfit.posterior.summary.posterior_mean_prediction)
-    problem: Problem
-    burn: int
-    model: tuple
-    extra: dict = field(default_factory=dict)   # the region model's own results (materials: map_probability, draws)
 
 
 def run_entries(records, problem, prior, options: FitOptions, burn: int, suggestion, noise_record) -> dict:
@@ -294,98 +263,16 @@ def run_entries(records, problem, prior, options: FitOptions, burn: int, suggest
 
 
 def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels,
-              observations):
-    """The chains' kept draws summarised, with their settings (and a material fit's boundary check)."""
-    burn = config.kernel.burn_in
-    if options.regions == "materials":
-        from rjfit.pipeline.regions.materials import add_boundary_check, material_number_warnings, summarise_materials
-
-        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn, config)
-        summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
-        summary["warnings"] += material_number_warnings(summary["regions"], prior) + _fit_warnings(
-            problem, prior, suggestion)
-        if truth_labels is not None:
-            summary.update(truth_summary(records, burn, labels, truth_labels))
-            summary["materials_right_probability"] = summary["materials_posterior"].get(
-                str(summary["true_region_count"]), 0.0)
-        result = FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
-                           model=(summary["map_materials"],), extra=extra)
-        add_boundary_check(result, observations, records)
-        return result
-    n_u, n_v = post.map_model(records, burn)
-    draws = post.map_model_draws(records, burn, (n_u, n_v))
-    labels = post.map_labels(records, burn, (n_u, n_v), problem.image_shape, problem.object_mask)
-    # what the figures and residual maps show: averaged draw by draw, each with its own segmentation
-    prediction = post.posterior_mean_prediction(records, burn, problem)
-    diag = post.diagnostics(draws)
-    summary = {
-        "model_posterior": post.model_posterior(records, burn),
-        "map_model": {"n_u": n_u, "n_v": n_v, "m": model_number(n_u, n_v, options.max_v)},
-        "model_number_convention": "m = n_u * (max_v + 1) + n_v + 1",
-        "regions": post.region_summaries(draws, labels),
-        "rhat_max": diag["rhat_max"], "rhat_reason": diag["rhat_reason"],
-        "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
-        "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"],
-        "diagnostics": diag,
-        "max_u": options.max_u, "max_v": options.max_v,
-        "split_map": options.split_map, "cp_prior": options.cp_prior, "drop_jacobian": options.drop_jacobian,
-        "chain_model_posterior": [post.model_posterior([r], burn) for r in records],
-        "chain_regions": post.chain_region_summaries(records, draws, burn, (n_u, n_v), problem.image_shape,
-                                                     problem.object_mask),
-    }
-    summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
-    summary["warnings"] = (post.convergence_warnings(diag, summary["chain_model_posterior"], options.n_chains,
-                                                     post.chain_log_posterior_means(records, burn))
-                           + number_warnings(summary, labels, problem, prior, config))
-    summary["warnings"] += _fit_warnings(problem, prior, suggestion)
-    if truth_labels is not None:
-        summary.update(truth_summary(records, burn, labels, truth_labels))
-    return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
-                     model=(n_u, n_v))
-
-
-def number_warnings(summary: dict, labels, problem, prior, config: SamplerConfig) -> list:
-    """The caveats of the summary's own numbers (:mod:`rjfit.posterior.caveats`): NaN rejections, regions without
-    data, parameters beyond their prior's plausible range, pooled means outside their intervals, a binding model
-    cap (not for a fixed segmentation, whose model cannot move)."""
-    observed = np.zeros(problem.height * problem.width, bool)
-    observed[problem.pixel] = True
-    out = (caveats.nan_rejection_warnings(summary["acceptance_counts"])
-           + caveats.empty_region_warnings(labels, observed.reshape(problem.image_shape), len(summary["regions"]))
-           + caveats.prior_range_warnings(summary["regions"], prior)
-           + caveats.support_bound_warnings(summary["regions"], prior)
-           + caveats.pooled_interval_warnings(summary["regions"]))
-    if getattr(config.regions, "jumps", True):     # a region model without the switch always jumps
-        out += caveats.model_cap_warnings(summary["model_posterior"], {"n_u": (summary["max_u"], "--max-u"),
-                                                                      "n_v": (summary["max_v"], "--max-v")})
-    return out
-
-
-def _fit_warnings(problem, prior, suggestion) -> list:
-    """The warnings of the data and prior that every region model's summary carries."""
-    warnings = []
-    misfit = misfit_warning((suggestion or {}).get("most_misfit_channel", suggestion), float(problem.likelihood_power))
-    if misfit:
-        warnings.append(misfit)
-    if prior.caveat:
-        warnings.append(prior.caveat)
-    return warnings
-
-
-def truth_summary(records, burn, labels, truth_labels) -> dict:
-    """How the fit compares with the ground truth of a synthetic data set."""
-    accuracy = post.label_accuracy(labels, truth_labels)
-    n_true = int(len(np.unique(np.asarray(truth_labels)[np.asarray(truth_labels) >= 0])))
-    return {"label_accuracy": accuracy["accuracy"], "label_matching": accuracy["matching"],
-            "exact_truth_probability": post.exact_truth_probability(records, burn),
-            "true_region_count": n_true,
-            "four_region_probability": post.object_region_count_probability(records, burn, n_true),
-            "true_regions_probability": post.true_regions_probability(records, burn),
-            "chain_true_regions_probability": [post.true_regions_probability([r], burn) for r in records]}
+              observations, region: RegionFit | None = None) -> FitResult:
+    """The chains' kept draws summarised by the region model, with the settings every model records."""
+    region = region_fit(options) if region is None else region
+    run = run_entries(records, problem, prior, options, config.kernel.burn_in, suggestion, noise_record)
+    return region.summarise(records, problem, prior, config, options, run, fit_warnings(problem, prior, suggestion),
+                            truth_labels, observations)
 
 
 def write_results(out_dir: Path, result: FitResult, records, observations, options: FitOptions,
-                  source: FitSource | None, before_publish, started: float) -> None:
+                  source: FitSource | None, before_publish, started: float, region: RegionFit | None = None) -> None:
     """Stage every result file and publish them together, ``summary.json`` last.
 
     An interrupted run leaves the previous results whole or none: never labels of one run
@@ -396,12 +283,7 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
     with staging_dir(out_dir) as staging:
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)})
         summary["fit_id"] = results_digest(summary)
-        if options.regions == "materials":
-            from rjfit.pipeline.regions.materials import write_material_files
-
-            write_material_files(staging, result, records, options)
-        else:
-            write_changepoint_files(staging, result, records, options)
+        (region_fit(options) if region is None else region).write_files(staging, result, records, options)
         extra = {name: result.extra[name] for name in ("map_probability", "edge_group") if name in result.extra} or None
         summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra)
         if source is not None:
@@ -411,27 +293,6 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
         summary["seconds"] = time.perf_counter() - started
         write_summary(staging / "summary.json", summary)
         publish_results(staging, out_dir)
-
-
-def write_changepoint_files(staging: Path, result: FitResult, records, options: FitOptions) -> None:
-    """A change-point fit's ``chains.nc``, ``changepoints.npz`` and (with ``options.figures``) figures."""
-    summary, burn, max_v = result.summary, result.burn, options.max_v
-    effect_names = () if result.problem.effects is None else result.problem.effects.names
-    idata = post.to_inference_data(records, burn, max_v, effect_names)
-    idata.posterior.attrs.update({
-        "rjfit_fit_id": summary["fit_id"], "seed": options.seed, "burn_in_iterations": burn,
-        "regions": f"region r of a draw is cell r of its model (n_u, n_v); slots past (n_u + 1)(n_v + 1) "
-                   f"are NaN (the region dimension has room for the largest model, {options.max_u}, {max_v})",
-        "parameters": PARAMETERS_ATTR})
-    idata.to_netcdf(str(staging / "chains.nc"))
-    save_chain_arrays(staging / "changepoints.npz", records, ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v"))
-    if options.figures:
-        from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
-
-        written = figs.write_all(staging / "figures", records=records, burn_in=burn, model=result.model,
-                                 labels=result.labels, problem=result.problem, prediction=result.prediction,
-                                 max_v=max_v)
-        summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
 
 
 def record_source(summary: dict, source: FitSource, staging: Path, options: FitOptions) -> None:

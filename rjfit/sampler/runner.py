@@ -429,7 +429,10 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
 
 
 def _model_text(regions, state) -> str:
-    """``model (n_u, n_v) = (1, 2)``: the chain's current model in a progress line."""
+    """``model (n_u, n_v) = (1, 2)``: the chain's current model in a progress line (a region model without model
+    keys, whose layout never moves: its number of regions)."""
+    if not regions.key_names:
+        return f"{state.layout.n_regions} regions"
     names = ", ".join(regions.key_names)
     return f"model ({names}) = ({', '.join(str(int(k)) for k in state.layout.model_key)})"
 
