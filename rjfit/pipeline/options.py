@@ -18,7 +18,7 @@ from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
 from rjfit.data.observations import RIM_COS
 from rjfit.diagnose.effects import EFFECTS
 from rjfit.sampler.priors import PRESETS
-from rjfit.sampler.state import REGION_MODELS
+from rjfit.pipeline.regions import REGION_FITS
 
 __all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS"]
 
@@ -113,9 +113,14 @@ class FitOptions:
         "float", show_default=False)
     regions: str = cli_option(
         "changepoints", "--regions",
-        "Region model: the paper's change points (changepoints), or free-form materials (materials): a material "
+        "Region model: the paper's change points (changepoints), free-form materials (materials): a material "
         "label per pixel under a Potts prior, K materials unknown, one BRDF per material shared by all its pixels, "
-        "connected or not.", "choice", choices=tuple(REGION_MODELS))
+        "connected or not; or your own label map held fixed (fixed, with --labels).", "choice",
+        choices=tuple(REGION_FITS))
+    labels: Path | None = cli_option(
+        None, "--labels",
+        "Label map of --regions fixed: an integer label per pixel of the images (.npy, .exr or a one-channel image; "
+        "negative: no label); each label's BRDF posterior is sampled, nothing else.", "path", show_default=False)
     max_materials: int = cli_option(8, "--max-materials",
                                     "Most materials (--regions materials); the summary warns when the posterior "
                                     "puts mass on it.", "int", low=1)
@@ -260,6 +265,10 @@ class FitOptions:
         object.__setattr__(self, "effects", _effect_names(self.effects))
         if self.effects_from is not None:
             object.__setattr__(self, "effects_from", Path(self.effects_from))
+        if self.labels is not None:
+            if self.regions != "fixed":
+                raise ValueError("--labels is the label map of --regions fixed: give --regions fixed, or leave it out")
+            object.__setattr__(self, "labels", Path(self.labels))
         if self.effect_every < 1:
             raise ValueError(f"effect_every (--effect-every) must be >= 1, got {self.effect_every}")
         if not 0.0 <= self.anneal <= 1.0:

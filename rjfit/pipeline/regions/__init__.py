@@ -9,12 +9,13 @@ each by its ``--regions`` name; :func:`rjfit.pipeline.fit.fit` and the command l
 """
 from rjfit.pipeline.regions.base import FitResult, RegionFit
 from rjfit.pipeline.regions.changepoints import ChangepointFit
+from rjfit.pipeline.regions.fixed import FixedFit
 from rjfit.pipeline.regions.materials import MaterialFit
 
 __all__ = ["REGION_FITS", "FitResult", "RegionFit", "region_fit", "printed_line"]
 
 #: the region models by their ``--regions`` name
-REGION_FITS = {fit.name: fit for fit in (ChangepointFit, MaterialFit)}
+REGION_FITS = {fit.name: fit for fit in (ChangepointFit, MaterialFit, FixedFit)}
 
 
 def region_fit(options) -> RegionFit:
