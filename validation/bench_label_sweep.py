@@ -74,8 +74,8 @@ def main(argv=None):
         for repeat in range(args.repeats + 1):
             for propose, settings in moves:
                 start = time.perf_counter()
-                _, kind = propose(work, rng, problem, prior, settings, regions.proposals, regions.potts,
-                                  regions.max_materials)
+                kind = propose(work, rng, problem, prior, settings, regions.proposals, regions.potts,
+                               regions.max_materials).kind
                 if repeat:
                     proposal_times[kind].append(time.perf_counter() - start)
     print(f"{n} x {n} x {L} x {args.channels} channel(s) ({problem.n_obs} observations), K = {args.materials}, "

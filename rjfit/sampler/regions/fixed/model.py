@@ -95,8 +95,9 @@ class FixedRegions(RegionModel):
     def log_prior(self, problem, layout) -> float:
         return 0.0
 
-    def structure_moves(self, work, rng, problem, prior, info) -> None:
-        """None: the labels are the user's."""
+    def schedule(self) -> list:
+        """No structure move: the labels are the user's."""
+        return []
 
     def snapshot(self, layout) -> dict:
         return {}

@@ -40,7 +40,7 @@ The moves (each stays exact for the new target)
   new label with ``min(1, exp(delta Phi))``, the boundaries' sums updated pixel by pixel
   (:func:`rjfit.sampler.regions.materials.passes.edges.keep_new_label`);
 - the cluster, segment and merge/split moves: ``delta Phi`` of the proposal in their log ratio
-  (:meth:`rjfit.sampler.regions.materials.MaterialRegions.structure_moves`);
+  (the one test of a proposal, :func:`rjfit.sampler.moves.base.decide`);
 - a material's parameter moves: ``delta Phi`` of its new (I0, kd, gamma) in their log ratio
   (:func:`rjfit.sampler.moves.region_terms.edge_delta`; sigma^2 does not enter the term).
 

@@ -181,7 +181,7 @@ def _proposal(work, problem, pixels, n_materials, theta, stats, log_ratio) -> Pr
 
 def propose_merge_split(work, rng, problem, prior, settings: MergeSplitSettings, proposals, potts,
                         max_materials: int, jumps: bool = True):
-    """One merge/split proposal: ``(Proposal, kind)`` with kind 'split' or 'merge', or ``(None, kind)`` (no move).
+    """One merge/split proposal, of kind 'split' or 'merge' (both jumps; untested when there is no move to test).
 
     Draws, in order: the kind's uniform; for a split the material, the slot, the coin, one
     uniform per pixel of the material, the two parts' parameters; for a merge the pair and
@@ -190,10 +190,12 @@ def propose_merge_split(work, rng, problem, prior, settings: MergeSplitSettings,
     n_mat = work.layout.n_materials
     p_split = split_probability(n_mat, max_materials, settings.split_prob, jumps)
     if p_split == 0.0 and n_mat == 1:
-        return None, "merge"
+        return Proposal.untested("merge")
     if rng.random() < p_split:
-        return _split(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split), "split"
-    return _merge(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split), "merge"
+        proposal = _split(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split)
+        return Proposal.untested("split") if proposal is None else proposal.named("split", jump=True)
+    return _merge(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split).named("merge",
+                                                                                                     jump=True)
 
 
 def _ratio_choices(n_mat, m, max_materials, settings, p_split):

@@ -70,14 +70,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rjfit.sampler.regions.materials.edges import EDGE_GAP, edge_term, start_theta
-from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.regions.materials.cluster_swc import ClusterSettings, propose_cluster_move
-from rjfit.sampler.regions.materials.label_gibbs import sweep_labels
-from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings, propose_merge_split
+from rjfit.sampler.moves.base import Scheduled
 from rjfit.sampler.moves.region_proposals import RegionProposalSettings
-from rjfit.sampler.regions.materials.segment_move import SEGMENT_KINDS, SegmentSettings, propose_segment_move
 from rjfit.sampler.regions.base import RegionModel
+from rjfit.sampler.regions.materials.cluster_swc import ClusterSettings
+from rjfit.sampler.regions.materials.edges import EDGE_GAP, edge_term, start_theta
 from rjfit.sampler.regions.materials.layout import (
     MaterialLabels,
     PottsPrior,
@@ -86,6 +83,9 @@ from rjfit.sampler.regions.materials.layout import (
     labelled_pixels,
     majority_labels,
 )
+from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings
+from rjfit.sampler.regions.materials.moves import ClusterMove, LabelSweep, MergeSplit, SegmentMove
+from rjfit.sampler.regions.materials.segment_move import SegmentSettings
 from rjfit.sampler.regions.materials.segments import segment_family
 
 #: the starts' numbers of materials range over 1 .. this (at most K_max)
@@ -217,38 +217,17 @@ class MaterialRegions(RegionModel):
         return start_theta(problem, layout.pixels, layout.n_materials, prior) if layout.bonds.edges is not None \
             else None
 
-    def structure_moves(self, work, rng, problem, prior, info) -> None:
+    def schedule(self) -> list:
+        """Label sweeps, cluster moves, segment moves, then (with jumps) merges and splits, each so many times."""
         if not self.update_labels:
-            return
-        for _ in range(self.sweeps):
-            sweep_labels(work, rng, problem, self.potts, info)
-        for _ in range(self.cluster.moves):
-            self._test(work, rng, info, *propose_cluster_move(work, rng, problem, prior, self.cluster, self.proposals,
-                                                              self.potts, self.max_materials, self.jumps))
-        for _ in range(self.segments.moves):
-            self._test(work, rng, info, *propose_segment_move(work, rng, problem, prior, self.cluster.new_prob,
-                                                              self.proposals, self.potts, self.max_materials,
-                                                              self.jumps))
-        for _ in range(self.merge_split.moves if self.jumps else 0):
-            self._test(work, rng, info, *propose_merge_split(work, rng, problem, prior, self.merge_split,
-                                                             self.proposals, self.potts, self.max_materials))
-
-    @staticmethod
-    def _test(work, rng, info, proposal, kind) -> None:
-        """Accept or reject one label move's proposal (None: no move, counted as a rejection)."""
-        if proposal is None:
-            info.count(kind, False)
-            return
-        log_ratio = proposal.log_ratio
-        if work.edges is not None and log_ratio > -np.inf:      # the target's edge term (rjfit.sampler.regions.materials.edges)
-            log_ratio += (work.edges.total(proposal.layout.pixels, proposal.theta)
-                          - work.edges.total(work.layout.pixels, work.theta))
-        accepted = accept(np.log(rng.random()), log_ratio, info, kind)
-        info.count(kind, accepted)
-        if accepted:
-            work.take(proposal)
-            if kind not in ("cluster", SEGMENT_KINDS[0]):     # a move that changed K
-                info.jump = kind
+            return []
+        return [Scheduled(LabelSweep(self.potts), times=self.sweeps),
+                Scheduled(ClusterMove(self.cluster, self.proposals, self.potts, self.max_materials, self.jumps),
+                          times=self.cluster.moves),
+                Scheduled(SegmentMove(self.cluster.new_prob, self.proposals, self.potts, self.max_materials,
+                                      self.jumps), times=self.segments.moves),
+                Scheduled(MergeSplit(self.merge_split, self.proposals, self.potts, self.max_materials),
+                          times=self.merge_split.moves if self.jumps else 0)]
 
     def snapshot(self, layout) -> dict:
         return {"material_labels": np.where(layout.pixels >= 0, layout.pixels, np.nan).astype(np.float32)}

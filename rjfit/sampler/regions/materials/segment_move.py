@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rjfit.sampler.moves.proposal import Proposal
 from rjfit.sampler.regions.materials.cluster_swc import propose_set_move
 
 __all__ = ["SegmentSettings", "SEGMENT_KINDS", "edges_to_labels", "propose_segment_move"]
@@ -87,9 +88,9 @@ def _no_seed_term(new, n_after) -> float:
 
 def propose_segment_move(work, rng, problem, prior, new_prob: float, proposals, potts, max_materials: int,
                          jumps: bool = True):
-    """One segment move's proposal: ``(Proposal, kind)``, or ``(None, kind)`` when there is no move to test.
+    """One segment move's proposal (untested when there is no move to test: :meth:`Proposal.untested`).
 
-    ``kind`` is one of :data:`SEGMENT_KINDS`. Draws, in order: the set, then the cluster
+    Its ``kind`` is one of :data:`SEGMENT_KINDS` (a birth and a death jump). Draws, in order: the set, then the cluster
     move's label choice (its uniform, the other label or the slot and the new parameters).
     """
     layout = work.layout
@@ -97,7 +98,7 @@ def propose_segment_move(work, rng, problem, prior, new_prob: float, proposals, 
     flat = layout.pixels.ravel()
     labels = flat[members]
     if np.any(labels != labels[0]):
-        return None, SEGMENT_KINDS[0]
+        return Proposal.untested(SEGMENT_KINDS[0])
     n_to = edges_to_labels(layout.pixels, members, layout.n_materials)
     return propose_set_move(work, rng, problem, prior, (members, n_to, np.zeros(layout.n_materials), _no_seed_term),
                             new_prob, proposals, potts, max_materials, jumps, SEGMENT_KINDS)
