@@ -102,8 +102,8 @@ class FitOptions:
         ``n_chains < 1``, ``iterations < 10``, an unknown ``prior``, ``noise``, ``channel``,
         ``sampler``, ``split_map`` or ``cp_prior``, a ``likelihood_power`` that is neither
         'auto' nor in (0, 1], ``anneal`` not in [0, 1], ``noise_floor`` not positive,
-        ``max_u`` / ``max_v`` negative, an effect the library does not know, or
-        ``effect_every`` below 1.
+        ``max_u`` / ``max_v`` negative, an effect the library does not know,
+        ``effect_every`` below 1, or a ``labels`` map without ``regions='fixed'``.
     """
 
     n_chains: int = cli_option(4, "--chains", "Chains from dispersed starts.", "int", low=1)

@@ -57,9 +57,24 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
+import numpy as np
+
+from rjfit.sampler.likelihood import index_dtype
 from rjfit.sampler.moves.base import run_schedule
 
-__all__ = ["RegionModel"]
+__all__ = ["RegionModel", "pixel_labels_per_observation"]
+
+
+def pixel_labels_per_observation(pixels, n_labels: int, problem) -> np.ndarray:
+    """The label of every observation of ``problem``: its pixel's in ``pixels`` (H, W; labels 0 .. n_labels - 1),
+    repeated per observation, in the smallest int type that holds them; for a joint colour fit its parameter row,
+    ``label C + channel``."""
+    n_ch = problem.n_channels
+    flat = pixels.ravel().astype(index_dtype(max(n_labels * n_ch - 1, 0)))
+    labels = np.repeat(flat, np.diff(problem.pixel_start))
+    if n_ch > 1:
+        labels = labels * n_ch + problem.channel
+    return labels
 
 
 class RegionModel(ABC):

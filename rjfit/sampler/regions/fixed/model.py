@@ -13,8 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rjfit.sampler.likelihood import index_dtype
-from rjfit.sampler.regions.base import RegionModel
+from rjfit.sampler.regions.base import RegionModel, pixel_labels_per_observation
 
 __all__ = ["FixedLabels", "FixedRegions"]
 
@@ -37,12 +36,7 @@ class FixedLabels(NamedTuple):
     def labels(self, problem) -> np.ndarray:
         """The label of every observation of ``problem`` (its pixel's, repeated per observation); for a
         joint colour fit its parameter row, ``label C + channel``."""
-        n_ch = problem.n_channels
-        flat = self.pixels.ravel().astype(index_dtype(max(self.n_labels * n_ch - 1, 0)))
-        labels = np.repeat(flat, np.diff(problem.pixel_start))
-        if n_ch > 1:
-            labels = labels * n_ch + problem.channel
-        return labels
+        return pixel_labels_per_observation(self.pixels, self.n_labels, problem)
 
 
 @dataclass(frozen=True)

@@ -33,8 +33,9 @@ from scipy import ndimage
 from scipy.special import gammaln
 
 from rjfit.sampler.colour import colour_pixel_features
+from rjfit.sampler.likelihood import b_terms
+from rjfit.sampler.regions.base import pixel_labels_per_observation
 from rjfit.sampler.regions.materials.kmeans import kmeans_labels
-from rjfit.sampler.likelihood import b_terms, index_dtype
 
 __all__ = ["MaterialLabels", "Bonds", "bond_probabilities", "pixel_features", "boundary_count", "labelled_pixels",
            "kmeans_labels", "majority_labels", "PottsPrior", "BOND_GAMMA"]
@@ -217,12 +218,7 @@ class MaterialLabels(NamedTuple):
     def labels(self, problem) -> np.ndarray:
         """The material of every observation of ``problem`` (its pixel's label, repeated per observation);
         for a joint colour fit its parameter row, ``material C + channel``."""
-        n_ch = problem.n_channels
-        flat = self.pixels.ravel().astype(index_dtype(max(self.n_materials * n_ch - 1, 0)))
-        labels = np.repeat(flat, np.diff(problem.pixel_start))
-        if n_ch > 1:
-            labels = labels * n_ch + problem.channel
-        return labels
+        return pixel_labels_per_observation(self.pixels, self.n_materials, problem)
 
     def counts(self) -> np.ndarray:
         """Pixels per material (K,)."""
