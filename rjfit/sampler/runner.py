@@ -72,7 +72,7 @@ class ChainRecord:
     (:attr:`RegionModel.key_names <rjfit.sampler.regions.base.RegionModel.key_names>`,
     :meth:`~rjfit.sampler.regions.base.RegionModel.snapshot`): change points record
     ``n_u``, ``n_v`` and snapshots ``cp_u``, ``cp_v``; materials record ``n_materials`` and
-    snapshots ``material_labels``. The other model's fields are None.
+    snapshots ``material_labels``; a fixed label map records neither. The other fields are None.
     """
 
     theta: np.ndarray               # (T, R_max, 4), NaN beyond the current model's regions
@@ -104,11 +104,6 @@ class ChainRecord:
     PER_DRAW = ("theta", "log_lik", "log_post", "exact_truth", "true_regions", "object_regions", "n_u", "n_v",
                 "n_materials", "effects", "jumped")
     PER_SNAPSHOT = ("cp_iteration", "cp_u", "cp_v", "material_labels")
-
-    @property
-    def region_model(self) -> str:
-        """'materials' or 'changepoints': which region model's fields this record holds."""
-        return "materials" if self.n_materials is not None else "changepoints"
 
     def truncated(self, t: int) -> ChainRecord:
         keep = self.cp_iteration < t
