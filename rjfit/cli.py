@@ -335,14 +335,9 @@ def _echo_fit(folder, summary: dict) -> None:
         click.echo(f"  the rim: {summary['rim_pixels']} object pixels seen more than {summary['max_view_angle']:g} "
                    f"deg from their normal gave no observation; their labels follow their neighbours' "
                    f"(--max-view-angle)")
-    if summary.get("region_model") == "materials":
-        k = summary["map_materials"]
-        model = (f"MAP number of materials {k} (posterior {summary['materials_posterior'][str(k)]:.3f}), mean "
-                 f"probability of a pixel's MAP material {summary['map_probability_mean']:.3f}")
-    else:
-        map_model = summary["map_model"]
-        model = (f"MAP model (n_u, n_v) = ({map_model['n_u']}, {map_model['n_v']}), m = {map_model['m']}, "
-                 f"{len(summary['regions'])} regions")
+    from rjfit.pipeline.regions import printed_line
+
+    model = printed_line(summary)
     click.echo(f"  {model}; {_rhat_text(summary)}, {_ess_text(summary)}; "
                f"{summary['seconds']:.1f} s")
     if "label_accuracy" in summary:

@@ -21,8 +21,8 @@ from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
 from rjfit.sampler.moves.region_proposals import sigma2_prior_as_invgamma, ssr_min
 from rjfit.sampler.priors import ParamPrior, Prior
-from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
-from rjfit.sampler.regions.material_labels import boundary_count
+from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
+from rjfit.sampler.regions.materials.layout import boundary_count
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"     # ../shared beside the checkout (measured data)

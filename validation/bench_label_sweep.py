@@ -21,10 +21,10 @@ def main(argv=None):
     from rjfit.model.blinn import radiance
     from rjfit.sampler.forward import Problem
     from rjfit.sampler.kernel import initial_state
-    from rjfit.sampler.moves.cluster_swc import CLUSTER_KINDS, propose_cluster_move
-    from rjfit.sampler.moves.label_gibbs import sweep_labels
-    from rjfit.sampler.moves.merge_split import propose_merge_split
-    from rjfit.sampler.moves.segment_move import SEGMENT_KINDS, propose_segment_move
+    from rjfit.sampler.regions.materials.cluster_swc import CLUSTER_KINDS, propose_cluster_move
+    from rjfit.sampler.regions.materials.label_gibbs import sweep_labels
+    from rjfit.sampler.regions.materials.merge_split import propose_merge_split
+    from rjfit.sampler.regions.materials.segment_move import SEGMENT_KINDS, propose_segment_move
     from rjfit.sampler.priors import make_prior
     from rjfit.sampler.runner import numba_threads
     from rjfit.sampler.state import SamplerConfig, StepInfo, Work
@@ -74,8 +74,8 @@ def main(argv=None):
         for repeat in range(args.repeats + 1):
             for propose, settings in moves:
                 start = time.perf_counter()
-                _, kind = propose(work, rng, problem, prior, settings, regions.proposals, regions.potts,
-                                  regions.max_materials)
+                kind = propose(work, rng, problem, prior, settings, regions.proposals, regions.potts,
+                               regions.max_materials).kind
                 if repeat:
                     proposal_times[kind].append(time.perf_counter() - start)
     print(f"{n} x {n} x {L} x {args.channels} channel(s) ({problem.n_obs} observations), K = {args.materials}, "

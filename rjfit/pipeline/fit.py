@@ -10,8 +10,8 @@ Outputs in ``out_dir`` (each written atomically):
 - ``labels.exr``: MAP labels (channel ``labels``, -1 off the object);
 - ``chains.nc``: the chains as ArviZ InferenceData (:mod:`rjfit.posterior.inference_data`);
 - ``changepoints.npz``: thinned change-point snapshots per chain;
-- with ``--regions materials`` (:mod:`rjfit.pipeline.fit_materials`): labels.exr holds the
-  MAP material, chains.nc the relabelled draws at the MAP K (dims chain, draw, material, parameter),
+- with ``--regions materials`` (:mod:`rjfit.pipeline.regions.materials`): labels.exr holds the
+  MAP material, chains.nc the relabelled draws (dims chain, draw, material, parameter),
   ``materials.npz`` the label snapshots instead of changepoints.npz, and maps.exr the
   per-pixel probability of the MAP material (``map_probability``);
 - ``maps.exr``: per-pixel parameters, labels, valid-images count and residual RMS
@@ -32,33 +32,27 @@ the silhouette whose few grazing observations cannot tell two regions apart make
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from rjfit.data.coarsen import misfit_warning
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import check_writable, staging_dir
 from rjfit.model.blinn import radiance
-from rjfit.pipeline.fit_chains import write_chains
-from rjfit.pipeline.fit_folder import (kept_chains, publish_results, relative_paths,
-                                      remove_checkpoints, save_chain_arrays, stamp,
-                                      write_summary)
+from rjfit.pipeline.fit_folder import kept_chains, publish_results, relative_paths, remove_checkpoints, stamp, write_summary
 from rjfit.pipeline.fit_power import noise_and_power
-from rjfit.pipeline.fit_settings import sampler_config
+from rjfit.pipeline.fit_settings import burn_in_iterations
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.regions import FitResult, RegionFit, region_fit
+from rjfit.pipeline.regions.base import fit_warnings
 from rjfit.pipeline.resolve import resolve_options
 from rjfit.posterior import caveats
-from rjfit.posterior import summary as post
 from rjfit.posterior.effects import effect_summaries
-from rjfit.posterior.inference_data import changepoint_draws
 from rjfit.progress import phase
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
 from rjfit.sampler.priors import make_prior
-from rjfit.sampler.regions.changepoint_grid import model_number
-from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.runner import ChainSpec, run_chains
 from rjfit.sampler.state import SamplerConfig
 
@@ -94,17 +88,15 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         The fit's options (``option_keywords``, e.g. ``seed=1, n_chains=2``, build or change them);
         not yet resolved, they are resolved as a rendered data set's (:mod:`rjfit.pipeline.resolve`).
     truth_labels : ndarray (H, W), optional
-        Ground-truth region per pixel (-1 off the object): adds label_accuracy and
-        exact_truth_probability.
+        Ground-truth region per pixel (-1 off the object): adds label_accuracy and exact_truth_probability.
     truth_params : list of dict, optional
         Ground-truth parameters per true label (written beside the estimates).
     start : list of dict, optional
         Per chain keyword arguments of :func:`rjfit.sampler.kernel.initial_state`.
-    fixed_segmentation : (u, v), optional
-        Fix the change points (no element moves, no births/deaths).
+    fixed_segmentation : optional
+        The region model's layout held fixed ((u, v) change points, (H, W) material labels): no structure moves.
     chain_runner : callable, optional
-        ``chain_runner(specs) -> records``: runs :func:`rjfit.sampler.runner.run_chain` over
-        the chain specs elsewhere (e.g. on Dask); default: local worker processes.
+        ``chain_runner(specs) -> records``: runs :func:`rjfit.sampler.runner.run_chain` elsewhere (Dask).
     source : FitSource, optional
         The data set the observations come from (recorded in the summary).
     before_publish : callable, optional
@@ -136,6 +128,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     """
     options = FitOptions.build(options, **option_keywords)
     options = options if options.resolved else resolve_options(options)
+    region = region_fit(options)        # the region model's part (it may read its own input: refused early)
     if (options.effects or options.effects_from is not None) and not sampler_effects:
         raise ValueError("effects (--effects, --effects-from) need the data set's geometry: fit the data set "
                          "(rjfit fit DATASET, rjfit.pipeline.fit_dataset.fit_dataset), or pass sampler_effects=")
@@ -146,13 +139,13 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     if truth_labels is not None and np.shape(truth_labels) != tuple(problem.image_shape):
         raise ValueError(f"truth_labels has shape {np.shape(truth_labels)}, images are {problem.image_shape}")
     prior = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A)
-    config = sampler_config(options, fixed=fixed_segmentation is not None, problem=problem)
-    specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation)
+    config = sampler_config(options, fixed=fixed_segmentation is not None, problem=problem, region=region)
+    specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation, region)
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
     with phase("summarising the chains (MAP labels, posterior mean prediction, checks)", options.progress):
         result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels,
-                           observations)
+                           observations, region)
     if problem.effects is not None:
         result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
         result.summary["warnings"] += effect_warnings(result.summary["effects"])
@@ -160,7 +153,7 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
         result.summary["truth_params"] = truth_params
     result.summary["fit_options"] = options.to_json()        # what `rjfit refine` fits again with
     write_results(out_dir, result, records, observations, options, source, before_publish, started,
-                  [spec.checkpoint_path for spec in specs])
+                  [spec.checkpoint_path for spec in specs], region)
     return result.summary
 
 
@@ -197,40 +190,37 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     return problem, suggestion, record
 
 
-def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, truth_labels, start, fixed_segmentation):
-    """One :class:`~rjfit.sampler.runner.ChainSpec` per chain (its seed, start and checkpoint file)."""
+def sampler_config(options: FitOptions, *, fixed: bool = False, problem=None,
+                   region: RegionFit | None = None) -> SamplerConfig:
+    """The kernel's settings from resolved options (``fixed``: no segmentation moves; ``problem``: measures what
+    the region model measures on the data, such as the edge term's power; ``region``: the options' region fit).
+
+    Raises
+    ------
+    ValueError
+        If the burn-in leaves no iteration, or a settings class refuses a value.
+    """
+    region = region_fit(options) if region is None else region
+    return region.sampler_config(options, burn=burn_in_iterations(options), fixed=fixed, problem=problem)
+
+
+def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, truth_labels, start, fixed_segmentation,
+                region: RegionFit | None = None):
+    """One :class:`~rjfit.sampler.runner.ChainSpec` per chain (its seed, start (the region model's,
+    :meth:`~rjfit.pipeline.regions.base.RegionFit.chain_start`) and checkpoint file)."""
+    region = region_fit(options) if region is None else region
     # at least ~50 change-point snapshots after burn-in, so a short run still has its MAP labels
     cp_thin = max(1, min(options.cp_thin, (options.iterations - config.kernel.burn_in) // 50))
     specs = []
     for c in range(options.n_chains):
-        chain_start = dict(start[c]) if start is not None else {}
-        if fixed_segmentation is not None:     # (u, v) change points, or (H, W) material labels
-            chain_start.setdefault("pixel_labels" if options.regions == "materials" else "changepoints",
-                                   fixed_segmentation)
-        elif options.regions == "materials" and "pixel_labels" not in chain_start:
-            # starts stratified over K0 = 1 .. min(4, K_max), not drawn: on a large image a jump between
-            # numbers of materials is rare once a chain has settled, so a mode at a K that no chain started
-            # near could be missed by all of them, and R-hat would not show it
-            chain_start.setdefault("n_materials", MaterialRegions.stratified_start(c, options.max_materials))
+        chain_start = region.chain_start(options, c, dict(start[c]) if start is not None else {},
+                                         fixed_segmentation)
         specs.append(ChainSpec(problem=problem, prior=prior, config=config, seed=options.seed, chain=c,
                                n_chains=options.n_chains, iterations=options.iterations,
                                checkpoint_path=str(out_dir / "checkpoints" / f"chain_{c}.pkl"),
                                checkpoint_every=options.checkpoint_every, cp_thin=cp_thin, truth_labels=truth_labels,
                                start=chain_start, progress=options.progress))
     return specs
-
-
-@dataclass
-class FitResult:
-    """A fit's results in memory: the summary and what its files are made of."""
-
-    summary: dict
-    labels: np.ndarray          # MAP labels (H, W), -1 off the object
-    prediction: dict            # posterior mean prediction (rjfit.posterior.summary.posterior_mean_prediction)
-    problem: Problem
-    burn: int
-    model: tuple
-    extra: dict = field(default_factory=dict)   # the region model's own results (materials: map_probability, draws)
 
 
 def run_entries(records, problem, prior, options: FitOptions, burn: int, suggestion, noise_record) -> dict:
@@ -252,98 +242,17 @@ def run_entries(records, problem, prior, options: FitOptions, burn: int, suggest
 
 
 def summarise(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels,
-              observations):
-    """The chains' kept draws summarised, with their settings (and a material fit's boundary check)."""
-    burn = config.kernel.burn_in
-    if options.regions == "materials":
-        from rjfit.pipeline.fit_materials import add_boundary_check, material_number_warnings, summarise_materials
-
-        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn, config)
-        summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
-        summary["warnings"] += material_number_warnings(summary["regions"], prior) + _fit_warnings(
-            problem, prior, suggestion)
-        if truth_labels is not None:
-            summary.update(truth_summary(records, burn, labels, truth_labels))
-            summary["materials_right_probability"] = summary["materials_posterior"].get(
-                str(summary["true_region_count"]), 0.0)
-        result = FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
-                           model=(summary["map_materials"],), extra=extra)
-        add_boundary_check(result, observations, records)
-        return result
-    n_u, n_v = post.map_model(records, burn)
-    draws = post.map_model_draws(records, burn, (n_u, n_v))
-    labels = post.map_labels(records, burn, (n_u, n_v), problem.image_shape, problem.object_mask)
-    # what the figures and residual maps show: averaged draw by draw, each with its own segmentation
-    prediction = post.posterior_mean_prediction(records, burn, problem)
-    diag = post.diagnostics(draws)
-    summary = {
-        "model_posterior": post.model_posterior(records, burn),
-        "map_model": {"n_u": n_u, "n_v": n_v, "m": model_number(n_u, n_v, options.max_v)},
-        "model_number_convention": "m = n_u * (max_v + 1) + n_v + 1",
-        "regions": post.region_summaries(draws, labels),
-        "rhat_max": diag["rhat_max"], "rhat_reason": diag["rhat_reason"],
-        "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
-        "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"],
-        "diagnostics": diag,
-        "max_u": options.max_u, "max_v": options.max_v,
-        "split_map": options.split_map, "cp_prior": options.cp_prior, "drop_jacobian": options.drop_jacobian,
-        "chain_model_posterior": [post.model_posterior([r], burn) for r in records],
-        "chain_regions": post.chain_region_summaries(records, draws, burn, (n_u, n_v), problem.image_shape,
-                                                     problem.object_mask),
-    }
-    summary.update(run_entries(records, problem, prior, options, burn, suggestion, noise_record))
-    summary["warnings"] = (post.convergence_warnings(diag, summary["chain_model_posterior"], options.n_chains,
-                                                     post.chain_log_posterior_means(records, burn))
-                           + number_warnings(summary, labels, problem, prior, config))
-    summary["warnings"] += _fit_warnings(problem, prior, suggestion)
-    if truth_labels is not None:
-        summary.update(truth_summary(records, burn, labels, truth_labels))
-    return FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
-                     model=(n_u, n_v))
-
-
-def number_warnings(summary: dict, labels, problem, prior, config: SamplerConfig) -> list:
-    """The caveats of the summary's own numbers (:mod:`rjfit.posterior.caveats`): NaN rejections, regions without
-    data, parameters beyond their prior's plausible range, pooled means outside their intervals, a binding model
-    cap (not for a fixed segmentation, whose model cannot move)."""
-    observed = np.zeros(problem.height * problem.width, bool)
-    observed[problem.pixel] = True
-    out = (caveats.nan_rejection_warnings(summary["acceptance_counts"])
-           + caveats.empty_region_warnings(labels, observed.reshape(problem.image_shape), len(summary["regions"]))
-           + caveats.prior_range_warnings(summary["regions"], prior)
-           + caveats.support_bound_warnings(summary["regions"], prior)
-           + caveats.pooled_interval_warnings(summary["regions"]))
-    if getattr(config.regions, "jumps", True):     # a region model without the switch always jumps
-        out += caveats.model_cap_warnings(summary["model_posterior"], {"n_u": (summary["max_u"], "--max-u"),
-                                                                      "n_v": (summary["max_v"], "--max-v")})
-    return out
-
-
-def _fit_warnings(problem, prior, suggestion) -> list:
-    """The warnings of the data and prior that every region model's summary carries."""
-    warnings = []
-    misfit = misfit_warning((suggestion or {}).get("most_misfit_channel", suggestion), float(problem.likelihood_power))
-    if misfit:
-        warnings.append(misfit)
-    if prior.caveat:
-        warnings.append(prior.caveat)
-    return warnings
-
-
-def truth_summary(records, burn, labels, truth_labels) -> dict:
-    """How the fit compares with the ground truth of a synthetic data set."""
-    accuracy = post.label_accuracy(labels, truth_labels)
-    n_true = int(len(np.unique(np.asarray(truth_labels)[np.asarray(truth_labels) >= 0])))
-    return {"label_accuracy": accuracy["accuracy"], "label_matching": accuracy["matching"],
-            "exact_truth_probability": post.exact_truth_probability(records, burn),
-            "true_region_count": n_true,
-            "four_region_probability": post.object_region_count_probability(records, burn, n_true),
-            "true_regions_probability": post.true_regions_probability(records, burn),
-            "chain_true_regions_probability": [post.true_regions_probability([r], burn) for r in records]}
+              observations, region: RegionFit | None = None) -> FitResult:
+    """The chains' kept draws summarised by the region model, with the settings every model records."""
+    region = region_fit(options) if region is None else region
+    run = run_entries(records, problem, prior, options, config.kernel.burn_in, suggestion, noise_record)
+    return region.summarise(records, problem, prior, config, options, run, fit_warnings(problem, prior, suggestion),
+                            truth_labels, observations)
 
 
 def write_results(out_dir: Path, result: FitResult, records, observations, options: FitOptions,
-                  source: FitSource | None, before_publish, started: float, checkpoints) -> None:
+                  source: FitSource | None, before_publish, started: float, checkpoints,
+                  region: RegionFit | None = None) -> None:
     """Stage every result file and publish them together, ``summary.json`` last; then remove the
     chains' ``checkpoints``, which have served.
 
@@ -353,22 +262,18 @@ def write_results(out_dir: Path, result: FitResult, records, observations, optio
     checkpoints and raises :class:`rjfit.errors.OutputError` saying how to publish them.
     """
     with kept_chains(checkpoints, out_dir):
-        _stage_and_publish(out_dir, result, records, observations, options, source, before_publish, started)
+        _stage_and_publish(out_dir, result, records, observations, options, source, before_publish, started,
+                           region_fit(options) if region is None else region)
     remove_checkpoints(checkpoints, out_dir)
 
 
 def _stage_and_publish(out_dir: Path, result: FitResult, records, observations, options: FitOptions,
-                       source: FitSource | None, before_publish, started: float) -> None:
+                       source: FitSource | None, before_publish, started: float, region: RegionFit) -> None:
     summary = result.summary
     with staging_dir(out_dir) as staging, phase("writing the results and figures", options.progress):
         attributes = stamp(summary)         # fit_id, version and schema: in every file
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)}, attributes)
-        if options.regions == "materials":
-            from rjfit.pipeline.fit_materials import write_material_files
-
-            write_material_files(staging, result, records, options, attributes)
-        else:
-            write_changepoint_files(staging, result, records, options, attributes)
+        region.write_files(staging, result, records, options, attributes)
         extra = {name: result.extra[name] for name in ("map_probability", "edge_group") if name in result.extra} or None
         summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra, attributes)
         if source is not None:
@@ -378,23 +283,6 @@ def _stage_and_publish(out_dir: Path, result: FitResult, records, observations, 
         summary["seconds"] = time.perf_counter() - started
         write_summary(staging / "summary.json", relative_paths(summary, out_dir))     # the returned one: absolute
         publish_results(staging, out_dir)
-
-
-def write_changepoint_files(staging: Path, result: FitResult, records, options: FitOptions, attributes: dict) -> None:
-    """A change-point fit's ``chains.nc``, ``changepoints.npz`` and (``options.figures``) figures, all attributed."""
-    summary, burn, max_v = result.summary, result.burn, options.max_v
-    write_chains(staging / "chains.nc", records, result, changepoint_draws(records, burn, result.model), options,
-                 attributes, region_dim="region", key_names=("n_u", "n_v"), max_v=max_v,
-                 about=f"the kept draws of the MAP model (n_u, n_v) = {result.model}, region r its cell r; every other "
-                       f"draw's model is in sample_stats (n_u, n_v, model_number), its regions in no group")
-    save_chain_arrays(staging / "changepoints.npz", records, ("cp_iteration", "cp_u", "cp_v", "n_u", "n_v"), attributes)
-    if options.figures:
-        from rjfit.posterior import figures as figs  # matplotlib: only when figures are drawn
-
-        written = figs.write_all(staging / "figures", records=records, burn_in=burn, model=result.model,
-                                 labels=result.labels, problem=result.problem, prediction=result.prediction,
-                                 max_v=max_v)
-        summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
 
 
 def record_source(summary: dict, source: FitSource, staging: Path, options: FitOptions) -> None:

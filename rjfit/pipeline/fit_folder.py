@@ -135,8 +135,9 @@ SUMMARY_FIELDS = {
                       "with its pixel count"),
     "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),
     "chain_model_posterior": (list, "model posterior of each chain"),
-    "region_model": (str, "what partitions the pixels: 'changepoints' (the paper's) or 'materials' (free-form "
-                          "materials under a Potts prior); the model-specific entries below are that model's"),
+    "region_model": (str, "what partitions the pixels: a --regions name (rjfit.pipeline.regions.REGION_FITS: "
+                          "'changepoints', the paper's; 'materials', free-form materials under a Potts prior; ...); "
+                          "the model-specific entries below are that model's"),
     "materials_posterior": (dict, "materials: posterior probability of each number of materials K (pooled over "
                                   "chains, kept draws)"),
     "map_materials": (int, "materials: the most probable K (the 'regions' entries are its materials)"),

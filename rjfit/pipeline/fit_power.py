@@ -13,14 +13,14 @@ from rjfit.data.noise import noise_scale, weighted_observations
 from rjfit.data.normal_error import normal_error_noise
 from rjfit.data.pixelfit import per_pixel_residuals
 from rjfit.progress import phase
-from rjfit.sampler.edges import edge_term
-from rjfit.sampler.regions.material_labels import labelled_pixels
+from rjfit.sampler.regions.materials.edges import edge_term
+from rjfit.sampler.regions.materials.layout import labelled_pixels
 
 __all__ = ["noise_and_power", "power_suggestion", "channel_normal_error_noise", "edge_power"]
 
 
 def edge_power(problem, options):
-    """The power of the fit's edge term (:mod:`rjfit.sampler.edges`; 0: none): as given, or 'auto' measured
+    """The power of the fit's edge term (:mod:`rjfit.sampler.regions.materials.edges`; 0: none): as given, or 'auto' measured
     once on ``problem``, so that every chain takes that number and the summary records it."""
     if options.edge_power != "auto":
         return float(options.edge_power)

@@ -24,7 +24,6 @@ from rjfit.data.noise import DEFAULT_FLOOR, NOISE_MODELS
 from rjfit.data.observations import RIM_COS
 from rjfit.effects import EFFECTS, effects_help
 from rjfit.sampler.priors import PRESETS
-from rjfit.sampler.state import REGION_MODELS
 
 __all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS", "REGION_OPTIONS", "NOISE_OPTIONS",
            "EFFECT_OPTIONS", "GIVEN"]
@@ -39,6 +38,7 @@ REGION_OPTIONS = {
     "changepoints": frozenset({"max_u", "max_v", "split_map", "cp_prior", "drop_jacobian", "jump_prob"}),
     "materials": frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "cluster_material_seed",
                             "segment_moves"}),
+    "fixed": frozenset({"labels"}),
 }
 #: The options each noise model reads beyond ``noise`` itself (``--noise``); models not named read none.
 NOISE_OPTIONS = {"shot": frozenset({"noise_floor"}), "relative": frozenset({"noise_floor"})}
@@ -134,8 +134,8 @@ class FitOptions:
         ``n_chains < 1``, ``iterations < 10``, an unknown ``prior``, ``noise``, ``channel``,
         ``sampler``, ``split_map`` or ``cp_prior``, a ``likelihood_power`` that is neither
         'auto' nor in (0, 1], ``anneal`` not in [0, 1], ``noise_floor`` not positive,
-        ``max_u`` / ``max_v`` negative, an effect the library does not know, or
-        ``effect_every`` below 1.
+        ``max_u`` / ``max_v`` negative, an effect the library does not know,
+        ``effect_every`` below 1, or a ``labels`` map without ``regions='fixed'``.
     """
 
     n_chains: int = cli_option(4, "--chains", "Chains from dispersed starts.", "int", low=1)
@@ -145,10 +145,14 @@ class FitOptions:
         "float", show_default=False)
     regions: str = cli_option(
         "changepoints", "--regions",
-        "Region model: the paper's change points (changepoints), or free-form materials (materials): a material "
+        "Region model: the paper's change points (changepoints), free-form materials (materials): a material "
         "label per pixel under a Potts prior, K materials unknown, one BRDF per material shared by all its pixels, "
-        "connected or not. Default: changepoints for rendered data, materials for measured data.", "choice",
-        choices=tuple(REGION_MODELS), show_default=False)
+        "connected or not; or your own label map held fixed (fixed, with --labels). Default: changepoints for "
+        "rendered data, materials for measured data.", "choice", choices=tuple(REGION_OPTIONS), show_default=False)
+    labels: Path | None = cli_option(
+        None, "--labels",
+        "Label map of --regions fixed: an integer label per pixel of the images (.npy, .exr or a one-channel image; "
+        "negative: no label); each label's BRDF posterior is sampled, nothing else.", "path", show_default=False)
     max_materials: int = cli_option(8, "--max-materials",
                                     "Most materials (--regions materials); the summary warns when the posterior "
                                     "puts mass on it.", "int", low=1)
@@ -275,6 +279,7 @@ class FitOptions:
         self._convert("edge_power", _edge_power_value)
         self._convert("effects", _effect_names)
         self._convert("effects_from", Path)
+        self._convert("labels", Path)
         self._check_ranges()
 
     def _convert(self, name, convert):

@@ -28,7 +28,7 @@ import numpy as np
 
 from rjfit.data.pixelfit import group_params
 from rjfit.model.blinn import blinn_normalisation
-from rjfit.sampler.edges import EDGE_GAP, matched_lights, pixel_pairs
+from rjfit.sampler.regions.materials.edges import EDGE_GAP, matched_lights, pixel_pairs
 
 __all__ = ["boundary_support", "least_squares_params", "unsupported_boundary_warnings", "edge_groups",
            "edge_group_count", "edge_verdict", "EDGE_GAP", "INSIDE_PAIRS", "FIT_OBSERVATIONS",

@@ -36,7 +36,7 @@ import numpy as np
 from rjfit.posterior.summary import _arviz, map_model_draws
 from rjfit.sampler.likelihood import LOG_2PI, ab_from_theta
 from rjfit.sampler.priors import PARAM_NAMES
-from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
+from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
 
 __all__ = ["chains_inference_data", "changepoint_draws", "log_likelihood_entry", "pixel_blocks",
            "pointwise_log_likelihood", "LOG_LIK_POINTS_MAX", "LOG_LIK_VALUES_MAX"]
@@ -91,7 +91,7 @@ def log_likelihood_entry(idata) -> dict:
 def _pixel_labels(record, snapshot: int, image_shape) -> np.ndarray:
     """The region (row of ``record.theta``) of every pixel at layout snapshot ``snapshot``, flat; -1: none."""
     t = int(record.cp_iteration[snapshot])
-    if record.region_model == "materials":
+    if record.material_labels is not None:     # a material fit's snapshots
         return np.nan_to_num(record.material_labels[snapshot], nan=-1.0).astype(np.int64).ravel()
     n_u, n_v = int(record.n_u[t]), int(record.n_v[t])
     return pixel_region_labels(record.cp_u[snapshot, :, :n_u].astype(float),

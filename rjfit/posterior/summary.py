@@ -9,7 +9,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from rjfit.sampler.priors import PARAM_NAMES
-from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
+from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
 
 __all__ = ["model_posterior", "map_model", "map_model_draws", "region_summaries", "diagnostics",
            "map_labels", "label_accuracy", "exact_truth_probability", "true_regions_probability",
@@ -277,7 +277,7 @@ def draw_labels(record, snapshot: int, problem) -> tuple[int, np.ndarray]:
     """(number of regions, region of every observation of ``problem``) of a chain's layout snapshot
     (change points, or material labels per pixel; for a joint colour fit parameter rows,
     ``material C + channel``, and their number)."""
-    from rjfit.sampler.regions.changepoint_grid import obs_region_labels
+    from rjfit.sampler.regions.changepoints.grid import obs_region_labels
 
     t = record.cp_iteration[snapshot]
     if getattr(record, "n_materials", None) is not None:      # materials: the snapshot holds the labels
@@ -293,7 +293,7 @@ def draw_labels(record, snapshot: int, problem) -> tuple[int, np.ndarray]:
     return (n_u + 1) * (n_v + 1), labels
 
 
-def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 100) -> dict:
+def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 100, labels_of=None) -> dict:
     """Per-pixel maps of the posterior mean prediction, averaged draw by draw over kept draws of every model.
 
     For each kept draw with a layout snapshot (change points or material labels; at most ``max_draws``, evenly spaced
@@ -315,12 +315,17 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
         observations, averaged together above) adds ``radiance_rgb`` and ``observed_rgb``
         (H, W, C), each channel's mean over lights.
 
+    ``labels_of(record, snapshot, problem) -> (number of regions, region of every observation)``: a draw's
+    segmentation (default :func:`draw_labels`, which reads change-point or material snapshots).
+
     Raises
     ------
     ValueError
         If no change-point snapshot lies after ``burn_in``.
     """
     from rjfit.model.blinn import blinn_normalisation
+
+    labels_of = draw_labels if labels_of is None else labels_of
 
     kept = [(rec, s) for rec in records for s in np.flatnonzero(rec.cp_iteration >= burn_in)]
     if not kept:
@@ -330,7 +335,7 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
         from rjfit.posterior.effects import effects_prediction
 
         def picks_of(_):
-            return [(kept[i][0], kept[i][0].cp_iteration[kept[i][1]], draw_labels(*kept[i], problem)[1]) for i in picks]
+            return [(kept[i][0], kept[i][0].cp_iteration[kept[i][1]], labels_of(*kept[i], problem)[1]) for i in picks]
         return effects_prediction(records, burn_in, problem, picks_of)
     C = problem.C.astype(np.float64)
     log_cos_hn = problem.log_cos_hn.astype(np.float64)
@@ -338,7 +343,7 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
     sigma2_sum = np.zeros(problem.n_obs)
     for index in picks:
         rec, s = kept[index]
-        n_regions, labels = draw_labels(rec, s, problem)
+        n_regions, labels = labels_of(rec, s, problem)
         I0, kd, gamma, sigma2 = (rec.theta[rec.cp_iteration[s], :n_regions, k] for k in range(4))
         # eq. 2 per region, gathered per observation: mu = C (I0 kd / pi + I0 (1 - kd) N(g) <h.n>^g), with
         # C = E <l.n>; the Problem's y and C are divided by the known noise scales s, so mu here is mu / s too

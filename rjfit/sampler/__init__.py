@@ -20,7 +20,7 @@ from rjfit.sampler.kernel import ChainContext, initial_state, log_posterior, mak
 from rjfit.sampler.likelihood import oracle_log_likelihood
 from rjfit.sampler.priors import Prior, make_prior
 from rjfit.sampler.regions.base import RegionModel
-from rjfit.sampler.regions.changepoint_grid import Changepoints, model_number, pixel_region_labels
+from rjfit.sampler.regions.changepoints.grid import Changepoints, model_number, pixel_region_labels
 from rjfit.sampler.regions.changepoints import ChangepointRegions
 from rjfit.sampler.runner import ChainRecord, ChainSpec, run_chain, run_chains
 from rjfit.sampler.state import ChainState, SamplerConfig, StepInfo

@@ -86,7 +86,7 @@ def obs_log_density(problem: Problem, idx, theta_obs) -> np.ndarray:
 # ----------------------------------------------------------------------------- chains along the lines
 
 def forward_filter(log_emit, log_kernel):
-    """Twin of :func:`rjfit.sampler.passes.paths.forward_filter` (FFT convolution of linear weights).
+    """Twin of :func:`rjfit.sampler.regions.changepoints.passes.paths.forward_filter` (FFT convolution of linear weights).
 
     ``log_kernel`` (2 S - 1 or more entries, centred) holds the log weights of cell steps.
     """
@@ -124,8 +124,8 @@ def cell_step_logits(log_kernel):
 
 
 def path_log_prob(alpha, path, logits_given_next):
-    """Twin of :func:`~rjfit.sampler.passes.paths.cell_path_log_prob` and
-    :func:`~rjfit.sampler.passes.paths.rank_path_log_prob`: the log probability that
+    """Twin of :func:`~rjfit.sampler.regions.changepoints.passes.paths.cell_path_log_prob` and
+    :func:`~rjfit.sampler.regions.changepoints.passes.paths.rank_path_log_prob`: the log probability that
     :func:`backward_sample` draws ``path``."""
     total = float(alpha[-1, path[-1]])            # alpha rows are normalised
     for r in range(alpha.shape[0] - 2, -1, -1):
@@ -143,8 +143,8 @@ def _draw_index(logits, rng):
 
 
 def backward_sample(alpha, logits_given_next, rng):
-    """Twin of :func:`~rjfit.sampler.passes.paths.cell_backward_sample` and
-    :func:`~rjfit.sampler.passes.paths.rank_backward_sample`: a path drawn from the chain
+    """Twin of :func:`~rjfit.sampler.regions.changepoints.passes.paths.cell_backward_sample` and
+    :func:`~rjfit.sampler.regions.changepoints.passes.paths.rank_backward_sample`: a path drawn from the chain
     whose normalised forward log alphas are ``alpha``, last line first, one uniform per line."""
     path = np.empty(alpha.shape[0], np.int64)
     path[-1] = _draw_index(alpha[-1], rng)
@@ -162,7 +162,7 @@ def normal_mass(a, b):
 def within_cell_log_density(x, x_next, lo, hi, sd):
     """Log density of positions x (L,) inside their cells [lo, hi) of the backward draw, per line.
 
-    Twin of :func:`rjfit.sampler.passes.paths.within_cells_log_density` (which sums it).
+    Twin of :func:`rjfit.sampler.regions.changepoints.passes.paths.within_cells_log_density` (which sums it).
     Line L - 1 is uniform in its cell; line r < L - 1 follows the prior's step, a normal
     around the next line's position x_next truncated to the cell (uniform where the cell
     holds less than 1e-12 of that normal's mass, or without a step model, ``sd`` None).
@@ -180,7 +180,7 @@ def within_cell_log_density(x, x_next, lo, hi, sd):
 
 
 def draw_within_cells(lo, hi, sd, rng):
-    """Twin of :func:`rjfit.sampler.passes.paths.within_cells_draw`: positions inside the cells [lo, hi),
+    """Twin of :func:`rjfit.sampler.regions.changepoints.passes.paths.within_cells_draw`: positions inside the cells [lo, hi),
     drawn from line L - 1 backwards, one uniform per line (see :func:`within_cell_log_density`)."""
     n_lines = lo.size
     x = np.empty(n_lines)
@@ -201,10 +201,10 @@ def draw_within_cells(lo, hi, sd, rng):
 
 
 def rank_chain(log_emit, log_t):
-    """Twin of :func:`rjfit.sampler.passes.paths.rank_forward`: forward alphas, and the backward logits function.
+    """Twin of :func:`rjfit.sampler.regions.changepoints.passes.paths.rank_forward`: forward alphas, and the backward logits function.
 
     ``log_t[from, to]`` are the chain's log transitions between ranks
-    (:func:`rjfit.sampler.moves.birth_death_free.rank_transitions`); the logits function is
+    (:func:`rjfit.sampler.regions.changepoints.birth_death_free.rank_transitions`); the logits function is
     what :func:`path_log_prob` and :func:`backward_sample` take.
     """
     n_lines, n = log_emit.shape
@@ -225,7 +225,7 @@ def rank_chain(log_emit, log_t):
 # ----------------------------------------------------------------------------- material labels
 
 def pixel_log_lik(problem: Problem, theta) -> np.ndarray:
-    """Twin of :func:`rjfit.sampler.passes.labels.pixel_log_lik`: (K, H W) per-pixel sums of log densities (fsum)."""
+    """Twin of :func:`rjfit.sampler.regions.materials.passes.labels.pixel_log_lik`: (K, H W) per-pixel sums of log densities (fsum)."""
     theta = np.asarray(theta, float)
     n_pix = problem.height * problem.width
     out = np.zeros((theta.shape[0], n_pix))
@@ -238,7 +238,7 @@ def pixel_log_lik(problem: Problem, theta) -> np.ndarray:
 
 
 def pixel_log_lik_colour(problem: Problem, theta) -> np.ndarray:
-    """Twin of :func:`rjfit.sampler.passes.labels.pixel_log_lik_colour`: (K, H W), material k's channel c in row
+    """Twin of :func:`rjfit.sampler.regions.materials.passes.labels.pixel_log_lik_colour`: (K, H W), material k's channel c in row
     ``k C + c`` (fsum per pixel)."""
     theta = np.asarray(theta, float)
     n_ch = problem.n_channels
@@ -253,7 +253,7 @@ def pixel_log_lik_colour(problem: Problem, theta) -> np.ndarray:
 
 
 def gibbs_sweep(pixel_labels, labelled, log_lik, power, beta, image_shape, counts, uniforms, parity) -> int:
-    """Twin of :func:`rjfit.sampler.passes.labels.gibbs_sweep` (pixel by pixel, NumPy per pixel); in place."""
+    """Twin of :func:`rjfit.sampler.regions.materials.passes.labels.gibbs_sweep` (pixel by pixel, NumPy per pixel); in place."""
     height, width = image_shape
     changed = 0
     for r in range(height):
@@ -282,7 +282,7 @@ _MASK64 = (1 << 64) - 1
 
 
 def edge_uniform(key: int, edge: int) -> float:
-    """Twin of :func:`rjfit.sampler.passes.labels.edge_uniform` (SplitMix64 in Python integers)."""
+    """Twin of :func:`rjfit.sampler.regions.materials.passes.labels.edge_uniform` (SplitMix64 in Python integers)."""
     z = (key + edge + 0x9E3779B97F4A7C15) & _MASK64
     z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
     z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
@@ -291,7 +291,7 @@ def edge_uniform(key: int, edge: int) -> float:
 
 
 def grow_cluster(pixel_labels, labelled, bond_q, key, seed, image_shape, n_labels):
-    """Twin of :func:`rjfit.sampler.passes.labels.grow_cluster`: the on-bond component by a breadth-first search."""
+    """Twin of :func:`rjfit.sampler.regions.materials.passes.labels.grow_cluster`: the on-bond component by a breadth-first search."""
     height, width = image_shape
 
     def neighbours(p):
@@ -325,7 +325,7 @@ def grow_cluster(pixel_labels, labelled, bond_q, key, seed, image_shape, n_label
 
 
 def allocate_split(members, guide_log_lik, power, beta, image_shape, uniforms, forced):
-    """Twin of :func:`rjfit.sampler.passes.labels.allocate_split`: the same allocation with a softmax per pixel."""
+    """Twin of :func:`rjfit.sampler.regions.materials.passes.labels.allocate_split`: the same allocation with a softmax per pixel."""
     height, width = image_shape
     part_of = {}
     parts = np.empty(len(members), np.int8)

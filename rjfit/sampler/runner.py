@@ -72,7 +72,7 @@ class ChainRecord:
     (:attr:`RegionModel.key_names <rjfit.sampler.regions.base.RegionModel.key_names>`,
     :meth:`~rjfit.sampler.regions.base.RegionModel.snapshot`): change points record
     ``n_u``, ``n_v`` and snapshots ``cp_u``, ``cp_v``; materials record ``n_materials`` and
-    snapshots ``material_labels``. The other model's fields are None.
+    snapshots ``material_labels``; a fixed label map records neither. The other fields are None.
     """
 
     theta: np.ndarray               # (T, R_max, 4), NaN beyond the current model's regions
@@ -104,11 +104,6 @@ class ChainRecord:
     PER_DRAW = ("theta", "log_lik", "log_post", "exact_truth", "true_regions", "object_regions", "n_u", "n_v",
                 "n_materials", "effects", "jumped")
     PER_SNAPSHOT = ("cp_iteration", "cp_u", "cp_v", "material_labels")
-
-    @property
-    def region_model(self) -> str:
-        """'materials' or 'changepoints': which region model's fields this record holds."""
-        return "materials" if self.n_materials is not None else "changepoints"
 
     def truncated(self, t: int) -> ChainRecord:
         keep = self.cp_iteration < t
@@ -433,7 +428,10 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
 
 
 def _model_text(regions, state) -> str:
-    """``model (n_u, n_v) = (1, 2)``: the chain's current model in a progress line."""
+    """``model (n_u, n_v) = (1, 2)``: the chain's current model in a progress line (a region model without model
+    keys, whose layout never moves: its number of regions)."""
+    if not regions.key_names:
+        return f"{state.layout.n_regions} regions"
     names = ", ".join(regions.key_names)
     return f"model ({names}) = ({', '.join(str(int(k)) for k in state.layout.model_key)})"
 

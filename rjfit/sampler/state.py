@@ -2,7 +2,7 @@
 
 The state (:class:`ChainState`) is a frozen dataclass whose arrays the kernel never writes
 to: a step builds new arrays for what it changes. Its ``layout`` is the region model's
-structure (for change points :class:`~rjfit.sampler.regions.changepoint_grid.Changepoints`,
+structure (for change points :class:`~rjfit.sampler.regions.changepoints.grid.Changepoints`,
 the u and v vectors); ``labels`` (region per observation), ``stats`` and ``log_lik`` are
 functions of the layout and the parameters cached for speed;
 :func:`rjfit.sampler.kernel.refresh` recomputes them from scratch. During a step the kernel
@@ -99,7 +99,7 @@ class Work:
     labels_owned: bool = False
     region_index: dict | None = None  # region -> RegionData, valid for ``labels``
     pixel_sets: object = None
-    edges: object = None    # the material model's EdgeTerm (rjfit.sampler.edges); None: no edge term
+    edges: object = None    # the material model's EdgeTerm (rjfit.sampler.regions.materials.edges); None: no edge term
 
     def region_data(self, r: int, problem):
         """:class:`RegionData` of region r; every region's runs come from one read of the labels, once per labelling."""
@@ -243,17 +243,18 @@ class SamplerConfig:
                              "give --edge-power 0 with the paper's sampler")
 
     @classmethod
-    def from_flat(cls, region_model: str = "changepoints", **options) -> SamplerConfig:
+    def from_flat(cls, region_model="changepoints", **options) -> SamplerConfig:
         """The config from flat option names (``max_u=2, sampler='paper', burn_in=500, ...``; see :data:`FLAT_OPTIONS`).
 
-        ``region_model``: 'changepoints' (the paper's, default) or 'materials'
-        (:class:`~rjfit.sampler.regions.materials.MaterialRegions`). Options left out keep
-        their settings' defaults.
+        ``region_model``: a name of :data:`REGION_MODELS` ('changepoints', the paper's and the
+        default, or 'materials', :class:`~rjfit.sampler.regions.materials.MaterialRegions`) or a
+        :class:`~rjfit.sampler.regions.base.RegionModel` class, built with its defaults. Options
+        left out keep their settings' defaults.
 
         Raises
         ------
         TypeError
-            For an option name that is not in :data:`FLAT_OPTIONS`, or one of the other
+            For an option name that is not in :data:`FLAT_OPTIONS`, or one of another
             region model's.
         ValueError
             For a value a settings class rejects, or an unknown ``region_model``.
@@ -261,9 +262,10 @@ class SamplerConfig:
         unknown = sorted(set(options) - set(FLAT_OPTIONS))
         if unknown:
             raise TypeError(f"unknown sampler option(s) {', '.join(unknown)}: choose from {', '.join(FLAT_OPTIONS)}")
-        if region_model not in REGION_MODELS:
+        model = _region_model(region_model)
+        if model is None:
             raise ValueError(f"unknown region model {region_model!r}: choose one of {', '.join(REGION_MODELS)}")
-        base = cls(regions=REGION_MODELS[region_model]())
+        base = cls(regions=model())
         changes: dict = {}
         for name, value in options.items():
             paths = [path for path in FLAT_OPTIONS[name] if _has_path(base, path)]
@@ -278,13 +280,19 @@ class SamplerConfig:
         return _apply(base, changes)
 
 
-def flat_option_applies(name: str, region_model: str = "changepoints") -> bool:
-    """Whether :meth:`SamplerConfig.from_flat` takes the flat option ``name`` for ``region_model``
-    (False for names that are not flat options, and for the other region model's options)."""
-    if name not in FLAT_OPTIONS or region_model not in REGION_MODELS:
+def flat_option_applies(name: str, region_model="changepoints") -> bool:
+    """Whether :meth:`SamplerConfig.from_flat` takes the flat option ``name`` for ``region_model`` (a name or a
+    RegionModel class; False for names that are not flat options, and for another region model's options)."""
+    model = _region_model(region_model)
+    if name not in FLAT_OPTIONS or model is None:
         return False
-    base = SamplerConfig(regions=REGION_MODELS[region_model]())
+    base = SamplerConfig(regions=model())
     return any(_has_path(base, path) for path in FLAT_OPTIONS[name])
+
+
+def _region_model(region_model):
+    """The RegionModel class of a name of :data:`REGION_MODELS` or a class (None: an unknown name)."""
+    return REGION_MODELS.get(region_model) if isinstance(region_model, str) else region_model
 
 
 def _has_path(obj, path: str) -> bool:

@@ -13,7 +13,7 @@ from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.likelihood import RegionData, log_likelihood_from_stats, oracle_log_likelihood, region_stats
 from rjfit.sampler.priors import make_prior
-from rjfit.sampler.regions.changepoint_grid import obs_region_labels
+from rjfit.sampler.regions.changepoints.grid import obs_region_labels
 from rjfit.sampler.state import SamplerConfig
 
 

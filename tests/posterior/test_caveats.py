@@ -60,7 +60,7 @@ def test_an_interval_that_reaches_a_bound_of_the_prior_s_support_is_named():
 
 
 def test_a_colour_material_is_checked_per_channel_and_its_gamma_once():
-    from rjfit.pipeline.fit_materials import material_number_warnings
+    from rjfit.pipeline.regions.materials import material_number_warnings
 
     plain = _region(0)
     colour = {"region": 1, "material": 1, "pixels": 10, "gamma": {"mean": 0.008, "sd": 0.001, "q2.5": 0.007, "q97.5": 0.009},

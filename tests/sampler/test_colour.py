@@ -23,7 +23,7 @@ from rjfit.sampler import reference
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, refresh, step
 from rjfit.sampler.likelihood import oracle_log_likelihood, region_stats
-from rjfit.sampler.passes.labels import pixel_log_lik_colour, relabel_pixels_colour
+from rjfit.sampler.regions.materials.passes.labels import pixel_log_lik_colour, relabel_pixels_colour
 from rjfit.sampler.state import SamplerConfig
 
 from builders import Quadrature, tiny_colour_problem

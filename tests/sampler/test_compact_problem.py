@@ -10,7 +10,7 @@ from rjfit.sampler import forward
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import make_state
 from rjfit.sampler.likelihood import RegionData, region_stats
-from rjfit.sampler.regions.changepoint_grid import Changepoints
+from rjfit.sampler.regions.changepoints.grid import Changepoints
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The material model's edge term (rjfit.sampler.edges): its value, and the exactness of every move that holds it.
+"""The material model's edge term (rjfit.sampler.regions.materials.edges): its value, and the exactness of every move that holds it.
 
 Value: the compiled total against a direct sum over pixel pairs and lights written here from
 the definition; a boundary between two copies of one material costs nothing, the true step
@@ -26,12 +26,13 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.data.observations import Observations
 from rjfit.model.blinn import blinn_normalisation
-from rjfit.sampler.edges import edge_term
+from rjfit.sampler.regions.materials.edges import edge_term
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.moves import ab_conditional, gamma, phi_walk
-from rjfit.sampler.regions import materials
-from rjfit.sampler.regions.material_labels import labelled_pixels
+from rjfit.sampler.moves import base as move_protocol
+from rjfit.sampler.regions.materials import moves as material_moves
+from rjfit.sampler.regions.materials.layout import labelled_pixels
 from rjfit.sampler.state import SamplerConfig
 
 from builders import Quadrature, canonical, ess_scaled_chi2, exact_partition_posterior, tiny_problem
@@ -280,10 +281,9 @@ def test_label_moves_without_the_edge_term_are_detected(square, monkeypatch, lef
                 work.edges = kept
         return run
     if left_out == "sweep":
-        monkeypatch.setattr(materials, "sweep_labels", without_edges(materials.sweep_labels))
-    else:
-        monkeypatch.setattr(materials.MaterialRegions, "_test", staticmethod(without_edges(
-            materials.MaterialRegions._test)))
+        monkeypatch.setattr(material_moves, "sweep_labels", without_edges(material_moves.sweep_labels))
+    else:      # the one test of every label move's proposal
+        monkeypatch.setattr(move_protocol, "decide", without_edges(move_protocol.decide))
     p_part, p_i0, details = check(*run_chain(problem, prior, config, 2, n_materials=n_blocks), exact, i0_exact)
     print(left_out, p_part, p_i0, details)
     assert p_part < 1e-6, details

@@ -34,7 +34,7 @@ from rjfit.model.priors import LogitNormal, LogNormal, Normal
 from rjfit.sampler import reference
 from rjfit.sampler.forward import LambertBlinnPhong, transformed
 from rjfit.sampler.likelihood import region_stats
-from rjfit.sampler.passes.labels import pixel_log_lik, relabel_pixels
+from rjfit.sampler.regions.materials.passes.labels import pixel_log_lik, relabel_pixels
 
 
 def every_effect(observations, seed=0):

@@ -15,9 +15,9 @@ outcome deterministic); so are the frequencies of K. The parameters of pixel 0's
 are compared with their exact marginal (a mixture over partitions of the blocks'
 quadrature marginals) by one-sample KS tests on draws thinned to about one per effective
 sample, level 0.001. K changes by the cluster moves' births and deaths, by the segment
-moves' (:mod:`rjfit.sampler.moves.segment_move`; on these images the family's superpixels
+moves' (:mod:`rjfit.sampler.regions.materials.segment_move`; on these images the family's superpixels
 are single pixels) and by the merge/split moves of whole materials
-(:mod:`rjfit.sampler.moves.merge_split`), together and, in three tests, by one family alone.
+(:mod:`rjfit.sampler.regions.materials.merge_split`), together and, in three tests, by one family alone.
 The negative controls must be rejected with p < 1e-6: the segment moves without the Potts
 change, the cluster moves without their cut products (their ``log(1 - q)`` sums) with
 bonds near q_max, and the merge/split moves with the split probability q(X, Y) missing the
@@ -32,9 +32,9 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.moves import cluster_swc, merge_split, segment_move
-from rjfit.sampler.passes.labels import allocate_split
-from rjfit.sampler.regions.material_labels import boundary_count
+from rjfit.sampler.regions.materials import cluster_swc, merge_split, segment_move
+from rjfit.sampler.regions.materials.passes.labels import allocate_split
+from rjfit.sampler.regions.materials.layout import boundary_count
 from rjfit.sampler.state import SamplerConfig
 
 from builders import Quadrature, canonical, ess_scaled_chi2, exact_partition_posterior, set_partitions, tiny_problem

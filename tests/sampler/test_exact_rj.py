@@ -25,7 +25,7 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.regions.changepoint_grid import pixel_region_labels
+from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
 from rjfit.sampler.state import SamplerConfig
 
 from builders import CP_SMOOTH_SD as SMOOTH_SD

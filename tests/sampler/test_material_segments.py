@@ -1,6 +1,6 @@
 """The segment moves' family of candidate sets, and the moves' bookkeeping.
 
-The family (:func:`rjfit.sampler.regions.material_segments.segment_family`) must be a
+The family (:func:`rjfit.sampler.regions.materials.segments.segment_family`) must be a
 hierarchy of connected sets over the labelled pixels with positive weights summing to one;
 and it must hold a set close to a compact region whose per-pixel features are too noisy to
 single it out pixel by pixel, which is why it exists (psm-rock's pebble: 2.1 within-material
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from rjfit.sampler.moves.segment_move import SegmentSettings, edges_to_labels
-from rjfit.sampler.regions.material_labels import boundary_count
-from rjfit.sampler.regions.material_segments import segment_family
+from rjfit.sampler.regions.materials.segment_move import SegmentSettings, edges_to_labels
+from rjfit.sampler.regions.materials.layout import boundary_count
+from rjfit.sampler.regions.materials.segments import segment_family
 
 from builders import raises
 

@@ -17,14 +17,14 @@ from rjfit.model.blinn import radiance
 from rjfit.sampler import reference
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
-from rjfit.sampler.kmeans import lloyd, lloyd_numpy, standardised, two_means_labels
+from rjfit.sampler.regions.materials.kmeans import lloyd, lloyd_numpy, standardised, two_means_labels
 from rjfit.sampler.likelihood import log_likelihood_from_stats, oracle_log_likelihood, region_stats
-from rjfit.sampler.moves import merge_split
-from rjfit.sampler.passes import labels as passes
+from rjfit.sampler.regions.materials import merge_split
+from rjfit.sampler.regions.materials.passes import labels as passes
 from rjfit.sampler.pixel_sets import PixelSets
 from rjfit.sampler.priors import make_prior
-from rjfit.sampler.regions import material_labels
-from rjfit.sampler.regions.material_labels import PottsPrior, bond_probabilities, boundary_count, kmeans_labels
+from rjfit.sampler.regions.materials import layout as material_labels
+from rjfit.sampler.regions.materials.layout import PottsPrior, bond_probabilities, boundary_count, kmeans_labels
 from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.state import SamplerConfig
 
@@ -300,7 +300,7 @@ def test_the_start_majority_filter_makes_a_scattered_labelling_compact_and_keeps
     probability P(Bin(25, 0.2) >= 13) = 4e-4 per pixel away from the boundary: 0.99 allows 25
     times that); a label with no window majority goes and the others are
     renumbered 0 .. K' - 1; unlabelled pixels stay -1."""
-    from rjfit.sampler.regions.material_labels import boundary_count, majority_labels
+    from rjfit.sampler.regions.materials.layout import boundary_count, majority_labels
 
     rng = np.random.default_rng(0)
     truth = np.zeros((30, 40), np.int8)

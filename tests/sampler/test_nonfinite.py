@@ -11,7 +11,7 @@ from rjfit.sampler.likelihood import AB_PLAIN_MAX, RegionData, log_lik_large_ab,
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab
 from rjfit.sampler.moves.gamma import ls_profile, newton_log_gamma
 from rjfit.sampler.moves.region_terms import giesen_norm, region_log_lik
-from rjfit.sampler.passes import paths
+from rjfit.sampler.regions.changepoints.passes import paths
 
 # ls_profile's arguments where it overflowed, recorded in a psm-rock fit (4 chains x 1000, seed 0,
 # likelihood power auto): gamma 838, the region's lobe sums subnormal (SBB 8.8e-322)

@@ -17,7 +17,8 @@ import textwrap
 SCRIPT = textwrap.dedent("""
     import json
     import numpy as np
-    from rjfit.sampler.passes import cells, labels as label_passes, sums
+    from rjfit.sampler.passes import cells, sums
+    from rjfit.sampler.regions.materials.passes import labels as label_passes
     from rjfit.sampler.passes.lobe import LobeTerms
 
     rng = np.random.default_rng(0)

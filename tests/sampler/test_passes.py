@@ -14,10 +14,11 @@ from rjfit.data.synthetic import sphere_stack
 from rjfit.sampler import reference
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.likelihood import RegionData, b_terms, region_stats
-from rjfit.sampler.moves.birth_death_free import rank_transitions
+from rjfit.sampler.regions.changepoints.birth_death_free import rank_transitions
 from rjfit.sampler.moves.gamma import newton_log_gamma
-from rjfit.sampler.passes import cells, paths, shifts, special, sums
-from rjfit.sampler.regions.changepoint_grid import obs_region_labels
+from rjfit.sampler.passes import cells, shifts, special, sums
+from rjfit.sampler.regions.changepoints.passes import paths
+from rjfit.sampler.regions.changepoints.grid import obs_region_labels
 from rjfit.sampler.runner import numba_threads
 
 

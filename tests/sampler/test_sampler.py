@@ -8,11 +8,11 @@ from rjfit.data.synthetic import sphere_stack
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import anneal_power, initial_state, make_state, step
 from rjfit.sampler.likelihood import RegionData, oracle_log_likelihood, region_stats
-from rjfit.sampler.moves.birth_death import birth_probability, propose_birth, propose_death
-from rjfit.sampler.moves.birth_death_free import propose_birth_free, propose_death_free
+from rjfit.sampler.regions.changepoints.birth_death import birth_probability, propose_birth, propose_death
+from rjfit.sampler.regions.changepoints.birth_death_free import propose_birth_free, propose_death_free
 from rjfit.sampler.moves.region_proposals import LAPLACE_COARSE_OBS, laplace_log_gamma
 from rjfit.sampler.priors import ParamPrior, Prior, make_prior
-from rjfit.sampler.regions.changepoint_grid import (
+from rjfit.sampler.regions.changepoints.grid import (
     Changepoints,
     log_prior_changepoints,
     model_from_number,

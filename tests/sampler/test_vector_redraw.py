@@ -17,8 +17,8 @@ from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import make_state
-from rjfit.sampler.moves.vector_redraw import accept_vector_redraw, propose_vector_redraw
-from rjfit.sampler.regions.changepoint_grid import ChangepointPrior, Changepoints
+from rjfit.sampler.regions.changepoints.vector_redraw import accept_vector_redraw, propose_vector_redraw
+from rjfit.sampler.regions.changepoints.grid import ChangepointPrior, Changepoints
 from rjfit.sampler.state import Work
 
 LEVEL = 1e-3

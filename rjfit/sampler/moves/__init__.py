@@ -11,15 +11,14 @@ statistics and parameters), run for every region by :mod:`~rjfit.sampler.moves.w
 - :mod:`~rjfit.sampler.moves.paper_mh`: the paper's component-wise MH;
 - :mod:`~rjfit.sampler.moves.region_terms`: scalar terms they share (Giesen's normalisation).
 
-Structure moves of the change-point region model
-(:mod:`rjfit.sampler.regions.changepoints` runs them), each module with its settings:
+Shared by the region models' structure moves:
 
-- :mod:`~rjfit.sampler.moves.sweeps`: element sweeps;
-- :mod:`~rjfit.sampler.moves.block_shift`: block shift;
-- :mod:`~rjfit.sampler.moves.vector_redraw`: whole-vector redraw (forward filtering, backward sampling);
-- :mod:`~rjfit.sampler.moves.birth_death`: birth/death keeping ranks, split/merge maps;
-- :mod:`~rjfit.sampler.moves.birth_death_free`: birth/death at any rank;
-- :mod:`~rjfit.sampler.moves.region_proposals`: Laplace proposals of whole regions' parameters.
+- :mod:`~rjfit.sampler.moves.region_proposals`: Laplace proposals of whole regions' parameters;
+- :mod:`~rjfit.sampler.moves.colour_within`: a joint colour fit's within-material moves;
+- :mod:`~rjfit.sampler.moves.effects`: the effects' global parameters.
+
+Each region model's own structure moves live in its package
+(:mod:`rjfit.sampler.regions.changepoints`, :mod:`rjfit.sampler.regions.materials`).
 
 Every move that tests a proposal decides with :func:`~rjfit.sampler.moves.accept.accept`;
 structure moves return a :class:`~rjfit.sampler.moves.proposal.Proposal`.

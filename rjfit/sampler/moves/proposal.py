@@ -1,4 +1,4 @@
-"""What a structure move proposes: the new state's parts and the log acceptance ratio."""
+"""What a structure move proposes: the new state's parts, the log acceptance ratio, its kind and whether it jumps."""
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -30,8 +30,16 @@ class Proposal(NamedTuple):
     log_lik : ndarray (R,) or None
     log_ratio : float
     shift : tuple or None
-        ``(starts, ends, delta)`` of :func:`rjfit.sampler.moves.sweeps.element_shift`
+        ``(starts, ends, delta)`` of :func:`rjfit.sampler.regions.changepoints.sweeps.element_shift`
         (incremental proposals only).
+    kind : str
+        The move's name in the step's acceptance counts (``birth_u``, ``cluster``, ...).
+    jump : bool
+        Whether it changes the model's dimension (a birth, death, merge or split): an accepted
+        jump is recorded per draw (:attr:`rjfit.sampler.state.StepInfo.jump`).
+    tested : bool
+        False for a proposal with nothing to test (a renaming, a set of two labels): counted as
+        a rejection, no uniform drawn (:func:`rjfit.sampler.moves.base.decide`).
     """
 
     layout: object
@@ -41,8 +49,20 @@ class Proposal(NamedTuple):
     log_lik: np.ndarray | None
     log_ratio: float
     shift: tuple | None = None
+    kind: str = ""
+    jump: bool = False
+    tested: bool = True
 
     @classmethod
     def invalid(cls, layout, labels=None) -> Proposal:
         """A proposal that can only be rejected (log ratio -inf)."""
         return cls(layout, None, labels, None, None, -np.inf)
+
+    @classmethod
+    def untested(cls, kind: str) -> Proposal:
+        """Nothing to test: a move of ``kind`` that is counted as a rejection and draws no uniform."""
+        return cls(None, None, None, None, None, -np.inf, kind=kind, tested=False)
+
+    def named(self, kind: str, jump: bool = False) -> Proposal:
+        """This proposal as a move of ``kind`` (``jump``: one that changes the model's dimension)."""
+        return self._replace(kind=kind, jump=jump)

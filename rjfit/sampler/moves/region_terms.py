@@ -42,7 +42,7 @@ def stats_at_gamma(work, r, problem, g):
 
 
 def edge_delta(work, r, theta_r) -> float:
-    """The change of the target's edge term (:mod:`rjfit.sampler.edges`) when region ``r``'s parameters become
+    """The change of the target's edge term (:mod:`rjfit.sampler.regions.materials.edges`) when region ``r``'s parameters become
     ``theta_r``; 0 without an edge term. A parameter move adds it to its log ratio."""
     if work.edges is None:
         return 0.0

@@ -5,11 +5,10 @@
 - :mod:`~rjfit.sampler.passes.densities`: per-observation log densities (building blocks);
 - :mod:`~rjfit.sampler.passes.shifts`: element moves (observations that change region);
 - :mod:`~rjfit.sampler.passes.cells`: per-pixel and per-cell sums of change-point vectors;
-- :mod:`~rjfit.sampler.passes.paths`: forward filtering, backward sampling, rank chains;
-- :mod:`~rjfit.sampler.passes.sweep`: the element sweep's proposals;
-- :mod:`~rjfit.sampler.passes.lloyd`: Lloyd's k-means iterations (the split guide's 2-means);
-- :mod:`~rjfit.sampler.passes.edges`: the material model's edge term (its boundaries' sums, the
-  label sweep's delayed acceptance).
+
+Each region model's own passes live in its package (:mod:`rjfit.sampler.regions.changepoints.passes`:
+forward filtering, backward sampling, rank chains, the element sweep's proposals;
+:mod:`rjfit.sampler.regions.materials.passes`: label sweeps, the edge term, Lloyd's iterations).
 
 Why a JIT: profiling the full kernel (``validation/bench_sampler.py``'s
 segmentation-sampled row, 256 x 256 chains) showed it spending its time in NumPy passes

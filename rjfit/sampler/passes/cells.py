@@ -156,7 +156,7 @@ def removal_sums(y, C, log_cos_hn, line_of, labels, theta, n, n_v, step, axis_u,
 
     ``sums`` (3, L * (n + 1)) accumulates; column = the observation's region index along the
     axis (``label // (n_v + 1)`` for u, ``label % (n_v + 1)`` for v). See
-    :func:`rjfit.sampler.moves.birth_death_free.removal_log_emit`. Phased per block like
+    :func:`rjfit.sampler.regions.changepoints.birth_death_free.removal_log_emit`. Phased per block like
     :func:`per_pixel_two_cases` (the densities over runs of one label, vectorised).
     """
     coef = coefficients(theta)

@@ -5,8 +5,8 @@ position change side, so their observations' label moves by the vector's label s
 (:func:`element_shift`); :func:`obs_log_density_delta` is the log-likelihood change of
 those observations (the sweep's acceptance ratio), and :func:`shift_stats` relabels them
 and moves their terms between the regions' statistics when the move is accepted. The
-element sweeps and the vector redraw use them (:mod:`rjfit.sampler.moves.sweeps`,
-:mod:`rjfit.sampler.moves.vector_redraw`). Both take the problem's lobe terms last (None for
+element sweeps and the vector redraw use them (:mod:`rjfit.sampler.regions.changepoints.sweeps`,
+:mod:`rjfit.sampler.regions.changepoints.vector_redraw`). Both take the problem's lobe terms last (None for
 the plain model: :mod:`rjfit.sampler.passes.lobe`).
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ __all__ = ["element_shift", "obs_log_density_delta", "add_obs_terms", "add_lobe_
 
 @njit(cache=True, nogil=True)
 def element_shift(x_old, x_new, lines, size, offsets, step_label):
-    """``(starts, ends, delta)`` of :func:`rjfit.sampler.moves.sweeps.element_shift` (compiled: NumPy took 47 us).
+    """``(starts, ends, delta)`` of :func:`rjfit.sampler.regions.changepoints.sweeps.element_shift` (compiled: NumPy took 47 us).
 
     Line ``lines[j]``'s pixels t with ``min < t + 0.5 <= max`` of its two positions change
     side; ``offsets`` maps ``line * size + t`` to the first of that pixel's observations.

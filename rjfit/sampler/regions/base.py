@@ -28,50 +28,53 @@ Layout objects are immutable (a move builds a new one) and provide
   R - 1, in the problem's observation order).
 
 The structure moves act on the step's working copy (:class:`rjfit.sampler.state.Work`:
-``layout``, ``theta``, ``stats``, ``log_lik``, ``labels``). Each move must leave the
-posterior invariant on its own (a Metropolis-Hastings move whose log ratio holds the target
-ratio, the layout prior's ratio, both proposal densities and any Jacobian); it draws its
-uniform from ``rng``, decides with :func:`rjfit.sampler.moves.accept.accept`, counts itself
-in ``info`` (:class:`rjfit.sampler.state.StepInfo`) and, when it accepts, either replaces the
-working copy's parts (:meth:`~rjfit.sampler.state.Work.take` of a
-:class:`~rjfit.sampler.moves.proposal.Proposal`) or updates labels and statistics in place
-(then it drops ``work.region_index``, and sets ``work.labels_owned`` before writing into a
-labels array it does not own). Every random draw comes from ``rng``, in an order fixed by
-the code, so a seed fixes the chain.
+``layout``, ``theta``, ``stats``, ``log_lik``, ``labels``). They follow the move protocol
+(:mod:`rjfit.sampler.moves.base`): each is an object with its settings, a
+:class:`~rjfit.sampler.moves.base.Move` that proposes a
+:class:`~rjfit.sampler.moves.proposal.Proposal` (its kind, whether it changes the model's
+dimension, its complete log ratio: the target ratio, the layout prior's ratio, both proposal
+densities and any Jacobian), decided by the one test
+(:func:`~rjfit.sampler.moves.base.decide`) and applied by :meth:`~rjfit.sampler.moves.base.Move.apply`
+(:meth:`~rjfit.sampler.state.Work.take`, or in place: then it drops ``work.region_index``, and
+sets ``work.labels_owned`` before writing into a labels array it does not own), or a
+:class:`~rjfit.sampler.moves.base.Sweep` of many tests at once. Each must leave the posterior
+invariant on its own. :meth:`RegionModel.schedule` lists one iteration's moves, a weighted list
+(:class:`~rjfit.sampler.moves.base.Scheduled`: so many times, or by chance). Every random draw
+comes from ``rng``, in an order fixed by the code, so a seed fixes the chain.
 
-What a second model needs (as free-form materials with a Potts prior do, issue 27:
-:mod:`rjfit.sampler.regions.materials`)
-------------------------------------------------------------------------------
-- Layout: per-pixel material labels (H, W) with K materials in use, K unknown, and the
-  Potts strength if it is sampled; ``n_regions`` = K (one BRDF per material, shared by every
-  pixel that carries it, connected or not), ``model_key`` = (K,), ``labels(problem)`` =
-  the pixel labels repeated per observation (``np.repeat(pixel_labels.ravel(),
-  np.diff(problem.pixel_start))``, as :func:`~rjfit.sampler.regions.changepoint_grid.obs_region_labels`
-  does).
-- :meth:`log_prior`: the Potts energy times its strength, plus the prior over K with the
-  labels' exchangeability settled (materials numbered in a canonical order, or a 1/K!
-  factor). The Potts normaliser depends on the strength and K only: with both fixed it is
-  a constant; a sampled strength needs a move that avoids it (an exchange algorithm,
-  Murray, Ghahramani and MacKay 2006) or a stated approximation.
-- :meth:`structure_moves`: Swendsen-Wang-type cluster moves (bonds between equal
-  neighbours, clusters relabelled given the materials' parameters), split/merge of
-  materials for K (their parameters proposed afresh from their data with
-  :mod:`rjfit.sampler.moves.region_proposals`, as the change-point births do), a compiled
-  pass for the label sweeps beside :mod:`rjfit.sampler.passes` and the observation terms
-  moved between statistics like :func:`rjfit.sampler.passes.shifts.shift_stats`.
-- Records: ``key_names = ("n_materials",)`` and ``snapshot`` = ``{"material_labels": (H, W)}``
-  (the recorder keeps snapshots as float32 arrays with NaN padding, exact for label
-  values), with fields of those names in :class:`~rjfit.sampler.runner.ChainRecord` (which
-  holds each model's names as optional fields: ``n_u``, ``n_v``, ``cp_u``, ``cp_v`` for
-  change points, ``n_materials``, ``material_labels`` for materials).
-- Its settings as fields of its dataclass, like :class:`~rjfit.sampler.regions.changepoints.ChangepointRegions`,
-  so that ``SamplerConfig(regions=MaterialRegions(...))`` selects it.
+The models: :mod:`rjfit.sampler.regions.changepoints` (the paper's), :mod:`rjfit.sampler.regions.materials`
+(free-form materials under a Potts prior, issue 27) and :mod:`rjfit.sampler.regions.fixed` (the
+user's label map). A new model is a package beside them: a layout with the three members above;
+a class of this contract whose fields are its settings (so that ``SamplerConfig(regions=...)``
+selects it); its ``key_names`` and ``snapshot`` (the recorder keeps snapshots as float32 arrays
+with NaN padding, exact for label values; :class:`~rjfit.sampler.runner.ChainRecord` holds the
+change-point and material names as optional fields, so a model records those names or none, as
+the fixed one does); and its part of a fit in the pipeline layer
+(:class:`rjfit.pipeline.regions.base.RegionFit`), registered in
+:data:`rjfit.pipeline.regions.REGION_FITS`.
 """
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
-__all__ = ["RegionModel"]
+import numpy as np
+
+from rjfit.sampler.likelihood import index_dtype
+from rjfit.sampler.moves.base import run_schedule
+
+__all__ = ["RegionModel", "pixel_labels_per_observation"]
+
+
+def pixel_labels_per_observation(pixels, n_labels: int, problem) -> np.ndarray:
+    """The label of every observation of ``problem``: its pixel's in ``pixels`` (H, W; labels 0 .. n_labels - 1),
+    repeated per observation, in the smallest int type that holds them; for a joint colour fit its parameter row,
+    ``label C + channel``."""
+    n_ch = problem.n_channels
+    flat = pixels.ravel().astype(index_dtype(max(n_labels * n_ch - 1, 0)))
+    labels = np.repeat(flat, np.diff(problem.pixel_start))
+    if n_ch > 1:
+        labels = labels * n_ch + problem.channel
+    return labels
 
 
 class RegionModel(ABC):
@@ -110,12 +113,17 @@ class RegionModel(ABC):
 
     def edge_term(self, layout):
         """A term of the target beside the layout prior that the parameter moves must hold (the material
-        model's edge term, :mod:`rjfit.sampler.edges`); None (the default): none."""
+        model's edge term, :mod:`rjfit.sampler.regions.materials.edges`); None (the default): none."""
         return None
 
     @abstractmethod
+    def schedule(self) -> list:
+        """The structure moves of one iteration: a weighted list of moves with their settings
+        (:class:`~rjfit.sampler.moves.base.Scheduled` entries, run in order)."""
+
     def structure_moves(self, work, rng, problem, prior, info) -> None:
-        """Run one iteration's structure moves on the working copy ``work`` (in place)."""
+        """Run one iteration's structure moves (:meth:`schedule`) on the working copy ``work`` (in place)."""
+        run_schedule(self.schedule(), work, rng, problem, prior, info)
 
     @abstractmethod
     def snapshot(self, layout) -> dict:

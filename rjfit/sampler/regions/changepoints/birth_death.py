@@ -38,7 +38,7 @@ class BirthDeathSettings:
         Probability per iteration of one birth/death attempt (flat option ``jump_prob``).
     free_prob : float
         Probability that an attempt uses the pair whose vector may take any rank in each
-        line (:mod:`rjfit.sampler.moves.birth_death_free`) instead of the rank-keeping pair
+        line (:mod:`rjfit.sampler.regions.changepoints.birth_death_free`) instead of the rank-keeping pair
         (``free_jump_prob``).
     split_map : {'conditional', 'mean', 'paper'}
         Parameters of the regions a birth (death) creates. 'conditional' (default): each new

@@ -4,7 +4,7 @@ The free birth draws a new vector over whole lines (the birth proposal's straigh
 prior-shaped vectors, unconstrained by gaps) and inserts each element into its line's
 sorted elements, so it may cross existing vectors. The free death removes from each line
 the element of a rank drawn by a chain along the lines (:func:`rank_transitions`; compiled
-in :mod:`rjfit.sampler.passes.paths`) that favours the element whose removal costs the least
+in :mod:`rjfit.sampler.regions.changepoints.passes.paths`) that favours the element whose removal costs the least
 likelihood (:func:`removal_log_emit`) and rarely switches rank. This undoes two vectors
 that each hold half of one true boundary and an unneeded half elsewhere, which no single
 vector's death can remove. Every region of the new model is drawn from its conditional
@@ -18,10 +18,11 @@ import math
 import numpy as np
 
 from rjfit.sampler.likelihood import log_likelihood_from_stats, region_stats
-from rjfit.sampler.moves.birth_death import BirthDeathSettings, birth_probability, draw_vector, vector_log_q
+from rjfit.sampler.regions.changepoints.birth_death import BirthDeathSettings, birth_probability, draw_vector, vector_log_q
 from rjfit.sampler.moves.proposal import Proposal
 from rjfit.sampler.moves.region_proposals import regions_term
-from rjfit.sampler.passes import cells, paths
+from rjfit.sampler.passes import cells
+from rjfit.sampler.regions.changepoints.passes import paths
 
 __all__ = ["propose_birth_free", "propose_death_free", "removal_log_emit", "rank_transitions"]
 

@@ -8,11 +8,11 @@ segment move proposes a whole region that pooled features single out.
 One move:
 
 1. a set S from the fixed family of candidate sets
-   (:func:`~rjfit.sampler.regions.material_segments.segment_family`: the nodes of a Ward
+   (:func:`~rjfit.sampler.regions.materials.segments.segment_family`: the nodes of a Ward
    hierarchy of superpixels of the data), drawn with its fixed weight w_S;
 2. if S's pixels do not all carry one label l, no move (counted as a rejection);
    otherwise V0 = S is moved as a cluster move moves its cluster
-   (:func:`~rjfit.sampler.moves.cluster_swc.propose_set_move`): to NEW with probability
+   (:func:`~rjfit.sampler.regions.materials.cluster_swc.propose_set_move`): to NEW with probability
    ``p_new(K)``, else to one of the K - 1 other labels uniformly; a birth when S is not all
    of l, a death when it is and the new label exists, no move when it is and the label is NEW.
 
@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rjfit.sampler.moves.cluster_swc import propose_set_move
+from rjfit.sampler.moves.proposal import Proposal
+from rjfit.sampler.regions.materials.cluster_swc import propose_set_move
 
 __all__ = ["SegmentSettings", "SEGMENT_KINDS", "edges_to_labels", "propose_segment_move"]
 
@@ -87,9 +88,9 @@ def _no_seed_term(new, n_after) -> float:
 
 def propose_segment_move(work, rng, problem, prior, new_prob: float, proposals, potts, max_materials: int,
                          jumps: bool = True):
-    """One segment move's proposal: ``(Proposal, kind)``, or ``(None, kind)`` when there is no move to test.
+    """One segment move's proposal (untested when there is no move to test: :meth:`Proposal.untested`).
 
-    ``kind`` is one of :data:`SEGMENT_KINDS`. Draws, in order: the set, then the cluster
+    Its ``kind`` is one of :data:`SEGMENT_KINDS` (a birth and a death jump). Draws, in order: the set, then the cluster
     move's label choice (its uniform, the other label or the slot and the new parameters).
     """
     layout = work.layout
@@ -97,7 +98,7 @@ def propose_segment_move(work, rng, problem, prior, new_prob: float, proposals, 
     flat = layout.pixels.ravel()
     labels = flat[members]
     if np.any(labels != labels[0]):
-        return None, SEGMENT_KINDS[0]
+        return Proposal.untested(SEGMENT_KINDS[0])
     n_to = edges_to_labels(layout.pixels, members, layout.n_materials)
     return propose_set_move(work, rng, problem, prior, (members, n_to, np.zeros(layout.n_materials), _no_seed_term),
                             new_prob, proposals, potts, max_materials, jumps, SEGMENT_KINDS)

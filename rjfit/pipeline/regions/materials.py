@@ -16,6 +16,7 @@ material (written by :func:`rjfit.pipeline.fit.write_results`).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,9 +28,14 @@ from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
+from rjfit.pipeline.fit_power import edge_power
+from rjfit.pipeline.fit_settings import assemble
+from rjfit.pipeline.regions.base import FitResult, RegionFit, truth_summary
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
+from rjfit.sampler.regions.materials import MaterialRegions
+from rjfit.sampler.state import SamplerConfig
 
-__all__ = ["summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
+__all__ = ["MaterialFit", "summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
            "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files",
            "EMPTY_MATERIALS_NOTE"]
 
@@ -222,3 +228,53 @@ def write_material_files(staging: Path, result, records, options, attributes: di
         summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
 
 
+
+
+class MaterialFit(RegionFit):
+    """Free-form materials under a Potts prior (``--regions materials``)."""
+
+    name = "materials"
+
+    def sampler_config(self, options, *, burn: int, fixed: bool = False, problem=None) -> SamplerConfig:
+        model = MaterialRegions()
+        power = edge_power(problem, options) if problem is not None else options.edge_power
+        regions = replace(model, max_materials=options.max_materials,
+                          potts=replace(model.potts, beta=options.potts_beta, rho=options.potts_rho),
+                          cluster=replace(model.cluster, material_seed=options.cluster_material_seed),
+                          segments=replace(model.segments, moves=options.segment_moves),
+                          edge_power=power, update_labels=not fixed, jumps=not fixed)
+        return assemble(options, regions, burn)
+
+    def chain_start(self, options, chain: int, start: dict, fixed_segmentation=None) -> dict:
+        if fixed_segmentation is not None:      # (H, W) material labels
+            start.setdefault("pixel_labels", fixed_segmentation)
+        elif "pixel_labels" not in start:
+            # starts stratified over K0 = 1 .. min(4, K_max), not drawn: on a large image a jump between
+            # numbers of materials is rare once a chain has settled, so a mode at a K that no chain started
+            # near could be missed by all of them, and R-hat would not show it
+            start.setdefault("n_materials", MaterialRegions.stratified_start(chain, options.max_materials))
+        return start
+
+    def summarise(self, records, problem, prior, config, options, run: dict, warnings: list, truth_labels,
+                  observations) -> FitResult:
+        burn = config.kernel.burn_in
+        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn, config)
+        summary.update(run)
+        summary["warnings"] += material_number_warnings(summary["regions"], prior) + warnings
+        if truth_labels is not None:
+            summary.update(truth_summary(records, burn, labels, truth_labels))
+            summary["materials_right_probability"] = summary["materials_posterior"].get(
+                str(summary["true_region_count"]), 0.0)
+        result = FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
+                           model=(summary["map_materials"],), extra=extra)
+        add_boundary_check(result, observations, records)
+        return result
+
+    def write_files(self, staging, result: FitResult, records, options, attributes: dict) -> None:
+        write_material_files(staging, result, records, options, attributes)
+
+    @staticmethod
+    def printed_line(summary: dict) -> str:
+        k = summary["map_materials"]
+        return (f"MAP number of materials {k} (posterior {summary['materials_posterior'][str(k)]:.3f}), mean "
+                f"probability of a pixel's MAP material {summary['map_probability_mean']:.3f}")

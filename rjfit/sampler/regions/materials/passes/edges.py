@@ -1,4 +1,4 @@
-"""Compiled passes of the material model's edge term (:mod:`rjfit.sampler.edges`).
+"""Compiled passes of the material model's edge term (:mod:`rjfit.sampler.regions.materials.edges`).
 
 A pair ``j`` joins pixel ``first[j]`` to ``second[j]`` (``gap`` px to its right or below);
 its matched observations (one per light seen by both pixels) are ``start[j] .. start[j + 1]``
@@ -95,7 +95,7 @@ def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, star
 
 @njit(cache=True, nogil=True)
 def edge_sums(labels, n_materials, edge):
-    """:func:`boundary_sums` of ``edge``, the arrays of :meth:`rjfit.sampler.edges.EdgeTerm.sweep_arrays`."""
+    """:func:`boundary_sums` of ``edge``, the arrays of :meth:`rjfit.sampler.regions.materials.edges.EdgeTerm.sweep_arrays`."""
     pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, scale = edge
     return boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second)
 

@@ -8,12 +8,12 @@ over the K materials in use, restricted so that no material becomes empty: a pix
 the last of its material keeps its label (the target gives states with an empty material
 no mass). Pixels of one checkerboard colour are not neighbours, so one colour is updated
 given the other; the per-pixel log-likelihoods under every material come from one compiled
-pass over the observations (:func:`rjfit.sampler.passes.labels.pixel_log_lik`), which the
+pass over the observations (:func:`rjfit.sampler.regions.materials.passes.labels.pixel_log_lik`), which the
 labels do not change. Every update is an exact Gibbs draw (accepted always); the step
-counts how many pixels changed label. With the edge term (:mod:`rjfit.sampler.edges`) a new
+counts how many pixels changed label. With the edge term (:mod:`rjfit.sampler.regions.materials.edges`) a new
 label is then kept with probability ``min(1, exp(delta Phi))``
-(:func:`~rjfit.sampler.passes.edges.keep_new_label`). The relabelled pixels' observations then move
-between the materials' sufficient statistics (:func:`~rjfit.sampler.passes.labels.relabel_pixels`).
+(:func:`~rjfit.sampler.regions.materials.passes.edges.keep_new_label`). The relabelled pixels' observations then move
+between the materials' sufficient statistics (:func:`~rjfit.sampler.regions.materials.passes.labels.relabel_pixels`).
 A joint colour fit sums a pixel's channels under the material's rows and moves each
 observation between its channel's rows (the ``_colour`` passes).
 """
@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.sampler.likelihood import log_likelihood_from_stats
-from rjfit.sampler.passes.labels import (
+from rjfit.sampler.regions.materials.passes.labels import (
     gibbs_sweep,
     pixel_log_lik,
     pixel_log_lik_colour,
@@ -37,7 +37,7 @@ def sweep_labels(work, rng, problem, potts, info) -> int:
     """One checkerboard sweep (colour 0, then colour 1) of the labels in ``work`` (in place); returns pixels changed.
 
     Draws one uniform per pixel and colour (``rng.random(H W)`` twice), whatever K; with the target's
-    edge term (``work.edges``, :mod:`rjfit.sampler.edges`) a second one per pixel and colour, for
+    edge term (``work.edges``, :mod:`rjfit.sampler.regions.materials.edges`) a second one per pixel and colour, for
     the delayed acceptance of a new label.
     """
     layout = work.layout

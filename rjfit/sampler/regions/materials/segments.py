@@ -7,7 +7,7 @@ across its outline, q 0.54, are nearly those inside it, 0.65), so no cluster mov
 compact region of a second paint, and no chain found the pebble. Averaged over a region of a
 few hundred pixels, the same features separate it clearly. So the family pools first:
 
-1. the per-pixel features (:func:`~rjfit.sampler.regions.material_labels.pixel_features`),
+1. the per-pixel features (:func:`~rjfit.sampler.regions.materials.layout.pixel_features`),
    each mapped by ``log(1 + x / median)`` (the specular one is heavy-tailed), divided by the
    robust spread of neighbour differences (about the noise), a pixel without a fit given its
    nearest fitted pixel's;
@@ -24,7 +24,7 @@ fixed weight: the hierarchy cut at M regions, M drawn with probability proportio
 ``1 / M`` over ``2 .. max_regions``, then one region of the cut uniformly; a node's weight is
 the sum over the cuts it belongs to. The weights depend on the data only, so a move's
 probability of proposing a set is the same forwards and backwards and cancels in its ratio
-(:mod:`rjfit.sampler.moves.segment_move`).
+(:mod:`rjfit.sampler.regions.materials.segment_move`).
 
 Storage: the superpixels are ordered by a depth-first walk of the hierarchy, so every node's
 pixels are one contiguous range of one pixel permutation.

@@ -3,7 +3,7 @@
 Compiled because a sweep proposes for every other line at once and the mixture density
 (uniform redraw, random walk, normal around a neighbouring line's same-rank element) and
 the smooth prior's terms of each line take a loop per line
-(:mod:`rjfit.sampler.moves.sweeps`).
+(:mod:`rjfit.sampler.regions.changepoints.sweeps`).
 """
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ def _smooth_terms(row, cps, neighbour, sd):
 def sweep_proposal(cps, lines, k, kind, z, pick_up, unif, size, p_unif, p_nb, step, nb_sd, smooth_sd):
     """Element proposals of one sweep: ``(x_new, inside, log_q_ratio)`` per moved line.
 
-    Compiled twin of the proposal half of :func:`rjfit.sampler.moves.sweeps.sweep_changepoints`
+    Compiled twin of the proposal half of :func:`rjfit.sampler.regions.changepoints.sweeps.sweep_changepoints`
     (same random inputs, same mixture; ``smooth_sd`` <= 0 for the 'paper' prior, whose
     terms cancel): element ``k[j]`` of line ``lines[j]`` is redrawn uniformly
     (``kind < p_unif``), around a neighbouring line's same-rank element (``kind < p_unif +

@@ -1,4 +1,4 @@
-"""Compiled Lloyd iterations of k-means (:func:`rjfit.sampler.kmeans.lloyd`), the same numbers as its NumPy form.
+"""Compiled Lloyd iterations of k-means (:func:`rjfit.sampler.regions.materials.kmeans.lloyd`), the same numbers as its NumPy form.
 
 A split proposal's guide runs a 2-means of its material's pixels in every merge/split move;
 in NumPy each iteration makes (n, k, d) temporaries and a boolean mask per cluster, about
@@ -95,7 +95,7 @@ def _donate(labels, k, n_clusters):
 
 @njit(cache=True, nogil=True)
 def lloyd_iterations(x, centres, iterations):
-    """:func:`rjfit.sampler.kmeans.lloyd` compiled: labels (int64) of the rows of ``x`` (n, d); ``centres`` updated in place.
+    """:func:`rjfit.sampler.regions.materials.kmeans.lloyd` compiled: labels (int64) of the rows of ``x`` (n, d); ``centres`` updated in place.
 
     ``x`` and ``centres`` are float64 and C-contiguous, ``MIN_FEATURES <= d <= MAX_FEATURES``.
     """

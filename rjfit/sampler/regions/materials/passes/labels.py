@@ -6,7 +6,7 @@
 - :func:`gibbs_sweep`: one colour of the checkerboard Gibbs sweep of pixel labels (pixels
   of one colour are not 4-neighbours, so each one's conditional depends only on the other
   colour's labels), with the edge term's delayed acceptance where the target holds one
-  (:func:`rjfit.sampler.passes.edges.keep_new_label`);
+  (:func:`rjfit.sampler.regions.materials.passes.edges.keep_new_label`);
 - :func:`relabel_pixels`: move the observations of relabelled pixels between the
   materials' sufficient statistics (and relabel them);
 - :func:`grow_cluster`: a Swendsen-Wang-cut cluster from a seed pixel, with the counts and
@@ -32,7 +32,7 @@ from numba import njit, prange
 
 from rjfit.sampler.passes.cells import pixel_cuts
 from rjfit.sampler.passes.densities import coefficients, log_densities_into
-from rjfit.sampler.passes.edges import edge_sums, keep_new_label
+from rjfit.sampler.regions.materials.passes.edges import edge_sums, keep_new_label
 from rjfit.sampler.passes.lobe import lobe_at, lobe_rows
 from rjfit.sampler.passes.shifts import add_lobe_terms, add_obs_terms
 from rjfit.sampler.passes.special import INV_PI, fast_exp
@@ -133,8 +133,8 @@ def gibbs_sweep(pixel_labels, labelled, log_lik, power, beta, height, width, cou
     pixel of its material (``counts[label] == 1``): then it keeps its label, the conditional of
     the target restricted to states with no empty material. ``pixel_labels`` and ``counts``
     are updated in place. With the target's edge term (``edge``: the arrays of
-    :meth:`rjfit.sampler.edges.EdgeTerm.sweep_arrays`) a new label is then kept by delayed
-    acceptance with ``second_uniforms[p]`` (:func:`rjfit.sampler.passes.edges.keep_new_label`).
+    :meth:`rjfit.sampler.regions.materials.edges.EdgeTerm.sweep_arrays`) a new label is then kept by delayed
+    acceptance with ``second_uniforms[p]`` (:func:`rjfit.sampler.regions.materials.passes.edges.keep_new_label`).
     """
     logits = np.empty(log_lik.shape[0])
     sums = np.zeros((0, 0, 3))

@@ -20,7 +20,7 @@ the differences between neighbours, most of which lie inside one material), and
 ``q_max / 2``. A joint colour fit's features are every channel's (a, b) (2 C of them), so
 the bonds and the split guides see hue. Every q lies in [0, q_max] with q_max < 1, so every cut weight
 ``log(1 - q)`` is finite; the cluster moves take ``q_max = 1 - exp(-beta)`` (Swendsen and
-Wang's bond for the Potts prior: see :class:`~rjfit.sampler.moves.cluster_swc.ClusterSettings`). The cluster moves are exact for any such q; q only decides which
+Wang's bond for the Potts prior: see :class:`~rjfit.sampler.regions.materials.cluster_swc.ClusterSettings`). The cluster moves are exact for any such q; q only decides which
 clusters they propose.
 """
 from __future__ import annotations
@@ -33,8 +33,9 @@ from scipy import ndimage
 from scipy.special import gammaln
 
 from rjfit.sampler.colour import colour_pixel_features
-from rjfit.sampler.kmeans import kmeans_labels
-from rjfit.sampler.likelihood import b_terms, index_dtype
+from rjfit.sampler.likelihood import b_terms
+from rjfit.sampler.regions.base import pixel_labels_per_observation
+from rjfit.sampler.regions.materials.kmeans import kmeans_labels
 
 __all__ = ["MaterialLabels", "Bonds", "bond_probabilities", "pixel_features", "boundary_count", "labelled_pixels",
            "kmeans_labels", "majority_labels", "PottsPrior", "BOND_GAMMA"]
@@ -49,8 +50,8 @@ class Bonds(NamedTuple):
     p, ``2 p + 1`` below it; ``features`` (H W, 2): :func:`pixel_features`, which the bonds
     and the split proposals' guides use; ``seed_cdf`` (H W,): the cumulative seed weights of
     the cluster moves (:func:`seed_weights`); ``segments``: the segment moves' candidate sets
-    (:class:`~rjfit.sampler.regions.material_segments.Segments`; None without segment moves);
-    ``edges``: the target's edge term (:class:`~rjfit.sampler.edges.EdgeTerm`; None without one).
+    (:class:`~rjfit.sampler.regions.materials.segments.Segments`; None without segment moves);
+    ``edges``: the target's edge term (:class:`~rjfit.sampler.regions.materials.edges.EdgeTerm`; None without one).
     """
 
     q: np.ndarray
@@ -217,12 +218,7 @@ class MaterialLabels(NamedTuple):
     def labels(self, problem) -> np.ndarray:
         """The material of every observation of ``problem`` (its pixel's label, repeated per observation);
         for a joint colour fit its parameter row, ``material C + channel``."""
-        n_ch = problem.n_channels
-        flat = self.pixels.ravel().astype(index_dtype(max(self.n_materials * n_ch - 1, 0)))
-        labels = np.repeat(flat, np.diff(problem.pixel_start))
-        if n_ch > 1:
-            labels = labels * n_ch + problem.channel
-        return labels
+        return pixel_labels_per_observation(self.pixels, self.n_materials, problem)
 
     def counts(self) -> np.ndarray:
         """Pixels per material (K,)."""

@@ -12,7 +12,7 @@ the new and the current vector, so the move is exact (for the 'paper' prior the 
 exact and every proposal is accepted). One move can carry a whole vector across the image:
 what element-wise steps and block shifts cannot do when two vectors compensate each other's
 errors. The compiled passes are in :mod:`rjfit.sampler.passes.cells` (emissions) and
-:mod:`rjfit.sampler.passes.paths` (the chain); their NumPy twins in
+:mod:`rjfit.sampler.regions.changepoints.passes.paths` (the chain); their NumPy twins in
 :mod:`rjfit.sampler.reference`.
 """
 from __future__ import annotations
@@ -22,10 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rjfit.sampler.moves.birth_death import gaps
+from rjfit.sampler.regions.changepoints.birth_death import gaps
 from rjfit.sampler.moves.proposal import Proposal
-from rjfit.sampler.moves.sweeps import apply_shift, element_shift
-from rjfit.sampler.passes import cells, paths
+from rjfit.sampler.regions.changepoints.sweeps import apply_shift, element_shift
+from rjfit.sampler.passes import cells
+from rjfit.sampler.regions.changepoints.passes import paths
 
 __all__ = ["VectorSettings", "vector_cells", "cell_of", "truncated_log_kernel", "propose_vector_redraw",
            "accept_vector_redraw"]
@@ -77,7 +78,7 @@ def _filter_cells(log_emit, log_kernel):
     ``log_kernel`` (2 K + 1,) holds the log weights of cell steps -K..K between neighbouring
     lines (:func:`truncated_log_kernel`: the steps whose weight is at least 1e-30 of the
     largest), or is None for independent lines. The sums run in linear space (compiled:
-    :func:`rjfit.sampler.passes.paths.forward_filter`); round-off and the cut only perturb the
+    :func:`rjfit.sampler.regions.changepoints.passes.paths.forward_filter`); round-off and the cut only perturb the
     proposal, whose density the move computes from the same alphas and steps both ways, so
     it stays exact.
     """

@@ -1,19 +1,20 @@
 """The paper's region model: two-dimensional change points (sec. 3.3) and their structure moves.
 
-Layout: :class:`~rjfit.sampler.regions.changepoint_grid.Changepoints` (u and v vectors; the
-geometry, labels and prior are in :mod:`rjfit.sampler.regions.changepoint_grid`). Each
-iteration's structure moves, in order:
+Layout: :class:`~rjfit.sampler.regions.changepoints.grid.Changepoints` (u and v vectors; the
+geometry, labels and prior are in :mod:`rjfit.sampler.regions.changepoints.grid`). Each
+iteration's structure moves (:meth:`ChangepointRegions.schedule`, the moves of
+:mod:`rjfit.sampler.regions.changepoints.moves`), in order:
 
 1. sweeps of u change-point elements (one element per row; even rows, then odd rows) and
-   likewise of v elements (:mod:`rjfit.sampler.moves.sweeps`);
-2. with probability ``block.prob`` a block shift (:mod:`rjfit.sampler.moves.block_shift`);
+   likewise of v elements (:mod:`rjfit.sampler.regions.changepoints.sweeps`);
+2. with probability ``block.prob`` a block shift (:mod:`rjfit.sampler.regions.changepoints.block_shift`);
 3. with probability ``vector.prob`` a redraw of one whole vector
-   (:mod:`rjfit.sampler.moves.vector_redraw`);
+   (:mod:`rjfit.sampler.regions.changepoints.vector_redraw`);
 4. with probability ``birth_death.prob``, one birth or death of a change-point vector: with
    probability ``birth_death.free_prob`` the pair whose vector may sit at any rank of each
-   line (every region redrawn, :mod:`rjfit.sampler.moves.birth_death_free`), otherwise the
+   line (every region redrawn, :mod:`rjfit.sampler.regions.changepoints.birth_death_free`), otherwise the
    pair that keeps ranks (the regions the vector cuts redrawn or split,
-   :mod:`rjfit.sampler.moves.birth_death`).
+   :mod:`rjfit.sampler.regions.changepoints.birth_death`).
 
 Each is a valid Metropolis-Hastings move on its own, so their composition leaves the
 posterior invariant.
@@ -24,28 +25,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.birth_death import BirthDeathSettings, birth_probability, propose_birth, propose_death
-from rjfit.sampler.moves.birth_death_free import propose_birth_free, propose_death_free
-from rjfit.sampler.moves.block_shift import BlockSettings, propose_block_shift
+from rjfit.sampler.moves.base import Scheduled
 from rjfit.sampler.moves.region_proposals import RegionProposalSettings
-from rjfit.sampler.moves.sweeps import SweepSettings, sweep_changepoints
-from rjfit.sampler.moves.vector_redraw import VectorSettings, accept_vector_redraw, propose_vector_redraw
 from rjfit.sampler.regions.base import RegionModel
-from rjfit.sampler.regions.changepoint_grid import ChangepointPrior, Changepoints, n_regions
+from rjfit.sampler.regions.changepoints.birth_death import BirthDeathSettings
+from rjfit.sampler.regions.changepoints.block_shift import BlockSettings
+from rjfit.sampler.regions.changepoints.grid import ChangepointPrior, Changepoints, n_regions
+from rjfit.sampler.regions.changepoints.moves import BirthDeath, BlockShift, ElementSweep, VectorRedraw
+from rjfit.sampler.regions.changepoints.sweeps import SweepSettings
+from rjfit.sampler.regions.changepoints.vector_redraw import VectorSettings
 
 __all__ = ["ChangepointRegions"]
-
-
-def _axis(rng) -> str:
-    return "u" if rng.random() < 0.5 else "v"
-
-
-def _tested(rng, proposal, info, kind: str) -> bool:
-    """Draw the proposal's uniform, decide, count: the test of a full proposal (an invalid one too)."""
-    accepted = accept(np.log(rng.random()), proposal.log_ratio, info, kind)
-    info.count(kind, accepted)
-    return accepted
 
 
 @dataclass(frozen=True)
@@ -118,50 +108,21 @@ class ChangepointRegions(RegionModel):
     def log_prior(self, problem, layout) -> float:
         return self.prior.log_density(layout.u, layout.v, problem.image_shape)
 
-    def structure_moves(self, work, rng, problem, prior, info) -> None:
+    def schedule(self) -> list:
+        """Element sweeps (u rows of each parity, then v), then by chance a block shift, a vector redraw and a
+        birth or death (each chance's uniform drawn every iteration while the move is on)."""
+        schedule = []
         if self.update_changepoints:
-            for axis in ("u", "v"):
-                for parity in (0, 1):
-                    sweep_changepoints(work, rng, problem, self.sweep, self.prior, axis, info, parity)
-        if self.update_changepoints and self.block.prob > 0 and rng.random() < self.block.prob:
-            self._block_shift(work, rng, problem, prior, info)
-        if self.update_changepoints and self.vector.prob > 0 and rng.random() < self.vector.prob:
-            self._vector_redraw(work, rng, problem, info)
-        if self.jumps and rng.random() < self.birth_death.prob:
-            self._birth_death(work, rng, problem, prior, info)
-
-    def _block_shift(self, work, rng, problem, prior, info):
-        axis = _axis(rng)
-        if (work.layout.u if axis == "u" else work.layout.v).shape[1] > 0:
-            proposal = propose_block_shift(work, rng, problem, prior, self.block, self.proposals, self.prior, axis)
-            if _tested(rng, proposal, info, f"block_{axis}"):
-                work.take(proposal)
-
-    def _vector_redraw(self, work, rng, problem, info):
-        axis = _axis(rng)
-        if (work.layout.u if axis == "u" else work.layout.v).shape[1] > 0:
-            proposal = propose_vector_redraw(work, rng, problem, self.prior, axis)
-            # no path (None): nothing to test, and no uniform drawn
-            accepted = proposal is not None and accept(np.log(rng.random()), proposal.log_ratio, info,
-                                                       f"vector_{axis}")
-            info.count(f"vector_{axis}", accepted)
-            if accepted:
-                accept_vector_redraw(work, problem, axis, proposal)
-
-    def _birth_death(self, work, rng, problem, prior, info):
-        axis = _axis(rng)
-        n, n_max = (work.layout.n_u, self.max_u) if axis == "u" else (work.layout.n_v, self.max_v)
-        if n_max == 0:
-            return
-        free = rng.random() < self.birth_death.free_prob
-        birth = rng.random() < birth_probability(n, n_max)
-        propose = ((propose_birth_free if birth else propose_death_free) if free
-                   else (propose_birth if birth else propose_death))
-        proposal = propose(work, rng, problem, prior, self.birth_death, self.proposals, self.prior, n_max, axis)
-        kind = f"{'birth' if birth else 'death'}{'_free' if free else ''}_{axis}"
-        if _tested(rng, proposal, info, kind):
-            work.take(proposal)
-        info.jump = kind
+            schedule += [Scheduled(ElementSweep(self.sweep, self.prior, axis, parity))
+                         for axis in ("u", "v") for parity in (0, 1)]
+            if self.block.prob > 0:
+                schedule.append(Scheduled(BlockShift(self.block, self.proposals, self.prior), chance=self.block.prob))
+            if self.vector.prob > 0:
+                schedule.append(Scheduled(VectorRedraw(self.prior), chance=self.vector.prob))
+        if self.jumps:
+            schedule.append(Scheduled(BirthDeath(self.birth_death, self.proposals, self.prior, self.max_u, self.max_v),
+                                      chance=self.birth_death.prob))
+        return schedule
 
     def snapshot(self, layout) -> dict:
         return {"cp_u": layout.u, "cp_v": layout.v}

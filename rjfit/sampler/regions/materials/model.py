@@ -12,7 +12,7 @@ posterior mass sits on it). Every label is in use: no state has an empty materia
   pixels with different materials. Its normaliser is one number for fixed (beta, rho), so
   every acceptance ratio is exact without it. The labelled state z has density
   ``pi(S(z)) / K!`` (the K! labellings of a partition;
-  :class:`~rjfit.sampler.regions.material_labels.PottsPrior`).
+  :class:`~rjfit.sampler.regions.materials.layout.PottsPrior`).
 - Each material k has its own parameters ``theta_k = (I0, kd, gamma, sigma^2)``, drawn iid
   from the fit's region prior (:func:`rjfit.sampler.priors.make_prior`), shared by every
   pixel that carries it, connected or not.
@@ -35,23 +35,23 @@ The moves of one iteration (after the kernel's within-region moves, which serve 
 unchanged), in order:
 
 1. ``sweeps`` checkerboard Gibbs sweeps of the labels over the K existing materials, no
-   material emptied (:mod:`rjfit.sampler.moves.label_gibbs`);
+   material emptied (:mod:`rjfit.sampler.regions.materials.label_gibbs`);
 2. ``cluster.moves`` Swendsen-Wang-cut cluster moves: a cluster of one label, grown by
    data-driven bonds, moved to another label or to a NEW material (a birth), a whole
-   material moved (a death) (:mod:`rjfit.sampler.moves.cluster_swc`);
+   material moved (a death) (:mod:`rjfit.sampler.regions.materials.cluster_swc`);
 3. ``segments.moves`` segment moves: a region of the image drawn from a fixed, data-driven
    family (the nodes of a Ward hierarchy of superpixels,
-   :mod:`rjfit.sampler.regions.material_segments`), when all of it carries one material,
-   moved to another material or to a NEW one (:mod:`rjfit.sampler.moves.segment_move`):
+   :mod:`rjfit.sampler.regions.materials.segments`), when all of it carries one material,
+   moved to another material or to a NEW one (:mod:`rjfit.sampler.regions.materials.segment_move`):
    what proposes a compact region of a second paint whose per-pixel features are too noisy
    for the bonds to follow its outline (measured stacks);
 4. ``merge_split.moves`` merges of two whole materials and their reverse, splits of one by
    sequential allocation guided by a deterministic 2-means of its pixels (with ``jumps``;
-   :mod:`rjfit.sampler.moves.merge_split`): what removes twins (two materials of one paint)
+   :mod:`rjfit.sampler.regions.materials.merge_split`): what removes twins (two materials of one paint)
    and separates a second paint hidden in a material.
 
 With ``edge_power`` > 0 the target also holds an edge term, a boundary's fit to the data's
-step (:mod:`rjfit.sampler.edges`), which every label move and parameter move holds.
+step (:mod:`rjfit.sampler.regions.materials.edges`), which every label move and parameter move holds.
 
 Each leaves the posterior invariant on its own. The kernel's annealed warm-up tempers the
 likelihood for these moves as for change points. Start: K0 given (a fit's chains are
@@ -70,15 +70,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rjfit.sampler.edges import EDGE_GAP, edge_term, start_theta
-from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.cluster_swc import ClusterSettings, propose_cluster_move
-from rjfit.sampler.moves.label_gibbs import sweep_labels
-from rjfit.sampler.moves.merge_split import MergeSplitSettings, propose_merge_split
+from rjfit.sampler.moves.base import Scheduled
 from rjfit.sampler.moves.region_proposals import RegionProposalSettings
-from rjfit.sampler.moves.segment_move import SEGMENT_KINDS, SegmentSettings, propose_segment_move
 from rjfit.sampler.regions.base import RegionModel
-from rjfit.sampler.regions.material_labels import (
+from rjfit.sampler.regions.materials.cluster_swc import ClusterSettings
+from rjfit.sampler.regions.materials.edges import EDGE_GAP, edge_term, start_theta
+from rjfit.sampler.regions.materials.layout import (
     MaterialLabels,
     PottsPrior,
     bond_probabilities,
@@ -86,7 +83,10 @@ from rjfit.sampler.regions.material_labels import (
     labelled_pixels,
     majority_labels,
 )
-from rjfit.sampler.regions.material_segments import segment_family
+from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings
+from rjfit.sampler.regions.materials.moves import ClusterMove, LabelSweep, MergeSplit, SegmentMove
+from rjfit.sampler.regions.materials.segment_move import SegmentSettings
+from rjfit.sampler.regions.materials.segments import segment_family
 
 #: the starts' numbers of materials range over 1 .. this (at most K_max)
 START_MATERIALS = 4
@@ -118,12 +118,12 @@ class MaterialRegions(RegionModel):
     proposals : RegionProposalSettings
         Of the proposals of a born (dying) material's parameters.
     edge_power : float or 'auto'
-        The power of the target's edge term (:mod:`rjfit.sampler.edges`; flat option
+        The power of the target's edge term (:mod:`rjfit.sampler.regions.materials.edges`; flat option
         ``edge_power``); 'auto': the coarsening rule on the data's differences
-        (:func:`~rjfit.sampler.edges.edge_term`); 0 (the default): no edge term, the model above.
+        (:func:`~rjfit.sampler.regions.materials.edges.edge_term`); 0 (the default): no edge term, the model above.
     edge_gap : int
         How far apart (px, odd) the pixels of the edge term's pairs lie
-        (:data:`rjfit.sampler.edges.EDGE_GAP`; 1 on the exactness tests' tiny images).
+        (:data:`rjfit.sampler.regions.materials.edges.EDGE_GAP`; 1 on the exactness tests' tiny images).
     """
 
     max_materials: int = 8
@@ -213,42 +213,21 @@ class MaterialRegions(RegionModel):
         return layout.bonds.edges
 
     def start_theta(self, problem, layout, prior):
-        """With the edge term, each start material's least-squares fit (:func:`rjfit.sampler.edges.start_theta`)."""
+        """With the edge term, each start material's least-squares fit (:func:`rjfit.sampler.regions.materials.edges.start_theta`)."""
         return start_theta(problem, layout.pixels, layout.n_materials, prior) if layout.bonds.edges is not None \
             else None
 
-    def structure_moves(self, work, rng, problem, prior, info) -> None:
+    def schedule(self) -> list:
+        """Label sweeps, cluster moves, segment moves, then (with jumps) merges and splits, each so many times."""
         if not self.update_labels:
-            return
-        for _ in range(self.sweeps):
-            sweep_labels(work, rng, problem, self.potts, info)
-        for _ in range(self.cluster.moves):
-            self._test(work, rng, info, *propose_cluster_move(work, rng, problem, prior, self.cluster, self.proposals,
-                                                              self.potts, self.max_materials, self.jumps))
-        for _ in range(self.segments.moves):
-            self._test(work, rng, info, *propose_segment_move(work, rng, problem, prior, self.cluster.new_prob,
-                                                              self.proposals, self.potts, self.max_materials,
-                                                              self.jumps))
-        for _ in range(self.merge_split.moves if self.jumps else 0):
-            self._test(work, rng, info, *propose_merge_split(work, rng, problem, prior, self.merge_split,
-                                                             self.proposals, self.potts, self.max_materials))
-
-    @staticmethod
-    def _test(work, rng, info, proposal, kind) -> None:
-        """Accept or reject one label move's proposal (None: no move, counted as a rejection)."""
-        if proposal is None:
-            info.count(kind, False)
-            return
-        log_ratio = proposal.log_ratio
-        if work.edges is not None and log_ratio > -np.inf:      # the target's edge term (rjfit.sampler.edges)
-            log_ratio += (work.edges.total(proposal.layout.pixels, proposal.theta)
-                          - work.edges.total(work.layout.pixels, work.theta))
-        accepted = accept(np.log(rng.random()), log_ratio, info, kind)
-        info.count(kind, accepted)
-        if accepted:
-            work.take(proposal)
-            if kind not in ("cluster", SEGMENT_KINDS[0]):     # a move that changed K
-                info.jump = kind
+            return []
+        return [Scheduled(LabelSweep(self.potts), times=self.sweeps),
+                Scheduled(ClusterMove(self.cluster, self.proposals, self.potts, self.max_materials, self.jumps),
+                          times=self.cluster.moves),
+                Scheduled(SegmentMove(self.cluster.new_prob, self.proposals, self.potts, self.max_materials,
+                                      self.jumps), times=self.segments.moves),
+                Scheduled(MergeSplit(self.merge_split, self.proposals, self.potts, self.max_materials),
+                          times=self.merge_split.moves if self.jumps else 0)]
 
     def snapshot(self, layout) -> dict:
         return {"material_labels": np.where(layout.pixels >= 0, layout.pixels, np.nan).astype(np.float32)}

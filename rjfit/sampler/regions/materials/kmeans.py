@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.sampler.passes.lloyd import MAX_FEATURES, MIN_FEATURES, lloyd_iterations
+from rjfit.sampler.regions.materials.passes.lloyd import MAX_FEATURES, MIN_FEATURES, lloyd_iterations
 
 __all__ = ["standardised", "lloyd", "lloyd_numpy", "kmeans_labels", "two_means_labels"]
 
@@ -27,7 +27,7 @@ def lloyd(x, centres, iterations: int = 20) -> np.ndarray:
 
     A cluster left empty takes the row farthest from its centre, so every label 0 .. k - 1
     is used (needs at least k rows). Stops early once the labels repeat (what further
-    iterations would give). Compiled (:func:`~rjfit.sampler.passes.lloyd.lloyd_iterations`,
+    iterations would give). Compiled (:func:`~rjfit.sampler.regions.materials.passes.lloyd.lloyd_iterations`,
     the same numbers) where the features' count allows, else :func:`lloyd_numpy`.
     """
     x = np.asarray(x)

@@ -17,10 +17,10 @@ K + 1 materials (after Jain and Neal 2004 and Dahl 2005):
   m's evaluated under the one built from all of them. Parameters are drawn afresh: the
   Jacobian is 1. An allocation that leaves a part empty is rejected.
 
-**The allocation** (:func:`split_guide`, :func:`~rjfit.sampler.passes.labels.allocate_split`).
+**The allocation** (:func:`split_guide`, :func:`~rjfit.sampler.regions.materials.passes.labels.allocate_split`).
 A guide computed from the split material's pixels alone (the same set in both directions):
 a deterministic 2-means of their per-pixel features (the bonds' (a, b) fits,
-:func:`~rjfit.sampler.kmeans.two_means_labels`), and per cluster a deterministic fit, the
+:func:`~rjfit.sampler.regions.materials.kmeans.two_means_labels`), and per cluster a deterministic fit, the
 guide parameters: gamma at the Laplace mode of the cluster's data (the births' fit; gamma
 :data:`GUIDE_FALLBACK_GAMMA` when it fails), (a, b) at their (non-negative) least-squares
 point there, sigma^2 the mean squared residual. The pixels are then allocated one at a time
@@ -58,11 +58,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from rjfit.sampler.colour import PixelSetData, guide_rows, material_log_lik, material_rows, material_term
-from rjfit.sampler.kmeans import two_means_labels
+from rjfit.sampler.regions.materials.kmeans import two_means_labels
 from rjfit.sampler.likelihood import log_likelihood_from_stats, memoised
-from rjfit.sampler.moves.cluster_swc import cluster_data, stats_rows, with_rows
+from rjfit.sampler.regions.materials.cluster_swc import cluster_data, stats_rows, with_rows
 from rjfit.sampler.moves.proposal import Proposal
-from rjfit.sampler.passes.labels import allocate_split, pixel_log_lik, pixel_log_lik_colour
+from rjfit.sampler.regions.materials.passes.labels import allocate_split, pixel_log_lik, pixel_log_lik_colour
 
 __all__ = ["MergeSplitSettings", "GUIDE_FALLBACK_GAMMA", "split_probability", "split_guide", "split_log_prob",
            "propose_merge_split"]
@@ -181,7 +181,7 @@ def _proposal(work, problem, pixels, n_materials, theta, stats, log_ratio) -> Pr
 
 def propose_merge_split(work, rng, problem, prior, settings: MergeSplitSettings, proposals, potts,
                         max_materials: int, jumps: bool = True):
-    """One merge/split proposal: ``(Proposal, kind)`` with kind 'split' or 'merge', or ``(None, kind)`` (no move).
+    """One merge/split proposal, of kind 'split' or 'merge' (both jumps; untested when there is no move to test).
 
     Draws, in order: the kind's uniform; for a split the material, the slot, the coin, one
     uniform per pixel of the material, the two parts' parameters; for a merge the pair and
@@ -190,10 +190,12 @@ def propose_merge_split(work, rng, problem, prior, settings: MergeSplitSettings,
     n_mat = work.layout.n_materials
     p_split = split_probability(n_mat, max_materials, settings.split_prob, jumps)
     if p_split == 0.0 and n_mat == 1:
-        return None, "merge"
+        return Proposal.untested("merge")
     if rng.random() < p_split:
-        return _split(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split), "split"
-    return _merge(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split), "merge"
+        proposal = _split(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split)
+        return Proposal.untested("split") if proposal is None else proposal.named("split", jump=True)
+    return _merge(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split).named("merge",
+                                                                                                     jump=True)
 
 
 def _ratio_choices(n_mat, m, max_materials, settings, p_split):

@@ -5,7 +5,7 @@ changes only pixels of its row), so the rows' independent Metropolis-Hastings de
 together form one valid move. Rows of one parity move together while the other rows stay
 fixed, so the proposal around the same-rank element of a neighbouring row has a
 well-defined reverse density. The compiled passes: the proposals
-(:func:`rjfit.sampler.passes.sweep.sweep_proposal`), the observations that change region
+(:func:`rjfit.sampler.regions.changepoints.passes.sweep.sweep_proposal`), the observations that change region
 and their density change (:mod:`rjfit.sampler.passes.shifts`).
 """
 from __future__ import annotations
@@ -16,7 +16,8 @@ import numpy as np
 
 from rjfit.sampler.likelihood import log_likelihood_from_stats
 from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.passes import shifts, sweep
+from rjfit.sampler.passes import shifts
+from rjfit.sampler.regions.changepoints.passes import sweep
 
 __all__ = ["SweepSettings", "sweep_changepoints", "element_shift", "apply_shift"]
 
@@ -56,7 +57,7 @@ def sweep_changepoints(work, rng, problem, settings: SweepSettings, cp_prior, ax
 
     Rows of one ``parity`` move together while the other rows stay fixed. A proposal
     outside [-1, size + 1] has zero prior density and is rejected. ``cp_prior`` is the
-    :class:`~rjfit.sampler.regions.changepoint_grid.ChangepointPrior`.
+    :class:`~rjfit.sampler.regions.changepoints.grid.ChangepointPrior`.
     """
     height, width = problem.image_shape
     cps = work.layout.u if axis == "u" else work.layout.v

@@ -5,10 +5,10 @@ probabilities", IEEE PAMI 27(8), 2005. One move:
 
 1. a seed pixel p, drawn with fixed data-driven weights (half uniform over the labelled
    pixels, half by the weakness of their bonds:
-   :func:`~rjfit.sampler.regions.material_labels.seed_weights`); its cluster V0: the pixels
+   :func:`~rjfit.sampler.regions.materials.layout.seed_weights`); its cluster V0: the pixels
    of its label l joined to it by bonds that are on, each edge between two pixels of one label on
-   with its data-driven probability q_e (:class:`~rjfit.sampler.regions.material_labels.Bonds`;
-   :func:`rjfit.sampler.passes.labels.grow_cluster`);
+   with its data-driven probability q_e (:class:`~rjfit.sampler.regions.materials.layout.Bonds`;
+   :func:`rjfit.sampler.regions.materials.passes.labels.grow_cluster`);
 2. a new label for V0: NEW with probability ``p_new(K)`` (0 at K = K_max, 1 at K = 1,
    else ``new_prob``), otherwise one of the K - 1 other labels, uniformly
    (:func:`label_choice`);
@@ -54,7 +54,7 @@ import numpy as np
 from rjfit.sampler.colour import material_log_lik, material_rows, material_term, pixel_set_data
 from rjfit.sampler.likelihood import log_likelihood_from_stats
 from rjfit.sampler.moves.proposal import Proposal
-from rjfit.sampler.passes.labels import grow_cluster
+from rjfit.sampler.regions.materials.passes.labels import grow_cluster
 
 __all__ = ["ClusterSettings", "label_choice", "cluster_data", "stats_rows", "with_rows", "propose_cluster_move",
            "propose_set_move", "CLUSTER_KINDS"]
@@ -82,7 +82,7 @@ class ClusterSettings:
         improbable, a lower one the clusters small).
     bond_tau : float
         The bond probabilities' width in units of the features' spread
-        (:func:`~rjfit.sampler.regions.material_labels.bond_probabilities`).
+        (:func:`~rjfit.sampler.regions.materials.layout.bond_probabilities`).
     material_seed : float
         Probability that a move's seed is drawn as a material (uniformly among the K) and
         then a pixel of it (uniformly), instead of by the fixed seed weights. Why: a
@@ -146,9 +146,9 @@ def _proposal(work, problem, pixels, n_materials, theta, stats, log_ratio) -> Pr
 
 def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, proposals, potts, max_materials: int,
                          jumps: bool = True):
-    """One cluster move's proposal: ``(Proposal, kind)``, or ``(None, kind)`` when there is no move to test.
+    """One cluster move's proposal (untested when there is no move to test: :meth:`Proposal.untested`).
 
-    ``kind`` is 'cluster', 'cluster_birth' or 'cluster_death'. Draws, in order: the seed,
+    Its ``kind`` is 'cluster', 'cluster_birth' or 'cluster_death' (those two jumps). Draws, in order: the seed,
     the bonds' key, the label choice's uniform, the other label or (birth) the slot and the
     new parameters.
     """
@@ -172,8 +172,8 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
 
 def propose_set_move(work, rng, problem, prior, pixel_set, new_prob: float, proposals, potts, max_materials: int,
                      jumps: bool, kinds=None):
-    """A set V0 of pixels of one label moved to another label or to a NEW material: ``(Proposal, kind)``,
-    or ``(None, kind)`` when there is no move to test.
+    """A set V0 of pixels of one label moved to another label or to a NEW material: its proposal (untested when
+    there is no move to test), of kind ``kinds[0]`` (moved), ``kinds[1]`` (a birth) or ``kinds[2]`` (a death).
 
     ``pixel_set`` is ``(members, n_to, cut_to, seed_ratio)``: V0's pixels (ascending), per
     label the number of edges from V0 to that label's pixels outside it and the sum of their
@@ -191,13 +191,13 @@ def propose_set_move(work, rng, problem, prior, pixel_set, new_prob: float, prop
     old = int(flat[members[0]])
     p_new, p_other = label_choice(n_mat, max_materials, new_prob, jumps)
     if p_new == 0.0 and n_mat == 1:
-        return None, kinds[0]
+        return Proposal.untested(kinds[0])
     birth = rng.random() < p_new
     whole = members.size == int(np.count_nonzero(flat == old))
     if birth and whole:
-        return None, kinds[1]                 # a renaming of material `old`: the same partition
+        return Proposal.untested(kinds[1])    # a renaming of material `old`: the same partition
     if not birth and whole and not jumps:
-        return None, kinds[2]                 # K fixed: a material may not be emptied
+        return Proposal.untested(kinds[2])    # K fixed: a material may not be emptied
     n_ch = problem.n_channels
     rows_old = material_rows(old, n_ch)
     data = cluster_data(problem, members, work.pixel_sets)
@@ -206,7 +206,7 @@ def propose_set_move(work, rng, problem, prior, pixel_set, new_prob: float, prop
     if birth:
         return _birth(work, rng, problem, prior, new_prob, proposals, potts, max_materials,
                       (members, n_to, cut_to, old, data, stats_old, log_lik_old, p_new),
-                      seed_ratio(None, n_mat + 1)), kinds[1]
+                      seed_ratio(None, n_mat + 1)).named(kinds[1], jump=True)
     pick = int(rng.integers(n_mat - 1))
     new = pick if pick < old else pick + 1
     log_seed = seed_ratio(new, n_mat - 1 if whole else n_mat)
@@ -223,7 +223,7 @@ def propose_set_move(work, rng, problem, prior, pixel_set, new_prob: float, prop
         stats[rows_old] -= stats_old
         stats[rows_new] += stats_new
         return _proposal(work, problem, pixels.reshape(height, width), n_mat, work.theta.copy(), stats,
-                         delta_lik + delta_potts + cut_ratio + log_seed), kinds[0]
+                         delta_lik + delta_potts + cut_ratio + log_seed).named(kinds[0])
     # death of `old`: its parameters evaluated under the proposal built from V0's data
     _, term = material_term(data, work.theta[rows_old], prior, proposals)
     p_new_back = label_choice(n_mat - 1, max_materials, new_prob, jumps)[0]
@@ -237,7 +237,7 @@ def propose_set_move(work, rng, problem, prior, pixel_set, new_prob: float, prop
     pixels[pixels > old] -= 1
     keep = np.repeat(np.arange(n_mat) != old, n_ch)
     return _proposal(work, problem, pixels.reshape(height, width), n_mat - 1, work.theta[keep].copy(), stats[keep],
-                     log_ratio), kinds[2]
+                     log_ratio).named(kinds[2], jump=True)
 
 
 def _seed_log_ratio(settings, layout, members, flat, old, new, n_after) -> float:

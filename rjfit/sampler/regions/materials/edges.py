@@ -38,9 +38,9 @@ The moves (each stays exact for the new target)
 -----------------------------------------------
 - the label sweep: each pixel's Gibbs draw without the term, then a delayed acceptance of a
   new label with ``min(1, exp(delta Phi))``, the boundaries' sums updated pixel by pixel
-  (:func:`rjfit.sampler.passes.edges.keep_new_label`);
+  (:func:`rjfit.sampler.regions.materials.passes.edges.keep_new_label`);
 - the cluster, segment and merge/split moves: ``delta Phi`` of the proposal in their log ratio
-  (:meth:`rjfit.sampler.regions.materials.MaterialRegions.structure_moves`);
+  (the one test of a proposal, :func:`rjfit.sampler.moves.base.decide`);
 - a material's parameter moves: ``delta Phi`` of its new (I0, kd, gamma) in their log ratio
   (:func:`rjfit.sampler.moves.region_terms.edge_delta`; sigma^2 does not enter the term).
 
@@ -59,7 +59,7 @@ import numpy as np
 
 from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.sampler.passes.densities import coefficients
-from rjfit.sampler.passes.edges import boundary_sums, edge_value
+from rjfit.sampler.regions.materials.passes.edges import boundary_sums, edge_value
 
 __all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "EDGE_GAP"]
 
@@ -104,7 +104,7 @@ class EdgeTerm(NamedTuple):
         return self.total(pixels, new) - self.total(pixels, theta)
 
     def sweep_arrays(self, theta):
-        """The ``edge`` argument of :func:`~rjfit.sampler.passes.labels.gibbs_sweep`."""
+        """The ``edge`` argument of :func:`~rjfit.sampler.regions.materials.passes.labels.gibbs_sweep`."""
         return (self.pair_of, coefficients(np.asarray(theta, float)), self.first, self.second, self.start, self.d,
                 self.c_first, self.c_second, self.l_first, self.l_second, self.scale)
 
