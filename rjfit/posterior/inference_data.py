@@ -135,8 +135,11 @@ class _BlockLikelihood:
         return -0.5 * (LOG_2PI * self.count + log_variance + squares) + self.constant
 
 
-def pointwise_log_likelihood(records, burn_in: int, problem):
+def pointwise_log_likelihood(records, burn_in: int, problem, pixel_labels=None):
     """The log likelihood of every pixel block at the kept snapshot draws (see the module docstring).
+
+    ``pixel_labels`` (H, W): the region of every pixel where the layout never changes (a fixed
+    label map, whose records hold no layout); else each snapshot's layout.
 
     Returns ``(values (C, D, B), iterations (C, D), block_of_pixel (H, W), side)``; ``values``
     tempered by ``problem.likelihood_power``; D may be 0 (no kept snapshot).
@@ -158,7 +161,8 @@ def pointwise_log_likelihood(records, burn_in: int, problem):
     for c, (record, snapshots) in enumerate(zip(records, chosen)):
         for d, s in enumerate(snapshots):
             t = int(record.cp_iteration[s])
-            rows = _pixel_labels(record, s, problem.image_shape)[problem.pixel]
+            layout = _pixel_labels(record, s, problem.image_shape) if pixel_labels is None else pixel_labels.ravel()
+            rows = layout[problem.pixel]
             if rows.size and rows.min() < 0:
                 raise ValueError(f"chain {c}, iteration {t}: an observed pixel has no region in the layout snapshot")
             if problem.n_channels > 1:      # a joint colour fit records a row per material and channel
@@ -199,7 +203,7 @@ def _stats(records, key_names, start: int, stop: int) -> dict:
 
 
 def chains_inference_data(records, burn_in: int, problem, draws, *, region_dim: str, key_names=(), max_v=None,
-                          effect_names=(), attrs=None, log_likelihood: bool = True):
+                          effect_names=(), attrs=None, log_likelihood: bool = True, pixel_labels=None):
     """The InferenceData of ``chains.nc`` (module docstring).
 
     Parameters
@@ -224,6 +228,8 @@ def chains_inference_data(records, burn_in: int, problem, draws, *, region_dim: 
     log_likelihood : bool
         Whether to write the log_likelihood group (not for a fit with effects, whose
         per-observation transform and log-Jacobian it would need).
+    pixel_labels : ndarray (H, W), optional
+        The region of every pixel where the layout never changes (a fixed label map).
 
     Returns
     -------
@@ -257,7 +263,7 @@ def chains_inference_data(records, burn_in: int, problem, draws, *, region_dim: 
     groups = {"posterior": posterior, "sample_stats": stats, "warmup_sample_stats": warmup}
     notes = {}
     if log_likelihood:
-        values, ll_iterations, block_of_pixel, side = pointwise_log_likelihood(records, burn_in, problem)
+        values, ll_iterations, block_of_pixel, side = pointwise_log_likelihood(records, burn_in, problem, pixel_labels)
         if values.shape[1]:
             groups["log_likelihood"] = {"y": values}
             groups["constant_data"] = {"block_of_pixel": block_of_pixel, "block_observations": np.bincount(

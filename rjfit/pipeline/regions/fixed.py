@@ -159,7 +159,7 @@ class FixedFit(RegionFit):
         draws = [r.theta[burn:, :n_rows] for r in records]
         iterations = [burn + np.arange(len(d)) for d in draws]
         write_chains(staging / "chains.nc", records, result, (draws, iterations), options, attributes,
-                     region_dim="region", key_names=(),
+                     region_dim="region", key_names=(), pixel_labels=self.pixels,
                      about=f"region r is the r-th label of {self.path.name} in increasing order of value (summary.json "
                            f"regions[r].label); held fixed in every draw")
         if options.figures:
