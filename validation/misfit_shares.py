@@ -11,7 +11,13 @@ coarsening rule (:mod:`rjfit.data.coarsen`). The variants, each a part issue 45 
 ``c``    Lambert + a GGX lobe (Smith masking, Schlick Fresnel: roughness, F0, amplitude per material);
 ``d``    Lambert + two Blinn lobes;
 ``e``    (a) with per-channel amplitudes (R, G, B albedo and lobe) and a shared lobe shape, residuals of R, G, B;
-``bc``, ``bce``  the combinations; ``g``: (bc) with shadowed observations left out (:func:`shadow_mask`).
+``bc``, ``bce``  the combinations; ``g``: (bc) with shadowed observations left out (:func:`shadow_mask`);
+``l``, ``r``  not issue 45's parts: (a) with each light's direction and gain re-estimated (:func:`refine_lights`);
+         (a) with a smooth correction of the camera response shared by every pixel (:func:`response_correction`);
+``p``    a bound, not a part: (a) with every pixel's prediction scaled by its own least-squares factor (an albedo
+         texture inside a material: what no segmentation into a few paints can exceed);
+``f``    not a part: (a) with each light's irradiance a smooth field over the image (a quadratic in the pixel's
+         position, six numbers per light): lights that are near or not uniform.
 
 The reference row ``pp`` is the rule as the fit reports it today: per-pixel fits, standardised
 by the preset's normal-error noise scales (:func:`rjfit.data.coarsen.suggest_likelihood_power`).
@@ -44,11 +50,14 @@ from rjfit.model.blinn import blinn_normalisation
 from rjfit.render.datasets import load_dataset
 from rjfit.sampler.kmeans import kmeans_labels
 
-# variant -> (lobe family, normals re-estimated, colour, shadows left out)
-VARIANTS = {"a": ("blinn", False, False, False), "b": ("blinn", True, False, False),
-            "c": ("ggx", False, False, False), "d": ("blinn2", False, False, False),
-            "e": ("blinn", False, True, False), "bc": ("ggx", True, False, False),
-            "bce": ("ggx", True, True, False), "g": ("ggx", True, False, True)}
+# variant -> (lobe family, normals re-estimated, colour, shadows left out, lights re-estimated)
+VARIANTS = {"a": ("blinn", False, False, False, False), "b": ("blinn", True, False, False, False),
+            "c": ("ggx", False, False, False, False), "d": ("blinn2", False, False, False, False),
+            "e": ("blinn", False, True, False, False), "bc": ("ggx", True, False, False, False),
+            "bce": ("ggx", True, True, False, False), "g": ("ggx", True, False, True, False),
+            "l": ("blinn", False, False, False, True), "r": ("blinn", False, False, False, False),
+            "p": ("blinn", False, False, False, False), "f": ("blinn", False, False, False, False)}
+PARTS = ("b", "c", "d", "e", "bc", "bce", "g")      # the variants that are issue 45's parts (the rest are bounds, probes)
 # lobe shape grids (the search starts at the best grid point): Blinn exponents as rjfit's pixel fits, GGX roughness
 GRIDS = {"blinn": [np.geomspace(0.5, 500.0, 16)], "ggx": [np.geomspace(0.02, 1.0, 14)],
          "blinn2": [np.geomspace(0.5, 500.0, 10)] * 2}
@@ -227,6 +236,66 @@ def refine_normals(stack: Stack, given, labels, fits, family, y, valid, noise_sd
     return normal(angles)
 
 
+def with_lights(stack: Stack, lights, gains) -> Stack:
+    """The stack under other light directions (L, 3) and relative gains (L,): half vectors and irradiance anew."""
+    lights = lights / np.linalg.norm(lights, axis=1, keepdims=True)
+    half = lights[None] + stack.view[:, None]
+    return dataclasses.replace(stack, lights=lights, irradiance=stack.irradiance * gains,
+                               half=half / np.linalg.norm(half, axis=-1, keepdims=True))
+
+
+def refine_lights(stack: Stack, normals, labels, fits, family, y, valid, steps=4) -> tuple[Stack, dict]:
+    """Each light's direction (two tangent angles) and gain by Gauss-Newton on all its observations, the
+    materials' fits held; no prior (thousands of pixels per light). Forward-difference Jacobian (1e-4)."""
+    first, second = tangents(stack.lights)
+    given = stack.lights
+
+    def residual(x):
+        lights = given + x[:, :1] * first + x[:, 1:2] * second
+        moved = with_lights(stack, lights, np.exp(x[:, 2]))
+        r = np.where(valid[..., None], y - predict(moved, normals, labels, fits, family), 0.0)
+        return np.moveaxis(r, 1, 0).reshape(len(given), -1), moved
+
+    x = np.zeros((len(given), 3))
+    r, moved = residual(x)
+    for _ in range(steps):
+        jac = np.stack([-(residual(x + 1e-4 * np.eye(3)[i])[0] - r) / 1e-4 for i in range(3)], axis=2)
+        step = np.linalg.solve(np.einsum("lmi,lmj->lij", jac, jac) + 1e-12 * np.eye(3),
+                               np.einsum("lmi,lm->li", jac, r)[..., None])[..., 0]
+        trial, moved_trial = residual(x + step)
+        if np.sum(trial ** 2) >= np.sum(r ** 2):
+            break
+        x, r, moved = x + step, trial, moved_trial
+    turn = np.degrees(np.hypot(x[:, 0], x[:, 1]))
+    return moved, {"turn_deg": turn.tolist(), "gain": np.exp(x[:, 2]).tolist()}
+
+
+def response_correction(prediction, residuals, valid, degree: int = 5) -> np.ndarray:
+    """p(mu): a polynomial of degree ``degree`` in the prediction over its maximum, fitted by least squares to the
+    residuals of every valid observation: what a camera response that is not exactly the estimated power law leaves."""
+    out = np.zeros_like(prediction)
+    for c in range(prediction.shape[-1]):       # one curve per channel
+        mu, r = prediction[..., c], residuals[..., c]
+        scale = np.max(mu[valid])
+        out[..., c] = np.polyval(np.polyfit(mu[valid] / scale, r[valid], degree), mu / scale)
+    return out
+
+
+def light_field(stack: Stack, prediction, residuals, valid) -> np.ndarray:
+    """Per light and channel, the least-squares fit of the residuals by prediction x (1, x, y, x^2, xy, y^2), x and
+    y the pixel's position over the image's size: a smooth irradiance field per light."""
+    x, z = stack.cols / stack.shape[1] - 0.5, stack.rows / stack.shape[0] - 0.5
+    terms = np.stack([np.ones_like(x), x, z, x * x, x * z, z * z], axis=1)        # (P, 6)
+    out = np.zeros_like(residuals)
+    for light in range(residuals.shape[1]):
+        keep = valid[:, light]
+        for c in range(residuals.shape[2]):
+            basis = terms * prediction[:, light, c][:, None]
+            coef = np.linalg.lstsq(basis[keep], residuals[keep, light, c], rcond=None)[0]
+            out[:, light, c] = basis @ coef
+    return out
+
+
 def white_noise_sd(stack: Stack, colour: bool) -> np.ndarray:
     """(C,) the white noise sd per channel: 1.4826 MAD / sqrt(6) of second differences along rows and columns.
 
@@ -265,12 +334,16 @@ def standardised(residuals, labels, valid) -> np.ndarray:
 
 def correlation_row(stack: Stack, residuals, labels, valid, noise_sd) -> dict:
     """rho_rows, rho_cols, rho (their mean, >= 0), the implied power and the RMS residual over the noise sd."""
-    (rho_rows, rho_cols), pairs = neighbour_correlations(
-        dense_values(stack, standardised(residuals, labels, valid), valid))
+    dense = dense_values(stack, standardised(residuals, labels, valid), valid)
+    (rho_rows, rho_cols), pairs = neighbour_correlations(dense)
     rho = max(0.0, float(np.nanmean([rho_rows, rho_cols])))
+    # the same on residuals clipped at 3 robust sd: how much of rho a few large residuals (a highlight, a shadow) carry
+    rho_clipped = max(0.0, float(np.nanmean(neighbour_correlations(np.clip(dense, -3.0, 3.0))[0])))
+    profile = {lag: float(np.nanmean(neighbour_correlations(dense[..., ::lag, ::lag])[0])) for lag in (2, 4, 8)}
     rms = np.sqrt(np.mean((residuals / noise_sd)[valid] ** 2))
     return {"rho_rows": rho_rows, "rho_cols": rho_cols, "rho": rho, "power": ((1 - rho) / (1 + rho)) ** 2,
-            "pairs": pairs, "rms_over_noise": float(rms), "observations": int(valid.sum()) * residuals.shape[2]}
+            "rho_clipped": rho_clipped, "rho_at_lag": profile, "pairs": pairs, "rms_over_noise": float(rms),
+            "observations": int(valid.sum()) * residuals.shape[2]}
 
 
 def shadow_mask(stack: Stack, normals, y) -> np.ndarray:
@@ -290,15 +363,18 @@ def shadow_mask(stack: Stack, normals, y) -> np.ndarray:
 
 def run_variant(stack: Stack, labels, variant: str, noise: dict, prior_rad: float, rounds: int = 2) -> dict:
     """Fit every material under ``variant`` (:data:`VARIANTS`); the row of figures and the residuals."""
-    family, normals_free, colour, shadows = VARIANTS[variant]
+    family, normals_free, colour, shadows, lights_free = VARIANTS[variant]
     y = stack.values(colour)
     noise_sd = noise["colour" if colour else "mono"]
-    valid, normals = stack.valid, stack.normals
+    valid, normals, given = stack.valid, stack.normals, stack
     fits = fit_all(stack, normals, labels, family, y, valid)
-    for _ in range(rounds if normals_free else 0):
-        normals = refine_normals(stack, stack.normals, labels, fits, family, y, valid, noise_sd, prior_rad)
-        fits = fit_all(stack, normals, labels, family, y, valid)
     row = {}
+    for _ in range(rounds if normals_free or lights_free else 0):
+        if lights_free:
+            stack, row["lights"] = refine_lights(given, normals, labels, fits, family, y, valid)
+        if normals_free:
+            normals = refine_normals(stack, stack.normals, labels, fits, family, y, valid, noise_sd, prior_rad)
+        fits = fit_all(stack, normals, labels, family, y, valid)
     if shadows:
         dropped = shadow_mask(stack, normals, y) & valid
         before = standardised(y - predict(stack, normals, labels, fits, family), labels, valid)
@@ -309,6 +385,18 @@ def run_variant(stack: Stack, labels, variant: str, noise: dict, prior_rad: floa
         normals = refine_normals(stack, stack.normals, labels, fits, family, y, valid, noise_sd, prior_rad)
         fits = fit_all(stack, normals, labels, family, y, valid)
     residuals = y - predict(stack, normals, labels, fits, family)
+    for _ in range(rounds if variant == "r" else 0):
+        correction = response_correction(y - residuals, residuals, valid)
+        fits = fit_all(stack, normals, labels, family, y - correction, valid)
+        mu = predict(stack, normals, labels, fits, family)
+        residuals = y - mu - response_correction(mu, y - mu, valid)
+    if variant == "f":
+        residuals = residuals - light_field(stack, y - residuals, residuals, valid)
+    if variant == "p":
+        mu = y - residuals
+        gain = np.sum(np.where(valid[..., None], y * mu, 0.0), axis=1) / np.maximum(
+            np.sum(np.where(valid[..., None], mu * mu, 0.0), axis=1), 1e-300)
+        residuals = y - gain[:, None, :] * mu
     row.update(correlation_row(stack, residuals, labels, valid, noise_sd))
     if normals_free:
         shift = np.degrees(np.arccos(np.clip(np.sum(normals * stack.normals, axis=1), -1.0, 1.0)))
@@ -427,7 +515,7 @@ def main(argv=None) -> int:
     if args.paint_cluster is not None and args.kmeans:
         labels = segmentations[-1][1]
         one = [row for row in rows if row["segmentation"] == "one"]
-        best = max(one, key=lambda row: row["power"])
+        best = max((row for row in one if row["variant"] in PARTS), key=lambda row: row["power"])
         for row in (next(row for row in one if row["variant"] == "a"), best):
             evidence = paint_evidence(stack, labels, args.paint_cluster, row["variant"], noise, prior, row["power"])
             rows.append({**base, "segmentation": segmentations[-1][0], "variant": row["variant"], "evidence": evidence})
