@@ -465,9 +465,30 @@ def paint_evidence(stack: Stack, labels, cluster: int, variant: str, noise: dict
             "log_likelihood_gain": gain, "power": power, "weighted_gain": gain * power}
 
 
+def summarise(path) -> str:
+    """The rows of a JSON-lines file as a Markdown table (stack, segmentation, variant, rho, power, RMS / noise)."""
+    lines = ["| stack | segmentation | variant | rho (rows / cols) | rho clipped | rho at lag 2 / 4 / 8 | power | "
+             "RMS / noise | normal shift median / p90 (deg) |", "|" + " --- |" * 9]
+    for row in (json.loads(line) for line in open(path)):
+        if "rho" not in row:
+            continue
+        lag = row.get("rho_at_lag") or {}
+        shift = row.get("normal_shift_deg")
+        lines.append(" | ".join([
+            f"| {row['stack']}", row["segmentation"], row["variant"],
+            f"{row['rho']:.3f} ({row['rho_rows']:.3f} / {row['rho_cols']:.3f})",
+            f"{row['rho_clipped']:.3f}" if "rho_clipped" in row else "",
+            " / ".join(f"{lag[k]:.2f}" for k in ("2", "4", "8")) if lag else "",
+            f"{row['power']:.4f}", f"{row['rms_over_noise']:.2f}" if "rms_over_noise" in row else "",
+            f"{shift['median']:.1f} / {shift['p90']:.1f}" if shift else ""]) + " |")
+    return "\n".join(lines)
+
+
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("stack", help="a photometric-stereo folder (e.g. /work/shared/data/psm-cat)")
+    parser.add_argument("stack", nargs="?", help="a photometric-stereo folder (e.g. /work/shared/data/psm-cat)")
+    parser.add_argument("--summarise", type=Path, default=None,
+                        help="print the rows of this JSON-lines file as a Markdown table and stop")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS),
                         help="which variants to fit (the module docstring names them)")
     parser.add_argument("--kmeans", nargs="*", type=int, default=[],
@@ -483,12 +504,18 @@ def parse_args(argv=None):
                         help="leave out pixels seen further than this from their normal (the measured preset's rim)")
     parser.add_argument("--seed", type=int, default=1, help="seeds the calibration's bootstrap and the k-means starts")
     parser.add_argument("--cache", type=Path, default=None, help="folder keeping the calibrated stacks between runs")
-    parser.add_argument("--out", type=Path, required=True, help="JSON-lines file the rows are appended to")
-    return parser.parse_args(argv)
+    parser.add_argument("--out", type=Path, help="JSON-lines file the rows are appended to")
+    args = parser.parse_args(argv)
+    if args.summarise is None and (args.stack is None or args.out is None):
+        parser.error("give a stack and --out (or --summarise FILE)")
+    return args
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    if args.summarise is not None:
+        print(summarise(args.summarise))
+        return 0
     start = time.time()
     try:
         stack, reference = load_stack(args.stack, args.max_view_angle, args.seed, args.cache)
