@@ -41,12 +41,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 from scipy.optimize import minimize, nnls
 
 from rjfit.data.calibrate import calibrate_measured
 from rjfit.data.coarsen import neighbour_correlations, suggest_likelihood_power
 from rjfit.data.noise import noise_scale
 from rjfit.model.blinn import blinn_normalisation
+from rjfit.pipeline.fit_dataset import ghost_material_prior
 from rjfit.render.datasets import load_dataset
 from rjfit.sampler.kmeans import kmeans_labels
 
@@ -455,14 +457,30 @@ def load_stack(path, max_view_angle: float, seed: int, cache: Path | None):
     return stack, reference
 
 
-def paint_evidence(stack: Stack, labels, cluster: int, variant: str, noise: dict, prior_rad: float, power: float) -> dict:
-    """Log-likelihood gain of ``cluster`` as a material of its own (against one material) under ``variant``,
-    and the same times the likelihood power ``power`` (what a coarsened fit weighs)."""
-    one = run_variant(stack, np.zeros_like(labels), variant, noise, prior_rad)
-    two = run_variant(stack, (labels == cluster).astype(int), variant, noise, prior_rad)
+def largest_part(stack: Stack, chosen) -> np.ndarray:
+    """(P,) bool: the largest 4-connected part of the chosen pixels."""
+    image = np.zeros(stack.shape, bool)
+    image[stack.rows, stack.cols] = chosen
+    parts, _ = ndimage.label(image)
+    sizes = np.bincount(parts.ravel())
+    sizes[0] = 0
+    return parts[stack.rows, stack.cols] == np.argmax(sizes)
+
+
+def paint_evidence(stack: Stack, paint, variant: str, noise: dict, prior_rad: float, power: float) -> dict:
+    """Log-likelihood gain of the ``paint`` pixels (P,) as a material of their own (against one material) under
+    ``variant``, the same times the likelihood power ``power`` (what a coarsened fit weighs), and the Potts
+    prior's cost of its outline at the measured preset's beta (:func:`ghost_material_prior`)."""
+    one = run_variant(stack, np.zeros(paint.size, int), variant, noise, prior_rad)
+    two = run_variant(stack, paint.astype(int), variant, noise, prior_rad)
     gain = two["log_likelihood"] - one["log_likelihood"]
-    return {"variant": variant, "cluster": cluster, "pixels": int(np.sum(labels == cluster)),
-            "log_likelihood_gain": gain, "power": power, "weighted_gain": gain * power}
+    image = np.full(stack.shape, -1)
+    image[stack.rows, stack.cols] = paint
+    outline = sum(int(np.sum((a >= 0) & (b >= 0) & (a != b))) for a, b in
+                  ((image[:, :-1], image[:, 1:]), (image[:-1, :], image[1:, :])))
+    beta = ghost_material_prior(image >= 0, 3.0)[0]
+    return {"variant": variant, "pixels": int(paint.sum()), "log_likelihood_gain": gain, "power": power,
+            "weighted_gain": gain * power, "outline_pairs": outline, "potts_beta": beta, "potts_cost": beta * outline}
 
 
 def summarise(path) -> str:
@@ -498,6 +516,8 @@ def parse_args(argv=None):
     parser.add_argument("--paint-cluster", type=int, default=None,
                         help="with --kmeans: the evidence for this cluster (0 is the darkest) of the largest k as a "
                              "material of its own, at variant a and at the variant of the highest power")
+    parser.add_argument("--paint-part", action="store_true",
+                        help="with --paint-cluster: the evidence for the cluster's largest connected part only")
     parser.add_argument("--normal-prior-deg", type=float, default=3.0,
                         help="sd (degrees) of the Gaussian prior of a pixel's normal about the given one")
     parser.add_argument("--max-view-angle", type=float, default=72.5,
@@ -540,11 +560,13 @@ def main(argv=None) -> int:
             print(f"{rows[-1]['stack']} {name} {variant}: rho {row['rho']:.3f} power {row['power']:.4f} "
                   f"rms/noise {row['rms_over_noise']:.2f} ({rows[-1]['seconds']} s)", flush=True)
     if args.paint_cluster is not None and args.kmeans:
-        labels = segmentations[-1][1]
+        paint = segmentations[-1][1] == args.paint_cluster
+        paint = largest_part(stack, paint) if args.paint_part else paint
         one = [row for row in rows if row["segmentation"] == "one"]
         best = max((row for row in one if row["variant"] in PARTS), key=lambda row: row["power"])
         for row in (next(row for row in one if row["variant"] == "a"), best):
-            evidence = paint_evidence(stack, labels, args.paint_cluster, row["variant"], noise, prior, row["power"])
+            evidence = {"cluster": args.paint_cluster, "largest_part": args.paint_part,
+                        **paint_evidence(stack, paint, row["variant"], noise, prior, row["power"])}
             rows.append({**base, "segmentation": segmentations[-1][0], "variant": row["variant"], "evidence": evidence})
             print(f"evidence of cluster {args.paint_cluster} under {row['variant']}: {evidence}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
