@@ -359,12 +359,16 @@ def shadow_mask(stack: Stack, normals, y) -> np.ndarray:
     shading = geo["E"] * geo["ln"]
     mean = y.mean(axis=-1)
     lit = stack.valid & (geo["ln"] > 0.3)
-    albedo = np.nanmedian(np.where(lit, mean / np.where(lit, shading, 1.0), np.nan), axis=1)
-    return (geo["ln"] < SHADOW_COS) | (mean < SHADOW_FRACTION * np.nan_to_num(albedo)[:, None] * shading)
+    ratio = np.where(lit, mean / np.where(lit, shading, 1.0), np.nan)
+    albedo = np.zeros(len(ratio))      # a pixel without such a light: no cast-shadow test (albedo 0)
+    some = lit.any(axis=1)
+    albedo[some] = np.nanmedian(ratio[some], axis=1)
+    return (geo["ln"] < SHADOW_COS) | (mean < SHADOW_FRACTION * albedo[:, None] * shading)
 
 
 def run_variant(stack: Stack, labels, variant: str, noise: dict, prior_rad: float, rounds: int = 2) -> dict:
-    """Fit every material under ``variant`` (:data:`VARIANTS`); the row of figures and the residuals."""
+    """Fit every material under ``variant`` (:data:`VARIANTS`); its row of figures (:func:`correlation_row`'s, the
+    normal shifts, the shadows' share, the materials' fits and the profile log-likelihood)."""
     family, normals_free, colour, shadows, lights_free = VARIANTS[variant]
     y = stack.values(colour)
     noise_sd = noise["colour" if colour else "mono"]
@@ -540,7 +544,7 @@ def main(argv=None) -> int:
     try:
         stack, reference = load_stack(args.stack, args.max_view_angle, args.seed, args.cache)
     except (OSError, ValueError) as error:
-        print(f"{args.stack}: {error}", file=sys.stderr)
+        print(str(error), file=sys.stderr)      # the loaders name the folder
         return 2
     noise = {"mono": white_noise_sd(stack, False), "colour": white_noise_sd(stack, True)}
     prior = np.radians(args.normal_prior_deg)
