@@ -26,7 +26,7 @@ import numpy as np
 from rjfit.data.noise import weighted_observations
 from rjfit.data.pixelfit import group_fit, patch_index, per_pixel_residuals
 
-__all__ = ["suggest_likelihood_power", "misfit_warning", "MISFIT_ZETA", "area_likelihood_power",
+__all__ = ["suggest_likelihood_power", "neighbour_correlations", "misfit_warning", "MISFIT_ZETA", "area_likelihood_power",
            "summed_autocorrelation", "AREA_WINDOW", "AREA_PATCH"]
 
 # Lags summed by the area rule: within +-40 px (the DiLiGenT ball's residual correlation falls to ~0 by
@@ -69,19 +69,38 @@ def suggest_likelihood_power(observations, noise_scale=None) -> dict:
     (2019) 1113-1125.
     """
     obs = weighted_observations(observations, noise_scale)
-    dense = obs.dense(per_pixel_residuals(obs))
-    rhos, pairs = [], 0
-    for first, second in ((dense[:, :, :-1], dense[:, :, 1:]), (dense[:, :-1, :], dense[:, 1:, :])):
-        keep = np.isfinite(first) & np.isfinite(second)
-        x, z = first[keep], second[keep]
-        pairs += int(x.size)
-        rhos.append(float(np.corrcoef(x, z)[0, 1]) if x.size > 2 and np.std(x) > 0 and np.std(z) > 0 else np.nan)
+    rhos, pairs = neighbour_correlations(obs.dense(per_pixel_residuals(obs)))
     if pairs == 0 or not np.any(np.isfinite(rhos)):
         raise ValueError("no two adjacent pixels under one light have a residual: cannot measure the misfit's "
                          "spatial correlation; give --likelihood-power as a number")
     rho = max(0.0, float(np.nanmean(rhos)))
     zeta = max(((1.0 - rho) / (1.0 + rho)) ** 2, 1.0 / obs.n_obs)
     return {"rho_rows": rhos[0], "rho_cols": rhos[1], "rho": rho, "pairs": pairs, "likelihood_power": zeta}
+
+
+def neighbour_correlations(dense) -> tuple[list, int]:
+    """Pearson correlation of the values of horizontally and of vertically adjacent pixels in one image.
+
+    Parameters
+    ----------
+    dense : ndarray (..., H, W)
+        One image of values per leading index (a light, a channel); NaN where there is none.
+        Pairs are formed within an image only.
+
+    Returns
+    -------
+    ([rho_rows, rho_cols], pairs)
+        The correlations (NaN where fewer than 3 pairs or a constant side) and the number of
+        pairs with both values finite, over both directions.
+    """
+    dense = np.asarray(dense, float)
+    rhos, pairs = [], 0
+    for first, second in ((dense[..., :, :-1], dense[..., :, 1:]), (dense[..., :-1, :], dense[..., 1:, :])):
+        keep = np.isfinite(first) & np.isfinite(second)
+        x, z = first[keep], second[keep]
+        pairs += int(x.size)
+        rhos.append(float(np.corrcoef(x, z)[0, 1]) if x.size > 2 and np.std(x) > 0 and np.std(z) > 0 else np.nan)
+    return rhos, pairs
 
 
 def misfit_warning(suggestion, likelihood_power: float) -> str | None:
