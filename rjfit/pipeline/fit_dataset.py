@@ -73,7 +73,9 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     dataset_dir = Path(dataset_dir)
     check_validation_file(dataset_dir, validation_path)
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
-    with phase(f"loading the data set {dataset_dir}", options.progress):
+    # before resolve_options (it needs the data set): a progress not given is the default's
+    progress = FitOptions.default("progress") if options.progress is None else options.progress
+    with phase(f"loading the data set {dataset_dir}", progress):
         dataset = load_dataset(dataset_dir)
     facts = DataFacts.of(dataset)
     options = resolve_options(options, facts)

@@ -282,8 +282,8 @@ def validate_dataset(dataset_dir, out_dir=None, *, forward_model=closed_form_rad
     out_dir = Path(out_dir) if out_dir is not None else dataset_dir / "validation"
     dataset = load_dataset(dataset_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    mi_module = activate(variant)      # an unsupported variant is refused in one line, before any progress line
     with phase(f"validate: building the scene's geometry and tracing the pixels ({variant})", progress):
-        mi_module = activate(variant)
         make_scene, materials, part_materials, geometry_source = _gate_scene(dataset, dataset_dir, out_dir, materials,
                                                                              max_depth)
         geometry_scene = make_scene([], max_depth)
