@@ -1,8 +1,7 @@
 """The sampler's settings of a fit, built field by field from its resolved options.
 
 Each region model builds its own settings in its :class:`~rjfit.pipeline.regions.base.RegionFit`
-(``sampler_config``), naming every option it reads (:data:`rjfit.pipeline.options.REGION_OPTIONS`
-lists the same names); :func:`assemble` adds what every model shares (the within-region sampler,
+(``sampler_config``), naming every option it reads (its ``reads`` lists the same names); :func:`assemble` adds what every model shares (the within-region sampler,
 the burn-in and warm-up, the effects' schedule). A new option reaches the sampler where one of
 these says so, never by its name.
 """

@@ -9,9 +9,11 @@ an option is one field here, plus the code that uses it.
 One rule for "not given": a field is None until it is given, for every field. What a fit was
 not given is filled once, by :func:`rjfit.pipeline.resolve.resolve_options` (the preset, the
 data's kind, the plain default: ``metadata["default"]`` of each field), which records where each
-value came from (``sources``). :data:`REGION_OPTIONS` and :data:`NOISE_OPTIONS` say which
-options each region model and noise model reads: a given option that the fit's models do not
-read is refused there.
+value came from (``sources``). Each region model's ``RegionFit.reads``
+(:mod:`rjfit.pipeline.regions`) and :data:`NOISE_OPTIONS` say which options each region model and
+noise model reads: a given option that the fit's models do not read is refused there. This module
+names the region models (:data:`REGION_MODELS`, ``--regions``' choices) but may not import them
+(they build their settings from these options).
 """
 from __future__ import annotations
 
@@ -25,21 +27,16 @@ from rjfit.data.observations import RIM_COS
 from rjfit.effects import EFFECTS, effects_help
 from rjfit.sampler.priors import PRESETS
 
-__all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS", "REGION_OPTIONS", "NOISE_OPTIONS",
+__all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS", "REGION_MODELS", "NOISE_OPTIONS",
            "EFFECT_OPTIONS", "GIVEN"]
 
 EACH_CHANNEL = ("R", "G", "B")                 # what ``channel="each"`` fits, one fit per channel
 FIT_CHANNELS = CHANNELS + ("each", COLOUR)
 GIVEN = "given"                                # a value's source (FitOptions.sources) when the user gave it
 
-#: The options each region model reads (``--regions``); a given one of another model is refused. Each
-#: model's set belongs with the model: it moves into the model's package with it.
-REGION_OPTIONS = {
-    "changepoints": frozenset({"max_u", "max_v", "split_map", "cp_prior", "drop_jacobian", "jump_prob"}),
-    "materials": frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "cluster_material_seed",
-                            "segment_moves"}),
-    "fixed": frozenset({"labels"}),
-}
+#: The region models' ``--regions`` names, in the order of :data:`rjfit.pipeline.regions.REGION_FITS` (a test
+#: checks they agree); the options each reads are its ``RegionFit.reads``.
+REGION_MODELS = ("changepoints", "materials", "fixed")
 #: The options each noise model reads beyond ``noise`` itself (``--noise``); models not named read none.
 NOISE_OPTIONS = {"shot": frozenset({"noise_floor"}), "relative": frozenset({"noise_floor"})}
 #: The options read only when effects are sampled (``--effects`` or ``--effects-from``).
@@ -148,7 +145,7 @@ class FitOptions:
         "Region model: the paper's change points (changepoints), free-form materials (materials): a material "
         "label per pixel under a Potts prior, K materials unknown, one BRDF per material shared by all its pixels, "
         "connected or not; or your own label map held fixed (fixed, with --labels). Default: changepoints for "
-        "rendered data, materials for measured data.", "choice", choices=tuple(REGION_OPTIONS), show_default=False)
+        "rendered data, materials for measured data.", "choice", choices=REGION_MODELS, show_default=False)
     labels: Path | None = cli_option(
         None, "--labels",
         "Label map of --regions fixed: an integer label per pixel of the images (.npy, .exr or a one-channel image; "
@@ -372,10 +369,12 @@ class FitOptions:
         return record
 
     @classmethod
-    def from_json(cls, record: dict) -> "FitOptions":
+    def from_json(cls, record: dict, region_reads: dict | None = None) -> "FitOptions":
         """The options given to the fit :meth:`to_json` recorded (names it does not know are ignored: a newer
         rjfit's). A record without sources (an rjfit before 2026-11-28) gives its region model, its preset and
-        every value that differs from its plain default.
+        every value that differs from its plain default and that its models read: its noise model's
+        (:data:`NOISE_OPTIONS`) and, with ``region_reads`` ({model name: the options it reads}, each
+        ``RegionFit.reads``, which this module cannot import), its region model's.
 
         Raises
         ------
@@ -391,15 +390,15 @@ class FitOptions:
             return cls(**{k: v for k, v in known.items() if v is not None})
         return cls(**{k: v for k, v in known.items()
                       if k in ("regions", "preset") or (v is not None and v != cls.default(k)
-                                                        and _read_by(k, known))})
+                                                        and _read_by(k, known, region_reads or {}))})
 
 
-def _read_by(name: str, values: dict) -> bool:
-    """Whether the region model and noise model of ``values`` read option ``name`` (:data:`REGION_OPTIONS`,
-    :data:`NOISE_OPTIONS`)."""
+def _read_by(name: str, values: dict, region_reads: dict) -> bool:
+    """Whether the region model and noise model of ``values`` read option ``name`` (``region_reads``: the options
+    each region model reads; :data:`NOISE_OPTIONS`)."""
     regions = values.get("regions") or FitOptions.default("regions")
-    modelled = set().union(*REGION_OPTIONS.values())
-    if name in modelled and name not in REGION_OPTIONS.get(regions, ()):
+    modelled = set().union(*region_reads.values())
+    if name in modelled and name not in region_reads.get(regions, ()):
         return False
     noise = values.get("noise") or FitOptions.default("noise")
     return name not in set().union(*NOISE_OPTIONS.values()) or name in NOISE_OPTIONS.get(noise, ())

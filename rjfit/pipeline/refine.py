@@ -31,6 +31,7 @@ from rjfit.pipeline.diagnose import diagnose_fit
 from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
 
@@ -54,7 +55,7 @@ def fit_options_of(summary: dict, fit_dir) -> FitOptions:
         raise DatasetError(f"{Path(fit_dir) / 'summary.json'}: records no 'fit_options' (a fit made by an older "
                            f"rjfit); fit the data set again to refine it")
     try:
-        return FitOptions.from_json(record)
+        return FitOptions.from_json(record, {name: fit.reads for name, fit in REGION_FITS.items()})
     except (TypeError, ValueError) as error:
         raise DatasetError(f"{Path(fit_dir) / 'summary.json'}: its 'fit_options' cannot be used ({error}); fit the "
                            f"data set again") from None

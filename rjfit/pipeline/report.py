@@ -8,8 +8,8 @@ from pathlib import Path
 from rjfit.diagnose.document import revision_text
 from rjfit.io import read_json, write_text_atomic
 from rjfit.pipeline.fit_folder import read_summary
+from rjfit.pipeline.regions import region_fit_of
 from rjfit.pipeline.report_text import figure_caption, fit_settings, result_rows, truth_note
-from rjfit.posterior.boundaries import edge_verdict
 from rjfit.posterior.summary import RHAT_MAX
 
 __all__ = ["build_report"]
@@ -78,10 +78,10 @@ def _region_table(summary: dict) -> str:
     truth = {str(region): truth_params[label] for region, label in (summary.get("label_matching") or {}).items()
              if isinstance(label, int) and 0 <= label < len(truth_params) and isinstance(truth_params[label], dict)}
     head = "".join(f"<th>{_LABELS[p]}</th>" for p in _PARAMETERS)
-    kind = "material" if summary.get("region_model") == "materials" else "region"
+    model = region_fit_of(summary)
     rows = []
     for index, region in enumerate(regions):
-        name = region.get("name", f"{kind} {region.get('region', index)}")
+        name = region.get("name", model.region_title(region, index))
         cells = []
         for parameter in _PARAMETERS:
             stats = region.get(parameter, {})
@@ -98,7 +98,7 @@ def _region_table(summary: dict) -> str:
             cells.append(f"<td>{text}</td>")
         rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small></td>"
                     + "".join(cells) + "</tr>")
-    return f"<table><tr><th>{kind}</th>{head}</tr>{''.join(rows)}</table>"
+    return f"<table><tr><th>{model.noun}</th>{head}</tr>{''.join(rows)}</table>"
 
 
 def _chain_region_tables(summary: dict) -> str:
@@ -312,23 +312,8 @@ def _posterior_section(summary: dict) -> list[str]:
                      "99.9 % and their own 95 % intervals, no region without data, no binding model cap, no NaN "
                      "acceptance ratio).</p>")
     parts.append(_result_table(summary))
-    resolution = summary.get("material_resolution")
-    if resolution and resolution.get("pixels") is not None:
-        parts.append(f"<p>Resolution: a region of {resolution['contrast']:g} times material {resolution['material']}'s "
-                     f"albedo gets a material of its own from about {resolution['pixels']:.0f} pixels (a disc of radius "
-                     f"{resolution['radius_px']:.1f} px); smaller ones are merged into the material around them.</p>")
-    boundaries = summary.get("boundaries")
-    if boundaries:
-        verdicts = [edge_verdict(row) for row in boundaries]
-        parts.append(f"<p>Boundaries: of the {len(boundaries)} boundaries between MAP materials, "
-                     f"{verdicts.count('edge')} show a step in the data and {verdicts.count('no edge')} show none "
-                     f"(odds of 100:1); joined where they show none, the materials form "
-                     f"{summary.get('edge_supported_materials')} group(s).</p>")
-    edge_groups = summary.get("edge_groups_posterior")
-    if edge_groups:
-        shares = ", ".join(f"{n}: {share:.2f}" for n, share in edge_groups.items())
-        parts.append(f"<p>Edge-supported groups over {summary.get('edge_groups_snapshots')} label snapshots (materials "
-                     f"that meet where the data show no step joined): {shares}.</p>")
+    model = region_fit_of(summary)
+    parts += [f"<p>{html.escape(note)}</p>" for note in model.report_notes(summary)]
     model_posterior = summary.get("model_posterior") or {}
     if model_posterior:
         rows = "".join(f"<tr><td>{html.escape(str(k).replace(',', ', '))}</td><td>{_number(v, '.4f')}</td></tr>"
@@ -342,8 +327,7 @@ def _posterior_section(summary: dict) -> list[str]:
                        for k, v in sorted(materials.items(), key=lambda kv: -kv[1]) if isinstance(v, (int, float)))
         parts.append("<table><tr><th>number of materials K</th><th>posterior probability</th></tr>"
                      f"{rows}</table>")
-    kind = "material" if summary.get("region_model") == "materials" else "region"
-    parts.append(f"<h2>Region parameters</h2><p>Posterior mean &plusmn; sd of each {kind}'s parameters, their central "
+    parts.append(f"<h2>Region parameters</h2><p>Posterior mean &plusmn; sd of each {model.noun}'s parameters, their central "
                  f"95 % interval below (the kept draws of all chains).</p>" + _region_table(summary))
     parts.append(_chain_region_tables(summary))
     parts.append(_effects_table(summary))

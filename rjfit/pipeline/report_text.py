@@ -10,7 +10,10 @@ and a row whose entry is missing is left out.
 """
 from __future__ import annotations
 
-import math
+from rjfit.pipeline.regions import region_fit_of
+from rjfit.pipeline.report_numbers import finite as _finite
+from rjfit.pipeline.report_numbers import number as _number
+from rjfit.pipeline.report_numbers import probability as _probability
 
 __all__ = ["fit_settings", "result_rows", "figure_caption", "truth_note", "FIGURE_CAPTIONS"]
 
@@ -20,6 +23,7 @@ _CHANNELS = {"mean": "the mean of R, G and B", "luminance": "luminance (CIE Y, s
 #: what each figure of a fit folder shows, by its file name (stem)
 FIGURE_CAPTIONS = {
     "materials": "MAP material of every pixel (one colour per material; white: off the object or left out).",
+    "labels": "The label map held fixed (--regions fixed): one colour per label (white: no label).",
     "materials_histogram": "Posterior probability of each number of materials K (pooled over the chains, after "
                            "burn-in).",
     "model_histogram": "Posterior probability of each change-point model (n_u, n_v) (pooled over the chains, after "
@@ -34,25 +38,8 @@ FIGURE_CAPTIONS = {
 }
 
 
-def _number(value, spec=".4g") -> str:
-    return format(value, spec) if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)
-
-
-def _probability(value):
-    """A probability with three decimals (1.000, not 1: a rounded certainty is not a count), else as it is."""
-    return f"{value:.3f}" if _finite(value) else value
-
-
-def _finite(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _region_model(summary: dict, options: dict) -> str:
-    if summary.get("region_model") == "materials":
-        return (f"materials: a material label per pixel under a Potts prior, the number of materials K unknown (at "
-                f"most {summary.get('max_materials', options.get('max_materials', '?'))}), one BRDF per material")
-    return (f"change points: the paper's grid of at most {options.get('max_u', '?')} u and {options.get('max_v', '?')} "
-            f"v change-point vectors, one BRDF per cell")
+def _region_model(summary: dict, options: dict) -> str | None:
+    return region_fit_of(summary).describe(summary, options) or None
 
 
 def _preset(options: dict) -> str:
@@ -61,29 +48,6 @@ def _preset(options: dict) -> str:
                 "out, calibration, no annealed warm-up; with materials the Potts prior by a rule on the mask and the "
                 "edge term)")
     return "none: the options as given"
-
-
-def _potts(summary: dict, options: dict) -> str | None:
-    if summary.get("region_model") != "materials" or not _finite(summary.get("potts_beta")):
-        return None
-    beta, rho = summary["potts_beta"], summary.get("potts_rho")
-    text = f"beta {beta:.3g} per pair of neighbouring pixels of different materials"
-    if _finite(rho):
-        text += f"; rho {rho:.3g} per material (prior odds of each further material 1:{1 / rho:.0f})"
-    if options.get("preset") == "measured":
-        text += "; the measured preset sets both by its rule on the mask unless --potts-rho is given"
-    return text
-
-
-def _edge(summary: dict, options: dict) -> str | None:
-    if summary.get("region_model") != "materials":
-        return None
-    power = summary.get("edge_power")
-    if not _finite(power) or power == 0:
-        return "none (0): a boundary costs only the Potts prior"
-    how = "measured (auto: the coarsening rule on the data's differences across 3 px)" \
-        if options.get("edge_power") == "auto" else "as given"
-    return f"{power:.3g}, {how}: a boundary where the data show no step costs its materials' step misfit"
 
 
 def _rim(summary: dict) -> str:
@@ -169,9 +133,6 @@ def _run(summary: dict, options: dict) -> list:
     rows.append(("prior", summary.get("prior", {}).get("name") if isinstance(summary.get("prior"), dict) else None))
     rows.append(("sampler", {"adaptive": "adaptive block moves within a model", "paper": "the paper's component-wise "
                              "Metropolis-Hastings"}.get(summary.get("sampler"), summary.get("sampler"))))
-    if summary.get("region_model") != "materials":
-        rows.append(("split map", options.get("split_map")))
-        rows.append(("change-point prior", options.get("cp_prior")))
     return rows
 
 
@@ -184,8 +145,7 @@ def fit_settings(summary: dict) -> list:
             ("channel", _CHANNELS.get(summary.get("channel"), summary.get("channel"))),
             ("region model", _region_model(summary, options)),
             ("preset", _preset(options) if options else None),
-            ("Potts prior (beta, rho)", _potts(summary, options)),
-            ("edge term power", _edge(summary, options)),
+            *region_fit_of(summary).settings_rows(summary, options),
             # what a summary without its options (an older rjfit's) leaves unsaid is not guessed
             ("rim (max. view angle)", _rim(summary) if options else None),
             ("calibration (response, gains)", _calibration(summary) if options else None),
@@ -203,43 +163,9 @@ def fit_settings(summary: dict) -> list:
     return [(name, value) for name, value in rows if value is not None]
 
 
-def _materials_rows(summary: dict) -> list:
-    k = summary.get("map_materials")
-    posterior = summary.get("materials_posterior") or {}
-    rows = [("MAP number of materials K", k, "the K of highest posterior probability; its share "
-             f"{_number(posterior.get(str(k), float('nan')), '.3f')} of the kept draws"),
-            ("mean probability of a pixel's MAP material", _probability(summary.get("map_probability_mean")),
-             "over the object's pixels, the share of label snapshots that give a pixel its MAP material; near 1: the "
-             "segmentation is certain, below 0.9: boundaries or whole materials are in doubt")]
-    if "materials_right_probability" in summary:
-        rows.append(("probability of the true number of materials",
-                     _probability(summary["materials_right_probability"]),
-                     "posterior probability of K equal to the truth's (rendered data only); good near 1"))
-    return rows
-
-
-def _changepoint_rows(summary: dict) -> list:
-    model = summary.get("map_model") if isinstance(summary.get("map_model"), dict) else {}
-    rows = [("MAP model (n_u, n_v)", f"({model.get('n_u')}, {model.get('n_v')})" if model else None,
-             "the change-point model of highest posterior probability: n_u vectors cut the rows, n_v the columns")]
-    if "true_regions_probability" in summary:
-        rows.append(("probability of the true regions", _probability(summary["true_regions_probability"]),
-                     "share of kept draws whose object pixels fall into exactly the true regions (one region per true "
-                     "region, >= 99 % of pixels matched); good near 1"))
-    if "four_region_probability" in summary:
-        rows.append(("probability of the true number of regions", _probability(summary["four_region_probability"]),
-                     "share of kept draws with as many regions holding object pixels as the truth has (the count "
-                     "only)"))
-    if "exact_truth_probability" in summary:
-        rows.append(("probability of the exact true partition", _probability(summary["exact_truth_probability"]),
-                     "share of kept draws whose partition equals the truth pixel for pixel: stricter, near 0 even for "
-                     "a good fit (see the note below)"))
-    return rows
-
-
 def result_rows(summary: dict) -> list:
     """``(quantity, value, what it means and when it is good)`` for the fit's headline results."""
-    rows = _materials_rows(summary) if summary.get("region_model") == "materials" else _changepoint_rows(summary)
+    rows = list(region_fit_of(summary).result_rows(summary))
     if "label_accuracy" in summary:
         rows.append(("label accuracy", _probability(summary["label_accuracy"]),
                      "share of object pixels whose MAP label matches the truth after the best one-to-one matching "

@@ -14,32 +14,26 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rjfit.data.calibrate import small_components
 from rjfit.data.formats import COLOUR
-from rjfit.pipeline.options import (EFFECT_OPTIONS, FURTHER_MATERIAL_ODDS, GIVEN, NOISE_OPTIONS, REGION_OPTIONS,
-                                    RIM_VIEW_ANGLE, FitOptions)
+from rjfit.pipeline.options import EFFECT_OPTIONS, GIVEN, NOISE_OPTIONS, RIM_VIEW_ANGLE, FitOptions
+from rjfit.pipeline.regions import REGION_FITS
+from rjfit.pipeline.regions.materials import GHOST_ODDS, GHOST_PIXELS, ghost_material_prior
 
 __all__ = ["resolve_options", "DataFacts", "MEASURED_DEFAULTS", "MEASURED_PRESET", "default_lines",
            "ghost_material_prior", "GHOST_PIXELS", "GHOST_ODDS"]
 
-#: What a measured stack (anything `rjfit render` did not write) gets where not given.
-MEASURED_DEFAULTS = {"regions": "materials", "preset": "measured"}
-#: What ``--preset measured`` sets where an option is not given (docs/options.md); the edge term only where
-#: it applies (:func:`_edge_term_applies`), the Potts beta and rho by :func:`ghost_material_prior`.
+#: What a measured stack (anything `rjfit render` did not write) gets where not given: the region model that
+#: says so (``RegionFit.measured_default``) and the measured preset.
+MEASURED_DEFAULTS = {"regions": next(name for name, fit in REGION_FITS.items() if fit.measured_default),
+                     "preset": "measured"}
+#: What ``--preset measured`` sets where an option is not given (docs/options.md); beyond these, what the
+#: region model's ``RegionFit.preset_values`` sets (the material model: its edge term where it applies, the
+#: Potts beta and rho by :func:`rjfit.pipeline.regions.materials.ghost_material_prior`).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
                    "max_view_angle": RIM_VIEW_ANGLE}
 #: the fraction of each chain discarded, by the data's kind (the paper's choices)
 BURN_IN = {"measured": 0.2, "rendered": 0.5}
 PRESET, DATA, DEFAULT = "preset", "data", "default"
-
-# --preset measured's Potts rule (docs/options.md): a material whose parameters equal an existing one's
-# holds about S(beta) = sum_p exp(-beta n_p) scattered pixels under the prior (n_p: p's labelled 4-neighbours);
-# beta is raised until S <= GHOST_PIXELS, so such a material shrinks to its last pixel often enough for the
-# cluster moves to remove it, and rho makes its prior odds rho S / 2 = GHOST_ODDS, the odds every further
-# material has (FURTHER_MATERIAL_ODDS, 1:100; 1:20 until 2026-11-27).
-GHOST_PIXELS = 1.0
-GHOST_ODDS = FURTHER_MATERIAL_ODDS
-
 
 @dataclass(frozen=True, eq=False)
 class DataFacts:
@@ -112,13 +106,9 @@ def resolve_options(options: FitOptions, data: DataFacts | None = None) -> FitOp
     if values["preset"] == "measured":
         for name, value in MEASURED_PRESET.items():
             fill(name, value, PRESET)
-        if _edge_term_applies(values):
-            fill("edge_power", "auto", PRESET)
-        if values["regions"] == "materials" and "potts_rho" not in values and data.object_mask is not None:
-            mask = _fitted_mask(data.object_mask, values.get("calibrate", False))
-            beta, rho = ghost_material_prior(mask, values.get("potts_beta", FitOptions.default("potts_beta")))
-            sources.setdefault("potts_beta", PRESET)
-            values["potts_beta"], values["potts_rho"], sources["potts_rho"] = beta, rho, PRESET
+        for name, value in REGION_FITS[values["regions"]].preset_values(values, data).items():
+            values[name] = value           # the model's rule (the Potts prior on the mask) starts from a given value
+            sources.setdefault(name, PRESET)
     if data.response_unknown:       # a declared need: applied under every preset (a given False is refused above)
         fill("calibrate", True, DATA)
     fill("burn_in", BURN_IN[data.kind], DATA if data.kind == "measured" else DEFAULT)
@@ -137,22 +127,15 @@ def _check_calibration(values: dict, data: DataFacts) -> None:
 
 
 def _edge_term_applies(values: dict) -> bool:
-    """The edge term reads one channel's plain prediction under the material model's adaptive moves."""
-    return (values["regions"] == "materials" and values["channel"] != COLOUR and not values["effects"]
-            and values["effects_from"] is None and values["sampler"] == "adaptive")
-
-
-def _fitted_mask(object_mask, calibrate: bool) -> np.ndarray:
-    """The mask the fit sees: the calibration leaves small parts out (:func:`rjfit.data.calibrate.small_components`)."""
-    mask = np.asarray(object_mask, bool)
-    return mask & ~small_components(mask) if calibrate else mask
+    """Whether the region model of ``values`` applies the edge term under their channel, effects and sampler."""
+    return REGION_FITS[values["regions"]].edge_term_applies(values)
 
 
 def _refuse_unread(options: FitOptions) -> None:
     """A given option that the chosen region model, noise model or effects do not read: refused, naming it."""
     for name in options.given():
         flag = FitOptions.cli(name).flag if FitOptions.cli(name) else name
-        readers = [model for model, names in REGION_OPTIONS.items() if name in names]
+        readers = [model for model, fit in REGION_FITS.items() if name in fit.reads]
         if readers and options.regions not in readers:
             raise ValueError(f"{flag} is an option of --regions {' / '.join(readers)}, not of --regions "
                              f"{options.regions} ({_chosen_by(options, 'regions')}): leave it out")
@@ -174,8 +157,9 @@ def _chosen_by(options: FitOptions, name: str) -> str:
 def _check_combinations(options: FitOptions) -> None:
     if options.edge_power == "auto" or options.edge_power > 0:
         if not _edge_term_applies(vars(options)):
-            raise ValueError("--edge-power works with --regions materials, one channel, no effects and the "
-                             "adaptive sampler: give --edge-power 0 or fit one channel without effects")
+            edge = " / ".join(name for name, fit in REGION_FITS.items() if "edge_power" in fit.reads)
+            raise ValueError(f"--edge-power works with --regions {edge}, one channel, no effects and the "
+                             f"adaptive sampler: give --edge-power 0 or fit one channel without effects")
     if options.channel != COLOUR:
         return
     if options.effects or options.effects_from is not None:
@@ -186,27 +170,11 @@ def _check_combinations(options: FitOptions) -> None:
         # its summed autocorrelation would pool a pixel's channels as one channel's observations
         raise ValueError("--likelihood-power area measures one channel: not yet with --channel rgb; use "
                          "--likelihood-power auto (what --preset measured sets) or fit one channel (--channel mean)")
-    if options.regions != "materials" or options.sampler != "adaptive":
-        raise ValueError("--channel rgb (a joint colour fit) works with --regions materials and the adaptive "
-                         "sampler only (the change-point model's passes see one channel): use --regions materials, "
-                         "or fit one channel (--channel mean, R, G, B or each)")
-
-
-def ghost_material_prior(object_mask, beta: float) -> tuple[float, float]:
-    """``(beta, rho)`` of the measured preset's Potts prior for this mask (the rule above ``GHOST_PIXELS``).
-
-    beta: the smallest of ``beta``, ``beta + 0.05``, ... with ``S(beta) <= GHOST_PIXELS`` (at most 8);
-    rho: ``2 GHOST_ODDS / S(beta)``. Pixels without a labelled neighbour are not counted: no beta
-    binds them (the preset's calibration leaves them out, :func:`rjfit.data.calibrate.drop_small_components`).
-    """
-    mask = np.asarray(object_mask, bool)
-    padded = np.pad(mask, 1)
-    neighbours = (padded[:-2, 1:-1].astype(int) + padded[2:, 1:-1] + padded[1:-1, :-2] + padded[1:-1, 2:])[mask]
-    neighbours = neighbours[neighbours > 0]
-    ghost_pixels = lambda b: float(np.sum(np.exp(-b * neighbours)))      # noqa: E731
-    while ghost_pixels(beta) > GHOST_PIXELS and beta < 8.0:
-        beta = round(beta + 0.05, 2)
-    return beta, 2.0 * GHOST_ODDS / ghost_pixels(beta)
+    joint = " / ".join(name for name, fit in REGION_FITS.items() if fit.joint_colour)
+    if not REGION_FITS[options.regions].joint_colour or options.sampler != "adaptive":
+        raise ValueError(f"--channel rgb (a joint colour fit) works with --regions {joint} and the adaptive "
+                         f"sampler only (the other models' passes see one channel): use --regions {joint}, "
+                         f"or fit one channel (--channel mean, R, G, B or each)")
 
 
 _LAYOUTS = {"diligent": "a photometric-stereo folder", "mesh-stack": "a mesh stack with photographs"}
@@ -219,7 +187,8 @@ def default_lines(options: FitOptions, data: DataFacts) -> list[str]:
     chosen = [name for name in MEASURED_DEFAULTS if options.source(name) == DATA]
     if chosen:
         what = " ".join(f"{FitOptions.cli(name).flag} {MEASURED_DEFAULTS[name]}" for name in chosen)
-        opt_out = " or ".join({"regions": "--regions changepoints", "preset": "--preset none"}[n] for n in chosen)
+        opt_out = " or ".join({"regions": f"--regions {FitOptions.default('regions')}", "preset": "--preset none"}[n]
+                              for n in chosen)
         lines.append(f"measured data ({_LAYOUTS.get(data.layout, 'not written by rjfit render')}): fitted with the "
                      f"measured default {what}; give {opt_out} to fit otherwise")
     if options.source("calibrate") == DATA:

@@ -89,6 +89,21 @@ def test_the_fit_folder_holds_the_labels_chains_and_maps(sphere, fitted):
     assert "4 labels held fixed (--labels)" in output
 
 
+def test_the_report_names_the_labels_and_tests_no_segmentation(fitted):
+    """The report of a fixed fit: the model in words, a row per label named by its value in the file, and no
+    row of another model (change points' MAP model, materials' K)."""
+    from rjfit.pipeline.report import build_report
+
+    out, _, _ = fitted
+    page = build_report(out).read_text(encoding="utf-8")
+    assert "fixed: the label map" in page and "4 labels, one BRDF per label" in page
+    assert "<th>label</th>" in page
+    assert all(f"<tr><td>label {value}<br>" in page for value in VALUES)
+    assert "labels (regions held fixed)</td><td>4</td>" in page
+    for other in ("MAP model (n_u, n_v)", "MAP number of materials", "split map", "Potts prior"):
+        assert other not in page, other
+
+
 def test_swapped_labels_give_posteriors_far_from_the_swapped_truth(sphere, tmp_path):
     """Negative control: quadrants 1 (kd 0.9) and 3 (kd 0.4) swapped in the map; each label's kd is then its
     pixels' (the other material's), far outside Z_MAX sd of the truth the check compares it with."""
@@ -120,7 +135,9 @@ def test_labels_without_the_fixed_model_are_refused(sphere, tmp_path):
     np.save(tmp_path / "labels.npy", truth)
     result = CliRunner().invoke(main, ["fit", str(folder), "--labels", str(tmp_path / "labels.npy"),
                                        "--allow-unvalidated", "--out", str(tmp_path / "out")])
-    assert result.exit_code != 0 and "--labels is the label map of --regions fixed" in result.output
+    # one line naming the flag and the model that reads it (rjfit.pipeline.resolve refuses an unread option)
+    assert result.exit_code != 0 and "--labels is an option of --regions fixed, not of --regions changepoints" \
+        in result.output and "Traceback" not in result.output
 
 
 def test_label_maps_read_from_png_exr_and_npy_alike(tmp_path):

@@ -100,3 +100,28 @@ def test_a_record_of_an_older_rjfit_gives_the_options_that_fit_ran_with():
     assert options.given() == {"regions": "materials", "preset": "measured", "noise": "normals", "potts_beta": 3.45,
                                "burn_in": 0.2}
     assert resolve_options(options).max_u == 3          # the change-point model's default, not given
+
+
+def test_the_region_models_named_for_the_flag_are_the_registered_ones():
+    """options.py names --regions' choices without importing the models (an import cycle): the names must be
+    REGION_FITS' own, in its order, and each model's options fields of FitOptions."""
+    from rjfit.pipeline.options import REGION_MODELS
+    from rjfit.pipeline.regions import REGION_FITS
+
+    assert REGION_MODELS == tuple(REGION_FITS)
+    assert FitOptions.cli("regions").choices == REGION_MODELS
+    for fit in REGION_FITS.values():
+        assert fit.reads <= set(FitOptions.__dataclass_fields__), fit.name
+
+
+def test_an_older_record_drops_what_its_region_model_did_not_read():
+    """An rjfit before 2026-11-28 ignored another model's option: given the region models' own sets (what
+    `rjfit refine` passes), such a value off its default is not brought back (it would be refused)."""
+    from rjfit.pipeline.regions import REGION_FITS
+
+    record = {**{name: FitOptions.default(name) for name in FitOptions.__dataclass_fields__ if name != "sources"},
+              "regions": "materials", "max_u": 5, "potts_beta": 3.45}
+    reads = {name: fit.reads for name, fit in REGION_FITS.items()}
+    options = FitOptions.from_json(json.loads(json.dumps(record, default=list)), reads)
+    assert options.given() == {"regions": "materials", "preset": "none", "potts_beta": 3.45}
+    assert "max_u" in FitOptions.from_json(json.loads(json.dumps(record, default=list))).given()

@@ -17,6 +17,7 @@ from rjfit.pipeline.fit import fit, prepare_problem
 from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.report import build_report
+from rjfit.pipeline.resolve import resolve_options
 from rjfit.plotting import pyplot
 from rjfit.posterior import figures
 from rjfit.posterior import summary as post
@@ -123,7 +124,7 @@ def test_the_figures_label_their_axes_and_tell_the_chains_apart(changepoint_fit)
     assert all(axis.get_xlabel() for axis in traces.axes[-4:])
     assert {line.get_linestyle() for line in traces.axes[0].get_lines()[:2]} == {"-", "--"}
 
-    problem = prepare_problem(observations, FitOptions())[0]
+    problem = prepare_problem(observations, resolve_options(FitOptions()))[0]
     labels = post.map_labels(records, burn, model, problem.image_shape, problem.object_mask)
     reflectance = figures.reflectance_figure(labels, post.posterior_mean_prediction(records, burn, problem))
     panels = _image_axes(reflectance)
@@ -174,3 +175,24 @@ def test_the_chain_figure_reads_either_layout_of_chains_nc():
     assert len(first) == 1 + 2 * 4 and first[0][0].startswith("log posterior")
     for (_, _, a), (_, _, b) in zip(first, second):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_resolution_is_a_single_pixel_where_any_pixel_pays():
+    """A synthetic resolution (the DiLiGenT ball's case: evidence so high that the disc is smaller than a pixel)
+    reads as a single pixel, not 'about 0 pixels'; a larger one keeps its size; with an edge term the sentence
+    says the figure leaves it out (rjfit.posterior.resolution counts the Potts boundary and rho only)."""
+    from rjfit.pipeline.regions.materials import MaterialFit, resolution_sentence
+
+    tiny = {"contrast": 0.5, "material": 0, "pixels": 0.03, "radius_px": 0.1}
+    sentence = resolution_sentence(tiny)
+    assert "from a single pixel (the smallest possible)" in sentence and "about 0 pixels" not in sentence
+    assert "edge term" not in sentence
+    assert "about 151 pixels (a disc of radius 6.9 px)" in resolution_sentence({**tiny, "pixels": 151.2,
+                                                                                 "radius_px": 6.94})
+    assert "the edge term is not counted" in resolution_sentence(tiny, 0.8)
+    summary = {"map_materials": 1, "materials_posterior": {"1": 1.0}, "map_probability_mean": 1.0,
+               "material_resolution": tiny, "edge_power": 0.8}
+    assert "resolution: a region of 0.5 times material 0's albedo gets a material of its own from a single pixel" \
+        in MaterialFit.printed_line(summary)
+    notes = MaterialFit.report_notes(summary)
+    assert notes[0].startswith("Resolution: ") and "single pixel" in notes[0] and "edge term is not counted" in notes[0]

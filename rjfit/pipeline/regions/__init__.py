@@ -12,7 +12,7 @@ from rjfit.pipeline.regions.changepoints import ChangepointFit
 from rjfit.pipeline.regions.fixed import FixedFit
 from rjfit.pipeline.regions.materials import MaterialFit
 
-__all__ = ["REGION_FITS", "FitResult", "RegionFit", "region_fit", "printed_line"]
+__all__ = ["REGION_FITS", "FitResult", "RegionFit", "region_fit", "region_fit_of", "printed_line"]
 
 #: the region models by their ``--regions`` name
 REGION_FITS = {fit.name: fit for fit in (ChangepointFit, MaterialFit, FixedFit)}
@@ -32,6 +32,13 @@ def region_fit(options) -> RegionFit:
     return REGION_FITS[options.regions].for_fit(options)
 
 
+def region_fit_of(summary: dict) -> type[RegionFit]:
+    """The region model of a fit's ``summary`` (its class: its report hooks and printed line). A summary without
+    ``region_model`` is an older change-point fit's; one of a model this rjfit does not know gets the interface's
+    plain defaults (its report states no model-specific row)."""
+    return REGION_FITS.get(summary.get("region_model", ChangepointFit.name), RegionFit)
+
+
 def printed_line(summary: dict) -> str:
     """The region model's part of a fit's printed summary (a summary without ``region_model``: change points)."""
-    return REGION_FITS[summary.get("region_model", "changepoints")].printed_line(summary)
+    return REGION_FITS[summary.get("region_model", ChangepointFit.name)].printed_line(summary)

@@ -67,6 +67,52 @@ class RegionFit(ABC):
 
     #: the name ``--regions`` gives it
     name: str = ""
+    #: the options of :class:`~rjfit.pipeline.options.FitOptions` only this model reads: a given one is refused
+    #: under any other model (:func:`rjfit.pipeline.resolve.resolve_options`)
+    reads: frozenset = frozenset()
+    #: what the report calls one of its regions ('region', 'material', 'label')
+    noun: str = "region"
+    #: whether a measured stack is fitted with this model by default (one model says so)
+    measured_default: bool = False
+    #: whether it fits a colour image's channels jointly (``--channel rgb``, with the adaptive sampler)
+    joint_colour: bool = False
+
+    @staticmethod
+    def edge_term_applies(values: dict) -> bool:
+        """Whether the edge term (``--edge-power``) applies to a fit with the resolved option ``values``."""
+        return False
+
+    @staticmethod
+    def preset_values(values: dict, data) -> dict:
+        """What ``--preset measured`` sets for this model beyond the common preset, from the option ``values``
+        resolved so far and the data's :class:`~rjfit.pipeline.resolve.DataFacts` ``data`` (a value here replaces
+        a given one only where the model's rule says so)."""
+        return {}
+
+    @staticmethod
+    def describe(summary: dict, options: dict) -> str:
+        """The model in words for the report's settings (``options``: the summary's recorded fit options)."""
+        return ""
+
+    @staticmethod
+    def settings_rows(summary: dict, options: dict) -> list:
+        """The model's own settings for the report, ``(setting, value in words)`` (None: not recorded)."""
+        return []
+
+    @staticmethod
+    def result_rows(summary: dict) -> list:
+        """The model's headline results for the report, ``(quantity, value, what it means)``."""
+        return []
+
+    @staticmethod
+    def report_notes(summary: dict) -> list:
+        """Sentences the report states below the headline results (the model's own findings)."""
+        return []
+
+    @classmethod
+    def region_title(cls, region: dict, index: int) -> str:
+        """The name of the report's row of ``region``, the ``index``-th of the summary's ``regions``."""
+        return f"{cls.noun} {region.get('region', index)}"
 
     @classmethod
     def for_fit(cls, options) -> RegionFit:

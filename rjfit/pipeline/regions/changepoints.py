@@ -19,6 +19,7 @@ from rjfit.pipeline.fit_chains import write_chains
 from rjfit.pipeline.fit_folder import save_chain_arrays
 from rjfit.pipeline.fit_settings import assemble
 from rjfit.pipeline.regions.base import FitResult, RegionFit, truth_summary
+from rjfit.pipeline.report_numbers import probability
 from rjfit.posterior import caveats
 from rjfit.posterior import summary as post
 from rjfit.posterior.inference_data import changepoint_draws
@@ -33,6 +34,35 @@ class ChangepointFit(RegionFit):
     """The paper's change points: models (n_u, n_v), regions the cells of the change-point vectors."""
 
     name = "changepoints"
+    reads = frozenset({"max_u", "max_v", "split_map", "cp_prior", "drop_jacobian", "jump_prob"})
+
+    @staticmethod
+    def describe(summary: dict, options: dict) -> str:
+        return (f"change points: the paper's grid of at most {options.get('max_u', '?')} u and "
+                f"{options.get('max_v', '?')} v change-point vectors, one BRDF per cell")
+
+    @staticmethod
+    def settings_rows(summary: dict, options: dict) -> list:
+        return [("split map", options.get("split_map")), ("change-point prior", options.get("cp_prior"))]
+
+    @staticmethod
+    def result_rows(summary: dict) -> list:
+        model = summary.get("map_model") if isinstance(summary.get("map_model"), dict) else {}
+        rows = [("MAP model (n_u, n_v)", f"({model.get('n_u')}, {model.get('n_v')})" if model else None,
+                 "the change-point model of highest posterior probability: n_u vectors cut the rows, n_v the columns")]
+        if "true_regions_probability" in summary:
+            rows.append(("probability of the true regions", probability(summary["true_regions_probability"]),
+                         "share of kept draws whose object pixels fall into exactly the true regions (one region per "
+                         "true region, >= 99 % of pixels matched); good near 1"))
+        if "four_region_probability" in summary:
+            rows.append(("probability of the true number of regions", probability(summary["four_region_probability"]),
+                         "share of kept draws with as many regions holding object pixels as the truth has (the count "
+                         "only)"))
+        if "exact_truth_probability" in summary:
+            rows.append(("probability of the exact true partition", probability(summary["exact_truth_probability"]),
+                         "share of kept draws whose partition equals the truth pixel for pixel: stricter, near 0 even "
+                         "for a good fit (see the note below)"))
+        return rows
 
     def sampler_config(self, options, *, burn: int, fixed: bool = False, problem=None) -> SamplerConfig:
         model = ChangepointRegions()

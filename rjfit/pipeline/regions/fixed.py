@@ -79,6 +79,25 @@ class FixedFit(RegionFit):
     """The user's label map held fixed: one region per label, each label's BRDF posterior."""
 
     name = "fixed"
+    reads = frozenset({"labels"})
+    noun = "label"
+
+    @staticmethod
+    def describe(summary: dict, options: dict) -> str:
+        labels = options.get("labels")
+        return (f"fixed: the label map {labels if labels else '(--labels)'} held fixed, "
+                f"{len(summary.get('regions') or [])} labels, one BRDF per label; only the BRDFs are sampled")
+
+    @staticmethod
+    def result_rows(summary: dict) -> list:
+        return [("labels (regions held fixed)", len(summary.get("regions") or []),
+                 "the distinct labels of the label map, each a region with its own BRDF; the segmentation is not "
+                 "sampled, so no probability of it is stated")]
+
+    @classmethod
+    def region_title(cls, region: dict, index: int) -> str:
+        # the label's value in the user's file, not its index among the labels
+        return f"label {region.get('label', region.get('region', index))}"
 
     def __init__(self, path, values: np.ndarray):
         self.path = Path(path)

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rjfit.data.calibrate import small_components
+from rjfit.data.formats import COLOUR
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_chains import write_chains
 from rjfit.pipeline.fit_folder import save_chain_arrays
@@ -30,14 +32,18 @@ from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
 from rjfit.pipeline.fit_power import edge_power
 from rjfit.pipeline.fit_settings import assemble
+from rjfit.pipeline.options import FURTHER_MATERIAL_ODDS, FitOptions
 from rjfit.pipeline.regions.base import FitResult, RegionFit, truth_summary
+from rjfit.pipeline.report_numbers import finite, number, probability
+from rjfit.posterior.boundaries import edge_verdict
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.state import SamplerConfig
 
 __all__ = ["MaterialFit", "summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
            "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files",
-           "EMPTY_MATERIALS_NOTE"]
+           "EMPTY_MATERIALS_NOTE", "resolution_size", "resolution_sentence", "ghost_material_prior", "GHOST_PIXELS",
+           "GHOST_ODDS"]
 
 #: label snapshots per chain whose edge groups are counted (evenly spaced over the kept ones): each costs a
 #: least-squares fit per material and the boundary check, 0.2 to 0.6 s on the DiLiGenT ball's 1.3 million
@@ -176,12 +182,31 @@ def add_boundary_check(result, observations, records) -> None:
 def resolution_warning(resolution: dict) -> str:
     """The caveat of a fit whose material model cannot resolve small details (``resolution`` from
     :func:`material_resolution`)."""
-    return (f"materials smaller than about {resolution['pixels']:.0f} pixels (a disc of radius "
-            f"{resolution['radius_px']:.1f} px) are not resolved: a region of {resolution['contrast']:g} times material "
+    return (f"materials smaller than {resolution_size(resolution)} are not resolved: a region of {resolution['contrast']:g} times material "
             f"{resolution['material']}'s albedo must be that large before its evidence (likelihood power "
             f"{resolution['likelihood_power']:.3g}) pays for its boundary (Potts beta {resolution['potts_beta']:.3g}) and the "
             f"prior odds of one more material (rho {resolution['potts_rho']:.3g}), so smaller painted details are merged into "
             f"the material around them (docs/materials.md, 'Resolution')")
+
+
+def resolution_size(resolution: dict) -> str:
+    """The smallest region that gets a material of its own (``resolution`` from :func:`material_resolution`), in
+    words: a single pixel where the evidence per pixel is so high that any one pays for its boundary."""
+    if resolution["pixels"] <= 1.0:
+        return "a single pixel (the smallest possible)"
+    return f"about {max(resolution['pixels'], 2.0):.0f} pixels (a disc of radius {resolution['radius_px']:.1f} px)"
+
+
+def resolution_sentence(resolution: dict, edge_power=None) -> str:
+    """What the fit can resolve, for the report and the printed line; with an edge term (``edge_power`` > 0) the
+    note that the figure does not count it."""
+    text = (f"a region of {resolution['contrast']:g} times material {resolution['material']}'s albedo gets a material "
+            f"of its own from {resolution_size(resolution)}; smaller ones are merged into the material around them")
+    if finite(edge_power) and edge_power > 0:
+        # smallest_material counts the Potts boundary and rho only (rjfit.posterior.resolution)
+        text += (" (the edge term is not counted: it costs nothing where the data step, as they do around a region "
+                 "of another paint)")
+    return text
 
 
 def material_number_warnings(materials, prior) -> list:
@@ -229,11 +254,139 @@ def write_material_files(staging: Path, result, records, options, attributes: di
 
 
 
+# --preset measured's Potts rule (docs/options.md): a material whose parameters equal an existing one's
+# holds about S(beta) = sum_p exp(-beta n_p) scattered pixels under the prior (n_p: p's labelled 4-neighbours);
+# beta is raised until S <= GHOST_PIXELS, so such a material shrinks to its last pixel often enough for the
+# cluster moves to remove it, and rho makes its prior odds rho S / 2 = GHOST_ODDS, the odds every further
+# material has (FURTHER_MATERIAL_ODDS, 1:100; 1:20 until 2026-11-27).
+GHOST_PIXELS = 1.0
+GHOST_ODDS = FURTHER_MATERIAL_ODDS
+
+
+def ghost_material_prior(object_mask, beta: float) -> tuple[float, float]:
+    """``(beta, rho)`` of the measured preset's Potts prior for this mask (the rule above ``GHOST_PIXELS``).
+
+    beta: the smallest of ``beta``, ``beta + 0.05``, ... with ``S(beta) <= GHOST_PIXELS`` (at most 8);
+    rho: ``2 GHOST_ODDS / S(beta)``. Pixels without a labelled neighbour are not counted: no beta
+    binds them (the preset's calibration leaves them out, :func:`rjfit.data.calibrate.drop_small_components`).
+    """
+    mask = np.asarray(object_mask, bool)
+    padded = np.pad(mask, 1)
+    neighbours = (padded[:-2, 1:-1].astype(int) + padded[2:, 1:-1] + padded[1:-1, :-2] + padded[1:-1, 2:])[mask]
+    neighbours = neighbours[neighbours > 0]
+    ghost_pixels = lambda b: float(np.sum(np.exp(-b * neighbours)))      # noqa: E731
+    while ghost_pixels(beta) > GHOST_PIXELS and beta < 8.0:
+        beta = round(beta + 0.05, 2)
+    return beta, 2.0 * GHOST_ODDS / ghost_pixels(beta)
+
+
+def _fitted_mask(object_mask, calibrate: bool) -> np.ndarray:
+    """The mask the fit sees: the calibration leaves small parts out (:func:`rjfit.data.calibrate.small_components`)."""
+    mask = np.asarray(object_mask, bool)
+    return mask & ~small_components(mask) if calibrate else mask
+
+
+def _potts_words(summary: dict, options: dict) -> str | None:
+    if not finite(summary.get("potts_beta")):
+        return None
+    beta, rho = summary["potts_beta"], summary.get("potts_rho")
+    text = f"beta {beta:.3g} per pair of neighbouring pixels of different materials"
+    if finite(rho):
+        text += f"; rho {rho:.3g} per material (prior odds of each further material 1:{1 / rho:.0f})"
+    if options.get("preset") == "measured":
+        text += "; the measured preset sets both by its rule on the mask unless --potts-rho is given"
+    return text
+
+
+def _edge_words(summary: dict, options: dict) -> str:
+    power = summary.get("edge_power")
+    if not finite(power) or power == 0:
+        return "none (0): a boundary costs only the Potts prior"
+    how = "measured (auto: the coarsening rule on the data's differences across 3 px)" \
+        if options.get("edge_power") == "auto" else "as given"
+    return f"{power:.3g}, {how}: a boundary where the data show no step costs its materials' step misfit"
+
+
+def _boundary_notes(summary: dict) -> list:
+    """The boundary check and the edge-supported groups in words (their summary entries, where present)."""
+    notes = []
+    boundaries = summary.get("boundaries")
+    if boundaries:
+        verdicts = [edge_verdict(row) for row in boundaries]
+        notes.append(f"Boundaries: of the {len(boundaries)} boundaries between MAP materials, "
+                     f"{verdicts.count('edge')} show a step in the data and {verdicts.count('no edge')} show none "
+                     f"(odds of 100:1); joined where they show none, the materials form "
+                     f"{summary.get('edge_supported_materials')} group(s).")
+    edge_groups = summary.get("edge_groups_posterior")
+    if edge_groups:
+        shares = ", ".join(f"{n}: {share:.2f}" for n, share in edge_groups.items())
+        notes.append(f"Edge-supported groups over {summary.get('edge_groups_snapshots')} label snapshots (materials "
+                     f"that meet where the data show no step joined): {shares}.")
+    return notes
+
 
 class MaterialFit(RegionFit):
     """Free-form materials under a Potts prior (``--regions materials``)."""
 
     name = "materials"
+    reads = frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "cluster_material_seed",
+                       "segment_moves"})
+    noun = "material"
+    measured_default = True
+    joint_colour = True
+
+    @staticmethod
+    def edge_term_applies(values: dict) -> bool:
+        # the edge term reads one channel's plain prediction under the adaptive moves
+        return (values["channel"] != COLOUR and not values["effects"] and values["effects_from"] is None
+                and values["sampler"] == "adaptive")
+
+    @staticmethod
+    def preset_values(values: dict, data) -> dict:
+        """The edge term's power 'auto' where it applies and is not given; the Potts rule on the data's mask
+        (:func:`ghost_material_prior`) unless ``potts_rho`` is given (its beta starts at the given one)."""
+        out = {}
+        if MaterialFit.edge_term_applies(values) and "edge_power" not in values:
+            out["edge_power"] = "auto"
+        if "potts_rho" not in values and data.object_mask is not None:
+            mask = _fitted_mask(data.object_mask, values.get("calibrate", False))
+            out["potts_beta"], out["potts_rho"] = ghost_material_prior(
+                mask, values.get("potts_beta", FitOptions.default("potts_beta")))
+        return out
+
+    @staticmethod
+    def describe(summary: dict, options: dict) -> str:
+        return (f"materials: a material label per pixel under a Potts prior, the number of materials K unknown (at "
+                f"most {summary.get('max_materials', options.get('max_materials', '?'))}), one BRDF per material")
+
+    @staticmethod
+    def settings_rows(summary: dict, options: dict) -> list:
+        return [("Potts prior (beta, rho)", _potts_words(summary, options)),
+                ("edge term power", _edge_words(summary, options))]
+
+    @staticmethod
+    def result_rows(summary: dict) -> list:
+        k = summary.get("map_materials")
+        posterior = summary.get("materials_posterior") or {}
+        rows = [("MAP number of materials K", k, "the K of highest posterior probability; its share "
+                 f"{number(posterior.get(str(k), float('nan')), '.3f')} of the kept draws"),
+                ("mean probability of a pixel's MAP material", probability(summary.get("map_probability_mean")),
+                 "over the object's pixels, the share of label snapshots that give a pixel its MAP material; near 1: "
+                 "the segmentation is certain, below 0.9: boundaries or whole materials are in doubt")]
+        if "materials_right_probability" in summary:
+            rows.append(("probability of the true number of materials",
+                         probability(summary["materials_right_probability"]),
+                         "posterior probability of K equal to the truth's (rendered data only); good near 1"))
+        return rows
+
+    @staticmethod
+    def report_notes(summary: dict) -> list:
+        resolution = summary.get("material_resolution")
+        notes = []
+        if isinstance(resolution, dict) and resolution.get("pixels") is not None:
+            sentence = resolution_sentence(resolution, summary.get("edge_power"))
+            notes.append(f"Resolution: {sentence}.")
+        return notes + _boundary_notes(summary)
 
     def sampler_config(self, options, *, burn: int, fixed: bool = False, problem=None) -> SamplerConfig:
         model = MaterialRegions()
@@ -276,5 +429,9 @@ class MaterialFit(RegionFit):
     @staticmethod
     def printed_line(summary: dict) -> str:
         k = summary["map_materials"]
-        return (f"MAP number of materials {k} (posterior {summary['materials_posterior'][str(k)]:.3f}), mean "
+        line = (f"MAP number of materials {k} (posterior {summary['materials_posterior'][str(k)]:.3f}), mean "
                 f"probability of a pixel's MAP material {summary['map_probability_mean']:.3f}")
+        resolution = summary.get("material_resolution")
+        if isinstance(resolution, dict) and resolution.get("pixels") is not None:
+            line += f"; resolution: {resolution_sentence(resolution, summary.get('edge_power'))}"
+        return line
