@@ -50,7 +50,7 @@ from rjfit.data.noise import noise_scale
 from rjfit.model.blinn import blinn_normalisation
 from rjfit.pipeline.fit_dataset import ghost_material_prior
 from rjfit.render.datasets import load_dataset
-from rjfit.sampler.kmeans import kmeans_labels
+from rjfit.sampler.regions.materials.kmeans import kmeans_labels
 
 # variant -> (lobe family, normals re-estimated, colour, shadows left out, lights re-estimated)
 VARIANTS = {"a": ("blinn", False, False, False, False), "b": ("blinn", True, False, False, False),
@@ -419,7 +419,7 @@ def run_variant(stack: Stack, labels, variant: str, noise: dict, prior_rad: floa
 def albedo_kmeans(stack: Stack, k: int, seed: int, starts: int = 4) -> np.ndarray:
     """k-means (k clusters) of each pixel's Lambertian photometric-stereo RGB albedo, the best of ``starts``
     seeded starts by within-cluster sum of squares; labels ordered by the cluster's mean albedo (0 darkest)."""
-    from rjfit.sampler.kmeans import standardised as standardise
+    from rjfit.sampler.regions.materials.kmeans import standardised as standardise
 
     shading = stack.irradiance[None] * np.maximum(stack.normals @ stack.lights.T, 0.0) * stack.valid
     albedo = np.einsum("plc,pl->pc", stack.y, shading) / np.maximum(np.sum(shading ** 2, axis=1), 1e-300)[:, None]

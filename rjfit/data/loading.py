@@ -7,6 +7,7 @@ layer up, by :func:`rjfit.render.datasets.load_dataset`, which reads every layou
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from rjfit.data.dataset import Dataset, load_rjfit_layout
@@ -14,7 +15,7 @@ from rjfit.data.diligent import is_diligent_folder, load_diligent
 from rjfit.data.formats import is_mesh_stack_folder
 from rjfit.errors import DatasetError
 
-__all__ = ["is_dataset", "read_dataset"]
+__all__ = ["dataset_kind", "is_dataset", "read_dataset"]
 
 
 def is_dataset(path) -> bool:
@@ -58,3 +59,19 @@ def read_dataset(path, **options) -> Dataset:
     if is_diligent_folder(path):
         return load_diligent(path, **options)
     raise FileNotFoundError(f"{path}: not a data set (no dataset.json, and not a DiLiGenT-style folder)")
+
+
+def dataset_kind(path) -> str:
+    """'measured' or 'rendered', read without loading the images: a mesh stack or a photometric-stereo
+    folder is measured; the rjfit layout says in its ``dataset.json`` ("kind"; `rjfit render` writes
+    'synthetic'). A file that cannot be read is left to the loader, which names the problem."""
+    path = Path(path)
+    description = path / "dataset.json"
+    if not description.is_file():
+        return "measured"
+    try:
+        kind = json.loads(description.read_text()).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return "rendered"
+    return "measured" if kind == "measured" else "rendered"
+

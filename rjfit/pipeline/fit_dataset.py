@@ -15,12 +15,13 @@ from pathlib import Path
 from rjfit.data.calibrate import calibrate_measured
 from rjfit.data.dataset import read_validation_result
 from rjfit.data.fingerprint import dataset_fingerprint
+from rjfit.data.loading import dataset_kind
 from rjfit.data.formats import COLOUR
 from rjfit.pipeline.fit import FitSource, fit
 from rjfit.pipeline.fit_effects import fit_effects
 from rjfit.pipeline.options import EACH_CHANNEL, FitOptions
 from rjfit.pipeline.resolve import (GHOST_ODDS, GHOST_PIXELS, DataFacts, default_lines, ghost_material_prior,
-                                    resolve_options)
+                                    refuse_early, resolve_options)
 from rjfit.progress import phase
 from rjfit.render.datasets import load_dataset
 from rjfit.render.gate import require_validated
@@ -73,6 +74,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     dataset_dir = Path(dataset_dir)
     check_validation_file(dataset_dir, validation_path)
     validation = require_validated(dataset_dir, validation_path, allow_unvalidated=allow_unvalidated)
+    refuse_early(options, dataset_kind(dataset_dir))     # the one line before any work
     # before resolve_options (it needs the data set): a progress not given is the default's
     progress = FitOptions.default("progress") if options.progress is None else options.progress
     with phase(f"loading the data set {dataset_dir}", progress):

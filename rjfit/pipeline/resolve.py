@@ -19,7 +19,7 @@ from rjfit.pipeline.options import EFFECT_OPTIONS, GIVEN, NOISE_OPTIONS, RIM_VIE
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.regions.materials import GHOST_ODDS, GHOST_PIXELS, ghost_material_prior
 
-__all__ = ["resolve_options", "DataFacts", "MEASURED_DEFAULTS", "MEASURED_PRESET", "default_lines",
+__all__ = ["refuse_early", "resolve_options", "DataFacts", "MEASURED_DEFAULTS", "MEASURED_PRESET", "default_lines",
            "ghost_material_prior", "GHOST_PIXELS", "GHOST_ODDS"]
 
 #: What a measured stack (anything `rjfit render` did not write) gets where not given: the region model that
@@ -118,6 +118,21 @@ def resolve_options(options: FitOptions, data: DataFacts | None = None) -> FitOp
     _refuse_unread(resolved)
     _check_combinations(resolved)
     return resolved
+
+
+def refuse_early(options: FitOptions, kind: str) -> None:
+    """Refuse, before a data set of ``kind`` ('measured' or 'rendered') is loaded, options its fit would refuse.
+
+    The resolution again once the data set is loaded (:func:`resolve_options`) adds its mask and
+    calibration need, which only add the Potts rule and the calibration; this check makes the
+    one line come before any work or progress line.
+
+    Raises
+    ------
+    ValueError
+        As :func:`resolve_options`.
+    """
+    resolve_options(options, DataFacts(kind=kind))
 
 
 def _check_calibration(values: dict, data: DataFacts) -> None:
