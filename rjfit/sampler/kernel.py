@@ -3,7 +3,8 @@
 One step (an "iteration") applies, in a fixed order, valid MH moves that each leave the
 posterior invariant, so their composition does too:
 
-1. within-region moves for every region (``config.within``; :mod:`rjfit.sampler.moves.within`);
+1. within-region moves for every region (``config.within``, built into one object by
+   :func:`rjfit.sampler.moves.within.within_moves`);
 2. the region model's structure moves (``config.regions``; for the paper's change points:
    element sweeps, block shift, whole-vector redraw, birth/death,
    :mod:`rjfit.sampler.regions.changepoints`);
@@ -32,7 +33,7 @@ from rjfit.sampler.colour import log_prior_phi, starting_theta
 from rjfit.sampler.forward import Problem, transformed
 from rjfit.sampler.likelihood import log_likelihood_from_stats, region_stats
 from rjfit.sampler.moves.effects import initial_effect_state, move_effects
-from rjfit.sampler.moves.within import adapt_log_g_scale, update_regions
+from rjfit.sampler.moves.within import adapt_log_g_scale, within_moves
 from rjfit.sampler.pixel_sets import PixelSets
 from rjfit.sampler.priors import PARAM_NAMES
 from rjfit.sampler.state import ChainState, KernelSettings, SamplerConfig, StepInfo, Work
@@ -230,7 +231,8 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
                 pixel_sets=context.pixel_sets.valid_for(problem), edges=config.regions.edge_term(state.layout))
 
     # 1. within-region moves for every region
-    g_acc = update_regions(work, rng, prior, problem, config.within, float(np.exp(state.log_g_scale)), info)
+    g_acc = within_moves(config.within, problem.n_channels).run(work, rng, problem, prior, info,
+                                                                float(np.exp(state.log_g_scale)))
     log_g_scale = state.log_g_scale
     if state.iteration < config.kernel.burn_in and g_acc:
         log_g_scale = adapt_log_g_scale(log_g_scale, g_acc, state.iteration, config.within.target_accept)

@@ -21,5 +21,8 @@ Each region model's own structure moves live in its package
 (:mod:`rjfit.sampler.regions.changepoints`, :mod:`rjfit.sampler.regions.materials`).
 
 Every move that tests a proposal decides with :func:`~rjfit.sampler.moves.accept.accept`;
-structure moves return a :class:`~rjfit.sampler.moves.proposal.Proposal`.
+structure moves return a :class:`~rjfit.sampler.moves.proposal.Proposal`, single-row
+within-region moves a :class:`~rjfit.sampler.moves.proposal.RowProposal` tested by
+:func:`~rjfit.sampler.moves.base.decide_row`. Each within-region family is an object with its
+settings (:func:`~rjfit.sampler.moves.within.within_moves` builds them).
 """

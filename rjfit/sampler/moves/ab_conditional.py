@@ -12,8 +12,9 @@ import math
 from typing import NamedTuple
 
 from rjfit.sampler.likelihood import LOG_2PI
-from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm, set_region
+from rjfit.sampler.moves.base import decide_row
+from rjfit.sampler.moves.proposal import RowProposal
+from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm
 
 __all__ = ["ABConditional", "ab_conditional", "draw_ab", "log_q_ab", "log_target_ab", "move_ab"]
 
@@ -108,7 +109,4 @@ def move_ab(work, r, rng, prior, info):
                  - prior.logpdf_scalar(I0, kd, g, s2) + math.log(I0))
     if log_alpha > -math.inf:
         log_alpha += edge_delta(work, r, (I0_new, kd_new, g, s2))
-    if accept(log_u, log_alpha, info, "ab"):
-        set_region(work, r, (I0_new, kd_new, g, s2))
-        return True
-    return False
+    return decide_row(work, RowProposal(r, (I0_new, kd_new, g, s2), None, None, log_alpha, log_u, "ab"), info)

@@ -7,6 +7,8 @@ Metropolis-Hastings test of every proposal, and :meth:`Move.apply` makes an acce
 current state (:meth:`~rjfit.sampler.state.Work.take`, or in place for an incremental one).
 A sweep (many elements or pixels tested at once, each with its own ratio) is a move whose
 :meth:`Move.run` is the sweep; its tests use the same accept (:func:`rjfit.sampler.moves.accept.accept`).
+A within-region move proposes a :class:`~rjfit.sampler.moves.proposal.RowProposal` (one parameter row,
+its uniform already drawn) that :func:`decide_row` tests with the same accept.
 
 A region model's structure moves are a schedule, a weighted list of moves (as emcee's move
 schedule, but run in a fixed order, so that a seed fixes the chain): each :class:`Scheduled`
@@ -21,9 +23,10 @@ from typing import NamedTuple
 import numpy as np
 
 from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.proposal import Proposal
+from rjfit.sampler.moves.proposal import Proposal, RowProposal
+from rjfit.sampler.moves.region_terms import set_region
 
-__all__ = ["Move", "Sweep", "Scheduled", "decide", "run_schedule"]
+__all__ = ["Move", "Sweep", "Scheduled", "decide", "decide_row", "run_schedule"]
 
 
 def decide(work, rng, proposal: Proposal, info) -> bool:
@@ -44,6 +47,15 @@ def decide(work, rng, proposal: Proposal, info) -> bool:
     accepted = accept(np.log(rng.random()), log_ratio, info, proposal.kind)
     info.count(proposal.kind, accepted)
     return accepted
+
+
+def decide_row(work, proposal: RowProposal, info) -> bool:
+    """The one test of a within-region move's ``proposal`` (its uniform already drawn); makes an accepted one
+    its row's in ``work``. Counting is the move's (some count a family's tests together)."""
+    if accept(proposal.log_u, proposal.log_ratio, info, proposal.kind):
+        set_region(work, proposal.r, proposal.theta, proposal.stats, proposal.log_lik)
+        return True
+    return False
 
 
 class Move(ABC):

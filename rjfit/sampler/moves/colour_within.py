@@ -20,7 +20,9 @@ import numpy as np
 from rjfit.sampler.likelihood import STAT_N
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab, log_target_ab
 from rjfit.sampler.moves.accept import accept
+from rjfit.sampler.moves.base import decide_row
 from rjfit.sampler.moves.gamma import log_q_log_gamma, ls_profile
+from rjfit.sampler.moves.proposal import RowProposal
 from rjfit.sampler.moves.region_terms import giesen_norm, region_log_lik, set_region, stats_at_gamma
 from rjfit.sampler.moves.sigma2 import move_amplitudes_and_variance
 
@@ -29,7 +31,7 @@ __all__ = ["update_materials_colour", "move_gamma_colour", "newton_log_gamma_col
 
 def update_materials_colour(work, rng, prior, problem, settings, g_step, info) -> list:
     """The 'adaptive' within-material moves of every material of a colour fit; returns the gamma random walks'
-    acceptances (as :func:`rjfit.sampler.moves.within.update_region_adaptive` per region)."""
+    acceptances (as :class:`rjfit.sampler.moves.within.AdaptiveWithin` per region)."""
     n_ch = problem.n_channels
     g_acc = []
     for m in range(work.theta.shape[0] // n_ch):
@@ -166,8 +168,8 @@ def move_phi_rw_colour(work, rows, rng, prior, problem, step, info) -> int:
             new = (math.exp(phi_new[0]), kd_new, math.exp(phi_new[2]), math.exp(phi_new[3]))
             ll_new = region_log_lik(work.stats[r], *new)
             log_prior_new = prior.logpdf_phi_scalar(phi_new)
-            if accept(log_u, ll_new + log_prior_new - work.log_lik[r] - log_prior, info, "phi_rw"):
-                set_region(work, r, new, None, ll_new)
+            if decide_row(work, RowProposal(r, new, None, ll_new, ll_new + log_prior_new - work.log_lik[r] - log_prior,
+                                            log_u, "phi_rw"), info):
                 phi, log_prior = phi_new, log_prior_new
                 accepted += 1
     g = float(work.theta[rows[0], 2])

@@ -17,8 +17,9 @@ import sys
 
 from rjfit.sampler.likelihood import LOG_2PI, STAT_AA, STAT_AB, STAT_BB, STAT_YA, STAT_YB
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab, log_target_ab
-from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm, region_log_lik, set_region, stats_at_gamma
+from rjfit.sampler.moves.base import decide_row
+from rjfit.sampler.moves.proposal import RowProposal
+from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm, region_log_lik, stats_at_gamma
 
 __all__ = ["move_gamma_rw", "move_gamma_newton", "ls_profile", "ls_profile_nonnegative", "ls_point_slopes",
            "newton_log_gamma", "log_q_log_gamma"]
@@ -47,10 +48,7 @@ def _accept_gamma_ab(work, r, rng, prior, cond_old, g_new, stats_new, log_q_rati
                  + log_q_ab(a_old, b_old, cond_old) - log_q_ab(a_new, b_new, cond_new) + log_q_ratio_gamma)
     if log_alpha > -math.inf:
         log_alpha += edge_delta(work, r, (I0_new, kd_new, g_new, s2))
-    if accept(log_u, log_alpha, info, kind):
-        set_region(work, r, (I0_new, kd_new, g_new, s2), stats_new, ll_new)
-        return True
-    return False
+    return decide_row(work, RowProposal(r, (I0_new, kd_new, g_new, s2), stats_new, ll_new, log_alpha, log_u, kind), info)
 
 
 def move_gamma_rw(work, r, rng, prior, problem, step, info):

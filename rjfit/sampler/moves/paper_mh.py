@@ -12,8 +12,9 @@ import math
 import numpy as np
 
 from rjfit.sampler.likelihood import LOG_2PI, ab_from_theta, lobe_column
-from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.region_terms import region_log_lik, set_region, stats_at_gamma
+from rjfit.sampler.moves.base import decide_row
+from rjfit.sampler.moves.proposal import RowProposal
+from rjfit.sampler.moves.region_terms import region_log_lik, stats_at_gamma
 
 __all__ = ["update_region_paper", "full_pass_log_lik"]
 
@@ -50,7 +51,6 @@ def update_region_paper(work, r, rng, prior, problem, info, full_recompute=False
             all_theta[r] = new
             ll_new = full_pass_log_lik(work, problem, all_theta) - (float(np.sum(work.log_lik)) - work.log_lik[r])
         log_alpha = ll_new + lp_new - work.log_lik[r] - prior.logpdf_scalar(*theta)
-        accepted = accept(log_u, log_alpha, info, f"rw_{k}")
-        if accepted:
-            set_region(work, r, new, stats_new if k == 2 else None, ll_new)
+        accepted = decide_row(work, RowProposal(r, new, stats_new if k == 2 else None, ll_new, log_alpha, log_u,
+                                                f"rw_{k}"), info)
         info.count(f"rw_{k}", accepted)

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import math
 
-from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.region_terms import edge_delta, region_log_lik, set_region, stats_at_gamma
+from rjfit.sampler.moves.base import decide_row
+from rjfit.sampler.moves.proposal import RowProposal
+from rjfit.sampler.moves.region_terms import edge_delta, region_log_lik, stats_at_gamma
 
 __all__ = ["move_phi_rw"]
 
@@ -37,8 +38,7 @@ def move_phi_rw(work, r, rng, prior, problem, step, info):
         log_alpha = ll_new + log_prior_new - work.log_lik[r] - log_prior
         if k < 3 and log_alpha > -math.inf:     # sigma^2 (k = 3) does not enter the edge term
             log_alpha += edge_delta(work, r, new)
-        if accept(log_u, log_alpha, info, "phi_rw"):
-            set_region(work, r, new, stats_new if k == 2 else None, ll_new)
+        if decide_row(work, RowProposal(r, new, stats_new if k == 2 else None, ll_new, log_alpha, log_u, "phi_rw"), info):
             phi, log_prior = phi_new, log_prior_new
             accepted += 1
     return accepted

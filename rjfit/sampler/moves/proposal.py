@@ -5,7 +5,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Proposal"]
+__all__ = ["Proposal", "RowProposal"]
 
 
 class Proposal(NamedTuple):
@@ -66,3 +66,41 @@ class Proposal(NamedTuple):
     def named(self, kind: str, jump: bool = False) -> Proposal:
         """This proposal as a move of ``kind`` (``jump``: one that changes the model's dimension)."""
         return self._replace(kind=kind, jump=jump)
+
+
+class RowProposal(NamedTuple):
+    """A within-region move's proposal: new parameters for one row of the working copy, and its test.
+
+    A within-region move never changes the model's dimension (``jump`` False). Its uniform is
+    drawn by the move where it always has been (some moves draw it before they know whether
+    the proposal is valid, and those draws must stay in the random stream), so it travels
+    here as ``log_u``; :func:`rjfit.sampler.moves.base.decide_row` tests it.
+
+    Attributes
+    ----------
+    r : int
+        The parameter row (a region, or one channel's row of a colour material).
+    theta : tuple
+        Its proposed ``(I0, kd, gamma, sigma^2)``.
+    stats : ndarray (7,) or None
+        Its statistics at the proposed gamma (None: unchanged).
+    log_lik : float or None
+        Its log-likelihood there (None: computed when accepted).
+    log_ratio : float
+        The complete log acceptance ratio (``-inf``: invalid, rejected).
+    log_u : float
+        Log of the move's uniform draw.
+    kind : str
+        The move's name in the step's acceptance counts.
+    jump : bool
+        Always False: a within-region move keeps the model's dimension.
+    """
+
+    r: int
+    theta: tuple
+    stats: np.ndarray | None
+    log_lik: float | None
+    log_ratio: float
+    log_u: float
+    kind: str
+    jump: bool = False

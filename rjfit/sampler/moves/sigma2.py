@@ -5,8 +5,9 @@ import math
 
 from rjfit.sampler.likelihood import LOG_2PI, STAT_N
 from rjfit.sampler.moves.ab_conditional import move_ab
-from rjfit.sampler.moves.accept import accept
-from rjfit.sampler.moves.region_terms import region_log_lik, set_region
+from rjfit.sampler.moves.base import decide_row
+from rjfit.sampler.moves.proposal import RowProposal
+from rjfit.sampler.moves.region_terms import region_log_lik
 
 __all__ = ["move_sigma2", "move_amplitudes_and_variance"]
 
@@ -29,10 +30,8 @@ def move_sigma2(work, r, rng, prior, info):
     # Independence proposal proportional to the likelihood in sigma^2: InvGamma(n/2 - 1, ssr/2).
     s2_new = 0.5 * ssr / rng.gamma(0.5 * n - 1.0)
     log_alpha = prior.params[3].logpdf_scalar(s2_new) - prior.params[3].logpdf_scalar(s2)
-    if accept(math.log(rng.random()), log_alpha, info, "sigma2"):
-        set_region(work, r, (I0, kd, g, s2_new))
-        return True
-    return False
+    return decide_row(work, RowProposal(r, (I0, kd, g, s2_new), None, None, log_alpha, math.log(rng.random()), "sigma2"),
+                      info)
 
 
 def move_amplitudes_and_variance(work, r, rng, prior, info) -> None:

@@ -8,10 +8,21 @@ observations (through its labels), statistics and parameters, never the layout. 
 (:mod:`rjfit.sampler.moves.phi_walk`); 'paper' runs the paper's component-wise MH
 (:mod:`rjfit.sampler.moves.paper_mh`). The gamma random walk's width is adapted during
 burn-in only (:func:`adapt_log_g_scale`, called by the kernel).
+
+Each move family is an object holding its settings (:class:`GammaMove`, :class:`PhiWalk`,
+:class:`AmplitudesAndVariance`, :class:`PaperMH`) whose ``run`` moves one parameter row and
+counts its tests under the family's ``kind``; :func:`within_moves` builds from
+:class:`WithinSettings` the one object (:class:`AdaptiveWithin`, :class:`PaperWithin`,
+:class:`ColourWithin`) whose ``run`` is one iteration's within-region moves, in a fixed
+order. None changes the model's dimension. Each row move still draws its uniform where it
+always has (some before they know whether the proposal is valid) and decides with the one
+:func:`~rjfit.sampler.moves.accept.accept`, so it is not yet a
+:class:`~rjfit.sampler.moves.proposal.Proposal` tested by :func:`~rjfit.sampler.moves.base.decide`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -22,7 +33,8 @@ from rjfit.sampler.moves.paper_mh import update_region_paper
 from rjfit.sampler.moves.phi_walk import move_phi_rw
 from rjfit.sampler.moves.sigma2 import move_amplitudes_and_variance
 
-__all__ = ["WithinSettings", "update_regions", "update_region_adaptive", "adapt_log_g_scale", "LOG_G_SCALE_BOUNDS"]
+__all__ = ["WithinSettings", "within_moves", "AdaptiveWithin", "PaperWithin", "ColourWithin", "GammaMove", "PhiWalk",
+           "AmplitudesAndVariance", "PaperMH", "adapt_log_g_scale", "LOG_G_SCALE_BOUNDS"]
 
 LOG_G_SCALE_BOUNDS = (np.log(0.2), np.log(50.0))
 
@@ -87,53 +99,148 @@ class WithinSettings:
             raise ValueError(f"newton_scale must be a positive number, got {self.newton_scale}")
 
 
-def update_regions(work, rng, prior, problem, settings: WithinSettings, g_step: float, info) -> list:
-    """Run the within-region moves for every region in turn; returns the gamma random walks' acceptances.
+class PhiWalk(NamedTuple):
+    """The phi-space random walk of one row (:func:`~rjfit.sampler.moves.phi_walk.move_phi_rw`): four component
+    steps of sd ``step``, counted as four tests of kind 'phi_rw'."""
 
-    A joint colour fit (``problem.n_channels > 1``, 'adaptive' only) runs each material's
-    rows together (:func:`~rjfit.sampler.moves.colour_within.update_materials_colour`).
-    ``g_step`` is the current multiplier of the gamma random walk's width (the kernel adapts
-    it during burn-in from the returned acceptances).
-    """
-    if problem.n_channels > 1:      # a joint colour fit: a material's rows share gamma
-        return update_materials_colour(work, rng, prior, problem, settings, g_step, info)
-    g_acc = []
-    for r in range(work.theta.shape[0]):
-        if settings.sampler == "adaptive":
-            g_acc += update_region_adaptive(work, r, rng, prior, problem, settings, g_step, info)
+    step: float
+    kind: str = "phi_rw"
+
+    def run(self, work, r, rng, problem, prior, info) -> None:
+        """Run it on row ``r`` of ``work`` (in place)."""
+        info.count(self.kind, move_phi_rw(work, r, rng, prior, problem, self.step, info), 4)
+
+
+class GammaMove(NamedTuple):
+    """One gamma move of a row with (a, b) redrawn given the new gamma: a random walk on log gamma
+    (:func:`~rjfit.sampler.moves.gamma.move_gamma_rw`, kind 'gamma_ab') or, with ``newton``, a Newton proposal
+    whose sd is times ``scale`` (:func:`~rjfit.sampler.moves.gamma.move_gamma_newton`, kind 'gamma_newton')."""
+
+    newton: bool
+    scale: float
+
+    @property
+    def kind(self) -> str:
+        """The move's name in the step's acceptance counts."""
+        return "gamma_newton" if self.newton else "gamma_ab"
+
+    def run(self, work, r, rng, problem, prior, info, rw_sd: float):
+        """Run it on row ``r`` (random walk sd ``rw_sd``); whether it accepted (counted), or None where (a, b)
+        have no conditional (nothing counted)."""
+        if self.newton:
+            result = move_gamma_newton(work, r, rng, prior, problem, self.scale, rw_sd, info)
         else:
-            update_region_paper(work, r, rng, prior, problem, info, settings.full_recompute)
-    return g_acc
+            result = move_gamma_rw(work, r, rng, prior, problem, rw_sd, info)
+        if result is not None:
+            info.count(self.kind, result)
+        return result
 
 
-def update_region_adaptive(work, r, rng, prior, problem, settings: WithinSettings, g_step, info):
-    """The default within-region update of region ``r``; returns the gamma random walks' acceptances."""
-    n = work.stats[r, STAT_N]
-    g_acc = []
-    if n < settings.min_obs_conditional:
-        info.count("phi_rw", move_phi_rw(work, r, rng, prior, problem, settings.fallback_step, info), 4)
+class AmplitudesAndVariance(NamedTuple):
+    """Row ``r``'s (a, b) redraw and then its sigma^2 move, given gamma
+    (:func:`~rjfit.sampler.moves.sigma2.move_amplitudes_and_variance`; kinds 'ab' and 'sigma2')."""
+
+    def run(self, work, r, rng, problem, prior, info) -> None:
+        """Run both on row ``r`` of ``work`` (in place)."""
+        move_amplitudes_and_variance(work, r, rng, prior, info)
+
+
+class PaperMH(NamedTuple):
+    """The paper's component-wise random-walk MH of a row (:func:`~rjfit.sampler.moves.paper_mh.update_region_paper`,
+    kinds 'rw_0' .. 'rw_3'); ``full_recompute``: each proposal evaluated by a pass over all observations."""
+
+    full_recompute: bool = False
+
+    def run(self, work, r, rng, problem, prior, info) -> None:
+        """Run it on row ``r`` of ``work`` (in place)."""
+        update_region_paper(work, r, rng, prior, problem, info, self.full_recompute)
+
+
+class PaperWithin(NamedTuple):
+    """The 'paper' sampler's within-region moves: :class:`PaperMH` on every region in turn."""
+
+    move: PaperMH
+
+    def run(self, work, rng, problem, prior, info, g_step: float) -> list:
+        """One iteration's moves on ``work`` (in place); no gamma random walk to adapt (an empty list)."""
+        for r in range(work.theta.shape[0]):
+            self.move.run(work, r, rng, problem, prior, info)
+        return []
+
+
+class AdaptiveWithin(NamedTuple):
+    """The 'adaptive' sampler's within-region moves of one region, in order: ``gamma`` (one :class:`GammaMove`
+    per gamma move), then ``amplitudes``; :class:`PhiWalk` instead for a region of fewer than
+    ``min_obs_conditional`` observations or where (a, b) have no conditional, and after the rest for one of fewer
+    than ``small_region_obs``."""
+
+    gamma: tuple
+    amplitudes: AmplitudesAndVariance
+    phi_walk: PhiWalk
+    min_obs_conditional: int
+    small_region_obs: int
+
+    def run(self, work, rng, problem, prior, info, g_step: float) -> list:
+        """One iteration's moves of every region in turn (in place); returns the gamma random walks' acceptances.
+
+        ``g_step`` is the current multiplier of the gamma random walk's width (the kernel adapts it during
+        burn-in from the returned acceptances).
+        """
+        g_acc = []
+        for r in range(work.theta.shape[0]):
+            g_acc += self.run_region(work, r, rng, problem, prior, info, g_step)
         return g_acc
-    for k in range(settings.g_moves):
-        # 'newton' alternates a random walk and a Newton move: the Newton proposal crosses
-        # the posterior in one step near the mode, but from far away (a start, a tail) its
-        # reverse density is negligible and it is rarely accepted; the random walk gets there.
-        newton = settings.gamma_move == "newton" and k % 2 == 1
-        if newton:
-            result = move_gamma_newton(work, r, rng, prior, problem, settings.newton_scale, g_step / np.sqrt(n), info)
-        else:
-            result = move_gamma_rw(work, r, rng, prior, problem, g_step / np.sqrt(n), info)
-        if result is None:
-            info.count("phi_rw", move_phi_rw(work, r, rng, prior, problem, settings.fallback_step, info), 4)
+
+    def run_region(self, work, r, rng, problem, prior, info, g_step: float) -> list:
+        """The moves of region ``r``; returns its gamma random walks' acceptances."""
+        n = work.stats[r, STAT_N]
+        g_acc = []
+        if n < self.min_obs_conditional:
+            self.phi_walk.run(work, r, rng, problem, prior, info)
             return g_acc
-        if not newton:       # the adapted step is the random walk's
-            g_acc.append(result)
-        info.count("gamma_newton" if newton else "gamma_ab", result)
-    move_amplitudes_and_variance(work, r, rng, prior, info)
-    if n < settings.small_region_obs:
-        # Small regions: the conditional proposals ignore the prior, which then matters;
-        # a cheap phi-space random walk on top keeps them mixing (chosen by n only: valid).
-        info.count("phi_rw", move_phi_rw(work, r, rng, prior, problem, settings.fallback_step, info), 4)
-    return g_acc
+        for move in self.gamma:
+            result = move.run(work, r, rng, problem, prior, info, g_step / np.sqrt(n))
+            if result is None:
+                self.phi_walk.run(work, r, rng, problem, prior, info)
+                return g_acc
+            if not move.newton:       # the adapted step is the random walk's
+                g_acc.append(result)
+        self.amplitudes.run(work, r, rng, problem, prior, info)
+        if n < self.small_region_obs:
+            # Small regions: the conditional proposals ignore the prior, which then matters;
+            # a cheap phi-space random walk on top keeps them mixing (chosen by n only: valid).
+            self.phi_walk.run(work, r, rng, problem, prior, info)
+        return g_acc
+
+
+class ColourWithin(NamedTuple):
+    """A joint colour fit's within-material moves (:func:`~rjfit.sampler.moves.colour_within.update_materials_colour`:
+    a material's rows share gamma), with their ``settings``."""
+
+    settings: WithinSettings
+
+    def run(self, work, rng, problem, prior, info, g_step: float) -> list:
+        """One iteration's moves of every material (in place); returns the gamma random walks' acceptances."""
+        return update_materials_colour(work, rng, prior, problem, self.settings, g_step, info)
+
+
+def within_moves(settings: WithinSettings, n_channels: int = 1):
+    """The within-region moves that ``settings`` name, as one object whose ``run`` is one iteration's.
+
+    A joint colour fit (``n_channels > 1``) runs each material's rows together (:class:`ColourWithin`, whatever
+    the sampler); otherwise 'adaptive' gives :class:`AdaptiveWithin` and 'paper' :class:`PaperWithin`.
+    """
+    if n_channels > 1:      # a joint colour fit: a material's rows share gamma
+        return ColourWithin(settings)
+    if settings.sampler == "paper":
+        return PaperWithin(PaperMH(settings.full_recompute))
+    # 'newton' alternates a random walk and a Newton move: the Newton proposal crosses
+    # the posterior in one step near the mode, but from far away (a start, a tail) its
+    # reverse density is negligible and it is rarely accepted; the random walk gets there.
+    gamma = tuple(GammaMove(settings.gamma_move == "newton" and k % 2 == 1, settings.newton_scale)
+                  for k in range(settings.g_moves))
+    return AdaptiveWithin(gamma, AmplitudesAndVariance(), PhiWalk(settings.fallback_step),
+                          settings.min_obs_conditional, settings.small_region_obs)
 
 
 def adapt_log_g_scale(log_g_scale: float, g_acc: list, iteration: int, target_accept: float) -> float:
