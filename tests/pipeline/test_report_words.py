@@ -186,9 +186,9 @@ def test_the_resolution_is_a_single_pixel_where_any_pixel_pays():
     tiny = {"contrast": 0.5, "material": 0, "pixels": 0.03, "radius_px": 0.1}
     sentence = resolution_sentence(tiny)
     assert "from a single pixel (the smallest possible)" in sentence and "about 0 pixels" not in sentence
-    assert "edge term" not in sentence
-    assert "about 151 pixels (a disc of radius 6.9 px)" in resolution_sentence({**tiny, "pixels": 151.2,
-                                                                                 "radius_px": 6.94})
+    assert "edge term" not in sentence and "smaller ones" not in sentence      # nothing is smaller than a pixel
+    larger = resolution_sentence({**tiny, "pixels": 151.2, "radius_px": 6.94})
+    assert "about 151 pixels (a disc of radius 6.9 px)" in larger and "smaller ones are merged" in larger
     assert "the edge term is not counted" in resolution_sentence(tiny, 0.8)
     summary = {"map_materials": 1, "materials_posterior": {"1": 1.0}, "map_probability_mean": 1.0,
                "material_resolution": tiny, "edge_power": 0.8}

@@ -182,8 +182,8 @@ def add_boundary_check(result, observations, records) -> None:
 def resolution_warning(resolution: dict) -> str:
     """The caveat of a fit whose material model cannot resolve small details (``resolution`` from
     :func:`material_resolution`)."""
-    return (f"materials smaller than {resolution_size(resolution)} are not resolved: a region of {resolution['contrast']:g} times material "
-            f"{resolution['material']}'s albedo must be that large before its evidence (likelihood power "
+    return (f"materials smaller than {resolution_size(resolution)} are not resolved: a region of "
+            f"{resolution['contrast']:g} times material {resolution['material']}'s albedo must be that large before its evidence (likelihood power "
             f"{resolution['likelihood_power']:.3g}) pays for its boundary (Potts beta {resolution['potts_beta']:.3g}) and the "
             f"prior odds of one more material (rho {resolution['potts_rho']:.3g}), so smaller painted details are merged into "
             f"the material around them (docs/materials.md, 'Resolution')")
@@ -201,7 +201,9 @@ def resolution_sentence(resolution: dict, edge_power=None) -> str:
     """What the fit can resolve, for the report and the printed line; with an edge term (``edge_power`` > 0) the
     note that the figure does not count it."""
     text = (f"a region of {resolution['contrast']:g} times material {resolution['material']}'s albedo gets a material "
-            f"of its own from {resolution_size(resolution)}; smaller ones are merged into the material around them")
+            f"of its own from {resolution_size(resolution)}")
+    if resolution["pixels"] > 1.0:      # below one pixel there is nothing smaller to merge
+        text += "; smaller ones are merged into the material around them"
     if finite(edge_power) and edge_power > 0:
         # smallest_material counts the Potts boundary and rho only (rjfit.posterior.resolution)
         text += (" (the edge term is not counted: it costs nothing where the data step, as they do around a region "
