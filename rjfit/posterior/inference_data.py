@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.posterior.summary import _arviz, map_model_draws
-from rjfit.sampler.likelihood import LOG_2PI, ab_from_theta
+from rjfit.sampler.likelihood import observation_log_likelihood
 from rjfit.sampler.priors import PARAM_NAMES
 from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
 
@@ -108,31 +108,16 @@ def _snapshot_draws(records, burn_in: int, n_points: int) -> list:
 
 
 class _BlockLikelihood:
-    """Each pixel block's untempered Gaussian log likelihood at a draw, from the problem's arrays prepared once.
-
-    The density of eq. 1-2 with known noise scales ``s_i``: ``y`` and ``C`` are stored divided by
-    ``s_i`` (:class:`rjfit.sampler.forward.Problem`), so an observation's log density is
-    ``-(log 2 pi + log sigma^2) / 2 - log s_i - (y - a A - b B)^2 / (2 sigma^2)`` on the stored
-    columns, ``A = C / pi``, ``B = C <h.n>^gamma`` (the plain lobe: a problem without effects).
-    """
+    """Each pixel block's untempered log likelihood at a draw: the sampler's own per-observation density
+    (:func:`rjfit.sampler.likelihood.observation_log_likelihood`, noise scales included) summed per block."""
 
     def __init__(self, problem, block_of_obs, n_blocks: int):
-        self.block, self.n_blocks = block_of_obs, n_blocks
-        self.y, self.C = problem.y.astype(np.float64), problem.C.astype(np.float64)
-        self.log_cos_hn = problem.log_cos_hn.astype(np.float64)
-        self.count = np.bincount(block_of_obs, minlength=n_blocks)
-        self.constant = 0.0 if problem.noise_scale is None else -np.bincount(
-            block_of_obs, weights=np.log(problem.noise_scale.astype(np.float64)), minlength=n_blocks)
+        self.problem, self.block, self.n_blocks = problem, block_of_obs, n_blocks
 
     def __call__(self, rows, theta) -> np.ndarray:
         """The blocks' log likelihood when observation i is in row ``rows[i]`` of ``theta`` (R, 4)."""
-        a, b = ab_from_theta(theta)
-        sigma2 = theta[:, 3]
-        mean = self.C * (a[rows] / np.pi + b[rows] * np.exp(theta[rows, 2] * self.log_cos_hn))
-        residual = self.y - mean
-        squares = np.bincount(self.block, weights=residual * residual / sigma2[rows], minlength=self.n_blocks)
-        log_variance = np.bincount(self.block, weights=np.log(sigma2)[rows], minlength=self.n_blocks)
-        return -0.5 * (LOG_2PI * self.count + log_variance + squares) + self.constant
+        return np.bincount(self.block, weights=observation_log_likelihood(self.problem, rows, theta),
+                           minlength=self.n_blocks)
 
 
 def pointwise_log_likelihood(records, burn_in: int, problem, pixel_labels=None):

@@ -32,7 +32,7 @@ from rjfit.sampler.passes import sums
 
 __all__ = ["STAT_N", "STAT_YY", "STAT_YA", "STAT_AA", "STAT_YB", "STAT_AB", "STAT_BB", "LOG_2PI", "region_stats",
            "log_likelihood_from_stats", "log_lik_large_ab", "AB_PLAIN_MAX", "MEAN_NORM_MAX", "oracle_log_likelihood",
-           "ab_from_theta", "b_terms", "index_dtype", "RegionData", "label_runs", "lobe_column", "memoised"]
+           "observation_log_likelihood", "ab_from_theta", "b_terms", "index_dtype", "RegionData", "label_runs", "lobe_column", "memoised"]
 
 STAT_N, STAT_YY, STAT_YA, STAT_AA, STAT_YB, STAT_AB, STAT_BB = range(7)
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -314,7 +314,14 @@ def log_lik_large_ab(stats_r, a, b, s2) -> float:
 
 
 def oracle_log_likelihood(problem: Problem, labels, theta) -> float:
-    """Eq. 1-2 evaluated directly per observation (the plain full recompute), in float64.
+    """Eq. 1-2 evaluated directly per observation (the plain full recompute), in float64, summed and
+    tempered by the problem's likelihood power (:func:`observation_log_likelihood`)."""
+    return problem.likelihood_power * float(np.sum(observation_log_likelihood(problem, labels, theta)))
+
+
+def observation_log_likelihood(problem: Problem, labels, theta) -> np.ndarray:
+    """Each observation's log density under eq. 1-2, untempered, in float64: observation i under row
+    ``labels[i]`` of ``theta``.
 
     Reads the Problem's own float32 arrays, the same data the sufficient statistics see:
     ``radiance`` with ``<l.n> E`` as one factor (``C``) and ``<h.n> = exp(log_cos_hn)``.
@@ -343,4 +350,4 @@ def oracle_log_likelihood(problem: Problem, labels, theta) -> float:
             B *= problem.noise_scale.astype(np.float64)
         mu = a * C / np.pi + b * B
     resid = y - mu
-    return problem.likelihood_power * float(np.sum(-0.5 * (LOG_2PI + np.log(var)) - 0.5 * resid * resid / var))
+    return -0.5 * (LOG_2PI + np.log(var)) - 0.5 * resid * resid / var
