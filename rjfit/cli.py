@@ -343,8 +343,8 @@ def _echo_fit(folder, summary: dict) -> None:
     if "label_accuracy" in summary:
         click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
     if summary.get("edge_power"):
-        click.echo(f"  edge term in the target (power {summary['edge_power']:.3g}): a boundary where the data show no "
-                   f"step costs what its materials' step misfits the neighbours' differences (--edge-power)")
+        click.echo(f"  edge term in the target (power {summary['edge_power']:.3g}): a boundary earns where the "
+                   f"data step as its materials do and costs where they do not (--edge-power)")
     if summary.get("edge_groups_posterior"):
         shares = ", ".join(f"{n}: {share:.2f}" for n, share in summary["edge_groups_posterior"].items())
         click.echo(f"  edge-supported material groups (materials that meet where the data show no step joined, "

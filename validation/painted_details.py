@@ -24,6 +24,7 @@ from real_stacks import run
 
 from rjfit.data.exr import read_exr
 from rjfit.posterior.resolution import disc_radius
+from rjfit.sampler.regions.materials.edges import EDGE_GAP
 
 HORSE = Path(__file__).resolve().parents[2] / "shared" / "data" / "psm-horse"
 #: the discs' centres (row, column in the full 340 x 512 images): on the flank and on the head, at least 18 px
@@ -65,9 +66,12 @@ def found_pixels(fit_folder: Path, discs: np.ndarray, crop: dict) -> list:
 
 
 def at_contrast(resolution: dict, contrast: float, n_materials: int) -> float:
-    """The stated radius for a paint of ``contrast`` times the albedo (the summary states it at its own)."""
-    evidence = resolution["evidence_per_pixel"] * (1.0 - contrast) ** 2 / (1.0 - resolution["contrast"]) ** 2
-    return disc_radius(evidence, resolution["potts_beta"], resolution["potts_rho"], n_materials)
+    """The stated radius for a paint of ``contrast`` times the albedo (the summary states it at its own), the edge
+    term's earning per outline pair rescaled alike (``rjfit.posterior.resolution``)."""
+    rescale = (1.0 - contrast) ** 2 / (1.0 - resolution["contrast"]) ** 2
+    earning = resolution.get("edge_evidence_per_pair", 0.0) * rescale * EDGE_GAP
+    return disc_radius(resolution["evidence_per_pixel"] * rescale, resolution["potts_beta"] - earning,
+                       resolution["potts_rho"], n_materials)
 
 
 def main(argv=None) -> None:

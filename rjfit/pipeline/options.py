@@ -165,7 +165,8 @@ class FitOptions:
     edge_power: float | str = cli_option(
         0.0, "--edge-power",
         "Power of the edge term in the target (--regions materials, one channel, no effects): a boundary between "
-        "two materials costs what their step misfits the data's differences across it. A number >= 0, or 'auto' "
+        "two materials earns where the data's differences across it step as the materials do, and costs where "
+        "no step fits them better. A number >= 0, or 'auto' "
         "(the coarsening rule on those differences). Default 0 (none); --preset measured sets auto where it "
         "applies (docs/options.md).", "power", show_default=False)
     preset: str = cli_option(

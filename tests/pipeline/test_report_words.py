@@ -180,7 +180,7 @@ def test_the_chain_figure_reads_either_layout_of_chains_nc():
 def test_the_resolution_is_a_single_pixel_where_any_pixel_pays():
     """A synthetic resolution (the DiLiGenT ball's case: evidence so high that the disc is smaller than a pixel)
     reads as a single pixel, not 'about 0 pixels'; a larger one keeps its size; with an edge term the sentence
-    says the figure leaves it out (rjfit.posterior.resolution counts the Potts boundary and rho only)."""
+    says the figure counts its earning along the outline (rjfit.posterior.resolution)."""
     from rjfit.pipeline.regions.materials import MaterialFit, resolution_sentence
 
     tiny = {"contrast": 0.5, "material": 0, "pixels": 0.03, "radius_px": 0.1}
@@ -189,10 +189,10 @@ def test_the_resolution_is_a_single_pixel_where_any_pixel_pays():
     assert "edge term" not in sentence and "smaller ones" not in sentence      # nothing is smaller than a pixel
     larger = resolution_sentence({**tiny, "pixels": 151.2, "radius_px": 6.94})
     assert "about 151 pixels (a disc of radius 6.9 px)" in larger and "smaller ones are merged" in larger
-    assert "the edge term is not counted" in resolution_sentence(tiny, 0.8)
+    assert "counting the edge term's earning along its outline" in resolution_sentence(tiny, 0.8)
     summary = {"map_materials": 1, "materials_posterior": {"1": 1.0}, "map_probability_mean": 1.0,
                "material_resolution": tiny, "edge_power": 0.8}
     assert "resolution: a region of 0.5 times material 0's albedo gets a material of its own from a single pixel" \
         in MaterialFit.printed_line(summary)
     notes = MaterialFit.report_notes(summary)
-    assert notes[0].startswith("Resolution: ") and "single pixel" in notes[0] and "edge term is not counted" in notes[0]
+    assert notes[0].startswith("Resolution: ") and "single pixel" in notes[0] and "edge term's earning" in notes[0]

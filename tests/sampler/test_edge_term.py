@@ -25,6 +25,7 @@ from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from rjfit.data.observations import Observations
+from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.model.blinn import blinn_normalisation
 from rjfit.sampler.regions.materials.edges import edge_term
 from rjfit.sampler.forward import Problem
@@ -62,11 +63,55 @@ def patchy_problem(seed=3, shape=(6, 7), n_lights=5):
     return Problem.from_observations(obs)
 
 
+def no_step_ss(problem, edges):
+    """``ss(p, q)``: the pair's misfit of no step from its definition, over the lights both saw, with e the residuals
+    under the reference (one material fitted by least squares to every observation) and p' and q' as far beyond p
+    and q on the pair's line: where both were seen under that light, 0.4 times the squared difference
+    ``e_p - e_q`` minus the trend ``(e_p' - e_p + e_q - e_q') / 2``; where one was, a third of the squared difference
+    minus that side's difference; where neither, the spread s^2 (1.4826 MAD, squared, of the differences of e over
+    every pair of ``edges`` and light both saw)."""
+    height, width = problem.image_shape
+    y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
+    e = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
+    where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
+    lights = range(int(problem.light.max()) + 1)
+    differences = [e[where[p, lt]] - e[where[q, lt]] for p, q in zip(edges.first, edges.second)
+                   for lt in lights if (p, lt) in where and (q, lt) in where]
+    spread = 1.4826 * np.median(np.abs(differences))
+
+    def outer(p, q):
+        (pr, pc), (qr, qc) = divmod(int(p), width), divmod(int(q), width)
+        dr, dc = qr - pr, qc - pc
+        ends = [(pr - dr, pc - dc), (qr + dr, qc + dc)]
+        return [r * width + c if 0 <= r < height and 0 <= c < width else None for r, c in ends]
+
+    def ss(p, q):
+        total, (p_out, q_out) = 0.0, outer(p, q)
+        for lt in lights:
+            if (p, lt) not in where or (q, lt) not in where:
+                continue
+            i, j = where[p, lt], where[q, lt]
+            d = e[i] - e[j]
+            a = where.get((p_out, lt)) if p_out is not None else None
+            b = where.get((q_out, lt)) if q_out is not None else None
+            if a is not None and b is not None:
+                total += 0.4 * (d - 0.5 * (e[a] - e[i] + e[j] - e[b])) ** 2
+            elif a is not None:
+                total += (d - (e[a] - e[i])) ** 2 / 3
+            elif b is not None:
+                total += (d - (e[j] - e[b])) ** 2 / 3
+            else:
+                total += spread ** 2
+        return total
+    return ss
+
+
 def direct_total(problem, edges, labels, theta, gap):
     """The edge term from its definition: every pair ``gap`` apart, every light both pixels saw."""
     height, width = problem.image_shape
     where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
+    reference = no_step_ss(problem, edges)
 
     def mu(i, k):
         I0, kd, g = theta[k, :3]
@@ -75,7 +120,7 @@ def direct_total(problem, edges, labels, theta, gap):
     def ss(matched, k, m):
         return sum((y[i] - y[j] - mu(i, k) + mu(j, m)) ** 2 for i, j in matched)
 
-    sums = {}       # boundary {k, m} -> [SS of the step, SS with both ends in the lower, in the higher material]
+    sums = {}       # boundary {k, m} -> [SS of the step, SS with both ends in the lower, in the higher, the reference]
     for offset, ok in ((gap, lambda p: p % width < width - gap), (gap * width, lambda p: p < (height - gap) * width)):
         for p in range(height * width):
             if not ok(p):
@@ -87,11 +132,12 @@ def direct_total(problem, edges, labels, theta, gap):
             matched = [(where[p, lt], where[q, lt]) for lt in range(int(problem.light.max()) + 1)
                        if (p, lt) in where and (q, lt) in where]
             lo, hi = min(k, m), max(k, m)
-            entry = sums.setdefault((lo, hi), [0.0, 0.0, 0.0])
+            entry = sums.setdefault((lo, hi), [0.0, 0.0, 0.0, 0.0])
             entry[0] += ss(matched, k, m)
             entry[1] += ss(matched, lo, lo)
             entry[2] += ss(matched, hi, hi)
-    return -edges.scale * sum(max(0.0, two - min(one_lo, one_hi)) for two, one_lo, one_hi in sums.values())
+            entry[3] += reference(p, q)
+    return -edges.scale * sum(two - min(one_lo, one_hi, ref) for two, one_lo, one_hi, ref in sums.values())
 
 
 TRUTH = np.array([[10.0, 0.75, 4.0, 0.3], [6.0, 0.3, 15.0, 0.3]])
@@ -107,18 +153,60 @@ def test_total_matches_the_definition():
     assert edges.total(labels, theta) == pytest.approx(expected, rel=1e-9)
 
 
-def test_a_step_the_data_show_is_free_and_one_they_do_not_costs():
-    """The true split (columns 0-2 | 3-6) at the true parameters costs nothing (the data step there), the same
-    labels with two nearly equal materials (a step the data do not show) and a boundary two columns off the
-    true one cost more than 3 each; copies of one material cost nothing."""
+def test_a_step_the_data_show_earns_and_one_they_do_not_costs():
+    """The true split (columns 0-2 | 3-6) at the true parameters earns more than 3 (the data step there beyond their
+    own trend), the same labels with two nearly equal materials (a step the data do not show) and a boundary two
+    columns off the true one cost more than 3 each; copies of one material never earn; whatever the parameters, the
+    term stays under its bound
+    ``scale * sum of the pairs' no-step sums``."""
     problem = patchy_problem()
     edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=3)
     columns = np.arange(problem.width)[None, :].repeat(problem.height, 0)
     true_labels, off_labels = (columns >= 3).astype(int), (columns >= 5).astype(int)
-    assert edges.total(true_labels, TRUTH) == 0.0
+    assert edges.total(true_labels, TRUTH) > 3.0
     assert edges.total(true_labels, [[8.0, 0.5, 8.0, 0.3], [8.5, 0.5, 8.0, 0.3]]) < -3.0
     assert edges.total(off_labels, TRUTH) < -3.0
-    assert edges.total(true_labels, [TRUTH[0], TRUTH[0]]) == 0.0
+    assert edges.total(true_labels, [TRUTH[0], TRUTH[0]]) <= 0.0
+    reference = no_step_ss(problem, edges)
+    bound = edges.scale * sum(reference(p, q) for p, q in zip(edges.first, edges.second))
+    rng = np.random.default_rng(5)
+    for _ in range(200):       # far-off parameters (I0 up to 1e4) must not earn without bound
+        theta = np.column_stack([np.exp(rng.uniform(0, 9, 2)), rng.uniform(0, 1, 2), np.exp(rng.uniform(-2, 6, 2)),
+                                 np.ones(2)])
+        assert edges.total(true_labels, theta) <= bound + 1e-9
+
+
+def ramp_problem(seed=4, shape=(8, 16), n_lights=6):
+    """One material on a smooth surface (its shading varies smoothly over the image under each light) under a smooth
+    misfit the model lacks (its radiance times ``1 + 0.04 column``), nearly noise-free (sd 0.005 on values near
+    2): every pixel saw every light."""
+    rng = np.random.default_rng(seed)
+    height, width = shape
+    pixel = np.repeat(np.arange(height * width), n_lights)
+    light = np.tile(np.arange(n_lights), height * width)
+    row, col = pixel // width, pixel % width
+    cos_ln = 0.65 + 0.3 * np.sin(0.25 * col + 0.15 * row + light)
+    cos_hn = 0.8 + 0.15 * np.cos(0.2 * col - 0.1 * row + 2 * light)
+    irradiance = np.ones(pixel.size)
+    mu = cos_ln * (10.0 * 0.75 / np.pi + 10.0 * 0.25 * blinn_normalisation(4.0) * cos_hn ** 4.0)
+    y = mu * (1.0 + 0.04 * (pixel % width)) + rng.normal(0, 0.005, pixel.size)
+    obs = Observations(image_shape=shape, n_lights=n_lights, pixel=pixel.astype(np.int64), light=light.astype(np.int32),
+                       y=y, cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irradiance, object_mask=np.ones(shape, bool))
+    return Problem.from_observations(obs)
+
+
+def test_two_materials_fitted_to_a_smooth_misfit_earn_nothing():
+    """The ball's limb in miniature: one material under a smooth misfit, cut at column 8 into two materials each
+    fitted to its own side. The data do not step at the cut, so against their own trend it earns nothing (at
+    most 0.5), whatever the two fits do on either side; a cut through a real step still earns (the test above)."""
+    problem = ramp_problem()
+    edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=3)
+    labels = (np.arange(problem.width)[None, :].repeat(problem.height, 0) >= 8).astype(int)
+    group = labels.ravel()[np.asarray(problem.pixel)]
+    y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
+    theta = group_params(y, C, lch, group, 2)
+    assert edges.total(labels, theta) <= 0.5
+    assert edges.total(labels, theta) == pytest.approx(direct_total(problem, edges, labels, theta, 3), rel=1e-9)
 
 
 def test_a_parameter_change_matches_the_definition():
@@ -165,21 +253,22 @@ def block_draws(quad, pixels, n, rng):
     return np.exp(quad.axes[0][i]), 1 / (1 + np.exp(-quad.axes[1][j])), np.exp(quad.axes[2][k])
 
 
-def boundary_phi(edges, z, ss):
+def boundary_phi(edges, z, ss, reference):
     """The edge term per draw from its definition: ``ss(p, q, a, b)`` the pair's sums (one per draw) with p in a
-    and q in b, accumulated per boundary."""
+    and q in b, ``reference(p, q)`` the pair's sum under the reference, accumulated per boundary."""
     sums = {}
     for p, q in zip(edges.first, edges.second):
         k, m = z[p], z[q]
         if k != m:
             lo, hi = min(k, m), max(k, m)
-            entry = sums.setdefault((lo, hi), [0.0, 0.0, 0.0])
+            entry = sums.setdefault((lo, hi), [0.0, 0.0, 0.0, 0.0])
             entry[0] = entry[0] + ss(p, q, k, m)
             entry[1] = entry[1] + ss(p, q, lo, lo)
             entry[2] = entry[2] + ss(p, q, hi, hi)
+            entry[3] = entry[3] + reference(p, q)
     phi = np.zeros(DRAWS)
-    for two, one_lo, one_hi in sums.values():
-        phi -= edges.scale * np.maximum(0.0, two - np.minimum(one_lo, one_hi))
+    for two, one_lo, one_hi, ref in sums.values():
+        phi -= edges.scale * (two - np.minimum(np.minimum(one_lo, one_hi), ref))
     return phi
 
 
@@ -189,6 +278,9 @@ def exact_with_edges(quad, problem, edges, beta, rho, rng, n_blocks=None):
     exact0 = exact_partition_posterior(quad, (2, 2), beta, rho, n_blocks=n_blocks)
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
     where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
+    reference = no_step_ss(problem, edges)
+    # exp(Phi) <= exp(scale * the pairs' reference sums): shifted by that constant so that no weight overflows
+    bound = edges.scale * sum(reference(p, q) for p, q in zip(edges.first, edges.second))
     weight, i0_mean = {}, {}
     for part, p0 in exact0.items():
         z = np.array(part)
@@ -202,8 +294,7 @@ def exact_with_edges(quad, problem, edges, beta, rho, rng, n_blocks=None):
             return sum((y[where[p, lt]] - y[where[q, lt]] - mu(where[p, lt], k) + mu(where[q, lt], m)) ** 2
                        for lt in range(3))
 
-        phi = boundary_phi(edges, z, ss)
-        w = np.exp(phi)
+        w = np.exp(boundary_phi(edges, z, ss, reference) - bound)
         weight[part] = p0 * w.mean()
         i0_mean[part] = np.mean(draws[z[0]][0] * w) / w.mean()
     total = sum(weight.values())
@@ -304,7 +395,7 @@ def fixed_labels_exact(quad, problem, edges, labels, rng):
         return sum((y[where[p, lt]] - y[where[q, lt]] - mu(where[p, lt], k) + mu(where[q, lt], m)) ** 2
                    for lt in range(3))
 
-    phi = boundary_phi(edges, z, ss)
+    phi = boundary_phi(edges, z, ss, no_step_ss(problem, edges))
     w = np.exp(phi - phi.max())
     w /= w.sum()
     values = np.stack(draws[z[0]])

@@ -38,6 +38,8 @@ from rjfit.pipeline.report_numbers import finite, number, probability
 from rjfit.posterior.boundaries import edge_verdict
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 from rjfit.sampler.regions.materials import MaterialRegions
+from rjfit.sampler.regions.materials.edges import EDGE_GAP, NO_STEP_NOISE, edge_term
+from rjfit.sampler.regions.materials.layout import labelled_pixels
 from rjfit.sampler.state import SamplerConfig
 
 __all__ = ["MaterialFit", "summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
@@ -82,7 +84,7 @@ def summarise_materials(records, problem, options, burn: int, config):
     cap = mat.cap_warning(posterior, options.max_materials)
     if cap:
         summary["warnings"].append(cap)
-    resolution = material_resolution(problem, summaries, labels, options)
+    resolution = material_resolution(problem, summaries, labels, options, float(config.regions.edge_power))
     if resolution is not None:
         summary["material_resolution"] = resolution
         if RESOLUTION_WARN_PIXELS < resolution["pixels"] < np.inf:
@@ -91,12 +93,18 @@ def summarise_materials(records, problem, options, burn: int, config):
     return summary, labels, prediction, {"map_probability": probability, "draws": draws}
 
 
-def material_resolution(problem, materials, labels, options) -> dict | None:
+def material_resolution(problem, materials, labels, options, term_power: float = 0.0) -> dict | None:
     """The smallest region of half the albedo that the fit would give a material of its own inside its largest
     material (:func:`rjfit.posterior.resolution.smallest_material`, at that material's posterior means and on
-    the plain forward model: effects are left out of the prediction). None for a joint colour fit."""
+    the plain forward model: effects are left out of the prediction), its outline's earning under the edge
+    term counted where the fit has one (``term_power``, its power, > 0). None for a joint colour fit."""
     if problem.n_channels > 1 or not materials:
         return None
+    edge_scale = 0.0
+    if term_power > 0:
+        # the term's power / (2 s^2), s a constant of the data; an outline pair's step of S beats no step by about
+        # NO_STEP_NOISE S^2 per light (edges.no_step_sums: the trend beside the pair leaves the step out)
+        edge_scale = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP).scale * NO_STEP_NOISE
     largest = max(materials, key=lambda m: m["pixels"])
     I0, kd, gamma, sigma2 = (largest[name]["mean"] for name in ("I0", "kd", "gamma", "sigma2"))
     mine = np.asarray(labels).ravel()[problem.pixel] == largest["material"]
@@ -105,7 +113,8 @@ def material_resolution(problem, materials, labels, options) -> dict | None:
     return {"material": int(largest["material"]), "likelihood_power": float(problem.likelihood_power),
             "potts_beta": float(options.potts_beta), "potts_rho": float(options.potts_rho),
             **smallest_material(mu, problem.pixel[mine], sigma2, float(problem.likelihood_power),
-                                options.potts_beta, options.potts_rho, len(materials))}
+                                options.potts_beta, options.potts_rho, len(materials), edge_scale=edge_scale,
+                                edge_gap=EDGE_GAP if edge_scale > 0 else 0)}
 
 
 def material_boundaries(problem, observations, materials, labels) -> tuple[dict, list]:
@@ -199,15 +208,14 @@ def resolution_size(resolution: dict) -> str:
 
 def resolution_sentence(resolution: dict, edge_power=None) -> str:
     """What the fit can resolve, for the report and the printed line; with an edge term (``edge_power`` > 0) the
-    note that the figure does not count it."""
+    note that the figure counts the outline's earning."""
     text = (f"a region of {resolution['contrast']:g} times material {resolution['material']}'s albedo gets a material "
             f"of its own from {resolution_size(resolution)}")
     if resolution["pixels"] > 1.0:      # below one pixel there is nothing smaller to merge
         text += "; smaller ones are merged into the material around them"
     if finite(edge_power) and edge_power > 0:
-        # smallest_material counts the Potts boundary and rho only (rjfit.posterior.resolution)
-        text += (" (the edge term is not counted: it costs nothing where the data step, as they do around a region "
-                 "of another paint)")
+        text += (" (counting the edge term's earning along its outline, where the data step as the paints' "
+                 "albedos do)")
     return text
 
 
@@ -306,7 +314,7 @@ def _edge_words(summary: dict, options: dict) -> str:
         return "none (0): a boundary costs only the Potts prior"
     how = "measured (auto: the coarsening rule on the data's differences across 3 px)" \
         if options.get("edge_power") == "auto" else "as given"
-    return f"{power:.3g}, {how}: a boundary where the data show no step costs its materials' step misfit"
+    return f"{power:.3g}, {how}: a boundary earns where the data step as its materials do and costs where they do not"
 
 
 def _boundary_notes(summary: dict) -> list:

@@ -17,18 +17,32 @@ with
 
     SS_pq(a, b) = sum over the lights (d - mu_a(p) + mu_b(q))^2,
 
-the boundary between materials k and m (the pairs with one end in each) costs
+the boundary between materials k and m (the pairs with one end in each) adds
 
-    Phi_km = -power max(0, SS_km - min(SS_kk, SS_mm)) / (2 s^2),
+    Phi_km = -power (SS_km - min(SS_kk, SS_mm, SS_0)) / (2 s^2),
 
 ``SS_km`` the sum over its pairs of SS with each end in its own material, ``SS_kk`` and
-``SS_mm`` with both ends in k, or in m: the Gaussian log-likelihood ratio of the boundary
-check (:mod:`rjfit.posterior.boundaries`) of the materials' step against either material
-alone, where it speaks against the step. A boundary the data step at costs nothing and earns
-nothing (so ``exp(Phi) <= 1``, the target stays proper, and no boundary is bought by the
-differences alone); pairs inside one material add nothing. ``s^2`` is the robust variance
-(1.4826 MAD, squared) of the differences' residuals under one material fitted by least
-squares to every observation: a constant of the data. ``power``: the coarsening rule of
+``SS_mm`` with both ends in k, or in m, and ``SS_0`` the misfit of **no step** (:func:`no_step_sums`):
+the data follow the reference fit (one material) up to a smoothly changing residual, so each
+residual difference across the pair continues the trend of the residual differences just
+outside it along its line (p', q' ``gap`` px beyond p and q), scaled by :data:`NO_STEP_NOISE`
+so that white noise weighs alike in both. It is the Gaussian
+log-likelihood ratio of the neighbours' differences under the materials' step against the
+best of no step. A boundary where the data step beyond their own trend, as its materials do,
+**earns** (a paint's outline: the step is many times the differences' spread); one where they
+do not step costs; pairs inside one material add nothing.
+
+Why it earns: a misfit shared by neighbouring pixels makes the pixel term count a region's
+interior at a small power, but a sharp step is evidence that misfit cannot fake, and the pixel
+term cannot carry it (issue 45: the cat's nose, 1,500 px, was never a material without it).
+Why the data's own trend as the baseline, not a fitted material's: two materials each fitted
+to its side of a smooth but misfitted gradient (the ball's limb at 16 bits) explain the
+differences across any line between them better than either alone, though the data do not
+step there; against the trend of the data's own residuals such a line earns nothing. ``SS_0`` is a constant of
+the data, so it also bounds the term above by ``power SS_0 / (2 s^2)`` whatever the
+parameters: the target stays proper. ``s^2`` is the robust variance (1.4826 MAD, squared) of
+the differences' residuals under the reference (one material fitted by least squares to every
+observation): a constant of the data. ``power``: the coarsening rule of
 :func:`rjfit.data.coarsen.suggest_likelihood_power` applied to those residuals
 (:func:`edge_power`; ``((1 - rho) / (1 + rho))^2``, rho their lag-1 correlation between
 neighbouring pairs under one light), since the differences, though they cancel most of a
@@ -61,7 +75,13 @@ from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.passes.edges import boundary_sums, edge_value
 
-__all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "EDGE_GAP"]
+__all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "observation_at", "no_step_sums",
+           "EDGE_GAP", "NO_STEP_NOISE"]
+
+#: white noise of variance v gives a difference across a pair the variance 2 v and its misfit against the local trend
+#: of the differences beside it 5 v (1.5^2 + 1.5^2 + 0.5^2 + 0.5^2): the factor that makes the two alike, so that a
+#: boundary through smooth data earns nothing on average from the noise
+NO_STEP_NOISE = 2.0 / 5.0
 
 #: the pixels of a pair lie this far apart (odd, so that they are of the two checkerboard colours): a measured
 #: edge is spread over a pixel or two (optics, the pixel footprint, a blurred paint line), so neighbours across a
@@ -74,7 +94,8 @@ class EdgeTerm(NamedTuple):
 
     ``first``, ``second`` (P,): the pairs' flat pixels; ``start`` (P + 1,): each pair's matches;
     ``d``, ``c_first``, ``c_second``, ``l_first``, ``l_second`` (M,): per match the difference and
-    both ends' ``C`` and ``log <h.n>``; ``pair_of`` (H W, 4):
+    both ends' ``C`` and ``log <h.n>``; ``no_step`` (P,): each pair's SS of no step
+    (:func:`no_step_sums`); ``pair_of`` (H W, 4):
     each pixel's pairs (-1: none); ``scale`` = power / (2 s^2).
     """
 
@@ -88,13 +109,14 @@ class EdgeTerm(NamedTuple):
     c_second: np.ndarray
     l_first: np.ndarray
     l_second: np.ndarray
+    no_step: np.ndarray
     pair_of: np.ndarray
 
     def total(self, pixels, theta) -> float:
         """The edge term of the labels ``pixels`` (H, W; -1 unlabelled) with materials' ``theta`` (K, 4)."""
         theta = np.asarray(theta, float)
         sums = boundary_sums(_flat(pixels), theta.shape[0], coefficients(theta), self.first, self.second, self.start,
-                             self.d, self.c_first, self.c_second, self.l_first, self.l_second)
+                             self.d, self.c_first, self.c_second, self.l_first, self.l_second, self.no_step)
         return float(edge_value(sums, self.scale))
 
     def region_delta(self, pixels, theta, r: int, theta_r) -> float:
@@ -106,7 +128,7 @@ class EdgeTerm(NamedTuple):
     def sweep_arrays(self, theta):
         """The ``edge`` argument of :func:`~rjfit.sampler.regions.materials.passes.labels.gibbs_sweep`."""
         return (self.pair_of, coefficients(np.asarray(theta, float)), self.first, self.second, self.start, self.d,
-                self.c_first, self.c_second, self.l_first, self.l_second, self.scale)
+                self.c_first, self.c_second, self.l_first, self.l_second, self.no_step, self.scale)
 
 
 def _flat(pixels) -> np.ndarray:
@@ -124,6 +146,55 @@ def pixel_pairs(labelled, gap: int):
     down = (p < (height - gap) * width) & flat & below
     return (np.concatenate([p[right], p[down]]), np.concatenate([p[right] + gap, p[down] + gap * width]),
             int(np.count_nonzero(right)))
+
+
+def observation_at(pixel, light, wanted_pixel, wanted_light) -> np.ndarray:
+    """The index of the observation of each (``wanted_pixel``, ``wanted_light``) among the observations' ``pixel``
+    and ``light``; -1 where there is none (a pixel off the image, off the object or left out under that light)."""
+    pixel, light = np.asarray(pixel, np.int64), np.asarray(light, np.int64)
+    n_lights = int(light.max(initial=-1)) + 1
+    key = pixel * n_lights + light
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    wanted = np.asarray(wanted_pixel, np.int64) * n_lights + np.asarray(wanted_light, np.int64)
+    if sorted_key.size == 0:
+        return np.full(wanted.shape, -1, np.int64)
+    at = np.minimum(np.searchsorted(sorted_key, wanted), sorted_key.size - 1)
+    return np.where((sorted_key[at] == wanted) & (np.asarray(wanted_pixel) >= 0), order[at], -1)
+
+
+def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread: float) -> np.ndarray:
+    """(P,) each pair's sum over its matched lights of the squared misfit of "no step": the data follow the
+    reference (one material fitted to every observation: ``residual``, per observation, is the data minus it) up
+    to a residual that changes smoothly, so the residuals' difference across the pair continues the trend of
+    their differences just outside it along the same line.
+
+    With e the residual and p' and q' ``gap`` px beyond p and q, seen under that light: the trend is
+    ``(e_p' - e_p + e_q - e_q') / 2`` and the misfit ``(e_p - e_q - trend)^2`` is scaled by
+    :data:`NO_STEP_NOISE`; with one of them, the trend is that side's difference and the scale ``2 / 6`` (the same
+    white-noise reasoning); with neither (a pair at the object's edge), the misfit is ``spread^2``, what a
+    difference misfits by under white noise alone, so such a pair earns only where the materials' step fits
+    better than noise would. Why the residuals, not the data: the reference carries the surface's own shading
+    (normals that change from pixel to pixel included), so only a change of reflectance is left to step. A
+    constant of the data: the baseline a boundary's step must beat to earn.
+    """
+    height, width = problem.height, problem.width
+    pair = np.repeat(np.arange(first.size), np.diff(start))
+    horizontal = pair < n_right
+    p, q = first[pair], second[pair]
+    step = np.where(horizontal, gap, gap * width)
+    p_inside = np.where(horizontal, p % width >= gap, p >= gap * width)
+    q_inside = np.where(horizontal, q % width < width - gap, q < (height - gap) * width)
+    light = np.asarray(problem.light, np.int64)[i]
+    before = observation_at(problem.pixel, problem.light, np.where(p_inside, p - step, -1), light)
+    after = observation_at(problem.pixel, problem.light, np.where(q_inside, q + step, -1), light)
+    e = np.asarray(residual, np.float64)
+    d, d_before, d_after = e[i] - e[j], e[before] - e[i], e[j] - e[after]
+    has_before, has_after = before >= 0, after >= 0
+    misfit = np.select([has_before & has_after, has_before, has_after],
+                       [NO_STEP_NOISE * (d - 0.5 * (d_before + d_after)) ** 2, (d - d_before) ** 2 / 3.0,
+                        (d - d_after) ** 2 / 3.0], spread ** 2)
+    return np.bincount(pair, weights=misfit, minlength=first.size)
 
 
 def matched_lights(pixel, light, first, second, chunk: int = 65536):
@@ -201,10 +272,12 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     reference_residual = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
     d = y[i] - y[j]
     residual = reference_residual[i] - reference_residual[j]      # d minus the reference's step
+    pair = np.repeat(np.arange(first.size), np.diff(start))
     s = 1.4826 * float(np.median(np.abs(residual))) if residual.size else 1.0
     s = s if np.isfinite(s) else 1.0       # no reference fit (under 4 observations): the differences' own scale is moot
+    pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual, s)
+    pair_no_step[~np.isfinite(pair_no_step)] = np.inf     # no reference fit (tiny problems): no bound from it
     if power == "auto":
-        pair = np.repeat(np.arange(first.size), np.diff(start))
         light = np.asarray(problem.light, np.int64)[i]
         n_lights = int(problem.light.max()) + 1
         rho = np.nanmean([_neighbour_correlation(first[pair[part]], light[part], residual[part], n_lights,
@@ -221,7 +294,7 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     return EdgeTerm(power=float(power), scale=float(power) / (2.0 * max(s, 1e-300) ** 2), first=first.astype(np.int64),
                     second=second.astype(np.int64), start=start, d=d, c_first=C[i].astype(np.float32),
                     c_second=C[j].astype(np.float32), l_first=lch[i].astype(np.float32),
-                    l_second=lch[j].astype(np.float32), pair_of=pair_of)
+                    l_second=lch[j].astype(np.float32), no_step=pair_no_step, pair_of=pair_of)
 
 
 def start_theta(problem, pixels, n_materials: int, prior) -> np.ndarray | None:

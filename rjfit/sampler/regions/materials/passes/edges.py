@@ -9,7 +9,13 @@ of the per-match arrays: the data's difference ``d``, and each end's columns ``C
 
     SS(a at first, b at second) = sum over its matches (d - mu_a(first) + mu_b(second))^2,
 
-and the term is ``-scale * sum over boundaries of max(0, sums[., ., 0] - min(sums[., ., 1], sums[., ., 2]))``.
+and ``sums[k, m, 3]`` += ``no_step[j]``, the pair's SS of no step (a constant of the data:
+:func:`rjfit.sampler.regions.materials.edges.no_step_sums`). The term is
+
+    -scale * sum over boundaries of (sums[., ., 0] - min(sums[., ., 1], sums[., ., 2], sums[., ., 3])):
+
+negative where the materials' step misfits the differences more than no step does, positive
+where it fits them better (a step the data show).
 ``coef`` are the materials' constants of :func:`rjfit.sampler.passes.densities.coefficients`
 (``mu = C (coef0 + coef1 <h.n>^coef2)``).
 """
@@ -45,23 +51,25 @@ def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second):
 
 
 @njit(cache=True, nogil=True)
-def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second):
+def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step):
     """Add (``sign`` 1) or remove (-1) pair ``j`` with ends in (k, m), k != m, to its boundary's sums."""
     two, one_k, one_m = pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
     lo, hi = (k, m) if k < m else (m, k)
     sums[lo, hi, 0] += sign * two
     sums[lo, hi, 1] += sign * (one_k if k < m else one_m)
     sums[lo, hi, 2] += sign * (one_m if k < m else one_k)
+    sums[lo, hi, 3] += sign * no_step[j]
 
 
 @njit(cache=True, nogil=True)
-def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second):
-    """(K, K, 3) the sums of every boundary of flat ``labels`` (-1: unlabelled, in no pair's sums)."""
-    sums = np.zeros((n_materials, n_materials, 3))
+def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second,
+                  no_step):
+    """(K, K, 4) the sums of every boundary of flat ``labels`` (-1: unlabelled, in no pair's sums)."""
+    sums = np.zeros((n_materials, n_materials, 4))
     for j in range(first.shape[0]):
         k, m = labels[first[j]], labels[second[j]]
         if k >= 0 and m >= 0 and k != m:
-            _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
+            _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step)
     return sums
 
 
@@ -71,15 +79,13 @@ def edge_value(sums, scale):
     total = 0.0
     for k in range(sums.shape[0]):
         for m in range(k + 1, sums.shape[0]):
-            excess = sums[k, m, 0] - min(sums[k, m, 1], sums[k, m, 2])
-            if excess > 0.0:
-                total -= scale * excess
+            total -= scale * (sums[k, m, 0] - min(sums[k, m, 1], sums[k, m, 2], sums[k, m, 3]))
     return total
 
 
 @njit(cache=True, nogil=True)
 def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
-                l_second):
+                l_second, no_step):
     """Add (``sign`` 1) or remove (-1) the pairs of pixel ``p`` with ``p`` in material ``label``."""
     for slot in range(pair_of.shape[1]):
         j = pair_of[p, slot]
@@ -90,14 +96,15 @@ def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, star
         else:
             k, m = labels[first[j]], label
         if k >= 0 and m >= 0 and k != m:
-            _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
+            _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step)
 
 
 @njit(cache=True, nogil=True)
 def edge_sums(labels, n_materials, edge):
     """:func:`boundary_sums` of ``edge``, the arrays of :meth:`rjfit.sampler.regions.materials.edges.EdgeTerm.sweep_arrays`."""
-    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, scale = edge
-    return boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second)
+    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale = edge
+    return boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second,
+                         no_step)
 
 
 @njit(cache=True, nogil=True)
@@ -110,17 +117,14 @@ def keep_new_label(sums, p, old, new, labels, edge, uniform):
     kept up to date pixel by pixel and each update sees the labels as they are then (a scan of
     reversible updates).
     """
-    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, scale = edge
+    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale = edge
+    arrays = (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step)
     before = edge_value(sums, scale)
-    _move_pixel(sums, -1.0, p, old, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
-                l_second)
-    _move_pixel(sums, 1.0, p, new, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
-                l_second)
+    _move_pixel(sums, -1.0, p, old, labels, *arrays)
+    _move_pixel(sums, 1.0, p, new, labels, *arrays)
     delta = edge_value(sums, scale) - before
     if delta < 0.0 and uniform >= math.exp(delta):
-        _move_pixel(sums, -1.0, p, new, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
-                    l_second)
-        _move_pixel(sums, 1.0, p, old, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
-                    l_second)
+        _move_pixel(sums, -1.0, p, new, labels, *arrays)
+        _move_pixel(sums, 1.0, p, old, labels, *arrays)
         return False
     return True
