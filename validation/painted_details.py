@@ -66,11 +66,10 @@ def found_pixels(fit_folder: Path, discs: np.ndarray, crop: dict) -> list:
 
 
 def at_contrast(resolution: dict, contrast: float, n_materials: int) -> float:
-    """The stated radius for a paint of ``contrast`` times the albedo (the summary states it at its own); the edge
-    term's earning per outline pair is kept as stated (it grows only as the log of the step: a bound from below
-    for a stronger paint)."""
+    """The stated radius for a paint of ``contrast`` times the albedo (the summary states it at its own), the edge
+    term's earning per outline pair rescaled alike (``rjfit.posterior.resolution``)."""
     rescale = (1.0 - contrast) ** 2 / (1.0 - resolution["contrast"]) ** 2
-    earning = resolution.get("edge_evidence_per_pair", 0.0) * EDGE_GAP
+    earning = resolution.get("edge_evidence_per_pair", 0.0) * rescale * EDGE_GAP
     return disc_radius(resolution["evidence_per_pixel"] * rescale, resolution["potts_beta"] - earning,
                        resolution["potts_rho"], n_materials)
 

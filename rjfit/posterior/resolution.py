@@ -16,10 +16,11 @@ material, ``-log rho``, and the labellings' ``log(K + 1)``. A disc is worth a ma
 With the edge term in the target (:mod:`rjfit.sampler.regions.materials.edges`) the disc's
 outline also earns: its pairs ``g`` px apart with one end inside (about ``8 g R`` of them) each
 step by ``(1 - c) mu`` under every light, which the materials' step explains and no step does
-not; the caller states what one such pair earns (``edge_per_pair``: the term's misfit of that
-step, summed over a pixel's lights, averaged over the material's pixels, times its power). The
-outline's gain is linear in ``R`` like the Potts cost: where it exceeds ``beta`` per pair, a
-region pays for itself from a few pixels, the prior odds its only cost.
+not, so each earns about ``scale * mean over pixels of sum over lights of ((1 - c) mu_i)^2``
+(``scale``: the term's ``power / (2 s^2)`` times the share of a step that no step misfits,
+:data:`rjfit.sampler.regions.materials.edges.NO_STEP_NOISE`). The outline's gain is linear in ``R`` like the Potts
+cost: where it exceeds ``beta`` per pair, a region pays for itself from a few pixels, the prior
+odds its only cost.
 The parameters' own Occam factor is left out, so a region at the returned size is at the edge
 of being found, not sure to be.
 
@@ -43,7 +44,7 @@ RESOLUTION_WARN_PIXELS = 100.0
 
 
 def smallest_material(mu, pixel, sigma2: float, power: float, beta: float, rho: float, n_materials: int,
-                      contrast: float = RESOLUTION_CONTRAST, edge_per_pair: float = 0.0, edge_gap: int = 3) -> dict:
+                      contrast: float = RESOLUTION_CONTRAST, edge_scale: float = 0.0, edge_gap: int = 3) -> dict:
     """The smallest disc of another paint that a material fit finds in a material (module docstring).
 
     Parameters
@@ -61,9 +62,8 @@ def smallest_material(mu, pixel, sigma2: float, power: float, beta: float, rho: 
         K, the fit's (MAP) number of materials.
     contrast : float
         The other paint's albedo as a multiple of this one's (positive, not 1).
-    edge_per_pair, edge_gap : float, int
-        What one outline pair of the disc earns under the edge term (0: no edge term), and the term's gap in
-        pixels.
+    edge_scale, edge_gap : float, int
+        The edge term's ``power / (2 s^2)`` (0: no edge term) and its pairs' gap in pixels.
 
     Returns
     -------
@@ -76,7 +76,7 @@ def smallest_material(mu, pixel, sigma2: float, power: float, beta: float, rho: 
     ------
     ValueError
         If ``mu`` and ``pixel`` differ in length, or ``sigma2``, ``power``, ``rho`` or
-        ``contrast`` is not positive and finite, ``contrast`` is 1, or ``beta``, ``edge_per_pair`` or
+        ``contrast`` is not positive and finite, ``contrast`` is 1, or ``beta``, ``edge_scale`` or
         ``edge_gap`` is negative.
     """
     mu = np.asarray(mu, dtype=float)
@@ -86,17 +86,18 @@ def smallest_material(mu, pixel, sigma2: float, power: float, beta: float, rho: 
     for name, value in (("sigma2", sigma2), ("power", power), ("rho", rho), ("contrast", contrast)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be positive and finite, got {value}")
-    if contrast == 1.0 or not beta >= 0 or not edge_per_pair >= 0 or not edge_gap >= 0:
-        raise ValueError(f"contrast must differ from 1 and beta, edge_per_pair and edge_gap be >= 0, got {contrast}, "
-                         f"{beta}, {edge_per_pair}, {edge_gap}")
+    if contrast == 1.0 or not beta >= 0 or not edge_scale >= 0 or not edge_gap >= 0:
+        raise ValueError(f"contrast must differ from 1 and beta, edge_scale and edge_gap be >= 0, got {contrast}, "
+                         f"{beta}, {edge_scale}, {edge_gap}")
     n_pixels = np.unique(pixel).size
     if n_pixels == 0:
         return {"contrast": contrast, "evidence_per_pixel": 0.0, "edge_evidence_per_pair": 0.0,
                 "radius_px": math.inf, "pixels": math.inf}
     step_per_pixel = float(np.sum(((1.0 - contrast) * mu) ** 2)) / n_pixels
     evidence = power * step_per_pixel / (2.0 * sigma2)
-    radius = disc_radius(evidence, beta - edge_gap * edge_per_pair, rho, n_materials)
-    return {"contrast": contrast, "evidence_per_pixel": evidence, "edge_evidence_per_pair": edge_per_pair,
+    per_pair = edge_scale * step_per_pixel
+    radius = disc_radius(evidence, beta - edge_gap * per_pair, rho, n_materials)
+    return {"contrast": contrast, "evidence_per_pixel": evidence, "edge_evidence_per_pair": per_pair,
             "radius_px": radius, "pixels": math.pi * radius ** 2}
 
 

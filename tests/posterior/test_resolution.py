@@ -33,19 +33,20 @@ def test_the_radius_solves_gain_equals_cost():
 
 
 def test_the_edge_terms_outline_earning_enters_as_a_negative_cost_per_pair():
-    """With the edge term each of the disc's ``8 g R`` outline pairs earns what the caller states: the radius solves
-    ``pi R^2 e = 8 (beta - g earning) R - log rho + log 2``, it shrinks as the earning grows, and once the earning
-    beats beta per pair only the prior odds remain (a disc of a few pixels)."""
+    """With the edge term each of the disc's ``8 g R`` outline pairs earns ``edge_scale`` times the step per pixel:
+    the radius solves ``pi R^2 e = 8 (beta - g earning) R - log rho + log 2``, it shrinks as the earning grows, and
+    once the earning beats beta per pair only the prior odds remain (a disc of a few pixels)."""
     rng = np.random.default_rng(0)
     mu, pixel = rng.uniform(0.5, 2.0, 400), np.repeat(np.arange(50), 8)
     plain = smallest_material(mu, pixel, 0.02, 0.01, 3.0, 0.01, 1)["radius_px"]
-    out = smallest_material(mu, pixel, 0.02, 0.01, 3.0, 0.01, 1, edge_per_pair=0.4, edge_gap=3)
-    assert out["edge_evidence_per_pair"] == 0.4
+    out = smallest_material(mu, pixel, 0.02, 0.01, 3.0, 0.01, 1, edge_scale=0.05, edge_gap=3)
+    step = np.sum((0.5 * mu) ** 2) / 50
+    assert out["edge_evidence_per_pair"] == pytest.approx(0.05 * step)
     e, radius = out["evidence_per_pixel"], out["radius_px"]
-    net = 3.0 - 3 * 0.4
+    net = 3.0 - 3 * 0.05 * step
     assert math.pi * radius ** 2 * e == pytest.approx(8 * net * radius - math.log(0.01) + math.log(2))
     assert radius < plain
-    strong = smallest_material(mu, pixel, 0.02, 0.01, 3.0, 0.01, 1, edge_per_pair=2.0, edge_gap=3)
+    strong = smallest_material(mu, pixel, 0.02, 0.01, 3.0, 0.01, 1, edge_scale=1.0, edge_gap=3)
     assert strong["pixels"] < 10.0 < math.pi * plain ** 2
 
 

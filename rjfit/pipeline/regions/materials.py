@@ -36,9 +36,9 @@ from rjfit.pipeline.options import FURTHER_MATERIAL_ODDS, FitOptions
 from rjfit.pipeline.regions.base import FitResult, RegionFit, truth_summary
 from rjfit.pipeline.report_numbers import finite, number, probability
 from rjfit.posterior.boundaries import edge_verdict
-from rjfit.posterior.resolution import RESOLUTION_CONTRAST, RESOLUTION_WARN_PIXELS, smallest_material
+from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 from rjfit.sampler.regions.materials import MaterialRegions
-from rjfit.sampler.regions.materials.edges import EDGE_GAP, NO_STEP_NOISE, edge_term, t_misfit
+from rjfit.sampler.regions.materials.edges import EDGE_GAP, NO_STEP_NOISE, edge_term
 from rjfit.sampler.regions.materials.layout import labelled_pixels
 from rjfit.sampler.state import SamplerConfig
 
@@ -100,26 +100,21 @@ def material_resolution(problem, materials, labels, options, term_power: float =
     term counted where the fit has one (``term_power``, its power, > 0). None for a joint colour fit."""
     if problem.n_channels > 1 or not materials:
         return None
+    edge_scale = 0.0
+    if term_power > 0:
+        # the term's power / (2 s^2), s a constant of the data; an outline pair's step of S beats no step by about
+        # NO_STEP_NOISE S^2 per light (edges.no_step_sums: the trend beside the pair leaves the step out)
+        edge_scale = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP).scale * NO_STEP_NOISE
     largest = max(materials, key=lambda m: m["pixels"])
     I0, kd, gamma, sigma2 = (largest[name]["mean"] for name in ("I0", "kd", "gamma", "sigma2"))
     mine = np.asarray(labels).ravel()[problem.pixel] == largest["material"]
     # eq. 2 on the problem's columns: C = E <l.n> (divided by the noise scales) stands for <l.n> at irradiance 1
     mu = radiance(I0, kd, gamma, problem.C[mine], np.exp(problem.log_cos_hn[mine].astype(float)), 1.0)
-    per_pair = 0.0
-    if term_power > 0:
-        # an outline pair of a paint of RESOLUTION_CONTRAST steps by (1 - c) mu under each light; against no step
-        # (the trend beside the pair leaves the step out) that misfits by sqrt(NO_STEP_NOISE) (1 - c) mu, which
-        # the materials' step explains: each pair earns power times the sum of rho over its lights
-        term = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP)
-        step = np.sqrt(NO_STEP_NOISE) * (1.0 - RESOLUTION_CONTRAST) * mu
-        per_pixel = np.bincount(np.unique(problem.pixel[mine], return_inverse=True)[1],
-                                weights=t_misfit(step, term.spread, term.tail))
-        per_pair = term.scale * float(np.mean(per_pixel)) if per_pixel.size else 0.0
     return {"material": int(largest["material"]), "likelihood_power": float(problem.likelihood_power),
             "potts_beta": float(options.potts_beta), "potts_rho": float(options.potts_rho),
             **smallest_material(mu, problem.pixel[mine], sigma2, float(problem.likelihood_power),
-                                options.potts_beta, options.potts_rho, len(materials), edge_per_pair=per_pair,
-                                edge_gap=EDGE_GAP if per_pair > 0 else 0)}
+                                options.potts_beta, options.potts_rho, len(materials), edge_scale=edge_scale,
+                                edge_gap=EDGE_GAP if edge_scale > 0 else 0)}
 
 
 def material_boundaries(problem, observations, materials, labels) -> tuple[dict, list]:

@@ -15,23 +15,22 @@ Over pairs of labelled pixels ``gap`` px apart along a row or a column (:data:`E
 and every light seen by both (the data's difference ``d = y_p - y_q``, on the fit's scale),
 with
 
-    SS_pq(a, b) = sum over the lights rho(d - mu_a(p) + mu_b(q)),
-    rho(r) = (nu + 1) / 2 log(1 + r^2 / (nu s^2)),
+    SS_pq(a, b) = sum over the lights (d - mu_a(p) + mu_b(q))^2,
 
 the boundary between materials k and m (the pairs with one end in each) adds
 
-    Phi_km = -power (SS_km - min(SS_kk, SS_mm, SS_0)),
+    Phi_km = -power (SS_km - min(SS_kk, SS_mm, SS_0)) / (2 s^2),
 
 ``SS_km`` the sum over its pairs of SS with each end in its own material, ``SS_kk`` and
 ``SS_mm`` with both ends in k, or in m, and ``SS_0`` the misfit of **no step** (:func:`no_step_sums`):
 the data follow the reference fit (one material) up to a smoothly changing residual, so each
 residual difference across the pair continues the trend of the residual differences just
 outside it along its line (p', q' ``gap`` px beyond p and q), scaled by :data:`NO_STEP_NOISE`
-so that white noise weighs alike in both. It is the log-likelihood ratio of the neighbours'
-differences under the materials' step against the best of no step. A boundary where the
-data step beyond their own trend, as its materials do, **earns** (a paint's outline: the step
-is many times the differences' spread); one where they do not step costs; pairs inside one
-material add nothing.
+so that white noise weighs alike in both. It is the Gaussian
+log-likelihood ratio of the neighbours' differences under the materials' step against the
+best of no step. A boundary where the data step beyond their own trend, as its materials do,
+**earns** (a paint's outline: the step is many times the differences' spread); one where they
+do not step costs; pairs inside one material add nothing.
 
 Why it earns: a misfit shared by neighbouring pixels makes the pixel term count a region's
 interior at a small power, but a sharp step is evidence that misfit cannot fake, and the pixel
@@ -39,16 +38,11 @@ term cannot carry it (issue 45: the cat's nose, 1,500 px, was never a material w
 Why the data's own trend as the baseline, not a fitted material's: two materials each fitted
 to its side of a smooth but misfitted gradient (the ball's limb at 16 bits) explain the
 differences across any line between them better than either alone, though the data do not
-step there; against the trend of the data's own residuals such a line earns nothing. ``SS_0``
-is a constant of the data, so it also bounds the term above by ``power SS_0`` whatever the
-parameters: the target stays proper. Why Student's t (``rho``), not a Gaussian: the
-differences' misfit is heavy-tailed (a highlight under one light, a shadow's or a crease's
-edge, a speck), and at its square one such pixel would buy a material of its own (psm-horse:
-scattered 14 to 39 px "materials" in three chains of four); a paint's outline earns on every
-pair and light along it, so its sum stays large. ``s`` is the robust sd (1.4826 MAD) of the
-differences' residuals under the reference (one material fitted by least squares to every
-observation) and ``nu`` their Student's t degrees of freedom at that scale by maximum
-likelihood (:func:`fitted_tail`): constants of the data. ``power``: the coarsening rule of
+step there; against the trend of the data's own residuals such a line earns nothing. ``SS_0`` is a constant of
+the data, so it also bounds the term above by ``power SS_0 / (2 s^2)`` whatever the
+parameters: the target stays proper. ``s^2`` is the robust variance (1.4826 MAD, squared) of
+the differences' residuals under the reference (one material fitted by least squares to every
+observation): a constant of the data. ``power``: the coarsening rule of
 :func:`rjfit.data.coarsen.suggest_likelihood_power` applied to those residuals
 (:func:`edge_power`; ``((1 - rho) / (1 + rho))^2``, rho their lag-1 correlation between
 neighbouring pairs under one light), since the differences, though they cancel most of a
@@ -76,14 +70,13 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import gammaln
 
 from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.passes.edges import boundary_sums, edge_value
 
 __all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "observation_at", "no_step_sums",
-           "fitted_tail", "t_misfit", "EDGE_GAP", "NO_STEP_NOISE"]
+           "EDGE_GAP", "NO_STEP_NOISE"]
 
 #: white noise of variance v gives a difference across a pair the variance 2 v and its misfit against the local trend
 #: of the differences beside it 5 v (1.5^2 + 1.5^2 + 0.5^2 + 0.5^2): the factor that makes the two alike, so that a
@@ -103,14 +96,11 @@ class EdgeTerm(NamedTuple):
     ``d``, ``c_first``, ``c_second``, ``l_first``, ``l_second`` (M,): per match the difference and
     both ends' ``C`` and ``log <h.n>``; ``no_step`` (P,): each pair's SS of no step
     (:func:`no_step_sums`); ``pair_of`` (H W, 4):
-    each pixel's pairs (-1: none); ``scale``: the power; ``spread`` s and ``tail`` nu: the misfit's Student's t
-    (:func:`~rjfit.sampler.regions.materials.passes.edges.misfit`).
+    each pixel's pairs (-1: none); ``scale`` = power / (2 s^2).
     """
 
     power: float
     scale: float
-    spread: float
-    tail: float
     first: np.ndarray
     second: np.ndarray
     start: np.ndarray
@@ -126,8 +116,7 @@ class EdgeTerm(NamedTuple):
         """The edge term of the labels ``pixels`` (H, W; -1 unlabelled) with materials' ``theta`` (K, 4)."""
         theta = np.asarray(theta, float)
         sums = boundary_sums(_flat(pixels), theta.shape[0], coefficients(theta), self.first, self.second, self.start,
-                             self.d, self.c_first, self.c_second, self.l_first, self.l_second, self.no_step,
-                             self.spread, self.tail)
+                             self.d, self.c_first, self.c_second, self.l_first, self.l_second, self.no_step)
         return float(edge_value(sums, self.scale))
 
     def region_delta(self, pixels, theta, r: int, theta_r) -> float:
@@ -139,8 +128,7 @@ class EdgeTerm(NamedTuple):
     def sweep_arrays(self, theta):
         """The ``edge`` argument of :func:`~rjfit.sampler.regions.materials.passes.labels.gibbs_sweep`."""
         return (self.pair_of, coefficients(np.asarray(theta, float)), self.first, self.second, self.start, self.d,
-                self.c_first, self.c_second, self.l_first, self.l_second, self.no_step, self.spread, self.tail,
-                self.scale)
+                self.c_first, self.c_second, self.l_first, self.l_second, self.no_step, self.scale)
 
 
 def _flat(pixels) -> np.ndarray:
@@ -175,19 +163,18 @@ def observation_at(pixel, light, wanted_pixel, wanted_light) -> np.ndarray:
     return np.where((sorted_key[at] == wanted) & (np.asarray(wanted_pixel) >= 0), order[at], -1)
 
 
-def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread: float,
-                 tail: float) -> np.ndarray:
+def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread: float) -> np.ndarray:
     """(P,) each pair's sum over its matched lights of the squared misfit of "no step": the data follow the
     reference (one material fitted to every observation: ``residual``, per observation, is the data minus it) up
     to a residual that changes smoothly, so the residuals' difference across the pair continues the trend of
     their differences just outside it along the same line.
 
     With e the residual and p' and q' ``gap`` px beyond p and q, seen under that light: the trend is
-    ``(e_p' - e_p + e_q - e_q') / 2`` and the misfit is ``rho(sqrt(NO_STEP_NOISE) (e_p - e_q - trend))``
-    (:func:`~rjfit.sampler.regions.materials.passes.edges.misfit`, Student's t with ``spread`` and ``tail``);
-    with one of them, the trend is that side's difference and the factor ``2 / 6`` (the same white-noise
-    reasoning); with neither (a pair at the object's edge), ``rho(spread)``, what a difference misfits by under
-    noise alone, so such a pair earns only where the materials' step fits better than noise would. Why the residuals, not the data: the reference carries the surface's own shading
+    ``(e_p' - e_p + e_q - e_q') / 2`` and the misfit ``(e_p - e_q - trend)^2`` is scaled by
+    :data:`NO_STEP_NOISE`; with one of them, the trend is that side's difference and the scale ``2 / 6`` (the same
+    white-noise reasoning); with neither (a pair at the object's edge), the misfit is ``spread^2``, what a
+    difference misfits by under white noise alone, so such a pair earns only where the materials' step fits
+    better than noise would. Why the residuals, not the data: the reference carries the surface's own shading
     (normals that change from pixel to pixel included), so only a change of reflectance is left to step. A
     constant of the data: the baseline a boundary's step must beat to earn.
     """
@@ -204,31 +191,10 @@ def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, re
     e = np.asarray(residual, np.float64)
     d, d_before, d_after = e[i] - e[j], e[before] - e[i], e[j] - e[after]
     has_before, has_after = before >= 0, after >= 0
-    r = np.select([has_before & has_after, has_before, has_after],
-                  [np.sqrt(NO_STEP_NOISE) * (d - 0.5 * (d_before + d_after)), (d - d_before) / np.sqrt(3.0),
-                   (d - d_after) / np.sqrt(3.0)], spread)
-    return np.bincount(pair, weights=t_misfit(r, spread, tail), minlength=first.size)
-
-
-def t_misfit(r, spread: float, tail: float) -> np.ndarray:
-    """``rho(r)`` of :func:`~rjfit.sampler.regions.materials.passes.edges.misfit` over an array."""
-    return 0.5 * (tail + 1.0) * np.log1p(np.asarray(r, np.float64) ** 2 / (tail * spread ** 2))
-
-
-def fitted_tail(residual, spread: float, most: int = 200_000) -> float:
-    """Student's t degrees of freedom nu of ``residual`` at scale ``spread``, by maximum likelihood over a grid
-    (0.5 to 1,000, log-spaced; every k-th residual, at most ``most``). Why: the differences' misfit is heavy-tailed
-    (a highlight under one light, a shadow's or a crease's edge), and a Gaussian would count such an outlier at
-    its square. 1,000 where there are too few residuals (the Gaussian limit)."""
-    residual = np.asarray(residual, np.float64)
-    residual = residual[np.isfinite(residual)]
-    if residual.size < 30 or not spread > 0:
-        return 1000.0
-    x2 = (residual[::max(1, residual.size // most)] / spread) ** 2
-    grid = np.geomspace(0.5, 1000.0, 60)
-    log_density = [gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * np.log(nu * np.pi)
-                   - 0.5 * (nu + 1) * np.mean(np.log1p(x2 / nu)) for nu in grid]
-    return float(grid[int(np.argmax(log_density))])
+    misfit = np.select([has_before & has_after, has_before, has_after],
+                       [NO_STEP_NOISE * (d - 0.5 * (d_before + d_after)) ** 2, (d - d_before) ** 2 / 3.0,
+                        (d - d_after) ** 2 / 3.0], spread ** 2)
+    return np.bincount(pair, weights=misfit, minlength=first.size)
 
 
 def matched_lights(pixel, light, first, second, chunk: int = 65536):
@@ -308,9 +274,8 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     residual = reference_residual[i] - reference_residual[j]      # d minus the reference's step
     pair = np.repeat(np.arange(first.size), np.diff(start))
     s = 1.4826 * float(np.median(np.abs(residual))) if residual.size else 1.0
-    s = s if np.isfinite(s) and s > 0 else 1.0     # no reference fit (under 4 observations): the scale is moot
-    nu = fitted_tail(residual, s)
-    pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual, s, nu)
+    s = s if np.isfinite(s) else 1.0       # no reference fit (under 4 observations): the differences' own scale is moot
+    pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual, s)
     pair_no_step[~np.isfinite(pair_no_step)] = np.inf     # no reference fit (tiny problems): no bound from it
     if power == "auto":
         light = np.asarray(problem.light, np.int64)[i]
@@ -326,7 +291,7 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     for slot, (ends, which) in enumerate(((first, horizontal), (first, ~horizontal), (second, horizontal),
                                           (second, ~horizontal))):
         pair_of[ends[which], slot] = ids[which]
-    return EdgeTerm(power=float(power), scale=float(power), spread=s, tail=nu, first=first.astype(np.int64),
+    return EdgeTerm(power=float(power), scale=float(power) / (2.0 * max(s, 1e-300) ** 2), first=first.astype(np.int64),
                     second=second.astype(np.int64), start=start, d=d, c_first=C[i].astype(np.float32),
                     c_second=C[j].astype(np.float32), l_first=lch[i].astype(np.float32),
                     l_second=lch[j].astype(np.float32), no_step=pair_no_step, pair_of=pair_of)

@@ -7,11 +7,7 @@ of the per-match arrays: the data's difference ``d``, and each end's columns ``C
 (``sums[k, m]`` with k < m): ``sums[k, m, 0]`` += SS of the two materials' step,
 ``sums[k, m, 1]`` += SS with both ends in k, ``sums[k, m, 2]`` += SS with both in m, where
 
-    SS(a at first, b at second) = sum over its matches rho(d - mu_a(first) + mu_b(second)),
-
-``rho(r) = (nu + 1) / 2 log(1 + r^2 / (nu s^2))`` the negative log density of Student's t with
-``nu`` (``tail``) degrees of freedom and scale ``s`` (``spread``), up to a constant (``r^2 / (2 s^2)``
-as ``nu`` grows),
+    SS(a at first, b at second) = sum over its matches (d - mu_a(first) + mu_b(second))^2,
 
 and ``sums[k, m, 3]`` += ``no_step[j]``, the pair's SS of no step (a constant of the data:
 :func:`rjfit.sampler.regions.materials.edges.no_step_sums`). The term is
@@ -30,18 +26,11 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["misfit", "pair_sums", "boundary_sums", "edge_value", "edge_sums", "keep_new_label"]
+__all__ = ["pair_sums", "boundary_sums", "edge_value", "edge_sums", "keep_new_label"]
 
 
 @njit(cache=True, nogil=True)
-def misfit(r, spread, tail):
-    """rho(r) of the module docstring: Student's t negative log density (scale ``spread``, ``tail`` degrees of
-    freedom) up to its constant."""
-    return 0.5 * (tail + 1.0) * math.log1p(r * r / (tail * spread * spread))
-
-
-@njit(cache=True, nogil=True)
-def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, spread, tail):
+def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second):
     """(SS(k, m), SS(k, k), SS(m, m)) of pair ``j``: its first pixel in material k and its second in m, and both
     in either one."""
     a_k, b_k, g_k = coef[k, 0], coef[k, 1], coef[k, 2]
@@ -55,16 +44,16 @@ def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, spr
         k_first, k_second = cf * (a_k + b_k * math.exp(g_k * lf)), cs * (a_k + b_k * math.exp(g_k * ls))
         m_first, m_second = cf * (a_m + b_m * math.exp(g_m * lf)), cs * (a_m + b_m * math.exp(g_m * ls))
         r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
-        two += misfit(r_two, spread, tail)
-        one_k += misfit(r_k, spread, tail)
-        one_m += misfit(r_m, spread, tail)
+        two += r_two * r_two
+        one_k += r_k * r_k
+        one_m += r_m * r_m
     return two, one_k, one_m
 
 
 @njit(cache=True, nogil=True)
-def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, spread, tail):
+def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step):
     """Add (``sign`` 1) or remove (-1) pair ``j`` with ends in (k, m), k != m, to its boundary's sums."""
-    two, one_k, one_m = pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, spread, tail)
+    two, one_k, one_m = pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
     lo, hi = (k, m) if k < m else (m, k)
     sums[lo, hi, 0] += sign * two
     sums[lo, hi, 1] += sign * (one_k if k < m else one_m)
@@ -74,14 +63,13 @@ def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l
 
 @njit(cache=True, nogil=True)
 def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second,
-                  no_step, spread, tail):
+                  no_step):
     """(K, K, 4) the sums of every boundary of flat ``labels`` (-1: unlabelled, in no pair's sums)."""
     sums = np.zeros((n_materials, n_materials, 4))
     for j in range(first.shape[0]):
         k, m = labels[first[j]], labels[second[j]]
         if k >= 0 and m >= 0 and k != m:
-            _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, spread,
-                      tail)
+            _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step)
     return sums
 
 
@@ -97,7 +85,7 @@ def edge_value(sums, scale):
 
 @njit(cache=True, nogil=True)
 def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
-                l_second, no_step, spread, tail):
+                l_second, no_step):
     """Add (``sign`` 1) or remove (-1) the pairs of pixel ``p`` with ``p`` in material ``label``."""
     for slot in range(pair_of.shape[1]):
         j = pair_of[p, slot]
@@ -108,16 +96,15 @@ def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, star
         else:
             k, m = labels[first[j]], label
         if k >= 0 and m >= 0 and k != m:
-            _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, spread,
-                      tail)
+            _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step)
 
 
 @njit(cache=True, nogil=True)
 def edge_sums(labels, n_materials, edge):
     """:func:`boundary_sums` of ``edge``, the arrays of :meth:`rjfit.sampler.regions.materials.edges.EdgeTerm.sweep_arrays`."""
-    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, spread, tail, scale = edge
+    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale = edge
     return boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second,
-                         no_step, spread, tail)
+                         no_step)
 
 
 @njit(cache=True, nogil=True)
@@ -130,8 +117,8 @@ def keep_new_label(sums, p, old, new, labels, edge, uniform):
     kept up to date pixel by pixel and each update sees the labels as they are then (a scan of
     reversible updates).
     """
-    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, spread, tail, scale = edge
-    arrays = (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, spread, tail)
+    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale = edge
+    arrays = (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step)
     before = edge_value(sums, scale)
     _move_pixel(sums, -1.0, p, old, labels, *arrays)
     _move_pixel(sums, 1.0, p, new, labels, *arrays)
