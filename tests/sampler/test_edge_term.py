@@ -106,6 +106,12 @@ def no_step_ss(problem, edges):
     return ss
 
 
+def boundary_share(step, alone, no_step):
+    """A boundary's value over the scale from the definition: it costs what its step misfits beyond the better
+    material alone, earns what it explains beyond both that and no step, else nothing (arrays or numbers)."""
+    return np.where(step > alone, alone - step, np.maximum(0.0, np.minimum(alone, no_step) - step))
+
+
 def direct_total(problem, edges, labels, theta, gap):
     """The edge term from its definition: every pair ``gap`` apart, every light both pixels saw."""
     height, width = problem.image_shape
@@ -137,7 +143,7 @@ def direct_total(problem, edges, labels, theta, gap):
             entry[1] += ss(matched, lo, lo)
             entry[2] += ss(matched, hi, hi)
             entry[3] += reference(p, q)
-    return -edges.scale * sum(two - min(one_lo, one_hi, ref) for two, one_lo, one_hi, ref in sums.values())
+    return edges.scale * sum(boundary_share(two, min(one_lo, one_hi), ref) for two, one_lo, one_hi, ref in sums.values())
 
 
 TRUTH = np.array([[10.0, 0.75, 4.0, 0.3], [6.0, 0.3, 15.0, 0.3]])
@@ -268,7 +274,7 @@ def boundary_phi(edges, z, ss, reference):
             entry[3] = entry[3] + reference(p, q)
     phi = np.zeros(DRAWS)
     for two, one_lo, one_hi, ref in sums.values():
-        phi -= edges.scale * (two - np.minimum(np.minimum(one_lo, one_hi), ref))
+        phi += edges.scale * boundary_share(two, np.minimum(one_lo, one_hi), ref)
     return phi
 
 

@@ -10,12 +10,13 @@ of the per-match arrays: the data's difference ``d``, and each end's columns ``C
     SS(a at first, b at second) = sum over its matches (d - mu_a(first) + mu_b(second))^2,
 
 and ``sums[k, m, 3]`` += ``no_step[j]``, the pair's SS of no step (a constant of the data:
-:func:`rjfit.sampler.regions.materials.edges.no_step_sums`). The term is
+:func:`rjfit.sampler.regions.materials.edges.no_step_sums`). With ``alone = min(sums[., ., 1],
+sums[., ., 2])`` a boundary adds ``scale`` times
 
-    -scale * sum over boundaries of (sums[., ., 0] - min(sums[., ., 1], sums[., ., 2], sums[., ., 3])):
+    alone - step                            where step > alone (its step misfits: it costs),
+    max(0, min(alone, no_step) - step)      otherwise (it earns what the data step beyond no step),
 
-negative where the materials' step misfits the differences more than no step does, positive
-where it fits them better (a step the data show).
+``step = sums[., ., 0]``: :func:`boundary_value`.
 ``coef`` are the materials' constants of :func:`rjfit.sampler.passes.densities.coefficients`
 (``mu = C (coef0 + coef1 <h.n>^coef2)``).
 """
@@ -26,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["pair_sums", "boundary_sums", "edge_value", "edge_sums", "keep_new_label"]
+__all__ = ["boundary_value", "pair_sums", "boundary_sums", "edge_value", "edge_sums", "keep_new_label"]
 
 
 @njit(cache=True, nogil=True)
@@ -79,8 +80,17 @@ def edge_value(sums, scale):
     total = 0.0
     for k in range(sums.shape[0]):
         for m in range(k + 1, sums.shape[0]):
-            total -= scale * (sums[k, m, 0] - min(sums[k, m, 1], sums[k, m, 2], sums[k, m, 3]))
+            total += scale * boundary_value(sums[k, m, 0], min(sums[k, m, 1], sums[k, m, 2]), sums[k, m, 3])
     return total
+
+
+@njit(cache=True, nogil=True)
+def boundary_value(step, alone, no_step):
+    """One boundary's share of the term over ``scale`` (module docstring): minus what the step misfits beyond the
+    better material alone, or what it explains beyond both that and no step, else 0."""
+    if step > alone:
+        return alone - step
+    return max(0.0, min(alone, no_step) - step)
 
 
 @njit(cache=True, nogil=True)
