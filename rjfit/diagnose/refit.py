@@ -192,8 +192,12 @@ def posterior_mean_prediction(fit: FitResult):
 def standardised_residuals(ctx, fit: FitResult):
     """``(y - E[mu]) / s_i``: the residuals of ``fit``'s posterior mean prediction on ``ctx`` (its
     context) in the units of the noise model (divided by its known scales; the plain residuals
-    for 'constant' noise)."""
-    return ctx.standardise(ctx.y - posterior_mean_prediction(fit))
+    for 'constant' noise). With a camera response, on the linear scale at the MAP curve, in the
+    data's units (:meth:`rjfit.diagnose.objective.RefitObjective.scaled_residuals`): the noise
+    passes through the curve, so there it is the same everywhere."""
+    if fit.objective.ctx is not ctx:
+        raise ValueError("standardised_residuals: the fit was made on another context")
+    return fit.objective.scaled_residuals(posterior_mean_prediction(fit), fit.effect_thetas())[0]
 
 
 def template_columns(fit: FitResult, ctx, effect, eps=1e-4):

@@ -230,9 +230,14 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
             _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={
                 "light": CALIBRATED_LIGHT, "true_factor": CALIBRATION_ERROR}))
         if kinds & CAMERAS:
-            order = "before encoding (linear)" if "camera_sensor" in kinds else "after encoding"
-            _edit_meta(path, lambda meta: meta.update(noise_variance=noise_variance, hidden_response={
-                "curve": "sRGB (colour.cctf_encoding)", "white_level_factor": SRGB_WHITE, "noise": order}))
+            before = "camera_sensor" in kinds
+            # the stored values' noise: the read noise's, or (before the curve) at most the toe's, 12.92^2 times
+            # it (the declared variance sets the floor below which a stored value is refused as bad input)
+            _edit_meta(path, lambda meta: meta.update(
+                noise_variance=noise_variance * (12.92 ** 2 if before else 1.0), hidden_response={
+                    "curve": "sRGB (colour.cctf_encoding)", "white_level_factor": SRGB_WHITE,
+                    "noise": "before encoding (linear)" if before else "after encoding",
+                    "read_noise_variance": noise_variance}))
         return path
     if kinds == {"second_lobe"}:
         scene = load_scene_definition("paper_sphere")
