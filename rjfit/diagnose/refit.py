@@ -201,15 +201,18 @@ def standardised_residuals(ctx, fit: FitResult):
 
 
 def template_columns(fit: FitResult, ctx, effect, eps=1e-4):
-    """d predicted / d z_effect at the effect's init values, at the fit's parameters (N, k)."""
+    """d predicted / d z_effect at the effect's init values, at the fit's parameters (N, k), in the
+    units of :func:`standardised_residuals` of ``fit`` (divided by the noise model's scales; on the
+    linear scale of ``fit``'s camera response where it has one)."""
     objective, z = objective_with(fit, ctx, effect)
-    base = objective.mean(z)[0]
+    thetas = fit.effect_thetas()
+    base = fit.objective.scaled_residuals(objective.mean(z)[0], thetas)[0]       # (y - mu) / s in those units
     start = 4 * ctx.n_regions + sum(objective.sizes[:objective.effects.index(effect)])
     columns = []
     for j in range(len(effect.params(ctx))):
         zz = z.copy()
         zz[start + j] += eps
-        columns.append((objective.mean(zz)[0] - base) / eps)
+        columns.append((base - fit.objective.scaled_residuals(objective.mean(zz)[0], thetas)[0]) / eps)
     return np.stack(columns, axis=1)
 
 

@@ -59,6 +59,15 @@ class CameraGamma(CameraResponse):
     def params(self, ctx):
         return [Param("k", LogNormal(loc=0.0, scale=1.0), init=1.2, null=1.0)]
 
+    def available(self, ctx):
+        """Not on values at or below 0: a power law with the noise before it never stores them (its
+        inverse has no finite log slope there: :func:`gamma_inverse_log_slope`)."""
+        nonpositive = int(np.count_nonzero(np.asarray(ctx.y) <= 0))
+        if nonpositive:
+            return False, (f"{nonpositive} observations are <= 0, which a power-law camera (its noise before the "
+                           f"curve) never stores; a dark threshold leaves them out")
+        return super().available(ctx)
+
     def curve(self, mu, theta, white):
         return gamma_curve(mu, theta[0], white)
 

@@ -177,6 +177,42 @@ INTERREFLECTION_SPP = 16   # render_hidden's default for interreflection (its te
 CAST_SHADOWS_SPP = 1       # direct light only: one sample is exact (the same ray each time)
 
 
+def _paper_sphere_hidden(kinds, out_dir, options):
+    """paper_sphere with ambient light, a miscalibrated light and an sRGB camera (each where ``kinds`` has it)."""
+    resolution, seed, noise_variance = options["resolution"], options["seed"], options["noise_variance"]
+    scene = load_scene_definition("paper_sphere")
+    extra = None
+    ambient_image = None
+    if "ambient" in kinds:
+        ambient_image = _ambient_image(scene, resolution, AMBIENT_RELATIVE * scene["reference_intensity"],
+                                       scene.get("seed", 0) if seed is None else seed)
+    nominal = json.loads(json.dumps(scene["lights"]))
+    if "light_calibration" in kinds:
+        scene["lights"][CALIBRATED_LIGHT]["intensity"] *= CALIBRATION_ERROR
+    camera = None
+    if kinds & CAMERAS:
+        rng = np.random.default_rng(np.random.SeedSequence([scene.get("seed", 0) if seed is None else seed, 0xC0]))
+        options = dict(options, noise_variance=0.0)
+        camera = (rng, noise_variance)
+    # ambient light reaches the sensor before its response curve: add it first
+    post = None if ambient_image is None and camera is None else partial(
+        hidden_post_process, ambient_image, camera, noise_before_curve="camera_sensor" in kinds)
+    path = render_dataset(scene, out_dir, extra=extra, post_process=post, **options)
+    if "light_calibration" in kinds:
+        _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={
+            "light": CALIBRATED_LIGHT, "true_factor": CALIBRATION_ERROR}))
+    if kinds & CAMERAS:
+        before = "camera_sensor" in kinds
+        # the stored values' noise: the read noise's, or (before the curve) at most the toe's, 12.92^2 times
+        # it (the declared variance sets the floor below which a stored value is refused as bad input)
+        _edit_meta(path, lambda meta: meta.update(
+            noise_variance=noise_variance * (12.92 ** 2 if before else 1.0), hidden_response={
+                "curve": "sRGB (colour.cctf_encoding)", "white_level_factor": SRGB_WHITE,
+                "noise": "before encoding (linear)" if before else "after encoding",
+                "read_noise_variance": noise_variance}))
+    return path
+
+
 def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1, spp=None):
     """Render the hidden-effect data set ``kind`` (see the module docstring) into ``out_dir``.
 
@@ -208,37 +244,7 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
     if len(kinds & CAMERAS) > 1:
         raise ValueError(f"one camera per data set, not {sorted(kinds & CAMERAS)}")
     if kinds <= {"ambient", "light_calibration", "clean"} | CAMERAS:
-        scene = load_scene_definition("paper_sphere")
-        extra = None
-        ambient_image = None
-        if "ambient" in kinds:
-            ambient_image = _ambient_image(scene, resolution, AMBIENT_RELATIVE * scene["reference_intensity"],
-                                           scene.get("seed", 0) if seed is None else seed)
-        nominal = json.loads(json.dumps(scene["lights"]))
-        if "light_calibration" in kinds:
-            scene["lights"][CALIBRATED_LIGHT]["intensity"] *= CALIBRATION_ERROR
-        camera = None
-        if kinds & CAMERAS:
-            rng = np.random.default_rng(np.random.SeedSequence([scene.get("seed", 0) if seed is None else seed, 0xC0]))
-            options["noise_variance"] = 0.0
-            camera = (rng, noise_variance)
-        # ambient light reaches the sensor before its response curve: add it first
-        post = None if ambient_image is None and camera is None else partial(
-            hidden_post_process, ambient_image, camera, noise_before_curve="camera_sensor" in kinds)
-        path = render_dataset(scene, out_dir, extra=extra, post_process=post, **options)
-        if "light_calibration" in kinds:
-            _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={
-                "light": CALIBRATED_LIGHT, "true_factor": CALIBRATION_ERROR}))
-        if kinds & CAMERAS:
-            before = "camera_sensor" in kinds
-            # the stored values' noise: the read noise's, or (before the curve) at most the toe's, 12.92^2 times
-            # it (the declared variance sets the floor below which a stored value is refused as bad input)
-            _edit_meta(path, lambda meta: meta.update(
-                noise_variance=noise_variance * (12.92 ** 2 if before else 1.0), hidden_response={
-                    "curve": "sRGB (colour.cctf_encoding)", "white_level_factor": SRGB_WHITE,
-                    "noise": "before encoding (linear)" if before else "after encoding",
-                    "read_noise_variance": noise_variance}))
-        return path
+        return _paper_sphere_hidden(kinds, out_dir, options)
     if kinds == {"second_lobe"}:
         scene = load_scene_definition("paper_sphere")
         activate()

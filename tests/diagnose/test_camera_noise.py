@@ -113,3 +113,15 @@ def test_refit_residuals_are_homoscedastic_on_the_linear_scale(dataset):
     assert fitted.effect_thetas()[0][0] == pytest.approx(theta[0], rel=0.08)
     on_data_scale = ctx.y - posterior_mean_prediction(fitted)        # what the criticism standardised before
     assert np.var(on_data_scale[dark]) / np.var(on_data_scale[bright]) > 5.0
+
+
+def test_the_power_law_is_not_tried_on_values_at_or_below_zero(dataset):
+    """A power-law camera with its noise before the curve never stores a value <= 0, and its
+    likelihood has no finite log slope there: the diagnosis skips it (a reason, not an error
+    in the middle of a search: a swap of sRGB for it once stopped ``rjfit refine``)."""
+    positive, *_ = _sensor_context(dataset, "camera_gamma", "constant")
+    assert EFFECTS["camera_gamma"].available(positive) == (True, "")
+    with_dark, *_ = _sensor_context(dataset, "camera_srgb", "constant")
+    assert np.any(with_dark.y <= 0), "sensor noise in the toe should give values <= 0 for the test to bite"
+    ok, why = EFFECTS["camera_gamma"].available(with_dark)
+    assert not ok and "<= 0" in why
