@@ -32,8 +32,9 @@ from rjfit.pipeline.refine import refine  # noqa: E402
 from rjfit.render.hidden import render_hidden  # noqa: E402
 
 #: case -> hidden kind of rjfit.render.hidden
-CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response", "sRGB (noise before the curve)": "camera_sensor",
-         "second lobe": "second_lobe", "one light off": "light_calibration", "ambient + sRGB": "ambient+camera_response",
+CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response",
+         "sRGB (noise before the curve)": "camera_sensor", "second lobe": "second_lobe",
+         "one light off": "light_calibration", "ambient + sRGB": "ambient+camera_response",
          "ambient + sRGB (noise before the curve)": "ambient+camera_sensor",
          "cast shadows": "cast_shadows", "dielectric lobe": "fresnel", "interreflection": "interreflection"}
 #: case -> samples per pixel where not render_hidden's default. Interreflection at 512 spp, the

@@ -276,5 +276,5 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
 
 #: the sRGB cameras: read noise added after the curve, or before it (a sensor's order)
 CAMERAS = {"camera_response", "camera_sensor"}
-HIDDEN = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibration", "interreflection", "cast_shadows", "fresnel",
-          "fresnel_plugin", "masking", "second_lobe")
+HIDDEN = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibration", "interreflection",
+          "cast_shadows", "fresnel", "fresnel_plugin", "masking", "second_lobe")
