@@ -11,7 +11,8 @@ camera_srgb 2141 (a diagnosis with the fit's ambient + camera_gamma swaps to cam
 below pass unchanged with the noise before it). Every decision below is decided by a margin
 of 8.9 nats or more against the threshold of ln 100 = 4.6 (a swap's against 0: the higher
 evidence wins), except the drop of ambient on the sRGB stack (log BF -4.6 for keeping it: at or
-below the threshold, whichever side of 0 it falls; -2.4 on the sensor stack it now runs on). Cost: two renders and about 25 refits, 25 s.
+below the threshold, whichever side of 0 it falls; -2.4 on the sensor stack it now runs on).
+Cost: three renders and about 25 refits, 25 s.
 """
 import pytest
 
