@@ -15,9 +15,10 @@ the curve (:class:`rjfit.effects.base.CameraResponse`), and the likelihood is th
 the linear scale and ``G`` the geometric mean of the ``J_i``, so that sigma^2 stays a
 variance on the data's scale (the standardised residual ``e_i = (f^-1(y_i) - m_i) / (G s_i)``,
 and the log-Jacobian terms ``log J_i - log G`` sum to 0: the least squares on ``e`` are the
-objective itself, the white level included). :class:`RefitObjective` evaluates it, its least-squares residuals at fixed
-sigma^2 (the Gaussian priors are extra residual rows, so their half sum of squares is f up
-to a constant), their Jacobian and normal equations, and the closed-form sigma^2 update;
+objective itself, the white level included). :class:`RefitObjective` evaluates it, its
+least-squares residuals at fixed sigma^2 (the Gaussian priors are extra residual rows, so
+their half sum of squares is f up to a constant), their Jacobian and normal equations, and
+the closed-form sigma^2 update;
 :mod:`rjfit.diagnose.optimise` minimises it, :mod:`rjfit.diagnose.hessian` differences it.
 """
 from __future__ import annotations
