@@ -29,8 +29,8 @@ from rjfit.io import write_json_atomic  # noqa: E402
 from rjfit.render.datasets import load_dataset
 from rjfit.render.hidden import render_hidden  # noqa: E402
 
-KINDS = ("clean", "ambient", "camera_response", "light_calibration", "interreflection", "cast_shadows", "fresnel",
-         "fresnel_plugin", "masking", "ambient+light_calibration")
+KINDS = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibration", "interreflection",
+         "cast_shadows", "fresnel", "fresnel_plugin", "masking", "ambient+light_calibration")
 BALL = Path(__file__).resolve().parents[2] / "shared" / "data" / "diligent-ball"
 
 

@@ -45,7 +45,8 @@ from rjfit.render.hidden import AMBIENT_RELATIVE, CALIBRATED_LIGHT, CALIBRATION_
 #: case -> (hidden kind, effect named)
 CASES = {"clean": ("clean", "ambient"), "ambient": ("ambient", "ambient"),
          "light_calibration": ("light_calibration", "light_calibration"),
-         "camera_srgb": ("camera_response", "camera_srgb"), "cast_shadows": ("cast_shadows", "cast_shadows"),
+         "camera_srgb": ("camera_response", "camera_srgb"), "camera_srgb_sensor": ("camera_sensor", "camera_srgb"),
+         "cast_shadows": ("cast_shadows", "cast_shadows"),
          "interreflection": ("interreflection", "interreflection")}
 
 
@@ -58,7 +59,7 @@ def truth(case, dataset) -> dict:
         scales = np.ones(n)
         scales[CALIBRATED_LIGHT] = CALIBRATION_ERROR
         return {"light_gains": (scales / np.exp(np.mean(np.log(scales)))).tolist()}
-    if case == "camera_srgb":
+    if case in ("camera_srgb", "camera_srgb_sensor"):
         # W = 1.05 x the brightest linear value; the fit's white level is the brightest stored (encoded) value,
         # about W sRGB(1 / 1.05) before the read noise: white_rel ~ 1 / sRGB(1 / 1.05)
         return {"white_rel": float(1.0 / srgb_encode(1.0 / SRGB_WHITE)), "note": "approximate (read noise on the max)"}

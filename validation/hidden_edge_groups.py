@@ -28,7 +28,8 @@ from rjfit.pipeline.fit_dataset import fit_dataset  # noqa: E402
 from rjfit.render.datasets import load_dataset  # noqa: E402
 from rjfit.render.hidden import render_hidden  # noqa: E402
 
-CASES = ("clean", "ambient", "camera_response", "light_calibration", "cast_shadows", "interreflection")
+CASES = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibration", "cast_shadows",
+         "interreflection")
 
 
 def run(case: str, out: Path, resolution: int, chains: int, iterations: int, seed: int) -> dict:

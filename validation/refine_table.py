@@ -1,7 +1,8 @@
 """The loop of issue 26 (`rjfit refine`) on hidden-effect stacks: the issue's table.
 
 For each case, renders the hidden-effect data set of :mod:`rjfit.render.hidden` (Mitsuba
-built-ins: a ``constant`` emitter, colour-science's sRGB curve, a ``blendbsdf`` with a
+built-ins: a ``constant`` emitter, colour-science's sRGB curve (its read noise after the curve, or
+before it as a sensor adds it: ``camera_sensor``), a ``blendbsdf`` with a
 ``roughconductor`` second lobe, the path integrator's interreflection at ``CASE_SPP``), fits it plainly (:func:`rjfit.pipeline.fit_dataset.fit_dataset`,
 ``--allow-unvalidated``: a hidden effect fails the cross-check by design) and refines the fit
 (:func:`rjfit.pipeline.refine.refine`). Prints and writes (``OUT/refine_table.json``) per case:
@@ -31,8 +32,10 @@ from rjfit.pipeline.refine import refine  # noqa: E402
 from rjfit.render.hidden import render_hidden  # noqa: E402
 
 #: case -> hidden kind of rjfit.render.hidden
-CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response", "second lobe": "second_lobe",
+CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response",
+         "sRGB (noise before the curve)": "camera_sensor", "second lobe": "second_lobe",
          "one light off": "light_calibration", "ambient + sRGB": "ambient+camera_response",
+         "ambient + sRGB (noise before the curve)": "ambient+camera_sensor",
          "cast shadows": "cast_shadows", "dielectric lobe": "fresnel", "interreflection": "interreflection"}
 #: case -> samples per pixel where not render_hidden's default. Interreflection at 512 spp, the
 #: issue's number: dented_plaster's indirect light is ~14 % of its radiance, and its Monte Carlo

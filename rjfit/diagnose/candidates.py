@@ -49,7 +49,7 @@ def _try_candidate(ctx, current, effect, residuals, sigma2_hat, seed, threshold)
     worker thread: it reads ``ctx`` and ``current`` and writes nothing they share (its features
     are cached before, see :func:`try_candidates`)."""
     candidate = refit(ctx, tuple(current.effects) + (effect,), start=current, seed=seed)
-    columns = ctx.standardise(template_columns(current, ctx, effect))
+    columns = template_columns(current, ctx, effect)
     signature = effect.signature(ctx, residuals, sigma2_hat, columns)
     loo = loo_difference(candidate, current) if candidate.log_evidence - current.log_evidence > threshold else None
     return candidate, standardised_residuals(ctx, candidate), signature, loo

@@ -9,9 +9,16 @@ coordinates
 (``p_z`` includes the transforms' log-Jacobians; ``s_i`` are the known scales of the fit's
 noise model, :mod:`rjfit.data.noise`, all 1 for the default 'constant'; for a coarsened fit
 the sum of log N is weighted by the context's ``likelihood_power`` zeta, as the sampler
-weighs it). :class:`RefitObjective` evaluates it, its least-squares residuals at fixed
-sigma^2 (the Gaussian priors are extra residual rows, so their half sum of squares is f up
-to a constant), their Jacobian and normal equations, and the closed-form sigma^2 update;
+weighs it). With a camera response ``f`` in the model the noise is a sensor's, added before
+the curve (:class:`rjfit.effects.base.CameraResponse`), and the likelihood is the fit's:
+``f^-1(y_i) ~ N(m_i, sigma^2 G^2 s_i^2)`` times ``J_i = (f^-1)'(y_i)``, with ``m_i`` the mean on
+the linear scale and ``G`` the geometric mean of the ``J_i``, so that sigma^2 stays a
+variance on the data's scale (the standardised residual ``e_i = (f^-1(y_i) - m_i) / (G s_i)``,
+and the log-Jacobian terms ``log J_i - log G`` sum to 0: the least squares on ``e`` are the
+objective itself, the white level included). :class:`RefitObjective` evaluates it, its
+least-squares residuals at fixed sigma^2 (the Gaussian priors are extra residual rows, so
+their half sum of squares is f up to a constant), their Jacobian and normal equations, and
+the closed-form sigma^2 update;
 :mod:`rjfit.diagnose.optimise` minimises it, :mod:`rjfit.diagnose.hessian` differences it.
 """
 from __future__ import annotations
@@ -71,6 +78,8 @@ class RefitObjective:
         self.region_local = all(getattr(effect, "region_local", True) for effect in self.effects)
         self.owner = np.full(self.P, -1)            # the region of each parameter, -1: an effect's (shared)
         self.owner[: 4 * R] = np.arange(4 * R) // 4
+        # the camera response, whose curve the noise passes through (a fit takes one; None: linear)
+        self.camera = next((position for position, effect in enumerate(self.effects) if effect.stage == "camera"), None)
 
     def split(self, z):
         theta = np.array([p.to_constrained(v) for p, v in zip(self.priors, z)], dtype=float)
@@ -104,16 +113,33 @@ class RefitObjective:
             offset += size
         return out
 
-    def scaled_residuals(self, mu):
-        """``(y - mu) / s_i``: the residuals in units of the noise model's scales."""
-        return self.ctx.standardise(self.ctx.y - mu)
+    def scaled_residuals(self, mu, thetas):
+        """``(e_i, log J_i - log G or None)`` of predictions ``mu`` at effect parameters ``thetas`` (those
+        of :meth:`split`): ``e = (y - mu) / s_i``, the residuals in units of the noise model's scales;
+        with a camera response, on the linear scale (module docstring)."""
+        if self.camera is None:
+            return self.ctx.standardise(self.ctx.y - mu), None
+        camera, theta, white = self.effects[self.camera], thetas[self.camera], self.features[self.camera]
+        log_slope = camera.inverse_log_slope(self.ctx.y, theta, white)
+        log_mean_slope = float(np.mean(log_slope))
+        linear = camera.inverse(self.ctx.y, theta, white) - camera.inverse(mu, theta, white)
+        return self.ctx.standardise(linear * math.exp(-log_mean_slope)), log_slope - log_mean_slope
+
+    def residuals(self, z, light_values=None):
+        """``(e, log J - log G or None, region parameters)`` at ``z`` (:meth:`scaled_residuals` of :meth:`mean`)."""
+        mu, region = self.mean(z, light_values)
+        e, log_jacobian = self.scaled_residuals(mu, self.split(z)[1])
+        return e, log_jacobian, region
 
     def log_lik_pointwise(self, z, light_values=None):
-        """log N(y_i | mu_i, sigma^2 s_i^2) per observation; ``light_values`` {effect position:
-        (L,) values} as in :meth:`mean`."""
-        mu, region = self.mean(z, light_values)
+        """log N(y_i | mu_i, sigma^2 s_i^2) per observation (with a camera response, the density of y_i
+        on the linear scale: module docstring); ``light_values`` {effect position: (L,) values} as in
+        :meth:`mean`."""
+        e, log_jacobian, region = self.residuals(z, light_values)
         s2 = region[self.ctx.region, 3]
-        values = -0.5 * (LOG_2PI + np.log(s2) + self.scaled_residuals(mu) ** 2 / s2)
+        values = -0.5 * (LOG_2PI + np.log(s2) + e ** 2 / s2)
+        if log_jacobian is not None:
+            values = values + log_jacobian
         return values if self.log_scale2 is None else values - 0.5 * self.log_scale2
 
     def log_prior(self, z):
@@ -130,9 +156,9 @@ class RefitObjective:
     def mean_residuals(self, zm, z_full, light_values=None):
         z = z_full.copy()
         z[self.mean_index] = zm
-        mu, region = self.mean(z, light_values)
+        e, _, region = self.residuals(z, light_values)
         # zeta sum r^2 / 2 sigma^2 = sum (sqrt(zeta) r)^2 / 2 sigma^2
-        r = self.scaled_residuals(mu) * np.sqrt(self.zeta / region[self.ctx.region, 3])
+        r = e * np.sqrt(self.zeta / region[self.ctx.region, 3])
         prior = (zm - self.loc[self.mean_index]) / self.scale[self.mean_index]
         out = np.concatenate([r, prior])
         return np.where(np.isfinite(out), out, 1e10)
@@ -236,8 +262,7 @@ class RefitObjective:
         return normal, gradient
 
     def update_sigma(self, z):
-        mu, _ = self.mean(z)
-        resid2 = self.scaled_residuals(mu) ** 2
+        resid2 = self.residuals(z)[0] ** 2
         for r, index in enumerate(self.sigma_index):
             rows = self.region_rows[r]
             n, ss = self.zeta * float(rows.size), self.zeta * float(resid2[rows].sum())

@@ -192,20 +192,27 @@ def posterior_mean_prediction(fit: FitResult):
 def standardised_residuals(ctx, fit: FitResult):
     """``(y - E[mu]) / s_i``: the residuals of ``fit``'s posterior mean prediction on ``ctx`` (its
     context) in the units of the noise model (divided by its known scales; the plain residuals
-    for 'constant' noise)."""
-    return ctx.standardise(ctx.y - posterior_mean_prediction(fit))
+    for 'constant' noise). With a camera response, on the linear scale at the MAP curve, in the
+    data's units (:meth:`rjfit.diagnose.objective.RefitObjective.scaled_residuals`): the noise
+    passes through the curve, so there it is the same everywhere."""
+    if fit.objective.ctx is not ctx:
+        raise ValueError("standardised_residuals: the fit was made on another context")
+    return fit.objective.scaled_residuals(posterior_mean_prediction(fit), fit.effect_thetas())[0]
 
 
 def template_columns(fit: FitResult, ctx, effect, eps=1e-4):
-    """d predicted / d z_effect at the effect's init values, at the fit's parameters (N, k)."""
+    """d predicted / d z_effect at the effect's init values, at the fit's parameters (N, k), in the
+    units of :func:`standardised_residuals` of ``fit`` (divided by the noise model's scales; on the
+    linear scale of ``fit``'s camera response where it has one)."""
     objective, z = objective_with(fit, ctx, effect)
-    base = objective.mean(z)[0]
+    thetas = fit.effect_thetas()
+    base = fit.objective.scaled_residuals(objective.mean(z)[0], thetas)[0]       # (y - mu) / s in those units
     start = 4 * ctx.n_regions + sum(objective.sizes[:objective.effects.index(effect)])
     columns = []
     for j in range(len(effect.params(ctx))):
         zz = z.copy()
         zz[start + j] += eps
-        columns.append((objective.mean(zz)[0] - base) / eps)
+        columns.append((base - fit.objective.scaled_residuals(objective.mean(zz)[0], thetas)[0]) / eps)
     return np.stack(columns, axis=1)
 
 

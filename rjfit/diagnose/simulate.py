@@ -65,10 +65,12 @@ def simulate_fit(ctx, fit, sigma2_hat, *, n_draws=3, n_replicates=50, seed=0, sp
     p_values = (exceed / (sims.shape[0] * n_replicates)).reshape(ctx.image_shape)
     observed = np.bincount(ctx.pixel, minlength=n_pix).reshape(ctx.image_shape) > 0
     p_values = np.where(observed, p_values, np.nan)
-    breakdown = gap_breakdown(ctx, ctx.standardise(residuals), sigma2_hat)
+    # the gap's residuals as the refit's (on the linear scale where the model has a camera response)
+    in_noise_units = fit.objective.scaled_residuals(mean, fit.effect_thetas())[0]
+    breakdown = gap_breakdown(ctx, in_noise_units, sigma2_hat)
     return {
         "n_draws": int(sims.shape[0]),
-        "gap": gap(ctx.standardise(residuals), sigma2_hat),
+        "gap": gap(in_noise_units, sigma2_hat),
         "per_light_gap": breakdown["per_light"],
         "per_region_gap": breakdown["per_region"],
         "gap_map": breakdown["per_pixel"],

@@ -141,12 +141,26 @@ class Effect:
 class CameraResponse(Effect):
     """An effect of the kind "camera response": a curve ``y = curve(mu, theta, white_level)`` on the
     mean, applied last, and the same curve on the path-traced images (its Mitsuba side).
-    Subclasses define :meth:`params`, :meth:`curve` and :meth:`fit_form`."""
+
+    The noise is a sensor's: added to the linear radiance, before the curve (``y = f(mu + e)``),
+    so the stored values' noise follows the curve's slope. The fit and the criticism alike
+    write the likelihood on the linear scale, ``f^-1(y) ~ N(mu, sigma^2 s^2)``, times the
+    inverse's slope ``|(f^-1)'(y)|`` (the density of ``y``). Subclasses define :meth:`params`,
+    :meth:`curve`, :meth:`inverse` with :meth:`inverse_log_slope` (from the functions of the
+    effect's module, which its fit form uses too) and :meth:`fit_form`."""
 
     kind = "camera response"
     stage = "camera"
 
     def curve(self, mu, theta, white_level):
+        raise NotImplementedError
+
+    def inverse(self, values, theta, white_level):
+        """``f^-1(values)``: stored values on the linear scale."""
+        raise NotImplementedError
+
+    def inverse_log_slope(self, values, theta, white_level):
+        """``log (f^-1)'(values)`` per value (the log-Jacobian of the linearisation)."""
         raise NotImplementedError
 
     def prepare(self, ctx):

@@ -8,8 +8,10 @@ as W grows the curve tends to its linear toe, so the plain model is the limit W 
 response", with :mod:`rjfit.effects.camera_gamma`; a fit takes one response.
 
 - physics: :func:`srgb_encode`, its inverse :func:`srgb_decode` with the inverse's log slope
-  (:func:`srgb_decode_log_slope`), :func:`srgb_curve` (both forms use it);
-- criticism: :class:`CameraSRGB` (the curve on the mean);
+  (:func:`srgb_decode_log_slope`), :func:`srgb_curve` and its inverse :func:`srgb_inverse`
+  (both forms use them);
+- criticism: :class:`CameraSRGB` (the curve on the mean; the likelihood on the linear scale
+  with the inverse's slope: the noise is added before the curve, :class:`CameraResponse`);
 - fit: :class:`SRGBCurve`, a data transform: ``y -> W sRGB^-1(y / W)`` with the log of the
   inverse's slope;
 - Mitsuba: the same curve as a post-process of the path-traced images.
@@ -24,7 +26,7 @@ from rjfit.effects.base import CameraResponse, Columns, FitForm, Param
 from rjfit.model.priors import LogNormal
 
 __all__ = ["CameraSRGB", "SRGBCurve", "srgb_encode", "srgb_decode", "srgb_decode_log_slope", "srgb_curve",
-           "SRGB_KNEE"]
+           "srgb_inverse", "SRGB_KNEE"]
 
 #: the encoded value below which the sRGB curve is its linear toe (12.92 x 0.0031308)
 SRGB_KNEE = 12.92 * 0.0031308
@@ -54,6 +56,12 @@ def srgb_curve(mu, white):
     return white * srgb_encode(mu / white)
 
 
+def srgb_inverse(y, white):
+    """``W sRGB^-1(y / W)``: stored values ``y`` on the linear scale (the inverse of :func:`srgb_curve`;
+    its log slope is :func:`srgb_decode_log_slope` of ``y / W``: the white level cancels)."""
+    return white * srgb_decode(np.asarray(y, dtype=float) / white)
+
+
 class CameraSRGB(CameraResponse):
     name = "camera_srgb"
     description = "sRGB-encoded values y = W sRGB(mu/W) with a free white level W"
@@ -63,6 +71,12 @@ class CameraSRGB(CameraResponse):
 
     def curve(self, mu, theta, white_level):
         return srgb_curve(mu, theta[0] * white_level)
+
+    def inverse(self, values, theta, white_level):
+        return srgb_inverse(values, theta[0] * white_level)
+
+    def inverse_log_slope(self, values, theta, white_level):
+        return srgb_decode_log_slope(np.asarray(values, dtype=float) / (theta[0] * white_level))
 
     def fit_form(self, ctx):
         """The data linearised by the curve's inverse, with its log-Jacobian (:class:`SRGBCurve`)."""
@@ -81,7 +95,6 @@ class SRGBCurve(FitForm):
 
     def apply(self, columns: Columns, theta) -> None:
         white = self.white_level * float(theta[0])
-        x = columns.y / white
-        columns.y = white * srgb_decode(x)
-        columns.log_jacobian += float(np.sum(srgb_decode_log_slope(x)))
+        columns.log_jacobian += float(np.sum(srgb_decode_log_slope(columns.y / white)))
+        columns.y = srgb_inverse(columns.y, white)
         columns.curve = lambda mu: srgb_curve(mu, white)

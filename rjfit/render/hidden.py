@@ -11,6 +11,10 @@ ambient            paper_sphere + a built-in ``constant`` environment emitter (r
 camera_response    paper_sphere rendered noise-free, encoded with colour-science's sRGB curve
                    (``colour.cctf_encoding(x, function='sRGB')``) at a white level 1.05 x the
                    brightest value, then read noise (variance 0.1) added to the stored values.
+camera_sensor      the same sRGB camera with the read noise (variance 0.1) added to the linear
+                   radiance BEFORE the curve, as a sensor adds it (so the stored values' noise
+                   sd follows the curve's slope: 12.92 in the toe, small in the highlights);
+                   the curve's linear extension below 0 (colour-science's) keeps negative values.
 light_calibration  paper_sphere with light 3 emitting 20 % more in Mitsuba than the data set's
                    JSON (what the fitter reads) says.
 interreflection    dented_plaster (concave), path integrator max_depth 8, 16 spp (``spp``), visibility
@@ -138,9 +142,9 @@ def _edit_meta(path, edit):
     write_json_atomic(Path(path) / "dataset.json", meta)
 
 
-def hidden_post_process(ambient_image, camera, images):
+def hidden_post_process(ambient_image, camera, images, noise_before_curve=False):
     """The hidden effects applied to rendered radiance (``images`` (L, H, W, C)): ambient light,
-    then an sRGB camera with noise after it.
+    then an sRGB camera with read noise after its curve (or before it).
 
     Parameters
     ----------
@@ -148,7 +152,11 @@ def hidden_post_process(ambient_image, camera, images):
         What the environment adds to every image (:func:`render_hidden`'s ambient kind); None: none.
     camera : (numpy.random.Generator, float) or None
         The read noise's generator and variance, added after the sRGB encoding (white level
-        ``SRGB_WHITE`` times the brightest value); None: a linear camera, no noise added here.
+        ``SRGB_WHITE`` times the brightest noise-free value); None: a linear camera, no noise added here.
+    noise_before_curve : bool
+        Add the read noise to the linear radiance and encode the sum (a sensor's order; the
+        curve's linear extension below 0 keeps negative sums) instead of adding it to the
+        encoded values.
     """
     if ambient_image is not None:
         images = images + ambient_image[None, :, :, None]
@@ -158,12 +166,51 @@ def hidden_post_process(ambient_image, camera, images):
 
     rng, noise_variance = camera
     white = SRGB_WHITE * float(images.max())
+    noise = rng.normal(0.0, math.sqrt(noise_variance), size=images.shape[:3] + (1,))
+    if noise_before_curve:
+        return white * np.asarray(colour.cctf_encoding((images + noise) / white, function="sRGB"))
     encoded = white * np.asarray(colour.cctf_encoding(np.clip(images / white, 0.0, None), function="sRGB"))
-    return encoded + rng.normal(0.0, math.sqrt(noise_variance), size=images.shape[:3] + (1,))
+    return encoded + noise
 
 
 INTERREFLECTION_SPP = 16   # render_hidden's default for interreflection (its tests' data sets)
 CAST_SHADOWS_SPP = 1       # direct light only: one sample is exact (the same ray each time)
+
+
+def _paper_sphere_hidden(kinds, out_dir, options):
+    """paper_sphere with ambient light, a miscalibrated light and an sRGB camera (each where ``kinds`` has it)."""
+    resolution, seed, noise_variance = options["resolution"], options["seed"], options["noise_variance"]
+    scene = load_scene_definition("paper_sphere")
+    extra = None
+    ambient_image = None
+    if "ambient" in kinds:
+        ambient_image = _ambient_image(scene, resolution, AMBIENT_RELATIVE * scene["reference_intensity"],
+                                       scene.get("seed", 0) if seed is None else seed)
+    nominal = json.loads(json.dumps(scene["lights"]))
+    if "light_calibration" in kinds:
+        scene["lights"][CALIBRATED_LIGHT]["intensity"] *= CALIBRATION_ERROR
+    camera = None
+    if kinds & CAMERAS:
+        rng = np.random.default_rng(np.random.SeedSequence([scene.get("seed", 0) if seed is None else seed, 0xC0]))
+        options = dict(options, noise_variance=0.0)
+        camera = (rng, noise_variance)
+    # ambient light reaches the sensor before its response curve: add it first
+    post = None if ambient_image is None and camera is None else partial(
+        hidden_post_process, ambient_image, camera, noise_before_curve="camera_sensor" in kinds)
+    path = render_dataset(scene, out_dir, extra=extra, post_process=post, **options)
+    if "light_calibration" in kinds:
+        _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={
+            "light": CALIBRATED_LIGHT, "true_factor": CALIBRATION_ERROR}))
+    if kinds & CAMERAS:
+        before = "camera_sensor" in kinds
+        # the stored values' noise: the read noise's, or (before the curve) at most the toe's, 12.92^2 times
+        # it (the declared variance sets the floor below which a stored value is refused as bad input)
+        _edit_meta(path, lambda meta: meta.update(
+            noise_variance=noise_variance * (12.92 ** 2 if before else 1.0), hidden_response={
+                "curve": "sRGB (colour.cctf_encoding)", "white_level_factor": SRGB_WHITE,
+                "noise": "before encoding (linear)" if before else "after encoding",
+                "read_noise_variance": noise_variance}))
+    return path
 
 
 def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1, spp=None):
@@ -194,31 +241,10 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         raise ValueError(f"unknown hidden effect(s) {sorted(unknown)}; known: {HIDDEN}")
     options = dict(resolution=resolution, seed=seed, noise_variance=noise_variance, hidden_effects=sorted(kinds),
                    spp=spp)
-    if kinds <= {"ambient", "light_calibration", "clean", "camera_response"}:
-        scene = load_scene_definition("paper_sphere")
-        extra = None
-        ambient_image = None
-        if "ambient" in kinds:
-            ambient_image = _ambient_image(scene, resolution, AMBIENT_RELATIVE * scene["reference_intensity"],
-                                           scene.get("seed", 0) if seed is None else seed)
-        nominal = json.loads(json.dumps(scene["lights"]))
-        if "light_calibration" in kinds:
-            scene["lights"][CALIBRATED_LIGHT]["intensity"] *= CALIBRATION_ERROR
-        camera = None
-        if "camera_response" in kinds:
-            rng = np.random.default_rng(np.random.SeedSequence([scene.get("seed", 0) if seed is None else seed, 0xC0]))
-            options["noise_variance"] = 0.0
-            camera = (rng, noise_variance)
-        # ambient light reaches the sensor before its response curve: add it first
-        post = None if ambient_image is None and camera is None else partial(hidden_post_process, ambient_image, camera)
-        path = render_dataset(scene, out_dir, extra=extra, post_process=post, **options)
-        if "light_calibration" in kinds:
-            _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={
-                "light": CALIBRATED_LIGHT, "true_factor": CALIBRATION_ERROR}))
-        if "camera_response" in kinds:
-            _edit_meta(path, lambda meta: meta.update(noise_variance=noise_variance, hidden_response={
-                "curve": "sRGB (colour.cctf_encoding)", "white_level_factor": SRGB_WHITE, "noise": "after encoding"}))
-        return path
+    if len(kinds & CAMERAS) > 1:
+        raise ValueError(f"one camera per data set, not {sorted(kinds & CAMERAS)}")
+    if kinds <= {"ambient", "light_calibration", "clean"} | CAMERAS:
+        return _paper_sphere_hidden(kinds, out_dir, options)
     if kinds == {"second_lobe"}:
         scene = load_scene_definition("paper_sphere")
         activate()
@@ -248,5 +274,7 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
     raise ValueError(f"no builder for the combination {sorted(kinds)}")
 
 
-HIDDEN = ("clean", "ambient", "camera_response", "light_calibration", "interreflection", "cast_shadows", "fresnel",
-          "fresnel_plugin", "masking", "second_lobe")
+#: the sRGB cameras: read noise added after the curve, or before it (a sensor's order)
+CAMERAS = {"camera_response", "camera_sensor"}
+HIDDEN = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibration", "interreflection",
+          "cast_shadows", "fresnel", "fresnel_plugin", "masking", "second_lobe")

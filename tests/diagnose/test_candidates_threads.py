@@ -22,8 +22,8 @@ def test_candidates_refit_on_threads_when_the_current_model_has_interreflection(
     # a feature not yet in the cache when the candidates start
     ctx.features["fit_region_params"] = current.region_params()
     residuals = standardised_residuals(ctx, current)
-    outcomes = try_candidates(ctx, current, [get_effect("ambient"), get_effect("camera_gamma")], residuals,
+    outcomes = try_candidates(ctx, current, [get_effect("ambient"), get_effect("camera_srgb")], residuals,
                               noise_variance(ctx, residuals), seed=0, threshold=LOG_BF_THRESHOLD, jobs=2,
                               report=lambda effect, outcome: None)
     errors = {name: outcome for name, outcome in outcomes.items() if isinstance(outcome, Exception)}
-    assert set(outcomes) == {"ambient", "camera_gamma"} and not errors
+    assert set(outcomes) == {"ambient", "camera_srgb"} and not errors

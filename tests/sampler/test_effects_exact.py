@@ -5,8 +5,8 @@
   log-Jacobian equal those recomputed on the problem transformed at the state's effect
   parameters (and the oracle), to 1e-9 of their scale.
 - **Quadrature** on the tiny problem of ``test_exact_rj.py`` (one region, fixed segmentation):
-  for a light gain (two lights: one Helmert coordinate), the sRGB camera (with its
-  log-Jacobian) and ambient light, the effect parameter's marginal and the region's
+  for a light gain (two lights: one Helmert coordinate), the sRGB and power-law cameras (with
+  their log-Jacobians: the noise before the curve) and ambient light, the effect parameter's marginal and the region's
   (I0, kd, gamma) marginals against the exact posterior: a grid over the effect parameter,
   the quadrature of ``test_exact_rj.Quadrature`` at each of its values (sigma^2 integrated
   analytically), the log-Jacobian added. One-sample KS on draws thinned to about one per
@@ -157,6 +157,11 @@ class EffectQuadrature:
             mean = self.mu * gains[self.obs.light][:, None, None, None]
         elif self.kind == "ambient":
             mean = self.mu + value * self.amb
+        elif self.kind == "camera_gamma":        # y = W (mu / W)^(1/k): linearised, W (y / W)^k
+            u = self.obs.y / self.white
+            y = (self.white * u ** value)[:, None, None, None]
+            log_jacobian = float(np.sum(np.log(value) + (value - 1.0) * np.log(u)))
+            mean = self.mu
         else:
             white = value * self.white
             y = white * srgb_decode(self.obs.y / white)[:, None, None, None]
@@ -220,14 +225,17 @@ def _fixed_chain(problem, prior, iterations, seed, burn=600, **flat):
     return z[burn:], theta[burn:]
 
 
+def _subset(obs, keep, n_lights):
+    return Observations(image_shape=obs.image_shape, n_lights=n_lights, pixel=obs.pixel[keep], light=obs.light[keep],
+                        y=obs.y[keep], cos_ln=obs.cos_ln[keep], cos_hn=obs.cos_hn[keep],
+                        irradiance=obs.irradiance[keep], object_mask=obs.object_mask)
+
+
 def _case(kind):
     """(observations, region prior, sampler effect, its prior, EffectQuadrature keywords) of a one-effect tiny problem."""
     obs, prior = tiny_problem()
     if kind == "gain":
-        keep = obs.light < 2
-        obs = Observations(image_shape=obs.image_shape, n_lights=2, pixel=obs.pixel[keep], light=obs.light[keep],
-                           y=obs.y[keep], cos_ln=obs.cos_ln[keep], cos_hn=obs.cos_hn[keep],
-                           irradiance=obs.irradiance[keep], object_mask=obs.object_mask)
+        obs = _subset(obs, obs.light < 2, n_lights=2)
         z_prior = Normal(0.0, 0.3)
         return obs, prior, LightGains(params=(Param("h1", z_prior, 0.0),), n_lights=2), z_prior, {}
     if kind == "ambient":
@@ -237,6 +245,11 @@ def _case(kind):
         effect = AmbientLight(params=(Param("ambient", z_prior, 0.3),), column=column.astype(np.int32),
                               weight=weight, table=albedo_table(), grid=GRID)
         return obs, prior, effect, z_prior, {"cos_v": cos_v}
+    if kind == "camera_gamma":
+        obs = _subset(obs, obs.y > 0, n_lights=obs.n_lights)        # the power law's inverse needs y > 0
+        z_prior = LogNormal(np.log(1.2), 0.3)
+        white = float(np.max(obs.y))
+        return obs, prior, GammaCurve(params=(Param("k", z_prior, 1.2),), white_level=white), z_prior, {"white": white}
     z_prior = LogNormal(np.log(1.2), 0.3)
     white = float(np.max(obs.y))
     effect = SRGBCurve(params=(Param("white_rel", z_prior, 1.2),), white_level=white)
@@ -257,7 +270,7 @@ def exact_marginals():
     return get
 
 
-@pytest.mark.parametrize("kind", ["gain", "camera_srgb", "ambient"])
+@pytest.mark.parametrize("kind", ["gain", "camera_srgb", "camera_gamma", "ambient"])
 def test_effect_and_region_marginals_match_quadrature(kind, exact_marginals):
     obs, prior, effect, z_prior, extra = _case(kind)
     problem = LambertBlinnPhong([effect]).problem(obs)
