@@ -25,9 +25,10 @@ intervals are conditional on them.
    Uncertainty: the spread of the last step's ratio over a bootstrap of the tiles
    (``n_bootstrap``, seeded), the tile fits held fixed: it leaves out the fits' own spread.
 
-4. **Cast shadows** (:func:`rjfit.data.shadows.flag_cast_shadows`): an observation under a
-   third of its pixel's own Lambertian prediction (albedo: the median over its well-lit
-   lights) is left out as occluded (``visibility``); the count is recorded.
+4. **The silhouette and cast shadows** (:mod:`rjfit.data.shadows`): the mask's outline pixels
+   (partly background) lose every observation; an observation under a third of its pixel's own
+   Lambertian prediction (albedo: the median over its well-lit lights) is left out as occluded
+   (``visibility``); the counts are recorded.
 
 Saturated observations are flagged before any transform (``Dataset.saturated``), so the
 transforms do not move the clipping threshold. The quantisation floor (``quantisation_variance``)
@@ -42,7 +43,7 @@ import numpy as np
 from scipy import ndimage
 
 from rjfit.data.pixelfit import group_fit, patch_index
-from rjfit.data.shadows import flag_cast_shadows
+from rjfit.data.shadows import flag_cast_shadows, flag_silhouette
 from rjfit.data.response import estimate_power_response
 from rjfit.progress import phase, tracked
 from rjfit.progress import progress as progress_bar
@@ -199,6 +200,7 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
             estimate = estimate_light_gains(dataset, channel, seed, progress=progress)
         dataset = _divide_by_gains(dataset, estimate["gains"])
         record["light_gains"] = estimate
+    dataset, record["silhouette"] = flag_silhouette(dataset)
     with phase("calibration: cast shadows", progress):
         dataset, shadows = flag_cast_shadows(dataset, channel)
     record["cast_shadows"] = {**shadows, "channel": channel}
@@ -247,6 +249,8 @@ def replay_calibration(dataset, record: dict, source="the fit's summary.json"):
             raise ValueError(f"{source}: its calibration has gains for {len(gains)} lights, this data set has "
                              f"{dataset.n_lights}: not the data set the fit was made from")
         dataset = _divide_by_gains(_flag_saturated(dataset), gains)
+    if record.get("silhouette"):
+        dataset, _ = flag_silhouette(dataset)
     if record.get("cast_shadows"):
         dataset, shadows = flag_cast_shadows(dataset, record["cast_shadows"].get("channel", "mean"))
         if shadows["observations_flagged"] != record["cast_shadows"]["observations_flagged"]:

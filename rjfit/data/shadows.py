@@ -1,4 +1,5 @@
-"""Cast shadows on a measured stack: observations far darker than the pixel's own Lambertian shading.
+"""Observations of a measured stack that do not see the surface's reflectance: cast shadows (far darker than the
+pixel's own Lambertian shading) and the silhouette's mixed pixels.
 
 Why
 ---
@@ -23,14 +24,25 @@ physical, not fitted: direct light that reaches a surface gives its Lambertian s
 glossy lobe only adds to it, so under a third of it means the light was blocked (what is left
 is ambient and interreflected light). Pixels with fewer than three well-lit observations are
 not judged.
+
+The silhouette
+--------------
+A pixel of the mask's outline (a 4-neighbour outside the mask) straddles the object's edge: part
+of its footprint is background, so it is darker than the surface under every light, and its
+photometric-stereo normal is a mix too. On psm-horse such pixels, a few dozen scattered along
+the outline at under half the body's radiance, bought a material of their own in three chains
+of four once the edge term earned at steps (docs/results/2026-11-28-paints.md).
+:func:`flag_silhouette` leaves every observation of them out; like the rim's pixels, their
+labels then follow their neighbours'.
 """
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
+from scipy import ndimage
 
-__all__ = ["flag_cast_shadows", "SHADOW_FRACTION", "WELL_LIT_COS"]
+__all__ = ["flag_cast_shadows", "flag_silhouette", "SHADOW_FRACTION", "WELL_LIT_COS"]
 
 #: an observation darker than this share of its pixel's Lambertian prediction is a cast shadow
 SHADOW_FRACTION = 0.3
@@ -77,4 +89,25 @@ def flag_cast_shadows(dataset, channel: str = "mean"):
                       f"y / (E <l.n>) over its lights with <l.n> > {WELL_LIT_COS}",
               "fraction": SHADOW_FRACTION, "observations_flagged": flagged,
               "share": flagged / max(y.size, 1), "pixels_judged": int(judged.sum())}
+    return dataclasses.replace(dataset, visibility=visibility), record
+
+
+def flag_silhouette(dataset):
+    """The data set with every observation of the mask's outline pixels left out (module docstring) and a record.
+
+    Written into ``visibility`` (False), as :func:`flag_cast_shadows`.
+
+    Returns
+    -------
+    (Dataset, dict)
+        ``{"rule", "pixels_flagged"}``.
+    """
+    mask = np.asarray(dataset.object_mask, bool)
+    outline = mask & ~ndimage.binary_erosion(mask, structure=ndimage.generate_binary_structure(2, 1),
+                                             border_value=0)
+    visibility = np.ones((dataset.n_lights,) + dataset.image_shape, bool) if dataset.visibility is None \
+        else np.array(dataset.visibility, bool)
+    visibility[:, outline] = False
+    record = {"rule": "the mask's outline (a 4-neighbour outside the mask): pixels partly background",
+              "pixels_flagged": int(outline.sum())}
     return dataclasses.replace(dataset, visibility=visibility), record

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from rjfit.data.shadows import WELL_LIT_COS, flag_cast_shadows
+from rjfit.data.shadows import WELL_LIT_COS, flag_cast_shadows, flag_silhouette
 from rjfit.render.datasets import load_dataset
 from rjfit.render.hidden import CAST_SHADOWS_SPP
 from rjfit.render.render import load_scene_definition, render_dataset
@@ -55,3 +55,19 @@ def test_a_shadowless_render_loses_nothing(tmp_path):
     assert flagged.visibility.all()
     # all but the rim's pixels, which face fewer than three of its lights well (91 % judged at this seed)
     assert record["pixels_judged"] >= 0.85 * dataset.object_mask.sum()
+
+
+def test_the_silhouette_loses_its_observations(tmp_path):
+    """The mask's outline (pixels with a 4-neighbour off the mask) loses every observation and nothing else does; on
+    paper_sphere at 32 px that is the disc's one-pixel ring."""
+    dataset = load_dataset(render_dataset("paper_sphere", tmp_path / "sphere", resolution=32, seed=3))
+    flagged, record = flag_silhouette(dataclasses.replace(dataset, visibility=None))
+    mask = dataset.object_mask
+    inner = mask.copy()
+    inner[1:-1, 1:-1] = mask[1:-1, 1:-1] & mask[:-2, 1:-1] & mask[2:, 1:-1] & mask[1:-1, :-2] & mask[1:-1, 2:]
+    inner[[0, -1], :], inner[:, [0, -1]] = False, False
+    outline = mask & ~inner
+    assert record["pixels_flagged"] == outline.sum() > 0
+    assert not flagged.visibility[:, outline].any() and flagged.visibility[:, ~outline].all()
+    seen = {int(p) for p in flagged.observations("mean").pixel}
+    assert not seen & set(np.flatnonzero(outline.ravel()))
