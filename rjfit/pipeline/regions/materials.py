@@ -215,7 +215,8 @@ def resolution_sentence(resolution: dict, edge_power=None) -> str:
         text += "; smaller ones are merged into the material around them"
     if finite(edge_power) and edge_power > 0:
         text += (" (counting the edge term's earning along its outline, where the data step as the paints' "
-                 "albedos do)")
+                 "albedos do; this is the target's resolution: a chain finds a small detail only once one of its "
+                 "moves proposes it, so a detail near this size may be missed in a short run)")
     return text
 
 
