@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 from rjfit.data.observations import Observations
 from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.model.blinn import blinn_normalisation
-from rjfit.sampler.regions.materials.edges import edge_term
+from rjfit.sampler.regions.materials.edges import edge_term, matched_lights, no_step_sums, pixel_pairs
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.moves import ab_conditional, gamma, phi_walk
@@ -443,3 +443,18 @@ def test_parameter_moves_hold_the_edge_term(square, monkeypatch, left_out):
         assert min(p_values) < 1e-6, p_values
     else:
         assert min(p_values) > LEVEL, p_values
+
+
+def test_the_no_step_sums_do_not_depend_on_the_chunk():
+    """no_step_sums takes the pairs a chunk at a time (memory): 7 pairs at a time gives each pair's sum as one chunk
+    of all does, to rounding (1e-12 relative: the same arithmetic per match, summed in another grouping)."""
+    problem = patchy_problem()
+    edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=3)
+    first, second, n_right = pixel_pairs(labelled_pixels(problem), 3)
+    i, j, start = matched_lights(problem.pixel, problem.light, first, second)
+    y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
+    residual = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
+    whole = no_step_sums(problem, first, second, n_right, 3, i, j, start, residual, 0.5)
+    np.testing.assert_allclose(no_step_sums(problem, first, second, n_right, 3, i, j, start, residual, 0.5, chunk=7),
+                               whole, rtol=1e-12)
+    assert first.size > 7 and np.all(whole > 0) and edges.no_step.shape == whole.shape

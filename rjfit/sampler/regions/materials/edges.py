@@ -83,7 +83,7 @@ from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.passes.edges import boundary_sums, edge_value
 
-__all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "observation_at", "no_step_sums",
+__all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "observation_lookup", "no_step_sums",
            "EDGE_GAP", "NO_STEP_NOISE"]
 
 #: white noise of variance v gives a difference across a pair the variance 2 v and its misfit against the local trend
@@ -156,22 +156,27 @@ def pixel_pairs(labelled, gap: int):
             int(np.count_nonzero(right)))
 
 
-def observation_at(pixel, light, wanted_pixel, wanted_light) -> np.ndarray:
-    """The index of the observation of each (``wanted_pixel``, ``wanted_light``) among the observations' ``pixel``
-    and ``light``; -1 where there is none (a pixel off the image, off the object or left out under that light)."""
+def observation_lookup(pixel, light):
+    """``find(wanted_pixel, wanted_light)``: the index of the observation of each (pixel, light) among the
+    observations' ``pixel`` and ``light``; -1 where there is none (a pixel off the image, negative, off the object
+    or left out under that light). The observations are sorted once, then looked up as often as needed."""
     pixel, light = np.asarray(pixel, np.int64), np.asarray(light, np.int64)
     n_lights = int(light.max(initial=-1)) + 1
     key = pixel * n_lights + light
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]
-    wanted = np.asarray(wanted_pixel, np.int64) * n_lights + np.asarray(wanted_light, np.int64)
-    if sorted_key.size == 0:
-        return np.full(wanted.shape, -1, np.int64)
-    at = np.minimum(np.searchsorted(sorted_key, wanted), sorted_key.size - 1)
-    return np.where((sorted_key[at] == wanted) & (np.asarray(wanted_pixel) >= 0), order[at], -1)
+
+    def find(wanted_pixel, wanted_light):
+        wanted = np.asarray(wanted_pixel, np.int64) * n_lights + np.asarray(wanted_light, np.int64)
+        if sorted_key.size == 0:
+            return np.full(wanted.shape, -1, np.int64)
+        at = np.minimum(np.searchsorted(sorted_key, wanted), sorted_key.size - 1)
+        return np.where((sorted_key[at] == wanted) & (np.asarray(wanted_pixel) >= 0), order[at], -1)
+    return find
 
 
-def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread: float) -> np.ndarray:
+def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread: float,
+                 chunk: int = 65536) -> np.ndarray:
     """(P,) each pair's sum over its matched lights of the squared misfit of "no step": the data follow the
     reference (one material fitted to every observation: ``residual``, per observation, is the data minus it) up
     to a residual that changes smoothly, so the residuals' difference across the pair continues the trend of
@@ -186,23 +191,33 @@ def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, re
     (normals that change from pixel to pixel included), so only a change of reflectance is left to step. A
     constant of the data: the baseline a boundary's step must beat to earn.
     """
+    find = observation_lookup(problem.pixel, problem.light)
+    light_of, e = np.asarray(problem.light, np.int64), np.asarray(residual, np.float64)
+    sums = np.zeros(first.size)
+    for lo in range(0, first.size, chunk):      # pairs a chunk at a time: memory stays near the matches' own
+        hi = min(lo + chunk, first.size)
+        pair = np.repeat(np.arange(lo, hi), np.diff(start[lo:hi + 1]))
+        matches = slice(start[lo], start[hi])
+        sums[lo:hi] = np.bincount(pair - lo, weights=_no_step_misfit(
+            problem, first[pair], second[pair], pair < n_right, gap, i[matches], j[matches], light_of[i[matches]],
+            e, spread, find), minlength=hi - lo)
+    return sums
+
+
+def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread: float, find) -> np.ndarray:
+    """Per match (pair ends p, q; observations i, j under ``light``) the squared no-step misfit of
+    :func:`no_step_sums`."""
     height, width = problem.height, problem.width
-    pair = np.repeat(np.arange(first.size), np.diff(start))
-    horizontal = pair < n_right
-    p, q = first[pair], second[pair]
     step = np.where(horizontal, gap, gap * width)
     p_inside = np.where(horizontal, p % width >= gap, p >= gap * width)
     q_inside = np.where(horizontal, q % width < width - gap, q < (height - gap) * width)
-    light = np.asarray(problem.light, np.int64)[i]
-    before = observation_at(problem.pixel, problem.light, np.where(p_inside, p - step, -1), light)
-    after = observation_at(problem.pixel, problem.light, np.where(q_inside, q + step, -1), light)
-    e = np.asarray(residual, np.float64)
+    before = find(np.where(p_inside, p - step, -1), light)
+    after = find(np.where(q_inside, q + step, -1), light)
     d, d_before, d_after = e[i] - e[j], e[before] - e[i], e[j] - e[after]
     has_before, has_after = before >= 0, after >= 0
-    misfit = np.select([has_before & has_after, has_before, has_after],
-                       [NO_STEP_NOISE * (d - 0.5 * (d_before + d_after)) ** 2, (d - d_before) ** 2 / 3.0,
-                        (d - d_after) ** 2 / 3.0], spread ** 2)
-    return np.bincount(pair, weights=misfit, minlength=first.size)
+    return np.select([has_before & has_after, has_before, has_after],
+                     [NO_STEP_NOISE * (d - 0.5 * (d_before + d_after)) ** 2, (d - d_before) ** 2 / 3.0,
+                      (d - d_after) ** 2 / 3.0], spread ** 2)
 
 
 def matched_lights(pixel, light, first, second, chunk: int = 65536):
