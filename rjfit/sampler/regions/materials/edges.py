@@ -225,18 +225,12 @@ def matched_lights(pixel, light, first, second, chunk: int = 65536):
     each light both saw, in the order of the lights, and the pairs' offsets into them: ``(i, j, start)``. ``pixel``
     and ``light`` give each observation's; pairs are taken ``chunk`` at a time, so memory stays near the
     observations' own."""
-    pixel, light = np.asarray(pixel, np.int64), np.asarray(light, np.int64)
-    n_lights = int(light.max(initial=-1)) + 1
-    key = pixel * n_lights + light
-    order = np.argsort(key, kind="stable")
-    sorted_key = key[order]
+    n_lights = int(np.max(light, initial=-1)) + 1
+    find = observation_lookup(pixel, light)
     lights = np.arange(n_lights)
 
     def lookup(pixels):
-        wanted = (pixels[:, None] * n_lights + lights[None, :]).ravel()
-        at = np.minimum(np.searchsorted(sorted_key, wanted), max(sorted_key.size - 1, 0))
-        found = sorted_key[at] == wanted if sorted_key.size else np.zeros(wanted.size, bool)
-        return np.where(found, order[at] if sorted_key.size else -1, -1).reshape(pixels.size, n_lights)
+        return find(np.repeat(pixels, n_lights), np.tile(lights, pixels.size)).reshape(pixels.size, n_lights)
 
     i_parts, j_parts, counts = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for lo in range(0, len(first), chunk):
