@@ -164,7 +164,8 @@ class FitOptions:
         "given (docs/options.md).", "float", show_default=False)
     edge_power: float | str = cli_option(
         0.0, "--edge-power",
-        "Power of the edge term in the target (--regions materials, one channel, no effects): a boundary between "
+        "Power of the edge term in the target (--regions materials, no effects; with --channel rgb summed over the "
+        "channels): a boundary between "
         "two materials earns where the data's differences across it step as the materials do, and costs where "
         "no step fits them better. A number >= 0, or 'auto' "
         "(the coarsening rule on those differences). Default 0 (none); --preset measured sets auto where it "

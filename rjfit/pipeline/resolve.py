@@ -173,8 +173,8 @@ def _check_combinations(options: FitOptions) -> None:
     if options.edge_power == "auto" or options.edge_power > 0:
         if not _edge_term_applies(vars(options)):
             edge = " / ".join(name for name, fit in REGION_FITS.items() if "edge_power" in fit.reads)
-            raise ValueError(f"--edge-power works with --regions {edge}, one channel, no effects and the "
-                             f"adaptive sampler: give --edge-power 0 or fit one channel without effects")
+            raise ValueError(f"--edge-power works with --regions {edge}, no effects and the adaptive sampler: "
+                             f"give --edge-power 0 or fit without effects")
     if options.channel != COLOUR:
         return
     if options.effects or options.effects_from is not None:

@@ -54,16 +54,18 @@ def smallest_material(mu, pixel, sigma2: float, power: float, beta: float, rho: 
         known noise scales (as the fit's likelihood sees it).
     pixel : ndarray of int, shape (N,)
         The pixel of each observation (only the number of distinct pixels is used).
-    sigma2 : float
-        The material's residual variance (on the same scale as ``mu``).
+    sigma2 : float or ndarray, shape (N,)
+        The material's residual variance (on the same scale as ``mu``); per observation in a joint colour
+        fit (its channel's).
     power, beta, rho : float
         The fit's likelihood power zeta and Potts prior (beta per unlike neighbour pair, rho per material).
     n_materials : int
         K, the fit's (MAP) number of materials.
     contrast : float
         The other paint's albedo as a multiple of this one's (positive, not 1).
-    edge_scale, edge_gap : float, int
-        The edge term's ``power / (2 s^2)`` (0: no edge term) and its pairs' gap in pixels.
+    edge_scale, edge_gap : float or ndarray (N,), int
+        The edge term's ``power / (2 s^2)`` (0: no edge term; per observation in a joint colour fit, its
+        channel's ``power / (2 s_c^2)``, the channels' earnings summed) and its pairs' gap in pixels.
 
     Returns
     -------
@@ -84,18 +86,23 @@ def smallest_material(mu, pixel, sigma2: float, power: float, beta: float, rho: 
     if mu.shape != pixel.shape:
         raise ValueError(f"mu and pixel must have one entry per observation, got {mu.shape} and {pixel.shape}")
     for name, value in (("sigma2", sigma2), ("power", power), ("rho", rho), ("contrast", contrast)):
-        if not (math.isfinite(value) and value > 0):
+        if not np.all(np.isfinite(value) & (np.asarray(value) > 0)):
             raise ValueError(f"{name} must be positive and finite, got {value}")
-    if contrast == 1.0 or not beta >= 0 or not edge_scale >= 0 or not edge_gap >= 0:
+    if contrast == 1.0 or not beta >= 0 or not np.all(np.asarray(edge_scale) >= 0) or not edge_gap >= 0:
         raise ValueError(f"contrast must differ from 1 and beta, edge_scale and edge_gap be >= 0, got {contrast}, "
                          f"{beta}, {edge_scale}, {edge_gap}")
     n_pixels = np.unique(pixel).size
     if n_pixels == 0:
         return {"contrast": contrast, "evidence_per_pixel": 0.0, "edge_evidence_per_pair": 0.0,
                 "radius_px": math.inf, "pixels": math.inf}
-    step_per_pixel = float(np.sum(((1.0 - contrast) * mu) ** 2)) / n_pixels
-    evidence = power * step_per_pixel / (2.0 * sigma2)
-    per_pair = edge_scale * step_per_pixel
+    if np.ndim(sigma2) == 0 and np.ndim(edge_scale) == 0:
+        step_per_pixel = float(np.sum(((1.0 - contrast) * mu) ** 2)) / n_pixels
+        evidence = power * step_per_pixel / (2.0 * sigma2)
+        per_pair = edge_scale * step_per_pixel
+    else:       # a joint colour fit: each observation on its channel's variance and edge scale, the channels summed
+        squared = ((1.0 - contrast) * mu) ** 2
+        evidence = power * float(np.sum(squared / (2.0 * np.asarray(sigma2, float)))) / n_pixels
+        per_pair = float(np.sum(np.asarray(edge_scale, float) * squared)) / n_pixels
     radius = disc_radius(evidence, beta - edge_gap * per_pair, rho, n_materials)
     return {"contrast": contrast, "evidence_per_pixel": evidence, "edge_evidence_per_pair": per_pair,
             "radius_px": radius, "pixels": math.pi * radius ** 2}

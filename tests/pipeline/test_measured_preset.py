@@ -68,13 +68,16 @@ def test_not_given_is_none_for_every_option_and_a_given_default_is_kept_under_th
 
 
 def test_the_preset_sets_the_edge_term_where_it_applies_and_a_given_one_is_checked():
-    """The preset's edge power ('auto') for one channel of the material model; elsewhere the preset does not
-    set it (the plain 0, from the default); a given power that cannot apply fails with the flag named."""
-    resolved = resolve_options(FitOptions(preset="measured", regions="materials"))
-    assert resolved.edge_power == "auto" and resolved.source("edge_power") == "preset"
+    """The preset's edge power ('auto') for the material model, one channel or a joint colour fit; elsewhere the
+    preset does not set it (the plain 0, from the default); a given power that cannot apply fails with the flag
+    named."""
+    for channel in ("mean", "rgb"):
+        resolved = resolve_options(FitOptions(preset="measured", regions="materials", channel=channel))
+        assert resolved.edge_power == "auto" and resolved.source("edge_power") == "preset"
     assert resolve_options(FitOptions(regions="materials")).edge_power == 0.0
-    for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "channel": "rgb"},
-                      {"regions": "materials", "sampler": "paper"}, {"regions": "materials", "effects": "ambient"}):
+    assert resolve_options(FitOptions(regions="materials", channel="rgb", edge_power=0.5)).edge_power == 0.5
+    for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "sampler": "paper"},
+                      {"regions": "materials", "effects": "ambient"}):
         options = resolve_options(FitOptions(preset="measured", **elsewhere))
         assert (options.edge_power, options.source("edge_power")) == (0.0, "default"), elsewhere
     assert resolve_options(FitOptions(regions="materials", edge_power="0.5")).edge_power == 0.5
@@ -82,8 +85,6 @@ def test_the_preset_sets_the_edge_term_where_it_applies_and_a_given_one_is_check
         resolve_options(FitOptions(regions="changepoints", edge_power=1.0))
     with pytest.raises(ValueError, match="--edge-power"):
         FitOptions(regions="materials", edge_power="-1")
-    with pytest.raises(ValueError, match="--edge-power"):
-        resolve_options(FitOptions(regions="materials", channel="rgb", edge_power=0.5))
     given = resolve_options(FitOptions(preset="measured", regions="materials", edge_power=0.0))
     assert given.edge_power == 0.0 and resolve_options(FitOptions.from_json(given.to_json())) == given
 
@@ -102,10 +103,10 @@ def test_the_ghost_rule_bounds_a_twin_materials_prior_pixels_and_odds():
     assert ghost_material_prior(np.ones((3, 3), bool), 2.0)[0] >= 2.0
 
 
-@pytest.mark.parametrize("regions", ["materials", "changepoints"])
-def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tmp_path, regions):
+@pytest.mark.parametrize("regions,channel", [("materials", "mean"), ("changepoints", "mean"), ("materials", "rgb")])
+def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tmp_path, regions, channel):
     summary = fit_dataset(paper_sphere_small, tmp_path / "fit", FitOptions(
-        preset="measured", regions=regions, n_chains=1, iterations=30, processes=1, progress=False,
+        preset="measured", regions=regions, channel=channel, n_chains=1, iterations=30, processes=1, progress=False,
         figures=False), allow_unvalidated=True)
     assert summary["region_model"] == regions
     assert summary["noise"]["model"] == "normals"
@@ -123,6 +124,8 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
     if regions == "materials":
         assert options["potts_beta"] >= 2.0 and 0 < options["potts_rho"] < 1
         assert options["edge_power"] == "auto" and 0 < summary["edge_power"] <= 1      # as measured
+        # the stated resolution counts the outline's earning, per channel in a colour fit
+        assert summary["material_resolution"]["edge_evidence_per_pair"] > 0
     else:       # change points have no Potts prior: the rule must not be recorded as if it applied
         assert (options["potts_beta"], options["potts_rho"]) == (FitOptions.default("potts_beta"),
                                                                 FitOptions.default("potts_rho"))

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.calibrate import small_components
-from rjfit.data.formats import COLOUR
+from rjfit.data.formats import COLOUR_CHANNELS
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_chains import write_chains
 from rjfit.pipeline.fit_folder import save_chain_arrays
@@ -97,24 +97,34 @@ def material_resolution(problem, materials, labels, options, term_power: float =
     """The smallest region of half the albedo that the fit would give a material of its own inside its largest
     material (:func:`rjfit.posterior.resolution.smallest_material`, at that material's posterior means and on
     the plain forward model: effects are left out of the prediction), its outline's earning under the edge
-    term counted where the fit has one (``term_power``, its power, > 0). None for a joint colour fit."""
-    if problem.n_channels > 1 or not materials:
+    term counted where the fit has one (``term_power``, its power, > 0). A joint colour fit: half the albedo in
+    every channel, each channel's observations on its own variance and edge scale."""
+    if not materials:
         return None
-    edge_scale = 0.0
+    edge_scales = np.zeros(problem.n_channels)
     if term_power > 0:
-        # the term's power / (2 s^2), s a constant of the data; an outline pair's step of S beats no step by about
+        # the term's power / (2 s_c^2), s_c a constant of the data; an outline pair's step of S beats no step by about
         # NO_STEP_NOISE S^2 per light (edges.no_step_sums: the trend beside the pair leaves the step out)
-        edge_scale = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP).scale * NO_STEP_NOISE
+        edge_scales = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP).channel_scales() \
+            * NO_STEP_NOISE
     largest = max(materials, key=lambda m: m["pixels"])
-    I0, kd, gamma, sigma2 = (largest[name]["mean"] for name in ("I0", "kd", "gamma", "sigma2"))
     mine = np.asarray(labels).ravel()[problem.pixel] == largest["material"]
+    cos_hn = np.exp(problem.log_cos_hn[mine].astype(float))
+    if problem.n_channels == 1:
+        I0, kd, gamma, sigma2 = (largest[name]["mean"] for name in ("I0", "kd", "gamma", "sigma2"))
+        edge_scale = float(edge_scales[0])
+    else:       # per observation, its channel's rows
+        channel = np.asarray(problem.channel)[mine].astype(np.int64)
+        rows = [largest["channels"][name] for name in COLOUR_CHANNELS[:problem.n_channels]]
+        I0, kd, sigma2 = (np.array([row[name]["mean"] for row in rows])[channel] for name in ("I0", "kd", "sigma2"))
+        gamma, edge_scale = largest["gamma"]["mean"], edge_scales[channel]
     # eq. 2 on the problem's columns: C = E <l.n> (divided by the noise scales) stands for <l.n> at irradiance 1
-    mu = radiance(I0, kd, gamma, problem.C[mine], np.exp(problem.log_cos_hn[mine].astype(float)), 1.0)
+    mu = radiance(I0, kd, gamma, problem.C[mine], cos_hn, 1.0)
     return {"material": int(largest["material"]), "likelihood_power": float(problem.likelihood_power),
             "potts_beta": float(options.potts_beta), "potts_rho": float(options.potts_rho),
             **smallest_material(mu, problem.pixel[mine], sigma2, float(problem.likelihood_power),
                                 options.potts_beta, options.potts_rho, len(materials), edge_scale=edge_scale,
-                                edge_gap=EDGE_GAP if edge_scale > 0 else 0)}
+                                edge_gap=EDGE_GAP if term_power > 0 else 0)}
 
 
 def material_boundaries(problem, observations, materials, labels) -> tuple[dict, list]:
@@ -348,9 +358,9 @@ class MaterialFit(RegionFit):
 
     @staticmethod
     def edge_term_applies(values: dict) -> bool:
-        # the edge term reads one channel's plain prediction under the adaptive moves
-        return (values["channel"] != COLOUR and not values["effects"] and values["effects_from"] is None
-                and values["sampler"] == "adaptive")
+        # the edge term reads the plain prediction (one channel, or each channel of a joint colour fit) under the
+        # adaptive moves
+        return not values["effects"] and values["effects_from"] is None and values["sampler"] == "adaptive"
 
     @staticmethod
     def preset_values(values: dict, data) -> dict:

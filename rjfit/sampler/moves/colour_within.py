@@ -23,7 +23,14 @@ from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.moves.base import decide_row
 from rjfit.sampler.moves.gamma import log_q_log_gamma, ls_profile
 from rjfit.sampler.moves.proposal import RowProposal
-from rjfit.sampler.moves.region_terms import giesen_norm, region_log_lik, set_region, stats_at_gamma
+from rjfit.sampler.moves.region_terms import (
+    edge_delta,
+    edge_rows_delta,
+    giesen_norm,
+    region_log_lik,
+    set_region,
+    stats_at_gamma,
+)
 from rjfit.sampler.moves.sigma2 import move_amplitudes_and_variance
 
 __all__ = ["update_materials_colour", "move_gamma_colour", "newton_log_gamma_colour", "move_phi_rw_colour"]
@@ -138,6 +145,8 @@ def move_gamma_colour(work, rows, rng, prior, problem, newton, scale, rw_sd, inf
     # log_target_ab holds gamma's prior and log-Jacobian once per row: the material has them once
     g_prior = prior.params[2]
     log_alpha -= (len(rows) - 1) * (g_prior.logpdf_scalar(g_new) + ell_new - g_prior.logpdf_scalar(g) - ell)
+    if log_alpha > -math.inf:       # the target's edge term (materials), sigma^2 not in it
+        log_alpha += edge_rows_delta(work, rows, [row[:4] for row in new_rows])
     if accept(log_u, log_alpha, info, kind):
         for r, stats_r, (I0_new, kd_new, g_new, s2, ll_new) in zip(rows, stats_new, new_rows):
             set_region(work, r, (I0_new, kd_new, g_new, s2), stats_r, ll_new)
@@ -168,8 +177,10 @@ def move_phi_rw_colour(work, rows, rng, prior, problem, step, info) -> int:
             new = (math.exp(phi_new[0]), kd_new, math.exp(phi_new[2]), math.exp(phi_new[3]))
             ll_new = region_log_lik(work.stats[r], *new)
             log_prior_new = prior.logpdf_phi_scalar(phi_new)
-            if decide_row(work, RowProposal(r, new, None, ll_new, ll_new + log_prior_new - work.log_lik[r] - log_prior,
-                                            log_u, "phi_rw"), info):
+            log_ratio = ll_new + log_prior_new - work.log_lik[r] - log_prior
+            if k < 3 and log_ratio > -math.inf:     # sigma^2 (k = 3) does not enter the edge term
+                log_ratio += edge_delta(work, r, new)
+            if decide_row(work, RowProposal(r, new, None, ll_new, log_ratio, log_u, "phi_rw"), info):
                 phi, log_prior = phi_new, log_prior_new
                 accepted += 1
     g = float(work.theta[rows[0], 2])
@@ -182,6 +193,9 @@ def move_phi_rw_colour(work, rows, rng, prior, problem, step, info) -> int:
     g_prior = prior.params[2]
     log_alpha = (sum(lls) - sum(float(work.log_lik[r]) for r in rows)
                  + g_prior.logpdf_scalar(g_new) + ell_new - g_prior.logpdf_scalar(g) - math.log(g))
+    if log_alpha > -math.inf:
+        log_alpha += edge_rows_delta(work, rows, [(float(work.theta[r, 0]), float(work.theta[r, 1]), g_new,
+                                                   float(work.theta[r, 3])) for r in rows])
     if accept(log_u, log_alpha, info, "phi_rw"):
         for r, s, ll in zip(rows, stats_new, lls):
             set_region(work, r, (float(work.theta[r, 0]), float(work.theta[r, 1]), g_new, float(work.theta[r, 3])),

@@ -9,7 +9,7 @@ import math
 
 from rjfit.sampler.likelihood import AB_PLAIN_MAX, LOG_2PI, STAT_AB, STAT_BB, STAT_YB, log_lik_large_ab
 
-__all__ = ["giesen_norm", "region_log_lik", "stats_at_gamma", "set_region", "edge_delta"]
+__all__ = ["giesen_norm", "region_log_lik", "stats_at_gamma", "set_region", "edge_delta", "edge_rows_delta"]
 
 
 def giesen_norm(g: float) -> float:
@@ -47,6 +47,13 @@ def edge_delta(work, r, theta_r) -> float:
     if work.edges is None:
         return 0.0
     return work.edges.region_delta(work.layout.pixels, work.theta, r, theta_r)
+
+
+def edge_rows_delta(work, rows, theta_rows) -> float:
+    """:func:`edge_delta` of several rows at once (a colour material's rows at a new gamma)."""
+    if work.edges is None:
+        return 0.0
+    return work.edges.rows_delta(work.layout.pixels, work.theta, rows, theta_rows)
 
 
 def set_region(work, r, theta_r, stats_r=None, log_lik_r=None):

@@ -80,6 +80,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rjfit.data.pixelfit import fit_groups, group_params
+from rjfit.sampler.colour import guide_rows, pixel_set_data
 from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.passes.edges import boundary_sums, edge_value
 
@@ -95,6 +96,11 @@ NO_STEP_NOISE = 2.0 / 5.0
 #: edge is spread over a pixel or two (optics, the pixel footprint, a blurred paint line), so neighbours across a
 #: boundary straddle part of the step only, while a smooth misfit changes little over 3 px
 EDGE_GAP = 3
+
+#: gamma of a colour material's start where its Laplace fit fails (the middle of the dispersed starts' 2 .. 30)
+START_GAMMA = 8.0
+#: how far inside (0, 1) a colour material's start kd is kept
+KD_MARGIN = 1e-6
 
 
 class EdgeTerm(NamedTuple):
@@ -119,13 +125,29 @@ class EdgeTerm(NamedTuple):
     l_second: np.ndarray
     no_step: np.ndarray
     pair_of: np.ndarray
+    channel: np.ndarray = np.zeros(0, np.int8)
+    weight: np.ndarray = np.zeros(0)
+    n_channels: int = 1
 
     def total(self, pixels, theta) -> float:
-        """The edge term of the labels ``pixels`` (H, W; -1 unlabelled) with materials' ``theta`` (K, 4)."""
+        """The edge term of the labels ``pixels`` (H, W; -1 unlabelled) with materials' ``theta`` (K C, 4: C rows
+        per material)."""
         theta = np.asarray(theta, float)
-        sums = boundary_sums(_flat(pixels), theta.shape[0], coefficients(theta), self.first, self.second, self.start,
-                             self.d, self.c_first, self.c_second, self.l_first, self.l_second, self.no_step)
+        sums = boundary_sums(_flat(pixels), theta.shape[0] // self.n_channels, coefficients(theta), self.first,
+                             self.second, self.start, self.d, self.c_first, self.c_second, self.l_first, self.l_second,
+                             self.no_step, self.channel, self.weight, self.n_channels)
         return float(edge_value(sums, self.scale))
+
+    def channel_scales(self) -> np.ndarray:
+        """(C,) each channel's ``power / (2 s_c^2)``: what a squared misfit of that channel weighs in the term."""
+        return np.array([self.scale]) if self.n_channels == 1 else self.scale * self.weight
+
+    def rows_delta(self, pixels, theta, rows, new_rows) -> float:
+        """The change of the term when the parameter ``rows`` of ``theta`` become ``new_rows`` (a colour material's
+        rows at a new gamma)."""
+        new = np.array(theta, float)
+        new[list(rows)] = new_rows
+        return self.total(pixels, new) - self.total(pixels, theta)
 
     def region_delta(self, pixels, theta, r: int, theta_r) -> float:
         """The change of the term when material ``r``'s row of ``theta`` becomes ``theta_r``."""
@@ -136,7 +158,8 @@ class EdgeTerm(NamedTuple):
     def sweep_arrays(self, theta):
         """The ``edge`` argument of :func:`~rjfit.sampler.regions.materials.passes.labels.gibbs_sweep`."""
         return (self.pair_of, coefficients(np.asarray(theta, float)), self.first, self.second, self.start, self.d,
-                self.c_first, self.c_second, self.l_first, self.l_second, self.no_step, self.scale)
+                self.c_first, self.c_second, self.l_first, self.l_second, self.no_step, self.scale, self.channel,
+                self.weight, self.n_channels)
 
 
 def _flat(pixels) -> np.ndarray:
@@ -175,8 +198,8 @@ def observation_lookup(pixel, light):
     return find
 
 
-def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread: float,
-                 chunk: int = 65536) -> np.ndarray:
+def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread,
+                 chunk: int = 65536, light=None, weight=None) -> np.ndarray:
     """(P,) each pair's sum over its matched lights of the squared misfit of "no step": the data follow the
     reference (one material fitted to every observation: ``residual``, per observation, is the data minus it) up
     to a residual that changes smoothly, so the residuals' difference across the pair continues the trend of
@@ -190,17 +213,24 @@ def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, re
     better than noise would. Why the residuals, not the data: the reference carries the surface's own shading
     (normals that change from pixel to pixel included), so only a change of reflectance is left to step. A
     constant of the data: the baseline a boundary's step must beat to earn.
+
+    A joint colour fit passes ``light`` (each observation's light and channel as one index, so that a pair's
+    neighbours are looked up in its own channel), ``spread`` per match (its channel's) and ``weight`` per match
+    (its channel's ``1 / s_c^2``), which scales each match's misfit; one channel: the problem's lights, one
+    spread, unweighted.
     """
-    find = observation_lookup(problem.pixel, problem.light)
-    light_of, e = np.asarray(problem.light, np.int64), np.asarray(residual, np.float64)
+    light_of, e = np.asarray(problem.light if light is None else light, np.int64), np.asarray(residual, np.float64)
+    find = observation_lookup(problem.pixel, light_of)
     sums = np.zeros(first.size)
     for lo in range(0, first.size, chunk):      # pairs a chunk at a time: memory stays near the matches' own
         hi = min(lo + chunk, first.size)
         pair = np.repeat(np.arange(lo, hi), np.diff(start[lo:hi + 1]))
         matches = slice(start[lo], start[hi])
-        sums[lo:hi] = np.bincount(pair - lo, weights=_no_step_misfit(
-            problem, first[pair], second[pair], pair < n_right, gap, i[matches], j[matches], light_of[i[matches]],
-            e, spread, find), minlength=hi - lo)
+        misfit = _no_step_misfit(problem, first[pair], second[pair], pair < n_right, gap, i[matches], j[matches],
+                                 light_of[i[matches]], e, spread if np.ndim(spread) == 0 else spread[matches], find)
+        if weight is not None:
+            misfit = misfit * weight[matches]
+        sums[lo:hi] = np.bincount(pair - lo, weights=misfit, minlength=hi - lo)
     return sums
 
 
@@ -270,34 +300,52 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     correlation of the reference's difference residuals between neighbouring pairs under one
     light, floored at 0: the coarsening rule of :func:`rjfit.data.coarsen.suggest_likelihood_power`).
 
+    A joint colour fit (C channels) sums the term's misfits over the channels, each on its own scale: a
+    pair's matches are the (light, channel) both pixels saw, the reference is one material per channel
+    (its own residuals and no-step sums), and a match of channel c weighs ``power / (2 s_c^2)``, ``s_c``
+    that channel's robust spread (``scale`` = power / 2, ``weight`` = 1 / s_c^2); 'auto' takes rho over
+    every channel's differences, each divided by its ``s_c``. A boundary's step, either material alone and no
+    step are then compared on the summed misfits, as a single channel's are.
+
     Raises
     ------
     ValueError
         If ``power`` is neither positive nor 'auto', ``gap`` not odd and positive, or the problem
-        has no lights per observation, more than one channel or effects.
+        has no lights per observation or has effects.
     """
     if power != "auto" and not (isinstance(power, (int, float)) and power > 0):
         raise ValueError(f"edge power (--edge-power) must be positive or 'auto', got {power!r}")
     if gap < 1 or gap % 2 == 0:
         raise ValueError(f"the edge term's gap must be odd and positive (checkerboard colours), got {gap}")
-    if problem.light is None or problem.n_channels != 1 or problem.effects is not None:
-        raise ValueError("the edge term (--edge-power) needs a single-channel problem without effects, with each "
-                         "observation's light")
+    if problem.light is None or problem.effects is not None:
+        raise ValueError("the edge term (--edge-power) needs a problem without effects, with each observation's light")
+    n_ch = problem.n_channels
+    # a colour fit's matches pair (light, channel): one index for both, so each channel is matched in itself
+    key_light = None if n_ch == 1 else (np.asarray(problem.light, np.int64) * n_ch
+                                        + np.asarray(problem.channel, np.int64))
     first, second, n_right = pixel_pairs(np.asarray(labelled, bool), gap)
-    i, j, start = matched_lights(problem.pixel, problem.light, first, second)
+    i, j, start = matched_lights(problem.pixel, problem.light if n_ch == 1 else key_light, first, second)
     y, C, lch = (np.asarray(a, np.float64) for a in (problem.y, problem.C, problem.log_cos_hn))
-    reference_residual = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
+    group = np.zeros(y.size, np.int64) if n_ch == 1 else np.asarray(problem.channel, np.int64)
+    reference_residual = fit_groups(y, C, lch, group, n_ch)["residuals"]
     d = y[i] - y[j]
     residual = reference_residual[i] - reference_residual[j]      # d minus the reference's step
     pair = np.repeat(np.arange(first.size), np.diff(start))
-    s = 1.4826 * float(np.median(np.abs(residual))) if residual.size else 1.0
-    s = s if np.isfinite(s) else 1.0       # no reference fit (under 4 observations): the differences' own scale is moot
-    pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual, s)
+    channel = np.zeros(0, np.int8) if n_ch == 1 else np.asarray(problem.channel, np.int8)[i]
+    spreads = _spreads(residual, channel, n_ch)
+    s = spreads[0]
+    weight = np.zeros(0) if n_ch == 1 else 1.0 / np.maximum(spreads, 1e-300) ** 2
+    if n_ch == 1:
+        pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual, s)
+    else:
+        pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual,
+                                    spreads[channel], light=key_light, weight=weight[channel])
     pair_no_step[~np.isfinite(pair_no_step)] = np.inf     # no reference fit (tiny problems): no bound from it
     if power == "auto":
-        light = np.asarray(problem.light, np.int64)[i]
-        n_lights = int(problem.light.max()) + 1
-        rho = np.nanmean([_neighbour_correlation(first[pair[part]], light[part], residual[part], n_lights,
+        every_light = np.asarray(problem.light, np.int64) if n_ch == 1 else key_light
+        light, n_lights = every_light[i], int(every_light.max()) + 1
+        standardised = residual if n_ch == 1 else residual / np.maximum(spreads, 1e-300)[channel]
+        rho = np.nanmean([_neighbour_correlation(first[pair[part]], light[part], standardised[part], n_lights,
                                                  problem.width) for part in (pair < n_right, pair >= n_right)])
         rho = max(0.0, float(rho)) if np.isfinite(rho) else 0.0
         power = ((1.0 - rho) / (1.0 + rho)) ** 2
@@ -308,19 +356,56 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     for slot, (ends, which) in enumerate(((first, horizontal), (first, ~horizontal), (second, horizontal),
                                           (second, ~horizontal))):
         pair_of[ends[which], slot] = ids[which]
-    return EdgeTerm(power=float(power), scale=float(power) / (2.0 * max(s, 1e-300) ** 2), first=first.astype(np.int64),
+    scale = float(power) / (2.0 * max(s, 1e-300) ** 2) if n_ch == 1 else float(power) / 2.0
+    return EdgeTerm(power=float(power), scale=scale, first=first.astype(np.int64),
                     second=second.astype(np.int64), start=start, d=d, c_first=C[i].astype(np.float32),
                     c_second=C[j].astype(np.float32), l_first=lch[i].astype(np.float32),
-                    l_second=lch[j].astype(np.float32), no_step=pair_no_step, pair_of=pair_of)
+                    l_second=lch[j].astype(np.float32), no_step=pair_no_step, pair_of=pair_of, channel=channel,
+                    weight=weight, n_channels=n_ch)
+
+
+def _spreads(residual, channel, n_channels: int) -> np.ndarray:
+    """(C,) the robust spread (1.4826 MAD) of the differences' residuals per channel (one channel: all of them); 1
+    where there are none or it is not finite (no reference fit: the differences' own scale is moot)."""
+    spreads = []
+    for c in range(n_channels):
+        mine = residual if n_channels == 1 else residual[channel == c]
+        s = 1.4826 * float(np.median(np.abs(mine))) if mine.size else 1.0
+        spreads.append(s if np.isfinite(s) else 1.0)
+    return np.array(spreads)
 
 
 def start_theta(problem, pixels, n_materials: int, prior) -> np.ndarray | None:
     """(K, 4) each material's least-squares (I0, kd, gamma) and mean squared residual as sigma^2 under the start
     labels ``pixels`` (H, W), where those lie inside the prior's support; None where any does not (the chain
-    then starts from the usual dispersed draws)."""
+    then starts from the usual dispersed draws). A joint colour fit: (K C, 4), each material's rows at one gamma
+    (:func:`rjfit.sampler.colour.guide_rows`: gamma at its Laplace mode over the channels, each channel's
+    amplitudes by least squares there)."""
+    if problem.n_channels > 1:
+        return _colour_start_theta(problem, pixels, n_materials, prior)
     group = np.asarray(pixels).ravel()[np.asarray(problem.pixel, np.int64)]
     keep = group >= 0
     theta = group_params(*(np.asarray(a, np.float64)[keep] for a in (problem.y, problem.C, problem.log_cos_hn)),
                          group[keep], n_materials)
+    return _inside(theta, prior)
+
+
+def _colour_start_theta(problem, pixels, n_materials: int, prior) -> np.ndarray | None:
+    """:func:`start_theta` of a joint colour fit."""
+    flat = np.asarray(pixels).ravel()
+    rows = []
+    for k in range(n_materials):
+        fitted = guide_rows(pixel_set_data(problem, np.flatnonzero(flat == k)), prior, START_GAMMA)
+        if fitted is None:
+            return None
+        rows.append(fitted)
+    theta = np.concatenate(rows)
+    # a channel without a lobe (b = 0) fits kd = 1, where the within moves' logit of kd is not defined: just inside
+    theta[:, 1] = np.clip(theta[:, 1], KD_MARGIN, 1.0 - KD_MARGIN)
+    return _inside(theta, prior)
+
+
+def _inside(theta, prior) -> np.ndarray | None:
+    """``theta`` where every row lies inside the prior's support, else None."""
     inside = all(np.all(np.isfinite(p.logpdf(theta[:, k]))) for k, p in enumerate(prior.params))
     return theta if inside else None

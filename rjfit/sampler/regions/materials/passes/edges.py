@@ -19,6 +19,12 @@ sums[., ., 2])`` a boundary adds ``scale`` times
 ``step = sums[., ., 0]``: :func:`boundary_value`.
 ``coef`` are the materials' constants of :func:`rjfit.sampler.passes.densities.coefficients`
 (``mu = C (coef0 + coef1 <h.n>^coef2)``).
+
+A joint colour fit (``n_channels`` C > 1) has one match per light and channel seen by both
+pixels: ``channel`` (M,) gives each match's, whose material k has the parameter row ``k C + c``,
+and each match's squared misfit is weighted by ``weight[c]`` (``1 / s_c^2``: every channel on its
+own noise scale), as is ``no_step`` already; one channel (``n_channels`` 1) reads neither (empty
+arrays) and sums as before, unweighted (:func:`pair_sums`).
 """
 from __future__ import annotations
 
@@ -27,7 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["boundary_value", "pair_sums", "boundary_sums", "edge_value", "edge_sums", "keep_new_label"]
+__all__ = ["boundary_value", "pair_sums", "pair_sums_colour", "boundary_sums", "edge_value", "edge_sums", "keep_new_label"]
 
 
 @njit(cache=True, nogil=True)
@@ -52,9 +58,38 @@ def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second):
 
 
 @njit(cache=True, nogil=True)
-def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step):
+def pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, channel, weight, n_channels):
+    """:func:`pair_sums` of a joint colour fit: each match under its channel's rows of k and m (``k C + c``), its
+    squared misfits weighted by ``weight[c]``."""
+    two = 0.0
+    one_k = 0.0
+    one_m = 0.0
+    for i in range(start[j], start[j + 1]):
+        c = channel[i]
+        rk, rm = k * n_channels + c, m * n_channels + c
+        cf, cs = np.float64(c_first[i]), np.float64(c_second[i])
+        lf, ls = np.float64(l_first[i]), np.float64(l_second[i])
+        k_first = cf * (coef[rk, 0] + coef[rk, 1] * math.exp(coef[rk, 2] * lf))
+        k_second = cs * (coef[rk, 0] + coef[rk, 1] * math.exp(coef[rk, 2] * ls))
+        m_first = cf * (coef[rm, 0] + coef[rm, 1] * math.exp(coef[rm, 2] * lf))
+        m_second = cs * (coef[rm, 0] + coef[rm, 1] * math.exp(coef[rm, 2] * ls))
+        r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
+        w = weight[c]
+        two += w * r_two * r_two
+        one_k += w * r_k * r_k
+        one_m += w * r_m * r_m
+    return two, one_k, one_m
+
+
+@njit(cache=True, nogil=True)
+def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel, weight,
+              n_channels):
     """Add (``sign`` 1) or remove (-1) pair ``j`` with ends in (k, m), k != m, to its boundary's sums."""
-    two, one_k, one_m = pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
+    if n_channels == 1:
+        two, one_k, one_m = pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
+    else:
+        two, one_k, one_m = pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, channel,
+                                             weight, n_channels)
     lo, hi = (k, m) if k < m else (m, k)
     sums[lo, hi, 0] += sign * two
     sums[lo, hi, 1] += sign * (one_k if k < m else one_m)
@@ -64,13 +99,15 @@ def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l
 
 @njit(cache=True, nogil=True)
 def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second,
-                  no_step):
-    """(K, K, 4) the sums of every boundary of flat ``labels`` (-1: unlabelled, in no pair's sums)."""
+                  no_step, channel, weight, n_channels):
+    """(K, K, 4) the sums of every boundary of flat ``labels`` (-1: unlabelled, in no pair's sums); ``coef`` has
+    ``n_channels`` rows per material."""
     sums = np.zeros((n_materials, n_materials, 4))
     for j in range(first.shape[0]):
         k, m = labels[first[j]], labels[second[j]]
         if k >= 0 and m >= 0 and k != m:
-            _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step)
+            _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
+                      weight, n_channels)
     return sums
 
 
@@ -95,7 +132,7 @@ def boundary_value(step, alone, no_step):
 
 @njit(cache=True, nogil=True)
 def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
-                l_second, no_step):
+                l_second, no_step, channel, weight, n_channels):
     """Add (``sign`` 1) or remove (-1) the pairs of pixel ``p`` with ``p`` in material ``label``."""
     for slot in range(pair_of.shape[1]):
         j = pair_of[p, slot]
@@ -106,15 +143,17 @@ def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, star
         else:
             k, m = labels[first[j]], label
         if k >= 0 and m >= 0 and k != m:
-            _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step)
+            _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
+                      weight, n_channels)
 
 
 @njit(cache=True, nogil=True)
 def edge_sums(labels, n_materials, edge):
     """:func:`boundary_sums` of ``edge``, the arrays of :meth:`rjfit.sampler.regions.materials.edges.EdgeTerm.sweep_arrays`."""
-    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale = edge
+    (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale, channel, weight,
+     n_channels) = edge
     return boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second,
-                         no_step)
+                         no_step, channel, weight, n_channels)
 
 
 @njit(cache=True, nogil=True)
@@ -127,8 +166,10 @@ def keep_new_label(sums, p, old, new, labels, edge, uniform):
     kept up to date pixel by pixel and each update sees the labels as they are then (a scan of
     reversible updates).
     """
-    pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale = edge
-    arrays = (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step)
+    (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale, channel, weight,
+     n_channels) = edge
+    arrays = (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, channel, weight,
+              n_channels)
     before = edge_value(sums, scale)
     _move_pixel(sums, -1.0, p, old, labels, *arrays)
     _move_pixel(sums, 1.0, p, new, labels, *arrays)
