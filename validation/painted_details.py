@@ -9,6 +9,11 @@ fit states (``summary.json["material_resolution"]``) rescaled to the discs' cont
 
     python validation/painted_details.py --radii 6 9 12 16 --out /tmp/painted      # about 2 min per fit
 
+``--hue H`` paints discs that change hue, not the mean of R, G and B: inside them each image's red codes
+gain ``H`` times the green codes and the green codes lose as much (less where red would pass 255), so the
+channel mean a one-channel fit reads is unchanged (to the codes' rounding); fit them with
+``--variant measured-rgb`` and ``--variant measured-mean`` to compare.
+
 docs/results/materials.md ("Resolution") has the measured table.
 """
 from __future__ import annotations
@@ -32,8 +37,9 @@ HORSE = Path(__file__).resolve().parents[2] / "shared" / "data" / "psm-horse"
 CENTRES = ((180, 204), (119, 375))
 
 
-def painted_stack(source: Path, folder: Path, radius: int, factor: float) -> np.ndarray:
-    """``folder``: ``source`` with the two discs' codes times ``factor`` in every image; returns the discs' map."""
+def painted_stack(source: Path, folder: Path, radius: int, factor: float, hue: float | None = None) -> np.ndarray:
+    """``folder``: ``source`` with the two discs' codes times ``factor`` in every image (or, with ``hue``, their
+    hue changed, the mean of R, G and B kept: :func:`hue_shift`); returns the discs' map."""
     folder.mkdir(parents=True, exist_ok=True)
     mask = iio.imread(source / "mask.png")
     rows, cols = np.mgrid[0:mask.shape[0], 0:mask.shape[1]]
@@ -46,12 +52,26 @@ def painted_stack(source: Path, folder: Path, radius: int, factor: float) -> np.
     for path in sorted(source.iterdir()):
         if path.suffix == ".png" and path.name != "mask.png":
             image = iio.imread(path).astype(float)
-            image[discs > 0] *= factor
-            iio.imwrite(folder / path.name, np.clip(np.round(image), 0, 255).astype(np.uint8))
+            if hue is None:
+                image[discs > 0] *= factor
+                image = np.round(image)
+            else:
+                image[discs > 0] = hue_shift(image[discs > 0], hue)
+            iio.imwrite(folder / path.name, np.clip(image, 0, 255).astype(np.uint8))
         elif path.is_file():
             shutil.copy(path, folder / path.name)
     (folder / "rjfit.json").write_text(json.dumps({"crop": True, "response": "unknown"}))
     return discs
+
+
+def hue_shift(rgb: np.ndarray, hue: float) -> np.ndarray:
+    """(N, 3) 8-bit codes with the red raised by ``hue`` times the green (at most to 255) and the green lowered by
+    as much, rounded so that each pixel's R + G + B is kept exactly: a paint of another hue, of the same mean."""
+    out = rgb.astype(float).copy()
+    shift = np.round(np.minimum(hue * out[:, 1], 255.0 - out[:, 0]))
+    out[:, 0] += shift
+    out[:, 1] -= shift
+    return out
 
 
 def found_pixels(fit_folder: Path, discs: np.ndarray, crop: dict) -> list:
@@ -78,6 +98,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--radii", type=int, nargs="+", default=[6, 9, 12, 16])
     parser.add_argument("--factor", type=float, default=0.35)
+    parser.add_argument("--hue", type=float, default=None, help="paint discs of another hue, the mean kept")
     parser.add_argument("--variant", default="measured")
     parser.add_argument("--chains", type=int, default=4)
     parser.add_argument("--iterations", type=int, default=300)
@@ -86,18 +107,21 @@ def main(argv=None) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/painted_details"))
     args = parser.parse_args(argv)
     for radius in args.radii:
-        data = args.out / f"horse_discs{radius}"
-        discs = painted_stack(args.source, data, radius, args.factor)
+        data = args.out / (f"horse_discs{radius}" if args.hue is None else f"horse_hue{args.hue:g}_discs{radius}")
+        discs = painted_stack(args.source, data, radius, args.factor, args.hue)
         row = run(data, args.variant, args.chains, args.iterations, args.out, args.out / "table.jsonl", args.seed)
         summary = json.loads((Path(row["folder"]) / "summary.json").read_text())
-        contrast = args.factor ** summary["calibration"]["response"]["kappa"]
         resolution = summary["material_resolution"]
-        print(json.dumps({"radius": radius, "disc_pixels": int(np.sum(discs == 1)), "variant": args.variant,
-                          "likelihood_power": row["likelihood_power"], "posterior": row["posterior"],
-                          "found_pixels": found_pixels(Path(row["folder"]), discs, summary["crop"]),
-                          "contrast": round(contrast, 3),
-                          "stated_radius_at_contrast": at_contrast(resolution, contrast, summary["map_materials"]),
-                          "stated_radius_half_albedo": resolution["radius_px"]}))
+        out = {"radius": radius, "disc_pixels": int(np.sum(discs == 1)), "variant": args.variant, "hue": args.hue,
+               "likelihood_power": row["likelihood_power"], "posterior": row["posterior"],
+               "chains_posterior": row["chains_posterior"], "seconds": row["seconds"],
+               "found_pixels": found_pixels(Path(row["folder"]), discs, summary["crop"]),
+               "stated_radius_half_albedo": resolution["radius_px"]}
+        if args.hue is None:
+            contrast = args.factor ** summary["calibration"]["response"]["kappa"]
+            out.update(contrast=round(contrast, 3),
+                       stated_radius_at_contrast=at_contrast(resolution, contrast, summary["map_materials"]))
+        print(json.dumps(out))
 
 
 if __name__ == "__main__":

@@ -70,6 +70,9 @@ VARIANTS = {
     # the preset at a larger likelihood power than its lag-1 rule gives (0.011 to 0.027 on the three stacks): what
     # resolving smaller painted details costs (docs/results/materials.md, "Resolution")
     "measured-power0.03": {"preset": "measured", "likelihood_power": 0.03},
+    # the preset on R, G and B jointly, with its edge term (docs/results/2026-11-28-colour.md)
+    "measured-rgb": {"preset": "measured", "channel": "rgb"},
+    "measured-mean": {"preset": "measured", "channel": "mean"},
 }
 
 
