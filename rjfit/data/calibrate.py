@@ -30,6 +30,12 @@ intervals are conditional on them.
    Lambertian prediction (albedo: the median over its well-lit lights) is left out as occluded
    (``visibility``); the counts are recorded.
 
+A joint colour fit (``channel`` 'rgb') estimates the response and the gains on the channel mean: both are
+one per camera and per light, shared by every channel, and the mean is what a one-channel fit estimates them
+on (the same transform for both fits of a stack, from a third of the observations). Estimated on R, G and B
+jointly, psm-cat's kappa fell to the grid's lower bound 0.5 (the mean: 1.00) and took 2.7 min with the gains
+another 2.7 (docs/results/2026-11-28-colour.md).
+
 Saturated observations are flagged before any transform (``Dataset.saturated``), so the
 transforms do not move the clipping threshold. The quantisation floor (``quantisation_variance``)
 no longer applies to transformed values and is dropped (its size is recorded: on psm it is
@@ -42,6 +48,7 @@ import dataclasses
 import numpy as np
 from scipy import ndimage
 
+from rjfit.data.formats import COLOUR
 from rjfit.data.pixelfit import group_fit, patch_index
 from rjfit.data.shadows import flag_cast_shadows, flag_silhouette
 from rjfit.data.response import estimate_power_response
@@ -160,7 +167,8 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
     ----------
     dataset : rjfit.data.dataset.Dataset
     channel : str
-        The channel the estimates are made on (the fit's).
+        The fit's channel: the estimates are made on it, on the mean for a joint colour fit ('rgb': module
+        docstring).
     seed : int
         Seeds the bootstraps.
     gains : bool or None
@@ -185,19 +193,21 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
               "note": "estimated once before the fit and applied to the images; the fit's intervals are conditional "
                       "on these estimates"}
     unknown = dataset.response == "unknown"
+    estimated_on = "mean" if channel == COLOUR else channel       # one response and one gain per light, every channel
     if unknown:
         dataset = _flag_saturated(dataset)
         with phase("calibration: camera response (kappa of raw = k linear^(1/kappa))", progress):
-            response = estimate_power_response(dataset, channel, seed, kappas=_KAPPAS, progress=progress)
+            response = estimate_power_response(dataset, estimated_on, seed, kappas=_KAPPAS, progress=progress)
         dataset = _linearise(dataset, response["kappa"])
-        record["response"] = {key: response[key] for key in ("kappa", "exponent", "kappa_std", "kappa_interval",
-                                                             "at_grid_edge", "model", "errors", "caveat")}
+        record["response"] = {**{key: response[key] for key in ("kappa", "exponent", "kappa_std", "kappa_interval",
+                                                                "at_grid_edge", "model", "errors", "caveat")},
+                              "channel": estimated_on}
         record["quantisation_dropped"] = ("the raw codes' quantisation floor (1/12 code^2 per channel) does not apply "
                                           "to the linearised values and is not used")
     if gains or (gains is None and unknown):
         dataset = _flag_saturated(dataset)
         with phase("calibration: per-light gains", progress):
-            estimate = estimate_light_gains(dataset, channel, seed, progress=progress)
+            estimate = estimate_light_gains(dataset, estimated_on, seed, progress=progress)
         dataset = _divide_by_gains(dataset, estimate["gains"])
         record["light_gains"] = estimate
     dataset, record["silhouette"] = flag_silhouette(dataset)
