@@ -48,3 +48,20 @@ def test_diagnose_of_a_calibrated_fit_sees_the_calibrated_data(paper_sphere_smal
               "response": None, "light_gains": {"gains": gains.tolist()}}
     seen = data_diagnose_sees(raw, {"calibration": record}, tmp_path, monkeypatch)
     np.testing.assert_allclose(seen.images, dataset.images, rtol=1e-12, atol=1e-12)
+
+
+def test_a_colour_fits_response_and_gains_are_the_channel_means(paper_sphere_small):
+    """A joint colour fit (channel 'rgb') estimates the camera response and the light gains on the channel mean,
+    one per camera and per light for every channel: the same kappa and gains as a mean-channel calibration, bit
+    for bit (the same computation), and the record says so; the cast shadows stay flagged on the fit's channel."""
+    dataset = load_dataset(paper_sphere_small)
+    gains = np.geomspace(0.9, 1.1, dataset.n_lights)
+    linear = dataset.images * gains[:, None, None, None]
+    raw = dataclasses.replace(dataset, images=np.clip(linear / linear.max(), 0.0, None) ** (1 / 1.3), response="unknown",
+                              quantisation_variance=None)
+    _, mean_record = calibrate_measured(raw, "mean")
+    _, colour_record = calibrate_measured(raw, "rgb")
+    assert colour_record["response"]["kappa"] == mean_record["response"]["kappa"]
+    assert colour_record["response"]["channel"] == "mean"
+    np.testing.assert_array_equal(colour_record["light_gains"]["gains"], mean_record["light_gains"]["gains"])
+    assert colour_record["cast_shadows"]["channel"] == "rgb"
