@@ -1,0 +1,49 @@
+"""validation/painted_details.py's hue discs and validation/paint_share.py's snapshot shares, on arrays built here."""
+from __future__ import annotations
+
+import importlib.util
+import sys
+
+import numpy as np
+
+from builders import REPO_ROOT
+
+
+def _script(name):
+    sys.path.insert(0, str(REPO_ROOT / "validation"))       # painted_details imports real_stacks beside it
+    try:
+        spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "validation" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(REPO_ROOT / "validation"))
+    return module
+
+
+def test_a_hue_disc_keeps_each_pixels_channel_sum_and_moves_red_and_green():
+    """R gains hue x G (at most to 255), G loses as much: R + G + B is kept exactly, so the channel mean a
+    one-channel fit reads does not change; B is untouched."""
+    hue_shift = _script("painted_details").hue_shift
+    rgb = np.array([[100.0, 120.0, 90.0], [240.0, 200.0, 210.0], [0.0, 0.0, 0.0], [10.0, 255.0, 3.0]])
+    out = hue_shift(rgb, 0.5)
+    np.testing.assert_array_equal(out.sum(axis=1), rgb.sum(axis=1))
+    np.testing.assert_array_equal(out[:, 2], rgb[:, 2])
+    np.testing.assert_array_equal(out[:, 0], [160.0, 255.0, 0.0, 138.0])       # 100 + 60; 240 + 15 (capped); 10 + 128
+    assert np.all(out >= 0) and np.all(out <= 255)
+
+
+def test_paint_share_counts_snapshots_that_hold_the_paint_in_one_non_body_material(tmp_path):
+    """A 6 x 6 body with a 2 x 2 paint; one chain's snapshots: paint held (counted), paint split 3:1 (under
+    90 %: not counted), paint in the body's material (not counted), held again; the first snapshot is burn-in;
+    a second chain holds them in reverse order."""
+    chain_shares = _script("paint_share").chain_shares
+    paint = np.zeros((6, 6), bool)
+    paint[2:4, 2:4] = True
+    held = np.where(paint, 1.0, 0.0)
+    split = held.copy()
+    split[2, 2] = 2.0
+    merged = np.zeros((6, 6))
+    snapshots = np.stack([merged, held, split, merged, held])
+    np.savez(tmp_path / "materials.npz", chain0_material_labels=snapshots, chain1_material_labels=snapshots[::-1])
+    shares = chain_shares(tmp_path, paint, burn_in=0.2)
+    assert shares == [0.5, 0.25]        # chain 1: reversed, its kept ones merged, split, held, merged
