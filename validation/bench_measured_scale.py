@@ -14,7 +14,7 @@ chain (loading, calibration, noise model, powers, the edge term), seconds per it
 chain's own; the chain uses the machine's cores as ``--threads`` does by default), peak resident memory, and per-observation ratios to the smallest size (linear
 scaling gives 1). Written to ``OUT/bench_measured_scale.json``.
 
-    .venv/bin/python validation/bench_measured_scale.py OUT [--sizes 256 512 1024 2048] [--iterations 20]
+    .venv/bin/python validation/bench_measured_scale.py OUT [--sizes 256 512 1024 2048] [--iterations 10]
 """
 from __future__ import annotations
 
@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path)
     parser.add_argument("--sizes", type=int, nargs="+", default=[256, 512, 1024, 2048])
-    parser.add_argument("--iterations", type=int, default=20)
+    parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--one", nargs=3, metavar=("FOLDER", "OUT", "ITERATIONS"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.one:       # the child: one size in this process
