@@ -36,7 +36,8 @@ CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response",
          "sRGB (noise before the curve)": "camera_sensor", "second lobe": "second_lobe",
          "one light off": "light_calibration", "ambient + sRGB": "ambient+camera_response",
          "ambient + sRGB (noise before the curve)": "ambient+camera_sensor",
-         "cast shadows": "cast_shadows", "dielectric lobe": "fresnel", "interreflection": "interreflection"}
+         "cast shadows": "cast_shadows", "dielectric lobe": "fresnel", "GGX dielectric lobe": "ggx_plastic",
+         "interreflection": "interreflection"}
 #: case -> samples per pixel where not render_hidden's default. Interreflection at 512 spp, the
 #: issue's number: dented_plaster's indirect light is ~14 % of its radiance, and its Monte Carlo
 #: variance per observation, measured 0.078 at render_hidden's 16 spp (two seeds, 32 x 32,

@@ -12,15 +12,16 @@ from rjfit.effects.camera_gamma import CameraGamma
 from rjfit.effects.camera_srgb import CameraSRGB
 from rjfit.effects.cast_shadows import CastShadows
 from rjfit.effects.fresnel import Fresnel
+from rjfit.effects.ggx import GGX
 from rjfit.effects.interreflection import Interreflection
 from rjfit.effects.light_calibration import LightCalibration
 from rjfit.effects.masking import Masking
 
 __all__ = ["Effect", "CameraResponse", "FitForm", "Columns", "Param", "STAGES", "ALL_EFFECTS", "EFFECTS", "get_effect", "effects_help",
-           "Fresnel", "Masking", "Interreflection", "Ambient", "CastShadows", "CameraGamma", "CameraSRGB",
+           "Fresnel", "Masking", "GGX", "Interreflection", "Ambient", "CastShadows", "CameraGamma", "CameraSRGB",
            "LightCalibration"]
 
-ALL_EFFECTS = (Fresnel(), Masking(), Interreflection(), Ambient(), CastShadows(), CameraGamma(), CameraSRGB(),
+ALL_EFFECTS = (Fresnel(), Masking(), GGX(), Interreflection(), Ambient(), CastShadows(), CameraGamma(), CameraSRGB(),
                LightCalibration())
 EFFECTS = {effect.name: effect for effect in ALL_EFFECTS}
 
