@@ -20,6 +20,7 @@ that closed form.
 from __future__ import annotations
 
 import math
+from functools import partial
 
 __all__ = ["EXT_PLUGIN_NAME", "register_ext"]
 
@@ -28,6 +29,50 @@ EXT_PLUGIN_NAME = "rjfit_blinn_ext"
 # and process-wide, and registering twice is refused, so this mirrors that registry (as
 # rjfit.render.plugin does for rjfit_blinn)
 _REGISTERED: dict = {}
+
+
+def _beckmann_smith_g1(dr, cos_theta, alpha):
+    """Walter et al.'s rational fit of Beckmann's Smith G1, in drjit."""
+    cos_theta = dr.clip(cos_theta, 1e-6, 1.0)
+    tan_theta = dr.safe_sqrt(1.0 - cos_theta * cos_theta) / cos_theta
+    a = 1.0 / dr.maximum(alpha * tan_theta, 1e-12)
+    g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
+    return dr.select(a >= 1.6, 1.0, g)
+
+
+def _ggx(dr, cos_h, cos_i, cos_o, alpha):
+    """``D G1(i) G1(o) / (4 cos_i cos_o)`` of GGX in drjit, written from the definitions (Walter et al.
+    2007, eqs. 33-34), for cos_i, cos_o > 0."""
+    a2 = alpha * alpha
+    denom = (cos_h * cos_h) * (a2 - 1.0) + 1.0
+    d = dr.select(cos_h > 0.0, a2 / (math.pi * denom * denom), 0.0)
+
+    def g1(cos_theta):
+        cos2 = cos_theta * cos_theta
+        return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - cos2) / cos2))
+    return d * g1(cos_i) * g1(cos_o) / (4.0 * cos_i * cos_o)
+
+
+#: the plugin's lobe parameters and their defaults (each one's null: no such term)
+LOBE_DEFAULTS = {"f0": 1.0, "mask_w": 0.0, "ggx_w": 0.0, "lobe2_v": 0.0, "lobe2_alpha": 0.2}
+
+
+def _lobe_parameters(props) -> dict:
+    """The lobe parameters of a plugin's properties (defaults where absent), checked.
+
+    Raises
+    ------
+    ValueError
+        For a value out of its range, naming the parameter.
+    """
+    values = {key: float(props.get(key, default)) for key, default in LOBE_DEFAULTS.items()}
+    f0, mask_w, ggx_w, lobe2_v, lobe2_alpha = values.values()
+    if not (0.0 < f0 <= 1.0) or not (0.0 <= mask_w <= 1.0) or not (0.0 <= ggx_w <= 1.0):
+        raise ValueError(f"{EXT_PLUGIN_NAME}: need 0 < f0 <= 1, 0 <= mask_w <= 1 and 0 <= ggx_w <= 1, "
+                         f"got {f0}, {mask_w}, {ggx_w}")
+    if not (lobe2_v >= 0.0) or not (0.0 < lobe2_alpha <= 1.0):
+        raise ValueError(f"{EXT_PLUGIN_NAME}: need lobe2_v >= 0 and 0 < lobe2_alpha <= 1, got {lobe2_v}, {lobe2_alpha}")
+    return values
 
 
 def register_ext():
@@ -45,49 +90,19 @@ def register_ext():
     m = getattr(mi, variant)
     inv_pi = 1.0 / math.pi
 
-    def smith_g1(cos_theta, alpha):
-        cos_theta = dr.clip(cos_theta, 1e-6, 1.0)
-        tan_theta = dr.safe_sqrt(1.0 - cos_theta * cos_theta) / cos_theta
-        a = 1.0 / dr.maximum(alpha * tan_theta, 1e-12)
-        g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
-        return dr.select(a >= 1.6, 1.0, g)
-
-    def ggx(cos_h, cos_i, cos_o, alpha):
-        # D G1(i) G1(o) / (4 cos_i cos_o), written from the definitions (Walter et al. 2007, eqs. 33-34)
-        a2 = alpha * alpha
-        cos2_h = cos_h * cos_h
-        denom = cos2_h * (a2 - 1.0) + 1.0
-        d = dr.select(cos_h > 0.0, a2 / (math.pi * denom * denom), 0.0)
-
-        def g1(cos_theta):
-            cos2 = cos_theta * cos_theta
-            return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - cos2) / cos2))
-        return d * g1(cos_i) * g1(cos_o) / (4.0 * cos_i * cos_o)
+    smith_g1 = partial(_beckmann_smith_g1, dr)
+    ggx = partial(_ggx, dr)
 
     class RjfitBlinnExtBSDF(base):
         def __init__(self, props):
             base.__init__(self, props)
-            f0 = float(props.get("f0", 1.0))
-            mask_w = float(props.get("mask_w", 0.0))
-            ggx_w = float(props.get("ggx_w", 0.0))
-            lobe2_v = float(props.get("lobe2_v", 0.0))
-            lobe2_alpha = float(props.get("lobe2_alpha", 0.2))
-            if not (0.0 < f0 <= 1.0) or not (0.0 <= mask_w <= 1.0) or not (0.0 <= ggx_w <= 1.0):
-                raise ValueError(f"{EXT_PLUGIN_NAME}: need 0 < f0 <= 1, 0 <= mask_w <= 1 and 0 <= ggx_w <= 1, "
-                                 f"got {f0}, {mask_w}, {ggx_w}")
-            if not (lobe2_v >= 0.0) or not (0.0 < lobe2_alpha <= 1.0):
-                raise ValueError(f"{EXT_PLUGIN_NAME}: need lobe2_v >= 0 and 0 < lobe2_alpha <= 1, "
-                                 f"got {lobe2_v}, {lobe2_alpha}")
-            self.f0 = m.Float(f0)
-            self.mask_w = m.Float(mask_w)
-            self.ggx_w = m.Float(ggx_w)
-            self.lobe2_v = m.Float(lobe2_v)
-            self.lobe2_alpha = m.Float(lobe2_alpha)
+            for key, value in _lobe_parameters(props).items():
+                setattr(self, key, m.Float(value))
             dr.make_opaque(self.f0, self.mask_w, self.ggx_w, self.lobe2_v, self.lobe2_alpha)
 
         def traverse(self, callback):
             base.traverse(self, callback)
-            for key in ("f0", "mask_w", "ggx_w", "lobe2_v", "lobe2_alpha"):
+            for key in LOBE_DEFAULTS:
                 callback.put(key, getattr(self, key), ParamFlags.Differentiable)
 
         def parameters_changed(self, keys=None):
