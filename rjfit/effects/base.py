@@ -4,8 +4,10 @@ and the fit's form (how it enters the fit's likelihood).
 
 Stages (the order :func:`rjfit.diagnose.model.predict` and the fit apply them in)::
 
-    lobe      specular-lobe factor      spec *= factor            (Fresnel, masking)
-    direct    direct-light factor       direct *= factor          (cast shadows)
+    lobe      specular-lobe shape       spec = (1-w) spec + w f   (a GGX lobe mixed in, first in the stage)
+              specular-lobe factor      spec *= factor            (Fresnel, masking)
+    direct    added direct light        direct += term            (a second lobe, first in the stage)
+              direct-light factor       direct *= factor          (cast shadows)
     indirect  added light-dependent     mu = direct + indirect    (interreflection)
     light     per-light factor          mu *= s_l                 (light calibration)
     ambient   added light-independent   mu += ambient             (ambient / stray light)
@@ -243,16 +245,19 @@ class Columns:
     mask_w: float = 0.0
     tan: tuple | None = None            # (tan v, tan l) of masking and of the GGX lobes
     ggx_w: float = 0.0                  # weight of the GGX lobe mixed into the Blinn lobe (0: none)
-    second_lobe: np.ndarray | None = None   # a second lobe's v f_GGX(alpha2) per observation, a factor on C
+    second_lobe: np.ndarray | None = None   # a second lobe's C v f_GGX(alpha2) per observation (direct light)
     ambient: float | None = None        # ambient radiance a of the ambient stage
     ambient_terms: tuple | None = None  # (column j, weight fy, table, grid) of the albedo interpolation
     log_jacobian: float = 0.0
     curve: object = None
 
     def scale(self, factor) -> None:
-        """Multiply the direct and indirect light (``C``, ``CB`` and the offset) by per-observation ``factor``."""
+        """Multiply the direct and indirect light (``C``, ``CB``, a second lobe and the offset) by per-observation
+        ``factor``."""
         self.C = self.C * factor
         self.CB = self.CB * factor
+        if self.second_lobe is not None:
+            self.second_lobe = self.second_lobe * factor
         if self.offset is not None:
             self.offset = self.offset * factor
 

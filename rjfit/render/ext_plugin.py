@@ -2,8 +2,8 @@
 specular lobe, implemented separately from the NumPy closed form of the criticism's effects
 (drjit, in the BSDF):
 
-    f = scale ( kd/pi + (1 - kd) [ ((1 - u) N(g) <h.n>^g + u f_GGX(alpha))
-                                   F(<h.v>)/F0 ((1 - w) + w G1(v) G1(l)) + v2 f_GGX(alpha2) ] )
+    f = scale ( kd/pi + (1 - kd) ((1 - u) N(g) <h.n>^g + u f_GGX(alpha)) F(<h.v>)/F0 ((1 - w) + w G1(v) G1(l))
+                + v2 f_GGX(alpha2) )
 
 with ``alpha = sqrt(2 / (g + 2))`` and ``f_GGX(a) = D_a(h) G1_a(v) G1_a(l) / (4 <v.n> <l.n>)``
 the GGX microfacet BRDF with Fresnel 1 (Mitsuba's ``roughconductor``, material "none",
@@ -133,7 +133,7 @@ def register_ext():
                 # with ggx_w = lobe2_v = 0 the same products in the same order as before they existed
                 blinn = (1.0 - self.kd) * ((1.0 - self.ggx_w) * norm) * cos_h_pow_g
                 mixed = blinn + (1.0 - self.kd) * self.ggx_w * ggx(cos_h, cos_i, cos_o, alpha)
-                second = (1.0 - self.kd) * self.lobe2_v * ggx(cos_h, cos_i, cos_o, self.lobe2_alpha)
+                second = self.lobe2_v * ggx(cos_h, cos_i, cos_o, self.lobe2_alpha)
                 value += mixed * fresnel * masking + second
                 pdf_h = (g + 1.0) * (0.5 / math.pi) * cos_h_pow_g
                 wo_dot_h = dr.dot(wo, h)

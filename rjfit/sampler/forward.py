@@ -263,14 +263,16 @@ def transformed(problem: Problem, z) -> tuple[Problem, float]:
     inverse_scale = None if data.scale is None else 1.0 / data.scale
     if inverse_scale is not None:
         y, C, CB = y * inverse_scale, C * inverse_scale, CB * inverse_scale
-    lobe = _lobe_terms(columns, C, CB, inverse_scale)
+    lobe = _lobe_terms(columns, CB, inverse_scale)
     return replace(problem, y=y.astype(np.float32), C=C.astype(np.float32), lobe=lobe), float(columns.log_jacobian)
 
 
-def _lobe_terms(columns: Columns, C, CB, inverse_scale) -> LobeTerms:
+def _lobe_terms(columns: Columns, CB, inverse_scale) -> LobeTerms:
     empty = np.zeros(0, np.float32)
-    # a second lobe is a factor on the diffuse column's C: every stage's scaling and the noise scale carry over
-    second = empty if columns.second_lobe is None else (C * columns.second_lobe).astype(np.float32)
+    second = empty
+    if columns.second_lobe is not None:
+        second = columns.second_lobe if inverse_scale is None else columns.second_lobe * inverse_scale
+        second = second.astype(np.float32)
     tan_v, tan_l = (empty, empty) if columns.tan is None else (np.asarray(t, np.float32) for t in columns.tan)
     amb, amb_j, amb_fy, table, grid = empty, np.zeros(0, np.int32), empty, np.zeros((2, 2)), np.array([0.0, 1.0, 1.0])
     if columns.ambient is not None:

@@ -83,12 +83,13 @@ def test_ggx_mix_at_one_is_mitsubas_roughconductor(llvm, alpha):
 
 @pytest.mark.parametrize("alpha2, v", [(0.15, 0.4), (0.5, 1.3)])
 def test_second_lobe_adds_mitsubas_roughconductor(llvm, alpha2, v):
-    """``lobe2_v`` adds ``(1 - kd) v`` times roughconductor(alpha2) to the plugin, whatever its own lobe."""
+    """``lobe2_v`` adds ``v`` times roughconductor(alpha2) to the plugin, whatever its own lobes (its
+    weight is relative to the material's albedo, not to its specular part)."""
     wi, wo = _sweep()
     kd, gamma = 0.3, 40.0
-    plain = _eval(_ext(kd=kd, gamma=gamma, scale=1.0), wi, wo)
-    got = _eval(_ext(kd=kd, gamma=gamma, scale=1.0, lobe2_v=v, lobe2_alpha=alpha2), wi, wo)
-    want = (1.0 - kd) * v * _eval(_roughconductor(alpha2), wi, wo)
+    plain = _eval(_ext(kd=kd, gamma=gamma, scale=1.0, ggx_w=0.5, f0=0.3), wi, wo)
+    got = _eval(_ext(kd=kd, gamma=gamma, scale=1.0, ggx_w=0.5, f0=0.3, lobe2_v=v, lobe2_alpha=alpha2), wi, wo)
+    want = v * _eval(_roughconductor(alpha2), wi, wo)
     np.testing.assert_allclose(got - plain, want, rtol=RTOL, atol=1e-5 * want.max())
 
 

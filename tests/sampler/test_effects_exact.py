@@ -72,7 +72,7 @@ STRUCTURE_MOVES = {
 @pytest.mark.parametrize("regions, lobes", [("changepoints", False), ("materials", False), ("changepoints", True),
                                             ("materials", True)])
 def test_incremental_statistics_equal_a_full_recompute_with_effects(regions, lobes):
-    """``lobes``: the lobe shapes (a GGX lobe mixed in) on top of every effect."""
+    """``lobes``: the lobe shapes (a GGX lobe mixed in, a second lobe) on top of every effect."""
     obs, _, _ = sphere_stack(12, n_lights=5, seed=4)
     forms = every_effect(obs, seed=2) + (lobe_shapes(obs, seed=2) if lobes else [])
     problem = LambertBlinnPhong(forms).problem(obs, likelihood_power=0.7)
