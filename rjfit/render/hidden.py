@@ -29,6 +29,7 @@ fresnel            a sphere with back lights (angles 105-130 degrees from the vi
                    Smith masking and the coating's transmission on the diffuse part), not
                    exactly Blinn: the test asks the workflow to name the dominant missing effect.
 fresnel_plugin     the same scene with ``rjfit_blinn_ext`` (F0 = 0.04): only Fresnel is missing.
+ggx_plugin         the back-lit sphere with ``rjfit_blinn_ext`` (ggx_w = 1: a GGX lobe of the regions' roughness).
 ggx_plastic        the ``fresnel`` scene with Mitsuba's ``roughplastic`` of distribution "ggx" (the same
                    alpha = sqrt(2/(gamma+2)), IOR 1.5): a GGX dielectric, its lobe GGX with Smith-GGX
                    shadowing under the coating's Fresnel.
@@ -36,7 +37,7 @@ masking            the back-lit sphere with ``rjfit_blinn_ext`` (mask_w = 1, Smi
 second_lobe        paper_sphere whose materials are Mitsuba's built-in ``blendbsdf``: 70 % rjfit's
                    Blinn-Phong plugin and 30 % a built-in ``roughconductor`` (GGX, alpha 0.15, a
                    perfect conductor, specular reflectance the material's scale): a second lobe
-                   of another family, outside the criticism's library (no effect explains it).
+                   of another family; the library's ``second_lobe`` with v = 0.3 / 0.7, alpha2 = 0.15.
 ambient+light_calibration  both at once on paper_sphere.
 clean              paper_sphere as is.
 """
@@ -264,7 +265,7 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         (Path(path) / "visibility.exr").unlink()
         _edit_meta(path, lambda meta: meta.update(visibility=None))
         return path
-    if kinds & {"fresnel", "fresnel_plugin", "masking", "ggx_plastic"} and len(kinds) == 1:
+    if kinds & {"fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic"} and len(kinds) == 1:
         scene = backlit_sphere_definition()
         materials, reference = scene["materials"], scene["reference_intensity"]
         if kinds == {"fresnel"}:
@@ -273,6 +274,8 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
             override = _roughplastic(materials, reference, distribution="ggx")
         elif kinds == {"fresnel_plugin"}:
             override = _ext_plugin(materials, reference, f0=FRESNEL_F0)
+        elif kinds == {"ggx_plugin"}:
+            override = _ext_plugin(materials, reference, ggx_w=1.0)
         else:
             override = _ext_plugin(materials, reference, mask_w=1.0)
         return render_dataset(scene, out_dir, bsdf_override=override, **options)
@@ -282,4 +285,5 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
 #: the sRGB cameras: read noise added after the curve, or before it (a sensor's order)
 CAMERAS = {"camera_response", "camera_sensor"}
 HIDDEN = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibration", "interreflection",
-          "cast_shadows", "fresnel", "fresnel_plugin", "masking", "ggx_plastic", "second_lobe")
+          "cast_shadows", "fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic",
+          "second_lobe")
