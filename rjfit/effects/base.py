@@ -42,8 +42,9 @@ STAGES = ("lobe", "direct", "indirect", "light", "ambient", "camera")
 def stage_key(effect) -> tuple:
     """Where an effect (or fit form) applies: its stage's place in :data:`STAGES`, then its
     ``order_in_stage`` (a lobe's distribution, -1, before the factors on it, 0, before a lobe
-    added after them, 1). Sorting by it is stable, so effects of one rank keep their order."""
-    return STAGES.index(effect.stage), effect.order_in_stage
+    added after them, 1; 0 for an object without one, such as a wrapper of an effect). Sorting by it is
+    stable, so effects of one rank keep their order."""
+    return STAGES.index(effect.stage), getattr(effect, "order_in_stage", 0)
 
 
 @dataclass(frozen=True)
