@@ -3,7 +3,8 @@
 For each case, renders the hidden-effect data set of :mod:`rjfit.render.hidden` (Mitsuba
 built-ins: a ``constant`` emitter, colour-science's sRGB curve (its read noise after the curve, or
 before it as a sensor adds it: ``camera_sensor``), a ``blendbsdf`` with a
-``roughconductor`` second lobe, ``roughplastic`` of Beckmann and of GGX distribution, the path integrator's interreflection at ``CASE_SPP``), fits it plainly (:func:`rjfit.pipeline.fit_dataset.fit_dataset`,
+``roughconductor`` second lobe, ``roughplastic`` of Beckmann and of GGX distribution, the path
+integrator's interreflection at ``CASE_SPP``), fits it plainly (:func:`rjfit.pipeline.fit_dataset.fit_dataset`,
 ``--allow-unvalidated``: a hidden effect fails the cross-check by design) and refines the fit
 (:func:`rjfit.pipeline.refine.refine`). Prints and writes (``OUT/refine_table.json``) per case:
 the effects named (in order), the rounds, the regions and label accuracy before -> after the

@@ -18,9 +18,9 @@ from rjfit.effects.light_calibration import LightCalibration
 from rjfit.effects.masking import Masking
 from rjfit.effects.second_lobe import SecondLobe
 
-__all__ = ["Effect", "CameraResponse", "FitForm", "Columns", "Param", "STAGES", "ALL_EFFECTS", "EFFECTS", "get_effect", "effects_help",
-           "Fresnel", "Masking", "GGX", "SecondLobe", "Interreflection", "Ambient", "CastShadows", "CameraGamma", "CameraSRGB",
-           "LightCalibration"]
+__all__ = ["Effect", "CameraResponse", "FitForm", "Columns", "Param", "STAGES", "ALL_EFFECTS", "EFFECTS", "get_effect",
+           "effects_help", "Fresnel", "Masking", "GGX", "SecondLobe", "Interreflection", "Ambient", "CastShadows",
+           "CameraGamma", "CameraSRGB", "LightCalibration"]
 
 ALL_EFFECTS = (Fresnel(), Masking(), GGX(), SecondLobe(), Interreflection(), Ambient(), CastShadows(), CameraGamma(),
                CameraSRGB(), LightCalibration())

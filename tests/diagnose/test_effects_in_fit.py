@@ -22,7 +22,8 @@ from rjfit.effects import EFFECTS
 from rjfit.effects.interreflection import INDIRECT_SPP, feature_key
 from rjfit.diagnose.model import fit_prediction, predict
 
-THETAS = {"fresnel": [0.1], "masking": [0.8], "ggx": [0.7], "second_lobe": [0.4, 0.15], "cast_shadows": [0.7], "interreflection": [1.3], "ambient": [0.03],
+THETAS = {"fresnel": [0.1], "masking": [0.8], "ggx": [0.7], "second_lobe": [0.4, 0.15],
+          "cast_shadows": [0.7], "interreflection": [1.3], "ambient": [0.03],
           "camera_gamma": [2.2], "camera_srgb": [1.3]}
 
 

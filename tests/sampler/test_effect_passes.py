@@ -63,14 +63,16 @@ def every_effect(observations, seed=0):
 
 
 def lobe_shapes(observations, seed=0):
-    """The lobe-shape fit forms (a GGX lobe mixed in, a second lobe), with random geometry (in the observations' order)."""
+    """The lobe-shape fit forms (a GGX lobe mixed in, a second lobe), with random geometry (in the
+    observations' order)."""
     rng = np.random.default_rng(seed + 100)
     n = observations.n_obs
     return [LobeGGX(params=(Param("w_ggx", LogitNormal(0.0, 2.0), 0.5),), tan_v=rng.uniform(0.0, 3.0, n),
                     tan_l=rng.uniform(0.0, 3.0, n)),
             SecondLobeTerm(params=(Param("v", LogNormal(np.log(0.25), 1.5), 0.25),
                                    Param("alpha2", LogitNormal(0.0, 1.5, low=0.02, high=1.0), 0.2)),
-                           cos2_h=rng.uniform(0.0, 1.0, n), tan_v=rng.uniform(0.0, 3.0, n), tan_l=rng.uniform(0.0, 3.0, n))]
+                           cos2_h=rng.uniform(0.0, 1.0, n), tan_v=rng.uniform(0.0, 3.0, n),
+                           tan_l=rng.uniform(0.0, 3.0, n))]
 
 
 @pytest.fixture(scope="module", params=["every effect", "every effect and the lobe shapes"])

@@ -76,8 +76,8 @@ def plain_lobe_terms(cb) -> LobeTerms:
     """Terms with only a lobe column of its own (no masking, no GGX, no ambient light, no second lobe)."""
     empty32 = np.zeros(0, np.float32)
     return LobeTerms(cb=np.asarray(cb, np.float32), mask_w=0.0, tan_v=empty32, tan_l=empty32, amb=empty32,
-                     amb_j=np.zeros(0, np.int32), amb_fy=empty32, table=np.zeros((2, 2)), grid=np.array([0.0, 1.0, 1.0]),
-                     ggx_w=0.0, second=empty32)
+                     amb_j=np.zeros(0, np.int32), amb_fy=empty32, table=np.zeros((2, 2)),
+                     grid=np.array([0.0, 1.0, 1.0]), ggx_w=0.0, second=empty32)
 
 
 @njit(cache=True, nogil=True)
