@@ -11,7 +11,7 @@ import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation
 
-__all__ = ["per_pixel_residuals", "group_fit", "fit_groups", "group_params", "patch_index", "GAMMA_GRID"]
+__all__ = ["tile_lattice", "per_pixel_residuals", "group_fit", "fit_groups", "group_params", "patch_index", "GAMMA_GRID"]
 
 GAMMA_GRID = np.geomspace(0.5, 500.0, 16)
 
@@ -43,6 +43,33 @@ def patch_index(observations, patch: int) -> tuple[np.ndarray, int]:
     pixel = np.asarray(observations.pixel, np.int64)
     tile = (pixel // width // patch) * tiles_across + (pixel % width) // patch
     return tile, int(-(-height // patch) * tiles_across)
+
+
+def tile_lattice(observations, patch: int, max_observations: int | None):
+    """The observations of a regular lattice of ``patch`` x ``patch`` pixel tiles, at most about ``max_observations``.
+
+    A stack-wide estimate of a few numbers (a camera response, one gain per light) needs far
+    fewer observations than a large stack holds, and its cost grows with them. Every
+    ``s``-th tile in both directions is kept, ``s = ceil(sqrt(N / max_observations))``: whole
+    tiles (the estimators' bootstrap resamples tiles), every light of a kept pixel (the
+    lights stay balanced), spread evenly over the object with no RNG. ``s`` = 1 keeps all.
+
+    Returns
+    -------
+    (Observations, dict)
+        The kept observations and the record: ``lattice`` (s), ``observations_used``,
+        ``observations``, ``tile_px``.
+    """
+    n_obs = int(observations.n_obs)
+    stride = 1 if not max_observations or n_obs <= max_observations else int(np.ceil(np.sqrt(n_obs / max_observations)))
+    record = {"lattice": stride, "observations": n_obs, "tile_px": int(patch)}
+    if stride > 1:
+        width = observations.image_shape[1]
+        pixel = np.asarray(observations.pixel, np.int64)
+        keep = ((pixel // width // patch) % stride == 0) & (((pixel % width) // patch) % stride == 0)
+        observations = observations.subset(keep)
+    record["observations_used"] = int(observations.n_obs)
+    return observations, record
 
 
 def group_fit(observations, group, n_groups, gammas=GAMMA_GRID, refine_steps=GOLDEN_STEPS) -> dict:

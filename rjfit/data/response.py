@@ -37,7 +37,7 @@ import dataclasses
 
 import numpy as np
 
-from rjfit.data.pixelfit import per_pixel_residuals
+from rjfit.data.pixelfit import per_pixel_residuals, tile_lattice
 from rjfit.errors import DatasetError
 from rjfit.progress import tracked
 
@@ -99,7 +99,7 @@ def _minimum(kappas, profile):
 
 def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, errors: str = "linear",
                             dark: float | None = None, kappas=KAPPA_GRID, n_bootstrap: int = 200,
-                            tile: int = 16, progress: bool = False) -> dict:
+                            tile: int = 16, max_observations: int | None = None, progress: bool = False) -> dict:
     """Estimate kappa of a power-law response ``raw = k * linear^(1/kappa)`` (linear = raw^kappa up to scale).
 
     Parameters
@@ -122,6 +122,9 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
         Block-bootstrap replicates (0: none).
     tile : int
         Side of the bootstrap's square tiles, in pixels (1: a bootstrap over single pixels).
+    max_observations : int, optional
+        Estimate from a regular lattice of whole bootstrap tiles holding at most about this
+        many observations (:func:`rjfit.data.pixelfit.tile_lattice`; None: every observation).
     progress : bool
         Count the per-kappa fits and the bootstrap on stderr (:func:`rjfit.progress.tracked`); same estimate.
 
@@ -153,6 +156,7 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
         raise ValueError(f"n_bootstrap must be >= 0 and tile >= 1, got {n_bootstrap} and {tile}")
     observations = dataset.observations(channel, dark)
     observations = observations.subset(np.asarray(observations.y) > 0)
+    observations, lattice = tile_lattice(observations, tile, max_observations)
     ssr, count, log_u = _per_pixel_sums(observations, kappas, errors, progress)
     used = count > 0
     if int(used.sum()) < _MIN_PIXELS:
@@ -193,6 +197,7 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
         "n_observations": int(count.sum()),
         "n_pixels": int(used.sum()),
         "bootstrap": {"replicates": n_bootstrap, "tile_px": tile, "tiles": n_tiles, "seed": seed},
+        "subset": lattice,
         "profile": {"kappas": kappas.tolist(), "negative_log_likelihood": (profile - profile.min()).tolist()},
         "caveat": "the interval is the sampling spread over the surface (block bootstrap); a misfit of the "
                   "Lambert + Blinn-Phong family, the normals' error and cast shadows bias kappa by more on "

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.data.observations import Observations
-from rjfit.effects.base import STAGES
+from rjfit.effects.base import STAGES, stage_key
 from rjfit.model.blinn import blinn_normalisation
 from rjfit.sampler.forward import LambertBlinnPhong, transformed
 from rjfit.sampler.likelihood import ab_from_theta, lobe_column
@@ -40,8 +40,8 @@ REGION_PARAMS = ("I0", "kd", "gamma", "sigma2")
 
 
 def order_effects(effects):
-    """Effects sorted by stage (stable within a stage)."""
-    return tuple(sorted(effects, key=lambda e: STAGES.index(e.stage)))
+    """Effects sorted by stage and their order in it (:func:`rjfit.effects.base.stage_key`; stable)."""
+    return tuple(sorted(effects, key=stage_key))
 
 
 def _geometry(ctx):
@@ -74,7 +74,7 @@ def predict(ctx, effects, region_params, effect_thetas, features):
     lobe = blinn_normalisation(gamma_r)[ctx.region] * np.exp(gamma * log_cos)     # 0 where <h.n> <= 0
     terms = {"I0": I0, "kd": kd, "gamma": gamma, "gamma_region": gamma_r, "spec": lobe}
     by_stage = {stage: [] for stage in STAGES}
-    for effect, theta, feature in zip(effects, effect_thetas, features):
+    for effect, theta, feature in sorted(zip(effects, effect_thetas, features), key=lambda t: stage_key(t[0])):
         by_stage[effect.stage].append((effect, theta, feature))
 
     def run(stage):

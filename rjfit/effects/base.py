@@ -4,8 +4,10 @@ and the fit's form (how it enters the fit's likelihood).
 
 Stages (the order :func:`rjfit.diagnose.model.predict` and the fit apply them in)::
 
-    lobe      specular-lobe factor      spec *= factor            (Fresnel, masking)
-    direct    direct-light factor       direct *= factor          (cast shadows)
+    lobe      specular-lobe shape       spec = (1-w) spec + w f   (a GGX lobe mixed in, first in the stage)
+              specular-lobe factor      spec *= factor            (Fresnel, masking)
+    direct    added direct light        direct += term            (a second lobe, first in the stage)
+              direct-light factor       direct *= factor          (cast shadows)
     indirect  added light-dependent     mu = direct + indirect    (interreflection)
     light     per-light factor          mu *= s_l                 (light calibration)
     ambient   added light-independent   mu += ambient             (ambient / stray light)
@@ -31,10 +33,18 @@ import numpy as np
 
 from rjfit.render.scene_change import MitsubaChange
 
-__all__ = ["STAGES", "Param", "Effect", "CameraResponse", "FitForm", "Columns", "take"]
+__all__ = ["STAGES", "Param", "Effect", "CameraResponse", "FitForm", "Columns", "take", "stage_key"]
 
 #: the order in which effects extend eq. 2 (the module docstring describes each stage)
 STAGES = ("lobe", "direct", "indirect", "light", "ambient", "camera")
+
+
+def stage_key(effect) -> tuple:
+    """Where an effect (or fit form) applies: its stage's place in :data:`STAGES`, then its
+    ``order_in_stage`` (a lobe's distribution, -1, before the factors on it, 0, before a lobe
+    added after them, 1; 0 for an object without one, such as a wrapper of an effect). Sorting by it is
+    stable, so effects of one rank keep their order."""
+    return STAGES.index(effect.stage), getattr(effect, "order_in_stage", 0)
 
 
 @dataclass(frozen=True)
@@ -63,6 +73,7 @@ class Effect:
     name: str = ""
     kind: str = ""            # the issue's category (e.g. "camera response")
     stage: str = ""
+    order_in_stage: int = 0   # within the stage (stage_key): -1 a lobe's distribution, 1 a lobe added after its factors
     description: str = ""
     needs_mitsuba: bool = False
     # apply() changes an observation's terms through its own region's parameters and the
@@ -196,6 +207,7 @@ class FitForm(ABC):
     name: str
     stage: str
     params: tuple
+    order_in_stage = 0        # as Effect.order_in_stage (a class attribute, not a dataclass field)
 
     @property
     def n_params(self) -> int:
@@ -232,16 +244,21 @@ class Columns:
     light: np.ndarray
     offset: np.ndarray | None = None
     mask_w: float = 0.0
-    tan: tuple | None = None            # (tan v, tan l) of masking
+    tan: tuple | None = None            # (tan v, tan l) of masking and of the GGX lobes
+    ggx_w: float = 0.0                  # weight of the GGX lobe mixed into the Blinn lobe (0: none)
+    second_lobe: np.ndarray | None = None   # a second lobe's C v f_GGX(alpha2) per observation (direct light)
     ambient: float | None = None        # ambient radiance a of the ambient stage
     ambient_terms: tuple | None = None  # (column j, weight fy, table, grid) of the albedo interpolation
     log_jacobian: float = 0.0
     curve: object = None
 
     def scale(self, factor) -> None:
-        """Multiply the direct and indirect light (``C``, ``CB`` and the offset) by per-observation ``factor``."""
+        """Multiply the direct and indirect light (``C``, ``CB``, a second lobe and the offset) by per-observation
+        ``factor``."""
         self.C = self.C * factor
         self.CB = self.CB * factor
+        if self.second_lobe is not None:
+            self.second_lobe = self.second_lobe * factor
         if self.offset is not None:
             self.offset = self.offset * factor
 

@@ -73,9 +73,8 @@ class DirectFactor(FitForm):
     stage: str = "direct"
 
     def apply(self, columns: Columns, theta) -> None:
-        factor = shadow_factor(self.visibility, theta[0])
-        columns.C = columns.C * factor
-        columns.CB = columns.CB * factor
+        # scale(): C, CB and what else carries direct light (a second lobe); no offset exists at this stage yet
+        columns.scale(shadow_factor(self.visibility, theta[0]))
 
     def in_order(self, order):
         return take(self, order, "visibility")

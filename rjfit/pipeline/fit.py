@@ -246,8 +246,12 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
     """The chains' kept draws summarised by the region model, with the settings every model records."""
     region = region_fit(options) if region is None else region
     run = run_entries(records, problem, prior, options, config.kernel.burn_in, suggestion, noise_record)
-    return region.summarise(records, problem, prior, config, options, run, fit_warnings(problem, prior, suggestion),
-                            truth_labels, observations)
+    result = region.summarise(records, problem, prior, config, options, run, fit_warnings(problem, prior, suggestion),
+                              truth_labels, observations)
+    if result.prediction is not None and result.prediction.get("residual_correlation") is not None:
+        # the misfit the fitted model itself leaves (the power above was measured on per-pixel fits, before it)
+        result.summary["model_misfit"] = result.prediction["residual_correlation"]
+    return result
 
 
 def write_results(out_dir: Path, result: FitResult, records, observations, options: FitOptions,

@@ -215,6 +215,8 @@ SUMMARY_FIELDS = {
     "likelihood_power_suggestion": (dict, "the measured spatial correlation of per-pixel-fit residuals and the zeta it "
                                           "suggests"),
     "noise": (dict, "the noise model, its floor and scale range"),
+    "model_misfit": (dict, "the lag-1 spatial correlation of the fitted model's own standardised residuals (its "
+                           "posterior mean prediction) and the likelihood power it would imply"),
     "chain_seconds": (list, "seconds each chain sampled"),
     "chain_threads": (list, "threads each chain ran on"),
     "chain_resumed_from": (list, "iterations of the checkpoints each chain resumed from"),

@@ -114,6 +114,14 @@ def _power(summary: dict, options: dict) -> str | None:
     return f"{power:.4g} ({how}); each observation counts as {power:.3g} of one"
 
 
+def _model_misfit(summary: dict) -> str | None:
+    misfit = summary.get("model_misfit")
+    if not isinstance(misfit, dict) or not _finite(misfit.get("rho")):
+        return None
+    return (f"neighbours' residuals correlate at rho = {misfit['rho']:.3g} (lag 1, under one light), which would "
+            f"imply a power of {misfit['implied_power']:.3g}; 0 and 1 when the model explains all but the noise")
+
+
 def _effects(summary: dict) -> str:
     names = [e.get("name") for e in summary.get("effects") or [] if isinstance(e, dict)]
     return ", ".join(str(n) for n in names) + " (sampled with the regions)" if names else "none"
@@ -151,6 +159,7 @@ def fit_settings(summary: dict) -> list:
             ("calibration (response, gains)", _calibration(summary) if options else None),
             ("noise model", _noise(summary)),
             ("likelihood power (zeta)", _power(summary, options)),
+            ("misfit the fitted model leaves", _model_misfit(summary)),
             ("effects", _effects(summary) if options else None)]
     rows += _run(summary, options)
     rows += [("observations", f"{summary['n_observations']:,} (pixel, light) pairs"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.posterior.misfit import residual_correlation
 from rjfit.sampler.forward import transformed
 from rjfit.sampler.likelihood import ab_from_theta, lobe_column
 
@@ -96,4 +97,5 @@ def effects_prediction(records, burn_in: int, problem, picks_of) -> dict:
             return (np.bincount(problem.pixel, weights=values, minlength=n_pix) / count).reshape(problem.image_shape)
 
     return {"radiance": per_pixel(mean), "observed": per_pixel(data.y), "abs_error": per_pixel(np.abs(data.y - mean)),
-            "residual_rms": np.sqrt(per_pixel(resid ** 2 / sigma2)), "draws": int(len(picks))}
+            "residual_rms": np.sqrt(per_pixel(resid ** 2 / sigma2)), "draws": int(len(picks)),
+            "residual_correlation": residual_correlation(problem, resid / np.sqrt(sigma2))}

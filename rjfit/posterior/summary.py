@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from rjfit.posterior.misfit import residual_correlation
 from rjfit.sampler.priors import PARAM_NAMES
 from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
 
@@ -362,7 +363,8 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
 
     out = {"radiance": per_pixel(mu * scale), "observed": per_pixel(y * scale),
            "abs_error": per_pixel(np.abs(y - mu) * scale),
-           "residual_rms": np.sqrt(per_pixel((y - mu) ** 2 / sigma2)), "draws": int(len(picks))}
+           "residual_rms": np.sqrt(per_pixel((y - mu) ** 2 / sigma2)), "draws": int(len(picks)),
+           "residual_correlation": residual_correlation(problem, (y - mu) / np.sqrt(sigma2))}
     if problem.n_channels > 1:        # a joint colour fit: the radiances per channel as well, (H, W, C)
         for name, values in (("radiance_rgb", mu * scale), ("observed_rgb", y * scale)):
             out[name] = np.stack([_channel_mean(problem, values, c) for c in range(problem.n_channels)], axis=-1)

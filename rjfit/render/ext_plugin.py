@@ -1,19 +1,26 @@
-"""``rjfit_blinn_ext``: rjfit's plugin (:mod:`rjfit.render.plugin`) with two more parameters on
-the specular lobe, implemented separately from the NumPy closed form of the criticism's
-effects (drjit, in the BSDF):
+"""``rjfit_blinn_ext``: rjfit's plugin (:mod:`rjfit.render.plugin`) with more parameters on the
+specular lobe, implemented separately from the NumPy closed form of the criticism's effects
+(drjit, in the BSDF):
 
-    f = scale ( kd/pi + (1 - kd) N(g) <h.n>^g F(<h.v>)/F0 ((1 - w) + w G1(v) G1(l)) )
+    f = scale ( kd/pi + (1 - kd) ((1 - u) N(g) <h.n>^g + u f_GGX(alpha)) F(<h.v>)/F0 ((1 - w) + w G1(v) G1(l))
+                + v2 f_GGX(alpha2) )
 
-``f0`` (default 1: no Fresnel) and ``mask_w`` (default 0: no masking), both traverse-able and
-opaque. Sampling is the plugin's (the lobe factors are <= 1/F0 and smooth, so the Blinn
-importance sampling stays valid; only its efficiency changes). ``N(g)`` is Giesen's
-normalisation written in drjit, the twin of :func:`rjfit.model.blinn.blinn_normalisation`
-(drjit cannot call NumPy inside a kernel); the gate of the Fresnel and masking effects
-(``tests/diagnose/test_diagnose_gate.py``) checks this BSDF against that closed form.
+with ``alpha = sqrt(2 / (g + 2))`` and ``f_GGX(a) = D_a(h) G1_a(v) G1_a(l) / (4 <v.n> <l.n>)``
+the GGX microfacet BRDF with Fresnel 1 (Mitsuba's ``roughconductor``, material "none",
+distribution "ggx": ``tests/render/test_ext_plugin.py`` checks the two against each other).
+Parameters, traverse-able and opaque: ``f0`` (default 1: no Fresnel), ``mask_w`` (default 0:
+no Beckmann masking), ``ggx_w`` (u, default 0: no GGX in the lobe), ``lobe2_v`` (v2, default
+0: no second lobe) and ``lobe2_alpha`` (alpha2, default 0.2). Sampling is the plugin's (the
+Blinn importance sampling stays valid: its density is positive wherever the lobes are; only
+its efficiency changes). ``N(g)`` is Giesen's normalisation written in drjit, the twin of
+:func:`rjfit.model.blinn.blinn_normalisation` (drjit cannot call NumPy inside a kernel); the
+gate of the lobe effects (``tests/diagnose/test_diagnose_gate.py``) checks this BSDF against
+that closed form.
 """
 from __future__ import annotations
 
 import math
+from functools import partial
 
 __all__ = ["EXT_PLUGIN_NAME", "register_ext"]
 
@@ -22,6 +29,50 @@ EXT_PLUGIN_NAME = "rjfit_blinn_ext"
 # and process-wide, and registering twice is refused, so this mirrors that registry (as
 # rjfit.render.plugin does for rjfit_blinn)
 _REGISTERED: dict = {}
+
+
+def _beckmann_smith_g1(dr, cos_theta, alpha):
+    """Walter et al.'s rational fit of Beckmann's Smith G1, in drjit."""
+    cos_theta = dr.clip(cos_theta, 1e-6, 1.0)
+    tan_theta = dr.safe_sqrt(1.0 - cos_theta * cos_theta) / cos_theta
+    a = 1.0 / dr.maximum(alpha * tan_theta, 1e-12)
+    g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
+    return dr.select(a >= 1.6, 1.0, g)
+
+
+def _ggx(dr, cos_h, cos_i, cos_o, alpha):
+    """``D G1(i) G1(o) / (4 cos_i cos_o)`` of GGX in drjit, written from the definitions (Walter et al.
+    2007, eqs. 33-34), for cos_i, cos_o > 0."""
+    a2 = alpha * alpha
+    denom = (cos_h * cos_h) * (a2 - 1.0) + 1.0
+    d = dr.select(cos_h > 0.0, a2 / (math.pi * denom * denom), 0.0)
+
+    def g1(cos_theta):
+        cos2 = cos_theta * cos_theta
+        return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - cos2) / cos2))
+    return d * g1(cos_i) * g1(cos_o) / (4.0 * cos_i * cos_o)
+
+
+#: the plugin's lobe parameters and their defaults (each one's null: no such term)
+LOBE_DEFAULTS = {"f0": 1.0, "mask_w": 0.0, "ggx_w": 0.0, "lobe2_v": 0.0, "lobe2_alpha": 0.2}
+
+
+def _lobe_parameters(props) -> dict:
+    """The lobe parameters of a plugin's properties (defaults where absent), checked.
+
+    Raises
+    ------
+    ValueError
+        For a value out of its range, naming the parameter.
+    """
+    values = {key: float(props.get(key, default)) for key, default in LOBE_DEFAULTS.items()}
+    f0, mask_w, ggx_w, lobe2_v, lobe2_alpha = values.values()
+    if not (0.0 < f0 <= 1.0) or not (0.0 <= mask_w <= 1.0) or not (0.0 <= ggx_w <= 1.0):
+        raise ValueError(f"{EXT_PLUGIN_NAME}: need 0 < f0 <= 1, 0 <= mask_w <= 1 and 0 <= ggx_w <= 1, "
+                         f"got {f0}, {mask_w}, {ggx_w}")
+    if not (lobe2_v >= 0.0) or not (0.0 < lobe2_alpha <= 1.0):
+        raise ValueError(f"{EXT_PLUGIN_NAME}: need lobe2_v >= 0 and 0 < lobe2_alpha <= 1, got {lobe2_v}, {lobe2_alpha}")
+    return values
 
 
 def register_ext():
@@ -39,32 +90,24 @@ def register_ext():
     m = getattr(mi, variant)
     inv_pi = 1.0 / math.pi
 
-    def smith_g1(cos_theta, alpha):
-        cos_theta = dr.clip(cos_theta, 1e-6, 1.0)
-        tan_theta = dr.safe_sqrt(1.0 - cos_theta * cos_theta) / cos_theta
-        a = 1.0 / dr.maximum(alpha * tan_theta, 1e-12)
-        g = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
-        return dr.select(a >= 1.6, 1.0, g)
+    smith_g1 = partial(_beckmann_smith_g1, dr)
+    ggx = partial(_ggx, dr)
 
     class RjfitBlinnExtBSDF(base):
         def __init__(self, props):
             base.__init__(self, props)
-            f0 = float(props.get("f0", 1.0))
-            mask_w = float(props.get("mask_w", 0.0))
-            if not (0.0 < f0 <= 1.0) or not (0.0 <= mask_w <= 1.0):
-                raise ValueError(f"{EXT_PLUGIN_NAME}: need 0 < f0 <= 1 and 0 <= mask_w <= 1, got {f0}, {mask_w}")
-            self.f0 = m.Float(f0)
-            self.mask_w = m.Float(mask_w)
-            dr.make_opaque(self.f0, self.mask_w)
+            for key, value in _lobe_parameters(props).items():
+                setattr(self, key, m.Float(value))
+            dr.make_opaque(self.f0, self.mask_w, self.ggx_w, self.lobe2_v, self.lobe2_alpha)
 
         def traverse(self, callback):
             base.traverse(self, callback)
-            callback.put("f0", self.f0, ParamFlags.Differentiable)
-            callback.put("mask_w", self.mask_w, ParamFlags.Differentiable)
+            for key in LOBE_DEFAULTS:
+                callback.put(key, getattr(self, key), ParamFlags.Differentiable)
 
         def parameters_changed(self, keys=None):
             base.parameters_changed(self, keys)
-            dr.make_opaque(self.f0, self.mask_w)
+            dr.make_opaque(self.f0, self.mask_w, self.ggx_w, self.lobe2_v, self.lobe2_alpha)
 
         def _eval_pdf(self, ctx, si, wo, active):
             has_diffuse, has_glossy, prob_d = self._lobe_probabilities(ctx)
@@ -87,7 +130,11 @@ def register_ext():
                 fresnel = 1.0 + (1.0 / self.f0 - 1.0) * (one_minus * one_minus) * (one_minus * one_minus) * one_minus
                 alpha = dr.sqrt(2.0 / (g + 2.0))
                 masking = (1.0 - self.mask_w) + self.mask_w * smith_g1(cos_i, alpha) * smith_g1(cos_o, alpha)
-                value += (1.0 - self.kd) * norm * cos_h_pow_g * fresnel * masking
+                # with ggx_w = lobe2_v = 0 the same products in the same order as before they existed
+                blinn = (1.0 - self.kd) * ((1.0 - self.ggx_w) * norm) * cos_h_pow_g
+                mixed = blinn + (1.0 - self.kd) * self.ggx_w * ggx(cos_h, cos_i, cos_o, alpha)
+                second = self.lobe2_v * ggx(cos_h, cos_i, cos_o, self.lobe2_alpha)
+                value += mixed * fresnel * masking + second
                 pdf_h = (g + 1.0) * (0.5 / math.pi) * cos_h_pow_g
                 wo_dot_h = dr.dot(wo, h)
                 pdf += (1.0 - prob_d) * dr.select(wo_dot_h > 0.0, pdf_h / (4.0 * wo_dot_h), 0.0)

@@ -29,11 +29,15 @@ fresnel            a sphere with back lights (angles 105-130 degrees from the vi
                    Smith masking and the coating's transmission on the diffuse part), not
                    exactly Blinn: the test asks the workflow to name the dominant missing effect.
 fresnel_plugin     the same scene with ``rjfit_blinn_ext`` (F0 = 0.04): only Fresnel is missing.
+ggx_plugin         the back-lit sphere with ``rjfit_blinn_ext`` (ggx_w = 1: a GGX lobe of the regions' roughness).
+ggx_plastic        the ``fresnel`` scene with Mitsuba's ``roughplastic`` of distribution "ggx" (the same
+                   alpha = sqrt(2/(gamma+2)), IOR 1.5): a GGX dielectric, its lobe GGX with Smith-GGX
+                   shadowing under the coating's Fresnel.
 masking            the back-lit sphere with ``rjfit_blinn_ext`` (mask_w = 1, Smith-Beckmann G).
 second_lobe        paper_sphere whose materials are Mitsuba's built-in ``blendbsdf``: 70 % rjfit's
                    Blinn-Phong plugin and 30 % a built-in ``roughconductor`` (GGX, alpha 0.15, a
                    perfect conductor, specular reflectance the material's scale): a second lobe
-                   of another family, outside the criticism's library (no effect explains it).
+                   of another family; the library's ``second_lobe`` with v = 0.3 / 0.7, alpha2 = 0.15.
 ambient+light_calibration  both at once on paper_sphere.
 clean              paper_sphere as is.
 """
@@ -80,11 +84,11 @@ def backlit_sphere_definition():
     return scene
 
 
-def _roughplastic(materials, reference_intensity):
+def _roughplastic(materials, reference_intensity, distribution="beckmann"):
     def override(index):
         m = materials[index]
         scale = m["I0"] / reference_intensity
-        return {"type": "roughplastic", "distribution": "beckmann", "alpha": math.sqrt(2.0 / (m["gamma"] + 2.0)),
+        return {"type": "roughplastic", "distribution": distribution, "alpha": math.sqrt(2.0 / (m["gamma"] + 2.0)),
                 "int_ior": 1.5, "ext_ior": 1.0,
                 "diffuse_reflectance": {"type": "rgb", "value": [scale * m["kd"]] * 3},
                 "specular_reflectance": {"type": "rgb", "value": [1.0] * 3}}
@@ -261,13 +265,17 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         (Path(path) / "visibility.exr").unlink()
         _edit_meta(path, lambda meta: meta.update(visibility=None))
         return path
-    if kinds & {"fresnel", "fresnel_plugin", "masking"} and len(kinds) == 1:
+    if kinds & {"fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic"} and len(kinds) == 1:
         scene = backlit_sphere_definition()
         materials, reference = scene["materials"], scene["reference_intensity"]
         if kinds == {"fresnel"}:
             override = _roughplastic(materials, reference)
+        elif kinds == {"ggx_plastic"}:
+            override = _roughplastic(materials, reference, distribution="ggx")
         elif kinds == {"fresnel_plugin"}:
             override = _ext_plugin(materials, reference, f0=FRESNEL_F0)
+        elif kinds == {"ggx_plugin"}:
+            override = _ext_plugin(materials, reference, ggx_w=1.0)
         else:
             override = _ext_plugin(materials, reference, mask_w=1.0)
         return render_dataset(scene, out_dir, bsdf_override=override, **options)
@@ -277,4 +285,5 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
 #: the sRGB cameras: read noise added after the curve, or before it (a sensor's order)
 CAMERAS = {"camera_response", "camera_sensor"}
 HIDDEN = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibration", "interreflection",
-          "cast_shadows", "fresnel", "fresnel_plugin", "masking", "second_lobe")
+          "cast_shadows", "fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic",
+          "second_lobe")

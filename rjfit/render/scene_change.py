@@ -18,8 +18,8 @@ __all__ = ["MitsubaChange", "merge_changes"]
 class MitsubaChange:
     """The Mitsuba side of an effect (or of several, merged).
 
-    bsdf_params : extra parameters of the plugin variant ``rjfit_blinn_ext`` (f0, mask_w;
-                  :mod:`rjfit.render.ext_plugin`)
+    bsdf_params : extra parameters of the plugin variant ``rjfit_blinn_ext`` (f0, mask_w, ggx_w, lobe2_v,
+                  lobe2_alpha; :mod:`rjfit.render.ext_plugin`)
     extra       : extra scene entries (e.g. a ``constant`` emitter)
     max_depth   : the path integrator's path length (None: the gate's default, direct only)
     light_scales: per-light factors on the emitter intensities

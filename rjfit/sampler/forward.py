@@ -18,12 +18,14 @@ changes the columns (:class:`rjfit.effects.base.Columns`), never the region stru
 given parameters: a per-light gain or a shadowing factor scales ``C``; a camera response
 ``f`` replaces ``y`` by ``f^-1(y)`` and adds ``sum log |(f^-1)'(y_i)|`` (the log-Jacobian); a
 known additive feature ``F_i`` (indirect light) times a weight replaces ``y`` by
-``y - w F_i``; a Fresnel factor scales the lobe's own ``C`` (``CB``); masking and ambient
-light make the lobe column gamma-dependent per observation (:mod:`rjfit.sampler.passes.lobe`).
-With effects the mean stays linear in (a, b) given gamma,
+``y - w F_i``; a Fresnel factor scales the lobe's own ``C`` (``CB``); a GGX lobe mixed in,
+masking, a second lobe and ambient light make the lobe column gamma-dependent per
+observation (:mod:`rjfit.sampler.passes.lobe`). With effects the mean stays linear in (a, b)
+given gamma,
 
     mu_i = a A_i + b B_i(gamma),   A_i = C_i / pi,
-    B_i(gamma) = CB_i <h.n>_i^gamma M_i(gamma) + amb_i alb(gamma, v_i) / N(gamma),
+    B_i(gamma) = CB_i L_i(gamma) M_i(gamma) + (second_i + amb_i alb(gamma, v_i)) / N(gamma),
+    L_i(gamma) = (1 - u) <h.n>_i^gamma + u f_GGX,i(alpha(gamma)) / N(gamma),
 
 so every statistic and move of the region sampler serves them unchanged. A forward model
 with effects (:class:`LambertBlinnPhong` with ``effects``) builds the untransformed problem
@@ -33,7 +35,9 @@ transformed :class:`Problem` and the log-Jacobian. The kernel's effect move
 (:mod:`rjfit.sampler.moves.effects`) proposes the parameters and accepts by the full
 log-likelihood of the transformed problem plus the log-Jacobian, the effects' log prior
 and the proposal densities. Effects whose mean is not linear in (a, b) given gamma (a
-second lobe) do not fit: they need a new family of statistics.
+second lobe with a weight and roughness of its own per region) do not fit: they need a new
+family of statistics; a second lobe whose weight and roughness are global, relative to the
+region's lobe amplitude, is linear and fits.
 
 The noise: the criticism writes a camera response as ``y = f(mu) + e`` (noise after the
 response); the fit, which needs the sufficient statistics of a Gaussian linear in (a, b),
@@ -49,7 +53,7 @@ from functools import cached_property
 import numpy as np
 
 from rjfit.data.observations import Observations
-from rjfit.effects.base import STAGES, Columns
+from rjfit.effects.base import STAGES, Columns, stage_key
 from rjfit.sampler.passes.lobe import LobeTerms
 
 __all__ = ["Problem", "ForwardModel", "EffectData", "LambertBlinnPhong", "transformed", "CHUNK"]
@@ -265,6 +269,10 @@ def transformed(problem: Problem, z) -> tuple[Problem, float]:
 
 def _lobe_terms(columns: Columns, CB, inverse_scale) -> LobeTerms:
     empty = np.zeros(0, np.float32)
+    second = empty
+    if columns.second_lobe is not None:
+        second = columns.second_lobe if inverse_scale is None else columns.second_lobe * inverse_scale
+        second = second.astype(np.float32)
     tan_v, tan_l = (empty, empty) if columns.tan is None else (np.asarray(t, np.float32) for t in columns.tan)
     amb, amb_j, amb_fy, table, grid = empty, np.zeros(0, np.int32), empty, np.zeros((2, 2)), np.array([0.0, 1.0, 1.0])
     if columns.ambient is not None:
@@ -273,7 +281,8 @@ def _lobe_terms(columns: Columns, CB, inverse_scale) -> LobeTerms:
         amb = amb.astype(np.float32)
     return LobeTerms(cb=CB.astype(np.float32), mask_w=float(columns.mask_w), tan_v=tan_v, tan_l=tan_l, amb=amb,
                      amb_j=np.asarray(amb_j, np.int32), amb_fy=np.asarray(amb_fy, np.float32),
-                     table=np.asarray(table, float), grid=np.asarray(grid, float))
+                     table=np.asarray(table, float), grid=np.asarray(grid, float), ggx_w=float(columns.ggx_w),
+                     second=second)
 
 
 class ForwardModel(ABC):
@@ -313,7 +322,7 @@ class LambertBlinnPhong(ForwardModel):
         cameras = [e.name for e in effects if e.stage == "camera"]
         if len(cameras) > 1:        # two curves would need their inverses in reverse order: one response per camera
             raise ValueError(f"one camera response per fit, got {', '.join(cameras)}")
-        self.effects = tuple(sorted(effects, key=lambda e: STAGES.index(e.stage)))
+        self.effects = tuple(sorted(effects, key=stage_key))
 
     def problem(self, observations: Observations, *, likelihood_power: float = 1.0, noise_scale=None) -> Problem:
         """Sort, compact and (optionally) weight the observations.

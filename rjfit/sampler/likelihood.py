@@ -27,6 +27,7 @@ import numpy as np
 
 from rjfit.model.blinn import blinn_normalisation, radiance
 from rjfit.effects.masking import beckmann_alpha, smith_g1_tan
+from rjfit.effects.ggx import LOG_COS_H_ZERO, ggx_over_norm
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.passes import sums
 
@@ -70,10 +71,17 @@ def lobe_column(problem: Problem, idx, gamma_per_obs) -> np.ndarray:
         return b_terms(problem.C[idx], problem.log_cos_hn[idx], gamma_per_obs)
     gamma = np.broadcast_to(np.asarray(gamma_per_obs, dtype=float), problem.log_cos_hn[idx].shape)
     B = b_terms(lobe.cb[idx].astype(np.float64), problem.log_cos_hn[idx], gamma)
+    if lobe.ggx_w != 0.0:
+        lh = problem.log_cos_hn[idx].astype(float)
+        cos2_h = np.where(lh > LOG_COS_H_ZERO, np.exp(2.0 * lh), 0.0)
+        ggx = ggx_over_norm(cos2_h, lobe.tan_v[idx].astype(float), lobe.tan_l[idx].astype(float), gamma)
+        B = (1.0 - lobe.ggx_w) * B + lobe.ggx_w * (lobe.cb[idx].astype(np.float64) * ggx)
     if lobe.mask_w != 0.0:
         alpha = beckmann_alpha(gamma)
         g = smith_g1_tan(lobe.tan_v[idx].astype(float), alpha) * smith_g1_tan(lobe.tan_l[idx].astype(float), alpha)
         B *= (1.0 - lobe.mask_w) + lobe.mask_w * g
+    if lobe.second.size:
+        B += lobe.second[idx].astype(float) / blinn_normalisation(gamma)
     if lobe.amb.size:
         low, high, step = lobe.grid
         x = (np.clip(np.log(gamma), low, high) - low) / step

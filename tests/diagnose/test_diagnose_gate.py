@@ -32,6 +32,10 @@ def scenes(tmp_path_factory):
 @pytest.mark.parametrize("scene, effects, thetas, reference, options", [
     ("backlit", ["fresnel"], [[0.1]], [], {}),
     ("backlit", ["masking"], [[1.0]], [], {}),
+    ("backlit", ["ggx"], [[0.6]], [], {}),
+    ("backlit", ["ggx", "fresnel", "masking"], [[1.0], [0.1], [0.5]], ["fresnel", "masking"], {}),
+    ("sphere", ["second_lobe"], [[0.4, 0.15]], [], {}),
+    ("dented_direct", ["second_lobe", "cast_shadows"], [[0.6, 0.3], [1.0]], ["cast_shadows"], {}),
     ("sphere", ["camera_gamma"], [[2.2]], [], {}),
     ("sphere", ["camera_srgb"], [[1.3]], [], {}),
     ("sphere", ["light_calibration"], [[0.15, -0.1, 0.0, 0.05, 0.0, 0.0, 0.0, 0.0, 0.0]], [], {}),

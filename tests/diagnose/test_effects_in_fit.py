@@ -22,7 +22,8 @@ from rjfit.effects import EFFECTS
 from rjfit.effects.interreflection import INDIRECT_SPP, feature_key
 from rjfit.diagnose.model import fit_prediction, predict
 
-THETAS = {"fresnel": [0.1], "masking": [0.8], "cast_shadows": [0.7], "interreflection": [1.3], "ambient": [0.03],
+THETAS = {"fresnel": [0.1], "masking": [0.8], "ggx": [0.7], "second_lobe": [0.4, 0.15],
+          "cast_shadows": [0.7], "interreflection": [1.3], "ambient": [0.03],
           "camera_gamma": [2.2], "camera_srgb": [1.3]}
 
 
@@ -56,6 +57,10 @@ ALL_BUT_GAMMA = ["fresnel", "masking", "cast_shadows", "interreflection", "light
 
 @pytest.mark.parametrize("names, noise", [([name], "constant") for name in sorted(EFFECTS)]
                          + [(ALL_BUT_GAMMA, "constant"), (ALL_BUT_GAMMA, "relative"),
+                            (["masking", "fresnel", "ggx"], "relative"),      # ggx listed last, applied first
+                            (ALL_BUT_GAMMA + ["ggx"], "relative"),
+                            (ALL_BUT_GAMMA + ["second_lobe", "ggx"], "relative"),
+                            (["second_lobe", "cast_shadows", "ambient"], "constant"),
                             (["ambient", "camera_gamma"], "relative")])
 def test_the_fit_s_mean_is_the_criticism_s_closed_form(dataset, names, noise):
     ctx, params = _context(dataset, noise)

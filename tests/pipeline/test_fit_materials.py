@@ -59,6 +59,15 @@ def test_summary_has_the_material_entries(fitted):
     assert "map_model" not in summary and "changepoints.npz" not in {p.name for p in out.iterdir()}
 
 
+def test_the_fitted_model_leaves_white_residuals_on_data_it_generated(fitted):
+    _, summary, _ = fitted
+    misfit = summary["model_misfit"]
+    # about 2,500 neighbour pairs (sd of rho near 0.02); the posterior mean's own error, shared by a material's pixels,
+    # adds a little positive correlation (of the order of its 12 parameters over 1,300 observations)
+    assert misfit["rho"] < 0.1 and misfit["implied_power"] > 0.8
+    assert read_summary(fitted[0])["model_misfit"]["pairs"] == misfit["pairs"] > 2000
+
+
 def test_the_three_materials_form_three_edge_groups_in_every_counted_snapshot(fitted):
     """The data separate the three materials by far (I0 6, 10, 14 against noise sd 0.14), so every boundary between
     them is an edge in every snapshot; a twin of a material, if a chain held one, would be joined to it."""

@@ -27,9 +27,11 @@ from rjfit.effects.base import Param
 from rjfit.effects.camera_srgb import SRGBCurve
 from rjfit.effects.cast_shadows import DirectFactor
 from rjfit.effects.fresnel import LobeFactor
+from rjfit.effects.ggx import LobeGGX
 from rjfit.effects.interreflection import IndirectLight
 from rjfit.effects.light_calibration import LightGains
 from rjfit.effects.masking import LobeMasking
+from rjfit.effects.second_lobe import SecondLobeTerm
 from rjfit.model.priors import LogitNormal, LogNormal, Normal
 from rjfit.sampler import reference
 from rjfit.sampler.forward import LambertBlinnPhong, transformed
@@ -60,13 +62,31 @@ def every_effect(observations, seed=0):
     ]
 
 
-@pytest.fixture(scope="module")
-def problem():
+def lobe_shapes(observations, seed=0):
+    """The lobe-shape fit forms (a GGX lobe mixed in, a second lobe), with random geometry (in the
+    observations' order)."""
+    rng = np.random.default_rng(seed + 100)
+    n = observations.n_obs
+    return [LobeGGX(params=(Param("w_ggx", LogitNormal(0.0, 2.0), 0.5),), tan_v=rng.uniform(0.0, 3.0, n),
+                    tan_l=rng.uniform(0.0, 3.0, n)),
+            SecondLobeTerm(params=(Param("v", LogNormal(np.log(0.25), 1.5), 0.25),
+                                   Param("alpha2", LogitNormal(0.0, 1.5, low=0.02, high=1.0), 0.2)),
+                           cos2_h=rng.uniform(0.0, 1.0, n), tan_v=rng.uniform(0.0, 3.0, n),
+                           tan_l=rng.uniform(0.0, 3.0, n))]
+
+
+@pytest.fixture(scope="module", params=["every effect", "every effect and the lobe shapes"])
+def problem(request):
+    """Every effect's terms at once; and with the lobe shapes too (ggx, whose tangents replace masking's, and a
+    second lobe)."""
     obs, _, _ = sphere_stack(40, n_lights=6, seed=3)
-    base = LambertBlinnPhong(every_effect(obs)).problem(obs, likelihood_power=0.6)
+    forms = every_effect(obs) + (lobe_shapes(obs) if request.param != "every effect" else [])
+    base = LambertBlinnPhong(forms).problem(obs, likelihood_power=0.6)
     z = base.effects.initial_z() + np.random.default_rng(1).normal(0.0, 0.3, base.effects.n_params)
     effect_problem, _ = transformed(base, z)
     assert effect_problem.lobe.mask_w > 0 and effect_problem.lobe.amb.size == obs.n_obs
+    if request.param != "every effect":
+        assert effect_problem.lobe.ggx_w > 0 and effect_problem.lobe.second.size == obs.n_obs
     return effect_problem
 
 

@@ -29,7 +29,7 @@ import dataclasses
 import numpy as np
 import pytest
 from scipy import stats
-from test_effect_passes import every_effect
+from test_effect_passes import every_effect, lobe_shapes
 from threadpoolctl import threadpool_limits
 
 from rjfit.data.observations import Observations
@@ -69,10 +69,13 @@ STRUCTURE_MOVES = {
 }
 
 
-@pytest.mark.parametrize("regions", ["changepoints", "materials"])
-def test_incremental_statistics_equal_a_full_recompute_with_effects(regions):
+@pytest.mark.parametrize("regions, lobes", [("changepoints", False), ("materials", False), ("changepoints", True),
+                                            ("materials", True)])
+def test_incremental_statistics_equal_a_full_recompute_with_effects(regions, lobes):
+    """``lobes``: the lobe shapes (a GGX lobe mixed in, a second lobe) on top of every effect."""
     obs, _, _ = sphere_stack(12, n_lights=5, seed=4)
-    problem = LambertBlinnPhong(every_effect(obs, seed=2)).problem(obs, likelihood_power=0.7)
+    forms = every_effect(obs, seed=2) + (lobe_shapes(obs, seed=2) if lobes else [])
+    problem = LambertBlinnPhong(forms).problem(obs, likelihood_power=0.7)
     from rjfit.sampler.priors import make_prior
 
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)

@@ -108,6 +108,39 @@ def test_newton_rule_matches_finite_differences_of_the_profile(problem):
         assert sd == pytest.approx(1.0 / math.sqrt(-d2), rel=1e-4)
 
 
+def test_newton_rule_follows_the_profile_over_nonnegative_amplitudes():
+    """Where the least-squares diffuse amplitude a is negative (a lobe that takes up the diffuse light, kd near 0),
+    the Newton proposal's mean and sd come from the profile on the face a = 0, -(Syy - SyB^2 / SBB) / (2 sigma^2),
+    which is the posterior's side of the bound (finite differences, as above)."""
+    from rjfit.data.observations import Observations
+    from rjfit.model.blinn import blinn_normalisation
+
+    rng = np.random.default_rng(4)
+    n = 400
+    cos_ln, cos_hn = rng.uniform(0.2, 1.0, n), rng.uniform(0.5, 1.0, n)
+    # a pure lobe of exponent 6 less a little diffuse light: the unbounded fit wants a < 0
+    y = cos_ln * (10.0 * blinn_normalisation(6.0) * cos_hn ** 6.0 - 1.5 / np.pi) + rng.normal(0, 0.01, n)
+    obs = Observations(image_shape=(20, 20), n_lights=1, pixel=np.arange(n), light=np.zeros(n, np.int32), y=y,
+                       cos_ln=cos_ln, cos_hn=cos_hn, irradiance=np.ones(n), object_mask=np.ones((20, 20), bool))
+    data = RegionData.gather(Problem.from_observations(obs), np.arange(n))
+    s2 = 0.3
+
+    def face_profile(ell):
+        stats = data.stats_at(math.exp(ell))
+        return -(stats[1] - max(stats[4], 0.0) ** 2 / stats[6]) / (2 * s2)
+
+    for gamma in (5.0, 6.0, 7.5):
+        stats = data.stats_at(gamma)
+        P = np.array([[stats[3], stats[5]], [stats[5], stats[6]]])
+        assert np.linalg.solve(P, [stats[2], stats[4]])[0] < 0       # the case: a < 0 without the bound
+        ell, step = math.log(gamma), 1e-3
+        h0, hp, hm = face_profile(ell), face_profile(ell + step), face_profile(ell - step)
+        d1, d2 = (hp - hm) / (2 * step), (hp - 2 * h0 + hm) / step ** 2
+        mean, sd = newton_log_gamma(stats, data.b_sums_newton(gamma), gamma, s2, 1.0)
+        assert mean == pytest.approx(ell - d1 / d2, rel=1e-4, abs=1e-6)
+        assert sd == pytest.approx(1.0 / math.sqrt(-d2), rel=1e-4)
+
+
 @pytest.mark.parametrize("axis", ["u", "v"])
 def test_element_move_delta_and_shift_equal_reference(problem, axis):
     rng = np.random.default_rng(1)
