@@ -436,7 +436,8 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
 def refine(fit_dir, out_dir, max_rounds, max_steps, seed, no_simulate):
     """Close the loop: diagnose FIT_DIR, fit its data set again with the named effects sampled
     jointly with the segmentation (the fit's own options plus --effects-from), diagnose that
-    fit, and repeat until nothing more is named."""
+    fit, and repeat until nothing more is named and a feature rendered from the fitted regions
+    (interreflection's) was rendered on labels the fit keeps (agreeing on 99 % of the pixels)."""
     _check_output(out_dir)
     from rjfit.pipeline.refine import refine as refine_fit
 

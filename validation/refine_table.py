@@ -14,7 +14,7 @@ or dropped, and in which round), the unexplained misfit (where the last diagnosi
 and the seconds (fit + refine).
 
     .venv/bin/python validation/refine_table.py OUT_DIR [--only CASE,...] [--resolution 64]
-                     [--chains 2] [--iterations 600] [--max-rounds 3] [--regions materials]
+                     [--chains 2] [--iterations 600] [--max-rounds 4] [--regions materials] [--seed 1]
 """
 from __future__ import annotations
 
@@ -37,6 +37,7 @@ CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response",
          "sRGB (noise before the curve)": "camera_sensor", "second lobe": "second_lobe",
          "one light off": "light_calibration", "ambient + sRGB": "ambient+camera_response",
          "ambient + sRGB (noise before the curve)": "ambient+camera_sensor",
+         "gamma (noise before the curve)": "camera_gamma_sensor",
          "cast shadows": "cast_shadows", "dielectric lobe": "fresnel", "GGX lobe (plugin)": "ggx_plugin",
          "GGX dielectric lobe": "ggx_plastic",
          "interreflection": "interreflection"}
@@ -55,12 +56,15 @@ def run_case(case, kind, out, args) -> dict:
     started = time.perf_counter()
     fit_dir = out / kind / "fit"
     fit_dataset(dataset, fit_dir, allow_unvalidated=True, n_chains=args.chains, iterations=args.iterations,
-                seed=0, progress=False, figures=False, regions=args.regions)
+                seed=args.seed, progress=False, figures=False, regions=args.regions)
     refined = refine(fit_dir, out / kind / "refine", max_rounds=args.max_rounds, max_steps=2, say=print)
     first, last = refined["rounds"][0], refined["rounds"][-1]
     last_diagnosis = json.loads((Path(last["diagnosis"]) / "diagnosis.json").read_text())
-    return {"case": case, "named": refined["named_effects"], "rounds": len(refined["rounds"]),
-            "regions": [first["n_regions"], last["n_regions"]],
+    meta = json.loads((dataset / "dataset.json").read_text())
+    return {"case": case, "kind": kind, "regions_model": args.regions, "seed": args.seed,
+            "named": refined["named_effects"], "rounds": len(refined["rounds"]),
+            "regions": [first["n_regions"], last["n_regions"]], "true_regions": len(meta.get("materials") or []),
+            "stopped": refined["stopped"],
             "label_accuracy": [first["label_accuracy"], last["label_accuracy"]],
             "gap": [first["gap"], last["gap"]], "gap_simulated": [first["gap_simulated"], last["gap_simulated"]],
             "revisions": [_revision(index, r) for index, record in enumerate(refined["rounds"])
@@ -84,22 +88,24 @@ def main():
     parser.add_argument("--resolution", type=int, default=64)
     parser.add_argument("--chains", type=int, default=2)
     parser.add_argument("--iterations", type=int, default=600)
-    parser.add_argument("--max-rounds", type=int, default=3)
+    parser.add_argument("--max-rounds", type=int, default=4)
+    parser.add_argument("--seed", type=int, default=0, help="the first fit's seed (the refits inherit it)")
     parser.add_argument("--regions", choices=("changepoints", "materials"), default="changepoints",
                         help="the region model of every fit (the refits inherit it)")
     args = parser.parse_args()
-    cases = {k: v for k, v in CASES.items() if args.only is None or k in args.only.split(",")}
+    only = None if args.only is None else args.only.split(",")
+    cases = {k: v for k, v in CASES.items() if only is None or k in only or v in only}   # a case or its kind
     rows = []
     for case, kind in cases.items():
         rows.append(run_case(case, kind, args.out, args))
         write_json_atomic(args.out / "refine_table.json", {"settings": vars(args) | {"out": str(args.out)},
                                                            "rows": rows})
-    print("| case | named | rounds | regions | label accuracy | gap | simulated gap | seconds |")
+    print("| case | named | rounds | regions (true) | label accuracy | gap | simulated gap | seconds |")
     print("|---|---|---|---|---|---|---|---|")
     for row in rows:
         revised = f" ({'; '.join(row['revisions'])})" if row["revisions"] else ""
         print(f"| {row['case']} | {', '.join(row['named']) or 'none'}{revised} | {row['rounds']} | "
-              f"{_pair(row['regions'], 'd')} | {_pair(row['label_accuracy'], '.3f')} | {_pair(row['gap'], '.3g')} | "
+              f"{_pair(row['regions'], 'd')} ({row['true_regions']}) | {_pair(row['label_accuracy'], '.3f')} | {_pair(row['gap'], '.3g')} | "
               f"{_pair(row['gap_simulated'], '.3g')} | {row['seconds']:.0f} |")
 
 

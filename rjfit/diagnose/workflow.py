@@ -233,7 +233,7 @@ def _search(dataset, labels, figure_dir, settings):
     settings.say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions{weighed}: the plain model's "
                  f"refit, then one refit per candidate effect and step (each a few seconds to minutes, growing with "
                  f"the observations)")
-    with_indirect = any(effect.name == "interreflection" for effect in settings.base_effects)
+    with_indirect = any(effect.renders_fitted_model for effect in settings.base_effects)
     # interreflection's feature: the plain model's indirect light, then (as in _name_effect) the refit's
     ctx.features["fit_region_params"] = refit(ctx, (), seed=settings.seed).region_params() if with_indirect else None
     plain = refit(ctx, settings.base_effects, seed=settings.seed)
@@ -414,7 +414,7 @@ def _try_step(ctx, step, current, to_try, sigma2_plain, settings) -> dict:
 
 def _name_effect(ctx, step, best, new, residuals, settings, trace):
     """Name ``best``'s effect: its refit ``new`` becomes the current model, its step record is added."""
-    if best["effect"] == "interreflection":
+    if get_effect(best["effect"]).renders_fitted_model:
         # The indirect feature came from the model without it; render it again from the
         # refitted materials (whose albedos no longer absorb the indirect light) and refit.
         ctx.features["fit_region_params"] = new.region_params()

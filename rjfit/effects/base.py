@@ -76,6 +76,10 @@ class Effect:
     order_in_stage: int = 0   # within the stage (stage_key): -1 a lobe's distribution, 1 a lobe added after its factors
     description: str = ""
     needs_mitsuba: bool = False
+    # Its feature is rendered by Mitsuba from the fitted regions' BRDFs (interreflection's
+    # indirect light), so it depends on the segmentation: a refit renders it on the diagnosed
+    # fit's MAP labels, and `rjfit refine` renders it again while a round's labels move
+    renders_fitted_model: bool = False
     # apply() changes an observation's terms through its own region's parameters and the
     # effect's only, so the refit's objective has no cross terms between two regions'
     # parameters and its Hessian skips them (rjfit.diagnose.hessian); False for an effect that

@@ -62,6 +62,7 @@ class Interreflection(Effect):
     kind = "interreflection"
     stage = "indirect"
     needs_mitsuba = True
+    renders_fitted_model = True
     description = "beta x Mitsuba path-traced indirect radiance of the fitted model (depth 8 minus direct)"
 
     def params(self, ctx):

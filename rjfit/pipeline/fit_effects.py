@@ -14,8 +14,10 @@ parameters of the diagnosis' final model (MAP, fitted WITH the effects it named:
 materials no longer absorb the indirect light, as the plain fit's do, whose over-segmented
 regions come out brighter where light bounces); a diagnosis that records no such parameters
 (an older one) falls back to the fit's posterior means. It is a fixed feature of the fit,
-not resampled with the regions; the summary records which parameters it was rendered at,
-with how many samples, and the share by which its Monte Carlo noise attenuates beta.
+not resampled with the regions; the summary records the fit whose labels it was rendered on
+(``source.fit``, which ``rjfit refine`` compares with this fit's labels), which parameters it
+was rendered at, with how many samples, and the share by which its Monte Carlo noise
+attenuates beta.
 """
 from __future__ import annotations
 
@@ -34,7 +36,8 @@ __all__ = ["effect_names", "fit_effects", "INTERREFLECTION_NOTE"]
 
 INTERREFLECTION_NOTE = ("the indirect light F is rendered by Mitsuba once, on the MAP segmentation of the fit the "
                         "diagnosis was made from, at the region parameters named in 'feature_model': a fixed feature "
-                        "of this fit, not resampled with its regions")
+                        "of this fit, not resampled with its regions (rjfit refine renders it again on this fit's "
+                        "labels while they differ from that fit's)")
 #: ``feature_model`` values: where the region parameters the feature was rendered at came from
 FINAL_MODEL = "the diagnosis' final model (MAP, with the effects it named)"
 FIT_MEANS = "the diagnosed fit's posterior means (the diagnosis records no final-model region parameters)"
@@ -144,16 +147,19 @@ def fit_effects(dataset, observations, options) -> tuple[list, dict]:
     library = [get_effect(name) for name in names]
     labels = np.where(dataset.object_mask, 0, -1)
     source = {}
-    if "interreflection" in names:
+    # a feature rendered from the fitted regions' BRDFs: on the diagnosed fit's MAP labels, whose
+    # folder source[name]["fit"] records (rjfit refine renders it again while the labels move)
+    rendered = [effect.name for effect in library if effect.renders_fitted_model]
+    if rendered:
         fit_dir, labels, table = _previous_fit(diagnosis, dataset)
-        source["interreflection"] = {"fit": str(fit_dir), "note": INTERREFLECTION_NOTE}
+        source.update({name: {"fit": str(fit_dir), "note": INTERREFLECTION_NOTE} for name in rendered})
     ctx = build_context(dataset, labels, channel=options.channel, seed=options.seed)
-    if "interreflection" in names:
+    if rendered:
         params, feature_model = _feature_params(ctx, diagnosis, labels, table)
         ctx.features["fit_region_params"] = params
         ctx.features["indirect_spp"] = FEATURE_SPP
-        source["interreflection"].update(feature_model=feature_model,
-                                         feature_region_params=np.round(params[:, :3], 6).tolist())
+        for name in rendered:
+            source[name].update(feature_model=feature_model, feature_region_params=np.round(params[:, :3], 6).tolist())
     for effect in library:
         ok, why = effect.available(ctx)
         if not ok:

@@ -4,20 +4,24 @@ Diagnose the fit (:func:`rjfit.pipeline.diagnose.diagnose_fit`), fit the data se
 the effects the diagnosis named sampled jointly with the segmentation (``rjfit fit
 --effects-from``), diagnose that fit (its search starts from the effects it sampled, after revisiting them on
 its segmentation: :mod:`rjfit.diagnose.revisit`), and repeat until a diagnosis names, swaps
-and drops nothing, at most ``max_rounds`` diagnoses. A named effect thus reaches the
-segmentation: a fit that over-segmented to absorb a missing ambient term can return to the
-true regions once the ambient term is in its model; and an effect chosen on a wrong first
-segmentation (a power-law camera curve where the truth is sRGB) is swapped once a later
-round's segmentation tells the two apart.
+and drops nothing and every feature rendered from the fitted regions (interreflection's
+indirect light) follows the fit's segmentation, at most ``max_rounds`` diagnoses.
 
-The refits use the original fit's options (``summary.json`` "fit_options") plus the effects;
-each round's fit and diagnosis go to ``DIR/round{k}/``; ``DIR/refine.json`` (rewritten
-atomically after every round) lists the rounds, ``DIR/segmentations.png`` shows each
-round's MAP segmentation beside the last, and ``DIR/report.html`` is the final fit's report
-with the rounds.
+A refit renders such a feature once, on the MAP labels of the fit its diagnosis was made of,
+at that diagnosis' final model. When the refit moves the labels (an over-segmented plain fit's
+8 regions become 2) or the materials, it was sampled with a feature of a model it no longer
+is. So after a diagnosis that names nothing, the loop renders the feature the next refit would
+sample (this fit's labels, this diagnosis' final model, the fit's seed and samples: the same
+Monte Carlo streams as the fit's own feature) and compares the two in predicted values. The
+stopping rule (:data:`FEATURE_CHANGE`): the root mean square of ``beta (F_next - F_fit)``
+over the fit's observations, beta the fit's posterior mean, is below 0.1 of the noise sd
+(the diagnosis' estimate), so the gap the old feature can leave is below 0.01. Otherwise the
+loop fits again with the new feature. ``refine.json`` records the change per round
+(``feature_change``).
 """
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -25,9 +29,11 @@ import numpy as np
 
 from rjfit.data.formats import COLOUR
 from rjfit.diagnose.document import revision_text
+from rjfit.effects import get_effect
 from rjfit.errors import DatasetError
 from rjfit.io import write_json_atomic
 from rjfit.pipeline.diagnose import diagnose_fit
+from rjfit.pipeline.fit_effects import fit_effects
 from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
@@ -35,10 +41,15 @@ from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
 
-__all__ = ["refine", "MAX_ROUNDS", "fit_options_of"]
+__all__ = ["refine", "MAX_ROUNDS", "FEATURE_CHANGE", "fit_options_of"]
 
 #: most diagnoses of one refinement (the first fit's and those of up to MAX_ROUNDS - 1 refits)
 MAX_ROUNDS = 4
+#: a feature rendered from the fitted regions no longer changes the fit when rendering it again
+#: (this fit's labels and final model) moves the predicted values by less than this share of the
+#: noise sd in root mean square: a change c raises the gap by at most c^2, here 0.01, a tenth of
+#: what counts as a missing effect (0.1)
+FEATURE_CHANGE = 0.1
 
 
 def fit_options_of(summary: dict, fit_dir) -> FitOptions:
@@ -123,7 +134,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     dict
         ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``, ``effects`` sampled,
         ``map_model``, ``n_regions``, ``label_accuracy``, ``gap``, ``gap_simulated`` (null
-        without truth, a mesh), ``named``, ``revisions`` (swaps, drops), ``seconds``),
+        without truth, a mesh), ``named``, ``revisions`` (swaps, drops), ``feature_change``
+        (per feature rendered from the fitted regions: :func:`feature_change`), ``seconds``),
         ``named_effects`` (the last final model's, in the order named), ``final_fit``,
         ``stopped`` and ``warnings``.
 
@@ -157,10 +169,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         say(_round_line(index, record))
         final, new = _final_model(diagnosis, record)
         result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
-        if (new or record["dropped"]) and options.channel == COLOUR:
-            result["stopped"], warning = _cannot_sample(index, diagnosis_dir)
-        elif not (new or record["dropped"]) or index + 1 == max_rounds:
-            result["stopped"], warning = _stop(index, max_rounds, new, record["dropped"], current)
+        record["feature_change"] = [] if new or record["dropped"] else feature_change(dataset_dir, current, diagnosis_dir)
+        result["stopped"], warning = _why_stop(index, max_rounds, options, record, new, current)
         if result["stopped"]:
             if warning:
                 result["warnings"].append(warning)
@@ -169,7 +179,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
         next_fit = out_dir / f"round{index + 2}" / "fit"
         effects = tuple(final)
-        say(f"round {index + 2}: fitting again with {', '.join(effects)} sampled with the regions")
+        for line in _next_round_lines(index, record, effects):
+            say(line)
         fit_started = time.perf_counter()
         fit_dataset(dataset_dir, next_fit, options.replace(effects=effects, effects_from=diagnosis_dir), **gate)
         current, fit_seconds = next_fit, time.perf_counter() - fit_started
@@ -204,11 +215,86 @@ def _cannot_sample(index: int, diagnosis_dir: Path) -> tuple:
             f"{diagnosis_dir} to sample what it named with the regions")
 
 
-def _stop(index: int, max_rounds: int, new: list, dropped: list, current: Path) -> tuple:
+def feature_change(dataset_dir: Path, fit_dir: Path, diagnosis_dir: Path) -> list:
+    """How much rendering the fit's rendered features again would change its predicted values.
+
+    Per effect of the fit whose feature Mitsuba renders from the fitted regions
+    (``renders_fitted_model``): the feature the fit sampled (its options: rendered on the labels
+    of the fit its ``--effects-from`` diagnosis was made of) and the one a refit with
+    ``--effects-from diagnosis_dir`` (a diagnosis of the fit ``fit_dir``) would sample (this
+    fit's labels, that diagnosis' final model), rendered with the fit's seed and samples, so
+    with the same Monte Carlo streams.
+
+    Returns
+    -------
+    list of dict
+        ``{"effect", "rendered_on", "beta", "rms_change", "noise_sd", "change", "follows"}``:
+        ``rms_change`` the root mean square of ``beta (F_next - F_fit)`` over the observations,
+        ``change`` that over the noise sd of the diagnosis, ``follows`` whether it is below
+        :data:`FEATURE_CHANGE`. Empty when the fit samples no such effect.
+    """
+    summary = read_summary(fit_dir)
+    entries = {entry["name"]: entry for entry in summary.get("effects") or []
+               if get_effect(entry["name"]).renders_fitted_model}
+    if not entries:
+        return []
+    resolved = summary["fit_options"]         # the channel and seed the fit ran with (given or resolved)
+    options = fit_options_of(summary, fit_dir).replace(
+        effects=tuple(entries), channel=resolved["channel"], seed=resolved["seed"])
+    dataset = load_dataset(dataset_dir)
+    observations = dataset.observations(options.channel)
+    fitted, _ = fit_effects(dataset, observations, options)
+    following, _ = fit_effects(dataset, observations, options.replace(effects_from=Path(diagnosis_dir)))
+    following = {form.name: form for form in following}
+    diagnosis = json.loads((Path(diagnosis_dir) / "diagnosis.json").read_text(encoding="utf-8"))
+    noise_sd = float(np.sqrt(diagnosis["noise_variance_estimate"]))
+    records = []
+    for before in (form for form in fitted if form.name in entries):
+        beta = float(entries[before.name]["parameters"][0]["mean"])
+        rms = float(np.sqrt(np.mean((beta * (following[before.name].feature - before.feature)) ** 2)))
+        records.append({"effect": before.name, "rendered_on": entries[before.name]["source"]["fit"], "beta": beta,
+                        "rms_change": rms, "noise_sd": noise_sd, "change": rms / noise_sd,
+                        "follows": rms / noise_sd < FEATURE_CHANGE})
+    return records
+
+
+def _moved_text(record: dict) -> str:
+    """What a round's fit says of its rendered features that would change it (``record["feature_change"]``)."""
+    return "; ".join(f"its {entry['effect']} feature, rendered again on its labels, changes the predicted values by "
+                     f"{entry['change']:.3g} noise sd (>= {FEATURE_CHANGE})"
+                     for entry in record["feature_change"] if not entry["follows"])
+
+
+def _next_round_lines(index: int, record: dict, effects: tuple) -> list:
+    """The lines that announce round ``index + 2``'s fit (and why, where nothing was named)."""
+    why = [] if record["named"] or record["dropped"] else [
+        f"round {index + 2}: round {index + 1}'s fit: {_moved_text(record)}; fitting again with it rendered on "
+        f"round {index + 1}'s labels"]
+    return why + [f"round {index + 2}: fitting again with {', '.join(effects)} sampled with the regions"]
+
+
+def _why_stop(index: int, max_rounds: int, options, record: dict, new: list, current: Path) -> tuple:
+    """``(reason, warning or None)`` where the loop stops after round ``index + 1``, else ``("", None)``:
+    it goes on while a diagnosis names, drops or swaps an effect or a rendered feature would change the fit."""
+    changed = bool(new or record["dropped"])
+    if changed and options.channel == COLOUR:
+        return _cannot_sample(index, Path(record["diagnosis"]))
+    if not changed and all(entry["follows"] for entry in record["feature_change"]) or index + 1 == max_rounds:
+        return _stop(index, max_rounds, new, record["dropped"], current, record)
+    return "", None
+
+
+def _stop(index: int, max_rounds: int, new: list, dropped: list, current: Path, record: dict) -> tuple:
     """Why the loop stops after round ``index + 1`` (its diagnosis names ``new`` effects and drops
-    or swaps out ``dropped`` ones of the fit): ``(reason, warning or None)``."""
+    or swaps out ``dropped`` ones of the fit; ``record["feature_change"]``: whether its rendered
+    features would change it): ``(reason, warning or None)``."""
+    moved = [entry for entry in record["feature_change"] if not entry["follows"]]
+    if not (new or dropped or moved):
+        return f"round {index + 1}'s diagnosis named nothing more (and no rendered feature moved)", None
     if not (new or dropped):
-        return f"round {index + 1}'s diagnosis named nothing more", None
+        return (f"stopped after {max_rounds} rounds (max_rounds)",
+                f"the cap of {max_rounds} rounds bound: round {index + 1}'s fit: {_moved_text(record)}; refine "
+                f"{current} again or raise --max-rounds")
     changes = ([f"named {', '.join(new)}"] if new else []) + ([f"dropped {', '.join(dropped)}"] if dropped else [])
     return (f"stopped after {max_rounds} rounds (max_rounds)",
             f"the cap of {max_rounds} rounds bound: round {index + 1}'s diagnosis still {' and '.join(changes)}, "

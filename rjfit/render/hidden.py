@@ -15,6 +15,9 @@ camera_sensor      the same sRGB camera with the read noise (variance 0.1) added
                    radiance BEFORE the curve, as a sensor adds it (so the stored values' noise
                    sd follows the curve's slope: 12.92 in the toe, small in the highlights);
                    the curve's linear extension below 0 (colour-science's) keeps negative values.
+camera_gamma_sensor  a power-law camera W (x / W)^(1/2.2) (``GAMMA_POWER``), the read noise
+                   added before it; a sensor clips negative sums at 0, and the data set declares
+                   0 dark (those observations leave the fit, as a dark threshold drops them).
 light_calibration  paper_sphere with light 3 emitting 20 % more in Mitsuba than the data set's
                    JSON (what the fitter reads) says.
 interreflection    dented_plaster (concave), path integrator max_depth 8, 16 spp (``spp``), visibility
@@ -146,9 +149,9 @@ def _edit_meta(path, edit):
     write_json_atomic(Path(path) / "dataset.json", meta)
 
 
-def hidden_post_process(ambient_image, camera, images, noise_before_curve=False):
+def hidden_post_process(ambient_image, camera, images, noise_before_curve=False, power=None):
     """The hidden effects applied to rendered radiance (``images`` (L, H, W, C)): ambient light,
-    then an sRGB camera with read noise after its curve (or before it).
+    then an sRGB camera with read noise after its curve (or before it), or a power-law camera.
 
     Parameters
     ----------
@@ -161,6 +164,10 @@ def hidden_post_process(ambient_image, camera, images, noise_before_curve=False)
         Add the read noise to the linear radiance and encode the sum (a sensor's order; the
         curve's linear extension below 0 keeps negative sums) instead of adding it to the
         encoded values.
+    power : float, optional
+        A power-law camera instead of sRGB: ``W (max(x, 0) / W)^(1 / power)`` of the linear
+        radiance plus the read noise (always before the curve; a sensor clips its negative sums
+        at 0, which the data set declares dark).
     """
     if ambient_image is not None:
         images = images + ambient_image[None, :, :, None]
@@ -171,6 +178,8 @@ def hidden_post_process(ambient_image, camera, images, noise_before_curve=False)
     rng, noise_variance = camera
     white = SRGB_WHITE * float(images.max())
     noise = rng.normal(0.0, math.sqrt(noise_variance), size=images.shape[:3] + (1,))
+    if power is not None:
+        return white * np.power(np.clip((images + noise) / white, 0.0, None), 1.0 / power)
     if noise_before_curve:
         return white * np.asarray(colour.cctf_encoding((images + noise) / white, function="sRGB"))
     encoded = white * np.asarray(colour.cctf_encoding(np.clip(images / white, 0.0, None), function="sRGB"))
@@ -200,12 +209,18 @@ def _paper_sphere_hidden(kinds, out_dir, options):
         camera = (rng, noise_variance)
     # ambient light reaches the sensor before its response curve: add it first
     post = None if ambient_image is None and camera is None else partial(
-        hidden_post_process, ambient_image, camera, noise_before_curve="camera_sensor" in kinds)
+        hidden_post_process, ambient_image, camera, noise_before_curve="camera_sensor" in kinds,
+        power=GAMMA_POWER if "camera_gamma_sensor" in kinds else None)
     path = render_dataset(scene, out_dir, extra=extra, post_process=post, **options)
     if "light_calibration" in kinds:
         _edit_meta(path, lambda meta: meta.update(lights=nominal, hidden_calibration={
             "light": CALIBRATED_LIGHT, "true_factor": CALIBRATION_ERROR}))
-    if kinds & CAMERAS:
+    if "camera_gamma_sensor" in kinds:
+        _edit_meta(path, lambda meta: meta.update(noise_variance=noise_variance, dark=0.0, hidden_response={
+            "curve": f"power law W (x / W)^(1/{GAMMA_POWER})", "white_level_factor": SRGB_WHITE,
+            "noise": "before the curve (linear), negative sums clipped at 0 (declared dark)",
+            "read_noise_variance": noise_variance}))
+    elif kinds & CAMERAS:
         before = "camera_sensor" in kinds
         # the stored values' noise: the read noise's, or (before the curve) at most the toe's, 12.92^2 times
         # it (the declared variance sets the floor below which a stored value is refused as bad input)
@@ -287,3 +302,9 @@ CAMERAS = {"camera_response", "camera_sensor"}
 HIDDEN = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibration", "interreflection",
           "cast_shadows", "fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic",
           "second_lobe")
+
+#: a power-law camera with the read noise before its curve (issue 44: colour-science has no
+#: generic gamma; the exponent of the common 2.2 encoding): appended so that other kinds merge apart
+GAMMA_POWER = 2.2
+CAMERAS = CAMERAS | {"camera_gamma_sensor"}
+HIDDEN = HIDDEN + ("camera_gamma_sensor",)

@@ -26,6 +26,15 @@ Adaptation, during burn-in only (afterwards the move is a fixed MH kernel): ever
 of each parameter's conditional (second differences of the log target with the regions
 held), and ``s_b`` follows a Robbins-Monro step on the block's acceptance. The
 (a, b) redraw makes the conditional widths too narrow, which the scale corrects.
+
+Under the kernel's annealed warm-up the likelihood power grows geometrically (a factor of 10
+per 50 iterations of a 2 x 1000 fit's), so widths measured ``curvature_every`` iterations
+earlier no longer fit the tempered conditional they propose on (up to 3 times too wide as
+the power nears 1). The widths therefore follow the power between refreshes: a conditional's
+curvature is the likelihood's times the power (plus the prior's), so a width measured at
+power ``p_w`` is used at power ``p`` times ``sqrt(p_w / p)``. Measured (issue 44, item 3:
+docs/results/2026-11-28-loop.md): refits whose chains had ended the warm-up far from the
+data's optimum and kept an extra change point end it near the optimum.
 """
 from __future__ import annotations
 
@@ -83,13 +92,15 @@ class EffectState:
 
     ``z``: the effect parameters (unconstrained, flat); ``log_jacobian``: the transformation's
     log-Jacobian at ``z`` (likelihood power 1); ``widths``: the random walk's per-parameter
-    widths; ``log_scale``: each block's log scale (both adapted during burn-in only).
+    widths; ``log_scale``: each block's log scale (both adapted during burn-in only);
+    ``widths_power``: the likelihood power the widths were measured at (module docstring).
     """
 
     z: np.ndarray
     log_jacobian: float
     widths: np.ndarray
     log_scale: np.ndarray
+    widths_power: float = 1.0
 
 
 def initial_effect_state(problem: Problem, rng, settings: EffectSettings) -> tuple[EffectState, Problem]:
@@ -138,7 +149,8 @@ def laplace_widths(problem: Problem, work, state: EffectState) -> np.ndarray:
     f0 = _conditional_target(problem, work, state.z)
     widths = state.widths.copy()
     for k, prior in enumerate(data.priors()):
-        step = min(float(state.widths[k]) * math.exp(float(np.max(state.log_scale))), 3.0 * prior.scale)
+        step = min(float(state.widths[k]) * math.sqrt(state.widths_power / problem.likelihood_power)
+                   * math.exp(float(np.max(state.log_scale))), 3.0 * prior.scale)
         for _ in range(8):
             plus, minus = state.z.copy(), state.z.copy()
             plus[k] += step
@@ -191,7 +203,8 @@ def _move_block(work, state: EffectState, b: int, block: slice, rng, prior, prob
     data = problem.effects
     z_new = state.z.copy()
     width = block.stop - block.start
-    z_new[block] += math.exp(float(state.log_scale[b])) * state.widths[block] * rng.normal(size=width)
+    widths = state.widths[block] * math.sqrt(state.widths_power / problem.likelihood_power)
+    z_new[block] += math.exp(float(state.log_scale[b])) * widths * rng.normal(size=width)
     kind = f"effect_{data.effects[b].name}"
     evaluated = _evaluate(problem, work, z_new)
     if evaluated is None:
@@ -226,7 +239,7 @@ def move_effects(work, state: EffectState, rng, prior, problem: Problem, setting
         return state, problem
     adapting = iteration < burn_in
     if adapting and iteration % settings.curvature_every == 0:
-        state = replace(state, widths=laplace_widths(problem, work, state))
+        state = replace(state, widths=laplace_widths(problem, work, state), widths_power=problem.likelihood_power)
     log_scale = state.log_scale.copy()
     for b, block in enumerate(problem.effects.blocks()):
         state, problem, accepted = _move_block(work, state, b, block, rng, prior, problem, min_obs, info)
