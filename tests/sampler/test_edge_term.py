@@ -321,14 +321,16 @@ def run_chain(problem, prior, config, seed, **start):
     return parts[BURN:], np.array(i0[BURN:])
 
 
-def check(parts, i0, exact, i0_exact):
+def check(parts, scalar, exact, scalar_exact):
+    """p-values of the partitions' frequencies against ``exact`` (ESS-scaled chi-square) and of one scalar's
+    draws (an I0, a gamma) against its exact mean (z on the chain's ESS), and the details of both."""
     import arviz as az
 
     cells = list(exact)
     index = {part: i for i, part in enumerate(cells)}
     p_part, freq, n_eff = ess_scaled_chi2(list(range(len(cells))), np.array([index[p] for p in parts]),
                                           np.array([exact[c] for c in cells]))
-    z = (i0.mean() - i0_exact) / (i0.std() / np.sqrt(float(az.ess(i0[None]))))
+    z = (scalar.mean() - scalar_exact) / (scalar.std() / np.sqrt(float(az.ess(scalar[None]))))
     return p_part, float(2 * stats.norm.sf(abs(z))), {"n_eff": n_eff, "z": z}
 
 

@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 from scipy import stats
 from test_colour import ColourQuadrature
-from test_edge_term import LEVEL, boundary_share, no_step_ss
+from test_edge_term import LEVEL, boundary_share, check, no_step_ss
 from test_exact_materials import canonical, exact_partition_posterior
 from threadpoolctl import threadpool_limits
 
@@ -41,7 +41,7 @@ from rjfit.sampler.regions.materials.edges import edge_term, start_theta
 from rjfit.sampler.regions.materials.layout import labelled_pixels
 from rjfit.sampler.state import SamplerConfig
 
-from builders import ess_scaled_chi2, tiny_colour_problem
+from builders import tiny_colour_problem
 
 ITERATIONS, BURN, DRAWS = 2000, 200, 20000
 
@@ -275,17 +275,6 @@ def run_colour_chain(problem, prior, config, seed):
     return parts[BURN:], np.array(gamma0[BURN:])
 
 
-def check_colour(parts, gamma0, exact, gamma_exact):
-    import arviz as az
-
-    cells = list(exact)
-    index = {part: i for i, part in enumerate(cells)}
-    p_part, freq, n_eff = ess_scaled_chi2(list(range(len(cells))), np.array([index[p] for p in parts]),
-                                          np.array([exact[c] for c in cells]))
-    z = (gamma0.mean() - gamma_exact) / (gamma0.std() / np.sqrt(float(az.ess(gamma0[None]))))
-    return p_part, float(2 * stats.norm.sf(abs(z))), {"n_eff": n_eff, "z": z}
-
-
 @pytest.fixture(scope="module")
 def colour_exact(colour_square):
     """The chains' config at power 1 and the exact posterior under it (the draws take about 20 s)."""
@@ -308,7 +297,7 @@ def test_colour_partitions_and_gamma_match_the_target_with_the_edge_term(colour_
     prior, problem, _, _ = colour_square
     config, (exact0, exact, gamma_exact) = colour_exact
     assert 0.5 * sum(abs(exact[p] - exact0[p]) for p in exact) > 0.15, "the term should move the posterior"
-    p_part, p_gamma, details = check_colour(*run_colour_chain(problem, prior, config, 2), exact, gamma_exact)
+    p_part, p_gamma, details = check(*run_colour_chain(problem, prior, config, 2), exact, gamma_exact)
     print(p_part, p_gamma, details)
     assert p_part > LEVEL and p_gamma > LEVEL, details
 
