@@ -107,12 +107,13 @@ def fit_groups(y, C, log_hn, group, n_groups, gammas=GAMMA_GRID, refine_steps=GO
 
     s_yy, s_ya, s_aa = sums(y * y), sums(y * A), sums(A * A)
 
-    def lobe(g_obs):
-        return C * np.exp(g_obs * log_hn) * blinn_normalisation(g_obs)
+    def lobe(g_group):
+        # the normalisation per group, then indexed: one exp2 per group instead of per observation
+        return C * np.exp(g_group[group] * log_hn) * blinn_normalisation(g_group)[group]
 
     def fit(g_group):
         """(a, b, residual sum of squares) per group at the exponents ``g_group``."""
-        B = lobe(g_group[group])
+        B = lobe(g_group)
         s_yb, s_ab, s_bb = sums(y * B), sums(A * B), sums(B * B)
         det = s_aa * s_bb - s_ab * s_ab
         ok = (count >= 4) & (det > 1e-12 * np.maximum(s_aa * s_bb, 1e-300))
@@ -132,7 +133,7 @@ def fit_groups(y, C, log_hn, group, n_groups, gammas=GAMMA_GRID, refine_steps=GO
     worse = ssr > ssr_grid[best_index, np.arange(n_groups)]      # the bracket held no better point
     g = np.where(worse, gammas[best_index], g)
     a, b, ssr = fit(g)
-    residuals = y - a[group] * A - b[group] * lobe(g[group])
+    residuals = y - a[group] * A - b[group] * lobe(g)
     fitted = np.isfinite(ssr)
     return {"a": a, "b": b, "gamma": g, "fitted": fitted, "residuals": np.where(fitted[group], residuals, np.nan)}
 

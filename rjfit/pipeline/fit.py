@@ -211,13 +211,18 @@ def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, trut
     region = region_fit(options) if region is None else region
     # at least ~50 change-point snapshots after burn-in, so a short run still has its MAP labels
     cp_thin = max(1, min(options.cp_thin, (options.iterations - config.kernel.burn_in) // 50))
+    paths = [out_dir / "checkpoints" / f"chain_{c}.pkl" for c in range(options.n_chains)]
+    shared = None
+    if not all(path.exists() for path in paths):     # a resumed chain's state holds them already
+        with phase("chains: what every chain starts from (the data's bonds, segments, edge term)", options.progress):
+            shared = config.regions.shared_start(problem)
     specs = []
     for c in range(options.n_chains):
         chain_start = region.chain_start(options, c, dict(start[c]) if start is not None else {},
                                          fixed_segmentation)
         specs.append(ChainSpec(problem=problem, prior=prior, config=config, seed=options.seed, chain=c,
                                n_chains=options.n_chains, iterations=options.iterations,
-                               checkpoint_path=str(out_dir / "checkpoints" / f"chain_{c}.pkl"),
+                               checkpoint_path=str(paths[c]), shared=shared,
                                checkpoint_every=options.checkpoint_every, cp_thin=cp_thin, truth_labels=truth_labels,
                                start=chain_start, progress=options.progress))
     return specs

@@ -60,6 +60,9 @@ class ChainSpec:
     cp_thin: int = 10
     truth_labels: np.ndarray | None = None
     start: dict | None = None          # keyword arguments of initial_state (theta; change points: model, changepoints)
+    # the region model's shared_start(problem): built once for every chain of a fit from the data and the
+    # configuration alone (both in the checkpoint's fingerprint), so not fingerprinted itself
+    shared: dict | None = None
     progress: bool = False
     stop_after: int | None = None      # testing: return after this many iterations (simulates a crash)
 
@@ -390,7 +393,7 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
                 print(f"chain {spec.chain}: resumed from its checkpoint at iteration {start_t} of {spec.iterations}",
                       file=sys.stderr, flush=True)
         else:
-            state = initial_state(problem, prior, config, rng, **(spec.start or {}))
+            state = initial_state(problem, prior, config, rng, **(spec.start or {}), **(spec.shared or {}))
         bar = None
         if spec.progress:       # a bar on a terminal, plain lines in a log
             bar = progress(spec.iterations, f"chain {spec.chain}", "iteration", initial=start_t, position=spec.chain,

@@ -102,6 +102,11 @@ class RegionModel(ABC):
             If ``start`` asks for a layout outside the model space.
         """
 
+    def shared_start(self, problem) -> dict:
+        """What every chain's :meth:`initial_layout` would build from the data alone, built once for all of a
+        fit's chains (keywords of :meth:`initial_layout`); none here."""
+        return {}
+
     @abstractmethod
     def log_prior(self, problem, layout) -> float:
         """Log prior density of ``layout`` (up to a constant the same for every layout of every model)."""
