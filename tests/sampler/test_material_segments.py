@@ -118,32 +118,33 @@ def test_bad_input_is_refused():
         SegmentSettings(moves=-1)
 
 
-def test_a_large_mask_is_cut_into_blocks_whose_superpixels_cover_it_and_still_find_a_blob():
-    """Above SLIC_WHOLE_MAX labelled pixels SLIC runs per SLIC_BLOCK block (its whole-mask seeding costs pixels x
-    superpixels). The superpixels must still partition the labelled pixels, none may cross a block's edge, their
-    mean size stays near the target (32 px: 16 to 64 allowed, SLIC's sizes vary with the features), and the
-    family must hold a set overlapping a blob that straddles a block corner with IoU >= 0.75 (the bound of the
-    whole-mask test above, same 2-noise-sd contrast)."""
-    from rjfit.sampler.regions.materials.segments import SLIC_BLOCK, SLIC_WHOLE_MAX, _superpixels, _standardised
+def test_a_large_mask_gets_grid_seeded_superpixels_that_partition_it_and_still_find_a_blob():
+    """Above SLIC_WHOLE_MAX labelled pixels SLIC is seeded on a grid (the masked seeding's k-means costs pixels x
+    superpixels). The superpixels must still partition the labelled pixels into 4-connected pieces, their mean
+    size stay near the target (32 px: 16 to 64 allowed, SLIC's sizes follow the features and the mask cuts
+    some), and the family hold a set overlapping a compact blob (2 noise sd per pixel, as above) with IoU >=
+    0.7. Measured (seeds 0 .. 2, blob centres 256 and 300): 0.73 to 0.89 with the grid, 0.85 to 0.92 with the
+    masked seeding; the bound is below the grid's lowest, not the masked bound of 0.75 above."""
+    from rjfit.sampler.regions.materials.segments import SLIC_WHOLE_MAX, _standardised, _superpixels
 
     side = 530
     rng = np.random.default_rng(0)
     mask = np.ones((side, side), bool)
     mask[:20, :] = False
+    mask[300:340, 100:140] = False          # a hole: superpixels around it must come out connected
     assert mask.sum() > SLIC_WHOLE_MAX
     rows, cols = np.mgrid[0:side, 0:side]
-    blob = (np.abs(rows - 2 * SLIC_BLOCK) < 8) & (np.abs(cols - 2 * SLIC_BLOCK) < 10)
+    blob = (np.abs(rows - 256) < 8) & (np.abs(cols - 256) < 10)
     a = np.where(blob, 1.22, 1.0) * np.exp(rng.normal(0.0, 0.1, (side, side)))
     b = rng.lognormal(1.5, 1.5, (side, side))
     features = np.stack([a.ravel(), b.ravel()], axis=1)
     superpixels = _superpixels(_standardised(features.reshape(side, side, 2), mask), mask, 32)
     assert np.all(superpixels[mask] >= 0) and np.all(superpixels[~mask] == -1)
-    block = (rows // SLIC_BLOCK) * 100 + cols // SLIC_BLOCK
     for s in np.unique(superpixels[mask])[::97]:
-        assert np.unique(block[superpixels == s]).size == 1, "a superpixel crosses a block edge"
+        assert ndimage.label(superpixels == s)[1] == 1, "a superpixel is not 4-connected"
     mean_size = mask.sum() / (superpixels.max() + 1)
     assert 16 <= mean_size <= 64, mean_size
     family = segment_family(features, mask)
     truth = (blob & mask).ravel()
     best = max(np.count_nonzero(m & truth) / np.count_nonzero(m | truth) for m in sets_of(family, mask.size))
-    assert best >= 0.75, best
+    assert best >= 0.7, best
