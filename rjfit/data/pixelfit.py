@@ -94,8 +94,22 @@ def group_fit(observations, group, n_groups, gammas=GAMMA_GRID, refine_steps=GOL
 
 def fit_groups(y, C, log_hn, group, n_groups, gammas=GAMMA_GRID, refine_steps=GOLDEN_STEPS) -> dict:
     """:func:`group_fit` on the columns themselves: ``C = E <l.n>`` and ``log <h.n>`` per observation (a
-    fit's problem holds them, divided by the noise scales)."""
-    group = np.asarray(group, np.int64)
+    fit's problem holds them, divided by the noise scales). A group without observations has no fit (gamma NaN).
+
+    The fit runs over the groups present only: a per-pixel fit's groups are the image's pixels, and its
+    per-group sums, dozens per fit, would otherwise cost the image's size however few observations it reads.
+    """
+    present, dense = np.unique(np.asarray(group, np.int64), return_inverse=True)
+    fitted = _fit_present(y, C, log_hn, dense.reshape(-1), present.size, gammas, refine_steps)
+    out = {"residuals": fitted["residuals"]}
+    for key, empty in (("a", 0.0), ("b", 0.0), ("gamma", np.nan), ("fitted", False)):
+        out[key] = np.full(n_groups, empty, dtype=fitted[key].dtype)
+        out[key][present] = fitted[key]
+    return out
+
+
+def _fit_present(y, C, log_hn, group, n_groups, gammas, refine_steps) -> dict:
+    """:func:`fit_groups` where every group 0 .. n_groups - 1 has observations."""
     y = np.asarray(y, float)
     C = np.asarray(C, float)
     log_hn = np.asarray(log_hn, float)
