@@ -99,7 +99,10 @@ def _eta_prior():
 
 class Coating(Effect):
     name = "coating"
-    kind = "dielectric coating"
+    # the kind of `fresnel`: both put the interface's Fresnel reflection on the lobe, so a model holds one of the
+    # two (both would apply it twice); the search tries no candidate of a kind present, and a revisit swaps one
+    # for the other on the Laplace evidence (rjfit.diagnose.revisit)
+    kind = "Fresnel reflection"
     stage = "direct"
     order_in_stage = -0.5     # after a second lobe (not under the coating), before the factors on all direct light
     description = ("a dielectric coating of index eta (share w): exact Fresnel F(h.v)/F(1) on the lobe, the "
