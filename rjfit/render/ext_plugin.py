@@ -76,6 +76,14 @@ def _diffuse_reflectance(dr, m, eta):
     return m.Float(dr.sum(_dielectric_fresnel(dr, mu, eta) * mu)) * (2.0 / COAT_NODES)
 
 
+def _derive_constants(dr, m, bsdf) -> None:
+    """A plugin's coating constants, 1 / (1 - R(eta)) and 1 / F(1), from its parameters; every one made
+    opaque (a kernel reads them, they are not baked into it)."""
+    bsdf.coat_inv_transmitted = 1.0 / (1.0 - _diffuse_reflectance(dr, m, bsdf.coat_eta))
+    bsdf.coat_inv_f_normal = 1.0 / _dielectric_fresnel(dr, m.Float(1.0), bsdf.coat_eta)
+    dr.make_opaque(*(getattr(bsdf, key) for key in LOBE_DEFAULTS), bsdf.coat_inv_transmitted, bsdf.coat_inv_f_normal)
+
+
 #: the plugin's lobe parameters and their defaults (each one's null: no such term)
 LOBE_DEFAULTS = {"f0": 1.0, "mask_w": 0.0, "ggx_w": 0.0, "lobe2_v": 0.0, "lobe2_alpha": 0.2, "coat_w": 0.0,
                  "coat_eta": 1.5}
@@ -125,14 +133,7 @@ def register_ext():
             base.__init__(self, props)
             for key, value in _lobe_parameters(props).items():
                 setattr(self, key, m.Float(value))
-            self._coating_constants()
-
-        def _coating_constants(self):
-            """The coating's 1 / (1 - R(eta)) and 1 / F(1), and every parameter made opaque (not baked into kernels)."""
-            self.coat_inv_transmitted = 1.0 / (1.0 - _diffuse_reflectance(dr, m, self.coat_eta))
-            self.coat_inv_f_normal = 1.0 / fresnel(m.Float(1.0), self.coat_eta)
-            dr.make_opaque(self.f0, self.mask_w, self.ggx_w, self.lobe2_v, self.lobe2_alpha, self.coat_w, self.coat_eta,
-                           self.coat_inv_transmitted, self.coat_inv_f_normal)
+            _derive_constants(dr, m, self)
 
         def traverse(self, callback):
             base.traverse(self, callback)
@@ -141,7 +142,7 @@ def register_ext():
 
         def parameters_changed(self, keys=None):
             base.parameters_changed(self, keys)
-            self._coating_constants()
+            _derive_constants(dr, m, self)
 
         def _eval_pdf(self, ctx, si, wo, active):
             has_diffuse, has_glossy, prob_d = self._lobe_probabilities(ctx)
