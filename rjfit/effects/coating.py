@@ -30,8 +30,10 @@ interface's transmittance, a table over the incidence cosine computed from the m
 distribution of the region's roughness, and its internal reflectance, where this coating
 uses the smooth interface's (Mitsuba's ``plastic``). The rough transmittance depends on the
 region's roughness, so on gamma, which would make the diffuse column gamma-dependent; the
-smooth one keeps it fixed. The two differ by a factor per region (0.43 to 0.96 for alpha 0.82
-to 0.1, absorbed by the region's kd) and, at grazing angles, in shape (docs/results/2026-11-28-coating.md).
+smooth one keeps it fixed. At eta 1.5 and the roughnesses 0.41 to 0.82 of the rendered stacks the
+two differ by a factor per region (0.43 to 0.60 for GGX, 0.57 to 0.78 for Beckmann; the region's
+kd absorbs it) and in shape: the rough interface transmits relatively less at 45 to 70 degrees and
+more beyond 80 (docs/results/2026-11-28-coating.md).
 
 How it enters the fit: a factor on direct light's diffuse part and on its lobe, both fixed
 per observation given (w, eta), so the mean stays linear in (a, b) given gamma: ``C -> (C -
