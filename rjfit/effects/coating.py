@@ -13,7 +13,7 @@ whose light bounces between the base and the interface's underside (internal ref
 ``nonlinear = false``) spread over the eta^2 larger solid angle inside, ``kd (1 - F(i)) (1 -
 F(o)) / (pi eta^2 (1 - R_int))``: Mitsuba's ``plastic`` term for term. Since light crossing
 the interface either way has the same reflectance, ``1 - R_int = (1 - R(eta)) / eta^2``
-(the inside's cone outside the critical angle reflects totally), which gives ``T``; the
+(light inside beyond the critical angle reflects totally), which gives ``T``; the
 coated base's directional albedo is then ``kd (1 - F(<l.n>))``. The lobe is the interface's
 own reflection: its Fresnel factor divided by F(1), as :mod:`rjfit.effects.fresnel` divides
 Schlick's, so the lobe keeps its normal-incidence albedo. One eta sets both.
