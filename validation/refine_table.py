@@ -40,6 +40,7 @@ CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response",
          "gamma (noise before the curve)": "camera_gamma_sensor",
          "cast shadows": "cast_shadows", "dielectric lobe": "fresnel", "GGX lobe (plugin)": "ggx_plugin",
          "GGX dielectric lobe": "ggx_plastic",
+         "GGX lobe under a coating (plugin)": "coated_plugin",
          "interreflection": "interreflection"}
 #: case -> samples per pixel where not render_hidden's default. Interreflection at 512 spp, the
 #: issue's number: dented_plaster's indirect light is ~14 % of its radiance, and its Monte Carlo

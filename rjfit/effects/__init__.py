@@ -11,6 +11,7 @@ from rjfit.effects.base import STAGES, CameraResponse, Columns, Effect, FitForm,
 from rjfit.effects.camera_gamma import CameraGamma
 from rjfit.effects.camera_srgb import CameraSRGB
 from rjfit.effects.cast_shadows import CastShadows
+from rjfit.effects.coating import Coating
 from rjfit.effects.fresnel import Fresnel
 from rjfit.effects.ggx import GGX
 from rjfit.effects.interreflection import Interreflection
@@ -19,10 +20,10 @@ from rjfit.effects.masking import Masking
 from rjfit.effects.second_lobe import SecondLobe
 
 __all__ = ["Effect", "CameraResponse", "FitForm", "Columns", "Param", "STAGES", "ALL_EFFECTS", "EFFECTS", "get_effect",
-           "effects_help", "Fresnel", "Masking", "GGX", "SecondLobe", "Interreflection", "Ambient", "CastShadows",
+           "effects_help", "Fresnel", "Masking", "GGX", "SecondLobe", "Coating", "Interreflection", "Ambient", "CastShadows",
            "CameraGamma", "CameraSRGB", "LightCalibration"]
 
-ALL_EFFECTS = (Fresnel(), Masking(), GGX(), SecondLobe(), Interreflection(), Ambient(), CastShadows(), CameraGamma(),
+ALL_EFFECTS = (Fresnel(), Masking(), GGX(), SecondLobe(), Coating(), Interreflection(), Ambient(), CastShadows(), CameraGamma(),
                CameraSRGB(), LightCalibration())
 EFFECTS = {effect.name: effect for effect in ALL_EFFECTS}
 

@@ -2,15 +2,19 @@
 specular lobe, implemented separately from the NumPy closed form of the criticism's effects
 (drjit, in the BSDF):
 
-    f = scale ( kd/pi + (1 - kd) ((1 - u) N(g) <h.n>^g + u f_GGX(alpha)) F(<h.v>)/F0 ((1 - w) + w G1(v) G1(l))
+    f = scale ( kd/pi K_d + (1 - kd) ((1 - u) N(g) <h.n>^g + u f_GGX(alpha)) F(<h.v>)/F0 ((1 - w) + w G1(v) G1(l)) K_s
                 + v2 f_GGX(alpha2) )
+    K_d = (1 - c) + c (1 - F_eta(<l.n>)) (1 - F_eta(<v.n>)) / (1 - R(eta)),   K_s = (1 - c) + c F_eta(<h.v>) / F_eta(1)
 
 with ``alpha = sqrt(2 / (g + 2))`` and ``f_GGX(a) = D_a(h) G1_a(v) G1_a(l) / (4 <v.n> <l.n>)``
 the GGX microfacet BRDF with Fresnel 1 (Mitsuba's ``roughconductor``, material "none",
 distribution "ggx": ``tests/render/test_ext_plugin.py`` checks the two against each other).
 Parameters, traverse-able and opaque: ``f0`` (default 1: no Fresnel), ``mask_w`` (default 0:
 no Beckmann masking), ``ggx_w`` (u, default 0: no GGX in the lobe), ``lobe2_v`` (v2, default
-0: no second lobe) and ``lobe2_alpha`` (alpha2, default 0.2). Sampling is the plugin's (the
+0: no second lobe), ``lobe2_alpha`` (alpha2, default 0.2), ``coat_w`` (c, default 0: no coating) and
+``coat_eta`` (eta, default 1.5): a dielectric coating (:mod:`rjfit.effects.coating`), ``F_eta`` the exact
+unpolarised Fresnel reflectance written here in drjit and ``R(eta) = 2 int F_eta(mu) mu dmu`` summed
+by the midpoint rule (2048 nodes) when the parameters change. Sampling is the plugin's (the
 Blinn importance sampling stays valid: its density is positive wherever the lobes are; only
 its efficiency changes). ``N(g)`` is Giesen's normalisation written in drjit, the twin of
 :func:`rjfit.model.blinn.blinn_normalisation` (drjit cannot call NumPy inside a kernel); the
@@ -53,8 +57,36 @@ def _ggx(dr, cos_h, cos_i, cos_o, alpha):
     return d * g1(cos_i) * g1(cos_o) / (4.0 * cos_i * cos_o)
 
 
+def _dielectric_fresnel(dr, cos_i, eta):
+    """Unpolarised Fresnel reflectance from outside on a dielectric of index eta > 1, in drjit, from the definitions."""
+    c = dr.clip(cos_i, 0.0, 1.0)
+    cos_t = dr.safe_sqrt(1.0 - (1.0 - c * c) / (eta * eta))
+    r_s = (c - eta * cos_t) / (c + eta * cos_t)
+    r_p = (eta * c - cos_t) / (eta * c + cos_t)
+    return 0.5 * (r_s * r_s + r_p * r_p)
+
+
+#: nodes of the midpoint rule of the coating's diffuse reflectance R(eta) (error ~1e-8)
+COAT_NODES = 2048
+
+
+def _diffuse_reflectance(dr, m, eta):
+    """``R(eta) = 2 int_0^1 F(mu) mu dmu`` by the midpoint rule, as a Float of width 1."""
+    mu = (dr.arange(m.Float, COAT_NODES) + 0.5) / COAT_NODES
+    return m.Float(dr.sum(_dielectric_fresnel(dr, mu, eta) * mu)) * (2.0 / COAT_NODES)
+
+
+def _derive_constants(dr, m, bsdf) -> None:
+    """A plugin's coating constants, 1 / (1 - R(eta)) and 1 / F(1), from its parameters; every one made
+    opaque (a kernel reads them, they are not baked into it)."""
+    bsdf.coat_inv_transmitted = 1.0 / (1.0 - _diffuse_reflectance(dr, m, bsdf.coat_eta))
+    bsdf.coat_inv_f_normal = 1.0 / _dielectric_fresnel(dr, m.Float(1.0), bsdf.coat_eta)
+    dr.make_opaque(*(getattr(bsdf, key) for key in LOBE_DEFAULTS), bsdf.coat_inv_transmitted, bsdf.coat_inv_f_normal)
+
+
 #: the plugin's lobe parameters and their defaults (each one's null: no such term)
-LOBE_DEFAULTS = {"f0": 1.0, "mask_w": 0.0, "ggx_w": 0.0, "lobe2_v": 0.0, "lobe2_alpha": 0.2}
+LOBE_DEFAULTS = {"f0": 1.0, "mask_w": 0.0, "ggx_w": 0.0, "lobe2_v": 0.0, "lobe2_alpha": 0.2, "coat_w": 0.0,
+                 "coat_eta": 1.5}
 
 
 def _lobe_parameters(props) -> dict:
@@ -66,12 +98,14 @@ def _lobe_parameters(props) -> dict:
         For a value out of its range, naming the parameter.
     """
     values = {key: float(props.get(key, default)) for key, default in LOBE_DEFAULTS.items()}
-    f0, mask_w, ggx_w, lobe2_v, lobe2_alpha = values.values()
+    f0, mask_w, ggx_w, lobe2_v, lobe2_alpha, coat_w, coat_eta = values.values()
     if not (0.0 < f0 <= 1.0) or not (0.0 <= mask_w <= 1.0) or not (0.0 <= ggx_w <= 1.0):
         raise ValueError(f"{EXT_PLUGIN_NAME}: need 0 < f0 <= 1, 0 <= mask_w <= 1 and 0 <= ggx_w <= 1, "
                          f"got {f0}, {mask_w}, {ggx_w}")
     if not (lobe2_v >= 0.0) or not (0.0 < lobe2_alpha <= 1.0):
         raise ValueError(f"{EXT_PLUGIN_NAME}: need lobe2_v >= 0 and 0 < lobe2_alpha <= 1, got {lobe2_v}, {lobe2_alpha}")
+    if not (0.0 <= coat_w <= 1.0) or not (coat_eta > 1.0):
+        raise ValueError(f"{EXT_PLUGIN_NAME}: need 0 <= coat_w <= 1 and coat_eta > 1, got {coat_w}, {coat_eta}")
     return values
 
 
@@ -92,13 +126,14 @@ def register_ext():
 
     smith_g1 = partial(_beckmann_smith_g1, dr)
     ggx = partial(_ggx, dr)
+    fresnel = partial(_dielectric_fresnel, dr)
 
     class RjfitBlinnExtBSDF(base):
         def __init__(self, props):
             base.__init__(self, props)
             for key, value in _lobe_parameters(props).items():
                 setattr(self, key, m.Float(value))
-            dr.make_opaque(self.f0, self.mask_w, self.ggx_w, self.lobe2_v, self.lobe2_alpha)
+            _derive_constants(dr, m, self)
 
         def traverse(self, callback):
             base.traverse(self, callback)
@@ -107,7 +142,7 @@ def register_ext():
 
         def parameters_changed(self, keys=None):
             base.parameters_changed(self, keys)
-            dr.make_opaque(self.f0, self.mask_w, self.ggx_w, self.lobe2_v, self.lobe2_alpha)
+            _derive_constants(dr, m, self)
 
         def _eval_pdf(self, ctx, si, wo, active):
             has_diffuse, has_glossy, prob_d = self._lobe_probabilities(ctx)
@@ -120,21 +155,25 @@ def register_ext():
             cos_h_pow_g = dr.power(cos_h, g)
             value = m.Float(0.0)
             pdf = m.Float(0.0)
+            coat = self.coat_w
             if has_diffuse:
-                value += self.kd * inv_pi
+                # with coat_w = 0 the factor is (1 - 0) + 0 = 1 exactly: the values it had before
+                transmitted = (1.0 - fresnel(cos_i, self.coat_eta)) * (1.0 - fresnel(cos_o, self.coat_eta))
+                value += self.kd * inv_pi * ((1.0 - coat) + coat * transmitted * self.coat_inv_transmitted)
                 pdf += prob_d * cos_o * inv_pi
             if has_glossy:
                 norm = (g + 2.0) * (g + 4.0) / ((8.0 * math.pi) * (dr.exp2(-0.5 * g) + g))
                 cos_hv = dr.clip(dr.dot(h, si.wi), 0.0, 1.0)
                 one_minus = 1.0 - cos_hv
-                fresnel = 1.0 + (1.0 / self.f0 - 1.0) * (one_minus * one_minus) * (one_minus * one_minus) * one_minus
+                schlick = 1.0 + (1.0 / self.f0 - 1.0) * (one_minus * one_minus) * (one_minus * one_minus) * one_minus
                 alpha = dr.sqrt(2.0 / (g + 2.0))
                 masking = (1.0 - self.mask_w) + self.mask_w * smith_g1(cos_i, alpha) * smith_g1(cos_o, alpha)
                 # with ggx_w = lobe2_v = 0 the same products in the same order as before they existed
                 blinn = (1.0 - self.kd) * ((1.0 - self.ggx_w) * norm) * cos_h_pow_g
                 mixed = blinn + (1.0 - self.kd) * self.ggx_w * ggx(cos_h, cos_i, cos_o, alpha)
                 second = self.lobe2_v * ggx(cos_h, cos_i, cos_o, self.lobe2_alpha)
-                value += mixed * fresnel * masking + second
+                coating = (1.0 - coat) + coat * fresnel(cos_hv, self.coat_eta) * self.coat_inv_f_normal
+                value += mixed * schlick * masking * coating + second
                 pdf_h = (g + 1.0) * (0.5 / math.pi) * cos_h_pow_g
                 wo_dot_h = dr.dot(wo, h)
                 pdf += (1.0 - prob_d) * dr.select(wo_dot_h > 0.0, pdf_h / (4.0 * wo_dot_h), 0.0)

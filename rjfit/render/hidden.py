@@ -36,6 +36,9 @@ ggx_plugin         the back-lit sphere with ``rjfit_blinn_ext`` (ggx_w = 1: a GG
 ggx_plastic        the ``fresnel`` scene with Mitsuba's ``roughplastic`` of distribution "ggx" (the same
                    alpha = sqrt(2/(gamma+2)), IOR 1.5): a GGX dielectric, its lobe GGX with Smith-GGX
                    shadowing under the coating's Fresnel.
+coated_plugin      the back-lit sphere with ``rjfit_blinn_ext`` (ggx_w = 1, coat_w = 1, coat_eta = 1.5: a GGX lobe
+                   under a dielectric coating, its diffuse part through the smooth interface; the
+                   library's ``ggx`` + ``coating``, exactly).
 masking            the back-lit sphere with ``rjfit_blinn_ext`` (mask_w = 1, Smith-Beckmann G).
 second_lobe        paper_sphere whose materials are Mitsuba's built-in ``blendbsdf``: 70 % rjfit's
                    Blinn-Phong plugin and 30 % a built-in ``roughconductor`` (GGX, alpha 0.15, a
@@ -68,6 +71,7 @@ CALIBRATED_LIGHT = 3
 CALIBRATION_ERROR = 1.2
 SRGB_WHITE = 1.05
 FRESNEL_F0 = 0.04
+COATING_ETA = 1.5
 AMBIENT_SPP = 4096
 AMBIENT_STREAM = 15        # purpose tag of the ambient image's path-tracing stream (mitsuba_seed)
 
@@ -280,7 +284,8 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         (Path(path) / "visibility.exr").unlink()
         _edit_meta(path, lambda meta: meta.update(visibility=None))
         return path
-    if kinds & {"fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic"} and len(kinds) == 1:
+    backlit = {"fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic", "coated_plugin"}
+    if kinds & backlit and len(kinds) == 1:
         scene = backlit_sphere_definition()
         materials, reference = scene["materials"], scene["reference_intensity"]
         if kinds == {"fresnel"}:
@@ -291,6 +296,8 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
             override = _ext_plugin(materials, reference, f0=FRESNEL_F0)
         elif kinds == {"ggx_plugin"}:
             override = _ext_plugin(materials, reference, ggx_w=1.0)
+        elif kinds == {"coated_plugin"}:
+            override = _ext_plugin(materials, reference, ggx_w=1.0, coat_w=1.0, coat_eta=COATING_ETA)
         else:
             override = _ext_plugin(materials, reference, mask_w=1.0)
         return render_dataset(scene, out_dir, bsdf_override=override, **options)
@@ -308,3 +315,5 @@ HIDDEN = ("clean", "ambient", "camera_response", "camera_sensor", "light_calibra
 GAMMA_POWER = 2.2
 CAMERAS = CAMERAS | {"camera_gamma_sensor"}
 HIDDEN = HIDDEN + ("camera_gamma_sensor",)
+#: a GGX lobe under a dielectric coating, exactly in the library (``ggx`` + ``coating``)
+HIDDEN = HIDDEN + ("coated_plugin",)

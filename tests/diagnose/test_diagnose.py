@@ -258,6 +258,23 @@ def test_a_second_lobe_is_named_with_its_weight_and_roughness(hidden, tmp_path):
         assert abs(value["map"] - truth) < 4 * value["sd"], (name, value, truth)
 
 
+def test_a_coated_ggx_lobe_is_named_with_its_index(hidden, tmp_path):
+    """A GGX lobe under a dielectric coating, exactly in the library (the plugin with ggx_w 1, coat_w 1,
+    coat_eta 1.5): ggx and coating are named, and the coating's share and index are the truth's within 4
+    posterior sd (Laplace). Without the GGX lobe the coating's eta goes to its prior's floor (a prior-data
+    conflict: the exact Fresnel cannot stand in for the lobe's shape), so ggx is named first."""
+    from rjfit.render.hidden import COATING_ETA
+
+    result = _run(hidden("coated_plugin"), tmp_path / "diagnosis", max_steps=3, simulate=False, make_figures=False)
+    assert result["named_effects"] == ["ggx", "coating"], [(c["effect"], c.get("log_bayes_factor"))
+                                                           for c in result["candidates"]]
+    assert result["gap_final"] < 0.05 * result["gap_plain"]
+    params = result["steps"][1]["effect_params"]
+    eta, share = params["coating.eta"], params["coating.w_coat"]
+    assert abs(eta["map"] - COATING_ETA) < 4 * eta["sd"], eta
+    assert 1.0 - share["map"] < 4 * share["sd"], share
+
+
 @pytest.mark.parametrize("kind, where", [("fresnel", "rim")])
 def test_a_lobe_outside_the_library_names_nothing_and_is_described(hidden, tmp_path, kind, where):
     """A lobe no library effect is: Mitsuba's roughplastic (a Beckmann lobe under a dielectric

@@ -93,7 +93,8 @@ def test_second_lobe_adds_mitsubas_roughconductor(llvm, alpha2, v):
     np.testing.assert_allclose(got - plain, want, rtol=RTOL, atol=1e-5 * want.max())
 
 
-@pytest.mark.parametrize("bad", [{"ggx_w": 1.5}, {"ggx_w": -0.1}, {"lobe2_v": -1.0}, {"lobe2_alpha": 0.0}])
+@pytest.mark.parametrize("bad", [{"ggx_w": 1.5}, {"ggx_w": -0.1}, {"lobe2_v": -1.0}, {"lobe2_alpha": 0.0},
+                                 {"coat_w": 1.5}, {"coat_eta": 1.0}])
 def test_rejects_invalid_lobe_parameters(llvm, bad):
     with pytest.raises(Exception, match=list(bad)[0]):
         _ext(kd=0.5, gamma=5.0, scale=1.0, **bad)
@@ -134,3 +135,67 @@ def test_compiled_ggx_equals_the_numpy_form():
     want = ggx_lobe(cos2_h, tan_v, tan_l, alpha)
     assert want[0] == 0.0 and np.all(want[1:] > 0.0)
     np.testing.assert_allclose(compiled(cos2_h, tan_v, tan_l, alpha), want, rtol=1e-14, atol=0.0)
+
+
+# -- the dielectric coating (rjfit/effects/coating.py): coat_w, coat_eta ------------------------------------------
+
+def _f_normal(eta):
+    return ((eta - 1.0) / (eta + 1.0)) ** 2
+
+
+@pytest.mark.parametrize("alpha", [0.1, 0.3, 0.6])
+@pytest.mark.parametrize("eta", [1.33, 1.5, 1.8])
+def test_coated_ggx_lobe_is_mitsubas_roughplastic_lobe(llvm, alpha, eta):
+    """With ggx_w = 1 and coat_w = 1 the plugin's lobe is roughplastic's specular part ``ks F(<h.v>; eta) D G /
+    (4 cos_i)`` (diffuse_reflectance 0): the coating divides by F(1), so the mapping is ``scale (1 - kd) =
+    ks F(1)``. Same float32 tolerance as the GGX lobe's against roughconductor."""
+    wi, wo = _sweep()
+    want = _eval(mi.load_dict({"type": "roughplastic", "distribution": "ggx", "alpha": alpha, "int_ior": eta,
+                               "ext_ior": 1.0, "diffuse_reflectance": {"type": "rgb", "value": 0.0},
+                               "specular_reflectance": {"type": "rgb", "value": 1.0}}), wi, wo)
+    got = _eval(_ext(kd=0.0, gamma=_gamma_of(alpha), scale=_f_normal(eta), ggx_w=1.0, coat_w=1.0, coat_eta=eta), wi, wo)
+    assert np.count_nonzero(want) > 0.8 * want.size
+    np.testing.assert_allclose(got, want, rtol=RTOL, atol=1e-6 * want.max())
+    uncoated = _eval(_ext(kd=0.0, gamma=_gamma_of(alpha), scale=_f_normal(eta), ggx_w=1.0), wi, wo)
+    assert not np.allclose(uncoated, want, rtol=0.05), "the Fresnel factor must matter for the test to bite"
+
+
+@pytest.mark.parametrize("eta", [1.33, 1.5, 1.8])
+def test_coated_diffuse_part_is_mitsubas_plastic(llvm, eta):
+    """With kd = 1 and coat_w = 1 the plugin is Mitsuba's smooth ``plastic`` (nonlinear false; its eval is the
+    diffuse part only, the specular being a delta): ``rho t_i t_o / (pi eta^2 (1 - R_int))`` with
+    ``scale = rho``. Mitsuba takes R_int from a polynomial fit (``fresnel_diffuse_reflectance``, Egan and
+    Hilgeman's for 1/eta, 0.1 to 0.6 % off), the coating from the integral (``1 - R_int = (1 - R(eta)) /
+    eta^2``): the ratio of the two is one constant, that of the fit's error, and is divided out; the
+    angular shape must agree to rtol 1e-4."""
+    from rjfit.effects.coating import diffuse_fresnel_reflectance
+
+    wi, wo = _sweep()
+    rho = 0.6
+    plastic = _eval(mi.load_dict({"type": "plastic", "int_ior": eta, "ext_ior": 1.0,
+                                  "diffuse_reflectance": {"type": "rgb", "value": rho}}), wi, wo)
+    got = _eval(_ext(kd=1.0, gamma=5.0, scale=rho, coat_w=1.0, coat_eta=eta), wi, wo)
+    fitted = float(mi.fresnel_diffuse_reflectance(mi.Float(1.0 / eta))[0])
+    exact = 1.0 - (1.0 - diffuse_fresnel_reflectance(eta)) / eta ** 2
+    assert abs(fitted - exact) < 0.006 * exact          # the fit's stated accuracy
+    np.testing.assert_allclose(got, plastic * (1.0 - fitted) / (1.0 - exact), rtol=RTOL, atol=1e-6 * plastic.max())
+    lambert = _eval(_ext(kd=1.0, gamma=5.0, scale=rho), wi, wo)
+    assert not np.allclose(lambert, plastic, rtol=0.05), "the transmission must matter for the test to bite"
+
+
+def test_coating_at_weight_zero_is_the_plugin_without_it(llvm):
+    """coat_w = 0 leaves every value as it was, whatever eta (the plain model nested)."""
+    wi, wo = _sweep()
+    plain = _eval(_ext(kd=0.4, gamma=20.0, scale=1.0, ggx_w=0.5, f0=0.3), wi, wo)
+    np.testing.assert_array_equal(_eval(_ext(kd=0.4, gamma=20.0, scale=1.0, ggx_w=0.5, f0=0.3, coat_eta=1.9), wi, wo),
+                                  plain)
+
+
+@pytest.mark.parametrize("eta", [1.2, 1.5, 2.0])
+def test_numpy_coating_fresnel_is_mitsubas(llvm, eta):
+    """:func:`rjfit.effects.coating.dielectric_fresnel` against Mitsuba's ``fresnel`` (float32) over the cosines."""
+    from rjfit.effects.coating import dielectric_fresnel
+
+    cos = np.linspace(0.0, 1.0, 201)
+    want = np.array(mi.fresnel(mi.Float(cos.astype(np.float32)), mi.Float(eta))[0], dtype=float)
+    np.testing.assert_allclose(dielectric_fresnel(cos, eta), want, rtol=1e-5, atol=1e-6)

@@ -26,6 +26,7 @@ from rjfit.effects.ambient import ALBEDO_LOG_GAMMA, AmbientLight, albedo_table, 
 from rjfit.effects.base import Param
 from rjfit.effects.camera_srgb import SRGBCurve
 from rjfit.effects.cast_shadows import DirectFactor
+from rjfit.effects.coating import CoatingFactors
 from rjfit.effects.fresnel import LobeFactor
 from rjfit.effects.ggx import LobeGGX
 from rjfit.effects.interreflection import IndirectLight
@@ -63,8 +64,8 @@ def every_effect(observations, seed=0):
 
 
 def lobe_shapes(observations, seed=0):
-    """The lobe-shape fit forms (a GGX lobe mixed in, a second lobe), with random geometry (in the
-    observations' order)."""
+    """The lobe-shape fit forms (a GGX lobe mixed in, a second lobe) and a dielectric coating (factors on both
+    columns, after the second lobe), with random geometry (in the observations' order)."""
     rng = np.random.default_rng(seed + 100)
     n = observations.n_obs
     return [LobeGGX(params=(Param("w_ggx", LogitNormal(0.0, 2.0), 0.5),), tan_v=rng.uniform(0.0, 3.0, n),
@@ -72,13 +73,17 @@ def lobe_shapes(observations, seed=0):
             SecondLobeTerm(params=(Param("v", LogNormal(np.log(0.25), 1.5), 0.25),
                                    Param("alpha2", LogitNormal(0.0, 1.5, low=0.02, high=1.0), 0.2)),
                            cos2_h=rng.uniform(0.0, 1.0, n), tan_v=rng.uniform(0.0, 3.0, n),
-                           tan_l=rng.uniform(0.0, 3.0, n))]
+                           tan_l=rng.uniform(0.0, 3.0, n)),
+            CoatingFactors(params=(Param("w_coat", LogitNormal(0.0, 2.0), 0.5),
+                                   Param("eta", LogitNormal(0.0, 1.5, low=1.2, high=2.0), 1.5)),
+                           cos_l=rng.uniform(0.0, 1.0, n), cos_v=rng.uniform(0.05, 1.0, n),
+                           cos_hv=rng.uniform(0.3, 1.0, n))]
 
 
 @pytest.fixture(scope="module", params=["every effect", "every effect and the lobe shapes"])
 def problem(request):
-    """Every effect's terms at once; and with the lobe shapes too (ggx, whose tangents replace masking's, and a
-    second lobe)."""
+    """Every effect's terms at once; and with the lobe shapes too (ggx, whose tangents replace masking's, a
+    second lobe, and a coating)."""
     obs, _, _ = sphere_stack(40, n_lights=6, seed=3)
     forms = every_effect(obs) + (lobe_shapes(obs) if request.param != "every effect" else [])
     base = LambertBlinnPhong(forms).problem(obs, likelihood_power=0.6)

@@ -19,7 +19,8 @@
 - **SBC** (Talts et al. 2018) with a light gain, ambient light and the sRGB camera at once,
   data simulated from the extended model (noise on the linearised scale, as the fit's
   likelihood has it): the ranks of all seven true parameters among 19 thinned draws must be
-  uniform (chi-square of 5 bins, level 0.001).
+  uniform (chi-square of 5 bins, level 0.001); the same with a dielectric coating alone (its share and
+  index with the region's four parameters).
 
 A control shows the tests bite: leaving the camera's log-Jacobian out of the effect move's
 ratio moves the white level's marginal far from the exact one (p < 1e-6).
@@ -39,8 +40,9 @@ from rjfit.effects.ambient import ALBEDO_LOG_GAMMA, AmbientLight, albedo_table, 
 from rjfit.effects.base import Param
 from rjfit.effects.camera_gamma import GammaCurve
 from rjfit.effects.camera_srgb import SRGBCurve, srgb_decode, srgb_decode_log_slope
+from rjfit.effects.coating import CoatingFactors
 from rjfit.effects.light_calibration import LightGains
-from rjfit.model.priors import LogNormal, Normal
+from rjfit.model.priors import LogitNormal, LogNormal, Normal
 from rjfit.sampler.forward import LambertBlinnPhong, transformed
 from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.likelihood import oracle_log_likelihood, region_stats
@@ -410,27 +412,29 @@ def _simulate(base, effects, theta, z, rng):
                         object_mask=base.object_mask)
 
 
-def test_sbc_ranks_are_uniform_with_three_effects():
-    replicates, draws, thin, burn = 60, 19, 8, 120
-    rng = np.random.default_rng(2026)
-    H, W, L = 4, 4, 2
+def _sbc_base(rng, H=4, W=4, L=2):
+    """A 4 x 4 image under 2 lights with random geometry: the observations SBC simulates on."""
     pixel = np.repeat(np.arange(H * W), L).astype(np.int64)
-    base = Observations(image_shape=(H, W), n_lights=L, pixel=pixel, light=np.tile(np.arange(L), H * W).astype(np.int32),
+    return Observations(image_shape=(H, W), n_lights=L, pixel=pixel, light=np.tile(np.arange(L), H * W).astype(np.int32),
                         y=np.ones(pixel.size), cos_ln=rng.uniform(0.3, 1.0, pixel.size),
                         cos_hn=rng.uniform(0.6, 1.0, pixel.size), irradiance=rng.uniform(0.5, 1.5, pixel.size),
                         object_mask=np.ones((H, W), bool))
+
+
+def _sbc_ranks(base, effects, rng, replicates=60, draws=19, thin=8, burn=120):
+    """Ranks of the true region and effect parameters among ``draws`` thinned draws of a chain on data
+    simulated from the extended model, per replicate: (replicates, 4 + effect parameters)."""
     _, prior = tiny_problem()
-    effects = _sbc_effects(base, rng.uniform(0.3, 1.0, pixel.size))
     config = SamplerConfig.from_flat(max_u=0, max_v=0, update_changepoints=False, jumps=False, burn_in=burn, anneal=0)
-    priors = [p.prior for e in effects for p in e.params]
-    ranks = np.zeros((replicates, 7), int)
+    n_effect = sum(e.n_params for e in effects)
+    ranks = np.zeros((replicates, 4 + n_effect), int)
     with threadpool_limits(1):
         for i in range(replicates):
             theta = prior.sample(rng)
-            z = np.array([p.loc + p.scale * rng.normal() for p in priors])
-            problem = LambertBlinnPhong(effects).problem(_simulate(base, effects, theta, z, rng))
-            order = [e.name for e in problem.effects.effects]
-            z_true = np.concatenate([z[[["light_calibration", "ambient", "camera_srgb"].index(n)]] for n in order])
+            z_of = {e.name: np.array([p.prior.loc + p.prior.scale * rng.normal() for p in e.params]) for e in effects}
+            order = [e.name for e in LambertBlinnPhong(effects).effects]       # the problem's (stage) order
+            z_true = np.concatenate([z_of[name] for name in order])
+            problem = LambertBlinnPhong(effects).problem(_simulate(base, effects, theta, z_true, rng))
             state = initial_state(problem, prior, config, rng, theta=prior.sample(rng)[None])
             kept, context = [], ChainContext()
             for t in range(burn + draws * thin):
@@ -438,5 +442,31 @@ def test_sbc_ranks_are_uniform_with_three_effects():
                 if t >= burn and (t - burn) % thin == thin - 1:
                     kept.append(np.concatenate([state.theta[0], state.effects.z]))
             ranks[i] = (np.array(kept) < np.concatenate([theta, z_true])).sum(axis=0)
-    p_values = [stats.chisquare(np.bincount(ranks[:, k] // 4, minlength=5)).pvalue for k in range(7)]
-    assert min(p_values) > LEVEL, (p_values, ranks)
+    return ranks
+
+
+def _uniform_rank_p_values(ranks):
+    """Chi-square p-value of each parameter's ranks (0..19) in 5 bins."""
+    return [stats.chisquare(np.bincount(ranks[:, k] // 4, minlength=5)).pvalue for k in range(ranks.shape[1])]
+
+
+def test_sbc_ranks_are_uniform_with_three_effects():
+    rng = np.random.default_rng(2026)
+    base = _sbc_base(rng)
+    ranks = _sbc_ranks(base, _sbc_effects(base, rng.uniform(0.3, 1.0, base.n_obs)), rng)
+    p_values = _uniform_rank_p_values(ranks)
+    assert ranks.shape[1] == 7 and min(p_values) > LEVEL, (p_values, ranks)
+
+
+def test_sbc_ranks_are_uniform_with_a_coating():
+    """The coating's two parameters (share w, index eta) with the region's four: its factors on both columns
+    are sampled exactly (same design and level as the test above)."""
+    rng = np.random.default_rng(2027)
+    base = _sbc_base(rng)
+    coating = CoatingFactors(params=(Param("w_coat", LogitNormal(0.0, 2.0), 0.5),
+                                     Param("eta", LogitNormal(-0.5, 1.5, low=1.2, high=2.0), 1.5)),
+                             cos_l=base.cos_ln, cos_v=rng.uniform(0.2, 1.0, base.n_obs),
+                             cos_hv=rng.uniform(0.4, 1.0, base.n_obs))
+    ranks = _sbc_ranks(base, [coating], rng)
+    p_values = _uniform_rank_p_values(ranks)
+    assert ranks.shape[1] == 6 and min(p_values) > LEVEL, (p_values, ranks)
