@@ -23,6 +23,13 @@ A candidate effect is NAMED at a step only when all of these hold:
    added). So where the current model's simulated gap is below
    :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP`, the simulation also agrees when it stays
    below that with the effect and the closed-form gap moves toward the simulated one.
+5. the current model leaves a misfit: its gap is above :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP`.
+   Below it, rule 2's share is a ratio of two numbers within the gap's own error (the noise
+   estimate's included), and a flexible effect "closes" any multiple of it: on the GGX roughplastic
+   stack, after the coating, light_calibration was named on a gap of 0.001 ("1133 %",
+   docs/results/2026-11-28-coating.md), and on the power-law camera stack ambient on 0.036 after
+   camera_gamma (docs/results/2026-11-28-loop.md). A model within 0.1 is one the diagnosis calls
+   adequate, so there is nothing left for an effect to explain.
 
 Among the candidates that qualify, the largest log BF is named. When none qualifies and the
 final gap is above :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP`, the diagnosis reports an
@@ -37,7 +44,8 @@ from rjfit.diagnose.simulate import simulate_fit
 __all__ = ["GAP_SHARE", "NAMING_RULE", "judge_candidates"]
 
 GAP_SHARE = 0.5
-NAMING_RULE = (f"named when decisive AND it closes >= {GAP_SHARE:.0%} of the current model's excess gap AND its "
+NAMING_RULE = (f"named when the current model's gap is above {UNEXPLAINED_GAP:g} AND decisive AND it closes >= "
+               f"{GAP_SHARE:.0%} of the current model's excess gap AND its "
                f"parameters are physical (no prior-data conflict) AND, with a mesh, the Mitsuba-simulated gap falls "
                f"too (or, where the path tracer already reproduces the data, stays below {UNEXPLAINED_GAP:g} while the "
                f"closed form moves toward it); among those the largest log BF")
@@ -64,7 +72,10 @@ def judge_candidates(ctx, rows, fits, candidate_residuals, current, residuals, s
         row["gap_share"] = (gap_current - gap_with) / gap_current if gap_current > 0 else 0.0
         row["physical"] = not row.get("prior_conflict")
         why = []
-        if row["gap_share"] < GAP_SHARE:
+        if gap_current <= UNEXPLAINED_GAP:
+            why.append(f"the current model's gap {gap_current:.3g} is within {UNEXPLAINED_GAP:g}: no misfit left to "
+                       "explain")
+        elif row["gap_share"] < GAP_SHARE:
             why.append(f"closes {row['gap_share']:.0%} of the excess gap (< {GAP_SHARE:.0%})")
         if not row["physical"]:
             why.append("a parameter in prior-data conflict")
