@@ -82,7 +82,7 @@ import numpy as np
 from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.sampler.colour import guide_rows, pixel_set_data
 from rjfit.sampler.passes.densities import coefficients
-from rjfit.sampler.regions.materials.passes.edges import boundary_sums, edge_value
+from rjfit.sampler.regions.materials.passes.edges import boundary_sums, changed_delta, edge_value
 
 __all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "observation_lookup", "no_step_sums",
            "EDGE_GAP", "NO_STEP_NOISE"]
@@ -144,16 +144,20 @@ class EdgeTerm(NamedTuple):
 
     def rows_delta(self, pixels, theta, rows, new_rows) -> float:
         """The change of the term when the parameter ``rows`` of ``theta`` become ``new_rows`` (a colour material's
-        rows at a new gamma)."""
-        new = np.array(theta, float)
+        rows at a new gamma): :meth:`total`'s difference, summed over the changed materials' boundaries only."""
+        theta = np.asarray(theta, float)
+        new = theta.copy()
         new[list(rows)] = new_rows
-        return self.total(pixels, new) - self.total(pixels, theta)
+        changed = np.zeros(theta.shape[0] // self.n_channels, np.bool_)
+        changed[np.asarray(list(rows), np.int64) // self.n_channels] = True
+        return float(changed_delta(_flat(pixels), changed, coefficients(theta), coefficients(new), self.first,
+                                   self.second, self.start, self.d, self.c_first, self.c_second, self.l_first,
+                                   self.l_second, self.no_step, self.channel, self.weight, self.n_channels, self.scale))
 
     def region_delta(self, pixels, theta, r: int, theta_r) -> float:
-        """The change of the term when material ``r``'s row of ``theta`` becomes ``theta_r``."""
-        new = np.array(theta, float)
-        new[r] = theta_r
-        return self.total(pixels, new) - self.total(pixels, theta)
+        """The change of the term when row ``r`` of ``theta`` (a material's; a joint colour fit's channel row)
+        becomes ``theta_r``."""
+        return self.rows_delta(pixels, theta, [r], [theta_r])
 
     def sweep_arrays(self, theta):
         """The ``edge`` argument of :func:`~rjfit.sampler.regions.materials.passes.labels.gibbs_sweep`."""

@@ -33,7 +33,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["boundary_value", "pair_sums", "pair_sums_colour", "boundary_sums", "edge_value", "edge_sums", "keep_new_label"]
+__all__ = ["boundary_value", "pair_sums", "pair_sums_colour", "boundary_sums", "changed_delta", "edge_value", "edge_sums",
+           "keep_new_label"]
 
 
 @njit(cache=True, nogil=True)
@@ -109,6 +110,28 @@ def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c
             _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
                       weight, n_channels)
     return sums
+
+
+@njit(cache=True, nogil=True)
+def changed_delta(labels, changed, coef, new_coef, first, second, start, d, c_first, c_second, l_first, l_second,
+                  no_step, channel, weight, n_channels, scale):
+    """The change of the term when the materials marked in ``changed`` (K,) take ``new_coef`` instead of ``coef``.
+
+    Only the boundaries of a changed material move, so only their pairs are summed, at both
+    coefficients in one pass (the others' shares cancel: a boundary with no pairs adds 0). A
+    material's parameter move asks this of one material.
+    """
+    n_materials = changed.shape[0]
+    before = np.zeros((n_materials, n_materials, 4))
+    after = np.zeros((n_materials, n_materials, 4))
+    for j in range(first.shape[0]):
+        k, m = labels[first[j]], labels[second[j]]
+        if k >= 0 and m >= 0 and k != m and (changed[k] or changed[m]):
+            _add_pair(before, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
+                      weight, n_channels)
+            _add_pair(after, 1.0, j, k, m, new_coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
+                      weight, n_channels)
+    return edge_value(after, scale) - edge_value(before, scale)
 
 
 @njit(cache=True, nogil=True)
