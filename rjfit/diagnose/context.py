@@ -183,12 +183,16 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
     # <l.h> per observation: the normals' error noise model needs it (the fit's observations carry it)
     obs = replace(obs, cos_lh=np.sum(l * h, axis=-1))
     scale = noise_scale(obs, noise, noise_floor)
+    dark = declared_dark(dataset)
+    described = describe_noise(noise, noise_floor, scale)
+    if dark is not None:        # diagnosis.json's record of the likelihood says so
+        described["truncated_at_dark"] = dark
     return Context(dataset=dataset, labels=region_map.astype(np.int64), n_regions=int(used.size),
                    region=region_map[rows, cols].astype(np.int64), light=obs.light.astype(np.int64),
                    pixel=obs.pixel, y=obs.y, cos_ln=obs.cos_ln, cos_hn=obs.cos_hn, irradiance=obs.irradiance,
                    cos_vn=np.clip(np.sum(v * n, axis=-1), 1e-6, 1.0), cos_hv=np.clip(np.sum(h * v, axis=-1), 0.0, 1.0),
                    valid=valid, channel=channel, seed=int(seed), likelihood_power=zeta, noise_scale=scale,
-                   noise=describe_noise(noise, noise_floor, scale), dark=declared_dark(dataset))
+                   noise=described, dark=dark)
 
 
 def declared_dark(dataset) -> float | None:

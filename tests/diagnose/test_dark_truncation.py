@@ -51,7 +51,7 @@ def test_the_truncation_term_is_minus_log_p_kept(power_law_stack):
     -log Phi((m_lin - f^-1(dark)) / (sigma G)), computed here from the camera's functions with
     scipy's normal. Tolerance 1e-9 absolute (the same float64 formula by another path)."""
     ctx = build_context(power_law_stack, power_law_stack.truth_labels)
-    assert ctx.dark == 0.0
+    assert ctx.dark == 0.0 and ctx.noise["truncated_at_dark"] == 0.0      # diagnosis.json records it
     camera = EFFECTS["camera_gamma"]
     plain_ctx = _untruncated(ctx)
     fit = refit(plain_ctx, [camera], n_draws=2)
