@@ -17,7 +17,7 @@ import numpy as np
 from rjfit.data.noise import DEFAULT_FLOOR, describe_noise, noise_scale
 from rjfit.data.observations import observations_from_stack
 
-__all__ = ["Context", "build_context"]
+__all__ = ["Context", "build_context", "declared_dark"]
 
 
 @dataclass
@@ -40,6 +40,9 @@ class Context:
     likelihood_power: float = 1.0   # zeta of a coarsened fit: refits weigh the log-likelihood by it
     noise_scale: np.ndarray | None = None   # (N,) known noise scales s_i of the fit's noise model (None: all 1)
     noise: dict = field(default_factory=lambda: describe_noise("constant", DEFAULT_FLOOR))
+    # the data set's declared dark threshold in its values' units (None: none): every kept
+    # observation is above it, so the refits' likelihood is truncated there (RefitObjective)
+    dark: float | None = None
     features: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
 
@@ -180,9 +183,22 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
     # <l.h> per observation: the normals' error noise model needs it (the fit's observations carry it)
     obs = replace(obs, cos_lh=np.sum(l * h, axis=-1))
     scale = noise_scale(obs, noise, noise_floor)
+    dark = declared_dark(dataset)
+    described = describe_noise(noise, noise_floor, scale)
+    if dark is not None:        # diagnosis.json's record of the likelihood says so
+        described["truncated_at_dark"] = dark
     return Context(dataset=dataset, labels=region_map.astype(np.int64), n_regions=int(used.size),
                    region=region_map[rows, cols].astype(np.int64), light=obs.light.astype(np.int64),
                    pixel=obs.pixel, y=obs.y, cos_ln=obs.cos_ln, cos_hn=obs.cos_hn, irradiance=obs.irradiance,
                    cos_vn=np.clip(np.sum(v * n, axis=-1), 1e-6, 1.0), cos_hv=np.clip(np.sum(h * v, axis=-1), 0.0, 1.0),
                    valid=valid, channel=channel, seed=int(seed), likelihood_power=zeta, noise_scale=scale,
-                   noise=describe_noise(noise, noise_floor, scale))
+                   noise=described, dark=dark)
+
+
+def declared_dark(dataset) -> float | None:
+    """The dark threshold a data set declares in its values' units (``dark`` of ``dataset.json``),
+    below which no observation was kept; None where it declares none or one on raw codes (a
+    photometric-stereo folder's ``raw_threshold``, before its per-light intensities are divided
+    out, so no one value in the data's units)."""
+    dark = (getattr(dataset, "meta", None) or {}).get("dark")
+    return float(dark) if isinstance(dark, (int, float)) and not isinstance(dark, bool) else None

@@ -19,6 +19,19 @@ objective itself, the white level included). :class:`RefitObjective` evaluates i
 least-squares residuals at fixed sigma^2 (the Gaussian priors are extra residual rows, so
 their half sum of squares is f up to a constant), their Jacobian and normal equations, and
 the closed-form sigma^2 update;
+
+Where the data set declares a dark threshold t (:attr:`rjfit.diagnose.context.Context.dark`),
+an observation was kept only because its value was above t, so the likelihood of a kept
+observation is the truncated normal, its density over P(y_i > t) = Phi((m_i - f^-1(t)) /
+(sigma G s_i)) on the linear scale (t itself without a camera response). Without it the
+kept observations whose mean is within a few sd of t are an upward-biased sample that an
+effect raising the dim end (ambient light, the sRGB curve's toe) absorbs: on a power-law
+camera stack with its negative sums clipped and declared dark, ambient + sRGB won over the
+true power law by log BF 161, and lost by 87 with the truncation
+(docs/results/2026-11-28-loop-seeds.md). The term is exact for one channel or equal ones;
+``dark`` flags an observation only when every channel is at or below t. The least squares
+leave it out (it is no square); the Newton corrections of the MAP and the Laplace Hessian,
+which difference f, carry it.
 :mod:`rjfit.diagnose.optimise` minimises it, :mod:`rjfit.diagnose.hessian` differences it.
 """
 from __future__ import annotations
@@ -26,6 +39,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from scipy.special import log_ndtr
 
 from rjfit.diagnose.model import order_effects, predict
 from rjfit.model.priors import Normal
@@ -113,16 +128,18 @@ class RefitObjective:
             offset += size
         return out
 
-    def scaled_residuals(self, mu, thetas):
+    def scaled_residuals(self, mu, thetas, values=None):
         """``(e_i, log J_i - log G or None)`` of predictions ``mu`` at effect parameters ``thetas`` (those
         of :meth:`split`): ``e = (y - mu) / s_i``, the residuals in units of the noise model's scales;
-        with a camera response, on the linear scale (module docstring)."""
+        with a camera response, on the linear scale (module docstring). ``values`` in place of the
+        data ``y`` in ``e`` (G stays the data's)."""
+        values = self.ctx.y if values is None else values
         if self.camera is None:
-            return self.ctx.standardise(self.ctx.y - mu), None
+            return self.ctx.standardise(values - mu), None
         camera, theta, white = self.effects[self.camera], thetas[self.camera], self.features[self.camera]
         log_slope = camera.inverse_log_slope(self.ctx.y, theta, white)
         log_mean_slope = float(np.mean(log_slope))
-        linear = camera.inverse(self.ctx.y, theta, white) - camera.inverse(mu, theta, white)
+        linear = camera.inverse(values, theta, white) - camera.inverse(mu, theta, white)
         return self.ctx.standardise(linear * math.exp(-log_mean_slope)), log_slope - log_mean_slope
 
     def residuals(self, z, light_values=None):
@@ -135,11 +152,17 @@ class RefitObjective:
         """log N(y_i | mu_i, sigma^2 s_i^2) per observation (with a camera response, the density of y_i
         on the linear scale: module docstring); ``light_values`` {effect position: (L,) values} as in
         :meth:`mean`."""
-        e, log_jacobian, region = self.residuals(z, light_values)
+        mu, region = self.mean(z, light_values)
+        thetas = self.split(z)[1]
+        e, log_jacobian = self.scaled_residuals(mu, thetas)
         s2 = region[self.ctx.region, 3]
         values = -0.5 * (LOG_2PI + np.log(s2) + e ** 2 / s2)
         if log_jacobian is not None:
             values = values + log_jacobian
+        if self.ctx.dark is not None:
+            # the truncation at the dark threshold: minus log P(kept) = log Phi(-(t - m) / sd)
+            threshold = self.scaled_residuals(mu, thetas, np.full_like(self.ctx.y, self.ctx.dark))[0]
+            values = values - log_ndtr(-threshold / np.sqrt(s2))
         return values if self.log_scale2 is None else values - 0.5 * self.log_scale2
 
     def log_prior(self, z):

@@ -134,6 +134,13 @@ def _positive_definite(objective, hessian, gauss_newton):
             ["finite-difference Hessian not positive definite; Gauss-Newton curvature used"])
 
 
+#: Newton corrections of a refit's MAP where the data set declares a dark threshold: the least
+#: squares stop short of the truncated likelihood's optimum (ambient + camera_gamma on the
+#: power-law stack, 64 x 64: 8 steps from the least squares' f to within 0.02 of L-BFGS-B's;
+#: 2 left the log evidence 6.6 low)
+TRUNCATED_CORRECTIONS = 12
+
+
 def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=1e-3) -> FitResult:
     """Fit region parameters and effect parameters on ``ctx``'s fixed segmentation.
 
@@ -156,7 +163,9 @@ def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=
         ctx.features["region_priors"] = region_priors(init)
     objective = RefitObjective(ctx, effects, ctx.features["region_priors"])
     z, gauss_newton = find_map(objective, _start_point(objective, start), max_outer=max_outer, tol=tol)
-    z, hessian = newton_corrections(objective, z, hessian_steps(objective, gauss_newton))
+    # the least squares leave out a dark threshold's truncation term (RefitObjective): Newton reaches its MAP
+    z, hessian = newton_corrections(objective, z, hessian_steps(objective, gauss_newton),
+                                    max_corrections=2 if ctx.dark is None else TRUNCATED_CORRECTIONS)
     hessian, hessian_kind, notes = _positive_definite(objective, hessian, gauss_newton)
     log_evidence, log_lik, log_prior = laplace_log_evidence(objective, z, hessian)
     result = FitResult(effects=objective.effects, names=objective.names, priors=objective.priors, z=z,

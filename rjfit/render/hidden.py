@@ -44,6 +44,9 @@ second_lobe        paper_sphere whose materials are Mitsuba's built-in ``blendbs
                    Blinn-Phong plugin and 30 % a built-in ``roughconductor`` (GGX, alpha 0.15, a
                    perfect conductor, specular reflectance the material's scale): a second lobe
                    of another family; the library's ``second_lobe`` with v = 0.3 / 0.7, alpha2 = 0.15.
+anisotropic_lobe   the second_lobe stack with an ANISOTROPIC GGX ``roughconductor`` (alpha_u 0.05, alpha_v
+                   0.3 along the mesh's tangent frame): a lobe outside the library, whose lobes are
+                   isotropic (a highlight stretched along one tangent direction).
 ambient+light_calibration  both at once on paper_sphere.
 clean              paper_sphere as is.
 """
@@ -106,14 +109,22 @@ SECOND_LOBE_WEIGHT = 0.3
 SECOND_LOBE_ALPHA = 0.15
 
 
-def _second_lobe(materials, reference_intensity):
+#: ``anisotropic_lobe``'s roughness along the two tangent directions (u: the mesh's dp/du)
+ANISOTROPIC_ALPHAS = (0.05, 0.3)
+
+
+def _second_lobe(materials, reference_intensity, roughness=None):
+    """``blendbsdf`` of the Blinn plugin and a GGX ``roughconductor`` of ``roughness`` (its
+    ``alpha``, or ``alpha_u`` and ``alpha_v``; None: alpha ``SECOND_LOBE_ALPHA``)."""
     from rjfit.render.mitsuba_scene import material_dict
+
+    roughness = {"alpha": SECOND_LOBE_ALPHA} if roughness is None else roughness
 
     def override(index):
         m = materials[index]
         scale = m["I0"] / reference_intensity
         return {"type": "blendbsdf", "weight": SECOND_LOBE_WEIGHT, "first": material_dict(m, reference_intensity),
-                "second": {"type": "roughconductor", "distribution": "ggx", "alpha": SECOND_LOBE_ALPHA,
+                "second": {"type": "roughconductor", "distribution": "ggx", **roughness,
                            "material": "none", "specular_reflectance": {"type": "rgb", "value": [scale] * 3}}}
     return override
 
@@ -268,11 +279,13 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         raise ValueError(f"one camera per data set, not {sorted(kinds & CAMERAS)}")
     if kinds <= {"ambient", "light_calibration", "clean"} | CAMERAS:
         return _paper_sphere_hidden(kinds, out_dir, options)
-    if kinds == {"second_lobe"}:
+    if kinds in ({"second_lobe"}, {"anisotropic_lobe"}):
         scene = load_scene_definition("paper_sphere")
         activate()
-        return render_dataset(scene, out_dir, bsdf_override=_second_lobe(scene["materials"], scene["reference_intensity"]),
-                              **options)
+        alpha_u, alpha_v = ANISOTROPIC_ALPHAS
+        roughness = {"alpha_u": alpha_u, "alpha_v": alpha_v} if kinds == {"anisotropic_lobe"} else None
+        return render_dataset(scene, out_dir, bsdf_override=_second_lobe(scene["materials"], scene["reference_intensity"],
+                                                                         roughness), **options)
     if kinds == {"interreflection"}:
         options["spp"] = INTERREFLECTION_SPP if spp is None else spp
         return render_dataset("dented_plaster", out_dir, **options)
@@ -317,3 +330,5 @@ CAMERAS = CAMERAS | {"camera_gamma_sensor"}
 HIDDEN = HIDDEN + ("camera_gamma_sensor",)
 #: a GGX lobe under a dielectric coating, exactly in the library (``ggx`` + ``coating``)
 HIDDEN = HIDDEN + ("coated_plugin",)
+#: a lobe no effect of the library models (issue 44: the case that must name nothing)
+HIDDEN = HIDDEN + ("anisotropic_lobe",)
