@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.data.lights import tangent_frame, tangent_terms
 from rjfit.data.observations import Observations, observations_from_stack
 from rjfit.model.blinn import radiance
 
@@ -79,7 +80,7 @@ def _point_light_terms(position, normals, view):
 
 def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_positions=None,
                  truth=PAPER_TABLE2_TRUTH, seed: int = 0, extent: float = 1.1,
-                 min_cos: float = 1e-3):
+                 min_cos: float = 1e-3, tangents: bool = False):
     """Render a noisy synthetic stack of the four-region sphere with the closed form.
 
     Parameters
@@ -98,6 +99,9 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
         Half-width of the orthographic view in sphere radii.
     min_cos : float
         Observations with ``<l.n> <= min_cos`` are left out.
+    tangents : bool
+        Also record each observation's tangent-frame components (:attr:`Observations.tangent`,
+        for a fit that samples the normals).
 
     Returns
     -------
@@ -139,8 +143,13 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
     params = {key: np.array([region[key] for region in truth], dtype=float) for key in ("I0", "kd", "gamma", "sigma2")}
     region = np.where(object_mask, labels, 0)
 
-    images, cos_ln_all, cos_hn_all, irr_all, cos_lh_all = [], [], [], [], []
+    images, cos_ln_all, cos_hn_all, irr_all, cos_lh_all, tangent_all = [], [], [], [], [], []
+    frame = tangent_frame(normals) if tangents else None
     for position in lights:
+        if tangents:
+            to_light = position[None, None, :] - normals
+            tangent_all.append(tangent_terms(to_light / np.linalg.norm(to_light, axis=-1, keepdims=True),
+                                             view, *frame))
         cos_ln, cos_hn, irradiance, cos_lh = _point_light_terms(position, normals, view)
         mu = radiance(params["I0"][region], params["kd"][region], params["gamma"][region],
                       cos_ln, cos_hn, irradiance)
@@ -154,5 +163,6 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
     cos_ln = np.stack(cos_ln_all)
     valid = object_mask[None] & (cos_ln > min_cos)
     obs: Observations = observations_from_stack(images, cos_ln, np.stack(cos_hn_all), np.stack(irr_all),
-                                                valid, object_mask, cos_lh=np.stack(cos_lh_all))
+                                                valid, object_mask, cos_lh=np.stack(cos_lh_all),
+                                                tangent=np.stack(tangent_all) if tangents else None)
     return obs, labels.astype(int), [dict(region) for region in truth]
