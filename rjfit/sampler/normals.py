@@ -37,7 +37,8 @@ from rjfit.sampler.likelihood import log_likelihood_from_stats, region_stats
 from rjfit.sampler.passes.normals import normal_columns, normal_sweep
 
 __all__ = ["NormalState", "TARGET_ACCEPT", "initial_normal_state", "normal_problem", "move_normals",
-           "normal_log_prior", "pixel_regions"]
+           "normal_log_prior", "pixel_regions", "normal_moments", "normals_summary",
+           "normal_direction_maps"]
 
 #: the acceptance each pixel's step adapts to (a 2-D random walk's near-optimal rate)
 TARGET_ACCEPT = 0.35
@@ -110,3 +111,51 @@ def move_normals(work, normals: NormalState, rng, problem: Problem, iteration: i
     work.log_lik = log_likelihood_from_stats(work.stats, work.theta)
     work.region_index = None
     return NormalState(d=d, log_step=log_step), moved
+
+
+def normal_moments(records, problem: Problem) -> dict:
+    """The sampled normals' posterior per pixel, pooled over the chains' kept draws.
+
+    Returns the posterior mean tangent coordinates ``d_mean`` (H W, 2) and (H, W) maps, NaN at pixels
+    without observations: ``shift_deg``, the angle between the given normal and the posterior mean
+    normal (the normal at ``d_mean``), and ``sd_deg``, ``sqrt(var dx + var dy)`` in degrees (the
+    tangent coordinates are the turn's angle in radians to first order).
+
+    Raises
+    ------
+    ValueError
+        If no chain recorded a kept draw of the normals.
+    """
+    draws = sum(record.normal_draws for record in records if record.normal_sum is not None)
+    if draws == 0:
+        raise ValueError("no kept draw of the sampled normals: run more iterations than the burn-in")
+    total = sum(record.normal_sum for record in records if record.normal_sum is not None)
+    squares = sum(record.normal_sq for record in records if record.normal_sum is not None)
+    mean = total / draws
+    variance = np.maximum(squares / draws - mean * mean, 0.0)
+    observed = (np.diff(problem.pixel_start) > 0).reshape(problem.image_shape)
+    shift = np.degrees(np.arctan(np.hypot(mean[:, 0], mean[:, 1]))).reshape(problem.image_shape)
+    sd = np.degrees(np.sqrt(variance.sum(axis=1))).reshape(problem.image_shape)
+    return {"d_mean": mean, "shift_deg": np.where(observed, shift, np.nan), "sd_deg": np.where(observed, sd, np.nan),
+            "draws": int(draws)}
+
+
+def normals_summary(moments: dict, problem: Problem, acceptance: float | None) -> dict:
+    """summary.json's ``normals`` entry of a fit that sampled them (``moments`` of :func:`normal_moments`)."""
+    shift, sd = moments["shift_deg"], moments["sd_deg"]
+    kept = np.isfinite(shift)
+    return {"mode": "sample", "prior_sd_deg": float(np.degrees(np.arctan(problem.normals.prior_sd))),
+            "shift_median_deg": float(np.median(shift[kept])), "shift_p95_deg": float(np.percentile(shift[kept], 95)),
+            "sd_median_deg": float(np.median(sd[kept])), "draws": moments["draws"], "acceptance": acceptance,
+            "maps": "maps.exr channels normal_shift_deg (the posterior mean normal's angle from the given one) and "
+                    "normal_sd_deg (its posterior sd), degrees; normal_dx, normal_dy (the posterior mean tangent "
+                    "coordinates in the frame of rjfit.data.lights.tangent_frame)",
+            "prior": "tangent coordinates (dx, dy) of n' ~ n + dx t1 + dy t2, iid N(0, tan(sigma_n)^2) in the plane"}
+
+
+def normal_direction_maps(moments: dict, problem: Problem) -> dict:
+    """``normal_dx``, ``normal_dy``: (H, W) maps of the posterior mean tangent coordinates, in the frame of
+    :func:`rjfit.data.lights.tangent_frame` of the given normals (NaN at pixels without observations)."""
+    observed = np.isfinite(moments["shift_deg"])
+    return {name: np.where(observed, moments["d_mean"][:, k].reshape(problem.image_shape), np.nan)
+            for k, name in enumerate(("normal_dx", "normal_dy"))}
