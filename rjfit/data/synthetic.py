@@ -78,6 +78,16 @@ def _point_light_terms(position, normals, view):
             np.sum(light_dir * half, axis=-1))
 
 
+def _sphere_tangents(lights, normals, view):
+    """(L, H, W, 4) tangent-frame components of every light over the unit sphere (surface points = normals)."""
+    frame = tangent_frame(normals)
+    out = []
+    for position in lights:
+        to_light = position[None, None, :] - normals
+        out.append(tangent_terms(to_light / np.linalg.norm(to_light, axis=-1, keepdims=True), view, *frame))
+    return np.stack(out)
+
+
 def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_positions=None,
                  truth=PAPER_TABLE2_TRUTH, seed: int = 0, extent: float = 1.1,
                  min_cos: float = 1e-3, tangents: bool = False):
@@ -100,8 +110,7 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
     min_cos : float
         Observations with ``<l.n> <= min_cos`` are left out.
     tangents : bool
-        Also record each observation's tangent-frame components (:attr:`Observations.tangent`,
-        for a fit that samples the normals).
+        Also record :attr:`Observations.tangent` (for a fit that samples the normals).
 
     Returns
     -------
@@ -143,13 +152,8 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
     params = {key: np.array([region[key] for region in truth], dtype=float) for key in ("I0", "kd", "gamma", "sigma2")}
     region = np.where(object_mask, labels, 0)
 
-    images, cos_ln_all, cos_hn_all, irr_all, cos_lh_all, tangent_all = [], [], [], [], [], []
-    frame = tangent_frame(normals) if tangents else None
+    images, cos_ln_all, cos_hn_all, irr_all, cos_lh_all = [], [], [], [], []
     for position in lights:
-        if tangents:
-            to_light = position[None, None, :] - normals
-            tangent_all.append(tangent_terms(to_light / np.linalg.norm(to_light, axis=-1, keepdims=True),
-                                             view, *frame))
         cos_ln, cos_hn, irradiance, cos_lh = _point_light_terms(position, normals, view)
         mu = radiance(params["I0"][region], params["kd"][region], params["gamma"][region],
                       cos_ln, cos_hn, irradiance)
@@ -159,10 +163,8 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
         cos_hn_all.append(cos_hn)
         irr_all.append(irradiance)
         cos_lh_all.append(cos_lh)
-    images = np.stack(images)
-    cos_ln = np.stack(cos_ln_all)
-    valid = object_mask[None] & (cos_ln > min_cos)
-    obs: Observations = observations_from_stack(images, cos_ln, np.stack(cos_hn_all), np.stack(irr_all),
-                                                valid, object_mask, cos_lh=np.stack(cos_lh_all),
-                                                tangent=np.stack(tangent_all) if tangents else None)
+    valid = object_mask[None] & (np.stack(cos_ln_all) > min_cos)
+    obs: Observations = observations_from_stack(np.stack(images), np.stack(cos_ln_all), np.stack(cos_hn_all),
+                                                np.stack(irr_all), valid, object_mask, cos_lh=np.stack(cos_lh_all),
+                                                tangent=_sphere_tangents(lights, normals, view) if tangents else None)
     return obs, labels.astype(int), [dict(region) for region in truth]

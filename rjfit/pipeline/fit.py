@@ -144,16 +144,9 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     specs = chain_specs(problem, prior, config, options, out_dir, truth_labels, start, fixed_segmentation, region)
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
-    moments = None if problem.normals is None else normal_moments(records, problem)
     with phase("summarising the chains (MAP labels, posterior mean prediction, checks)", options.progress):
-        # sampled normals: the prediction (and the model's own misfit) at the posterior mean normals
-        seen = problem if moments is None else normal_problem(problem, moments["d_mean"])
-        result = summarise(records, seen, prior, config, options, suggestion, noise_record, truth_labels,
-                           observations, region)
-    if moments is not None:
-        result.summary["normals"] = normals_summary(moments, problem, result.summary["acceptance"].get("normals"))
-        result.extra.update(normal_shift_deg=moments["shift_deg"], normal_sd_deg=moments["sd_deg"],
-                            **normal_direction_maps(moments, problem))
+        result = summarise_normals(records, problem, prior, config, options, suggestion, noise_record,
+                                   truth_labels, observations, region)
     if problem.effects is not None:
         result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
         result.summary["warnings"] += effect_warnings(result.summary["effects"])
@@ -234,6 +227,22 @@ def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, trut
                                checkpoint_every=options.checkpoint_every, cp_thin=cp_thin, truth_labels=truth_labels,
                                start=chain_start, progress=options.progress))
     return specs
+
+
+def summarise_normals(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels,
+                      observations, region: RegionFit) -> FitResult:
+    """:func:`summarise`; with sampled normals (``--normals sample``) at the posterior mean normals (the prediction
+    and the model's own misfit), with their ``normals`` entry and maps."""
+    if problem.normals is None:
+        return summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels,
+                         observations, region)
+    moments = normal_moments(records, problem)
+    result = summarise(records, normal_problem(problem, moments["d_mean"]), prior, config, options, suggestion,
+                       noise_record, truth_labels, observations, region)
+    result.summary["normals"] = normals_summary(moments, problem, result.summary["acceptance"].get("normals"))
+    result.extra.update(normal_shift_deg=moments["shift_deg"], normal_sd_deg=moments["sd_deg"],
+                        **normal_direction_maps(moments, problem))
+    return result
 
 
 def run_entries(records, problem, prior, options: FitOptions, burn: int, suggestion, noise_record) -> dict:
