@@ -23,13 +23,14 @@ from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.likelihood import log_likelihood_from_stats, oracle_log_likelihood, region_stats
 from rjfit.sampler.normals import initial_normal_state, move_normals, normal_problem
 from rjfit.sampler.priors import make_prior
+from rjfit.sampler.runner import numba_threads
 from rjfit.sampler.state import SamplerConfig, StepInfo, Work
 
-NOISY = tuple(dict(region, sigma2=60.0) for region in PAPER_TABLE2_TRUTH)   # broad conditionals: the prior matters
+NOISY = tuple(dict(region, sigma2=2.0) for region in PAPER_TABLE2_TRUTH)   # broad conditionals: the prior matters
 PRIOR_SD = np.tan(np.radians(3.0))
 
 
-def tiny_normal_problem(power=0.05, pixels=4):
+def tiny_normal_problem(power=0.5, pixels=4):
     """A few object pixels of the closed-form sphere, with their truth labels and parameters."""
     obs, truth, _ = sphere_stack(10, n_lights=8, truth=NOISY, seed=4, tangents=True)
     counts = np.bincount(obs.pixel, minlength=100)
@@ -78,10 +79,11 @@ def sweep_chain(problem, labels, theta, iterations, burn_in, seed):
     stats = region_stats(current, labels, theta[:, 2], theta.shape[0])
     work = Work(layout=None, theta=theta, stats=stats, log_lik=log_likelihood_from_stats(stats, theta), labels=labels)
     rng, info, kept = np.random.default_rng(seed), StepInfo(), []
-    for t in range(iterations):
-        normals, current = move_normals(work, normals, rng, current, t, burn_in, info)
-        if t >= burn_in:
-            kept.append(normals.d.copy())
+    with numba_threads(1):          # a few pixels: threads would only add their start-up to every sweep
+        for t in range(iterations):
+            normals, current = move_normals(work, normals, rng, current, t, burn_in, info)
+            if t >= burn_in:
+                kept.append(normals.d.copy())
     return np.array(kept), info
 
 
@@ -90,19 +92,31 @@ def batch_se(x, batches=40):
     return means.std(ddof=1) / np.sqrt(batches)
 
 
+def z_scores(x, mean, sd):
+    """The chain's mean and sd of draws ``x`` against exact ones, in Monte Carlo standard errors."""
+    se = batch_se(x)
+    ess = x.var() / max(se ** 2, 1e-300)
+    return (x.mean() - mean) / se, (x.std() - sd) / (sd / np.sqrt(2 * ess))
+
+
 def test_the_sweep_samples_each_pixels_exact_conditional():
+    """Measured (seed 11): |z| <= 1.4 for all 16 moments; the control, the quadrature at twice the power (the
+    tempering left out of the ratio would look so), is off by 3 to 17 standard errors."""
     problem, labels, theta, pixels = tiny_normal_problem()
-    draws, info = sweep_chain(problem, labels, theta, 6000, 1000, seed=11)
+    draws, info = sweep_chain(problem, labels, theta, 12000, 2000, seed=11)
     assert 0.15 < info.accepted["normals"] / info.proposed["normals"] < 0.7
+    control = dataclasses.replace(problem, likelihood_power=2 * problem.likelihood_power)
+    worst_control = 0.0
     for p in pixels:
         mean, sd = exact_moments(problem, labels, theta, p)
-        assert sd.min() > 0.05 * PRIOR_SD      # the data leave the conditional broad enough to test the prior's part
+        # the data narrow the conditional below the prior, so both terms of the target are tested
+        assert 0.05 * PRIOR_SD < sd.min() and sd.max() < 0.95 * PRIOR_SD
         for k in range(2):
-            x = draws[:, p, k]
-            se = batch_se(x)
-            ess = x.var() / max(se ** 2, 1e-300)
-            assert abs(x.mean() - mean[k]) < 5 * se, (p, k, x.mean(), mean[k], se)
-            assert abs(x.std() - sd[k]) < 5 * sd[k] / np.sqrt(2 * ess), (p, k, x.std(), sd[k], ess)
+            z_mean, z_sd = z_scores(draws[:, p, k], mean[k], sd[k])
+            assert abs(z_mean) < 5 and abs(z_sd) < 5, (p, k, z_mean, z_sd)
+        wrong_mean, wrong_sd = exact_moments(control, labels, theta, p)
+        worst_control = max(worst_control, *np.abs(z_scores(draws[:, p, 0], wrong_mean[0], wrong_sd[0])))
+    assert worst_control > 5
 
 
 def test_a_normal_that_would_turn_a_kept_observation_away_from_its_light_is_never_taken():
