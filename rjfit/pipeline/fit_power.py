@@ -76,10 +76,13 @@ MIN_NORMAL_SD_DEG = 0.25
 
 
 def normal_prior_sd(options, normal_error) -> float | None:
-    """The sd of each tangent coordinate's prior of ``--normals sample``: ``tan(sigma_n)``, sigma_n the normals'
-    error estimate (:mod:`rjfit.data.normal_error`) floored at :data:`MIN_NORMAL_SD_DEG`; None for fixed normals."""
+    """The sd of each tangent coordinate's prior of ``--normals sample``: ``tan(sigma_n)``, sigma_n as given
+    (``--normal-sd``) or the normals' error estimate (:mod:`rjfit.data.normal_error`) floored at
+    :data:`MIN_NORMAL_SD_DEG`; None for fixed normals."""
     if options.normals != "sample":
         return None
+    if options.normal_sd is not None:
+        return math.tan(math.radians(options.normal_sd))
     return math.tan(math.radians(max(float(normal_error["sigma_n_deg"]), MIN_NORMAL_SD_DEG)))
 
 

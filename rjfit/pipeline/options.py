@@ -232,6 +232,10 @@ class FitOptions:
         "sampled with the regions (one channel, no effects), its posterior shift and sd written to maps.exr; under "
         "--noise normals the noise inflation is then dropped (docs/options.md).", "choice",
         choices=NORMALS_CHOICES)
+    normal_sd: float | None = cli_option(
+        None, "--normal-sd",
+        "Degrees: the sd of the sampled normals' prior per tangent direction (--normals sample); default the "
+        "normal-error estimate of 5 x 5 tile fits, floored at 0.25.", "float", show_default=False)
     max_view_angle: float | None = cli_option(
         None, "--max-view-angle",
         "Degrees: observations of pixels seen further than this from their normal (the rim) are left out; their "
@@ -308,6 +312,8 @@ class FitOptions:
             raise ValueError(f"max_u and max_v (--max-u, --max-v) must be >= 0, got {self.max_u}, {self.max_v}")
 
     def _check_ranges(self):
+        if self.normal_sd is not None and not (math.isfinite(self.normal_sd) and 0.0 < self.normal_sd < 45.0):
+            raise ValueError(f"--normal-sd is in degrees, in (0, 45), got {self.normal_sd}")
         if self.anneal is not None and not 0.0 <= self.anneal <= 1.0:
             raise ValueError(f"anneal is the fraction of the burn-in run tempered, in [0, 1], got {self.anneal}")
         if self.max_view_angle is not None and not (math.isfinite(self.max_view_angle)

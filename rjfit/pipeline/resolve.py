@@ -173,6 +173,8 @@ def _check_normals(options: FitOptions) -> None:
     """Sampled normals (--normals sample) are for one channel without effects, under a noise model without the
     footprint term."""
     if options.normals != "sample":
+        if options.source("normal_sd") == GIVEN:
+            raise ValueError("--normal-sd is an option of --normals sample, and the normals are fixed: leave it out")
         return
     if options.effects or options.effects_from is not None:
         raise ValueError("--normals sample is for fits without effects (the effects' columns assume the given "

@@ -9,7 +9,7 @@
   against the truth is at least the fixed fit's less 0.01, and at least 0.95 (measured: fixed 0.73, the turned
   normals cost it; sampled 0.98). About two minutes.
 - The refusals: with effects, with --channel rgb and with --noise footprint, one line naming the option, before
-  any work.
+  any work; --normal-sd where the normals are fixed, and where they are sampled the prior's sd it sets.
 """
 import json
 import shutil
@@ -21,6 +21,9 @@ from click.testing import CliRunner
 from rjfit.cli import main
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.lights import tangent_frame
+from rjfit.pipeline.fit_power import MIN_NORMAL_SD_DEG, normal_prior_sd
+from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.resolve import resolve_options
 from rjfit.render.datasets import load_dataset
 
 from builders import perturbed_normals
@@ -38,6 +41,20 @@ def test_sampled_normals_refuse_what_they_do_not_support_in_one_line(paper_spher
     assert message.startswith("Error: ") and "--normals sample" in message and named in message, message
     assert "\n" not in message and "Traceback" not in result.output
     assert not (tmp_path / "fit" / "summary.json").exists()
+
+
+def test_a_prior_sd_is_read_only_where_the_normals_are_sampled(paper_sphere_small, tmp_path):
+    result = CliRunner().invoke(main, ["fit", str(paper_sphere_small), "--out", str(tmp_path / "fit"),
+                                       "--allow-unvalidated", "--iterations", "20", "--normal-sd", "2"])
+    assert result.exit_code == 1 and "--normal-sd is an option of --normals sample" in result.output
+    assert "Traceback" not in result.output
+    resolved = resolve_options(FitOptions(normals="sample", normal_sd=2.0))
+    assert normal_prior_sd(resolved, {"sigma_n_deg": 0.0}) == pytest.approx(np.tan(np.radians(2.0)))
+    estimated = resolve_options(FitOptions(normals="sample"))
+    assert normal_prior_sd(estimated, {"sigma_n_deg": 0.0}) == pytest.approx(np.tan(np.radians(MIN_NORMAL_SD_DEG)))
+    assert normal_prior_sd(resolve_options(FitOptions()), {"sigma_n_deg": 2.0}) is None
+    with pytest.raises(ValueError, match="--normal-sd is in degrees"):
+        FitOptions(normal_sd=90.0)
 
 
 @pytest.fixture(scope="module")
