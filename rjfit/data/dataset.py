@@ -21,7 +21,7 @@ from rjfit.data.checks import (check_finite, check_lights_face_object, check_mas
 from rjfit.data.descriptions import check_dataset_description
 from rjfit.data.exr import read_exr
 from rjfit.data.formats import CHANNELS, COLOUR, COLOUR_CHANNELS
-from rjfit.data.lights import Light, cos_light_half, geometry_terms
+from rjfit.data.lights import Light, cos_light_half, geometry_terms, light_tangent_terms
 from rjfit.data.observations import EXCLUSION_RULES, Observations, exclusion_reasons, stack_channels
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.io import read_json
@@ -263,7 +263,7 @@ class Dataset:
             valid[index, rows, cols] = valid_on_object
         return valid
 
-    def observations(self, channel: str = "mean", dark: float | None = None) -> Observations:
+    def observations(self, channel: str = "mean", dark: float | None = None, tangents: bool = False) -> Observations:
         """The valid observations of one channel (see :meth:`valid_mask`), or of R, G and B jointly.
 
         Parameters
@@ -272,6 +272,9 @@ class Dataset:
             As in :meth:`valid_mask`; ``channel="rgb"`` (:data:`~rjfit.data.formats.COLOUR`):
             each of R, G and B's valid observations, stacked with their channel index
             (:func:`~rjfit.data.observations.stack_channels`), for a joint colour fit.
+        tangents : bool
+            Also build :attr:`Observations.tangent <rjfit.data.observations.Observations>` (the
+            light's and half vector's tangent-frame components, for ``--normals sample``).
 
         Returns
         -------
@@ -285,14 +288,20 @@ class Dataset:
             If no observation is valid.
         """
         if channel == COLOUR:
-            return stack_channels([self.observations(name, dark) for name in COLOUR_CHANNELS])
+            return stack_channels([self.observations(name, dark, tangents) for name in COLOUR_CHANNELS])
         rows, cols = np.nonzero(self.object_mask)
         flat_pixel = rows.astype(np.int64) * self.image_shape[1] + cols
         parts = {"pixel": [], "light": [], "y": [], "cos_ln": [], "cos_hn": [], "irradiance": [], "cos_lh": []}
         view_dirs = self.view_dirs[rows, cols]
         positions = self.positions[rows, cols] if self.positions is not None else np.zeros_like(view_dirs)
+        if tangents:
+            parts["tangent"] = []
+            normals = self.normals[rows, cols]
         for index, valid, y, cos_ln, cos_hn, irradiance, _ in self._object_pixel_lights(channel, dark):
             parts["cos_lh"].append(cos_light_half(positions, view_dirs, self.lights[index])[valid])
+            if tangents:
+                parts["tangent"].append(light_tangent_terms(positions[valid], normals[valid], view_dirs[valid],
+                                                            self.lights[index]))
             parts["pixel"].append(flat_pixel[valid])
             parts["light"].append(np.full(int(valid.sum()), index, dtype=np.int32))
             for name, values in (("y", y), ("cos_ln", cos_ln), ("cos_hn", cos_hn), ("irradiance", irradiance)):

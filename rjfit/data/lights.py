@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Light", "geometry_terms"]
+__all__ = ["Light", "geometry_terms", "cos_light_half", "tangent_frame", "tangent_terms", "light_tangent_terms"]
 
 
 @dataclass(frozen=True)
@@ -166,10 +166,44 @@ def cos_light_half(positions, view_dirs, light):
     -------
     ndarray, shape (...)
     """
+    light_dirs = _light_dirs(positions, light)
+    return np.sum(light_dirs * _normalise(light_dirs + np.asarray(view_dirs, dtype=float)), axis=-1)
+
+
+def _light_dirs(positions, light):
+    """Unit directions from ``positions`` (..., 3) towards ``light``."""
     positions = np.asarray(positions, dtype=float)
-    view_dirs = np.asarray(view_dirs, dtype=float)
     if light.kind == "point":
-        light_dirs = _normalise(np.asarray(light.position, dtype=float) - positions)
-    else:
-        light_dirs = np.broadcast_to(_normalise(np.asarray(light.direction, dtype=float)), positions.shape)
-    return np.sum(light_dirs * _normalise(light_dirs + view_dirs), axis=-1)
+        return _normalise(np.asarray(light.position, dtype=float) - positions)
+    return np.broadcast_to(_normalise(np.asarray(light.direction, dtype=float)), positions.shape)
+
+
+def tangent_frame(normals):
+    """A per-pixel orthonormal tangent frame ``(t1, t2)`` of unit ``normals`` (..., 3), deterministic.
+
+    ``t1`` is the unit vector along ``a x n``, ``a`` the coordinate axis x or y, whichever is
+    less aligned with n (so the cross product never vanishes); ``t2 = n x t1``.
+    """
+    normals = np.asarray(normals, dtype=float)
+    use_y = np.abs(normals[..., 0]) > np.abs(normals[..., 1])
+    axis = np.zeros_like(normals)
+    axis[..., 0] = ~use_y
+    axis[..., 1] = use_y
+    t1 = _normalise(np.cross(axis, normals))
+    return t1, np.cross(normals, t1)
+
+
+def tangent_terms(light_dirs, view_dirs, t1, t2):
+    """``(l.t1, l.t2, h.t1, h.t2)`` (..., 4) float32: the light's and the half vector's components in the
+    tangent frame of the given normal (what a turned normal's ``<l.n'>`` and ``<h.n'>`` need,
+    :mod:`rjfit.sampler.normals`)."""
+    light_dirs = np.asarray(light_dirs, dtype=float)
+    half = _normalise(light_dirs + np.asarray(view_dirs, dtype=float))
+    return np.stack([np.sum(light_dirs * t1, axis=-1), np.sum(light_dirs * t2, axis=-1),
+                     np.sum(half * t1, axis=-1), np.sum(half * t2, axis=-1)], axis=-1).astype(np.float32)
+
+
+def light_tangent_terms(positions, normals, view_dirs, light):
+    """:func:`tangent_terms` of ``light`` at surface points ``positions`` with unit ``normals`` (..., 3)."""
+    t1, t2 = tangent_frame(normals)
+    return tangent_terms(_light_dirs(positions, light), view_dirs, t1, t2)

@@ -43,6 +43,12 @@ class Observations:
         ``<l.h>`` of each observation (the cosine of half the angle between the light and the
         view): with ``cos_ln`` and ``cos_hn`` it fixes how the prediction changes with the
         normal (:mod:`rjfit.data.normal_error`). None where the builder did not record it.
+    tangent : ndarray of float32, shape (N, 4), or None
+        ``(l.t1, l.t2, h.t1, h.t2)``: the light's and the half vector's components in an
+        orthonormal tangent frame ``(t1, t2)`` of the pixel's given normal (one frame per
+        pixel, :func:`rjfit.data.lights.tangent_frame`), what a fit that samples the normals
+        needs (``--normals sample``, :mod:`rjfit.sampler.normals`). Built only when asked
+        (16 bytes per observation); None otherwise.
     """
 
     image_shape: tuple[int, int]
@@ -57,6 +63,7 @@ class Observations:
     channel: np.ndarray | None = None
     n_channels: int = 1
     cos_lh: np.ndarray | None = None
+    tangent: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -97,6 +104,7 @@ class Observations:
             cos_hn=self.cos_hn[keep], irradiance=self.irradiance[keep], object_mask=self.object_mask,
             channel=None if self.channel is None else self.channel[keep], n_channels=self.n_channels,
             cos_lh=None if self.cos_lh is None else self.cos_lh[keep],
+            tangent=None if self.tangent is None else self.tangent[keep],
         )
 
 
@@ -179,7 +187,8 @@ def valid_images_per_pixel(valid):
     return np.asarray(valid, dtype=bool).sum(axis=0)
 
 
-def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_mask, cos_lh=None) -> Observations:
+def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_mask, cos_lh=None,
+                            tangent=None) -> Observations:
     """Gather the valid entries of dense (L, H, W) arrays into :class:`Observations`.
 
     Parameters
@@ -193,6 +202,8 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
         Stored with the observations.
     cos_lh : array_like, shape (L, H, W), optional
         ``<l.h>`` per light and pixel (:attr:`Observations.cos_lh`).
+    tangent : array_like, shape (L, H, W, 4), optional
+        The tangent-frame components per light and pixel (:attr:`Observations.tangent`).
 
     Returns
     -------
@@ -212,6 +223,8 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
                         ("cos_lh", images if cos_lh is None else cos_lh)):
         if np.shape(array) != images.shape:
             raise ValueError(f"{name} has shape {np.shape(array)}, images have {images.shape}")
+    if tangent is not None and np.shape(tangent) != images.shape + (4,):
+        raise ValueError(f"tangent has shape {np.shape(tangent)}, images have {images.shape} (+ 4 components)")
     if np.shape(object_mask) != images.shape[1:]:
         raise ValueError(f"object mask has shape {np.shape(object_mask)}, images are {images.shape[1:]}")
     valid = np.asarray(valid, dtype=bool)
@@ -230,6 +243,7 @@ def observations_from_stack(images, cos_ln, cos_hn, irradiance, valid, object_ma
         irradiance=np.asarray(irradiance, dtype=float)[valid],
         object_mask=np.asarray(object_mask, dtype=bool),
         cos_lh=None if cos_lh is None else np.asarray(cos_lh, dtype=float)[valid],
+        tangent=None if tangent is None else np.asarray(tangent, dtype=np.float32)[valid],
     )
 
 
@@ -268,4 +282,5 @@ def stack_channels(per_channel) -> Observations:
         object_mask=first.object_mask,
         channel=np.concatenate([np.full(o.n_obs, c, np.int8) for c, o in enumerate(parts)]),
         n_channels=len(parts),
-        cos_lh=None if any(o.cos_lh is None for o in parts) else np.concatenate([o.cos_lh for o in parts]))
+        cos_lh=None if any(o.cos_lh is None for o in parts) else np.concatenate([o.cos_lh for o in parts]),
+        tangent=None if any(o.tangent is None for o in parts) else np.concatenate([o.tangent for o in parts]))

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.data.lights import tangent_frame, tangent_terms
 from rjfit.data.observations import Observations, observations_from_stack
 from rjfit.model.blinn import radiance
 
@@ -77,9 +78,19 @@ def _point_light_terms(position, normals, view):
             np.sum(light_dir * half, axis=-1))
 
 
+def _sphere_tangents(lights, normals, view):
+    """(L, H, W, 4) tangent-frame components of every light over the unit sphere (surface points = normals)."""
+    frame = tangent_frame(normals)
+    out = []
+    for position in lights:
+        to_light = position[None, None, :] - normals
+        out.append(tangent_terms(to_light / np.linalg.norm(to_light, axis=-1, keepdims=True), view, *frame))
+    return np.stack(out)
+
+
 def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_positions=None,
                  truth=PAPER_TABLE2_TRUTH, seed: int = 0, extent: float = 1.1,
-                 min_cos: float = 1e-3):
+                 min_cos: float = 1e-3, tangents: bool = False):
     """Render a noisy synthetic stack of the four-region sphere with the closed form.
 
     Parameters
@@ -98,6 +109,8 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
         Half-width of the orthographic view in sphere radii.
     min_cos : float
         Observations with ``<l.n> <= min_cos`` are left out.
+    tangents : bool
+        Also record :attr:`Observations.tangent` (for a fit that samples the normals).
 
     Returns
     -------
@@ -150,9 +163,8 @@ def sphere_stack(size: int | tuple[int, int] = 64, *, n_lights: int = 10, light_
         cos_hn_all.append(cos_hn)
         irr_all.append(irradiance)
         cos_lh_all.append(cos_lh)
-    images = np.stack(images)
-    cos_ln = np.stack(cos_ln_all)
-    valid = object_mask[None] & (cos_ln > min_cos)
-    obs: Observations = observations_from_stack(images, cos_ln, np.stack(cos_hn_all), np.stack(irr_all),
-                                                valid, object_mask, cos_lh=np.stack(cos_lh_all))
+    valid = object_mask[None] & (np.stack(cos_ln_all) > min_cos)
+    obs: Observations = observations_from_stack(np.stack(images), np.stack(cos_ln_all), np.stack(cos_hn_all),
+                                                np.stack(irr_all), valid, object_mask, cos_lh=np.stack(cos_lh_all),
+                                                tangent=_sphere_tangents(lights, normals, view) if tangents else None)
     return obs, labels.astype(int), [dict(region) for region in truth]

@@ -42,7 +42,7 @@ from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import check_writable, staging_dir
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import kept_chains, publish_results, relative_paths, remove_checkpoints, stamp, write_summary
-from rjfit.pipeline.fit_power import noise_and_power
+from rjfit.pipeline.fit_power import noise_and_power, normal_prior_sd
 from rjfit.pipeline.fit_settings import burn_in_iterations
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.regions import FitResult, RegionFit, region_fit
@@ -52,6 +52,7 @@ from rjfit.posterior import caveats
 from rjfit.posterior.effects import effect_summaries
 from rjfit.progress import phase
 from rjfit.sampler.forward import LambertBlinnPhong, Problem
+from rjfit.sampler.normals import normal_direction_maps, normal_moments, normal_problem, normals_summary
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.runner import ChainSpec, run_chains
 from rjfit.sampler.state import SamplerConfig
@@ -144,8 +145,8 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
     records = (list(chain_runner(specs)) if chain_runner is not None
                else run_chains(specs, processes=options.processes, threads=options.threads))
     with phase("summarising the chains (MAP labels, posterior mean prediction, checks)", options.progress):
-        result = summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels,
-                           observations, region)
+        result = summarise_normals(records, problem, prior, config, options, suggestion, noise_record,
+                                   truth_labels, observations, region)
     if problem.effects is not None:
         result.summary["effects"] = effect_summaries(records, config.kernel.burn_in, problem.effects, effect_source)
         result.summary["warnings"] += effect_warnings(result.summary["effects"])
@@ -180,13 +181,18 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     neighbouring pixels is worth a warning whatever power the fit uses.
     """
     scale, suggestion, power, normal_error = noise_and_power(observations, options)
+    prior_sd = normal_prior_sd(options, normal_error)
     if effects:
         problem = LambertBlinnPhong(effects).problem(observations, likelihood_power=float(power), noise_scale=scale)
     else:
-        problem = Problem.from_observations(observations, likelihood_power=float(power), noise_scale=scale)
+        problem = Problem.from_observations(observations, likelihood_power=float(power), noise_scale=scale,
+                                            normal_prior_sd=prior_sd)
     record = describe_noise(options.noise, options.noise_floor, scale)
     if normal_error is not None:
         record["normal_error"] = normal_error
+    if prior_sd is not None and options.noise == "normals":
+        record["normals_sampled"] = ("--normals sample: the inflation 1 + k g^2 is dropped (k = 0), the normals' "
+                                     "error is sampled instead; the likelihood power is the one measured with it")
     return problem, suggestion, record
 
 
@@ -226,6 +232,22 @@ def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, trut
                                checkpoint_every=options.checkpoint_every, cp_thin=cp_thin, truth_labels=truth_labels,
                                start=chain_start, progress=options.progress))
     return specs
+
+
+def summarise_normals(records, problem, prior, config, options: FitOptions, suggestion, noise_record, truth_labels,
+                      observations, region: RegionFit) -> FitResult:
+    """:func:`summarise`; with sampled normals (``--normals sample``) at the posterior mean normals (the prediction
+    and the model's own misfit), with their ``normals`` entry and maps."""
+    if problem.normals is None:
+        return summarise(records, problem, prior, config, options, suggestion, noise_record, truth_labels,
+                         observations, region)
+    moments = normal_moments(records, problem)
+    result = summarise(records, normal_problem(problem, moments["d_mean"]), prior, config, options, suggestion,
+                       noise_record, truth_labels, observations, region)
+    result.summary["normals"] = normals_summary(moments, problem, result.summary["acceptance"].get("normals"))
+    result.extra.update(normal_shift_deg=moments["shift_deg"], normal_sd_deg=moments["sd_deg"],
+                        **normal_direction_maps(moments, problem))
+    return result
 
 
 def run_entries(records, problem, prior, options: FitOptions, burn: int, suggestion, noise_record) -> dict:
@@ -283,7 +305,9 @@ def _stage_and_publish(out_dir: Path, result: FitResult, records, observations, 
         attributes = stamp(summary)         # fit_id, version and schema: in every file
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)}, attributes)
         region.write_files(staging, result, records, options, attributes)
-        extra = {name: result.extra[name] for name in ("map_probability", "edge_group") if name in result.extra} or None
+        extra = {name: result.extra[name] for name in ("map_probability", "edge_group", "normal_shift_deg",
+                                                       "normal_sd_deg", "normal_dx", "normal_dy")
+                 if name in result.extra} or None
         summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra, attributes)
         if source is not None:
             record_source(summary, source, staging, options)

@@ -103,7 +103,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     source = FitSource(entries=entries, warnings=warnings, exclusion_counts=dataset.exclusion_counts(
                             "mean" if options.channel == COLOUR else options.channel),
                        object_mask=dataset.object_mask, n_lights=dataset.n_lights)
-    observations = dataset.observations(options.channel)
+    observations = dataset.observations(options.channel, tangents=options.normals == "sample")
     effects, effect_source = fit_effects(dataset, observations, options)
     return fit(observations, out_dir, options, truth_labels=dataset.truth_labels,
                truth_params=dataset.truth_params, chain_runner=chain_runner, source=source, sampler_effects=effects,

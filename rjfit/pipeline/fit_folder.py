@@ -215,6 +215,8 @@ SUMMARY_FIELDS = {
     "likelihood_power_suggestion": (dict, "the measured spatial correlation of per-pixel-fit residuals and the zeta it "
                                           "suggests"),
     "noise": (dict, "the noise model, its floor and scale range"),
+    "normals": (dict, "sampled normals (--normals sample): the prior's sd, the posterior mean normal's shift from the "
+                      "given one (median, 95th percentile) and its sd (median), degrees; the maps in maps.exr"),
     "model_misfit": (dict, "the lag-1 spatial correlation of the fitted model's own standardised residuals (its "
                            "posterior mean prediction) and the likelihood power it would imply"),
     "chain_seconds": (list, "seconds each chain sampled"),

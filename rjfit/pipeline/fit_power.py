@@ -5,6 +5,7 @@ and the power of its edge term (``--edge-power``)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -16,7 +17,8 @@ from rjfit.progress import phase
 from rjfit.sampler.regions.materials.edges import edge_term
 from rjfit.sampler.regions.materials.layout import labelled_pixels
 
-__all__ = ["noise_and_power", "power_suggestion", "channel_normal_error_noise", "edge_power"]
+__all__ = ["noise_and_power", "power_suggestion", "channel_normal_error_noise", "edge_power", "normal_prior_sd",
+           "MIN_NORMAL_SD_DEG"]
 
 
 def edge_power(problem, options):
@@ -40,11 +42,11 @@ def noise_and_power(observations, options):
         If ``--likelihood-power auto`` cannot be measured (too few adjacent pixels).
     """
     normal_error = None
-    if options.noise in ("normals", "footprint"):
+    if options.noise in ("normals", "footprint") or options.normals == "sample":
         with phase(f"noise model {options.noise}: estimating the normals' error (5 x 5 pixel tile fits)",
                    options.progress):
             scale, normal_error = channel_normal_error_noise(observations, footprint=options.noise == "footprint")
-    else:
+    if options.noise not in ("normals", "footprint"):
         scale = noise_scale(observations, options.noise, options.noise_floor)
     try:
         with phase("likelihood power: spatial correlation of per-pixel fits' residuals", options.progress):
@@ -60,7 +62,28 @@ def noise_and_power(observations, options):
         power = area["likelihood_power"]
     else:
         power = suggestion["likelihood_power"] if options.likelihood_power == "auto" else options.likelihood_power
+    if options.normals == "sample" and options.noise == "normals":
+        # the sampled normals carry their error: the inflation 1 + k g^2 would count it twice (k = 0). The power
+        # stays the one measured with it, the fixed fit's: the misfit the normals' error leaves between
+        # neighbours is what the sampled normals now model, not a discrepancy the coarsening must absorb.
+        scale = None
     return scale, suggestion, power, normal_error
+
+
+#: the smallest normal-error sd the prior of sampled normals takes (degrees): exact normals (an estimate of 0)
+#: still leave the prior a positive width
+MIN_NORMAL_SD_DEG = 0.25
+
+
+def normal_prior_sd(options, normal_error) -> float | None:
+    """The sd of each tangent coordinate's prior of ``--normals sample``: ``tan(sigma_n)``, sigma_n as given
+    (``--normal-sd``) or the normals' error estimate (:mod:`rjfit.data.normal_error`) floored at
+    :data:`MIN_NORMAL_SD_DEG`; None for fixed normals."""
+    if options.normals != "sample":
+        return None
+    if options.normal_sd is not None:
+        return math.tan(math.radians(options.normal_sd))
+    return math.tan(math.radians(max(float(normal_error["sigma_n_deg"]), MIN_NORMAL_SD_DEG)))
 
 
 def _one_channel(observations, c):

@@ -80,6 +80,8 @@ def _effect_names(value) -> tuple:
 
 
 POWER_RULES = ("auto", "area")
+#: ``--normals``: the given normals as they are, or each pixel's sampled (rjfit.sampler.normals)
+NORMALS_CHOICES = ("fixed", "sample")
 #: degrees: the rim's edge, arccos(RIM_COS) = 72.5 (rjfit.data.observations.RIM_COS)
 RIM_VIEW_ANGLE = round(math.degrees(math.acos(RIM_COS)), 2)
 #: The prior odds of each further material, with and without the preset: 1:100, so that one takes half the
@@ -223,6 +225,17 @@ class FitOptions:
         "error as noise); footprint (normals plus a pixel's footprint). Default constant; --preset measured: "
         "normals. What each assumes and when to use it: docs/options.md.", "choice", choices=NOISE_MODELS,
         show_default=False)
+    normals: str = cli_option(
+        "fixed", "--normals",
+        "fixed: the given normals are used as they are (their error as noise under --noise normals); sample: each "
+        "pixel's normal is an unknown with a Gaussian prior around the given one at the estimated normal-error scale, "
+        "sampled with the regions (one channel, no effects), its posterior shift and sd written to maps.exr; under "
+        "--noise normals the noise inflation is then dropped (docs/options.md).", "choice",
+        choices=NORMALS_CHOICES)
+    normal_sd: float | None = cli_option(
+        None, "--normal-sd",
+        "Degrees: the sd of the sampled normals' prior per tangent direction (--normals sample); default the "
+        "normal-error estimate of 5 x 5 tile fits, floored at 0.25.", "float", show_default=False)
     max_view_angle: float | None = cli_option(
         None, "--max-view-angle",
         "Degrees: observations of pixels seen further than this from their normal (the rim) are left out; their "
@@ -268,7 +281,7 @@ class FitOptions:
     def __post_init__(self):
         self._check_counts()
         for name, what in (("preset", "preset"), ("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
-                           ("channel", "channel"),
+                           ("channel", "channel"), ("normals", "normals"),
                            ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
             spec = self.cli(name)
             if getattr(self, name) is not None and getattr(self, name) not in spec.choices:
@@ -299,6 +312,8 @@ class FitOptions:
             raise ValueError(f"max_u and max_v (--max-u, --max-v) must be >= 0, got {self.max_u}, {self.max_v}")
 
     def _check_ranges(self):
+        if self.normal_sd is not None and not (math.isfinite(self.normal_sd) and 0.0 < self.normal_sd < 45.0):
+            raise ValueError(f"--normal-sd is in degrees, in (0, 45), got {self.normal_sd}")
         if self.anneal is not None and not 0.0 <= self.anneal <= 1.0:
             raise ValueError(f"anneal is the fraction of the burn-in run tempered, in [0, 1], got {self.anneal}")
         if self.max_view_angle is not None and not (math.isfinite(self.max_view_angle)

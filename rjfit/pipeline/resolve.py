@@ -169,7 +169,26 @@ def _chosen_by(options: FitOptions, name: str) -> str:
             DEFAULT: "the default"}[options.source(name)]
 
 
+def _check_normals(options: FitOptions) -> None:
+    """Sampled normals (--normals sample) are for one channel without effects, under a noise model without the
+    footprint term."""
+    if options.normals != "sample":
+        if options.source("normal_sd") == GIVEN:
+            raise ValueError("--normal-sd is an option of --normals sample, and the normals are fixed: leave it out")
+        return
+    if options.effects or options.effects_from is not None:
+        raise ValueError("--normals sample is for fits without effects (the effects' columns assume the given "
+                         "normals): leave out --effects / --effects-from, or fit with --normals fixed")
+    if options.channel == COLOUR:
+        raise ValueError("--normals sample is for a single channel, not yet --channel rgb: fit one channel "
+                         "(--channel mean) or give --normals fixed")
+    if options.noise == "footprint":
+        raise ValueError("--normals sample replaces the normals' error in the noise: use --noise normals (its "
+                         "inflation is dropped, its normal-error estimate sets the prior) or constant, not footprint")
+
+
 def _check_combinations(options: FitOptions) -> None:
+    _check_normals(options)
     if options.edge_power == "auto" or options.edge_power > 0:
         if not _edge_term_applies(vars(options)):
             edge = " / ".join(name for name, fit in REGION_FITS.items() if "edge_power" in fit.reads)

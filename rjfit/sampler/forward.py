@@ -56,7 +56,7 @@ from rjfit.data.observations import Observations
 from rjfit.effects.base import STAGES, Columns, stage_key
 from rjfit.sampler.passes.lobe import LobeTerms
 
-__all__ = ["Problem", "ForwardModel", "EffectData", "LambertBlinnPhong", "transformed", "CHUNK"]
+__all__ = ["Problem", "ForwardModel", "EffectData", "NormalData", "LambertBlinnPhong", "transformed", "CHUNK"]
 
 # Observations are processed in chunks of this many: the float64 temporaries of a chunk stay
 # in cache, and memory does not grow with the image (2048 x 2048 x 18 lights is 28M rows).
@@ -103,6 +103,11 @@ class Problem:
     region (material) then has one parameter row per channel sharing gamma
     (:mod:`rjfit.sampler.colour`). None and 1 for a single channel.
 
+    ``normals`` (a :class:`NormalData`, or None: the normals are the given ones) holds what a fit
+    that samples each pixel's normal needs (:mod:`rjfit.sampler.normals`); ``C`` and
+    ``log_cos_hn`` are then those at the normals of the state the problem was made for (the
+    given ones in the problem a forward model builds).
+
     ``lobe`` (a :class:`~rjfit.sampler.passes.lobe.LobeTerms`, or None for the plain lobe
     ``C <h.n>^gamma``) holds the lobe column's own terms of a problem with effects applied;
     ``effects`` (an :class:`EffectData`, or None) the forward model's effects with the
@@ -127,6 +132,7 @@ class Problem:
     channel: np.ndarray | None = None      # int8 colour channel per observation (joint colour fit); None: one
     n_channels: int = 1
     light: np.ndarray | None = None        # int16 light of each observation (the edge term's matches); None: unknown
+    normals: NormalData | None = None      # the given normals' terms of a fit that samples them; None: fixed
 
     @cached_property
     def channel_start(self) -> np.ndarray:
@@ -167,9 +173,11 @@ class Problem:
         return np.divide(self.C, np.pi, dtype=np.float64)
 
     @classmethod
-    def from_observations(cls, obs: Observations, likelihood_power: float = 1.0, noise_scale=None) -> Problem:
+    def from_observations(cls, obs: Observations, likelihood_power: float = 1.0, noise_scale=None,
+                          normal_prior_sd: float | None = None) -> Problem:
         """The plain forward model's problem: :meth:`LambertBlinnPhong.problem` (see there)."""
-        return LambertBlinnPhong().problem(obs, likelihood_power=likelihood_power, noise_scale=noise_scale)
+        return LambertBlinnPhong().problem(obs, likelihood_power=likelihood_power, noise_scale=noise_scale,
+                                           normal_prior_sd=normal_prior_sd)
 
 
 @dataclass(frozen=True, eq=False)
@@ -241,6 +249,23 @@ class EffectData:
         return columns
 
 
+@dataclass(frozen=True, eq=False)
+class NormalData:
+    """The given normals' terms of a problem whose pixels' normals are sampled (:mod:`rjfit.sampler.normals`).
+
+    In the problem's order: ``C`` (float32, the problem's ``E <l.n> / s`` at the given normals),
+    ``cos_ln`` and ``cos_hn`` (float32, at the given normals) and ``tangent`` ((N, 4) float32,
+    :attr:`rjfit.data.observations.Observations.tangent`); ``prior_sd`` is ``tan(sigma_n)``, the
+    sd of each tangent coordinate's Gaussian prior.
+    """
+
+    C: np.ndarray
+    cos_ln: np.ndarray
+    cos_hn: np.ndarray
+    tangent: np.ndarray
+    prior_sd: float
+
+
 def transformed(problem: Problem, z) -> tuple[Problem, float]:
     """``(problem with its effects applied at unconstrained z, log-Jacobian)``.
 
@@ -296,7 +321,8 @@ class ForwardModel(ABC):
     effects: tuple = ()
 
     @abstractmethod
-    def problem(self, observations: Observations, *, likelihood_power: float = 1.0, noise_scale=None) -> Problem:
+    def problem(self, observations: Observations, *, likelihood_power: float = 1.0, noise_scale=None,
+                normal_prior_sd: float | None = None) -> Problem:
         """The untransformed :class:`Problem` of ``observations``."""
 
 
@@ -324,7 +350,8 @@ class LambertBlinnPhong(ForwardModel):
             raise ValueError(f"one camera response per fit, got {', '.join(cameras)}")
         self.effects = tuple(sorted(effects, key=stage_key))
 
-    def problem(self, observations: Observations, *, likelihood_power: float = 1.0, noise_scale=None) -> Problem:
+    def problem(self, observations: Observations, *, likelihood_power: float = 1.0, noise_scale=None,
+                normal_prior_sd: float | None = None) -> Problem:
         """Sort, compact and (optionally) weight the observations.
 
         Parameters
@@ -335,12 +362,18 @@ class LambertBlinnPhong(ForwardModel):
         noise_scale : array_like (N,), optional
             Known noise scales ``s_i > 0`` in the order of ``observations`` (see
             :mod:`rjfit.data.noise`); None: homoscedastic noise (every ``s_i = 1``).
+        normal_prior_sd : float, optional
+            The pixels' normals are sampled (:mod:`rjfit.sampler.normals`) with this prior sd of
+            each tangent coordinate (``tan(sigma_n)``): the problem carries their
+            :class:`NormalData`. None: the normals are the given ones.
 
         Raises
         ------
         ValueError
             For a likelihood power outside (0, 1], no observation, ``<l.n> <= 0``, or a
-            noise scale of the wrong shape or not finite and positive.
+            noise scale of the wrong shape or not finite and positive; for sampled normals
+            with effects, with several channels, without the observations' ``tangent`` or
+            with a prior sd that is not positive.
         """
         obs = observations
         if not 0.0 < likelihood_power <= 1.0:
@@ -373,6 +406,7 @@ class LambertBlinnPhong(ForwardModel):
                                  C=np.asarray(obs.irradiance, float)[order] * np.asarray(obs.cos_ln, float)[order],
                                  light=np.asarray(obs.light)[order].astype(np.int32),
                                  scale=None if scale is None else scale.astype(np.float64))
+        normals = None if normal_prior_sd is None else _normal_data(obs, order, C, normal_prior_sd, self.effects)
         channel = None if obs.channel is None else np.asarray(obs.channel)[order].astype(np.int8)
         light = np.asarray(obs.light)[order].astype(np.int16 if obs.n_lights <= np.iinfo(np.int16).max else np.int32)
         del order
@@ -386,7 +420,22 @@ class LambertBlinnPhong(ForwardModel):
                        pixel=pixel, pixel_start=pixel_start, colmajor_order=colmajor_order,
                        colmajor_start=colmajor_start, object_mask=np.asarray(obs.object_mask, bool),
                        likelihood_power=float(likelihood_power), noise_scale=scale, effects=effects,
-                       channel=channel, n_channels=int(obs.n_channels), light=light)
+                       channel=channel, n_channels=int(obs.n_channels), light=light, normals=normals)
+
+
+def _normal_data(obs: Observations, order, C, prior_sd, effects) -> NormalData:
+    """The :class:`NormalData` of sampled normals, in the problem's ``order``; ``C`` the problem's own column."""
+    if effects or obs.n_channels > 1:
+        raise ValueError("sampled normals (--normals sample) are for a single channel without effects")
+    if obs.tangent is None:
+        raise ValueError("sampled normals need each observation's tangent-frame components (Observations.tangent): "
+                         "build the observations with tangents=True")
+    if not (np.isfinite(prior_sd) and prior_sd > 0):
+        raise ValueError(f"the normals' prior sd must be positive, got {prior_sd}")
+    return NormalData(C=C, cos_ln=np.asarray(obs.cos_ln)[order].astype(np.float32),
+                      cos_hn=np.asarray(obs.cos_hn)[order].astype(np.float32),
+                      tangent=np.ascontiguousarray(np.asarray(obs.tangent)[order], dtype=np.float32),
+                      prior_sd=float(prior_sd))
 
 
 def _columns(obs: Observations, order, noise_scale):

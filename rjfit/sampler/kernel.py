@@ -13,6 +13,9 @@ posterior invariant, so their composition does too:
    amplitudes redrawn given them. Moves 1 and 2 then run on the problem transformed at the
    state's effect parameters (:func:`rjfit.sampler.forward.transformed`), which the chain's
    context keeps between steps.
+4. for a problem whose normals are sampled (``problem.normals``), one Metropolis sweep of every
+   pixel's normal given the labels and parameters (:mod:`rjfit.sampler.normals`). Moves 1 and 2
+   then run on the problem at the state's normals, which the chain's context keeps between steps.
 
 During the first ``config.kernel.burn_in`` iterations the gamma random-walk width adapts
 (Robbins-Monro on its log towards ``config.within.target_accept``); afterwards it is
@@ -34,6 +37,7 @@ from rjfit.sampler.forward import Problem, transformed
 from rjfit.sampler.likelihood import log_likelihood_from_stats, region_stats
 from rjfit.sampler.moves.effects import initial_effect_state, move_effects
 from rjfit.sampler.moves.within import adapt_log_g_scale, within_moves
+from rjfit.sampler.normals import initial_normal_state, move_normals, normal_log_prior, normal_problem
 from rjfit.sampler.pixel_sets import PixelSets
 from rjfit.sampler.priors import PARAM_NAMES
 from rjfit.sampler.state import ChainState, KernelSettings, SamplerConfig, StepInfo, Work
@@ -60,10 +64,25 @@ class ChainContext:
     labels: np.ndarray | None = None
     power: float | None = None
     y: np.ndarray | None = None
+    C: np.ndarray | None = None
     region_index: dict = field(default_factory=dict)
     effect_z: np.ndarray | None = None
     effect_problem: Problem | None = None
     pixel_sets: PixelSets = field(default_factory=PixelSets)
+    normal_d: np.ndarray | None = None
+    normal_problem: Problem | None = None
+
+    def problem_at_normals(self, problem: Problem, normals) -> Problem:
+        """``problem`` at the sampled normals of ``normals`` (a ``NormalState``), kept for the next step."""
+        if self.normal_d is not normals.d or self.normal_problem is None \
+                or self.normal_problem.normals is not problem.normals \
+                or self.normal_problem.likelihood_power != problem.likelihood_power:
+            self.normal_d, self.normal_problem = normals.d, normal_problem(problem, normals.d)
+        return self.normal_problem
+
+    def keep_normals(self, normals, problem: Problem) -> None:
+        """Remember ``problem`` as the one at ``normals.d`` (after a sweep of the normals)."""
+        self.normal_d, self.normal_problem = normals.d, problem
 
     def transformed_problem(self, problem: Problem, effects) -> Problem:
         """``problem`` transformed at the effect parameters of ``effects`` (an ``EffectState``), kept for the next step."""
@@ -83,8 +102,10 @@ class ChainContext:
         A new one whenever the labels, the likelihood power (the regions' data carry it) or
         the problem's arrays differ from the last call's.
         """
-        if self.labels is not labels or self.power != problem.likelihood_power or self.y is not problem.y:
+        if self.labels is not labels or self.power != problem.likelihood_power or self.y is not problem.y \
+                or self.C is not problem.C:
             self.labels, self.power, self.y, self.region_index = labels, problem.likelihood_power, problem.y, {}
+            self.C = problem.C
         return self.region_index
 
 
@@ -126,6 +147,8 @@ def log_posterior(problem: Problem, prior, state: ChainState, config: SamplerCon
         total += edges.total(state.layout.pixels, state.theta)
     if state.effects is not None:
         total += problem.effects.log_prior(state.effects.z)
+    if state.normals is not None:
+        total += normal_log_prior(problem, state.normals)
     return total
 
 
@@ -186,6 +209,9 @@ def initial_state(problem: Problem, prior, config: SamplerConfig, rng, *, theta=
         raise ValueError(f"start of region {r}: {PARAM_NAMES[k]} = {theta[r, k]:.6g} lies outside its prior's support "
                          f"({prior.params[k].kind} {prior.params[k].a:.6g}, {prior.params[k].b:.6g}); a chain cannot "
                          "start where the posterior is zero")
+    if problem.normals is not None:     # the given normals, the statistics on the columns the sweep computes
+        normals = initial_normal_state(problem)
+        return replace(make_state(normal_problem(problem, normals.d), layout, theta), normals=normals)
     if problem.effects is None:
         return make_state(problem, layout, theta)
     effects, effect_problem = initial_effect_state(problem, rng, config.effects)
@@ -223,6 +249,8 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
     base = problem
     if problem.effects is not None:
         problem = context.transformed_problem(problem, state.effects)
+    if problem.normals is not None:
+        problem = context.problem_at_normals(problem, state.normals)
     if factor != 1.0:
         problem = replace(problem, likelihood_power=problem.likelihood_power * factor)
     log_lik = state.log_lik if factor == previous else log_likelihood_from_stats(stats, state.theta)
@@ -248,9 +276,16 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
         context.keep_transformed(effects, problem if factor == 1.0 else replace(problem,
                                                                                  likelihood_power=base.likelihood_power))
 
+    # 4. the pixels' normals
+    normals = state.normals
+    if base.normals is not None:
+        normals, problem = move_normals(work, normals, rng, problem, state.iteration, config.kernel.burn_in, info)
+        context.keep_normals(normals, problem if factor == 1.0 else replace(problem,
+                                                                            likelihood_power=base.likelihood_power))
+
     new_state = ChainState(layout=work.layout, theta=work.theta, stats=work.stats, log_lik=work.log_lik,
                            labels=work.labels, log_g_scale=float(log_g_scale), iteration=state.iteration + 1,
-                           effects=effects)
+                           effects=effects, normals=normals)
     if config.kernel.refresh_every and new_state.iteration % config.kernel.refresh_every == 0:
         new_state = refresh(problem, new_state)
     return new_state, info

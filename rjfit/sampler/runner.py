@@ -102,6 +102,11 @@ class ChainRecord:
     # (T,) int8: 1 if the step accepted a move that changed the number of regions (rows may be renumbered
     # there), 0 if not; None: not recorded (a chain resumed from an older checkpoint records 1 before it)
     jumped: np.ndarray | None = None
+    # sampled normals (--normals sample): per pixel the sums over the kept draws (after burn-in) of the tangent
+    # coordinates (H W, 2) and of their squares, and the number of draws summed; None: the normals were given
+    normal_sum: np.ndarray | None = None
+    normal_sq: np.ndarray | None = None
+    normal_draws: int = 0
 
     #: fields with one entry per draw, and per snapshot (what :meth:`truncated` cuts)
     PER_DRAW = ("theta", "log_lik", "log_post", "exact_truth", "true_regions", "object_regions", "n_u", "n_v",
@@ -162,6 +167,11 @@ class ChainRecorder:
         self.effect_priors = None if problem.effects is None else problem.effects.priors()
         self.effects = None if problem.effects is None else np.full((T, problem.effects.n_params), np.nan)
         self.jumped = np.zeros(T, np.int8)
+        self.burn_in = spec.config.kernel.burn_in
+        sampled = problem.normals is not None
+        self.normal_sum = np.zeros((problem.height * problem.width, 2)) if sampled else None
+        self.normal_sq = np.zeros((problem.height * problem.width, 2)) if sampled else None
+        self.normal_draws = 0
         self._truth_setup(spec)
 
     def _truth_setup(self, spec):
@@ -224,6 +234,10 @@ class ChainRecorder:
         self.exact_truth[t], self.true_regions[t], self.object_regions[t] = self.exact(state.labels)
         if state.effects is not None:
             self.effects[t] = [float(prior.to_constrained(z)) for prior, z in zip(self.effect_priors, state.effects.z)]
+        if state.normals is not None and t >= self.burn_in:
+            self.normal_sum += state.normals.d
+            self.normal_sq += state.normals.d * state.normals.d
+            self.normal_draws += 1
         if t % self.cp_thin == 0:
             s = t // self.cp_thin
             for name, values in self.regions.snapshot(state.layout).items():
@@ -243,6 +257,7 @@ class ChainRecorder:
                           cp_iteration=self.cp_iteration, accepted=self.accepted, proposed=self.proposed,
                           seconds=self.seconds, iterations_done=done, resumed_from=tuple(self.resumed_from),
                           nan_rejected=self.nan_rejected, effects=self.effects, jumped=self.jumped,
+                          normal_sum=self.normal_sum, normal_sq=self.normal_sq, normal_draws=self.normal_draws,
                           **self.keys, **self.snapshots)
         return rec.truncated(done)
 
@@ -295,6 +310,8 @@ def run_fingerprint(spec: ChainSpec) -> dict:
     data = [getattr(problem, name) for name in ("y", "C", "log_cos_hn", "pixel")]
     if problem.effects is not None:     # the effects and their features are part of the model fitted
         data.append(problem.effects)
+    if problem.normals is not None:     # so are the sampled normals' terms and prior
+        data.append(problem.normals)
     return {"data": _digest(*data, problem.image_shape, float(problem.likelihood_power)),
             "prior": _digest(spec.prior), "config": _digest(spec.config),
             "chain": _digest(spec.seed, spec.chain, spec.n_chains, spec.iterations, spec.cp_thin, spec.start),

@@ -57,6 +57,10 @@ class ChainState:
         The effect parameters of a problem with effects (:mod:`rjfit.sampler.moves.effects`);
         None for the plain model. ``stats`` and ``log_lik`` are then those of the problem
         transformed at its parameters.
+    normals : NormalState or None
+        The pixels' sampled normals of a problem that samples them (:mod:`rjfit.sampler.normals`);
+        None where the normals are the given ones. ``stats`` and ``log_lik`` are then those of
+        the problem at these normals.
     """
 
     layout: object
@@ -67,6 +71,7 @@ class ChainState:
     log_g_scale: float = 0.0
     iteration: int = 0
     effects: object = None
+    normals: object = None
 
     @property
     def n_regions(self) -> int:
