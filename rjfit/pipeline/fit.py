@@ -220,7 +220,7 @@ def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, trut
     paths = [out_dir / "checkpoints" / f"chain_{c}.pkl" for c in range(options.n_chains)]
     shared = None
     if not all(path.exists() for path in paths):     # a resumed chain's state holds them already
-        with phase("chains: what every chain starts from (the data's bonds, segments, edge term)", options.progress):
+        with phase("chains: what every chain starts from, built once", options.progress):
             shared = config.regions.shared_start(problem)
     specs = []
     for c in range(options.n_chains):

@@ -130,35 +130,24 @@ def _superpixels(image, labelled, superpixel_size):
     the constant's comment).
     """
     n_labelled = int(labelled.sum())
-    raw = np.zeros(labelled.shape, np.int64)
-    if n_labelled <= SLIC_WHOLE_MAX:
-        raw = _slic_labels(image, labelled, superpixel_size)
-    else:
-        # seeded on a grid over the whole image (no mask: no k-means), then each superpixel's part inside the
-        # mask split into its 4-connected pieces, since a candidate set must be connected
-        grid = slic(image, n_segments=max(2, labelled.size // superpixel_size), compactness=0.1, channel_axis=-1,
-                    start_label=1, sigma=0)
-        raw = label(np.where(labelled, grid, 0), background=0, connectivity=1)
-    raw = np.where(labelled, raw, 0)
-    used, dense = np.unique(raw[labelled], return_inverse=True)
     out = np.full(labelled.shape, -1, np.int64)
-    out[labelled] = dense
-    return out
-
-
-def _slic_labels(image, labelled, superpixel_size):
-    """SLIC's labels 1 .. S over ``labelled`` (0 elsewhere); each pixel its own superpixel where there are too few."""
-    n_labelled = int(labelled.sum())
     if n_labelled < 2 * superpixel_size:
-        out = np.zeros(labelled.shape, np.int64)
-        out[labelled] = np.arange(1, n_labelled + 1)
+        out[labelled] = np.arange(n_labelled)
         return out
     # compactness 0.1 on features in noise units: the features decide the superpixels'
     # outlines more than their extent (a blob 2 noise sd from its surround, per pixel: the
     # best set's overlap with it 0.87 to 0.93 at 0.1, 0.76 to 0.83 at 1; docs/results/materials.md)
-    raw = slic(image, n_segments=max(2, n_labelled // superpixel_size), compactness=0.1, mask=labelled,
-               channel_axis=-1, start_label=1, sigma=0)
-    return np.where(labelled, raw, 0).astype(np.int64)
+    settings = {"compactness": 0.1, "channel_axis": -1, "start_label": 1, "sigma": 0}
+    if n_labelled <= SLIC_WHOLE_MAX:
+        raw = slic(image, n_segments=max(2, n_labelled // superpixel_size), mask=labelled, **settings)
+    else:
+        # seeded on a grid over the whole image (no mask: no k-means), then each superpixel's part inside the
+        # mask split into its 4-connected pieces, since a candidate set must be connected
+        grid = slic(image, n_segments=max(2, labelled.size // superpixel_size), **settings)
+        raw = label(np.where(labelled, grid, 0), background=0, connectivity=1)
+    used, dense = np.unique(np.where(labelled, raw, 0)[labelled], return_inverse=True)
+    out[labelled] = dense
+    return out
 
 
 def _adjacent_pairs(superpixels):
