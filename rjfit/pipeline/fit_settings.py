@@ -39,6 +39,6 @@ def assemble(options: FitOptions, regions, burn: int) -> SamplerConfig:
         If a settings class refuses a value.
     """
     config = SamplerConfig()
-    return SamplerConfig(regions=regions, within=replace(config.within, sampler=options.sampler),
+    return SamplerConfig(regions=regions, within=replace(config.within, sampler=options.sampler, g_moves=options.gamma_moves),
                          kernel=KernelSettings(burn_in=burn, anneal=int(round(options.anneal * burn))),
                          effects=replace(config.effects, every=options.effect_every))

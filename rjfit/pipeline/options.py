@@ -175,7 +175,7 @@ class FitOptions:
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: --noise normals, --likelihood-power "
-        "auto, no annealed warm-up, --max-view-angle 72.5, the Potts rule on the mask (--regions materials), the edge "
+        "auto, no annealed warm-up, --max-view-angle 72.5, --gamma-moves 8, the Potts rule on the mask (--regions materials), the edge "
         "term (auto) where it applies, and calibration (small mask parts left out; an unknown camera response and "
         "per-light gains estimated and applied), each where not given (docs/options.md). Default: none for rendered "
         "data, measured for measured data.", "choice", choices=("none", "measured"), show_default=False)
@@ -191,6 +191,10 @@ class FitOptions:
     sampler: str = cli_option("adaptive", "--sampler",
                               "Within-model moves: adaptive blocks (default) or the paper's component-wise MH.",
                               "choice", choices=("adaptive", "paper"))
+    gamma_moves: int = cli_option(
+        2, "--gamma-moves",
+        "Gamma moves per region and iteration of the adaptive sampler (each proposes log gamma and redraws kd and I0 "
+        "given it). Default 2; --preset measured: 8.", "int", low=1, show_default=False)
     prior: str = cli_option("default", "--prior", "Prior preset (paper: Table 1 synthetic, Table 3 real).",
                             "choice", choices=PRESETS)
     split_map: str = cli_option(

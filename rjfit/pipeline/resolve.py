@@ -30,7 +30,7 @@ MEASURED_DEFAULTS = {"regions": next(name for name, fit in REGION_FITS.items() i
 #: region model's ``RegionFit.preset_values`` sets (the material model: its edge term where it applies, the
 #: Potts beta and rho by :func:`rjfit.pipeline.regions.materials.ghost_material_prior`).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
-                   "max_view_angle": RIM_VIEW_ANGLE}
+                   "max_view_angle": RIM_VIEW_ANGLE, "gamma_moves": 8}
 #: the fraction of each chain discarded, by the data's kind (the paper's choices)
 BURN_IN = {"measured": 0.2, "rendered": 0.5}
 PRESET, DATA, DEFAULT = "preset", "data", "default"
@@ -189,6 +189,9 @@ def _check_normals(options: FitOptions) -> None:
 
 def _check_combinations(options: FitOptions) -> None:
     _check_normals(options)
+    if options.sampler == "paper" and options.source("gamma_moves") == GIVEN:
+        raise ValueError("--gamma-moves sets the adaptive sampler's gamma moves; --sampler paper moves each "
+                         "parameter by its own random walk: leave --gamma-moves out")
     if options.edge_power == "auto" or options.edge_power > 0:
         if not _edge_term_applies(vars(options)):
             edge = " / ".join(name for name, fit in REGION_FITS.items() if "edge_power" in fit.reads)

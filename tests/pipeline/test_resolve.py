@@ -13,6 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from rjfit.cli import main
+from rjfit.pipeline.fit_settings import assemble
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.resolve import DataFacts, default_lines, resolve_options
 
@@ -35,6 +36,8 @@ UNREAD = [
     (["--noise", "normals", "--noise-floor", "0.1"], "--noise-floor"),
     # the effects', without effects
     (["--effect-every", "5"], "--effect-every"),
+    # the adaptive sampler's, under the paper's
+    (["--sampler", "paper", "--gamma-moves", "3"], "--gamma-moves"),
 ]
 
 
@@ -53,7 +56,7 @@ def test_the_flags_are_read_where_they_apply():
     for changes in ({"max_u": 2, "split_map": "mean", "cp_prior": "paper", "drop_jacobian": True},
                     {"regions": "materials", "max_materials": 3, "potts_beta": 2.0, "potts_rho": 0.5, "edge_power": 0},
                     {"noise": "shot", "noise_floor": 0.1}, {"noise": "relative", "noise_floor": 0.1},
-                    {"effects": ("ambient",), "effect_every": 5}):
+                    {"effects": ("ambient",), "effect_every": 5}, {"sampler": "adaptive", "gamma_moves": 3}):
         resolved = resolve_options(FitOptions(**changes))
         assert all(resolved.source(name) == "given" for name in changes)
 
@@ -65,6 +68,9 @@ def test_a_measured_stack_gets_the_measured_default_without_flags_and_a_rendered
     assert (options.regions, options.preset, options.noise, options.burn_in) == ("materials", "measured", "normals",
                                                                                   0.2)
     assert (options.source("regions"), options.source("preset")) == ("data", "data")
+    # the preset's gamma moves reach the kernel's settings; a rendered stack keeps the plain 2
+    assert (options.gamma_moves, options.source("gamma_moves")) == (8, "preset")
+    assert assemble(options, None, 0).within.g_moves == 8
     (line,) = default_lines(options, measured)
     assert "--regions materials --preset measured" in line and "--regions changepoints or --preset none" in line
     # opting out of one keeps the other, and the line names only what the data chose
@@ -75,6 +81,7 @@ def test_a_measured_stack_gets_the_measured_default_without_flags_and_a_rendered
     rendered = resolve_options(FitOptions(), DataFacts(kind="rendered", object_mask=mask))
     assert (rendered.regions, rendered.preset, rendered.noise, rendered.burn_in) == ("changepoints", "none",
                                                                                       "constant", 0.5)
+    assert assemble(rendered, None, 0).within.g_moves == 2
     assert default_lines(rendered, DataFacts()) == []
 
 
