@@ -159,25 +159,52 @@ def where_rho_sits(obs, residuals) -> dict:
 
 
 def smooth_part(obs, residuals, size: int = 9, seed: int = 1) -> dict:
-    """How much of the residual field is smooth: per light, the share of its variance in its local mean over a
-    ``size`` x ``size`` window (within the object), and the lag-1 rho of what is left (the high-pass part); the same
-    two figures for white noise on the same pixels (``seed``), the reference a pixel-independent field gives."""
+    """How much of the residual field is smooth: the share of its sum of squares that is not in its high-pass part
+    (each light's image less its local mean over a ``size`` x ``size`` window within the object), the lag-1 rho
+    of the high-pass part, and the same two figures for white noise on the same pixels (``seed``), the reference
+    a pixel-independent field gives (its share about 2.5 %, its rho about -1 / 80); the high-pass part across
+    lights (:func:`across_lights`)."""
     def split(values):
+        high = high_pass(obs.dense(values), size)
         dense = obs.dense(values)
-        present = np.isfinite(dense)
-        filled = np.where(present, dense, 0.0)
-        box = ndimage.uniform_filter(filled, size=(1, size, size), mode="constant")
-        count = ndimage.uniform_filter(present.astype(float), size=(1, size, size), mode="constant")
-        local = np.where(present, box / np.maximum(count, 1e-12), np.nan)
-        high = dense - local
-        share = float(np.nansum(local ** 2) / np.nansum(dense ** 2))
-        return share, float(np.nanmean(neighbour_correlations(high)[0]))
+        share = 1.0 - float(np.nansum(high ** 2) / np.nansum(dense ** 2))
+        return share, float(np.nanmean(neighbour_correlations(high)[0])), high
 
     r = residuals - np.nanmean(residuals)
-    share, rho_high = split(r)
-    noise_share, noise_rho_high = split(np.random.default_rng(seed).standard_normal(r.size) * np.where(np.isfinite(r), 1.0, np.nan))
+    share, rho_high, high = split(r)
+    noise = np.random.default_rng(seed).standard_normal(r.size) * np.where(np.isfinite(r), 1.0, np.nan)
+    noise_share, noise_rho_high, _ = split(noise)
     return {"window_px": size, "smooth_share": share, "high_pass_rho": rho_high,
-            "white_noise_smooth_share": noise_share, "white_noise_high_pass_rho": noise_rho_high}
+            "white_noise_smooth_share": noise_share, "white_noise_high_pass_rho": noise_rho_high,
+            "high_pass_across_lights": across_lights(high)}
+
+
+def high_pass(dense, size: int):
+    """Each image of ``dense`` (L, H, W; NaN off the data) less its local mean over a ``size`` x ``size`` window."""
+    present = np.isfinite(dense)
+    box = ndimage.uniform_filter(np.where(present, dense, 0.0), size=(1, size, size), mode="constant")
+    count = ndimage.uniform_filter(present.astype(float), size=(1, size, size), mode="constant")
+    return dense - np.where(present, box / np.maximum(count, 1e-12), np.nan)
+
+
+def across_lights(high, max_lights: int = 12) -> dict:
+    """Is the pixel-scale part the images' (independent per light) or the surface's (shared by every light)? The
+    mean correlation of horizontal neighbours' high-pass residuals under two different lights (0 for noise that is
+    independent per image), and of one pixel's under two lights, over pairs of the first ``max_lights`` lights."""
+    lights = range(min(high.shape[0], max_lights))
+    neighbours, same_pixel = [], []
+    for k in lights:
+        for j in lights:
+            if j == k:
+                continue
+            for first, second, out in ((high[k, :, :-1], high[j, :, 1:], neighbours), (high[k], high[j], same_pixel)):
+                keep = np.isfinite(first) & np.isfinite(second)
+                if keep.sum() > 2:
+                    out.append(float(np.corrcoef(first[keep], second[keep])[0, 1]))
+    return {"neighbours_other_light_mean": float(np.mean(neighbours)),
+            "neighbours_other_light_mean_abs": float(np.mean(np.abs(neighbours))),
+            "same_pixel_other_light_mean": float(np.mean(same_pixel)),
+            "same_pixel_other_light_mean_abs": float(np.mean(np.abs(same_pixel))), "lights": len(lights)}
 
 
 def power_rule(obs) -> dict:
