@@ -191,9 +191,8 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     if normal_error is not None:
         record["normal_error"] = normal_error
     if prior_sd is not None and options.noise == "normals":
-        record["normals_sampled"] = ("--normals sample: the inflation 1 + k g^2 is kept (at the measured likelihood "
-                                     "power a sampled normal's posterior is its prior, so it does not carry the "
-                                     "normals' error the inflation discounts)")
+        record["normals_sampled"] = ("--normals sample: the inflation 1 + k g^2 is kept, its scales computed at the "
+                                     "given normals and held while the normals move")
     return problem, suggestion, record
 
 

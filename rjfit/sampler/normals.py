@@ -25,7 +25,9 @@ g_i^2)``) is kept as estimated and its sigma_n is the prior's scale (:mod:`rjfit
 sampled normals to carry the normals' error, the inflation would count it twice; at the measured default's
 likelihood powers (0.004 to 0.03) they do not (each normal's posterior is its prior), and dropping it (k = 0)
 split the DiLiGenT ball into 2 to 8 materials where the kept inflation leaves it one, as with fixed normals
-(docs/results/2026-11-28-normals.md).
+(docs/results/2026-11-28-normals.md). The scales are computed at the given normals and held. At a power near 1
+the sampled normals do carry their error, and the inflation then counts part of it twice (``--noise constant``
+is the choice there).
 """
 from __future__ import annotations
 
