@@ -191,8 +191,8 @@ def prepare_problem(observations, options: FitOptions, effects=()):
     if normal_error is not None:
         record["normal_error"] = normal_error
     if prior_sd is not None and options.noise == "normals":
-        record["normals_sampled"] = ("--normals sample: the inflation 1 + k g^2 is dropped (k = 0), the normals' "
-                                     "error is sampled instead; the likelihood power is the one measured with it")
+        record["normals_sampled"] = ("--normals sample: the inflation 1 + k g^2 is kept, its scales computed at the "
+                                     "given normals and held while the normals move")
     return problem, suggestion, record
 
 

@@ -234,7 +234,7 @@ class FitOptions:
         "fixed: the given normals are used as they are (their error as noise under --noise normals); sample: each "
         "pixel's normal is an unknown with a Gaussian prior around the given one at the estimated normal-error scale, "
         "sampled with the regions (one channel, no effects), its posterior shift and sd written to maps.exr; under "
-        "--noise normals the noise inflation is then dropped (docs/options.md).", "choice",
+        "--noise normals the noise inflation is kept (docs/options.md).", "choice",
         choices=NORMALS_CHOICES)
     normal_sd: float | None = cli_option(
         None, "--normal-sd",

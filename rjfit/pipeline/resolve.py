@@ -183,8 +183,8 @@ def _check_normals(options: FitOptions) -> None:
         raise ValueError("--normals sample is for a single channel, not yet --channel rgb: fit one channel "
                          "(--channel mean) or give --normals fixed")
     if options.noise == "footprint":
-        raise ValueError("--normals sample replaces the normals' error in the noise: use --noise normals (its "
-                         "inflation is dropped, its normal-error estimate sets the prior) or constant, not footprint")
+        raise ValueError("--normals sample is not for --noise footprint (its footprint term reads the given normals' "
+                         "error): use --noise normals (its normal-error estimate sets the prior) or constant")
 
 
 def _check_combinations(options: FitOptions) -> None:

@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from rjfit.cli import main
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.lights import tangent_frame
-from rjfit.pipeline.fit_power import MIN_NORMAL_SD_DEG, normal_prior_sd
+from rjfit.pipeline.fit_power import MIN_NORMAL_SD_DEG, noise_and_power, normal_prior_sd
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.resolve import resolve_options
 from rjfit.render.datasets import load_dataset
@@ -94,3 +94,14 @@ def test_sampled_normals_find_a_known_turn_and_keep_the_segmentation(turned_sphe
     assert np.all(np.isfinite(maps["normal_shift_deg"][seen])) and np.all(maps["normal_sd_deg"][seen] >= 0)
     # the segmentation is kept (the turned normals cost the fixed fit accuracy: 0.73 measured, the sampled 0.98)
     assert sampled["label_accuracy"] >= max(fixed["label_accuracy"] - 0.01, 0.95)
+
+
+def test_sampled_normals_keep_the_normal_error_inflation(paper_sphere_small):
+    """Under --noise normals the sampled normals' fit keeps the fixed fit's noise scales 1 + k g^2 and power (the
+    ball's control, docs/results/2026-11-28-normals.md: dropping them, k = 0, split a one-material object)."""
+    observations = load_dataset(paper_sphere_small).observations(tangents=True)
+    fixed = noise_and_power(observations, resolve_options(FitOptions(noise="normals")))
+    sampled = noise_and_power(observations, resolve_options(FitOptions(noise="normals", normals="sample")))
+    assert fixed[3]["k"] > 0 and np.max(fixed[0]) > 1.0        # the clean render reads ~0.6 deg: an inflation to keep
+    np.testing.assert_allclose(sampled[0], fixed[0], rtol=1e-12)
+    assert sampled[2] == pytest.approx(fixed[2], rel=1e-12)

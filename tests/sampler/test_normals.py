@@ -8,7 +8,7 @@ kernel's bookkeeping.
   effective sample size as a Gaussian's, sd / sqrt(2 ESS)), fixed seed.
 - **Bookkeeping**: after every step of a material chain that samples the normals, the state's statistics and
   log-likelihood equal a recomputation from scratch on the problem at the state's normals (the oracle, eq. 1-2 per
-  observation), to 1e-9 of their scale; the columns at the normals equal a float64 evaluation of the turned
+  observation), to 1e-9 of their scale, with constant noise and with known noise scales; the columns at the normals equal a float64 evaluation of the turned
   normals' cosines to float32 rounding.
 """
 import dataclasses
@@ -131,9 +131,13 @@ def test_a_normal_that_would_turn_a_kept_observation_away_from_its_light_is_neve
         assert np.all(ln > 0)
 
 
-def test_the_state_after_normal_sweeps_equals_a_recomputation():
+@pytest.mark.parametrize("scaled", [False, True], ids=["constant noise", "known noise scales"])
+def test_the_state_after_normal_sweeps_equals_a_recomputation(scaled):
+    """With known noise scales too (``--noise normals`` keeps its inflation under sampled normals): the scales are
+    held per observation while the normals move."""
     obs, _, _ = sphere_stack(12, n_lights=8, seed=3, tangents=True)
-    problem = Problem.from_observations(obs, likelihood_power=0.5, normal_prior_sd=PRIOR_SD)
+    scale = 1.0 + np.random.default_rng(7).random(obs.n_obs) if scaled else None
+    problem = Problem.from_observations(obs, likelihood_power=0.5, normal_prior_sd=PRIOR_SD, noise_scale=scale)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
     config = SamplerConfig.from_flat("materials", burn_in=10, refresh_every=0)
     rng, context = np.random.default_rng(5), ChainContext()
@@ -145,7 +149,8 @@ def test_the_state_after_normal_sweeps_equals_a_recomputation():
         scale = np.abs(fresh).max(axis=0) + 1.0
         assert np.all(np.abs(state.stats - fresh) <= 1e-9 * scale)
         oracle = oracle_log_likelihood(moved, state.labels, state.theta)
-        assert state.total_log_lik == pytest.approx(oracle, rel=1e-9, abs=1e-6)
+        # the oracle holds the scales' constant -zeta sum(log s_i), which the sampler leaves out (0 without scales)
+        assert state.total_log_lik + moved.log_likelihood_constant == pytest.approx(oracle, rel=1e-9, abs=1e-6)
     assert np.any(state.normals.d != 0)
     # the columns at the normals against the turned normals' cosines in float64
     d = state.normals.d[problem.pixel]
