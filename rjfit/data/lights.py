@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Light", "geometry_terms", "cos_light_half", "tangent_frame", "tangent_terms", "light_tangent_terms"]
+__all__ = ["Light", "geometry_terms", "cos_light_half", "tangent_frame", "turned_normals", "tangent_terms", "light_tangent_terms"]
 
 
 @dataclass(frozen=True)
@@ -191,6 +191,15 @@ def tangent_frame(normals):
     axis[..., 1] = use_y
     t1 = _normalise(np.cross(axis, normals))
     return t1, np.cross(normals, t1)
+
+
+def turned_normals(normals, d):
+    """The unit normals ``(n + dx t1 + dy t2) / sqrt(1 + dx^2 + dy^2)`` (..., 3) at tangent coordinates ``d``
+    (..., 2) in the :func:`tangent_frame` ``(t1, t2)`` of the unit ``normals`` (``--normals sample``'s
+    parametrisation, :mod:`rjfit.sampler.normals`)."""
+    normals, d = np.asarray(normals, dtype=float), np.asarray(d, dtype=float)
+    t1, t2 = tangent_frame(normals)
+    return _normalise(normals + d[..., :1] * t1 + d[..., 1:] * t2)
 
 
 def tangent_terms(light_dirs, view_dirs, t1, t2):

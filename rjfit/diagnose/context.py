@@ -125,7 +125,7 @@ def _light_directions(dataset):
 
 
 def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likelihood_power=1.0, noise="constant",
-                  noise_floor=DEFAULT_FLOOR) -> Context:
+                  noise_floor=DEFAULT_FLOOR, normals=None) -> Context:
     """Gather a data set's valid observations under a fixed segmentation.
 
     Parameters
@@ -145,6 +145,11 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
         known scale s_i, ``y_i ~ N(mu_i, sigma_r^2 s_i^2)``, as the sampler did.
     noise_floor : float
         Its floor (``rjfit fit --noise-floor``).
+    normals : ndarray (H, W, 3), optional
+        Unit normals the refits use instead of the data set's: a fit's posterior mean normals
+        (``rjfit fit --normals sample``). The valid observations and the noise model's scales stay
+        those of the data set's normals, as that fit kept and weighed them; ``ctx.dataset`` carries
+        these normals.
 
     Raises
     ------
@@ -183,6 +188,8 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
     # <l.h> per observation: the normals' error noise model needs it (the fit's observations carry it)
     obs = replace(obs, cos_lh=np.sum(l * h, axis=-1))
     scale = noise_scale(obs, noise, noise_floor)
+    if normals is not None:
+        dataset, obs, n = _at_normals(dataset, obs, valid, normals)
     dark = declared_dark(dataset)
     described = describe_noise(noise, noise_floor, scale)
     if dark is not None:        # diagnosis.json's record of the likelihood says so
@@ -193,6 +200,19 @@ def build_context(dataset, labels, *, channel="mean", valid=None, seed=0, likeli
                    cos_vn=np.clip(np.sum(v * n, axis=-1), 1e-6, 1.0), cos_hv=np.clip(np.sum(h * v, axis=-1), 0.0, 1.0),
                    valid=valid, channel=channel, seed=int(seed), likelihood_power=zeta, noise_scale=scale,
                    noise=described, dark=dark)
+
+
+def _at_normals(dataset, obs, valid, normals):
+    """``(dataset, obs, n)`` at the unit ``normals`` (H, W, 3): the data set carrying them, the observations'
+    ``<l.n>`` and ``<h.n>`` at them and each observation's normal; the same observations (``valid``)."""
+    normals = np.asarray(normals, dtype=float)
+    if normals.shape != dataset.normals.shape:
+        raise ValueError(f"normals are {normals.shape}, the data set's are {dataset.normals.shape}")
+    dataset = replace(dataset, normals=normals)
+    cos_ln, cos_hn, _ = dataset.geometry()
+    width = dataset.image_shape[1]
+    return (dataset, replace(obs, cos_ln=cos_ln[valid], cos_hn=cos_hn[valid]),
+            normals[obs.pixel // width, obs.pixel % width])
 
 
 def declared_dark(dataset) -> float | None:

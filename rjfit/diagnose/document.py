@@ -5,7 +5,14 @@ from __future__ import annotations
 import math
 
 __all__ = ["markdown", "gap_text", "candidate_line", "gap_lines", "named_text", "prior_conflict_text",
-           "not_told_apart_text", "revision_text"]
+           "not_told_apart_text", "revision_text", "NORMALS"]
+
+#: diagnosis.json "normals": which normals the refits use (by whether the fit's posterior mean ones were given)
+NORMALS = {False: "the data set's (given) normals",
+           True: "the fit's posterior mean normals (it sampled them: rjfit fit --normals sample; its maps.exr "
+                 "normal_dx, normal_dy), as its prediction; the observations and the noise model's scales are those "
+                 "of the given normals, as the fit kept and weighed them; a Mitsuba simulation renders the mesh's "
+                 "own normals"}
 
 
 def _fmt(value, spec=".3g"):
@@ -129,6 +136,7 @@ def _head_lines(result: dict) -> list[str]:
               *([f"Noise model: {result['noise']['model']}, {result['noise']['formula']} (the fit's; the refits weigh "
                  f"each observation by its known scale)", ""]
                 if (result.get("noise") or {}).get("model", "constant") != "constant" else []),
+              *([f"Normals: {result['normals']}.", ""] if result.get("normals") == NORMALS[True] else []),
               f"Plain model gap: {gap_text(result['gap_plain'])}; final gap: {gap_text(result['gap_final'])} "
               f"(noise variance estimate {_fmt(result['noise_variance_estimate'], '.4g')}).", ""]
     if result.get("skipped"):

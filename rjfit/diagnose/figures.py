@@ -4,7 +4,9 @@ The text of ``diagnosis.md`` and the terminal lines are :mod:`rjfit.diagnose.doc
 """
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -13,7 +15,13 @@ from rjfit.plotting import pixel_axes, pyplot, zoom_to_object
 from rjfit.plotting import save_figure as _save_figure
 
 __all__ = ["save_figure", "residual_pair_figure", "per_light_figure", "posterior_figure", "map_figure",
-           "signature_figure", "per_image_figure", "listed_figures", "step_figures", "signature_figures"]
+           "signature_figure", "per_image_figure", "listed_figures", "step_figures", "signature_figures",
+           "FIGURE_PATTERNS", "previous_results"]
+
+#: names of the figures diagnose writes (``step{n}_{effect}_*.png``, ``signatures_step{n}.png``, the
+#: Mitsuba simulation's): those of a previous diagnosis in the folder are removed by the next one
+FIGURE_PATTERNS = ("step*_residuals.png", "step*_per_light.png", "step*_posteriors.png", "signatures_step*.png",
+                   "mitsuba_residuals.png", "ppc_p_values.png", "mitsuba_per_image_*.png")
 
 
 def _plt():
@@ -164,3 +172,20 @@ def signature_figures(ctx, searched, signatures, sigma2_hat, figure_dir) -> list
                 [(f"{name}\nscore {score:.2f}", image) for score, name, image in maps],
                 f"step {step + 1}: residual and what each missing effect would leave (fitted signature)"))
     return names
+
+
+def previous_results(out_dir) -> list[str]:
+    """The files of the diagnosis in ``out_dir`` (if any), which a new one replaces: ``diagnosis.md``,
+    the figures its ``diagnosis.json`` names, and any file named as diagnose names its figures."""
+    out_dir = Path(out_dir)
+    names = {"diagnosis.md"}
+    names |= {path.name for pattern in FIGURE_PATTERNS for path in out_dir.glob(pattern) if path.is_file()}
+    try:
+        previous = json.loads((out_dir / "diagnosis.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        # none there (the first diagnosis) or unreadable: the patterns above still find every
+        # figure diagnose writes; only names it no longer uses would stay
+        previous = None
+    if isinstance(previous, dict):
+        names |= {name for name in listed_figures(previous) if Path(name).name == name}
+    return sorted(names)

@@ -7,7 +7,6 @@ largest log BF is named. The loop stops when nothing is decisive or after ``max_
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +26,7 @@ from rjfit.diagnose.candidates import (
     try_candidates,
 )
 from rjfit.diagnose.context import build_context
+from rjfit.diagnose.figures import FIGURE_PATTERNS
 from rjfit.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
@@ -45,10 +45,6 @@ GAP_DEFINITION = ("gap = mean(r^2) / sigma_hat^2 - 1 with r = (y - E[mu]) / s (p
                   "and sigma_hat^2 the noise variance from second differences of the final model's residual images "
                   "(robust MAD; one value for every gap of the report); ~0 when the model explains the data up to "
                   "noise")
-#: names of the figures diagnose writes (``step{n}_{effect}_*.png``, ``signatures_step{n}.png``, the
-#: Mitsuba simulation's): those of a previous diagnosis in the folder are removed by the next one
-FIGURE_PATTERNS = ("step*_residuals.png", "step*_per_light.png", "step*_posteriors.png", "signatures_step*.png",
-                   "mitsuba_residuals.png", "ppc_p_values.png", "mitsuba_per_image_*.png")
 
 
 def _check_count(value, name, minimum, meaning):
@@ -77,6 +73,7 @@ class SearchSettings:
     noise_floor: float = DEFAULT_FLOOR
     jobs: int = 1
     base_effects: tuple = ()
+    normals: np.ndarray | None = None
 
     def __post_init__(self):
         """Raises ValueError if ``max_steps`` is not an integer >= 0 or ``jobs`` not an integer >= 1."""
@@ -126,7 +123,7 @@ def _bar_say(bar, say, line):
 def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_steps=3,
              threshold=LOG_BF_THRESHOLD, loo_se_factor=LOO_SE_FACTOR, simulate=None, n_sim_draws=3,
              channel="mean", make_figures=True, progress=False, provenance=None, likelihood_power=1.0,
-             noise="constant", noise_floor=DEFAULT_FLOOR, jobs=None, base_effects=()):
+             noise="constant", noise_floor=DEFAULT_FLOOR, jobs=None, base_effects=(), normals=None):
     """Run the criticism workflow on a data set with a FIXED segmentation.
 
     Parameters
@@ -135,10 +132,9 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
     labels : ndarray (H, W)
         Region index per pixel (-1 off the object): the fit's MAP labels, or truth labels.
     out_dir : path
-        Receives ``diagnosis.json``, ``diagnosis.md`` and the figures (created). They are written
-        into a staging folder inside it and published together, ``diagnosis.json`` last
-        (:func:`rjfit.io.publish`): the previous diagnosis's files, figures included, are
-        removed first, and an interrupted diagnosis leaves the previous one whole.
+        Receives ``diagnosis.json``, ``diagnosis.md`` and the figures (created). They are written into a staging
+        folder inside it and published together, ``diagnosis.json`` last (:func:`rjfit.io.publish`): the previous
+        diagnosis's files, figures included, are removed first, and an interrupted diagnosis leaves it whole.
     candidates : sequence of Effect or names
     seed : int
         Seed of the refits' Laplace draws, the Monte Carlo features and the simulations.
@@ -159,18 +155,20 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
         Entries recorded in ``diagnosis.json`` as they are (``fit_dir``, ``fit_id`` of the
         fit diagnosed), so a report can tell a diagnosis of another fit.
     likelihood_power : float in (0, 1]
-        The power zeta of a coarsened fit (``rjfit fit --likelihood-power``): the refits raise
-        the likelihood to it, so the Bayes factors weigh the data as that fit did (the
-        plain likelihood of a million observations whose misfit neighbours share would make
-        nearly any candidate "decisive"). 1: the plain likelihood.
+        The power zeta of a coarsened fit (``rjfit fit --likelihood-power``): the refits raise the likelihood to
+        it, so the Bayes factors weigh the data as that fit did (the plain likelihood of a million observations
+        whose misfit neighbours share would make nearly any candidate "decisive"). 1: the plain likelihood.
     noise, noise_floor : str, float
         The fit's noise model and floor (``rjfit fit --noise``, :mod:`rjfit.data.noise`): the
         refits weigh each observation by its known scale, as the sampler did.
     jobs : int, optional
-        Candidates refitted at once, on threads (default: the cores this process may use).
-        The result does not depend on it; the memory does: each refit in flight holds arrays
-        of the size of the observations and its LOO draws (on the 1.4 million observations of
-        the DiLiGenT ball the peak rose from 8.0 to 8.8 GB with a second job, measured).
+        Candidates refitted at once, on threads (default: the cores this process may use). The result does not
+        depend on it; the memory does: each refit in flight holds arrays of the size of the observations and its
+        LOO draws (on the 1.4 million observations of the DiLiGenT ball the peak rose from 8.0 to 8.8 GB with a
+        second job, measured).
+    normals : ndarray (H, W, 3), optional
+        A fit's posterior mean normals (``--normals sample``) for the refits, on its observations and noise scales
+        (:func:`rjfit.diagnose.context.build_context`); ``diagnosis.json`` "normals" says which normals were used.
 
     Returns
     -------
@@ -191,35 +189,17 @@ def diagnose(dataset, labels, out_dir, *, candidates=ALL_EFFECTS, seed=0, max_st
 
     jobs = available_cores() if jobs is None else jobs
     settings = SearchSettings(candidates=tuple(get_effect(c) for c in candidates), seed=seed, max_steps=max_steps,
-                              threshold=threshold, loo_se_factor=loo_se_factor, simulate=simulate,
+                              threshold=threshold, loo_se_factor=loo_se_factor, simulate=simulate, normals=normals,
                               n_sim_draws=n_sim_draws, channel=channel, make_figures=make_figures, progress=progress,
-                              provenance=provenance, likelihood_power=likelihood_power, noise=noise,
-                              noise_floor=noise_floor, jobs=jobs,
-                              base_effects=tuple(get_effect(e) for e in base_effects))
+                              provenance=provenance, likelihood_power=likelihood_power, noise=noise, jobs=jobs,
+                              noise_floor=noise_floor, base_effects=tuple(get_effect(e) for e in base_effects))
     out_dir = Path(out_dir)
     with staging_dir(out_dir) as staging:
         result = _search(dataset, labels, staging, settings)
         write_json_atomic(staging / "diagnosis.json", result)
         (staging / "diagnosis.md").write_text(document.markdown(result), encoding="utf-8")
-        publish(staging, out_dir, manifest="diagnosis.json", remove=_previous_results(out_dir))
+        publish(staging, out_dir, manifest="diagnosis.json", remove=figures.previous_results(out_dir))
     return result
-
-
-def _previous_results(out_dir) -> list[str]:
-    """The files of the diagnosis in ``out_dir`` (if any), which a new one replaces: ``diagnosis.md``,
-    the figures its ``diagnosis.json`` names, and any file named as diagnose names its figures."""
-    out_dir = Path(out_dir)
-    names = {"diagnosis.md"}
-    names |= {path.name for pattern in FIGURE_PATTERNS for path in out_dir.glob(pattern) if path.is_file()}
-    try:
-        previous = json.loads((out_dir / "diagnosis.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        # none there (the first diagnosis) or unreadable: the patterns above still find every
-        # figure diagnose writes; only names it no longer uses would stay
-        previous = None
-    if isinstance(previous, dict):
-        names |= {name for name in figures.listed_figures(previous) if Path(name).name == name}
-    return sorted(names)
 
 
 def _search(dataset, labels, figure_dir, settings):
@@ -227,9 +207,10 @@ def _search(dataset, labels, figure_dir, settings):
     started = time.perf_counter()
     ctx = build_context(dataset, labels, channel=settings.channel, seed=settings.seed,
                         likelihood_power=settings.likelihood_power, noise=settings.noise,
-                        noise_floor=settings.noise_floor)
+                        noise_floor=settings.noise_floor, normals=settings.normals)
     weighed = "" if ctx.likelihood_power == 1.0 else f", the likelihood to the fit's power {ctx.likelihood_power:.4g}"
     weighed += "" if settings.noise == "constant" else f", '{settings.noise}' noise ({ctx.noise['formula']})"
+    weighed += "" if settings.normals is None else ", at the fit's posterior mean normals (it sampled them)"
     settings.say(f"diagnosing {ctx.y.size:,} observations in {ctx.n_regions} regions{weighed}: the plain model's "
                  f"refit, then one refit per candidate effect and step (each a few seconds to minutes, growing with "
                  f"the observations)")
@@ -482,6 +463,7 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
                        "prior_conflict_sd": PRIOR_CONFLICT_SD},
         "likelihood_power": ctx.likelihood_power,
         "noise": ctx.noise,
+        "normals": document.NORMALS[settings.normals is not None],
         "noise_variance_estimate": sigma2_hat,
         "noise_variance_estimate_plain_residuals": sigma2_plain,
         "gap_plain": gap(plain_residuals, sigma2_hat),

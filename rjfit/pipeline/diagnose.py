@@ -5,16 +5,21 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
+
 from rjfit.data.calibrate import replay_calibration
+from rjfit.data.exr import read_exr
 from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.data.formats import COLOUR
+from rjfit.data.lights import turned_normals
 from rjfit.data.noise import DEFAULT_FLOOR
 from rjfit.diagnose.workflow import diagnose
+from rjfit.errors import DatasetError
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.progress import phase
 from rjfit.render.datasets import load_dataset
 
-__all__ = ["diagnose_fit"]
+__all__ = ["diagnose_fit", "fit_mean_normals"]
 
 
 def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
@@ -22,7 +27,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     gives it, when the folder has moved) and the channel fitted, ``map_labels.exr`` (or
     ``labels.exr``, as ``rjfit.pipeline.fit`` writes it; channel ``labels``) holds the MAP segmentation.
     A joint colour fit (``--channel rgb``) is diagnosed on its channel mean, on its MAP materials; a fit
-    under ``--preset measured`` on the data it saw (:func:`rjfit.data.calibrate.replay_calibration`).
+    under ``--preset measured`` on the data it saw (:func:`rjfit.data.calibrate.replay_calibration`); a fit that
+    sampled its normals (``--normals sample``) at their posterior mean (its ``maps.exr``), as its prediction is.
 
     Parameters
     ----------
@@ -34,8 +40,8 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
         The fitted data set, when the one ``summary.json`` names has moved.
     **options
         Keyword arguments of :func:`rjfit.diagnose.workflow.diagnose`; ``channel``, ``likelihood_power``, ``noise``,
-        ``noise_floor`` and ``base_effects`` (the effects it sampled) default to the fit's, and
-        ``provenance`` is always set to the fit's folder and ``fit_id``.
+        ``noise_floor``, ``base_effects`` (the effects it sampled) and ``normals`` (its posterior mean normals, where
+        it sampled them) default to the fit's, and ``provenance`` is always set to the fit's folder and ``fit_id``.
 
     Returns
     -------
@@ -45,15 +51,15 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
     Raises
     ------
     FileNotFoundError
-        If ``fit_dir`` is not a fit folder, has no MAP labels, or the data set it names is
-        not there.
+        If ``fit_dir`` is not a fit folder, has no MAP labels, or the data set it names is not there.
     ValueError
-        If ``summary.json`` names no data set and ``dataset`` is not given, or the data set's
-        files differ from those the fit recorded (``dataset_sha256``), or its recorded calibration does
-        not fit the data set; and as :func:`rjfit.diagnose.workflow.diagnose`.
+        If ``summary.json`` names no data set and ``dataset`` is not given, or the data set's files differ from
+        those the fit recorded (``dataset_sha256``), or its recorded calibration does not fit the data set; and as
+        :func:`rjfit.diagnose.workflow.diagnose`.
     DatasetError
         If ``summary.json`` or the MAP labels are damaged (:func:`rjfit.pipeline.fit_folder.read_summary`,
-        :func:`rjfit.pipeline.fit_folder.read_map_labels`); and as :func:`rjfit.diagnose.workflow.diagnose`.
+        :func:`~rjfit.pipeline.fit_folder.read_map_labels`), or a fit's maps lack its sampled normals
+        (:func:`fit_mean_normals`); and as :func:`rjfit.diagnose.workflow.diagnose`.
     """
     fit_dir = Path(fit_dir)
     summary = read_summary(fit_dir)
@@ -94,7 +100,35 @@ def diagnose_fit(fit_dir, out_dir, *, dataset=None, **options):
         dataset = _data_the_fit_saw(dataset if hasattr(dataset, "images") else load_dataset(dataset), summary,
                                     fit_dir / "summary.json")
     labels = read_map_labels(fit_dir, dataset.object_mask)
+    options.setdefault("normals", fit_mean_normals(fit_dir, summary, dataset.normals))
     return diagnose(dataset, labels, out_dir, **options)
+
+
+def fit_mean_normals(fit_dir, summary: dict, given):
+    """The posterior mean normals (H, W, 3) of a fit that sampled them (``summary`` "normals"), else None: the
+    ``given`` normals turned by its maps' ``normal_dx``, ``normal_dy`` (:func:`rjfit.data.lights.turned_normals`);
+    the given ones where it has none.
+
+    Raises
+    ------
+    DatasetError
+        If its maps file cannot be read or lacks those channels, or they are not of the normals' shape.
+    """
+    if (summary.get("normals") or {}).get("mode") != "sample":
+        return None
+    path = Path(fit_dir) / (summary.get("maps") or "maps.exr")
+    try:
+        maps = read_exr(path)
+    except (OSError, ValueError) as error:
+        raise DatasetError(f"{path}: cannot read the fit's maps ({error}); the diagnosis of a fit that sampled its "
+                           f"normals needs their posterior mean (normal_dx, normal_dy)") from None
+    if not {"normal_dx", "normal_dy"} <= set(maps):
+        raise DatasetError(f"{path}: no normal_dx / normal_dy channels, yet {Path(fit_dir) / 'summary.json'} says "
+                           f"the fit sampled its normals; fit the data set again")
+    d = np.stack([maps["normal_dx"], maps["normal_dy"]], axis=-1).astype(float)
+    if d.shape[:2] != given.shape[:2]:
+        raise DatasetError(f"{path}: its maps are {d.shape[:2]}, the data set's images {given.shape[:2]}")
+    return np.where(np.isfinite(d).all(axis=-1, keepdims=True), turned_normals(given, np.nan_to_num(d)), given)
 
 
 def _data_the_fit_saw(dataset, summary: dict, source):

@@ -88,6 +88,22 @@ def _round_record(fit_dir: Path, summary: dict, diagnosis: dict, diagnosis_dir: 
             "fit_seconds": fit_seconds, "diagnosis_seconds": diagnosis.get("seconds"), "seconds": seconds}
 
 
+def _refuse_sampled_normals(options: FitOptions, fit_dir: Path) -> None:
+    """Refuse a fit that sampled its normals: every refit samples the effects a diagnosis named (the first fit has
+    none), and a fit refuses effects with sampled normals (:func:`rjfit.pipeline.resolve.resolve_options`), so the
+    loop could only fail after its first diagnosis.
+
+    Raises
+    ------
+    ValueError
+        If ``options.normals`` is 'sample'.
+    """
+    if options.normals == "sample":
+        raise ValueError(f"{fit_dir}: the fit sampled its normals (--normals sample), which a fit with effects cannot, "
+                         f"and refine fits again with the effects a diagnosis names: fit the data set with --normals "
+                         f"fixed to refine it (rjfit diagnose criticises this fit as it is)")
+
+
 def _validation_options(summary: dict) -> dict:
     """How the refits pass the gate: the validation file the first fit was given, and
     ``allow_unvalidated`` where that fit was made without a passing one."""
@@ -118,8 +134,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     fit_dir : path
         A folder ``rjfit fit`` wrote (its ``summary.json`` records the options it ran with).
     out_dir : path
-        ``round{k}/diagnosis`` and ``round{k}/fit`` (k >= 2), ``refine.json`` and
-        ``segmentations.png`` go there (created).
+        ``round{k}/diagnosis`` and ``round{k}/fit`` (k >= 2), ``refine.json`` and ``segmentations.png`` go there.
     max_rounds : int >= 1
         Most diagnoses; the record says when the last one still named an effect (the cap bound).
     seed, max_steps, progress, **diagnose_options
@@ -132,17 +147,17 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     Returns
     -------
     dict
-        ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``, ``effects`` sampled,
-        ``map_model``, ``n_regions``, ``label_accuracy``, ``gap``, ``gap_simulated`` (null
-        without truth, a mesh), ``named``, ``revisions`` (swaps, drops), ``feature_change``
-        (per feature rendered from the fitted regions: :func:`feature_change`), ``seconds``),
-        ``named_effects`` (the last final model's, in the order named), ``final_fit``,
-        ``stopped`` and ``warnings``.
+        ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``, ``effects`` sampled, ``map_model``,
+        ``n_regions``, ``label_accuracy``, ``gap``, ``gap_simulated`` (null without truth, a mesh), ``named``,
+        ``revisions`` (swaps, drops), ``feature_change`` (per feature rendered from the fitted regions:
+        :func:`feature_change`), ``seconds``), ``named_effects`` (the last final model's, in the order named),
+        ``final_fit``, ``stopped`` and ``warnings``.
 
     Raises
     ------
     ValueError
-        If ``max_rounds`` is not an integer >= 1; as the diagnosis and the fit.
+        If ``max_rounds`` is not an integer >= 1; before any work, if the fit sampled its normals (``--normals
+        sample``: :func:`_refuse_sampled_normals`); as the diagnosis and the fit.
     DatasetError
         If the fit's summary does not record its options (see :func:`fit_options_of`).
     """
@@ -152,6 +167,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     fit_dir, out_dir = Path(fit_dir), Path(out_dir)
     summary = read_summary(fit_dir)
     options = fit_options_of(summary, fit_dir)
+    _refuse_sampled_normals(options, fit_dir)
     dataset_dir = _dataset_of(summary, fit_dir)
     gate = _validation_options(summary)
     result = {"source_fit": str(fit_dir.resolve()), "fit_options": options.to_json(), "rounds": [],

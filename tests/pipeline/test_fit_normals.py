@@ -10,6 +10,10 @@
   normals cost it; sampled 0.98). About two minutes.
 - The refusals: with effects, with --channel rgb and with --noise footprint, one line naming the option, before
   any work; --normal-sd where the normals are fixed, and where they are sampled the prior's sd it sets.
+- The follow-on commands, on a short sampled fit of the turned sphere (2 chains x 80, --normal-sd 3, --noise
+  normals; about 15 s): `rjfit diagnose` criticises it at its posterior mean normals, with the fit's observations
+  and noise scales; `rjfit refine` refuses it in one line before any work (its refits sample effects, which
+  sampled normals cannot take).
 """
 import json
 import shutil
@@ -21,6 +25,9 @@ from click.testing import CliRunner
 from rjfit.cli import main
 from rjfit.data.exr import read_exr, write_exr
 from rjfit.data.lights import tangent_frame
+from rjfit.diagnose.document import NORMALS
+from rjfit.errors import DatasetError
+from rjfit.pipeline.diagnose import diagnose_fit, fit_mean_normals
 from rjfit.pipeline.fit_power import MIN_NORMAL_SD_DEG, noise_and_power, normal_prior_sd
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.resolve import resolve_options
@@ -105,3 +112,64 @@ def test_sampled_normals_keep_the_normal_error_inflation(paper_sphere_small):
     assert fixed[3]["k"] > 0 and np.max(fixed[0]) > 1.0        # the clean render reads ~0.6 deg: an inflation to keep
     np.testing.assert_allclose(sampled[0], fixed[0], rtol=1e-12)
     assert sampled[2] == pytest.approx(fixed[2], rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def short_sampled_fit(turned_sphere, tmp_path_factory):
+    """A short fit of the turned sphere that samples its normals (prior sd 3 degrees, the turn's) under --noise
+    normals: its folder and summary."""
+    folder = turned_sphere[0]
+    out = tmp_path_factory.mktemp("sampled") / "fit"
+    result = CliRunner().invoke(main, ["fit", str(folder), "--out", str(out), "--allow-unvalidated", "--chains", "2",
+                                       "--iterations", "80", "--seed", "1", "--normals", "sample", "--normal-sd", "3",
+                                       "--noise", "normals"])
+    assert result.exit_code == 0, result.output
+    return out, json.loads((out / "summary.json").read_text())
+
+
+def test_a_sampled_fit_is_diagnosed_at_its_posterior_mean_normals(short_sampled_fit, turned_sphere, tmp_path):
+    fit_dir, summary = short_sampled_fit
+    settings = dict(max_steps=0, simulate=False, make_figures=False)
+    mean = diagnose_fit(fit_dir, tmp_path / "mean", **settings)
+    given = diagnose_fit(fit_dir, tmp_path / "given", normals=None, **settings)     # the data set's normals
+    assert mean["normals"] == NORMALS[True] and given["normals"] == NORMALS[False]
+    assert "Normals: the fit's posterior mean normals" in (tmp_path / "mean" / "diagnosis.md").read_text()
+    # the normals the diagnosis turns the given ones to are the fit's posterior mean: their angle from the given
+    # normal is the fit's normal_shift_deg (written as float32: 1e-4 degrees)
+    maps = read_exr(fit_dir / "maps.exr")
+    given_normals = load_dataset(turned_sphere[0]).normals
+    mean_normals = fit_mean_normals(fit_dir, summary, given_normals)
+    seen = np.isfinite(maps["normal_shift_deg"])
+    angle = np.degrees(np.arctan2(np.linalg.norm(np.cross(mean_normals, given_normals), axis=-1),
+                                  np.sum(mean_normals * given_normals, axis=-1)))
+    np.testing.assert_allclose(angle[seen], maps["normal_shift_deg"][seen], atol=1e-4)
+    np.testing.assert_array_equal(mean_normals[~seen], given_normals[~seen])
+    # the plain refit at the mean normals leaves much less misfit than at the turned given ones (measured noise
+    # variance estimate 0.022 vs 0.106, log evidence -2367 vs -8020, 2026-11-28): half is a wide margin
+    assert mean["noise_variance_estimate"] < 0.5 * given["noise_variance_estimate"]
+    assert mean["plain_model"]["log_evidence"] > given["plain_model"]["log_evidence"]
+    # the fit's observations and its noise scales (1 + k g^2 at the given normals, held while the normals moved):
+    # the same function on the same observations, gathered by the fit and by the diagnosis (rel 1e-9)
+    assert mean["n_observations"] == given["n_observations"]
+    assert mean["noise"]["sum_log_scale"] == pytest.approx(summary["noise"]["sum_log_scale"], rel=1e-9)
+
+
+def test_a_sampled_fit_without_its_normal_maps_is_refused_in_one_line(short_sampled_fit, tmp_path):
+    fit_dir = tmp_path / "fit"
+    shutil.copytree(short_sampled_fit[0], fit_dir)
+    maps = read_exr(fit_dir / "maps.exr")
+    write_exr(fit_dir / "maps.exr", {name: values for name, values in maps.items() if name != "normal_dx"})
+    with pytest.raises(DatasetError, match=r"maps.exr: no normal_dx / normal_dy channels"):
+        diagnose_fit(fit_dir, tmp_path / "diagnosis", max_steps=0, simulate=False, make_figures=False)
+
+
+def test_refine_refuses_a_sampled_normals_fit_before_any_work(short_sampled_fit, tmp_path):
+    """Its refits sample the effects a diagnosis names, which a fit refuses with sampled normals: refused up front,
+    not after a diagnosis."""
+    out = tmp_path / "refine"
+    result = CliRunner().invoke(main, ["refine", str(short_sampled_fit[0]), "--out", str(out), "--no-simulate"])
+    assert result.exit_code == 1, result.output
+    message = result.output.strip()
+    assert message.startswith("Error: ") and "\n" not in message and "Traceback" not in result.output
+    assert "--normals sample" in message and "--normals fixed" in message, message
+    assert not out.exists()
