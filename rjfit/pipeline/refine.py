@@ -99,9 +99,9 @@ def _refuse_sampled_normals(options: FitOptions, fit_dir: Path) -> None:
         If ``options.normals`` is 'sample'.
     """
     if options.normals == "sample":
-        raise ValueError(f"{fit_dir}: the fit sampled its normals (--normals sample), which a fit with effects cannot, "
-                         f"and refine fits again with the effects a diagnosis names: fit the data set with --normals "
-                         f"fixed to refine it (rjfit diagnose criticises this fit as it is)")
+        raise ValueError(f"{fit_dir}: a fit that sampled its normals (--normals sample) cannot be refined: refine fits "
+                         f"again with the effects a diagnosis names, and a fit with effects takes the given normals; "
+                         f"fit the data set with --normals fixed to refine it, or criticise this fit with rjfit diagnose")
 
 
 def _validation_options(summary: dict) -> dict:

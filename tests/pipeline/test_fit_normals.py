@@ -11,7 +11,7 @@
 - The refusals: with effects, with --channel rgb and with --noise footprint, one line naming the option, before
   any work; --normal-sd where the normals are fixed, and where they are sampled the prior's sd it sets.
 - The follow-on commands, on a short sampled fit of the turned sphere (2 chains x 80, --normal-sd 3, --noise
-  normals; about 15 s): `rjfit diagnose` criticises it at its posterior mean normals, with the fit's observations
+  normals; about 10 s): `rjfit diagnose` criticises it at its posterior mean normals, with the fit's observations
   and noise scales; `rjfit refine` refuses it in one line before any work (its refits sample effects, which
   sampled normals cannot take).
 """
