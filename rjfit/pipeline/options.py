@@ -138,7 +138,8 @@ class FitOptions:
     """
 
     n_chains: int = cli_option(4, "--chains", "Chains from dispersed starts.", "int", low=1)
-    iterations: int = cli_option(4000, "--iterations", "Iterations per chain.", "int", low=10)
+    iterations: int = cli_option(4000, "--iterations", "Iterations per chain (default 4000; --preset measured: 500).",
+                                 "int", low=10, show_default=False)
     burn_in: float | None = cli_option(
         None, "--burn-in", "Discarded fraction (default: 0.5 for rendered data, 0.2 for measured, as in the paper).",
         "float", show_default=False)
@@ -175,7 +176,7 @@ class FitOptions:
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: --noise normals, --likelihood-power "
-        "auto, no annealed warm-up, --max-view-angle 72.5, --gamma-moves 8, the Potts rule on the mask (--regions materials), the edge "
+        "auto, no annealed warm-up, --max-view-angle 72.5, --gamma-moves 8, --iterations 500, the Potts rule on the mask (--regions materials), the edge "
         "term (auto) where it applies, and calibration (small mask parts left out; an unknown camera response and "
         "per-light gains estimated and applied), each where not given (docs/options.md). Default: none for rendered "
         "data, measured for measured data.", "choice", choices=("none", "measured"), show_default=False)

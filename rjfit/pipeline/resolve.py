@@ -30,7 +30,7 @@ MEASURED_DEFAULTS = {"regions": next(name for name, fit in REGION_FITS.items() i
 #: region model's ``RegionFit.preset_values`` sets (the material model: its edge term where it applies, the
 #: Potts beta and rho by :func:`rjfit.pipeline.regions.materials.ghost_material_prior`).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
-                   "max_view_angle": RIM_VIEW_ANGLE, "gamma_moves": 8}
+                   "max_view_angle": RIM_VIEW_ANGLE, "gamma_moves": 8, "iterations": 500}
 #: the fraction of each chain discarded, by the data's kind (the paper's choices)
 BURN_IN = {"measured": 0.2, "rendered": 0.5}
 PRESET, DATA, DEFAULT = "preset", "data", "default"

@@ -70,6 +70,8 @@ def test_a_measured_stack_gets_the_measured_default_without_flags_and_a_rendered
     assert (options.source("regions"), options.source("preset")) == ("data", "data")
     # the preset's gamma moves reach the kernel's settings; a rendered stack keeps the plain 2
     assert (options.gamma_moves, options.source("gamma_moves")) == (8, "preset")
+    assert (options.iterations, options.source("iterations")) == (500, "preset")
+    assert resolve_options(FitOptions(iterations=40), measured).iterations == 40     # a given count is kept
     assert assemble(options, None, 0).within.g_moves == 8
     (line,) = default_lines(options, measured)
     assert "--regions materials --preset measured" in line and "--regions changepoints or --preset none" in line
@@ -81,7 +83,7 @@ def test_a_measured_stack_gets_the_measured_default_without_flags_and_a_rendered
     rendered = resolve_options(FitOptions(), DataFacts(kind="rendered", object_mask=mask))
     assert (rendered.regions, rendered.preset, rendered.noise, rendered.burn_in) == ("changepoints", "none",
                                                                                       "constant", 0.5)
-    assert assemble(rendered, None, 0).within.g_moves == 2
+    assert assemble(rendered, None, 0).within.g_moves == 2 and rendered.iterations == 4000
     assert default_lines(rendered, DataFacts()) == []
 
 
