@@ -28,6 +28,7 @@ import numpy as np
 
 from rjfit.sampler.likelihood import STAT_N
 from rjfit.sampler.moves.colour_within import update_materials_colour
+from rjfit.sampler.moves.edge_walk import move_ab_walk, move_ridge_walk
 from rjfit.sampler.moves.gamma import move_gamma_newton, move_gamma_rw
 from rjfit.sampler.moves.paper_mh import update_region_paper
 from rjfit.sampler.moves.phi_walk import move_phi_rw
@@ -136,6 +137,30 @@ class GammaMove(NamedTuple):
         return result
 
 
+class EdgeWalks(NamedTuple):
+    """Where the target has an edge term: per row, a ridge walk (:func:`~rjfit.sampler.moves.edge_walk.move_ridge_walk`)
+    at each of ``ridge_steps`` times the gamma random walk's sd, and an (a, b) walk
+    (:func:`~rjfit.sampler.moves.edge_walk.move_ab_walk`) at each of ``ab_scales``. The term sharpens a material's
+    posterior by a factor the data set decides, so the steps form a ladder rather than one adapted width (each
+    rung is a valid move of its own)."""
+
+    ridge_steps: tuple = (1.0, 0.3, 0.1)
+    ab_scales: tuple = (0.3, 0.1, 0.03)
+
+    def run(self, work, r, rng, problem, prior, info, rw_sd: float) -> None:
+        """Run them on row ``r`` of ``work`` (in place) when it has an edge term; nothing otherwise."""
+        if work.edges is None:
+            return
+        for factor in self.ridge_steps:
+            result = move_ridge_walk(work, r, rng, prior, problem, factor * rw_sd, info)
+            if result is not None:
+                info.count("ridge_walk", result)
+        for scale in self.ab_scales:
+            result = move_ab_walk(work, r, rng, prior, scale, info)
+            if result is not None:
+                info.count("ab_walk", result)
+
+
 class AmplitudesAndVariance(NamedTuple):
     """Row ``r``'s (a, b) redraw and then its sigma^2 move, given gamma
     (:func:`~rjfit.sampler.moves.sigma2.move_amplitudes_and_variance`; kinds 'ab' and 'sigma2')."""
@@ -170,7 +195,7 @@ class PaperWithin(NamedTuple):
 
 class AdaptiveWithin(NamedTuple):
     """The 'adaptive' sampler's within-region moves of one region, in order: ``gamma`` (one :class:`GammaMove`
-    per gamma move), then ``amplitudes``; :class:`PhiWalk` instead for a region of fewer than
+    per gamma move), then ``amplitudes``, then ``edge_walks`` (where the target has an edge term); :class:`PhiWalk` instead for a region of fewer than
     ``min_obs_conditional`` observations or where (a, b) have no conditional, and after the rest for one of fewer
     than ``small_region_obs``."""
 
@@ -179,6 +204,7 @@ class AdaptiveWithin(NamedTuple):
     phi_walk: PhiWalk
     min_obs_conditional: int
     small_region_obs: int
+    edge_walks: EdgeWalks = EdgeWalks()
 
     def run(self, work, rng, problem, prior, info, g_step: float) -> list:
         """One iteration's moves of every region in turn (in place); returns the gamma random walks' acceptances.
@@ -206,6 +232,7 @@ class AdaptiveWithin(NamedTuple):
             if not move.newton:       # the adapted step is the random walk's
                 g_acc.append(result)
         self.amplitudes.run(work, r, rng, problem, prior, info)
+        self.edge_walks.run(work, r, rng, problem, prior, info, g_step / np.sqrt(n))
         if n < self.small_region_obs:
             # Small regions: the conditional proposals ignore the prior, which then matters;
             # a cheap phi-space random walk on top keeps them mixing (chosen by n only: valid).
