@@ -247,22 +247,24 @@ def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, re
     """
     light_of, e = np.asarray(problem.light if light is None else light, np.int64), np.asarray(residual, np.float64)
     find = observation_lookup(problem.pixel, light_of)
+    has_data = np.diff(problem.pixel_start) > 0
     sums = np.zeros(first.size)
     for lo in range(0, first.size, chunk):      # pairs a chunk at a time: memory stays near the matches' own
         hi = min(lo + chunk, first.size)
         pair = np.repeat(np.arange(lo, hi), np.diff(start[lo:hi + 1]))
         matches = slice(start[lo], start[hi])
         misfit = _no_step_misfit(problem, first[pair], second[pair], pair < n_right, gap, i[matches], j[matches],
-                                 light_of[i[matches]], e, spread if np.ndim(spread) == 0 else spread[matches], find)
+                                 light_of[i[matches]], e, spread if np.ndim(spread) == 0 else spread[matches], find,
+                                 has_data)
         if weight is not None:
             misfit = misfit * weight[matches]
         sums[lo:hi] = np.bincount(pair - lo, weights=misfit, minlength=hi - lo)
     return sums
 
 
-def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread: float, find) -> np.ndarray:
+def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread: float, find, has_data) -> np.ndarray:
     """Per match (pair ends p, q; observations i, j under ``light``) the squared no-step misfit of
-    :func:`no_step_sums`."""
+    :func:`no_step_sums` (``has_data``: per flat pixel, whether it has an observation)."""
     height, width = problem.height, problem.width
     step = np.where(horizontal, gap, gap * width)
     p_inside = np.where(horizontal, p % width >= gap, p >= gap * width)
@@ -270,7 +272,6 @@ def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread:
     before = find(np.where(p_inside, p - step, -1), light)
     after = find(np.where(q_inside, q + step, -1), light)
     # a side with a pixel without data between it and the pair gives no trend (seen_between)
-    has_data = np.diff(problem.pixel_start) > 0
     before = np.where((before >= 0) & seen_between(has_data, np.where(p_inside, p - step, p), p, gap), before, -1)
     after = np.where((after >= 0) & seen_between(has_data, q, np.where(q_inside, q + step, q), gap), after, -1)
     d, d_before, d_after = e[i] - e[j], e[before] - e[i], e[j] - e[after]
@@ -283,8 +284,9 @@ def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread:
 def matched_lights(pixel, light, first, second, gap: int, chunk: int = 65536):
     """Per pair (``first[k]``, ``second[k]``, ``gap`` px apart), the observation indices (i of the first pixel, j of
     the second) of each light both saw, in the order of the lights, where every pixel between them has data
-    (:func:`seen_between`; else none), and the pairs' offsets into them: ``(i, j, start)``. ``pixel`` and ``light`` give each observation's;
-    pairs are taken ``chunk`` at a time, so memory stays near the observations' own."""
+    (:func:`seen_between`; else none), and the pairs' offsets into them: ``(i, j, start)``. ``pixel`` and
+    ``light`` give each observation's; pairs are taken ``chunk`` at a time, so memory stays near the
+    observations' own."""
     n_lights = int(np.max(light, initial=-1)) + 1
     find = observation_lookup(pixel, light)
     lights = np.arange(n_lights)
