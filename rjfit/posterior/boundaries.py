@@ -48,9 +48,10 @@ INSIDE_PAIRS = 20000
 FIT_OBSERVATIONS = 50_000
 
 
-def _matched(pixel, light, first, second):
-    """Observation indices (i, j) of every light seen by both pixels of each pair, and the pair of each match."""
-    i, j, start = matched_lights(pixel, light, first, second)
+def _matched(pixel, light, first, second, gap: int):
+    """Observation indices (i, j) of every light seen by both pixels of each pair (and the pixels between them,
+    ``gap`` apart: :func:`~rjfit.sampler.regions.materials.edges.matched_lights`), and the pair of each match."""
+    i, j, start = matched_lights(pixel, light, first, second, gap)
     return i, j, np.repeat(np.arange(first.size), np.diff(start))
 
 
@@ -121,7 +122,7 @@ def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: i
     inside = np.flatnonzero(~across)
     inside = inside[::max(1, inside.size // INSIDE_PAIRS)]
     # the differences' noise: pairs inside materials, each at its material
-    a, b, which = _matched(pixel, light, first[inside], second[inside])
+    a, b, which = _matched(pixel, light, first[inside], second[inside], gap)
     material = flat[first[inside]][which]
     residual = np.zeros(a.size)
     for m in np.unique(material):
@@ -129,7 +130,7 @@ def boundary_support(labels, params, y, C, log_cos_hn, pixel, light, n_lights: i
         residual[sel] = (y[a[sel]] - y[b[sel]]) - (_prediction(params[m], C, log_cos_hn, a[sel])
                                                      - _prediction(params[m], C, log_cos_hn, b[sel]))
     noise = float(np.mean(residual ** 2)) if residual.size else np.nan
-    a, b, which = _matched(pixel, light, first[across], second[across])
+    a, b, which = _matched(pixel, light, first[across], second[across], gap)
     j_of, k_of = flat[first[across]][which], flat[second[across]][which]
     low, high = np.minimum(j_of, k_of), np.maximum(j_of, k_of)
     pair_of = np.flatnonzero(across)[which]

@@ -43,14 +43,15 @@ ITERATIONS, BURN = 2000, 200
 DRAWS = 20000
 
 
-def patchy_problem(seed=3, shape=(6, 7), n_lights=5):
+def patchy_problem(seed=3, shape=(6, 7), n_lights=5, no_data=()):
     """A 6 x 7 image of two materials (left three columns, the rest) under 5 lights, a fifth of the
-    observations dropped at random (so pairs match fewer lights)."""
+    observations dropped at random (so pairs match fewer lights); the flat pixels ``no_data`` lose every observation
+    (on the object still, so labelled: what a contour's or a grazing band's pixels are on measured stacks)."""
     rng = np.random.default_rng(seed)
     height, width = shape
     pixel = np.repeat(np.arange(height * width), n_lights)
     light = np.tile(np.arange(n_lights), height * width)
-    keep = rng.random(pixel.size) > 0.2
+    keep = (rng.random(pixel.size) > 0.2) & ~np.isin(pixel, list(no_data))
     pixel, light = pixel[keep], light[keep]
     cos_ln, cos_hn = rng.uniform(0.3, 1.0, pixel.size), rng.uniform(0.6, 1.0, pixel.size)
     irradiance = rng.uniform(0.5, 1.5, pixel.size)
@@ -63,8 +64,18 @@ def patchy_problem(seed=3, shape=(6, 7), n_lights=5):
     return Problem.from_observations(obs)
 
 
+def data_between(where, width, p, q):
+    """Whether every pixel strictly between p and q (on one row or one column, q after p) has an observation."""
+    seen = {pixel for pixel, _ in where}
+    (pr, pc), (qr, qc) = divmod(int(p), width), divmod(int(q), width)
+    n = max(qr - pr, qc - pc)
+    dr, dc = (qr - pr) // n, (qc - pc) // n
+    return all((pr + k * dr) * width + pc + k * dc in seen for k in range(1, n))
+
+
 def no_step_ss(problem, edges):
-    """``ss(p, q)``: the pair's misfit of no step from its definition, over the lights both saw, with e the residuals
+    """``ss(p, q)``: the pair's misfit of no step from its definition, over the lights both saw (none where a pixel
+    between them has no observation: :func:`data_between`; nor does a side p' or q' count then), with e the residuals
     under the reference (one material fitted by least squares to every observation) and p' and q' as far beyond p
     and q on the pair's line: where both were seen under that light, 0.4 times the squared difference
     ``e_p - e_q`` minus the trend ``(e_p' - e_p + e_q - e_q') / 2``; where one was, a third of the squared difference
@@ -76,7 +87,7 @@ def no_step_ss(problem, edges):
     where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
     lights = range(int(problem.light.max()) + 1)
     differences = [e[where[p, lt]] - e[where[q, lt]] for p, q in zip(edges.first, edges.second)
-                   for lt in lights if (p, lt) in where and (q, lt) in where]
+                   for lt in lights if (p, lt) in where and (q, lt) in where and data_between(where, width, p, q)]
     spread = 1.4826 * np.median(np.abs(differences))
 
     def outer(p, q):
@@ -88,12 +99,12 @@ def no_step_ss(problem, edges):
     def ss(p, q):
         total, (p_out, q_out) = 0.0, outer(p, q)
         for lt in lights:
-            if (p, lt) not in where or (q, lt) not in where:
+            if (p, lt) not in where or (q, lt) not in where or not data_between(where, width, p, q):
                 continue
             i, j = where[p, lt], where[q, lt]
             d = e[i] - e[j]
-            a = where.get((p_out, lt)) if p_out is not None else None
-            b = where.get((q_out, lt)) if q_out is not None else None
+            a = where.get((p_out, lt)) if p_out is not None and data_between(where, width, p_out, p) else None
+            b = where.get((q_out, lt)) if q_out is not None and data_between(where, width, q, q_out) else None
             if a is not None and b is not None:
                 total += 0.4 * (d - 0.5 * (e[a] - e[i] + e[j] - e[b])) ** 2
             elif a is not None:
@@ -113,7 +124,8 @@ def boundary_share(step, alone, no_step):
 
 
 def direct_total(problem, edges, labels, theta, gap):
-    """The edge term from its definition: every pair ``gap`` apart, every light both pixels saw."""
+    """The edge term from its definition: every pair ``gap`` apart with data at every pixel between, every light both
+    pixels saw."""
     height, width = problem.image_shape
     where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
@@ -136,7 +148,7 @@ def direct_total(problem, edges, labels, theta, gap):
             if k == m:
                 continue
             matched = [(where[p, lt], where[q, lt]) for lt in range(int(problem.light.max()) + 1)
-                       if (p, lt) in where and (q, lt) in where]
+                       if (p, lt) in where and (q, lt) in where and data_between(where, width, p, q)]
             lo, hi = min(k, m), max(k, m)
             entry = sums.setdefault((lo, hi), [0.0, 0.0, 0.0, 0.0])
             entry[0] += ss(matched, k, m)
@@ -157,6 +169,28 @@ def test_total_matches_the_definition():
     expected = direct_total(problem, edges, labels, theta, 3)
     assert expected < -10.0, "the labels should cross many pairs"
     assert edges.total(labels, theta) == pytest.approx(expected, rel=1e-9)
+
+
+def test_pairs_across_a_pixel_without_data_see_nothing():
+    """A pixel with no observation between a pair's ends (a contour's, off the object) leaves the pair without
+    matches, and a pair's side beyond it gives no trend; the total still follows the definition (which says so),
+    and a boundary whose only pairs cross such pixels neither earns nor costs."""
+    height, width = 6, 7
+    hole = [r * width + 4 for r in range(height)]       # column 4: every pixel without data
+    problem = patchy_problem(no_data=hole)
+    labelled = labelled_pixels(problem)
+    assert labelled.all(), "the pixels without data stay labelled (on the object)"
+    edges = edge_term(problem, labelled, power=1.0, gap=3)
+    matches = dict(zip(zip(edges.first.tolist(), edges.second.tolist()), np.diff(edges.start)))
+    assert matches[(2, 5)] == 0 and matches[(3, 6)] == 0, "pairs across column 4 see nothing"
+    assert matches[(0, 3)] > 0 and matches[(7, 7 + 3 * width)] > 0, "pairs beside it see their lights"
+    labels = np.random.default_rng(0).integers(0, 3, problem.image_shape)
+    theta = np.vstack([TRUTH, [8.0, 0.5, 8.0, 0.3]])
+    assert edges.total(labels, theta) == pytest.approx(direct_total(problem, edges, labels, theta, 3), rel=1e-9)
+    # the boundary between columns 3 and 4: its pairs are 1-4 (4 has no data), 2-5 and 3-6 (across 4): none sees a light
+    at_hole = (np.arange(width)[None, :].repeat(height, 0) >= 4).astype(int)
+    for other in ([8.0, 0.5, 8.0, 0.3], TRUTH[1], [80.0, 0.1, 2.0, 0.3]):
+        assert edges.total(at_hole, [TRUTH[0], other]) == 0.0
 
 
 def test_a_step_the_data_show_earns_and_one_they_do_not_costs():
@@ -460,7 +494,7 @@ def test_the_no_step_sums_do_not_depend_on_the_chunk():
     problem = patchy_problem()
     edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=3)
     first, second, n_right = pixel_pairs(labelled_pixels(problem), 3)
-    i, j, start = matched_lights(problem.pixel, problem.light, first, second)
+    i, j, start = matched_lights(problem.pixel, problem.light, first, second, 3)
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
     residual = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
     whole = no_step_sums(problem, first, second, n_right, 3, i, j, start, residual, 0.5)

@@ -12,7 +12,9 @@ there, and not at all if the boundary follows the misfit.
 The term
 --------
 Over pairs of labelled pixels ``gap`` px apart along a row or a column (:data:`EDGE_GAP`, odd),
-and every light seen by both (the data's difference ``d = y_p - y_q``, on the fit's scale),
+and every light seen by both (the data's difference ``d = y_p - y_q``, on the fit's scale), where every
+pixel between the two has data (:func:`seen_between`: a pair across a pixel off the object or with every
+observation left out, such as an occluding contour's, does not see what lies between its ends),
 with
 
     SS_pq(a, b) = sum over the lights (d - mu_a(p) + mu_b(q))^2,
@@ -85,7 +87,7 @@ from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.passes.edges import boundary_sums, changed_delta, edge_value
 
 __all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "observation_lookup", "no_step_sums",
-           "EDGE_GAP", "NO_STEP_NOISE"]
+           "seen_between", "EDGE_GAP", "NO_STEP_NOISE"]
 
 #: white noise of variance v gives a difference across a pair the variance 2 v and its misfit against the local trend
 #: of the differences beside it 5 v (1.5^2 + 1.5^2 + 0.5^2 + 0.5^2): the factor that makes the two alike, so that a
@@ -202,6 +204,26 @@ def observation_lookup(pixel, light):
     return find
 
 
+def seen_between(has_data, start, end, gap: int) -> np.ndarray:
+    """Per (``start``, ``end``): whether every pixel strictly between the two (``gap`` px apart along a row or a
+    column, ``end`` after ``start``) has data (``has_data``, per flat pixel: at least one observation).
+
+    Why: the edge term reads the data's difference across a pair (and the trend just beside it) as a change of the
+    surface's reflectance between its ends. A pixel between them without any observation (off the object: a gap in
+    the mask; every observation left out: the depth step of an occluding contour, a band at a grazing view) is
+    where the fit does not know the surface, so a step across it may be a change of the geometry (another part of
+    the object behind a contour) rather than of the paint, and the pair says nothing about a paint (issue 45:
+    psm-horse's pixels beside its contours became a material of their own). A pixel between left out under some
+    lights only still shows the surface there under the others; both ends are measured under each matched light.
+    """
+    start, end = np.asarray(start, np.int64), np.asarray(end, np.int64)
+    unit = (end - start) // gap         # 1 along a row, the row's width down a column
+    seen = np.ones(start.shape, bool)
+    for k in range(1, gap):
+        seen &= has_data[start + k * unit]
+    return seen
+
+
 def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread,
                  chunk: int = 65536, light=None, weight=None) -> np.ndarray:
     """(P,) each pair's sum over its matched lights of the squared misfit of "no step": the data follow the
@@ -225,28 +247,33 @@ def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, re
     """
     light_of, e = np.asarray(problem.light if light is None else light, np.int64), np.asarray(residual, np.float64)
     find = observation_lookup(problem.pixel, light_of)
+    has_data = np.diff(problem.pixel_start) > 0
     sums = np.zeros(first.size)
     for lo in range(0, first.size, chunk):      # pairs a chunk at a time: memory stays near the matches' own
         hi = min(lo + chunk, first.size)
         pair = np.repeat(np.arange(lo, hi), np.diff(start[lo:hi + 1]))
         matches = slice(start[lo], start[hi])
         misfit = _no_step_misfit(problem, first[pair], second[pair], pair < n_right, gap, i[matches], j[matches],
-                                 light_of[i[matches]], e, spread if np.ndim(spread) == 0 else spread[matches], find)
+                                 light_of[i[matches]], e, spread if np.ndim(spread) == 0 else spread[matches], find,
+                                 has_data)
         if weight is not None:
             misfit = misfit * weight[matches]
         sums[lo:hi] = np.bincount(pair - lo, weights=misfit, minlength=hi - lo)
     return sums
 
 
-def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread: float, find) -> np.ndarray:
+def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread: float, find, has_data) -> np.ndarray:
     """Per match (pair ends p, q; observations i, j under ``light``) the squared no-step misfit of
-    :func:`no_step_sums`."""
+    :func:`no_step_sums` (``has_data``: per flat pixel, whether it has an observation)."""
     height, width = problem.height, problem.width
     step = np.where(horizontal, gap, gap * width)
     p_inside = np.where(horizontal, p % width >= gap, p >= gap * width)
     q_inside = np.where(horizontal, q % width < width - gap, q < (height - gap) * width)
     before = find(np.where(p_inside, p - step, -1), light)
     after = find(np.where(q_inside, q + step, -1), light)
+    # a side with a pixel without data between it and the pair gives no trend (seen_between)
+    before = np.where((before >= 0) & seen_between(has_data, np.where(p_inside, p - step, p), p, gap), before, -1)
+    after = np.where((after >= 0) & seen_between(has_data, q, np.where(q_inside, q + step, q), gap), after, -1)
     d, d_before, d_after = e[i] - e[j], e[before] - e[i], e[j] - e[after]
     has_before, has_after = before >= 0, after >= 0
     return np.select([has_before & has_after, has_before, has_after],
@@ -254,22 +281,27 @@ def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread:
                       (d - d_after) ** 2 / 3.0], spread ** 2)
 
 
-def matched_lights(pixel, light, first, second, chunk: int = 65536):
-    """Per pair (``first[k]``, ``second[k]``), the observation indices (i of the first pixel, j of the second) of
-    each light both saw, in the order of the lights, and the pairs' offsets into them: ``(i, j, start)``. ``pixel``
-    and ``light`` give each observation's; pairs are taken ``chunk`` at a time, so memory stays near the
+def matched_lights(pixel, light, first, second, gap: int, chunk: int = 65536):
+    """Per pair (``first[k]``, ``second[k]``, ``gap`` px apart), the observation indices (i of the first pixel, j of
+    the second) of each light both saw, in the order of the lights, where every pixel between them has data
+    (:func:`seen_between`; else none), and the pairs' offsets into them: ``(i, j, start)``. ``pixel`` and
+    ``light`` give each observation's; pairs are taken ``chunk`` at a time, so memory stays near the
     observations' own."""
     n_lights = int(np.max(light, initial=-1)) + 1
     find = observation_lookup(pixel, light)
     lights = np.arange(n_lights)
+    has_data = np.zeros(int(max(np.max(pixel, initial=-1), np.max(second, initial=-1))) + 1, bool)
+    has_data[np.asarray(pixel, np.int64)] = True
 
     def lookup(pixels):
         return find(np.repeat(pixels, n_lights), np.tile(lights, pixels.size)).reshape(pixels.size, n_lights)
 
     i_parts, j_parts, counts = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for lo in range(0, len(first), chunk):
-        a, b = lookup(np.asarray(first[lo:lo + chunk], np.int64)), lookup(np.asarray(second[lo:lo + chunk], np.int64))
+        ends = np.asarray(first[lo:lo + chunk], np.int64), np.asarray(second[lo:lo + chunk], np.int64)
+        a, b = lookup(ends[0]), lookup(ends[1])
         both = (a >= 0) & (b >= 0)
+        both &= seen_between(has_data, ends[0], ends[1], gap)[:, None]     # no pixel without data between
         i_parts.append(a[both])
         j_parts.append(b[both])
         counts.append(both.sum(axis=1))
@@ -328,7 +360,7 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     key_light = None if n_ch == 1 else (np.asarray(problem.light, np.int64) * n_ch
                                         + np.asarray(problem.channel, np.int64))
     first, second, n_right = pixel_pairs(np.asarray(labelled, bool), gap)
-    i, j, start = matched_lights(problem.pixel, problem.light if n_ch == 1 else key_light, first, second)
+    i, j, start = matched_lights(problem.pixel, problem.light if n_ch == 1 else key_light, first, second, gap)
     y, C, lch = (np.asarray(a, np.float64) for a in (problem.y, problem.C, problem.log_cos_hn))
     group = np.zeros(y.size, np.int64) if n_ch == 1 else np.asarray(problem.channel, np.int64)
     reference_residual = fit_groups(y, C, lch, group, n_ch)["residuals"]
