@@ -144,7 +144,7 @@ class EdgeWalks(NamedTuple):
     posterior by a factor the data set decides, so the steps form a ladder rather than one adapted width (each
     rung is a valid move of its own)."""
 
-    ridge_steps: tuple = (1.0, 0.3, 0.1)
+    ridge_steps: tuple = (10.0, 3.0, 1.0)
     ab_scales: tuple = (0.3, 0.1, 0.03)
 
     def run(self, work, r, rng, problem, prior, info, rw_sd: float) -> None:
