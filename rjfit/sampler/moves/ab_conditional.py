@@ -14,9 +14,9 @@ from typing import NamedTuple
 from rjfit.sampler.likelihood import LOG_2PI
 from rjfit.sampler.moves.base import decide_row
 from rjfit.sampler.moves.proposal import RowProposal
-from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm
+from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm, region_log_lik
 
-__all__ = ["ABConditional", "ab_conditional", "draw_ab", "log_q_ab", "log_target_ab", "move_ab"]
+__all__ = ["ABConditional", "ab_conditional", "draw_ab", "log_q_ab", "log_target_ab", "decide_amplitudes", "move_ab"]
 
 
 class ABConditional(NamedTuple):
@@ -86,6 +86,24 @@ def log_q_ab(a, b, cond: ABConditional):
 def log_target_ab(prior, I0, kd, g, s2, log_lik_r):
     """Log target in coordinates (a, b, log gamma, sigma^2): p(theta) / (I0 N(g)) * g * L."""
     return log_lik_r + prior.logpdf_scalar(I0, kd, g, s2) - math.log(I0) - math.log(giesen_norm(g)) + math.log(g)
+
+
+def decide_amplitudes(work, r, prior, a, b, g, stats_new, log_q_ratio, log_u, kind, info) -> bool:
+    """The MH test of row ``r`` at amplitudes ``(a, b)`` and gamma ``g`` (``stats_new``: its statistics at ``g``),
+    sigma^2 kept: the target in (a, b, log gamma, sigma^2) coordinates (:func:`log_target_ab`), the proposal's
+    ``log_q_ratio`` (``log q(old | new) - log q(new | old)``) and the edge term's change. Outside ``a, b > 0``
+    the target is 0: rejected. Returns whether it accepted (not counted: the move counts)."""
+    if a <= 0 or b <= 0:
+        return False
+    I0, kd, g_old, s2 = work.theta[r]
+    I0_new = a + b / giesen_norm(g)
+    kd_new = a / I0_new
+    ll_new = region_log_lik(stats_new, I0_new, kd_new, g, s2)
+    log_alpha = (log_target_ab(prior, I0_new, kd_new, g, s2, ll_new) - log_target_ab(prior, I0, kd, g_old, s2, work.log_lik[r])
+                 + log_q_ratio)
+    if log_alpha > -math.inf:
+        log_alpha += edge_delta(work, r, (I0_new, kd_new, g, s2))
+    return decide_row(work, RowProposal(r, (I0_new, kd_new, g, s2), stats_new, ll_new, log_alpha, log_u, kind), info)
 
 
 def move_ab(work, r, rng, prior, info):

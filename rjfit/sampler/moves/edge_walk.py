@@ -23,27 +23,10 @@ from __future__ import annotations
 
 import math
 
-from rjfit.sampler.moves.ab_conditional import ab_conditional, log_target_ab
-from rjfit.sampler.moves.base import decide_row
-from rjfit.sampler.moves.proposal import RowProposal
-from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm, region_log_lik, stats_at_gamma
+from rjfit.sampler.moves.ab_conditional import ab_conditional, decide_amplitudes
+from rjfit.sampler.moves.region_terms import giesen_norm, stats_at_gamma
 
 __all__ = ["move_ab_walk", "move_ridge_walk"]
-
-
-def _propose(work, r, prior, a, b, g, stats_new, log_u, kind, info):
-    """The MH test of region ``r`` at amplitudes ``(a, b)`` and gamma ``g`` (its statistics ``stats_new``)."""
-    I0, kd, g_old, s2 = work.theta[r]
-    if not (a > 0 and b > 0 and math.isfinite(a) and math.isfinite(b)):
-        return False
-    I0_new = a + b / giesen_norm(g)
-    kd_new = a / I0_new
-    ll_new = region_log_lik(stats_new, I0_new, kd_new, g, s2)
-    log_alpha = (log_target_ab(prior, I0_new, kd_new, g, s2, ll_new)
-                 - log_target_ab(prior, I0, kd, g_old, s2, work.log_lik[r]))
-    if log_alpha > -math.inf:
-        log_alpha += edge_delta(work, r, (I0_new, kd_new, g, s2))
-    return decide_row(work, RowProposal(r, (I0_new, kd_new, g, s2), stats_new, ll_new, log_alpha, log_u, kind), info)
 
 
 def move_ab_walk(work, r, rng, prior, scale, info):
@@ -59,7 +42,7 @@ def move_ab_walk(work, r, rng, prior, scale, info):
     log_u = math.log(rng.random())
     a = I0 * kd + scale * cond.la * z1
     b = I0 * (1.0 - kd) * giesen_norm(g) + scale * (cond.lc * z1 + cond.lb * z2)
-    return _propose(work, r, prior, a, b, g, work.stats[r], log_u, "ab_walk", info)
+    return decide_amplitudes(work, r, prior, a, b, g, work.stats[r], 0.0, log_u, "ab_walk", info)
 
 
 def move_ridge_walk(work, r, rng, prior, problem, step, info):
@@ -85,4 +68,4 @@ def move_ridge_walk(work, r, rng, prior, problem, step, info):
         return False
     a = I0 * kd + (cond_new.ma - cond.ma)
     b = I0 * (1.0 - kd) * giesen_norm(g) + (cond_new.mb - cond.mb)
-    return _propose(work, r, prior, a, b, g_new, stats_new, log_u, "ridge_walk", info)
+    return decide_amplitudes(work, r, prior, a, b, g_new, stats_new, 0.0, log_u, "ridge_walk", info)

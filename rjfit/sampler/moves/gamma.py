@@ -16,10 +16,8 @@ import math
 import sys
 
 from rjfit.sampler.likelihood import LOG_2PI, STAT_AA, STAT_AB, STAT_BB, STAT_YA, STAT_YB
-from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab, log_target_ab
-from rjfit.sampler.moves.base import decide_row
-from rjfit.sampler.moves.proposal import RowProposal
-from rjfit.sampler.moves.region_terms import edge_delta, giesen_norm, region_log_lik, stats_at_gamma
+from rjfit.sampler.moves.ab_conditional import ab_conditional, decide_amplitudes, draw_ab, log_q_ab
+from rjfit.sampler.moves.region_terms import giesen_norm, stats_at_gamma
 
 __all__ = ["move_gamma_rw", "move_gamma_newton", "ls_profile", "ls_profile_nonnegative", "ls_point_slopes",
            "newton_log_gamma", "log_q_log_gamma"]
@@ -37,18 +35,9 @@ def _accept_gamma_ab(work, r, rng, prior, cond_old, g_new, stats_new, log_q_rati
         return False
     a_new, b_new = draw_ab(cond_new, rng)
     log_u = math.log(rng.random())
-    if a_new <= 0 or b_new <= 0:
-        return False
-    I0_new = a_new + b_new / giesen_norm(g_new)
-    kd_new = a_new / I0_new
-    ll_new = region_log_lik(stats_new, I0_new, kd_new, g_new, s2)
-    a_old, b_old = I0 * kd, I0 * (1.0 - kd) * giesen_norm(g)
-    log_alpha = (log_target_ab(prior, I0_new, kd_new, g_new, s2, ll_new)
-                 - log_target_ab(prior, I0, kd, g, s2, work.log_lik[r])
-                 + log_q_ab(a_old, b_old, cond_old) - log_q_ab(a_new, b_new, cond_new) + log_q_ratio_gamma)
-    if log_alpha > -math.inf:
-        log_alpha += edge_delta(work, r, (I0_new, kd_new, g_new, s2))
-    return decide_row(work, RowProposal(r, (I0_new, kd_new, g_new, s2), stats_new, ll_new, log_alpha, log_u, kind), info)
+    log_q_ratio = log_q_ab(I0 * kd, I0 * (1.0 - kd) * giesen_norm(g), cond_old) - log_q_ab(a_new, b_new, cond_new)
+    return decide_amplitudes(work, r, prior, a_new, b_new, g_new, stats_new, log_q_ratio + log_q_ratio_gamma,
+                             log_u, kind, info)
 
 
 def move_gamma_rw(work, r, rng, prior, problem, step, info):
