@@ -10,8 +10,8 @@ One rule for "not given": a field is None until it is given, for every field. Wh
 not given is filled once, by :func:`rjfit.pipeline.resolve.resolve_options` (the preset, the
 data's kind, the plain default: ``metadata["default"]`` of each field), which records where each
 value came from (``sources``). Each region model's ``RegionFit.reads``
-(:mod:`rjfit.pipeline.regions`) and :data:`NOISE_OPTIONS` say which options each region model and
-noise model reads: a given option that the fit's models do not read is refused there. This module
+(:mod:`rjfit.pipeline.regions`) and :data:`CHOICE_OPTIONS` say which options each region model, noise
+model and sampler reads: a given option that the fit's models do not read is refused there. This module
 names the region models (:data:`REGION_MODELS`, ``--regions``' choices) but may not import them
 (they build their settings from these options).
 """
@@ -28,7 +28,7 @@ from rjfit.effects import EFFECTS, effects_help
 from rjfit.sampler.priors import PRESETS
 
 __all__ = ["FitOptions", "CliSpec", "cli_option", "EACH_CHANNEL", "FIT_CHANNELS", "REGION_MODELS", "NOISE_OPTIONS",
-           "EFFECT_OPTIONS", "GIVEN"]
+           "SAMPLER_OPTIONS", "CHOICE_OPTIONS", "EFFECT_OPTIONS", "GIVEN"]
 
 EACH_CHANNEL = ("R", "G", "B")                 # what ``channel="each"`` fits, one fit per channel
 FIT_CHANNELS = CHANNELS + ("each", COLOUR)
@@ -39,6 +39,10 @@ GIVEN = "given"                                # a value's source (FitOptions.so
 REGION_MODELS = ("changepoints", "materials", "fixed")
 #: The options each noise model reads beyond ``noise`` itself (``--noise``); models not named read none.
 NOISE_OPTIONS = {"shot": frozenset({"noise_floor"}), "relative": frozenset({"noise_floor"})}
+#: The options read only by some samplers (``--sampler``).
+SAMPLER_OPTIONS = {"adaptive": frozenset({"gamma_moves"})}
+#: The fields whose choice decides whether an option is read: (field, {choice: the options read only under it}).
+CHOICE_OPTIONS = (("noise", NOISE_OPTIONS), ("sampler", SAMPLER_OPTIONS))
 #: The options read only when effects are sampled (``--effects`` or ``--effects-from``).
 EFFECT_OPTIONS = frozenset({"effect_every"})
 
@@ -416,11 +420,14 @@ class FitOptions:
 
 
 def _read_by(name: str, values: dict, region_reads: dict) -> bool:
-    """Whether the region model and noise model of ``values`` read option ``name`` (``region_reads``: the options
-    each region model reads; :data:`NOISE_OPTIONS`)."""
+    """Whether the region model, noise model and sampler of ``values`` read option ``name`` (``region_reads``: the
+    options each region model reads; :data:`CHOICE_OPTIONS`)."""
     regions = values.get("regions") or FitOptions.default("regions")
     modelled = set().union(*region_reads.values())
     if name in modelled and name not in region_reads.get(regions, ()):
         return False
-    noise = values.get("noise") or FitOptions.default("noise")
-    return name not in set().union(*NOISE_OPTIONS.values()) or name in NOISE_OPTIONS.get(noise, ())
+    for field_name, table in CHOICE_OPTIONS:
+        chosen = values.get(field_name) or FitOptions.default(field_name)
+        if name in set().union(*table.values()) and name not in table.get(chosen, ()):
+            return False
+    return True

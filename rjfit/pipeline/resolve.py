@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rjfit.data.formats import COLOUR
-from rjfit.pipeline.options import EFFECT_OPTIONS, GIVEN, NOISE_OPTIONS, RIM_VIEW_ANGLE, FitOptions
+from rjfit.pipeline.options import CHOICE_OPTIONS, EFFECT_OPTIONS, GIVEN, RIM_VIEW_ANGLE, FitOptions
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.regions.materials import GHOST_ODDS, GHOST_PIXELS, ghost_material_prior
 
@@ -147,17 +147,20 @@ def _edge_term_applies(values: dict) -> bool:
 
 
 def _refuse_unread(options: FitOptions) -> None:
-    """A given option that the chosen region model, noise model or effects do not read: refused, naming it."""
+    """A given option that the chosen region model, noise model, sampler or effects do not read: refused, naming it."""
     for name in options.given():
         flag = FitOptions.cli(name).flag if FitOptions.cli(name) else name
         readers = [model for model, fit in REGION_FITS.items() if name in fit.reads]
         if readers and options.regions not in readers:
             raise ValueError(f"{flag} is an option of --regions {' / '.join(readers)}, not of --regions "
                              f"{options.regions} ({_chosen_by(options, 'regions')}): leave it out")
-        noise_readers = [model for model, names in NOISE_OPTIONS.items() if name in names]
-        if noise_readers and options.noise not in noise_readers:
-            raise ValueError(f"{flag} is an option of --noise {' / '.join(noise_readers)}, not of --noise "
-                             f"{options.noise} ({_chosen_by(options, 'noise')}): leave it out")
+        for field_name, table in CHOICE_OPTIONS:        # --noise, --sampler
+            readers = [choice for choice, names in table.items() if name in names]
+            chosen = getattr(options, field_name)
+            if readers and chosen not in readers:
+                by = FitOptions.cli(field_name).flag
+                raise ValueError(f"{flag} is an option of {by} {' / '.join(readers)}, not of {by} {chosen} "
+                                 f"({_chosen_by(options, field_name)}): leave it out")
         if name in EFFECT_OPTIONS and not options.effects and options.effects_from is None:
             raise ValueError(f"{flag} is an option of sampled effects (--effects, --effects-from), and none are "
                              f"sampled: leave it out")
@@ -189,9 +192,6 @@ def _check_normals(options: FitOptions) -> None:
 
 def _check_combinations(options: FitOptions) -> None:
     _check_normals(options)
-    if options.sampler == "paper" and options.source("gamma_moves") == GIVEN:
-        raise ValueError("--gamma-moves sets the adaptive sampler's gamma moves; --sampler paper moves each "
-                         "parameter by its own random walk: leave --gamma-moves out")
     if options.edge_power == "auto" or options.edge_power > 0:
         if not _edge_term_applies(vars(options)):
             edge = " / ".join(name for name, fit in REGION_FITS.items() if "edge_power" in fit.reads)
