@@ -5,7 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Light", "geometry_terms", "cos_light_half", "tangent_frame", "turned_normals", "tangent_terms", "light_tangent_terms"]
+__all__ = ["Light", "geometry_terms", "cos_light_half", "tangent_frame", "turned_normals", "tangent_terms",
+           "light_tangent_terms"]
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,7 @@ def assemble(options: FitOptions, regions, burn: int) -> SamplerConfig:
         If a settings class refuses a value.
     """
     config = SamplerConfig()
-    return SamplerConfig(regions=regions, within=replace(config.within, sampler=options.sampler, g_moves=options.gamma_moves),
+    within = replace(config.within, sampler=options.sampler, g_moves=options.gamma_moves)
+    return SamplerConfig(regions=regions, within=within,
                          kernel=KernelSettings(burn_in=burn, anneal=int(round(options.anneal * burn))),
                          effects=replace(config.effects, every=options.effect_every))

@@ -101,7 +101,8 @@ def _refuse_sampled_normals(options: FitOptions, fit_dir: Path) -> None:
     if options.normals == "sample":
         raise ValueError(f"{fit_dir}: a fit that sampled its normals (--normals sample) cannot be refined: refine fits "
                          f"again with the effects a diagnosis names, and a fit with effects takes the given normals; "
-                         f"fit the data set with --normals fixed to refine it, or criticise this fit with rjfit diagnose")
+                         f"fit the data set with --normals fixed to refine it, or criticise this fit with rjfit "
+                         f"diagnose")
 
 
 def _validation_options(summary: dict) -> dict:

@@ -99,8 +99,8 @@ def decide_amplitudes(work, r, prior, a, b, g, stats_new, log_q_ratio, log_u, ki
     I0_new = a + b / giesen_norm(g)
     kd_new = a / I0_new
     ll_new = region_log_lik(stats_new, I0_new, kd_new, g, s2)
-    log_alpha = (log_target_ab(prior, I0_new, kd_new, g, s2, ll_new) - log_target_ab(prior, I0, kd, g_old, s2, work.log_lik[r])
-                 + log_q_ratio)
+    log_alpha = (log_target_ab(prior, I0_new, kd_new, g, s2, ll_new)
+                 - log_target_ab(prior, I0, kd, g_old, s2, work.log_lik[r]) + log_q_ratio)
     if log_alpha > -math.inf:
         log_alpha += edge_delta(work, r, (I0_new, kd_new, g, s2))
     return decide_row(work, RowProposal(r, (I0_new, kd_new, g, s2), stats_new, ll_new, log_alpha, log_u, kind), info)

@@ -195,9 +195,9 @@ class PaperWithin(NamedTuple):
 
 class AdaptiveWithin(NamedTuple):
     """The 'adaptive' sampler's within-region moves of one region, in order: ``gamma`` (one :class:`GammaMove`
-    per gamma move), then ``amplitudes``, then ``edge_walks`` (where the target has an edge term); :class:`PhiWalk` instead for a region of fewer than
-    ``min_obs_conditional`` observations or where (a, b) have no conditional, and after the rest for one of fewer
-    than ``small_region_obs``."""
+    per gamma move), then ``amplitudes``, then ``edge_walks`` (where the target has an edge term);
+    :class:`PhiWalk` instead for a region of fewer than ``min_obs_conditional`` observations or where (a, b) have
+    no conditional, and after the rest for one of fewer than ``small_region_obs``."""
 
     gamma: tuple
     amplitudes: AmplitudesAndVariance
