@@ -44,6 +44,11 @@ from rjfit.sampler.state import SamplerConfig
 from builders import tiny_colour_problem
 
 ITERATIONS, BURN, DRAWS = 2000, 200, 20000
+#: the partition test's edge power. Since the term costs against the data's trend as well (2026-11-28), power 1 puts
+#: 0.94 of the mass on one partition, and the colour within moves (proposals that do not see the term) leave the
+#: chain's partitions 18 effective draws in 8,000 iterations, too few for a test; at 0.25 the term still moves the
+#: posterior (total variation 0.26) and the chain keeps about 40 in 2,000
+COLOUR_EDGE_POWER = 0.25
 
 
 def colour_patchy(seed=3, shape=(6, 7), n_lights=5, hue_only=False):
@@ -277,17 +282,16 @@ def run_colour_chain(problem, prior, config, seed):
 
 @pytest.fixture(scope="module")
 def colour_exact(colour_square):
-    """The chains' config at power 1 and the exact posterior under it (the draws take about 20 s)."""
+    """The chains' config at power 0.25 and the exact posterior under it (the draws take about 20 s)."""
     prior, problem, per_channel, quad = colour_square
-    config = colour_edge_config(1.0)
+    config = colour_edge_config(COLOUR_EDGE_POWER)
     edges = initial_state(problem, prior, config, np.random.default_rng(0)).layout.bonds.edges
     return config, exact_colour_with_edges(quad, per_channel, edges, np.random.default_rng(10))
 
 
 def test_colour_partitions_and_gamma_match_the_target_with_the_edge_term(colour_square, colour_exact):
-    """All 15 partitions, K_max 4, every label move and the colour within moves, power 1 (total variation 0.21
-    from the posterior without the term; at 2 and above the importance weights of the exact side degenerate:
-    their effective number falls under 100 of 20,000).
+    """All 15 partitions, K_max 4, every label move and the colour within moves, at :data:`COLOUR_EDGE_POWER`
+    (total variation 0.26 from the posterior without the term).
 
     No negative control here: with the structure moves' ratios left without the term this chain gave p = 0.008
     (2,000 iterations), not far enough below the level to be a test at this power. The structure moves hold the

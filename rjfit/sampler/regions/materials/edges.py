@@ -21,34 +21,33 @@ with
 
 the boundary between materials k and m (the pairs with one end in each) adds
 
-    Phi_km = -power (SS_km - A_km) / (2 s^2)                    where SS_km > A_km (it costs),
-    Phi_km = power max(0, min(A_km, SS_0) - SS_km) / (2 s^2)     otherwise (it earns),
-    A_km = min(SS_kk, SS_mm),
+    Phi_km = power (min(SS_kk, SS_mm, SS_0) - SS_km) / (2 s^2),
 
 ``SS_km`` the sum over its pairs of SS with each end in its own material, ``SS_kk`` and
 ``SS_mm`` with both ends in k, or in m, and ``SS_0`` the misfit of **no step** (:func:`no_step_sums`):
 the data follow the reference fit (one material) up to a smoothly changing residual, so each
 residual difference across the pair continues the trend of the residual differences just
 outside it along its line (p', q' ``gap`` px beyond p and q), scaled by :data:`NO_STEP_NOISE`
-so that white noise weighs alike in both. The cost is the Gaussian log-likelihood ratio of the
-neighbours' differences under the materials' step against either material alone, where it
-speaks against the step (the term's first form, 2026-11-27); the earning is that ratio against
-the best of either material alone and no step, where it speaks for the step. A boundary where
-the data step beyond their own trend, as its materials do, **earns** (a paint's outline: the
-step is many times the differences' spread); one whose step the data do not show costs; one
-whose step fits the differences better than either material but no better than the data's
-trend (a blurred outline, a shading band's edge) neither costs nor earns; pairs inside one
-material add nothing.
+so that white noise weighs alike in both. Phi is the Gaussian log-likelihood ratio of the
+neighbours' differences under the materials' step against the best explanation without a boundary
+there: one material across it, or the data's own trend. A boundary where the data step beyond
+their own trend, as its materials do, **earns** (a paint's outline: the step is many times the
+differences' spread); one whose step explains the differences no better than one material, or
+no better than the data's trend, **costs** what it misfits beyond them (a shading band's edge, a
+boundary off the step); pairs inside one material add nothing.
 
 Why it earns: a misfit shared by neighbouring pixels makes the pixel term count a region's
 interior at a small power, but a sharp step is evidence that misfit cannot fake, and the pixel
 term cannot carry it (issue 45: the cat's nose, 1,500 px, was never a material without it).
-Why the data's own trend as the baseline, not a fitted material's: two materials each fitted
+Why the data's own trend in the baseline, not only a fitted material: two materials each fitted
 to its side of a smooth but misfitted gradient (the ball's limb at 16 bits) explain the
-differences across any line between them better than either alone, though the data do not
-step there; against the trend of the data's own residuals such a line earns nothing. Why the
-cost still against either material alone: against no step too, a pebble's outline blurred over
-a few pixels (psm-rock), which the trend follows in part, would cost and the pebble be lost.
+differences across any line between them a little better than either alone, though the data do
+not step there. Against either material alone only, such a line neither costs nor earns, and
+once the materials' parameters follow their parts (the edge walks), the pixel term's gain from
+shading parts decides: on the DiLiGenT ball the chain started with 4 materials kept 3 shading
+parts, the pixel term +2,432 above a one-material chain's against the Potts prior's -1,785, their
+boundaries' term +174 (docs/results/2026-11-28-trend-cost.md). Against the trend such a line costs what the one
+material misfits the data's gradient along it.
 ``SS_0`` is a constant of the data, so it bounds the term above by ``power SS_0 / (2 s^2)``
 whatever the parameters: the target stays proper. ``s^2`` is the robust variance (1.4826 MAD, squared) of
 the differences' residuals under the reference (one material fitted by least squares to every

@@ -13,10 +13,10 @@ and ``sums[k, m, 3]`` += ``no_step[j]``, the pair's SS of no step (a constant of
 :func:`rjfit.sampler.regions.materials.edges.no_step_sums`). With ``alone = min(sums[., ., 1],
 sums[., ., 2])`` a boundary adds ``scale`` times
 
-    alone - step                            where step > alone (its step misfits: it costs),
-    max(0, min(alone, no_step) - step)      otherwise (it earns what the data step beyond no step),
+    min(alone, no_step) - step
 
-``step = sums[., ., 0]``: :func:`boundary_value`.
+``step = sums[., ., 0]``: what its step explains beyond the better of one material across it and no step (it
+earns), or misfits beyond it (it costs): :func:`boundary_value`.
 ``coef`` are the materials' constants of :func:`rjfit.sampler.passes.densities.coefficients`
 (``mu = C (coef0 + coef1 <h.n>^coef2)``).
 
@@ -146,11 +146,9 @@ def edge_value(sums, scale):
 
 @njit(cache=True, nogil=True)
 def boundary_value(step, alone, no_step):
-    """One boundary's share of the term over ``scale`` (module docstring): minus what the step misfits beyond the
-    better material alone, or what it explains beyond both that and no step, else 0."""
-    if step > alone:
-        return alone - step
-    return max(0.0, min(alone, no_step) - step)
+    """One boundary's share of the term over ``scale`` (module docstring): what its step explains beyond the better
+    of either material alone and no step (negative: what it misfits beyond that)."""
+    return min(alone, no_step) - step
 
 
 @njit(cache=True, nogil=True)
