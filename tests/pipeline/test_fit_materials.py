@@ -122,8 +122,8 @@ def test_files_maps_and_chains(fitted):
 
 def test_the_chains_start_stratified_over_the_number_of_materials(tmp_path):
     """A fit's chains start at K0 = 1, 2, 3, 4, 1, ... materials (capped by --max-materials), so
-    that a mode at a small K is started near by some chain whatever the seed; a fixed
-    segmentation or a given start is kept."""
+    that a mode at a small K is started near by some chain whatever the seed; with the edge term every chain
+    starts at 4 (capped), which it leaves by merges; a fixed segmentation or a given start is kept."""
     from rjfit.pipeline.fit import chain_specs, prepare_problem, sampler_config
     from rjfit.pipeline.options import FitOptions
     from rjfit.pipeline.resolve import resolve_options
@@ -131,9 +131,10 @@ def test_the_chains_start_stratified_over_the_number_of_materials(tmp_path):
     from rjfit.sampler.priors import make_prior
 
     obs, truth = stack()
-    for max_materials, expected in ((8, [1, 2, 3, 4, 1, 2]), (3, [1, 2, 3, 1, 2, 3])):
+    for max_materials, edge_power, expected in ((8, 0.0, [1, 2, 3, 4, 1, 2]), (3, 0.0, [1, 2, 3, 1, 2, 3]),
+                                                (8, 0.5, [4] * 6), (3, 0.5, [3] * 6)):
         options = resolve_options(FitOptions(regions="materials", n_chains=6, max_materials=max_materials,
-                                             iterations=20))
+                                             iterations=20, edge_power=edge_power))
         problem = prepare_problem(obs, options)[0]
         prior, config = make_prior(options.prior, y=problem.y, diffuse_scale=problem.A), sampler_config(options)
         specs = chain_specs(problem, prior, config, options, tmp_path, None, None, None)

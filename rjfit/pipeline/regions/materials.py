@@ -425,8 +425,11 @@ class MaterialFit(RegionFit):
         elif "pixel_labels" not in start:
             # starts stratified over K0 = 1 .. min(4, K_max), not drawn: on a large image a jump between
             # numbers of materials is rare once a chain has settled, so a mode at a K that no chain started
-            # near could be missed by all of them, and R-hat would not show it
-            start.setdefault("n_materials", MaterialRegions.stratified_start(chain, options.max_materials))
+            # near could be missed by all of them, and R-hat would not show it; with the edge term every chain
+            # starts at the top, which it leaves by merges (MaterialRegions.start_materials)
+            edge_term = options.edge_power == "auto" or float(options.edge_power) > 0
+            start.setdefault("n_materials", MaterialRegions.start_materials(chain, options.max_materials,
+                                                                             edge_term=edge_term))
         return start
 
     def summarise(self, records, problem, prior, config, options, run: dict, warnings: list, truth_labels,

@@ -55,7 +55,8 @@ step (:mod:`rjfit.sampler.regions.materials.edges`), which every label move and 
 
 Each leaves the posterior invariant on its own. The kernel's annealed warm-up tempers the
 likelihood for these moves as for change points. Start: K0 given (a fit's chains are
-stratified over 1 .. min(4, K_max), :meth:`MaterialRegions.stratified_start`) or uniform on
+stratified over 1 .. min(4, K_max), with the edge term all at min(4, K_max):
+:meth:`MaterialRegions.start_materials`) or uniform on
 1 .. min(4, K_max), labels from a k-means (seeded by the chain's generator) of the per-pixel
 features the bonds use; parameters as the change-point start draws them.
 
@@ -216,8 +217,19 @@ class MaterialRegions(RegionModel):
         return MaterialLabels(pixels, int(n_materials), bonds)
 
     @staticmethod
-    def stratified_start(chain: int, max_materials: int) -> int:
-        """K0 of chain ``chain`` in a fit's stratified starts: 1, 2, 3, 4, 1, ... (at most ``max_materials``)."""
+    def start_materials(chain: int, max_materials: int, *, edge_term: bool = False) -> int:
+        """K0 of chain ``chain`` in a fit: stratified, 1, 2, 3, 4, 1, ...; with the edge term every chain at 4 (at
+        most ``max_materials``).
+
+        Why 4 with the edge term: there a boundary that the data do not step at costs, so a chain sheds a start's
+        surplus materials within its first iterations (merges, label sweeps), while a material it never had must
+        be proposed whole by a split or cluster move, which on a large image is rare. From K0 = 1 or 2 the chains
+        lost psm-rock's pebble at seeds 1 and 2 (2 of 4 chains held it); from 4, each from its own k-means, 3 of 4
+        held it, and the ball's chains still shed every shading part of their starts
+        (docs/results/2026-11-28-trend-cost.md).
+        """
+        if edge_term:
+            return min(START_MATERIALS, max_materials)
         return 1 + chain % min(START_MATERIALS, max_materials)
 
     def log_prior(self, problem, layout) -> float:
