@@ -230,7 +230,8 @@ def smooth_ramp_stack():
     cos_ln = 0.6 + 0.3 * np.sin(0.25 * col + 0.15 * row + light)
     cos_hn = 0.8 + 0.15 * np.cos(0.2 * col - 0.1 * row + 2 * light)
     irradiance = np.ones(pixel.size)
-    y = radiance(np.linspace(4.0, 8.0, size)[col], 0.8, 5.0, cos_ln, cos_hn, irradiance) + rng.normal(0, 0.05, pixel.size)
+    I0 = np.linspace(4.0, 8.0, size)[col]
+    y = radiance(I0, 0.8, 5.0, cos_ln, cos_hn, irradiance) + rng.normal(0, 0.05, pixel.size)
     return Observations(image_shape=(size, size), n_lights=lights, pixel=pixel.astype(np.int64),
                         light=light.astype(np.int32), y=y, cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irradiance,
                         object_mask=np.ones((size, size), bool))
