@@ -150,6 +150,22 @@ def raises(error, *parts):
     return pytest.raises(error, match=".*".join(re.escape(str(part)) for part in parts))
 
 
+def smooth_shading_observations(shape, n_lights, reflected, *, cos_ln_mean=0.65):
+    """Every pixel of an object filling ``shape`` seen under every one of ``n_lights`` lights, its shading smooth
+    across neighbouring pixels as a real surface's is: ``<l.n> = cos_ln_mean + 0.3 sin(0.25 col + 0.15 row + light)``,
+    ``<h.n> = 0.8 + 0.15 cos(0.2 col - 0.1 row + 2 light)``, irradiance 1. ``reflected(col, cos_ln, cos_hn)`` gives
+    the observations' values (noise included)."""
+    height, width = shape
+    pixel = np.repeat(np.arange(height * width), n_lights)
+    light = np.tile(np.arange(n_lights), height * width)
+    row, col = pixel // width, pixel % width
+    cos_ln = cos_ln_mean + 0.3 * np.sin(0.25 * col + 0.15 * row + light)
+    cos_hn = 0.8 + 0.15 * np.cos(0.2 * col - 0.1 * row + 2 * light)
+    return Observations(image_shape=shape, n_lights=n_lights, pixel=pixel.astype(np.int64),
+                        light=light.astype(np.int32), y=reflected(col, cos_ln, cos_hn), cos_ln=cos_ln, cos_hn=cos_hn,
+                        irradiance=np.ones(pixel.size), object_mask=np.ones(shape, bool))
+
+
 # == sampler (tests/sampler/): the exactness tests by enumeration and by simulation-based calibration ==
 
 #: (shape, scale) of the inverse-gamma prior of sigma^2 in :func:`tiny_problem`'s prior.

@@ -10,6 +10,7 @@ import json
 
 import numpy as np
 import pytest
+from builders import smooth_shading_observations
 
 from rjfit.data.exr import read_exr
 from rjfit.data.observations import Observations
@@ -223,18 +224,13 @@ def smooth_ramp_stack():
     is smooth across neighbouring pixels, as a real surface's is (``ramp_stack`` draws each observation's angles on
     their own)."""
     rng = np.random.default_rng(4)
-    size, lights = 24, 8
-    pixel = np.repeat(np.arange(size * size), lights)
-    light = np.tile(np.arange(lights), size * size)
-    row, col = pixel // size, pixel % size
-    cos_ln = 0.6 + 0.3 * np.sin(0.25 * col + 0.15 * row + light)
-    cos_hn = 0.8 + 0.15 * np.cos(0.2 * col - 0.1 * row + 2 * light)
-    irradiance = np.ones(pixel.size)
-    I0 = np.linspace(4.0, 8.0, size)[col]
-    y = radiance(I0, 0.8, 5.0, cos_ln, cos_hn, irradiance) + rng.normal(0, 0.05, pixel.size)
-    return Observations(image_shape=(size, size), n_lights=lights, pixel=pixel.astype(np.int64),
-                        light=light.astype(np.int32), y=y, cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irradiance,
-                        object_mask=np.ones((size, size), bool))
+    size = 24
+
+    def reflected(col, cos_ln, cos_hn):
+        I0 = np.linspace(4.0, 8.0, size)[col]
+        return radiance(I0, 0.8, 5.0, cos_ln, cos_hn, np.ones(col.size)) + rng.normal(0, 0.05, col.size)
+
+    return smooth_shading_observations((size, size), 8, reflected, cos_ln_mean=0.6)
 
 
 def test_with_the_edge_term_the_ramp_stays_one_material_and_three_paints_stay_three(tmp_path, capsys):

@@ -36,7 +36,8 @@ from rjfit.sampler.regions.materials import moves as material_moves
 from rjfit.sampler.regions.materials.layout import labelled_pixels
 from rjfit.sampler.state import SamplerConfig
 
-from builders import Quadrature, canonical, ess_scaled_chi2, exact_partition_posterior, tiny_problem
+from builders import (Quadrature, canonical, ess_scaled_chi2, exact_partition_posterior,
+                      smooth_shading_observations, tiny_problem)
 
 LEVEL = 1e-3
 ITERATIONS, BURN = 2000, 200
@@ -221,17 +222,12 @@ def ramp_problem(seed=4, shape=(8, 16), n_lights=6):
     misfit the model lacks (its radiance times ``1 + 0.04 column``), nearly noise-free (sd 0.005 on values near
     2): every pixel saw every light."""
     rng = np.random.default_rng(seed)
-    height, width = shape
-    pixel = np.repeat(np.arange(height * width), n_lights)
-    light = np.tile(np.arange(n_lights), height * width)
-    row, col = pixel // width, pixel % width
-    cos_ln = 0.65 + 0.3 * np.sin(0.25 * col + 0.15 * row + light)
-    cos_hn = 0.8 + 0.15 * np.cos(0.2 * col - 0.1 * row + 2 * light)
-    irradiance = np.ones(pixel.size)
-    mu = cos_ln * (10.0 * 0.75 / np.pi + 10.0 * 0.25 * blinn_normalisation(4.0) * cos_hn ** 4.0)
-    y = mu * (1.0 + 0.04 * (pixel % width)) + rng.normal(0, 0.005, pixel.size)
-    obs = Observations(image_shape=shape, n_lights=n_lights, pixel=pixel.astype(np.int64), light=light.astype(np.int32),
-                       y=y, cos_ln=cos_ln, cos_hn=cos_hn, irradiance=irradiance, object_mask=np.ones(shape, bool))
+
+    def reflected(col, cos_ln, cos_hn):
+        mu = cos_ln * (10.0 * 0.75 / np.pi + 10.0 * 0.25 * blinn_normalisation(4.0) * cos_hn ** 4.0)
+        return mu * (1.0 + 0.04 * col) + rng.normal(0, 0.005, col.size)
+
+    obs = smooth_shading_observations(shape, n_lights, reflected)
     return Problem.from_observations(obs)
 
 
