@@ -171,6 +171,11 @@ class Dataset:
             return colour.RGB_luminance(image, space.primaries, space.whitepoint)
         return image[..., "RGB".index(channel)]
 
+    def view_angles(self) -> np.ndarray:
+        """(H, W) degrees between each object pixel's normal and its view direction; NaN off the object."""
+        cos_view = np.clip(np.sum(self.normals * self.view_dirs, axis=-1), -1.0, 1.0)
+        return np.where(self.object_mask, np.degrees(np.arccos(cos_view)), np.nan)
+
     def rim_pixels(self) -> np.ndarray:
         """(H, W) bool: object pixels seen further than ``max_view_angle`` from their normal (none if it is None)."""
         if self.max_view_angle is None:

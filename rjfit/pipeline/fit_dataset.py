@@ -102,7 +102,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
         f"are not trustworthy",)
     source = FitSource(entries=entries, warnings=warnings, exclusion_counts=dataset.exclusion_counts(
                             "mean" if options.channel == COLOUR else options.channel),
-                       object_mask=dataset.object_mask, n_lights=dataset.n_lights)
+                       object_mask=dataset.object_mask, n_lights=dataset.n_lights, view_angle=dataset.view_angles())
     observations = dataset.observations(options.channel, tangents=options.normals == "sample")
     effects, effect_source = fit_effects(dataset, observations, options)
     return fit(observations, out_dir, options, truth_labels=dataset.truth_labels,

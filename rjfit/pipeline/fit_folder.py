@@ -132,7 +132,8 @@ SUMMARY_FIELDS = {
     "map_model": (dict, "the most probable model: n_u, n_v and its number m"),
     "model_number_convention": (str, "how m is computed from (n_u, n_v)"),
     "regions": (list, "per region of the MAP model: posterior mean, sd, 95 % interval of I0, kd, gamma, sigma2, "
-                      "with its pixel count"),
+                      "with its pixel count (materials fitted from a data set: steep_view_share, the share of its "
+                      "pixels seen beyond steep_view_angle)"),
     "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),
     "chain_model_posterior": (list, "model posterior of each chain"),
     "region_model": (str, "what partitions the pixels: a --regions name (rjfit.pipeline.regions.REGION_FITS: "
@@ -237,6 +238,11 @@ SUMMARY_FIELDS = {
                                 "observation (--max-view-angle; --preset measured)"),
     "rim_pixels": (int, "object pixels beyond max_view_angle: no observation, their labels follow their "
                         "neighbours'"),
+    "steep_view_angle": (_NUMBER, "materials: degrees from the normal beyond which the object's most steeply seen "
+                                  "tenth of labelled pixels lies (null: no view angle known); a material with more "
+                                  "than half its pixels there is warned of (rjfit.posterior.caveats)"),
+    "chain_steep_materials": (list, "materials: per chain, the materials of its last label snapshot but its largest, "
+                                    "each with its pixels and steep_view_share"),
     "validation": (dict, "the cross-check the fit was made under: passed, errors, path (relative to the fit folder; "
                          "schema 1: absolute), note"),
 }

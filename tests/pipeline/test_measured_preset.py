@@ -11,6 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from rjfit.cli import _likelihood_power, main
+from rjfit.data.exr import read_exr
 from rjfit.data.normal_error import normal_error_noise
 from rjfit.data.observations import RIM_COS
 from rjfit.pipeline.fit_dataset import fit_dataset
@@ -126,6 +127,17 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
         assert options["edge_power"] == "auto" and 0 < summary["edge_power"] <= 1      # as measured
         # the stated resolution counts the outline's earning, per channel in a colour fit
         assert summary["material_resolution"]["edge_evidence_per_pair"] > 0
+        # each material placed by how steeply the object is seen there (the sphere's normals and view directions)
+        labels = read_exr(tmp_path / "fit" / "labels.exr")["labels"]
+        angles = sphere.view_angles()
+        assert angles[sphere.object_mask] == pytest.approx(np.degrees(np.arccos(np.clip(np.sum(
+            sphere.normals * sphere.view_dirs, axis=-1), -1, 1)))[sphere.object_mask])
+        assert summary["steep_view_angle"] == pytest.approx(np.quantile(angles[labels >= 0], 0.9))
+        for region in summary["regions"]:
+            mine = labels == region["material"]
+            assert region["steep_view_share"] == pytest.approx(np.mean(angles[mine] >= summary["steep_view_angle"]))
+        assert len(summary["chain_steep_materials"]) == 1       # one chain: its materials but its largest
+        assert all(0.0 <= m["steep_view_share"] <= 1.0 for m in summary["chain_steep_materials"][0])
     else:       # change points have no Potts prior: the rule must not be recorded as if it applied
         assert (options["potts_beta"], options["potts_rho"]) == (FitOptions.default("potts_beta"),
                                                                 FitOptions.default("potts_rho"))

@@ -7,11 +7,14 @@ from rjfit.posterior.caveats import (
     CAP_MASS_MAX,
     PLAUSIBLE_MASS,
     acceptance_counts,
+    chain_steep_warnings,
     empty_region_warnings,
     model_cap_warnings,
     nan_rejection_warnings,
     pooled_interval_warnings,
     prior_range_warnings,
+    steep_view_shares,
+    steep_view_warnings,
     support_bound_warnings,
 )
 from rjfit.posterior.summary import convergence_warnings, diagnostics, region_summaries
@@ -84,6 +87,64 @@ def test_a_region_without_observed_pixels_is_named():
                                                          "(its pixels in the MAP labels: 2)")
     assert "among the model's 4 regions" in warnings[0]
     assert empty_region_warnings(labels, observed | (labels >= 0), 4) == []
+
+
+def _sphere_view_angles(size=61):
+    """(H, W) the view angle of an orthographic sphere filling a square (NaN outside), and its mask."""
+    rows, cols = np.mgrid[0:size, 0:size]
+    x, y = (cols - size // 2) / (size // 2 + 0.5), (rows - size // 2) / (size // 2 + 0.5)
+    inside = x ** 2 + y ** 2 < 1.0
+    angle = np.degrees(np.arccos(np.sqrt(np.clip(1.0 - x ** 2 - y ** 2, 0.0, 1.0))))
+    return np.where(inside, angle, np.nan), inside
+
+
+def test_a_material_on_the_steepest_tenth_is_named_and_a_central_paint_is_not():
+    """A ring at the sphere's limb (all in the steepest tenth) is warned of; a disc at its centre and the body
+    are not; the shares are the counted ones and the tail's angle is the 0.9 quantile of the labelled pixels'."""
+    angle, inside = _sphere_view_angles()
+    labels = np.where(inside, 0, -1)
+    limit = np.quantile(angle[inside], 0.9)
+    ring = inside & (angle >= np.quantile(angle[inside], 0.95))
+    disc = inside & (angle < 15.0)
+    labels[ring], labels[disc] = 1, 2
+    shares, tail_angle = steep_view_shares(labels, angle, 3)
+    assert tail_angle == pytest.approx(limit)
+    assert shares[1] == 1.0 and shares[2] == 0.0
+    body = (labels == 0)
+    assert shares[0] == pytest.approx(np.mean(angle[body] >= limit))
+    regions = [{"material": k, "pixels": int(np.sum(labels == k))} for k in range(3)]
+    warnings = steep_view_warnings(regions, shares, tail_angle)
+    assert len(warnings) == 1 and warnings[0].startswith(f"material 1 ({int(ring.sum())} px): 100% of its pixels")
+    # the largest material is never warned of, however steep; a share at the bound is not above it
+    assert steep_view_warnings(regions[:1], np.array([0.9]), tail_angle) == []
+    assert steep_view_warnings(regions[1:2], np.array([0.5]), tail_angle) == []
+
+
+def test_the_chains_steep_materials_are_named_in_one_warning_and_a_given_angle_is_kept():
+    angle, inside = _sphere_view_angles()
+    labels = np.where(inside, 0, -1)
+    labels[inside & (angle > 80.0)] = 1
+    limit = 70.0
+    shares, kept = steep_view_shares(labels, angle, 2, angle_of=limit)
+    assert kept == limit and shares[1] == 1.0
+    assert shares[0] == pytest.approx(np.mean(angle[labels == 0] >= limit))
+    per_chain = [[], [{"pixels": 40, "steep_view_share": 0.8}, {"pixels": 12, "steep_view_share": 0.2}],
+                 [{"pixels": 9, "steep_view_share": 0.6}]]
+    warnings = chain_steep_warnings(per_chain, 61.2)
+    assert len(warnings) == 1 and "more than 61 deg" in warnings[0]
+    assert "(chain 1: 40 px, 80% of them there; chain 2: 9 px, 60%)" in warnings[0] and "12 px" not in warnings[0]
+    assert chain_steep_warnings([[], [{"pixels": 12, "steep_view_share": 0.5}]], 61.2) == []
+
+
+def test_steep_shares_refuse_mismatched_maps_and_a_tail_outside_the_unit_interval():
+    angle, inside = _sphere_view_angles(11)
+    labels = np.where(inside, 0, -1)
+    with pytest.raises(ValueError, match="labels' shape"):
+        steep_view_shares(labels, angle[:-1], 1)
+    with pytest.raises(ValueError, match="tail must lie in"):
+        steep_view_shares(labels, angle, 1, tail=1.0)
+    shares, tail_angle = steep_view_shares(labels, np.full(angle.shape, np.nan), 2)    # no angle known
+    assert np.isnan(tail_angle) and np.all(np.isnan(shares))
 
 
 def test_a_binding_model_cap_is_named_above_its_threshold():
