@@ -141,7 +141,12 @@ SUMMARY_FIELDS = {
                           "the model-specific entries below are that model's"),
     "materials_posterior": (dict, "materials: posterior probability of each number of materials K (pooled over "
                                   "chains, kept draws)"),
-    "map_materials": (int, "materials: the most probable K (the 'regions' entries are its materials)"),
+    "map_materials": (int, "materials: the most probable K"),
+    "segmentation_materials": (int, "materials: the K of the segmentation (labels.exr; the 'regions' entries are its "
+                                    "materials)"),
+    "segmentation": (str, "materials: how the segmentation is chosen among the kept label snapshots"),
+    "segmentation_snapshot": (dict, "materials: the chain and iteration of the snapshot the segmentation starts from, "
+                                    "and the changes made to it (materials joined or set apart)"),
     "chain_materials_posterior": (list, "materials: the posterior over K of each chain"),
     "material_relabelling": (str, "materials: how draws are relabelled to the MAP labelling before summaries"),
     "empty_materials": (str, "materials: why no material is ever empty"),

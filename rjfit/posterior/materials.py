@@ -1,19 +1,30 @@
-"""Posterior summaries of the material region model: K, MAP materials, per-material parameters.
+"""Posterior summaries of the material region model: K, the segmentation, per-material parameters.
+
+The segmentation (the MAP labels the fit reports) is a point estimate of the partition: among
+the kept label snapshots of every chain and every K, the one whose expected number of pixel
+pairs grouped differently from the other kept snapshots is least (Binder's loss with equal
+costs; the least-squares clustering of Dahl, "Model-based clustering for expression data via a
+Dirichlet process mixture model", 2006, restricted to the sampled partitions; Wade and
+Ghahramani, "Bayesian cluster analysis: point estimation and credible balls", Bayesian
+Analysis 13(2), 2018). Why not the per-pixel mode at the most probable K (until 2026-11-28):
+the draws at one K may hold different small materials (one chain a painted disc, another a
+second disc, a third a strip at a contour); matched to one reference each is "the small
+material", and no pixel of any of them is that material in half the draws, so the mode gave
+the small material no pixel at all (psm-horse with two painted discs of 49 px, found in three
+chains of four: the mode's second material held 0 px). Pair disagreements need no matching:
+a disc that most draws set apart from the body is set apart in the estimate.
 
 Label switching. The posterior is invariant under the K! renumberings of the materials, so
-material k of one draw need not be material k of another. Summaries use the kept draws
-that have a label snapshot (every ``cp_thin``-th iteration after burn-in) with K equal to
-the MAP K, each relabelled to a reference labelling by the optimal matching of pixel
-overlaps (the Hungarian assignment on the K x K table of pixels that carry material i in
-the draw and j in the reference, ``scipy.optimize.linear_sum_assignment``). The reference
-is the kept snapshot of highest log posterior; the MAP material of a pixel is then its most
-frequent relabelled material, and its probability is that frequency. One matching pass:
-the reference is a single draw, so pixels it misassigns can shift a matching where
-materials overlap little. The parameter summaries also use the draws between snapshots:
-a chain numbers its materials the same way until a step changes their number (births,
-deaths, merges, splits: ``ChainRecord.jumped``; label sweeps and cluster moves between
-materials keep every material's row), so each snapshot's matching carries to the draws
-after it up to the first such step. Before 2026-11-27 only the snapshots counted, one draw
+material k of one draw need not be material k of another. Parameter summaries use the kept
+draws that have a label snapshot (every ``cp_thin``-th iteration after burn-in) with K equal to
+the segmentation's, each relabelled to it by the optimal matching of pixel overlaps (the
+Hungarian assignment on the K x K table of pixels that carry material i in the draw and j in
+the segmentation, ``scipy.optimize.linear_sum_assignment``); a pixel's probability is the share
+of those snapshots that give it the segmentation's material. The parameter summaries also use
+the draws between snapshots: a chain numbers its materials the same way until a step changes
+their number (births, deaths, merges, splits: ``ChainRecord.jumped``; label sweeps and cluster
+moves between materials keep every material's row), so each snapshot's matching carries to the
+draws after it up to the first such step. Before 2026-11-27 only the snapshots counted, one draw
 in ``cp_thin``: R-hat and ESS then came from a tenth of the draws.
 """
 from __future__ import annotations
@@ -25,12 +36,23 @@ from rjfit.data.formats import COLOUR_CHANNELS
 from rjfit.posterior.summary import diagnostics, region_summaries
 
 __all__ = ["materials_posterior", "count_shares", "map_materials", "RelabelledDraws", "relabelled_draws",
-           "material_summaries", "cap_warning", "RELABELLING"]
+           "central_snapshot", "segmentation_estimate", "material_summaries", "cap_warning", "RELABELLING", "SEGMENTATION",
+           "CENTRAL_SNAPSHOTS", "CENTRAL_PIXELS"]
 
-#: How draws are matched to the MAP labelling (written into the summary).
-RELABELLING = ("kept draws with K = MAP K, each label snapshot relabelled to the snapshot of highest log posterior by "
-               "the optimal one-to-one matching of pixel overlaps (Hungarian assignment), and the draws after a "
-               "snapshot that number the materials as it does (no jump in between) by the snapshot's matching")
+#: How the segmentation is chosen (written into the summary).
+SEGMENTATION = ("the kept label snapshot (any chain, any K) whose expected number of pixel pairs grouped differently "
+                "from the other kept snapshots is least (Binder's loss, Dahl's least-squares clustering among the "
+                "sampled partitions), then whole materials joined or set apart while that number falls")
+#: How draws are matched to the segmentation (written into the summary).
+RELABELLING = ("kept draws with K = the segmentation's K, each label snapshot relabelled to the segmentation by the "
+               "optimal one-to-one matching of pixel overlaps (Hungarian assignment), and the draws after a snapshot "
+               "that number the materials as it does (no jump in between) by the snapshot's matching")
+#: kept snapshots among which the segmentation is chosen, at most (evenly thinned beyond: the pairs' count grows as
+#: their square)
+CENTRAL_SNAPSHOTS = 200
+#: labelled pixels on which two snapshots' disagreement is counted, at most (every n-th beyond: a share of the pairs
+#: estimates the loss as well for choosing among snapshots)
+CENTRAL_PIXELS = 2 ** 17
 
 
 def materials_posterior(records, burn_in: int) -> dict:
@@ -78,6 +100,13 @@ class RelabelledDraws:
     def __init__(self, theta, labels, reference, iterations=None):
         self.theta, self.labels, self.reference, self.iterations = theta, labels, reference, iterations
 
+    def agreement(self, labels) -> np.ndarray:
+        """(H, W) per pixel the share of the relabelled snapshots that give it its material in ``labels`` (NaN
+        unlabelled)."""
+        stacked = np.concatenate([lab for lab in self.labels if len(lab)])
+        labels = np.asarray(labels)
+        return np.where(labels >= 0, np.mean(stacked == labels, axis=0), np.nan)
+
     def map_labels(self):
         """(MAP material per pixel, its posterior probability): the per-pixel mode of the relabelled labels."""
         stacked = np.concatenate([lab for lab in self.labels if len(lab)])
@@ -108,10 +137,110 @@ def _numbered_as_at(rec, t: int) -> np.ndarray:
     return np.arange(t, t + 1 + (later[0] if later.size else end - t - 1))
 
 
-def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1) -> RelabelledDraws:
-    """The draws at ``k`` materials relabelled to the reference (see the module docstring and :class:`RelabelledDraws`).
+def central_snapshot(records, burn_in: int, max_snapshots: int = CENTRAL_SNAPSHOTS,
+                     max_pixels: int = CENTRAL_PIXELS) -> tuple[int, int, np.ndarray]:
+    """``(chain, iteration, labels)`` of the kept snapshot that least disagrees with the others.
 
-    A joint colour fit (``n_channels`` > 1) records a row per material and channel: its
+    Two partitions a and b of N pixels group ``D(a, b) = (sum_i n_i.^2 + sum_j n_.j^2 - 2 sum_ij n_ij^2) / 2``
+    pixel pairs differently (n their contingency table); the chosen snapshot has the least sum of D over the kept
+    snapshots (any K). With more than ``max_snapshots`` the candidates and the snapshots they are compared with are
+    thinned evenly, and D is counted on every n-th labelled pixel beyond ``max_pixels``.
+
+    Raises
+    ------
+    ValueError
+        If no chain has a label snapshot after burn-in.
+    """
+    kept, pixels, parts = _kept_partitions(records, burn_in, max_snapshots, max_pixels)
+    losses = [_expected_pairs(part, parts) for part in parts]
+    chain, iteration, labels = kept[int(np.argmin(losses))]
+    return chain, iteration, labels
+
+
+def segmentation_estimate(records, burn_in: int, max_snapshots: int = CENTRAL_SNAPSHOTS,
+                          max_pixels: int = CENTRAL_PIXELS) -> tuple[np.ndarray, dict]:
+    """The segmentation (:data:`SEGMENTATION`): ``(labels (H, W), origin)``.
+
+    From the :func:`central_snapshot`, changes that lower the expected pair disagreements are made one at a time,
+    the best first, until none does (a local search on Binder's loss, as SALSO's sweeps in Dahl, Johnson and
+    Mueller, "Search algorithms and loss functions for Bayesian clustering", JCGS 31(4), 2022, but over whole
+    materials): a material joined to another (a speck that the chosen snapshot happens to hold), or a material of
+    a chain's last kept snapshot set apart (a detail that most draws hold and the chosen one does not). A change
+    is made only where some kept snapshot has the number of materials it gives, so that the parameters can be
+    summarised. ``origin``: the snapshot's chain and iteration and the changes made.
+    """
+    kept, pixels, parts = _kept_partitions(records, burn_in, max_snapshots, max_pixels)
+    losses = [_expected_pairs(part, parts) for part in parts]
+    chain, iteration, labels = kept[int(np.argmin(losses))]
+    loss = float(min(losses))
+    counts = {int(x.max()) + 1 for _, _, x in kept}
+    groups = [last == m for last in _last_labels(records, burn_in) for m in range(int(last.max()) + 1)
+              if np.sum(last == m) < np.sum(last >= 0) / 2]
+    changes = []
+    while True:
+        options = []
+        k = int(labels.max()) + 1
+        for a in range(k):
+            for b in range(k):
+                if a != b:
+                    options.append((f"material {a} joined to {b}", _compact(np.where(labels == a, b, labels))))
+        for group in groups:
+            if not any(np.array_equal(group, labels == m) for m in range(k)):
+                options.append((f"a chain's {int(group.sum())}-px material set apart",
+                                _compact(np.where(group, k, labels))))
+        scored = [(_expected_pairs(candidate.ravel()[pixels] + 1, parts), what, candidate)
+                  for what, candidate in options if int(candidate.max()) + 1 in counts]
+        if not scored or min(scored, key=lambda x: x[0])[0] >= loss:
+            break
+        loss, what, labels = min(scored, key=lambda x: x[0])
+        changes.append(what)
+    return labels, {"chain": chain, "iteration": iteration, "changes": changes}
+
+
+def _kept_partitions(records, burn_in, max_snapshots, max_pixels):
+    """The kept snapshots ``[(chain, iteration, labels)]`` (thinned evenly to ``max_snapshots``), the flat labelled
+    pixels they are compared on (every n-th beyond ``max_pixels``) and their labels there, + 1 (0: unlabelled)."""
+    kept = [(c, int(t), np.nan_to_num(rec.material_labels[s], nan=-1.0).astype(np.int64))
+            for c, rec in enumerate(records) if rec.material_labels is not None
+            for s, t in enumerate(rec.cp_iteration) if t >= burn_in]
+    if not kept:
+        raise ValueError("no label snapshot after burn-in: lower the burn-in (--burn-in) or run more iterations")
+    if len(kept) > max_snapshots:
+        kept = [kept[i] for i in np.linspace(0, len(kept) - 1, max_snapshots).round().astype(int)]
+    pixels = np.flatnonzero(kept[0][2].ravel() >= 0)
+    pixels = pixels[::max(1, -(-pixels.size // max_pixels))]
+    return kept, pixels, np.stack([labels.ravel()[pixels] for _, _, labels in kept]) + 1
+
+
+def _expected_pairs(candidate, parts) -> float:
+    """Sum over ``parts`` (S, N) of the pixel pairs grouped differently from ``candidate`` (N,) (labels >= 0), less
+    a constant of ``parts`` (their own pairs, the same for every candidate): what candidates are compared on."""
+    n_parts = int(parts.max(initial=0)) + 1
+    own = np.sum(np.bincount(candidate).astype(float) ** 2)
+    shared = sum(np.sum(np.bincount(candidate * n_parts + part).astype(float) ** 2) for part in parts)
+    return (len(parts) * own - 2.0 * shared) / 2.0
+
+
+def _last_labels(records, burn_in):
+    """Each chain's last kept snapshot (-1 unlabelled)."""
+    return [np.nan_to_num(rec.material_labels[np.flatnonzero(rec.cp_iteration >= burn_in)[-1]], nan=-1.0)
+            .astype(np.int64) for rec in records
+            if rec.material_labels is not None and np.any(rec.cp_iteration >= burn_in)]
+
+
+def _compact(labels) -> np.ndarray:
+    """``labels`` renumbered 0 .. K - 1 in the order of their first numbers (-1 kept)."""
+    used = np.unique(labels[labels >= 0])
+    lookup = np.full(int(labels.max(initial=0)) + 2, -1, np.int64)
+    lookup[used] = np.arange(used.size)
+    return np.where(labels >= 0, lookup[np.maximum(labels, 0)], -1)
+
+
+def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1, reference=None) -> RelabelledDraws:
+    """The draws at ``k`` materials relabelled to ``reference`` (see the module docstring and :class:`RelabelledDraws`).
+
+    ``reference`` (H, W), a labelling with ``k`` materials (-1 unlabelled): default the kept snapshot of highest log
+    posterior at ``k``. A joint colour fit (``n_channels`` > 1) records a row per material and channel: its
     draws are then (S_c, K, C, 4).
 
     Raises
@@ -126,7 +255,7 @@ def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1) -> Rela
                 best = (rec.log_post[t], labels)
     if best is None:
         raise ValueError(f"no label snapshot with {k} materials after burn-in: run more iterations")
-    reference = best[1]
+    reference = best[1] if reference is None else np.asarray(reference, np.int64)
     labelled = reference >= 0
     thetas, all_labels, all_iterations = [], [], []
     for rec in records:

@@ -64,13 +64,16 @@ def summarise_materials(records, problem, options, burn: int, config):
     (:class:`rjfit.posterior.materials.RelabelledDraws`).
     """
     posterior = mat.materials_posterior(records, burn)
-    k = int(next(iter(posterior)))
-    draws = mat.relabelled_draws(records, burn, k, problem.n_channels)
-    labels, probability = draws.map_labels()
+    labels, origin = mat.segmentation_estimate(records, burn)
+    k = int(labels.max()) + 1
+    draws = mat.relabelled_draws(records, burn, k, problem.n_channels, reference=labels)
+    probability = draws.agreement(labels)
     summaries, diag = mat.material_summaries(draws, labels)
     chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
     summary = {
-        "materials_posterior": posterior, "map_materials": k, "regions": summaries,
+        "materials_posterior": posterior, "map_materials": int(next(iter(posterior))), "regions": summaries,
+        "segmentation_materials": k, "segmentation": mat.SEGMENTATION,
+        "segmentation_snapshot": origin,
         "material_relabelling": mat.RELABELLING, "empty_materials": EMPTY_MATERIALS_NOTE,
         "map_probability_mean": float(np.nanmean(probability)),
         "rhat_max": diag["rhat_max"], "rhat_reason": diag.get("rhat_reason"),
@@ -259,7 +262,7 @@ def write_material_files(staging: Path, result, records, options, attributes: di
     summary, draws = result.summary, result.extra["draws"]
     write_chains(staging / "chains.nc", records, result, (draws.theta, draws.iterations), options, attributes,
                  region_dim="material", key_names=("n_materials",),
-                 about=f"the kept draws with K = {summary['map_materials']} (the MAP K), relabelled: "
+                 about=f"the kept draws with K = {summary['segmentation_materials']} (the segmentation's K), relabelled: "
                        f"{mat.RELABELLING}; every kept draw's K is in sample_stats (n_materials)")
     save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"),
                       attributes)
@@ -391,6 +394,9 @@ class MaterialFit(RegionFit):
         posterior = summary.get("materials_posterior") or {}
         rows = [("MAP number of materials K", k, "the K of highest posterior probability; its share "
                  f"{number(posterior.get(str(k), float('nan')), '.3f')} of the kept draws"),
+                ("materials of the segmentation", summary.get("segmentation_materials", k),
+                 "the kept label snapshot that least disagrees with the others (pixel pairs grouped differently); "
+                 "the maps and the regions are its"),
                 ("mean probability of a pixel's MAP material", probability(summary.get("map_probability_mean")),
                  "over the object's pixels, the share of label snapshots that give a pixel its MAP material; near 1: "
                  "the segmentation is certain, below 0.9: boundaries or whole materials are in doubt")]
@@ -443,7 +449,7 @@ class MaterialFit(RegionFit):
             summary["materials_right_probability"] = summary["materials_posterior"].get(
                 str(summary["true_region_count"]), 0.0)
         result = FitResult(summary=summary, labels=labels, prediction=prediction, problem=problem, burn=burn,
-                           model=(summary["map_materials"],), extra=extra)
+                           model=(summary["segmentation_materials"],), extra=extra)
         add_boundary_check(result, observations, records)
         return result
 
@@ -455,6 +461,10 @@ class MaterialFit(RegionFit):
         k = summary["map_materials"]
         line = (f"MAP number of materials {k} (posterior {summary['materials_posterior'][str(k)]:.3f}), mean "
                 f"probability of a pixel's MAP material {summary['map_probability_mean']:.3f}")
+        segmentation = summary.get("segmentation_materials", k)
+        if segmentation != k:
+            line += (f"; the segmentation (the kept labels that least disagree with the others) holds {segmentation} "
+                     "materials")
         resolution = summary.get("material_resolution")
         if isinstance(resolution, dict) and resolution.get("pixels") is not None:
             line += f"; resolution: {resolution_sentence(resolution, summary.get('edge_power'))}"
