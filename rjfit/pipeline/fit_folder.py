@@ -148,10 +148,11 @@ SUMMARY_FIELDS = {
     "segmentation_snapshot": (dict, "materials: the chain and iteration of the snapshot the segmentation starts from, "
                                     "and the changes made to it (materials joined or set apart)"),
     "chain_materials_posterior": (list, "materials: the posterior over K of each chain"),
-    "material_relabelling": (str, "materials: how draws are relabelled to the MAP labelling before summaries"),
+    "material_relabelling": (str, "materials: how draws are relabelled to the segmentation before summaries"),
     "empty_materials": (str, "materials: why no material is ever empty"),
-    "map_probability_mean": (_NUMBER, "materials: mean over labelled pixels of the posterior probability of the "
-                                      "pixel's MAP material (per pixel: maps.exr channel map_probability)"),
+    "map_probability_mean": (_NUMBER, "materials: mean over labelled pixels of the share of the kept snapshots with "
+                                      "the segmentation's K that give the pixel its material there (per pixel: "
+                                      "maps.exr channel map_probability)"),
     "max_materials": (int, "materials: the most materials a state may have (a cap; warned about when it binds)"),
     "potts_beta": (_NUMBER, "materials: Potts prior strength per neighbour pair of different materials"),
     "potts_rho": (_NUMBER, "materials: prior factor per material (rho^K)"),
