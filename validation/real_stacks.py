@@ -181,13 +181,14 @@ def overlay(folder: Path, dataset: Path, out: Path) -> Path:
     figure, (left, right) = plt.subplots(1, 2, figsize=(12, 5))
     left.imshow(image / np.percentile(image, 99.5), cmap="gray", vmin=0, vmax=1)
     left.imshow(np.ma.masked_where(~edge, edge), cmap="autumn", alpha=1.0, interpolation="nearest")
-    left.set_title(f"{dataset.name}: MAP material boundaries over the mean image")
+    left.set_title(f"{dataset.name}: material boundaries over the mean image")
     summary = json.loads((folder / "summary.json").read_text())
     right.imshow(np.where(labels >= 0, labels, np.nan), cmap="tab10" if labels.max() < 10 else "tab20",
                  interpolation="nearest")
     if "map_materials" in summary:
-        right.set_title(f"MAP materials: {summary['map_materials']} (posterior over K "
-                        f"{', '.join(f'{k}: {v:.2f}' for k, v in summary['materials_posterior'].items())})")
+        shares = ", ".join(f"{k}: {v:.2f}" for k, v in list(summary["materials_posterior"].items())[:4])
+        right.set_title(f"segmentation: {summary.get('segmentation_materials', summary['map_materials'])} materials\n"
+                        f"(posterior over K {shares})")
     else:       # a change-point fit: its MAP model's cells
         model = summary["map_model"]
         right.set_title(f"MAP change points (n_u, n_v) = ({model['n_u']},{model['n_v']}): {len(summary['regions'])} "
