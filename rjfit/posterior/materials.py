@@ -151,10 +151,9 @@ def central_snapshot(records, burn_in: int, max_snapshots: int = CENTRAL_SNAPSHO
     ValueError
         If no chain has a label snapshot after burn-in.
     """
-    kept, pixels, parts = _kept_partitions(records, burn_in, max_snapshots, max_pixels)
-    losses = [_expected_pairs(part, parts) for part in parts]
-    chain, iteration, labels = kept[int(np.argmin(losses))]
-    return chain, iteration, labels
+    kept, _, parts = _kept_partitions(records, burn_in, max_snapshots, max_pixels)
+    chain, index = kept[int(np.argmin([_expected_pairs(part, parts) for part in parts]))]
+    return chain, int(records[chain].cp_iteration[index]), _snapshot_labels(records, chain, index)
 
 
 def segmentation_estimate(records, burn_in: int, max_snapshots: int = CENTRAL_SNAPSHOTS,
@@ -171,45 +170,63 @@ def segmentation_estimate(records, burn_in: int, max_snapshots: int = CENTRAL_SN
     """
     kept, pixels, parts = _kept_partitions(records, burn_in, max_snapshots, max_pixels)
     losses = [_expected_pairs(part, parts) for part in parts]
-    chain, iteration, labels = kept[int(np.argmin(losses))]
+    chain, index = kept[int(np.argmin(losses))]
+    iteration, labels = int(records[chain].cp_iteration[index]), _snapshot_labels(records, chain, index)
     loss = float(min(losses))
-    counts = {int(x.max()) + 1 for _, _, x in kept}
+    counts = {int(records[c].n_materials[records[c].cp_iteration[s]]) for c, s in kept}
     groups = [last == m for last in _last_labels(records, burn_in) for m in range(int(last.max()) + 1)
               if np.sum(last == m) < np.sum(last >= 0) / 2]
     changes = []
     while True:
-        options = []
         k = int(labels.max()) + 1
-        for a in range(k):
-            for b in range(k):
-                if a != b:
-                    options.append((f"material {a} joined to {b}", _compact(np.where(labels == a, b, labels))))
-        for group in groups:
-            if not any(np.array_equal(group, labels == m) for m in range(k)):
-                options.append((f"a chain's {int(group.sum())}-px material set apart",
-                                _compact(np.where(group, k, labels))))
-        scored = [(_expected_pairs(candidate.ravel()[pixels] + 1, parts), what, candidate)
-                  for what, candidate in options if int(candidate.max()) + 1 in counts]
-        if not scored or min(scored, key=lambda x: x[0])[0] >= loss:
+        best = None
+        for what, change in _material_changes(labels, k, groups):
+            candidate = _compact(change())
+            if int(candidate.max()) + 1 not in counts:
+                continue
+            score = _expected_pairs(candidate.ravel()[pixels] + 1, parts)
+            if score < loss and (best is None or score < best[0]):
+                best = (score, what, candidate)
+        if best is None:
             break
-        loss, what, labels = min(scored, key=lambda x: x[0])
+        loss, what, labels = best
         changes.append(what)
     return labels, {"chain": chain, "iteration": iteration, "changes": changes}
 
 
+def _material_changes(labels, k: int, groups):
+    """``(what, build)`` of every change the search tries: each material joined to each other, each group (a chain's
+    material) not already a material set apart; ``build()`` gives the labels after it (one at a time: at 2048 x 2048
+    every candidate at once would take gigabytes)."""
+    for a in range(k):
+        for b in range(k):
+            if a != b:
+                yield f"material {a} joined to {b}", lambda a=a, b=b: np.where(labels == a, b, labels)
+    for group in groups:
+        if not any(np.array_equal(group, labels == m) for m in range(k)):
+            yield f"a chain's {int(group.sum())}-px material set apart", lambda group=group: np.where(group, k, labels)
+
+
 def _kept_partitions(records, burn_in, max_snapshots, max_pixels):
-    """The kept snapshots ``[(chain, iteration, labels)]`` (thinned evenly to ``max_snapshots``), the flat labelled
-    pixels they are compared on (every n-th beyond ``max_pixels``) and their labels there, + 1 (0: unlabelled)."""
-    kept = [(c, int(t), np.nan_to_num(rec.material_labels[s], nan=-1.0).astype(np.int64))
-            for c, rec in enumerate(records) if rec.material_labels is not None
+    """The kept snapshots ``[(chain, index)]`` (thinned evenly to ``max_snapshots``), the flat labelled pixels they are
+    compared on (every n-th beyond ``max_pixels``) and their labels there, + 1 (0: unlabelled). Only those pixels are
+    held per snapshot: at 2048 x 2048, 200 whole label images would take gigabytes."""
+    kept = [(c, s) for c, rec in enumerate(records) if rec.material_labels is not None
             for s, t in enumerate(rec.cp_iteration) if t >= burn_in]
     if not kept:
         raise ValueError("no label snapshot after burn-in: lower the burn-in (--burn-in) or run more iterations")
     if len(kept) > max_snapshots:
         kept = [kept[i] for i in np.linspace(0, len(kept) - 1, max_snapshots).round().astype(int)]
-    pixels = np.flatnonzero(kept[0][2].ravel() >= 0)
+    pixels = np.flatnonzero(_snapshot_labels(records, *kept[0]).ravel() >= 0)
     pixels = pixels[::max(1, -(-pixels.size // max_pixels))]
-    return kept, pixels, np.stack([labels.ravel()[pixels] for _, _, labels in kept]) + 1
+    parts = np.stack([np.nan_to_num(np.asarray(records[c].material_labels[s]).ravel()[pixels], nan=-1.0)
+                      .astype(np.int32) for c, s in kept]) + 1
+    return kept, pixels, parts
+
+
+def _snapshot_labels(records, chain: int, index: int) -> np.ndarray:
+    """Snapshot ``index`` of chain ``chain`` as integer labels (-1 unlabelled)."""
+    return np.nan_to_num(records[chain].material_labels[index], nan=-1.0).astype(np.int64)
 
 
 def _expected_pairs(candidate, parts) -> float:
