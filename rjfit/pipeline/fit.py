@@ -67,7 +67,7 @@ class FitSource:
     ``entries`` are summary.json entries (dataset, dataset_sha256, channel, crop, validation);
     ``warnings`` go before the fit's own; ``exclusion_counts`` (per rule, (H, W)),
     ``object_mask`` and ``n_lights`` draw the valid-images figure; ``view_angle`` (H, W), degrees between each
-    pixel's normal and its view direction, places a material fit's materials (:func:`steep_materials`).
+    pixel's normal and its view direction, places the fit's regions (:meth:`RegionFit.place_by_view`).
     """
 
     entries: dict
@@ -313,7 +313,8 @@ def _stage_and_publish(out_dir: Path, result: FitResult, records, observations, 
         summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra, attributes)
         if source is not None:
             record_source(summary, source, staging, options)
-            steep_materials(summary, result.labels, source.view_angle, records)
+            if source.view_angle is not None:
+                region.place_by_view(result, source.view_angle, records)
         if before_publish is not None:
             before_publish(staging, summary)
         summary["seconds"] = time.perf_counter() - started
@@ -332,36 +333,6 @@ def record_source(summary: dict, source: FitSource, staging: Path, options: FitO
         summary.setdefault("figures", {})["valid_images"] = "figures/valid_images.png"
     summary.update(source.entries)
     summary["warnings"][:0] = list(source.warnings)
-
-
-def steep_materials(summary: dict, labels, view_angle, records=()) -> None:
-    """Each material's share of pixels among the object's most steeply seen (``regions[k]["steep_view_share"]``,
-    ``steep_view_angle``; :func:`rjfit.posterior.caveats.steep_view_shares`) and a warning for a material that
-    lies mostly there (:func:`rjfit.posterior.caveats.steep_view_warnings`); the same of each chain's last label
-    snapshot (``chain_steep_materials``: its materials but its largest), since a chain's extra material need not be
-    in the MAP labels. Nothing for other region models or without ``view_angle``."""
-    regions = summary.get("regions")
-    if view_angle is None or not regions or not all("material" in region for region in regions):
-        return
-    shares, angle = caveats.steep_view_shares(labels, view_angle, len(regions))
-    for region, share in zip(regions, shares):
-        region["steep_view_share"] = float(share) if np.isfinite(share) else None
-    summary["steep_view_angle"] = float(angle) if np.isfinite(angle) else None
-    summary["warnings"] += caveats.steep_view_warnings(regions, shares, angle)
-    per_chain = []
-    for record in records:
-        snapshots = getattr(record, "material_labels", None)
-        if snapshots is None or len(snapshots) == 0:
-            per_chain.append([])
-            continue
-        last = np.nan_to_num(np.asarray(snapshots[-1], float), nan=-1.0).astype(np.int64)
-        counts = np.bincount(last[last >= 0], minlength=1)
-        chain_shares, _ = caveats.steep_view_shares(last, view_angle, counts.size, angle_of=angle)
-        per_chain.append([{"pixels": int(counts[k]), "steep_view_share": float(chain_shares[k])}
-                          for k in range(counts.size) if k != int(np.argmax(counts)) and counts[k] > 0
-                          and np.isfinite(chain_shares[k])])
-    summary["chain_steep_materials"] = per_chain
-    summary["warnings"] += caveats.chain_steep_warnings(per_chain, angle)
 
 
 def write_parameter_maps(observations, summary, out_dir: Path, prediction=None, extra_channels=None,

@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.posterior.materials import last_labels
 from rjfit.sampler.priors import PARAM_NAMES
 
 __all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "BOUND_SHARE", "prior_range_warnings", "support_bound_warnings",
            "empty_region_warnings", "model_cap_warnings", "pooled_interval_warnings", "nan_rejection_warnings",
            "acceptance_counts", "STEEP_TAIL", "STEEP_SHARE", "steep_view_shares", "steep_view_warnings",
-           "chain_steep_warnings"]
+           "chain_steep_warnings", "steep_view_caveats"]
 
 #: a prior's plausible range: its central 99.9 % interval (a posterior mean outside it lies
 #: where the prior puts 1 in 2000 of its mass on either side)
@@ -263,3 +264,29 @@ def chain_steep_warnings(per_chain, angle: float, share: float = STEEP_SHARE) ->
             f"than {angle:.0f} deg from their normal ({listed}): normal errors, pixels mixing two surfaces at an "
             "occluding contour, interreflection in a fold and grazing reflectance change the radiance most there, so "
             "such a material more likely holds the model's misfit than a paint"]
+
+
+def steep_view_caveats(regions, labels, view_angle, records, burn_in: int) -> tuple[dict, list]:
+    """A material fit placed by the view: ``(entries, warnings)``.
+
+    ``entries``: ``steep_view_angle``, the tail's angle, and ``chain_steep_materials``, per chain the materials of its
+    last label snapshot but its largest (:func:`rjfit.posterior.materials.last_labels`), each with its pixels and
+    share (a chain's extra material need not be in the segmentation); each of ``regions`` gains its
+    ``steep_view_share`` (in place). ``warnings``: :func:`steep_view_warnings` and :func:`chain_steep_warnings`.
+    """
+    shares, angle = steep_view_shares(labels, view_angle, len(regions))
+    for region, share in zip(regions, shares):
+        region["steep_view_share"] = float(share) if np.isfinite(share) else None
+    per_chain = []
+    for record in records:
+        last = last_labels(record, burn_in)
+        if last is None:
+            per_chain.append([])
+            continue
+        counts = np.bincount(last[last >= 0], minlength=1)
+        chain_shares, _ = steep_view_shares(last, view_angle, counts.size, angle_of=angle)
+        per_chain.append([{"pixels": int(counts[k]), "steep_view_share": float(chain_shares[k])}
+                          for k in range(counts.size) if k != int(np.argmax(counts)) and counts[k] > 0
+                          and np.isfinite(chain_shares[k])])
+    entries = {"steep_view_angle": float(angle) if np.isfinite(angle) else None, "chain_steep_materials": per_chain}
+    return entries, steep_view_warnings(regions, shares, angle) + chain_steep_warnings(per_chain, angle)

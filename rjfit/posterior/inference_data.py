@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.posterior.materials import snapshot_labels
 from rjfit.posterior.summary import _arviz, map_model_draws
 from rjfit.sampler.likelihood import observation_log_likelihood
 from rjfit.sampler.priors import PARAM_NAMES
@@ -92,7 +93,7 @@ def _pixel_labels(record, snapshot: int, image_shape) -> np.ndarray:
     """The region (row of ``record.theta``) of every pixel at layout snapshot ``snapshot``, flat; -1: none."""
     t = int(record.cp_iteration[snapshot])
     if record.material_labels is not None:     # a material fit's snapshots
-        return np.nan_to_num(record.material_labels[snapshot], nan=-1.0).astype(np.int64).ravel()
+        return snapshot_labels(record, snapshot).ravel()
     n_u, n_v = int(record.n_u[t]), int(record.n_v[t])
     return pixel_region_labels(record.cp_u[snapshot, :, :n_u].astype(float),
                                record.cp_v[snapshot, :, :n_v].astype(float), image_shape).ravel()

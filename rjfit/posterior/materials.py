@@ -36,8 +36,8 @@ from rjfit.data.formats import COLOUR_CHANNELS
 from rjfit.posterior.summary import diagnostics, region_summaries
 
 __all__ = ["materials_posterior", "count_shares", "map_materials", "RelabelledDraws", "relabelled_draws",
-           "central_snapshot", "segmentation_estimate", "material_summaries", "cap_warning", "RELABELLING", "SEGMENTATION",
-           "CENTRAL_SNAPSHOTS", "CENTRAL_PIXELS"]
+           "central_snapshot", "segmentation_estimate", "snapshot_labels", "last_labels", "material_summaries",
+           "cap_warning", "RELABELLING", "SEGMENTATION", "CENTRAL_SNAPSHOTS", "CENTRAL_PIXELS"]
 
 #: How the segmentation is chosen (written into the summary).
 SEGMENTATION = ("the kept label snapshot (any chain, any K) whose expected number of pixel pairs grouped differently "
@@ -107,21 +107,12 @@ class RelabelledDraws:
         labels = np.asarray(labels)
         return np.where(labels >= 0, np.mean(stacked == labels, axis=0), np.nan)
 
-    def map_labels(self):
-        """(MAP material per pixel, its posterior probability): the per-pixel mode of the relabelled labels."""
-        stacked = np.concatenate([lab for lab in self.labels if len(lab)])
-        k = int(self.reference.max()) + 1
-        counts = np.stack([(stacked == m).sum(axis=0) for m in range(k)])
-        labels = np.where(self.reference >= 0, np.argmax(counts, axis=0), -1)
-        probability = np.where(self.reference >= 0, counts.max(axis=0) / stacked.shape[0], np.nan)
-        return labels, probability
-
 
 def _snapshots(rec, burn_in, k):
     for s in np.flatnonzero(rec.cp_iteration >= burn_in):
         t = int(rec.cp_iteration[s])
         if int(rec.n_materials[t]) == k:
-            yield t, np.nan_to_num(rec.material_labels[s], nan=-1.0).astype(np.int64)
+            yield t, snapshot_labels(rec, s)
 
 
 def _numbered_as_at(rec, t: int) -> np.ndarray:
@@ -152,8 +143,8 @@ def central_snapshot(records, burn_in: int, max_snapshots: int = CENTRAL_SNAPSHO
         If no chain has a label snapshot after burn-in.
     """
     kept, _, parts = _kept_partitions(records, burn_in, max_snapshots, max_pixels)
-    chain, index = kept[int(np.argmin([_expected_pairs(part, parts) for part in parts]))]
-    return chain, int(records[chain].cp_iteration[index]), _snapshot_labels(records, chain, index)
+    (chain, index), _ = _central(kept, parts)
+    return chain, int(records[chain].cp_iteration[index]), snapshot_labels(records[chain], index)
 
 
 def segmentation_estimate(records, burn_in: int, max_snapshots: int = CENTRAL_SNAPSHOTS,
@@ -169,12 +160,11 @@ def segmentation_estimate(records, burn_in: int, max_snapshots: int = CENTRAL_SN
     summarised. ``origin``: the snapshot's chain and iteration and the changes made.
     """
     kept, pixels, parts = _kept_partitions(records, burn_in, max_snapshots, max_pixels)
-    losses = [_expected_pairs(part, parts) for part in parts]
-    chain, index = kept[int(np.argmin(losses))]
-    iteration, labels = int(records[chain].cp_iteration[index]), _snapshot_labels(records, chain, index)
-    loss = float(min(losses))
+    (chain, index), loss = _central(kept, parts)
+    iteration, labels = int(records[chain].cp_iteration[index]), snapshot_labels(records[chain], index)
     counts = {int(records[c].n_materials[records[c].cp_iteration[s]]) for c, s in kept}
-    groups = [last == m for last in _last_labels(records, burn_in) for m in range(int(last.max()) + 1)
+    lasts = [last for last in (last_labels(rec, burn_in) for rec in records) if last is not None]
+    groups = [last == m for last in lasts for m in range(int(last.max()) + 1)
               if np.sum(last == m) < np.sum(last >= 0) / 2]
     changes = []
     while True:
@@ -217,16 +207,31 @@ def _kept_partitions(records, burn_in, max_snapshots, max_pixels):
         raise ValueError("no label snapshot after burn-in: lower the burn-in (--burn-in) or run more iterations")
     if len(kept) > max_snapshots:
         kept = [kept[i] for i in np.linspace(0, len(kept) - 1, max_snapshots).round().astype(int)]
-    pixels = np.flatnonzero(_snapshot_labels(records, *kept[0]).ravel() >= 0)
+    pixels = np.flatnonzero(snapshot_labels(records[kept[0][0]], kept[0][1]).ravel() >= 0)
     pixels = pixels[::max(1, -(-pixels.size // max_pixels))]
     parts = np.stack([np.nan_to_num(np.asarray(records[c].material_labels[s]).ravel()[pixels], nan=-1.0)
                       .astype(np.int32) for c, s in kept]) + 1
     return kept, pixels, parts
 
 
-def _snapshot_labels(records, chain: int, index: int) -> np.ndarray:
-    """Snapshot ``index`` of chain ``chain`` as integer labels (-1 unlabelled)."""
-    return np.nan_to_num(records[chain].material_labels[index], nan=-1.0).astype(np.int64)
+def _central(kept, parts) -> tuple[tuple, float]:
+    """The entry of ``kept`` whose labels (a row of ``parts``) least disagree with the others', and its loss."""
+    losses = [_expected_pairs(part, parts) for part in parts]
+    best = int(np.argmin(losses))
+    return kept[best], float(losses[best])
+
+
+def snapshot_labels(record, index: int) -> np.ndarray:
+    """Label snapshot ``index`` of a material chain's ``record`` as integer labels (H, W), -1 unlabelled."""
+    return np.nan_to_num(record.material_labels[index], nan=-1.0).astype(np.int64)
+
+
+def last_labels(record, burn_in: int) -> np.ndarray | None:
+    """The chain's last label snapshot after ``burn_in`` (:func:`snapshot_labels`); None without one."""
+    if record.material_labels is None:
+        return None
+    kept = np.flatnonzero(np.asarray(record.cp_iteration) >= burn_in)
+    return snapshot_labels(record, int(kept[-1])) if kept.size else None
 
 
 def _expected_pairs(candidate, parts) -> float:
@@ -236,13 +241,6 @@ def _expected_pairs(candidate, parts) -> float:
     own = np.sum(np.bincount(candidate).astype(float) ** 2)
     shared = sum(np.sum(np.bincount(candidate * n_parts + part).astype(float) ** 2) for part in parts)
     return (len(parts) * own - 2.0 * shared) / 2.0
-
-
-def _last_labels(records, burn_in):
-    """Each chain's last kept snapshot (-1 unlabelled)."""
-    return [np.nan_to_num(rec.material_labels[np.flatnonzero(rec.cp_iteration >= burn_in)[-1]], nan=-1.0)
-            .astype(np.int64) for rec in records
-            if rec.material_labels is not None and np.any(rec.cp_iteration >= burn_in)]
 
 
 def _compact(labels) -> np.ndarray:

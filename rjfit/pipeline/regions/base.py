@@ -141,6 +141,11 @@ class RegionFit(ABC):
         """The chains' kept draws summarised: the model's entries, ``run`` (the entries every model shares: the
         settings, acceptance and timing) and its warnings, then ``warnings`` (the data's and prior's)."""
 
+    @staticmethod
+    def place_by_view(result: FitResult, view_angle, records) -> None:
+        """Add to ``result.summary`` where its regions lie by how steeply the object is seen there (``view_angle``,
+        (H, W) degrees from each pixel's normal), with warnings. Nothing by default."""
+
     @abstractmethod
     def write_files(self, staging, result: FitResult, records, options, attributes: dict) -> None:
         """The model's own result files (``chains.nc``, its layout snapshots, figures) into ``staging``, each with

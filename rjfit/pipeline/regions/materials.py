@@ -457,6 +457,15 @@ class MaterialFit(RegionFit):
         write_material_files(staging, result, records, options, attributes)
 
     @staticmethod
+    def place_by_view(result: FitResult, view_angle, records) -> None:
+        """Each material's share of pixels in the object's most steeply seen tenth, the MAP's and each chain's last
+        labels', warned of above one half (:func:`rjfit.posterior.caveats.steep_view_caveats`)."""
+        entries, warnings = caveats.steep_view_caveats(result.summary["regions"], result.labels, view_angle, records,
+                                                       result.burn)
+        result.summary.update(entries)
+        result.summary["warnings"] += warnings
+
+    @staticmethod
     def printed_line(summary: dict) -> str:
         k = summary["map_materials"]
         line = (f"MAP number of materials {k} (posterior {summary['materials_posterior'][str(k)]:.3f}), mean "
