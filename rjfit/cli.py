@@ -343,7 +343,9 @@ def _echo_fit(folder, summary: dict) -> None:
     if "label_accuracy" in summary:
         click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
     if summary.get("edge_power"):
-        click.echo(f"  edge term in the target (power {summary['edge_power']:.3g}): a boundary earns where the "
+        gain = summary.get("edge_gain_sd") or 0.0
+        local = f", local gain sd {gain:.3g} integrated out of each pair (--edge-gain-sd)" if gain > 0 else ""
+        click.echo(f"  edge term in the target (power {summary['edge_power']:.3g}{local}): a boundary earns where the "
                    f"data step as its materials do and costs where they do not (--edge-power)")
     if summary.get("edge_groups_posterior"):
         shares = ", ".join(f"{n}: {share:.2f}" for n, share in summary["edge_groups_posterior"].items())

@@ -73,6 +73,11 @@ VARIANTS = {
     # the preset on R, G and B jointly, with its edge term (docs/results/2026-11-28-colour.md)
     "measured-rgb": {"preset": "measured", "channel": "rgb"},
     "measured-mean": {"preset": "measured", "channel": "mean"},
+    # the preset with the edge term's local gain, with the component moves, and with both (neither is the
+    # preset's: docs/results/2026-11-28-local-gain.md)
+    "measured-gain": {"preset": "measured", "edge_gain_sd": "auto"},
+    "measured-components": {"preset": "measured", "component_moves": 2},
+    "measured-gain-components": {"preset": "measured", "edge_gain_sd": "auto", "component_moves": 2},
 }
 
 

@@ -1,7 +1,7 @@
 """A fit's noise scales and likelihood power, from its observations and options (``--noise``,
 ``--likelihood-power``): the known per-observation scales, the measured power suggestion (for
 a joint colour fit per channel, with the channels' design effect) and the power the fit uses;
-and the power of its edge term (``--edge-power``)."""
+and the power and local gain of its edge term (``--edge-power``, ``--edge-gain-sd``)."""
 from __future__ import annotations
 
 import dataclasses
@@ -17,17 +17,25 @@ from rjfit.progress import phase
 from rjfit.sampler.regions.materials.edges import edge_term
 from rjfit.sampler.regions.materials.layout import labelled_pixels
 
-__all__ = ["noise_and_power", "power_suggestion", "channel_normal_error_noise", "edge_power", "normal_prior_sd",
+__all__ = ["noise_and_power", "power_suggestion", "channel_normal_error_noise", "edge_settings", "normal_prior_sd",
            "MIN_NORMAL_SD_DEG"]
 
 
-def edge_power(problem, options):
-    """The power of the fit's edge term (:mod:`rjfit.sampler.regions.materials.edges`; 0: none): as given, or 'auto' measured
-    once on ``problem``, so that every chain takes that number and the summary records it."""
-    if options.edge_power != "auto":
-        return float(options.edge_power)
-    with phase("edge term: measuring its power (--edge-power auto)", options.progress):
-        return edge_term(problem, labelled_pixels(problem), "auto").power
+def edge_settings(problem, options) -> tuple[float, float]:
+    """``(power, gain_sd)`` of the fit's edge term (:mod:`rjfit.sampler.regions.materials.edges`; power 0: none):
+    each as given, or 'auto' measured once on ``problem`` (one build of the term for both), so that every chain
+    takes those numbers and the summary records them."""
+    power, gain_sd = options.edge_power, options.edge_gain_sd
+    if power != "auto" and float(power) == 0:
+        return 0.0, 0.0
+    if power == "auto" or gain_sd == "auto":
+        measured = " and ".join(what for what, value in (("its power (--edge-power auto)", power),
+                                                         ("its local gain (--edge-gain-sd auto)", gain_sd))
+                                if value == "auto")
+        with phase(f"edge term: measuring {measured}", options.progress):
+            term = edge_term(problem, labelled_pixels(problem), power, gain_sd=gain_sd)
+        power, gain_sd = term.power, term.gain_sd
+    return float(power), float(gain_sd)
 
 
 def noise_and_power(observations, options):

@@ -111,16 +111,19 @@ def _likelihood_power_value(value):
     return number
 
 
-def _edge_power_value(value):
-    if value == "auto":
-        return value
-    try:
-        power = float(value)
-    except (TypeError, ValueError):
-        power = math.nan
-    if not (math.isfinite(power) and power >= 0):
-        raise ValueError(f"edge power (--edge-power) must be a number >= 0 or 'auto', got {value!r}")
-    return power
+def _auto_or_at_least_zero(what: str):
+    """The converter of an option that is 'auto' or a number >= 0 (``what`` names it in the refusal)."""
+    def convert(value):
+        if value == "auto":
+            return value
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            number = math.nan
+        if not (math.isfinite(number) and number >= 0):
+            raise ValueError(f"{what} must be a number >= 0 or 'auto', got {value!r}")
+        return number
+    return convert
 
 
 @dataclass(frozen=True)
@@ -177,6 +180,13 @@ class FitOptions:
         "no step fits them better. A number >= 0, or 'auto' "
         "(the coarsening rule on those differences). Default 0 (none); --preset measured sets auto where it "
         "applies (docs/options.md).", "power", show_default=False)
+    edge_gain_sd: float | str = cli_option(
+        0.0, "--edge-gain-sd",
+        "The edge term's local gain (with --edge-power): the sd of a factor on the shading that a pair's two ends "
+        "share and that scales the step across them, integrated out of each pair, so that a boundary earns by the "
+        "step's shape and size beyond that factor. A number >= 0, or 'auto' (measured on the data). Default 0 "
+        "(none; not in --preset measured: docs/options.md).", "power",
+        show_default=False)
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: --noise normals, --likelihood-power "
@@ -191,6 +201,10 @@ class FitOptions:
     # the material model's segment moves per iteration (data-driven regions moved or born whole;
     # rjfit/sampler/moves/segment_move.py); 0 for the comparison in docs/results/measured-data.md
     segment_moves: int = option(2)
+    # the material model's component moves per iteration (a connected piece of a material moved whole;
+    # rjfit/sampler/regions/materials/component_move.py): not in the default, since the target prefers shading
+    # parts of psm-cat that these moves propose and the others do not (docs/results/2026-11-28-local-gain.md)
+    component_moves: int = option(0)
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors (--regions changepoints).", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors (--regions changepoints).", "int", low=0)
     sampler: str = cli_option("adaptive", "--sampler",
@@ -297,7 +311,8 @@ class FitOptions:
                 raise ValueError(f"unknown {what} {getattr(self, name)!r} ({spec.flag}): choose one of "
                                  f"{', '.join(spec.choices)}")
         self._convert("likelihood_power", _likelihood_power_value)
-        self._convert("edge_power", _edge_power_value)
+        self._convert("edge_power", _auto_or_at_least_zero("edge power (--edge-power)"))
+        self._convert("edge_gain_sd", _auto_or_at_least_zero("the edge term's gain sd (--edge-gain-sd)"))
         self._convert("effects", _effect_names)
         self._convert("effects_from", Path)
         self._convert("labels", Path)

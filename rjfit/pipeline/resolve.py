@@ -197,6 +197,9 @@ def _check_combinations(options: FitOptions) -> None:
             edge = " / ".join(name for name, fit in REGION_FITS.items() if "edge_power" in fit.reads)
             raise ValueError(f"--edge-power works with --regions {edge}, no effects and the adaptive sampler: "
                              f"give --edge-power 0 or fit without effects")
+    elif options.edge_gain_sd == "auto" or options.edge_gain_sd > 0:
+        raise ValueError(f"--edge-gain-sd is an option of the edge term, and there is none (--edge-power 0, "
+                         f"{_chosen_by(options, 'edge_power')}): leave it out or give --edge-power")
     if options.channel != COLOUR:
         return
     if options.effects or options.effects_from is not None:

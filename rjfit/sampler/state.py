@@ -213,6 +213,7 @@ FLAT_OPTIONS = {
     "cluster_new_prob": ["regions.cluster.new_prob"], "cluster_material_seed": ["regions.cluster.material_seed"],
     "segment_moves": ["regions.segments.moves"], "merge_split_moves": ["regions.merge_split.moves"],
     "edge_power": ["regions.edge_power"], "edge_gap": ["regions.edge_gap"],
+    "edge_gain_sd": ["regions.edge_gain_sd"], "component_moves": ["regions.component_moves"],
     "burn_in": ["kernel.burn_in"], "anneal": ["kernel.anneal"], "anneal_start": ["kernel.anneal_start"],
     "refresh_every": ["kernel.refresh_every"],
     "effect_every": ["effects.every"], "effect_target_accept": ["effects.target_accept"],

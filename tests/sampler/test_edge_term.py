@@ -27,7 +27,10 @@ from threadpoolctl import threadpool_limits
 from rjfit.data.observations import Observations
 from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.model.blinn import blinn_normalisation
-from rjfit.sampler.regions.materials.edges import edge_term, matched_lights, no_step_sums, pixel_pairs
+from rjfit.sampler.regions.materials.edge_gain import shared_gain_sd
+from rjfit.sampler.regions.materials.edge_baseline import no_step_sums
+from rjfit.sampler.regions.materials.edges import edge_term, matched_lights, pixel_pairs
+from rjfit.sampler.regions.materials.passes.edges import pair_misfit
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import initial_state, step
 from rjfit.sampler.moves import ab_conditional, phi_walk
@@ -74,14 +77,16 @@ def data_between(where, width, p, q):
     return all((pr + k * dr) * width + pc + k * dc in seen for k in range(1, n))
 
 
-def no_step_ss(problem, edges):
+def no_step_ss(problem, edges, gain=None):
     """``ss(p, q)``: the pair's misfit of no step from its definition, over the lights both saw (none where a pixel
     between them has no observation: :func:`data_between`; nor does a side p' or q' count then), with e the residuals
     under the reference (one material fitted by least squares to every observation) and p' and q' as far beyond p
     and q on the pair's line: where both were seen under that light, 0.4 times the squared difference
     ``e_p - e_q`` minus the trend ``(e_p' - e_p + e_q - e_q') / 2``; where one was, a third of the squared difference
     minus that side's difference; where neither, the spread s^2 (1.4826 MAD, squared, of the differences of e over
-    every pair of ``edges`` and light both saw)."""
+    every pair of ``edges`` and light both saw). With ``gain`` (tau^2, unit) the misfits with a trend, each under
+    its weight, are taken with the pair's local gain on the reference's own difference integrated out
+    (:func:`gain_misfit`)."""
     height, width = problem.image_shape
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
     e = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
@@ -97,8 +102,11 @@ def no_step_ss(problem, edges):
         ends = [(pr - dr, pc - dc), (qr + dr, qc + dc)]
         return [r * width + c if 0 <= r < height and 0 <= c < width else None for r, c in ends]
 
+    reference = y - e
+
     def ss(p, q):
-        total, (p_out, q_out) = 0.0, outer(p, q)
+        untrended, (p_out, q_out) = 0.0, outer(p, q)
+        weighted, deltas = [], []       # sqrt(weight) times the misfit and the reference's difference
         for lt in lights:
             if (p, lt) not in where or (q, lt) not in where or not data_between(where, width, p, q):
                 continue
@@ -107,15 +115,34 @@ def no_step_ss(problem, edges):
             a = where.get((p_out, lt)) if p_out is not None and data_between(where, width, p_out, p) else None
             b = where.get((q_out, lt)) if q_out is not None and data_between(where, width, q, q_out) else None
             if a is not None and b is not None:
-                total += 0.4 * (d - 0.5 * (e[a] - e[i] + e[j] - e[b])) ** 2
+                misfit, weight = d - 0.5 * (e[a] - e[i] + e[j] - e[b]), 0.4
             elif a is not None:
-                total += (d - (e[a] - e[i])) ** 2 / 3
+                misfit, weight = d - (e[a] - e[i]), 1 / 3
             elif b is not None:
-                total += (d - (e[j] - e[b])) ** 2 / 3
+                misfit, weight = d - (e[j] - e[b]), 1 / 3
             else:
-                total += spread ** 2
-        return total
+                untrended += spread ** 2
+                continue
+            weighted.append(np.sqrt(weight) * misfit)
+            deltas.append(np.sqrt(weight) * (reference[i] - reference[j]))
+        if not weighted:
+            return untrended
+        return untrended + float(gain_misfit(np.array(weighted), np.array(deltas), gain))
     return ss
+
+
+def gain_misfit(residual, delta, gain):
+    """A pair's SS under one hypothesis with its local gain e ~ N(0, tau^2) integrated out, from the Gaussian
+    integral (``residual``, ``delta``: (lights,) or (lights, draws); ``gain`` (tau^2, unit) or None: the plain
+    SS): -2 unit log of the integral of exp(-sum (r - e delta)^2 / (2 unit)) N(e; 0, tau^2) de, less its value at
+    r = 0, delta = 0."""
+    ss = np.sum(residual ** 2, axis=0)
+    if gain is None:
+        return ss
+    var, unit = gain
+    precision = np.sum(delta ** 2, axis=0) / unit + 1.0 / var
+    mean_term = np.sum(residual * delta, axis=0) / unit
+    return ss - unit * mean_term ** 2 / precision + unit * np.log(var * precision)
 
 
 def boundary_share(step, alone, no_step):
@@ -124,20 +151,21 @@ def boundary_share(step, alone, no_step):
     return np.minimum(alone, no_step) - step
 
 
-def direct_total(problem, edges, labels, theta, gap):
+def direct_total(problem, edges, labels, theta, gap, gain=None):
     """The edge term from its definition: every pair ``gap`` apart with data at every pixel between, every light both
-    pixels saw."""
+    pixels saw; with ``gain`` (tau^2, unit) each pair's local gain integrated out (:func:`gain_misfit`)."""
     height, width = problem.image_shape
     where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
-    reference = no_step_ss(problem, edges)
+    reference = no_step_ss(problem, edges, gain)
 
     def mu(i, k):
         I0, kd, g = theta[k, :3]
         return C[i] * (I0 * kd / np.pi + I0 * (1 - kd) * blinn_normalisation(g) * np.exp(g * lch[i]))
 
     def ss(matched, k, m):
-        return sum((y[i] - y[j] - mu(i, k) + mu(j, m)) ** 2 for i, j in matched)
+        delta = np.array([mu(i, k) - mu(j, m) for i, j in matched])
+        return gain_misfit(np.array([y[i] - y[j] for i, j in matched]) - delta, delta, gain)
 
     sums = {}       # boundary {k, m} -> [SS of the step, SS with both ends in the lower, in the higher, the reference]
     for offset, ok in ((gap, lambda p: p % width < width - gap), (gap * width, lambda p: p < (height - gap) * width)):
@@ -162,14 +190,76 @@ def direct_total(problem, edges, labels, theta, gap):
 TRUTH = np.array([[10.0, 0.75, 4.0, 0.3], [6.0, 0.3, 15.0, 0.3]])
 
 
-def test_total_matches_the_definition():
+@pytest.mark.parametrize("gain_sd", [0.0, 0.1])
+def test_total_matches_the_definition(gain_sd):
     problem = patchy_problem()
-    edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=3)
+    edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=3, gain_sd=gain_sd)
     labels = np.random.default_rng(0).integers(0, 3, problem.image_shape)
     theta = np.vstack([TRUTH, [8.0, 0.5, 8.0, 0.3]])
-    expected = direct_total(problem, edges, labels, theta, 3)
+    spread2 = edges.power / (2 * edges.scale)       # one channel: the pairs' sums are in units of s^2
+    expected = direct_total(problem, edges, labels, theta, 3, (gain_sd ** 2, spread2) if gain_sd else None)
     assert expected < -10.0, "the labels should cross many pairs"
     assert edges.total(labels, theta) == pytest.approx(expected, rel=1e-9)
+    if gain_sd:
+        assert edges.gain_sd == pytest.approx(gain_sd) and edges.gain[1] == pytest.approx(spread2)
+        assert abs(expected - direct_total(problem, edges, labels, theta, 3)) > 1.0, "the gain should count"
+
+
+@pytest.mark.parametrize("tau", [0.02, 0.1, 0.5])
+@pytest.mark.parametrize("size", [0.2, 1.0, 5.0])
+def test_a_pairs_gain_is_integrated_out_as_by_quadrature(tau, size):
+    """pair_misfit against -2 u log of the integral over e of exp(-sum (r - e delta)^2 / (2 u)) N(e; 0, tau^2),
+    by adaptive quadrature, over gains and steps from far below to far above the noise (rtol 1e-7: the
+    quadrature's own error is below 1e-10 here); tau 0 gives the plain SS."""
+    from scipy import integrate
+
+    rng = np.random.default_rng(5)
+    unit = 0.3
+    delta = size * rng.normal(size=8)
+    residual = 0.7 * tau * delta + np.sqrt(unit) * rng.normal(size=8)
+
+    def integrand(e):
+        return np.exp(-(np.sum((residual - e * delta) ** 2) - np.sum(residual ** 2)) / (2 * unit)) \
+            * stats.norm.pdf(e, 0.0, tau)
+
+    width = 12 * tau
+    value, error = integrate.quad(integrand, -width, width, points=[0.0], epsabs=0, epsrel=1e-12, limit=200)
+    expected = np.sum(residual ** 2) - 2 * unit * np.log(value)
+    ss, rd, dd = np.sum(residual ** 2), np.sum(residual * delta), np.sum(delta ** 2)
+    assert pair_misfit(ss, rd, dd, np.array([tau ** 2, unit])) == pytest.approx(expected, rel=1e-7)
+    assert pair_misfit(ss, rd, dd, np.array([0.0, unit])) == ss
+
+
+def test_the_shared_gain_is_measured_from_the_pairs_ends():
+    """shared_gain_sd on a surface whose shading is off by a smooth factor of sd 0.1 (white noise and a pixel's own
+    gain of sd 0.05 besides): within 15 % of the field's sd (the robust variances' sampling error on a 128 x 128
+    image of a field correlated over ~8 px is a few %). A paint at a quarter of the albedo on a fifth of the
+    surface: within 10 % of the estimate on the same surface with the paint's pixels unobserved (the surface's own
+    spread there), where without leaving its pairs out it was 1.6 times that. Without the factor: under 0.02."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(8)
+    shape, n_lights = (128, 128), 10
+    n = shape[0] * shape[1]
+    prediction = rng.uniform(0.2, 1.0, n * n_lights)
+    smooth = ndimage.gaussian_filter(rng.normal(size=shape), 4.0)
+    field = (0.1 * (smooth - smooth.mean()) / smooth.std()).ravel()
+    own = 0.05 * rng.normal(size=n)
+    first, second, _ = pixel_pairs(np.ones(shape, bool), 3)
+    paint = np.zeros(shape, bool)
+    paint[10:67, 10:67] = True           # 3,249 px, a fifth of the image
+    paint = paint.ravel()
+
+    def measured(gain_of_pixel, seen=np.ones(n, bool)):
+        pixel = np.repeat(np.arange(n), n_lights)
+        y = prediction * (1 + gain_of_pixel[pixel]) + 0.01 * rng.normal(size=pixel.size)
+        observed = seen[pixel]
+        return shared_gain_sd(y[observed], prediction[observed], pixel[observed], first, second, n)
+
+    assert measured(field + own) == pytest.approx(field.std(), rel=0.15)
+    painted = measured(np.where(paint, 0.25 * (1 + field + own) - 1, field + own))
+    assert painted == pytest.approx(measured(field + own, seen=~paint), rel=0.1)
+    assert measured(own) < 0.02
 
 
 def test_pairs_across_a_pixel_without_data_see_nothing():
@@ -309,13 +399,13 @@ def boundary_phi(edges, z, ss, reference):
     return phi
 
 
-def exact_with_edges(quad, problem, edges, beta, rho, rng, n_blocks=None):
+def exact_with_edges(quad, problem, edges, beta, rho, rng, n_blocks=None, gain=None):
     """{partition: probability} and pixel 0's material's I0 mean under the target with the edge term (K fixed at
-    ``n_blocks`` if given)."""
+    ``n_blocks`` if given; ``gain`` (tau^2, unit): each pair's local gain integrated out)."""
     exact0 = exact_partition_posterior(quad, (2, 2), beta, rho, n_blocks=n_blocks)
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
     where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
-    reference = no_step_ss(problem, edges)
+    reference = no_step_ss(problem, edges, gain)
     # exp(Phi) <= exp(scale * the pairs' reference sums): shifted by that constant so that no weight overflows
     bound = edges.scale * sum(reference(p, q) for p, q in zip(edges.first, edges.second))
     weight, i0_mean = {}, {}
@@ -328,8 +418,9 @@ def exact_with_edges(quad, problem, edges, beta, rho, rng, n_blocks=None):
             return C[i] * (I0 * kd / np.pi + I0 * (1 - kd) * blinn_normalisation(g) * np.exp(g * lch[i]))
 
         def ss(p, q, k, m):
-            return sum((y[where[p, lt]] - y[where[q, lt]] - mu(where[p, lt], k) + mu(where[q, lt], m)) ** 2
-                       for lt in range(3))
+            delta = np.array([mu(where[p, lt], k) - mu(where[q, lt], m) for lt in range(3)])
+            data = np.array([y[where[p, lt]] - y[where[q, lt]] for lt in range(3)])
+            return gain_misfit(data[:, None] - delta, delta, gain)
 
         w = np.exp(boundary_phi(edges, z, ss, reference) - bound)
         weight[part] = p0 * w.mean()
@@ -371,21 +462,36 @@ MOVES = {"all": {"cluster_moves": 2, "merge_split_moves": 1, "max_materials": 4}
                     "max_materials": 2}}
 
 
-def edge_config(power, moves="all"):
+def edge_config(power, moves="all", gain_sd=0.0):
     return SamplerConfig.from_flat(region_model="materials", burn_in=0, potts_beta=1.0, potts_rho=1.0,
-                                   edge_power=power, edge_gap=1, **MOVES[moves])
+                                   edge_power=power, edge_gap=1, edge_gain_sd=gain_sd, **MOVES[moves])
 
 
-@pytest.mark.parametrize("moves,power,seed", [("all", 4.0, 1), ("all", 30.0, 2), ("sweeps", 30.0, 3)])
-def test_partitions_and_parameters_match_the_target_with_the_edge_term(square, moves, power, seed):
+#: the local gain's sd in the exactness test with it (power 4): where it moves the exact partition posterior by a
+#: total variation of 0.48 from the same power without it (asserted >= 0.1), which stays spread (0.47, 0.35, 0.08 on
+#: the first three); at 0.45 it moves it by 0.17, at 2 by 0.94 (the mode one material)
+GAIN_SD = 0.7
+
+
+@pytest.mark.parametrize("moves,power,seed,gain_sd", [("all", 4.0, 1, 0.0), ("all", 30.0, 2, 0.0),
+                                                      ("sweeps", 30.0, 3, 0.0), ("all", 4.0, 4, GAIN_SD)])
+def test_partitions_and_parameters_match_the_target_with_the_edge_term(square, moves, power, seed, gain_sd):
     """All 15 partitions, K_max 4: Gibbs sweeps (delayed acceptance), cluster, segment and merge/split moves;
-    and the 7 two-block partitions under the sweeps alone."""
+    and the 7 two-block partitions under the sweeps alone; the last case with each pair's local gain
+    integrated out (every move reads it through the same compiled sums)."""
     prior, problem, quad = square
-    config = edge_config(power, moves)
+    config = edge_config(power, moves, gain_sd)
     n_blocks = 2 if moves == "sweeps" else None
     edges = initial_state(problem, prior, config, np.random.default_rng(0)).layout.bonds.edges
-    exact0, exact, i0_exact = exact_with_edges(quad, problem, edges, 1.0, 1.0, np.random.default_rng(10), n_blocks)
+    gain = (gain_sd ** 2, float(edges.gain[1])) if gain_sd > 0 else None
+    exact0, exact, i0_exact = exact_with_edges(quad, problem, edges, 1.0, 1.0, np.random.default_rng(10), n_blocks,
+                                               gain)
     assert 0.5 * sum(abs(exact[p] - exact0[p]) for p in exact) > 0.08, "the term should move the posterior"
+    if gain is not None:
+        _, plain, _ = exact_with_edges(quad, problem, edges, 1.0, 1.0, np.random.default_rng(10), n_blocks)
+        moved = 0.5 * sum(abs(exact[p] - plain[p]) for p in exact)
+        print("total variation from the term without the gain", moved)
+        assert moved >= 0.1, "the gain should move the posterior"
     p_part, p_i0, details = check(*run_chain(problem, prior, config, seed, n_materials=n_blocks), exact, i0_exact)
     print(power, p_part, p_i0, details)
     assert p_part > LEVEL, details
@@ -497,4 +603,9 @@ def test_the_no_step_sums_do_not_depend_on_the_chunk():
     whole = no_step_sums(problem, first, second, n_right, 3, i, j, start, residual, 0.5)
     np.testing.assert_allclose(no_step_sums(problem, first, second, n_right, 3, i, j, start, residual, 0.5, chunk=7),
                                whole, rtol=1e-12)
+    gain = {"prediction": y - residual, "gain": np.array([0.01, 0.25])}      # with a local gain as well
+    np.testing.assert_allclose(no_step_sums(problem, first, second, n_right, 3, i, j, start, residual, 0.5, chunk=7,
+                                            **gain),
+                               no_step_sums(problem, first, second, n_right, 3, i, j, start, residual, 0.5, **gain),
+                               rtol=1e-12)
     assert first.size > 7 and np.all(whole > 0) and edges.no_step.shape == whole.shape

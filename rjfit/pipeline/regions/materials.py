@@ -30,7 +30,7 @@ from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
-from rjfit.pipeline.fit_power import edge_power
+from rjfit.pipeline.fit_power import edge_settings
 from rjfit.pipeline.fit_settings import assemble
 from rjfit.pipeline.options import FURTHER_MATERIAL_ODDS, FitOptions
 from rjfit.pipeline.regions.base import FitResult, RegionFit, truth_summary
@@ -38,7 +38,8 @@ from rjfit.pipeline.report_numbers import finite, number, probability
 from rjfit.posterior.boundaries import edge_verdict
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 from rjfit.sampler.regions.materials import MaterialRegions
-from rjfit.sampler.regions.materials.edges import EDGE_GAP, NO_STEP_NOISE, edge_term
+from rjfit.sampler.regions.materials.edge_baseline import NO_STEP_NOISE
+from rjfit.sampler.regions.materials.edges import EDGE_GAP, edge_term
 from rjfit.sampler.regions.materials.layout import labelled_pixels
 from rjfit.sampler.state import SamplerConfig
 
@@ -80,7 +81,8 @@ def summarise_materials(records, problem, options, burn: int, config):
         "ess_min": min(diag["ess_bulk_min"], diag["ess_tail_min"]),
         "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"], "diagnostics": diag,
         "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
-        "edge_power": float(config.regions.edge_power), "chain_materials_posterior": chain_posteriors,
+        "edge_power": float(config.regions.edge_power), "edge_gain_sd": float(config.regions.edge_gain_sd),
+        "chain_materials_posterior": chain_posteriors,
     }
     summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
                                                     post.chain_log_posterior_means(records, burn))
@@ -328,7 +330,12 @@ def _edge_words(summary: dict, options: dict) -> str:
         return "none (0): a boundary costs only the Potts prior"
     how = "measured (auto: the coarsening rule on the data's differences across 3 px)" \
         if options.get("edge_power") == "auto" else "as given"
-    return f"{power:.3g}, {how}: a boundary earns where the data step as its materials do and costs where they do not"
+    text = f"{power:.3g}, {how}: a boundary earns where the data step as its materials do and costs where they do not"
+    gain = summary.get("edge_gain_sd")
+    if finite(gain) and gain > 0:
+        text += (f"; a local gain of sd {gain:.3g} on the shading, shared by a pair's two ends, is integrated out of "
+                 f"each pair ({'measured on the data' if options.get('edge_gain_sd') == 'auto' else 'as given'})")
+    return text
 
 
 def _boundary_notes(summary: dict) -> list:
@@ -353,8 +360,8 @@ class MaterialFit(RegionFit):
     """Free-form materials under a Potts prior (``--regions materials``)."""
 
     name = "materials"
-    reads = frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "cluster_material_seed",
-                       "segment_moves"})
+    reads = frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "edge_gain_sd",
+                       "cluster_material_seed", "segment_moves", "component_moves"})
     noun = "material"
     measured_default = True
     joint_colour = True
@@ -417,12 +424,14 @@ class MaterialFit(RegionFit):
 
     def sampler_config(self, options, *, burn: int, fixed: bool = False, problem=None) -> SamplerConfig:
         model = MaterialRegions()
-        power = edge_power(problem, options) if problem is not None else options.edge_power
+        power, gain_sd = edge_settings(problem, options) if problem is not None else \
+            (options.edge_power, options.edge_gain_sd)
         regions = replace(model, max_materials=options.max_materials,
                           potts=replace(model.potts, beta=options.potts_beta, rho=options.potts_rho),
                           cluster=replace(model.cluster, material_seed=options.cluster_material_seed),
                           segments=replace(model.segments, moves=options.segment_moves),
-                          edge_power=power, update_labels=not fixed, jumps=not fixed)
+                          edge_power=power, edge_gain_sd=gain_sd, component_moves=options.component_moves,
+                          update_labels=not fixed, jumps=not fixed)
         return assemble(options, regions, burn)
 
     def chain_start(self, options, chain: int, start: dict, fixed_segmentation=None) -> dict:

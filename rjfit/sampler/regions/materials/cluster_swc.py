@@ -57,7 +57,7 @@ from rjfit.sampler.moves.proposal import Proposal
 from rjfit.sampler.regions.materials.passes.labels import grow_cluster
 
 __all__ = ["ClusterSettings", "label_choice", "cluster_data", "stats_rows", "with_rows", "propose_cluster_move",
-           "propose_set_move", "CLUSTER_KINDS"]
+           "propose_set_move", "seed_log_ratio", "CLUSTER_KINDS"]
 
 #: the names a cluster move is counted under: moved, born, dying
 CLUSTER_KINDS = ("cluster", "cluster_birth", "cluster_death")
@@ -90,7 +90,7 @@ class ClusterSettings:
         only by a cluster move seeded on that pixel, which the fixed weights pick once in
         about 2N proposals (measured on psm-horse: such a material outlived 250 iterations).
         The seed probability then depends on the state, so the ratio holds the reverse
-        move's chance of a seed in V0 over this one's (``_seed_log_ratio``). 0 (default): the
+        move's chance of a seed in V0 over this one's (:func:`seed_log_ratio`). 0 (default): the
         fixed weights alone, and the draws of before.
     """
 
@@ -164,7 +164,7 @@ def propose_cluster_move(work, rng, problem, prior, settings: ClusterSettings, p
     members, n_to, cut_to = grow_cluster(flat, flat >= 0, layout.bonds.q, key, seed, height, width, n_mat)
 
     def seed_ratio(new, n_after):
-        return _seed_log_ratio(settings, layout, members, flat, int(flat[seed]), new, n_after)
+        return seed_log_ratio(settings.material_seed, layout, members, flat, int(flat[seed]), new, n_after)
 
     return propose_set_move(work, rng, problem, prior, (members, n_to, cut_to, seed_ratio), settings.new_prob,
                             proposals, potts, max_materials, jumps, CLUSTER_KINDS)
@@ -240,19 +240,19 @@ def propose_set_move(work, rng, problem, prior, pixel_set, new_prob: float, prop
                      log_ratio).named(kinds[2], jump=True)
 
 
-def _seed_log_ratio(settings, layout, members, flat, old, new, n_after) -> float:
+def seed_log_ratio(share: float, layout, members, flat, old, new, n_after) -> float:
     """log of the reverse move's chance of a seed in V0 over this move's (0 without material seeds).
 
     A seed in V0 grows V0 whichever pixel of it it is, so the chance is
-    ``(1 - e) W(V0) / W + e |V0| / (K n_l)``: W the fixed seed weights, e ``material_seed``,
-    n_l the size of V0's material, K the number of materials; after the move V0 belongs to
-    ``new`` (None: a newborn material holding V0 alone) among ``n_after`` materials.
+    ``(1 - e) W(V0) / W + e |V0| / (K n_l)``: W the fixed seed weights, e the ``share`` of material seeds
+    (``material_seed``; 1: the component moves'), n_l the size of V0's material, K the number of materials; after
+    the move V0 belongs to ``new`` (None: a newborn material holding V0 alone) among ``n_after`` materials.
     """
-    share = settings.material_seed
     if share == 0.0:
         return 0.0
     cdf = layout.bonds.seed_cdf
-    weights = (1.0 - share) * float(np.sum(np.diff(cdf, prepend=0.0)[members])) / float(cdf[-1])
+    weights = 0.0 if share == 1.0 else (1.0 - share) * float(np.sum(np.diff(cdf, prepend=0.0)[members])) / float(
+        cdf[-1])
     size = members.size
     n_old = int(np.count_nonzero(flat == old))
     n_new = size if new is None else int(np.count_nonzero(flat == new)) + size

@@ -13,7 +13,8 @@ The term
 --------
 Over pairs of labelled pixels ``gap`` px apart along a row or a column (:data:`EDGE_GAP`, odd),
 and every light seen by both (the data's difference ``d = y_p - y_q``, on the fit's scale), where every
-pixel between the two has data (:func:`seen_between`: a pair across a pixel off the object or with every
+pixel between the two has data (:func:`~rjfit.sampler.regions.materials.edge_baseline.seen_between`: a pair
+across a pixel off the object or with every
 observation left out, such as an occluding contour's, does not see what lies between its ends),
 with
 
@@ -24,10 +25,12 @@ the boundary between materials k and m (the pairs with one end in each) adds
     Phi_km = power (min(SS_kk, SS_mm, SS_0) - SS_km) / (2 s^2),
 
 ``SS_km`` the sum over its pairs of SS with each end in its own material, ``SS_kk`` and
-``SS_mm`` with both ends in k, or in m, and ``SS_0`` the misfit of **no step** (:func:`no_step_sums`):
+``SS_mm`` with both ends in k, or in m, and ``SS_0`` the misfit of **no step**
+(:func:`~rjfit.sampler.regions.materials.edge_baseline.no_step_sums`):
 the data follow the reference fit (one material) up to a smoothly changing residual, so each
 residual difference across the pair continues the trend of the residual differences just
-outside it along its line (p', q' ``gap`` px beyond p and q), scaled by :data:`NO_STEP_NOISE`
+outside it along its line (p', q' ``gap`` px beyond p and q), scaled by
+:data:`~rjfit.sampler.regions.materials.edge_baseline.NO_STEP_NOISE`
 so that white noise weighs alike in both. Phi is the Gaussian log-likelihood ratio of the
 neighbours' differences under the materials' step against the best explanation without a boundary
 there: one material across it, or the data's own trend. A boundary where the data step beyond
@@ -57,6 +60,21 @@ observation): a constant of the data. ``power``: the coarsening rule of
 neighbouring pairs under one light), since the differences, though they cancel most of a
 smooth misfit, keep some of its gradient.
 
+The local gain
+--------------
+A measured surface's shading is off by a local factor that changes slowly over it (the given normals' error,
+a lobe shape the model lacks, light that a fold adds): a pair's two ends, 3 px apart, share it, and it scales
+the whole step, ``d = (1 + e) (mu_a(p) - mu_b(q))``. Without it a material's parameters must fit the step of its
+own outline's place: two patches of one paint where the shading is off by different factors are then two
+materials (a boundary fits each patch's step better by what that factor's difference misfits, 127 to 150 nats
+for two painted discs on psm-horse, against a prior that pays 17 for one material fewer), and a material beside
+an occluding contour, where the shading changes fast, earns by fitting the gain there (psm-horse's strip:
+docs/results/2026-11-28-local-gain.md). So each pair's ``e ~ N(0, tau^2)`` is integrated out of each of its
+hypotheses (the step, either material alone; :func:`rjfit.sampler.regions.materials.passes.edges.pair_misfit`):
+what is left to earn is the step's shape over the lights and its size beyond the gain's spread. The
+no-step baseline is unchanged (its trend already follows what changes slowly). ``tau`` is measured once on the
+data (:func:`rjfit.sampler.regions.materials.edge_gain.shared_gain_sd`); 0 gives the term above.
+
 The moves (each stays exact for the new target)
 -----------------------------------------------
 - the label sweep: each pixel's Gibbs draw without the term, then a delayed acceptance of a
@@ -83,15 +101,11 @@ import numpy as np
 from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.sampler.colour import guide_rows, pixel_set_data
 from rjfit.sampler.passes.densities import coefficients
+from rjfit.sampler.regions.materials.edge_baseline import no_step_sums, observation_lookup, seen_between
+from rjfit.sampler.regions.materials.edge_gain import shared_gain_sd
 from rjfit.sampler.regions.materials.passes.edges import boundary_sums, changed_delta, edge_value
 
-__all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "observation_lookup", "no_step_sums",
-           "seen_between", "EDGE_GAP", "NO_STEP_NOISE"]
-
-#: white noise of variance v gives a difference across a pair the variance 2 v and its misfit against the local trend
-#: of the differences beside it 5 v (1.5^2 + 1.5^2 + 0.5^2 + 0.5^2): the factor that makes the two alike, so that a
-#: boundary through smooth data earns nothing on average from the noise
-NO_STEP_NOISE = 2.0 / 5.0
+__all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "EDGE_GAP"]
 
 #: the pixels of a pair lie this far apart (odd, so that they are of the two checkerboard colours): a measured
 #: edge is spread over a pixel or two (optics, the pixel footprint, a blurred paint line), so neighbours across a
@@ -110,7 +124,7 @@ class EdgeTerm(NamedTuple):
     ``first``, ``second`` (P,): the pairs' flat pixels; ``start`` (P + 1,): each pair's matches;
     ``d``, ``c_first``, ``c_second``, ``l_first``, ``l_second`` (M,): per match the difference and
     both ends' ``C`` and ``log <h.n>``; ``no_step`` (P,): each pair's SS of no step
-    (:func:`no_step_sums`); ``pair_of`` (H W, 4):
+    (:func:`~rjfit.sampler.regions.materials.edge_baseline.no_step_sums`); ``pair_of`` (H W, 4):
     each pixel's pairs (-1: none); ``scale`` = power / (2 s^2).
     """
 
@@ -129,6 +143,12 @@ class EdgeTerm(NamedTuple):
     channel: np.ndarray = np.zeros(0, np.int8)
     weight: np.ndarray = np.zeros(0)
     n_channels: int = 1
+    gain: np.ndarray = np.zeros(2)
+
+    @property
+    def gain_sd(self) -> float:
+        """tau, the sd of the local gain integrated out of each pair (module docstring; 0: none)."""
+        return float(np.sqrt(max(float(self.gain[0]), 0.0)))
 
     def total(self, pixels, theta) -> float:
         """The edge term of the labels ``pixels`` (H, W; -1 unlabelled) with materials' ``theta`` (K C, 4: C rows
@@ -136,7 +156,7 @@ class EdgeTerm(NamedTuple):
         theta = np.asarray(theta, float)
         sums = boundary_sums(_flat(pixels), theta.shape[0] // self.n_channels, coefficients(theta), self.first,
                              self.second, self.start, self.d, self.c_first, self.c_second, self.l_first, self.l_second,
-                             self.no_step, self.channel, self.weight, self.n_channels)
+                             self.no_step, self.channel, self.weight, self.n_channels, self.gain)
         return float(edge_value(sums, self.scale))
 
     def channel_scales(self) -> np.ndarray:
@@ -153,7 +173,8 @@ class EdgeTerm(NamedTuple):
         changed[np.asarray(list(rows), np.int64) // self.n_channels] = True
         return float(changed_delta(_flat(pixels), changed, coefficients(theta), coefficients(new), self.first,
                                    self.second, self.start, self.d, self.c_first, self.c_second, self.l_first,
-                                   self.l_second, self.no_step, self.channel, self.weight, self.n_channels, self.scale))
+                                   self.l_second, self.no_step, self.channel, self.weight, self.n_channels, self.gain,
+                                   self.scale))
 
     def region_delta(self, pixels, theta, r: int, theta_r) -> float:
         """The change of the term when row ``r`` of ``theta`` (a material's; a joint colour fit's channel row)
@@ -164,7 +185,7 @@ class EdgeTerm(NamedTuple):
         """The ``edge`` argument of :func:`~rjfit.sampler.regions.materials.passes.labels.gibbs_sweep`."""
         return (self.pair_of, coefficients(np.asarray(theta, float)), self.first, self.second, self.start, self.d,
                 self.c_first, self.c_second, self.l_first, self.l_second, self.no_step, self.scale, self.channel,
-                self.weight, self.n_channels)
+                self.weight, self.n_channels, self.gain)
 
 
 def _flat(pixels) -> np.ndarray:
@@ -184,106 +205,11 @@ def pixel_pairs(labelled, gap: int):
             int(np.count_nonzero(right)))
 
 
-def observation_lookup(pixel, light):
-    """``find(wanted_pixel, wanted_light)``: the index of the observation of each (pixel, light) among the
-    observations' ``pixel`` and ``light``; -1 where there is none (a pixel off the image, negative, off the object
-    or left out under that light). The observations are sorted once, then looked up as often as needed."""
-    pixel, light = np.asarray(pixel, np.int64), np.asarray(light, np.int64)
-    n_lights = int(light.max(initial=-1)) + 1
-    key = pixel * n_lights + light
-    order = np.argsort(key, kind="stable")
-    sorted_key = key[order]
-
-    def find(wanted_pixel, wanted_light):
-        wanted = np.asarray(wanted_pixel, np.int64) * n_lights + np.asarray(wanted_light, np.int64)
-        if sorted_key.size == 0:
-            return np.full(wanted.shape, -1, np.int64)
-        at = np.minimum(np.searchsorted(sorted_key, wanted), sorted_key.size - 1)
-        return np.where((sorted_key[at] == wanted) & (np.asarray(wanted_pixel) >= 0), order[at], -1)
-    return find
-
-
-def seen_between(has_data, start, end, gap: int) -> np.ndarray:
-    """Per (``start``, ``end``): whether every pixel strictly between the two (``gap`` px apart along a row or a
-    column, ``end`` after ``start``) has data (``has_data``, per flat pixel: at least one observation).
-
-    Why: the edge term reads the data's difference across a pair (and the trend just beside it) as a change of the
-    surface's reflectance between its ends. A pixel between them without any observation (off the object: a gap in
-    the mask; every observation left out: the depth step of an occluding contour, a band at a grazing view) is
-    where the fit does not know the surface, so a step across it may be a change of the geometry (another part of
-    the object behind a contour) rather than of the paint, and the pair says nothing about a paint (issue 45:
-    psm-horse's pixels beside its contours became a material of their own). A pixel between left out under some
-    lights only still shows the surface there under the others; both ends are measured under each matched light.
-    """
-    start, end = np.asarray(start, np.int64), np.asarray(end, np.int64)
-    unit = (end - start) // gap         # 1 along a row, the row's width down a column
-    seen = np.ones(start.shape, bool)
-    for k in range(1, gap):
-        seen &= has_data[start + k * unit]
-    return seen
-
-
-def no_step_sums(problem, first, second, n_right: int, gap: int, i, j, start, residual, spread,
-                 chunk: int = 65536, light=None, weight=None) -> np.ndarray:
-    """(P,) each pair's sum over its matched lights of the squared misfit of "no step": the data follow the
-    reference (one material fitted to every observation: ``residual``, per observation, is the data minus it) up
-    to a residual that changes smoothly, so the residuals' difference across the pair continues the trend of
-    their differences just outside it along the same line.
-
-    With e the residual and p' and q' ``gap`` px beyond p and q, seen under that light: the trend is
-    ``(e_p' - e_p + e_q - e_q') / 2`` and the misfit ``(e_p - e_q - trend)^2`` is scaled by
-    :data:`NO_STEP_NOISE`; with one of them, the trend is that side's difference and the scale ``2 / 6`` (the same
-    white-noise reasoning); with neither (a pair at the object's edge), the misfit is ``spread^2``, what a
-    difference misfits by under white noise alone, so such a pair earns only where the materials' step fits
-    better than noise would. Why the residuals, not the data: the reference carries the surface's own shading
-    (normals that change from pixel to pixel included), so only a change of reflectance is left to step. A
-    constant of the data: the baseline a boundary's step must beat to earn.
-
-    A joint colour fit passes ``light`` (each observation's light and channel as one index, so that a pair's
-    neighbours are looked up in its own channel), ``spread`` per match (its channel's) and ``weight`` per match
-    (its channel's ``1 / s_c^2``), which scales each match's misfit; one channel: the problem's lights, one
-    spread, unweighted.
-    """
-    light_of, e = np.asarray(problem.light if light is None else light, np.int64), np.asarray(residual, np.float64)
-    find = observation_lookup(problem.pixel, light_of)
-    has_data = np.diff(problem.pixel_start) > 0
-    sums = np.zeros(first.size)
-    for lo in range(0, first.size, chunk):      # pairs a chunk at a time: memory stays near the matches' own
-        hi = min(lo + chunk, first.size)
-        pair = np.repeat(np.arange(lo, hi), np.diff(start[lo:hi + 1]))
-        matches = slice(start[lo], start[hi])
-        misfit = _no_step_misfit(problem, first[pair], second[pair], pair < n_right, gap, i[matches], j[matches],
-                                 light_of[i[matches]], e, spread if np.ndim(spread) == 0 else spread[matches], find,
-                                 has_data)
-        if weight is not None:
-            misfit = misfit * weight[matches]
-        sums[lo:hi] = np.bincount(pair - lo, weights=misfit, minlength=hi - lo)
-    return sums
-
-
-def _no_step_misfit(problem, p, q, horizontal, gap: int, i, j, light, e, spread: float, find, has_data) -> np.ndarray:
-    """Per match (pair ends p, q; observations i, j under ``light``) the squared no-step misfit of
-    :func:`no_step_sums` (``has_data``: per flat pixel, whether it has an observation)."""
-    height, width = problem.height, problem.width
-    step = np.where(horizontal, gap, gap * width)
-    p_inside = np.where(horizontal, p % width >= gap, p >= gap * width)
-    q_inside = np.where(horizontal, q % width < width - gap, q < (height - gap) * width)
-    before = find(np.where(p_inside, p - step, -1), light)
-    after = find(np.where(q_inside, q + step, -1), light)
-    # a side with a pixel without data between it and the pair gives no trend (seen_between)
-    before = np.where((before >= 0) & seen_between(has_data, np.where(p_inside, p - step, p), p, gap), before, -1)
-    after = np.where((after >= 0) & seen_between(has_data, q, np.where(q_inside, q + step, q), gap), after, -1)
-    d, d_before, d_after = e[i] - e[j], e[before] - e[i], e[j] - e[after]
-    has_before, has_after = before >= 0, after >= 0
-    return np.select([has_before & has_after, has_before, has_after],
-                     [NO_STEP_NOISE * (d - 0.5 * (d_before + d_after)) ** 2, (d - d_before) ** 2 / 3.0,
-                      (d - d_after) ** 2 / 3.0], spread ** 2)
-
-
 def matched_lights(pixel, light, first, second, gap: int, chunk: int = 65536):
     """Per pair (``first[k]``, ``second[k]``, ``gap`` px apart), the observation indices (i of the first pixel, j of
     the second) of each light both saw, in the order of the lights, where every pixel between them has data
-    (:func:`seen_between`; else none), and the pairs' offsets into them: ``(i, j, start)``. ``pixel`` and
+    (:func:`~rjfit.sampler.regions.materials.edge_baseline.seen_between`; else none), and the pairs' offsets into
+    them: ``(i, j, start)``. ``pixel`` and
     ``light`` give each observation's; pairs are taken ``chunk`` at a time, so memory stays near the
     observations' own."""
     n_lights = int(np.max(light, initial=-1)) + 1
@@ -328,7 +254,7 @@ def _neighbour_correlation(first, light, residual, n_lights: int, width: int) ->
     return float(np.nanmean(rhos)) if np.any(np.isfinite(rhos)) else np.nan
 
 
-def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
+def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP, gain_sd=0.0) -> EdgeTerm:
     """The edge term of ``problem`` over the ``labelled`` (H, W) pixels (module docstring).
 
     ``power``: a positive number, or 'auto' for ``((1 - rho) / (1 + rho))^2`` (rho the lag-1
@@ -342,18 +268,17 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     every channel's differences, each divided by its ``s_c``. A boundary's step, either material alone and no
     step are then compared on the summed misfits, as a single channel's are.
 
+    ``gain_sd``: tau, the sd of the local gain integrated out of each pair (module docstring, "The local gain"):
+    a number >= 0 (0: none), or 'auto' for
+    :func:`~rjfit.sampler.regions.materials.edge_gain.shared_gain_sd` on the reference's per-pixel gains.
+
     Raises
     ------
     ValueError
-        If ``power`` is neither positive nor 'auto', ``gap`` not odd and positive, or the problem
-        has no lights per observation or has effects.
+        If ``power`` is neither positive nor 'auto', ``gain_sd`` neither a number >= 0 nor 'auto', ``gap`` not
+        odd and positive, or the problem has no lights per observation or has effects.
     """
-    if power != "auto" and not (isinstance(power, (int, float)) and power > 0):
-        raise ValueError(f"edge power (--edge-power) must be positive or 'auto', got {power!r}")
-    if gap < 1 or gap % 2 == 0:
-        raise ValueError(f"the edge term's gap must be odd and positive (checkerboard colours), got {gap}")
-    if problem.light is None or problem.effects is not None:
-        raise ValueError("the edge term (--edge-power) needs a problem without effects, with each observation's light")
+    _check_arguments(problem, power, gap, gain_sd)
     n_ch = problem.n_channels
     # a colour fit's matches pair (light, channel): one index for both, so each channel is matched in itself
     key_light = None if n_ch == 1 else (np.asarray(problem.light, np.int64) * n_ch
@@ -370,11 +295,20 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
     spreads = _spreads(residual, channel, n_ch)
     s = spreads[0]
     weight = np.zeros(0) if n_ch == 1 else 1.0 / np.maximum(spreads, 1e-300) ** 2
+    n_pix = problem.height * problem.width
+    prediction = y - reference_residual
+    if gain_sd == "auto":
+        gain_sd = shared_gain_sd(y, prediction, problem.pixel, first, second, n_pix,
+                                 None if n_ch == 1 else weight[np.asarray(problem.channel, np.int64)])
+    unit = max(s, 1e-300) ** 2 if n_ch == 1 else 1.0      # what the pairs' sums are measured in
+    gain = np.array([float(gain_sd) ** 2, unit])
     if n_ch == 1:
-        pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual, s)
+        pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual, s,
+                                    prediction=prediction, gain=gain)
     else:
         pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual,
-                                    spreads[channel], light=key_light, weight=weight[channel])
+                                    spreads[channel], light=key_light, weight=weight[channel], prediction=prediction,
+                                    gain=gain)
     pair_no_step[~np.isfinite(pair_no_step)] = np.inf     # no reference fit (tiny problems): no bound from it
     if power == "auto":
         every_light = np.asarray(problem.light, np.int64) if n_ch == 1 else key_light
@@ -384,19 +318,37 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP) -> EdgeTerm:
                                                  problem.width) for part in (pair < n_right, pair >= n_right)])
         rho = max(0.0, float(rho)) if np.isfinite(rho) else 0.0
         power = ((1.0 - rho) / (1.0 + rho)) ** 2
-    n_pix = problem.height * problem.width
-    pair_of = np.full((n_pix, 4), -1, np.int64)
-    ids = np.arange(first.size)
-    horizontal = ids < n_right
-    for slot, (ends, which) in enumerate(((first, horizontal), (first, ~horizontal), (second, horizontal),
-                                          (second, ~horizontal))):
-        pair_of[ends[which], slot] = ids[which]
+    pair_of = _pairs_of_pixels(first, second, n_right, n_pix)
     scale = float(power) / (2.0 * max(s, 1e-300) ** 2) if n_ch == 1 else float(power) / 2.0
     return EdgeTerm(power=float(power), scale=scale, first=first.astype(np.int64),
                     second=second.astype(np.int64), start=start, d=d, c_first=C[i].astype(np.float32),
                     c_second=C[j].astype(np.float32), l_first=lch[i].astype(np.float32),
                     l_second=lch[j].astype(np.float32), no_step=pair_no_step, pair_of=pair_of, channel=channel,
-                    weight=weight, n_channels=n_ch)
+                    weight=weight, n_channels=n_ch, gain=gain)
+
+
+def _check_arguments(problem, power, gap: int, gain_sd) -> None:
+    """:func:`edge_term`'s refusals (its Raises)."""
+    if power != "auto" and not (isinstance(power, (int, float)) and power > 0):
+        raise ValueError(f"edge power (--edge-power) must be positive or 'auto', got {power!r}")
+    if gain_sd != "auto" and not (isinstance(gain_sd, (int, float)) and np.isfinite(gain_sd) and gain_sd >= 0):
+        raise ValueError(f"the edge term's gain sd (--edge-gain-sd) must be a number >= 0 or 'auto', got {gain_sd!r}")
+    if gap < 1 or gap % 2 == 0:
+        raise ValueError(f"the edge term's gap must be odd and positive (checkerboard colours), got {gap}")
+    if problem.light is None or problem.effects is not None:
+        raise ValueError("the edge term (--edge-power) needs a problem without effects, with each observation's light")
+
+
+def _pairs_of_pixels(first, second, n_right: int, n_pixels: int) -> np.ndarray:
+    """(n_pixels, 4) each pixel's pairs (-1: none): as the first end of a row's pair, of a column's, then as the
+    second end of each."""
+    pair_of = np.full((n_pixels, 4), -1, np.int64)
+    ids = np.arange(first.size)
+    horizontal = ids < n_right
+    for slot, (ends, which) in enumerate(((first, horizontal), (first, ~horizontal), (second, horizontal),
+                                          (second, ~horizontal))):
+        pair_of[ends[which], slot] = ids[which]
+    return pair_of
 
 
 def _spreads(residual, channel, n_channels: int) -> np.ndarray:

@@ -51,7 +51,9 @@ class Bonds(NamedTuple):
     and the split proposals' guides use; ``seed_cdf`` (H W,): the cumulative seed weights of
     the cluster moves (:func:`seed_weights`); ``segments``: the segment moves' candidate sets
     (:class:`~rjfit.sampler.regions.materials.segments.Segments`; None without segment moves);
-    ``edges``: the target's edge term (:class:`~rjfit.sampler.regions.materials.edges.EdgeTerm`; None without one).
+    ``edges``: the target's edge term (:class:`~rjfit.sampler.regions.materials.edges.EdgeTerm`; None without one);
+    ``potts_q`` (2 H W,): ``q_max`` on every edge between two labelled pixels, the bonds of the component moves
+    (:mod:`rjfit.sampler.regions.materials.component_move`), which do not read the data.
     """
 
     q: np.ndarray
@@ -61,6 +63,7 @@ class Bonds(NamedTuple):
     seed_cdf: np.ndarray
     segments: object = None
     edges: object = None
+    potts_q: np.ndarray = None
 
     def draw_seed(self, rng) -> int:
         """A cluster move's seed pixel, drawn with the seed weights by one uniform of ``rng``."""
@@ -137,7 +140,10 @@ def bond_probabilities(problem, q_max: float = 1.0 - np.exp(-1.0), tau: float = 
     else:
         q[edges] = 0.5 * q_max
     seeds = seed_weights(labelled, q, q_max, first, second, edges)
-    return Bonds(q=q, q_max=float(q_max), tau=float(tau), features=features, seed_cdf=np.cumsum(seeds))
+    potts_q = np.zeros(2 * labelled.size)
+    potts_q[edges] = q_max
+    return Bonds(q=q, q_max=float(q_max), tau=float(tau), features=features, seed_cdf=np.cumsum(seeds),
+                 potts_q=potts_q)
 
 
 def seed_weights(labelled, q, q_max, first, second, edges) -> np.ndarray:

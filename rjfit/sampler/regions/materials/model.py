@@ -39,13 +39,17 @@ unchanged), in order:
 2. ``cluster.moves`` Swendsen-Wang-cut cluster moves: a cluster of one label, grown by
    data-driven bonds, moved to another label or to a NEW material (a birth), a whole
    material moved (a death) (:mod:`rjfit.sampler.regions.materials.cluster_swc`);
-3. ``segments.moves`` segment moves: a region of the image drawn from a fixed, data-driven
+3. ``component_moves`` component moves: the cluster move with bonds that ignore the data (Swendsen and Wang's
+   ``1 - exp(-beta)`` on every edge of one label), so that a connected piece of a material is moved whole
+   (:mod:`rjfit.sampler.regions.materials.component_move`): what removes a start's pieces of another appearance
+   from a paint's material;
+4. ``segments.moves`` segment moves: a region of the image drawn from a fixed, data-driven
    family (the nodes of a Ward hierarchy of superpixels,
    :mod:`rjfit.sampler.regions.materials.segments`), when all of it carries one material,
    moved to another material or to a NEW one (:mod:`rjfit.sampler.regions.materials.segment_move`):
    what proposes a compact region of a second paint whose per-pixel features are too noisy
    for the bonds to follow its outline (measured stacks);
-4. ``merge_split.moves`` merges of two whole materials and their reverse, splits of one by
+5. ``merge_split.moves`` merges of two whole materials and their reverse, splits of one by
    sequential allocation guided by a deterministic 2-means of its pixels (with ``jumps``;
    :mod:`rjfit.sampler.regions.materials.merge_split`): what removes twins (two materials of one paint)
    and separates a second paint hidden in a material.
@@ -85,7 +89,7 @@ from rjfit.sampler.regions.materials.layout import (
     majority_labels,
 )
 from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings
-from rjfit.sampler.regions.materials.moves import ClusterMove, LabelSweep, MergeSplit, SegmentMove
+from rjfit.sampler.regions.materials.moves import ClusterMove, ComponentMove, LabelSweep, MergeSplit, SegmentMove
 from rjfit.sampler.regions.materials.segment_move import SegmentSettings
 from rjfit.sampler.regions.materials.segments import segment_family
 
@@ -125,6 +129,13 @@ class MaterialRegions(RegionModel):
     edge_gap : int
         How far apart (px, odd) the pixels of the edge term's pairs lie
         (:data:`rjfit.sampler.regions.materials.edges.EDGE_GAP`; 1 on the exactness tests' tiny images).
+    component_moves : int
+        Component moves per iteration (:mod:`rjfit.sampler.regions.materials.component_move`: a connected piece
+        of a material moved whole; flat option ``component_moves``; 0, the default: none).
+    edge_gain_sd : float or 'auto'
+        tau, the sd of the local gain the edge term integrates out of each pair (flat option ``edge_gain_sd``;
+        :mod:`rjfit.sampler.regions.materials.edges`, "The local gain"); 'auto': measured on the data
+        (:func:`~rjfit.sampler.regions.materials.edges.shared_gain_sd`); 0 (the default): none.
     """
 
     max_materials: int = 8
@@ -138,6 +149,8 @@ class MaterialRegions(RegionModel):
     proposals: RegionProposalSettings = field(default_factory=RegionProposalSettings)
     edge_power: float | str = 0.0
     edge_gap: int = EDGE_GAP
+    edge_gain_sd: float | str = 0.0
+    component_moves: int = 0
 
     key_names = ("n_materials",)
 
@@ -146,11 +159,15 @@ class MaterialRegions(RegionModel):
             raise ValueError(f"max_materials (--max-materials) must lie in 1 .. 127, got {self.max_materials}")
         if not (self.potts.beta >= 0 and self.potts.rho > 0):
             raise ValueError(f"potts beta must be >= 0 and rho > 0, got {self.potts.beta}, {self.potts.rho}")
-        if self.sweeps < 0:
-            raise ValueError(f"sweeps must be >= 0, got {self.sweeps}")
+        if self.sweeps < 0 or self.component_moves < 0:
+            raise ValueError(f"sweeps and component moves must be >= 0, got {self.sweeps}, {self.component_moves}")
         if self.edge_power != "auto" and not (isinstance(self.edge_power, (int, float)) and
                                               np.isfinite(self.edge_power) and self.edge_power >= 0):
             raise ValueError(f"edge power (--edge-power) must be a number >= 0 or 'auto', got {self.edge_power!r}")
+        if self.edge_gain_sd != "auto" and not (isinstance(self.edge_gain_sd, (int, float)) and
+                                                np.isfinite(self.edge_gain_sd) and self.edge_gain_sd >= 0):
+            raise ValueError(f"the edge term's gain sd (--edge-gain-sd) must be a number >= 0 or 'auto', got "
+                             f"{self.edge_gain_sd!r}")
 
     @property
     def has_edge_term(self) -> bool:
@@ -174,7 +191,8 @@ class MaterialRegions(RegionModel):
             bonds = bonds._replace(segments=segment_family(bonds.features, labelled, self.segments.superpixel_size,
                                                            self.segments.max_regions))
         if self.has_edge_term:
-            bonds = bonds._replace(edges=edge_term(problem, labelled, self.edge_power, self.edge_gap))
+            bonds = bonds._replace(edges=edge_term(problem, labelled, self.edge_power, self.edge_gap,
+                                                   self.edge_gain_sd))
         return bonds
 
     def initial_layout(self, problem, rng, *, n_materials=None, pixel_labels=None, bonds=None) -> MaterialLabels:
@@ -244,12 +262,15 @@ class MaterialRegions(RegionModel):
             else None
 
     def schedule(self) -> list:
-        """Label sweeps, cluster moves, segment moves, then (with jumps) merges and splits, each so many times."""
+        """Label sweeps, cluster moves, component moves, segment moves, then (with jumps) merges and splits, each so
+        many times."""
         if not self.update_labels:
             return []
         return [Scheduled(LabelSweep(self.potts), times=self.sweeps),
                 Scheduled(ClusterMove(self.cluster, self.proposals, self.potts, self.max_materials, self.jumps),
                           times=self.cluster.moves),
+                Scheduled(ComponentMove(self.cluster.new_prob, self.proposals, self.potts, self.max_materials,
+                                        self.jumps), times=self.component_moves),
                 Scheduled(SegmentMove(self.cluster.new_prob, self.proposals, self.potts, self.max_materials,
                                       self.jumps), times=self.segments.moves),
                 Scheduled(MergeSplit(self.merge_split, self.proposals, self.potts, self.max_materials),

@@ -10,12 +10,13 @@ from rjfit.sampler.moves.base import Move, Sweep
 from rjfit.sampler.moves.proposal import Proposal
 from rjfit.sampler.moves.region_proposals import RegionProposalSettings
 from rjfit.sampler.regions.materials.cluster_swc import ClusterSettings, propose_cluster_move
+from rjfit.sampler.regions.materials.component_move import propose_component_move
 from rjfit.sampler.regions.materials.label_gibbs import sweep_labels
 from rjfit.sampler.regions.materials.layout import PottsPrior
 from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings, propose_merge_split
 from rjfit.sampler.regions.materials.segment_move import propose_segment_move
 
-__all__ = ["LabelSweep", "ClusterMove", "SegmentMove", "MergeSplit"]
+__all__ = ["LabelSweep", "ClusterMove", "ComponentMove", "SegmentMove", "MergeSplit"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,22 @@ class ClusterMove(Move):
     def propose(self, work, rng, problem, prior) -> Proposal:
         return propose_cluster_move(work, rng, problem, prior, self.settings, self.proposals, self.potts,
                                     self.max_materials, self.jumps)
+
+
+@dataclass(frozen=True)
+class ComponentMove(Move):
+    """A connected piece of a material moved whole to another material or a new one, or a whole material moved
+    (kinds 'component', 'component_birth', 'component_death')."""
+
+    new_prob: float
+    proposals: RegionProposalSettings
+    potts: PottsPrior
+    max_materials: int
+    jumps: bool
+
+    def propose(self, work, rng, problem, prior) -> Proposal:
+        return propose_component_move(work, rng, problem, prior, self.new_prob, self.proposals, self.potts,
+                                      self.max_materials, self.jumps)
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,13 @@ pixels: ``channel`` (M,) gives each match's, whose material k has the parameter 
 and each match's squared misfit is weighted by ``weight[c]`` (``1 / s_c^2``: every channel on its
 own noise scale), as is ``no_step`` already; one channel (``n_channels`` 1) reads neither (empty
 arrays) and sums as before, unweighted (:func:`pair_sums`).
+
+The local gain (``gain`` = ``(tau^2, u)``, :func:`pair_misfit`): a pair's two ends may share a gain ``1 + e``
+on both predictions (a local error of the shading that scales the step with everything else), ``e ~ N(0, tau^2)``
+integrated out per pair and hypothesis: with ``r = d - delta`` and ``delta`` the hypothesis' predicted
+difference, its SS becomes ``SS - (sum r delta)^2 / (sum delta^2 + u / tau^2) + u log(1 + tau^2 sum delta^2 / u)``,
+``u`` the unit of the sums (``s^2`` for one channel, 1 for the weighted sums of a colour fit). ``tau`` 0: the
+plain SS.
 """
 from __future__ import annotations
 
@@ -33,38 +40,64 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["boundary_value", "pair_sums", "pair_sums_colour", "boundary_sums", "changed_delta", "edge_value", "edge_sums",
-           "keep_new_label"]
+__all__ = ["boundary_value", "pair_misfit", "pairs_misfit", "pair_sums", "pair_sums_colour", "boundary_sums",
+           "changed_delta", "edge_value", "edge_sums", "keep_new_label"]
 
 
 @njit(cache=True, nogil=True)
-def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second):
+def pair_misfit(ss, rd, dd, gain):
+    """A pair's SS under one hypothesis with its local gain integrated out (module docstring): ``ss``, ``rd``,
+    ``dd`` its sums of r^2, r delta and delta^2; ``gain`` = (tau^2, unit). tau^2 0: ``ss`` itself."""
+    var, unit = gain[0], gain[1]
+    if var <= 0.0:
+        return ss
+    lam = unit / var
+    return ss - rd * rd / (dd + lam) + unit * math.log1p(dd / lam)
+
+
+@njit(cache=True, nogil=True)
+def pairs_misfit(ss, rd, dd, gain):
+    """:func:`pair_misfit` of each pair of arrays' entries (the no-step baseline's, once per fit)."""
+    out = np.empty(ss.shape[0])
+    for j in range(ss.shape[0]):
+        out[j] = pair_misfit(ss[j], rd[j], dd[j], gain)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, gain):
     """(SS(k, m), SS(k, k), SS(m, m)) of pair ``j``: its first pixel in material k and its second in m, and both
-    in either one."""
+    in either one, each with the local gain integrated out (:func:`pair_misfit`)."""
     a_k, b_k, g_k = coef[k, 0], coef[k, 1], coef[k, 2]
     a_m, b_m, g_m = coef[m, 0], coef[m, 1], coef[m, 2]
-    two = 0.0
-    one_k = 0.0
-    one_m = 0.0
+    sums = np.zeros((3, 3))      # rows: (k, m), (k, k), (m, m); columns: r^2, r delta, delta^2
     for i in range(start[j], start[j + 1]):
         cf, cs = np.float64(c_first[i]), np.float64(c_second[i])
         lf, ls = np.float64(l_first[i]), np.float64(l_second[i])
         k_first, k_second = cf * (a_k + b_k * math.exp(g_k * lf)), cs * (a_k + b_k * math.exp(g_k * ls))
         m_first, m_second = cf * (a_m + b_m * math.exp(g_m * lf)), cs * (a_m + b_m * math.exp(g_m * ls))
-        r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
-        two += r_two * r_two
-        one_k += r_k * r_k
-        one_m += r_m * r_m
-    return two, one_k, one_m
+        _add_match(sums, 0, d[i] - k_first + m_second, k_first - m_second, 1.0)
+        _add_match(sums, 1, d[i] - k_first + k_second, k_first - k_second, 1.0)
+        _add_match(sums, 2, d[i] - m_first + m_second, m_first - m_second, 1.0)
+    return (pair_misfit(sums[0, 0], sums[0, 1], sums[0, 2], gain),
+            pair_misfit(sums[1, 0], sums[1, 1], sums[1, 2], gain),
+            pair_misfit(sums[2, 0], sums[2, 1], sums[2, 2], gain))
 
 
 @njit(cache=True, nogil=True)
-def pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, channel, weight, n_channels):
+def _add_match(sums, row, r, delta, w):
+    """Add one match (its misfit ``r`` = the data's difference less a hypothesis' ``delta``, weight ``w``) to row
+    ``row`` of a pair's sums (r^2, r delta, delta^2)."""
+    sums[row, 0] += w * r * r
+    sums[row, 1] += w * r * delta
+    sums[row, 2] += w * delta * delta
+
+
+@njit(cache=True, nogil=True)
+def pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, channel, weight, n_channels, gain):
     """:func:`pair_sums` of a joint colour fit: each match under its channel's rows of k and m (``k C + c``), its
-    squared misfits weighted by ``weight[c]``."""
-    two = 0.0
-    one_k = 0.0
-    one_m = 0.0
+    squared misfits weighted by ``weight[c]``; one gain per pair, shared by the channels."""
+    sums = np.zeros((3, 3))
     for i in range(start[j], start[j + 1]):
         c = channel[i]
         rk, rm = k * n_channels + c, m * n_channels + c
@@ -74,23 +107,24 @@ def pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_seco
         k_second = cs * (coef[rk, 0] + coef[rk, 1] * math.exp(coef[rk, 2] * ls))
         m_first = cf * (coef[rm, 0] + coef[rm, 1] * math.exp(coef[rm, 2] * lf))
         m_second = cs * (coef[rm, 0] + coef[rm, 1] * math.exp(coef[rm, 2] * ls))
-        r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
         w = weight[c]
-        two += w * r_two * r_two
-        one_k += w * r_k * r_k
-        one_m += w * r_m * r_m
-    return two, one_k, one_m
+        _add_match(sums, 0, d[i] - k_first + m_second, k_first - m_second, w)
+        _add_match(sums, 1, d[i] - k_first + k_second, k_first - k_second, w)
+        _add_match(sums, 2, d[i] - m_first + m_second, m_first - m_second, w)
+    return (pair_misfit(sums[0, 0], sums[0, 1], sums[0, 2], gain),
+            pair_misfit(sums[1, 0], sums[1, 1], sums[1, 2], gain),
+            pair_misfit(sums[2, 0], sums[2, 1], sums[2, 2], gain))
 
 
 @njit(cache=True, nogil=True)
 def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel, weight,
-              n_channels):
+              n_channels, gain):
     """Add (``sign`` 1) or remove (-1) pair ``j`` with ends in (k, m), k != m, to its boundary's sums."""
     if n_channels == 1:
-        two, one_k, one_m = pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second)
+        two, one_k, one_m = pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, gain)
     else:
         two, one_k, one_m = pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, channel,
-                                             weight, n_channels)
+                                             weight, n_channels, gain)
     lo, hi = (k, m) if k < m else (m, k)
     sums[lo, hi, 0] += sign * two
     sums[lo, hi, 1] += sign * (one_k if k < m else one_m)
@@ -100,7 +134,7 @@ def _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l
 
 @njit(cache=True, nogil=True)
 def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second,
-                  no_step, channel, weight, n_channels):
+                  no_step, channel, weight, n_channels, gain):
     """(K, K, 4) the sums of every boundary of flat ``labels`` (-1: unlabelled, in no pair's sums); ``coef`` has
     ``n_channels`` rows per material."""
     sums = np.zeros((n_materials, n_materials, 4))
@@ -108,13 +142,13 @@ def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c
         k, m = labels[first[j]], labels[second[j]]
         if k >= 0 and m >= 0 and k != m:
             _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
-                      weight, n_channels)
+                      weight, n_channels, gain)
     return sums
 
 
 @njit(cache=True, nogil=True)
 def changed_delta(labels, changed, coef, new_coef, first, second, start, d, c_first, c_second, l_first, l_second,
-                  no_step, channel, weight, n_channels, scale):
+                  no_step, channel, weight, n_channels, gain, scale):
     """The change of the term when the materials marked in ``changed`` (K,) take ``new_coef`` instead of ``coef``.
 
     Only the boundaries of a changed material move, so only their pairs are summed, at both
@@ -128,9 +162,9 @@ def changed_delta(labels, changed, coef, new_coef, first, second, start, d, c_fi
         k, m = labels[first[j]], labels[second[j]]
         if k >= 0 and m >= 0 and k != m and (changed[k] or changed[m]):
             _add_pair(before, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
-                      weight, n_channels)
+                      weight, n_channels, gain)
             _add_pair(after, 1.0, j, k, m, new_coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
-                      weight, n_channels)
+                      weight, n_channels, gain)
     return edge_value(after, scale) - edge_value(before, scale)
 
 
@@ -153,7 +187,7 @@ def boundary_value(step, alone, no_step):
 
 @njit(cache=True, nogil=True)
 def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, start, d, c_first, c_second, l_first,
-                l_second, no_step, channel, weight, n_channels):
+                l_second, no_step, channel, weight, n_channels, gain):
     """Add (``sign`` 1) or remove (-1) the pairs of pixel ``p`` with ``p`` in material ``label``."""
     for slot in range(pair_of.shape[1]):
         j = pair_of[p, slot]
@@ -165,16 +199,16 @@ def _move_pixel(sums, sign, p, label, labels, pair_of, coef, first, second, star
             k, m = labels[first[j]], label
         if k >= 0 and m >= 0 and k != m:
             _add_pair(sums, sign, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
-                      weight, n_channels)
+                      weight, n_channels, gain)
 
 
 @njit(cache=True, nogil=True)
 def edge_sums(labels, n_materials, edge):
     """:func:`boundary_sums` of ``edge``, the arrays of :meth:`rjfit.sampler.regions.materials.edges.EdgeTerm.sweep_arrays`."""
     (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale, channel, weight,
-     n_channels) = edge
+     n_channels, gain) = edge
     return boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c_second, l_first, l_second,
-                         no_step, channel, weight, n_channels)
+                         no_step, channel, weight, n_channels, gain)
 
 
 @njit(cache=True, nogil=True)
@@ -188,9 +222,9 @@ def keep_new_label(sums, p, old, new, labels, edge, uniform):
     reversible updates).
     """
     (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, scale, channel, weight,
-     n_channels) = edge
+     n_channels, gain) = edge
     arrays = (pair_of, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step, channel, weight,
-              n_channels)
+              n_channels, gain)
     before = edge_value(sums, scale)
     _move_pixel(sums, -1.0, p, old, labels, *arrays)
     _move_pixel(sums, 1.0, p, new, labels, *arrays)
