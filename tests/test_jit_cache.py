@@ -37,13 +37,15 @@ def test_the_folder_is_keyed_and_a_users_choice_is_kept(tmp_path):
 
 
 def test_importing_rjfit_points_numba_at_the_keyed_folder(tmp_path):
-    """In a fresh interpreter: ``import rjfit`` sets the folder before Numba defines any of rjfit's functions."""
+    """In a fresh interpreter: ``import rjfit`` sets the folder before Numba defines any of rjfit's functions, and a
+    compiled function's cache files land under it."""
     env = {key: value for key, value in os.environ.items() if key != "NUMBA_CACHE_DIR"}
     env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
-    code = ("import rjfit, numba, os; from rjfit.sampler.regions.materials.passes import labels; "
-            "print(os.environ['NUMBA_CACHE_DIR']); print(numba.config.CACHE_DIR); "
-            "print(labels.gibbs_sweep._cache._cache_path)")
+    code = ("import rjfit, numba, os; from rjfit.sampler.regions.materials.passes.edges import boundary_value; "
+            "assert boundary_value(1.0, 3.0, 2.0) == 1.0; "
+            "print(os.environ['NUMBA_CACHE_DIR']); print(numba.config.CACHE_DIR)")
     lines = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                            check=True).stdout.split()
     assert lines[0] == lines[1] and lines[0].startswith(str(tmp_path / "cache" / "rjfit" / "numba"))
-    assert lines[2].startswith(lines[0])
+    written = [name for _, _, names in os.walk(lines[0]) for name in names]
+    assert any("boundary_value" in name and name.endswith(".nbi") for name in written), written
