@@ -156,6 +156,14 @@ def test_fixed_k_gibbs_and_cluster_moves_match_enumeration():
     assert p_part > LEVEL, details
 
 
+def without_cut_products(grow):
+    """``grow`` (grow_cluster) with the cut products it returns set to 0: the negative controls' broken ratio."""
+    def grown(*args):
+        members, n_to, log_cut_to = grow(*args)
+        return members, n_to, np.zeros_like(log_cut_to)
+    return grown
+
+
 def test_dropping_the_cut_products_is_detected(square, monkeypatch):
     """Negative control: bonds at their ceiling 0.95 (tau huge) and the cut products left out of the ratio.
 
@@ -168,13 +176,7 @@ def test_dropping_the_cut_products_is_detected(square, monkeypatch):
         base.regions, cluster=dataclasses.replace(base.regions.cluster, bond_q_max=0.95, bond_tau=1e6)))
     right, _ = run(problem, prior, config, CONTROL_ITERATIONS, 7)
     p_right, details_right = partition_test(right[CONTROL_BURN:], exact)
-    grow = cluster_swc.grow_cluster
-
-    def without_cuts(*args):
-        members, n_to, log_cut_to = grow(*args)
-        return members, n_to, np.zeros_like(log_cut_to)
-
-    monkeypatch.setattr(cluster_swc, "grow_cluster", without_cuts)
+    monkeypatch.setattr(cluster_swc, "grow_cluster", without_cut_products(cluster_swc.grow_cluster))
     wrong, _ = run(problem, prior, config, CONTROL_ITERATIONS, 7)
     p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
     print(p_right, details_right, p_wrong, details_wrong)
@@ -189,13 +191,7 @@ def test_component_moves_without_their_cut_products_are_detected(square, monkeyp
     prior, problem, quad = square
     exact = exact_partition_posterior(quad, (2, 2), 1.0, 0.5)
     config = materials_config(max_materials=4, potts_beta=1.0, potts_rho=0.5, **JUMP_MOVES["component"])
-    grow = component_move.grow_cluster
-
-    def without_cuts(*args):
-        members, n_to, log_cut_to = grow(*args)
-        return members, n_to, np.zeros_like(log_cut_to)
-
-    monkeypatch.setattr(component_move, "grow_cluster", without_cuts)
+    monkeypatch.setattr(component_move, "grow_cluster", without_cut_products(component_move.grow_cluster))
     wrong, _ = run(problem, prior, config, CONTROL_ITERATIONS, 7)
     p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
     print(p_wrong, details_wrong)

@@ -70,34 +70,40 @@ def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, gai
     in either one, each with the local gain integrated out (:func:`pair_misfit`)."""
     a_k, b_k, g_k = coef[k, 0], coef[k, 1], coef[k, 2]
     a_m, b_m, g_m = coef[m, 0], coef[m, 1], coef[m, 2]
-    sums = np.zeros((3, 3))      # rows: (k, m), (k, k), (m, m); columns: r^2, r delta, delta^2
+    with_gain = gain[0] > 0.0
+    two = one_k = one_m = 0.0
+    two_rd = two_dd = k_rd = k_dd = m_rd = m_dd = 0.0      # sum r delta, sum delta^2: read only with a gain
     for i in range(start[j], start[j + 1]):
         cf, cs = np.float64(c_first[i]), np.float64(c_second[i])
         lf, ls = np.float64(l_first[i]), np.float64(l_second[i])
         k_first, k_second = cf * (a_k + b_k * math.exp(g_k * lf)), cs * (a_k + b_k * math.exp(g_k * ls))
         m_first, m_second = cf * (a_m + b_m * math.exp(g_m * lf)), cs * (a_m + b_m * math.exp(g_m * ls))
-        _add_match(sums, 0, d[i] - k_first + m_second, k_first - m_second, 1.0)
-        _add_match(sums, 1, d[i] - k_first + k_second, k_first - k_second, 1.0)
-        _add_match(sums, 2, d[i] - m_first + m_second, m_first - m_second, 1.0)
-    return (pair_misfit(sums[0, 0], sums[0, 1], sums[0, 2], gain),
-            pair_misfit(sums[1, 0], sums[1, 1], sums[1, 2], gain),
-            pair_misfit(sums[2, 0], sums[2, 1], sums[2, 2], gain))
+        r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
+        two += r_two * r_two
+        one_k += r_k * r_k
+        one_m += r_m * r_m
+        if with_gain:
+            two_rd, two_dd = _add_gain_match(two_rd, two_dd, r_two, k_first - m_second, 1.0)
+            k_rd, k_dd = _add_gain_match(k_rd, k_dd, r_k, k_first - k_second, 1.0)
+            m_rd, m_dd = _add_gain_match(m_rd, m_dd, r_m, m_first - m_second, 1.0)
+    return (pair_misfit(two, two_rd, two_dd, gain), pair_misfit(one_k, k_rd, k_dd, gain),
+            pair_misfit(one_m, m_rd, m_dd, gain))
 
 
 @njit(cache=True, nogil=True)
-def _add_match(sums, row, r, delta, w):
-    """Add one match (its misfit ``r`` = the data's difference less a hypothesis' ``delta``, weight ``w``) to row
-    ``row`` of a pair's sums (r^2, r delta, delta^2)."""
-    sums[row, 0] += w * r * r
-    sums[row, 1] += w * r * delta
-    sums[row, 2] += w * delta * delta
+def _add_gain_match(rd, dd, r, delta, w):
+    """A pair's sums ``(sum r delta, sum delta^2)`` with one match added (misfit ``r`` = the data's difference less
+    the hypothesis' ``delta``, weight ``w``)."""
+    return rd + w * r * delta, dd + w * delta * delta
 
 
 @njit(cache=True, nogil=True)
 def pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, channel, weight, n_channels, gain):
     """:func:`pair_sums` of a joint colour fit: each match under its channel's rows of k and m (``k C + c``), its
     squared misfits weighted by ``weight[c]``; one gain per pair, shared by the channels."""
-    sums = np.zeros((3, 3))
+    with_gain = gain[0] > 0.0
+    two = one_k = one_m = 0.0
+    two_rd = two_dd = k_rd = k_dd = m_rd = m_dd = 0.0
     for i in range(start[j], start[j + 1]):
         c = channel[i]
         rk, rm = k * n_channels + c, m * n_channels + c
@@ -107,13 +113,17 @@ def pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_seco
         k_second = cs * (coef[rk, 0] + coef[rk, 1] * math.exp(coef[rk, 2] * ls))
         m_first = cf * (coef[rm, 0] + coef[rm, 1] * math.exp(coef[rm, 2] * lf))
         m_second = cs * (coef[rm, 0] + coef[rm, 1] * math.exp(coef[rm, 2] * ls))
+        r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
         w = weight[c]
-        _add_match(sums, 0, d[i] - k_first + m_second, k_first - m_second, w)
-        _add_match(sums, 1, d[i] - k_first + k_second, k_first - k_second, w)
-        _add_match(sums, 2, d[i] - m_first + m_second, m_first - m_second, w)
-    return (pair_misfit(sums[0, 0], sums[0, 1], sums[0, 2], gain),
-            pair_misfit(sums[1, 0], sums[1, 1], sums[1, 2], gain),
-            pair_misfit(sums[2, 0], sums[2, 1], sums[2, 2], gain))
+        two += w * r_two * r_two
+        one_k += w * r_k * r_k
+        one_m += w * r_m * r_m
+        if with_gain:
+            two_rd, two_dd = _add_gain_match(two_rd, two_dd, r_two, k_first - m_second, w)
+            k_rd, k_dd = _add_gain_match(k_rd, k_dd, r_k, k_first - k_second, w)
+            m_rd, m_dd = _add_gain_match(m_rd, m_dd, r_m, m_first - m_second, w)
+    return (pair_misfit(two, two_rd, two_dd, gain), pair_misfit(one_k, k_rd, k_dd, gain),
+            pair_misfit(one_m, m_rd, m_dd, gain))
 
 
 @njit(cache=True, nogil=True)
