@@ -4,7 +4,7 @@ import os
 import subprocess
 import sys
 
-from rjfit.jit_cache import source_key, use_source_keyed_cache
+from rjfit.jit_cache import KEPT_VERSIONS, prune_versions, source_key, use_source_keyed_cache
 
 
 def test_the_key_changes_with_any_source_file_and_only_with_one(tmp_path):
@@ -49,3 +49,28 @@ def test_importing_rjfit_points_numba_at_the_keyed_folder(tmp_path):
     assert lines[0] == lines[1] and lines[0].startswith(str(tmp_path / "cache" / "rjfit" / "numba"))
     written = [name for _, _, names in os.walk(lines[0]) for name in names]
     assert any("boundary_value" in name and name.endswith(".nbi") for name in written), written
+
+
+def test_a_new_version_removes_the_least_recently_used_beyond_the_kept(tmp_path):
+    """Each version's folder is tens of MB: making a new one keeps the most recently used KEPT_VERSIONS and leaves
+    anything that is not a version folder."""
+    parent = tmp_path / "cache" / "rjfit" / "numba"
+    parent.mkdir(parents=True)
+    old = [parent / f"{index:016x}" for index in range(KEPT_VERSIONS + 2)]
+    for age, path in enumerate(old):
+        path.mkdir()
+        (path / "f.nbi").write_text("x")
+        os.utime(path, (1_000_000 + age, 1_000_000 + age))      # the last made is the most recently used
+    (parent / "notes").mkdir()
+    package = tmp_path / "pkg"
+    package.mkdir()
+    (package / "a.py").write_text("x = 1\n")
+    folder = use_source_keyed_cache(package, {"XDG_CACHE_HOME": str(tmp_path / "cache")})
+    left = sorted(path.name for path in parent.iterdir())
+    assert os.path.basename(folder) in left and "notes" in left
+    assert left == sorted(["notes", os.path.basename(folder)] + [path.name for path in old[-(KEPT_VERSIONS - 1):]])
+    # a use of an existing version prunes nothing
+    assert use_source_keyed_cache(package, {"XDG_CACHE_HOME": str(tmp_path / "cache")}) == folder
+    assert sorted(path.name for path in parent.iterdir()) == left
+    assert prune_versions(parent, keep=1) and sorted(path.name for path in parent.iterdir()) == sorted(
+        ["notes", os.path.basename(folder)])
