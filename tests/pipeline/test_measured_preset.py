@@ -90,21 +90,26 @@ def test_the_preset_sets_the_edge_term_where_it_applies_and_a_given_one_is_check
     assert given.edge_power == 0.0 and resolve_options(FitOptions.from_json(given.to_json())) == given
 
 
-def test_the_edge_terms_local_gain_is_given_with_a_term_and_refused_without_one():
-    """The local gain is not the preset's (0 from the default, with or without its edge term); a given gain ('auto'
-    or a number) is kept with the preset's edge term, and one without an edge term fails naming both flags."""
+def test_the_preset_measures_the_edge_terms_local_gain_with_its_term_and_a_gain_without_one_is_refused():
+    """The preset's local gain is 'auto' wherever it sets the edge term (one channel or colour) and 0 where there is
+    no term (change points, effects, a given --edge-power 0); a given gain ('auto' or a number) is kept, and one
+    without an edge term fails naming both flags."""
     for channel in ("mean", "rgb"):
         resolved = resolve_options(FitOptions(preset="measured", regions="materials", channel=channel))
-        assert (resolved.edge_gain_sd, resolved.source("edge_gain_sd")) == (0.0, "default")
-    for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "effects": "ambient"}):
+        assert (resolved.edge_gain_sd, resolved.source("edge_gain_sd")) == ("auto", "preset")
+    for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "effects": "ambient"},
+                      {"regions": "materials", "edge_power": "0"}):
         assert resolve_options(FitOptions(preset="measured", **elsewhere)).edge_gain_sd == 0.0, elsewhere
+    assert resolve_options(FitOptions(preset="measured", regions="materials", edge_power="0.3")).edge_gain_sd == "auto"
     assert resolve_options(FitOptions(preset="measured", regions="materials", edge_gain_sd="0.05")).edge_gain_sd \
         == 0.05
-    given = resolve_options(FitOptions(preset="measured", regions="materials", edge_gain_sd="auto"))
-    assert (given.edge_gain_sd, given.source("edge_gain_sd")) == ("auto", "given")
+    given = resolve_options(FitOptions(preset="measured", regions="materials", edge_gain_sd="0"))
+    assert (given.edge_gain_sd, given.source("edge_gain_sd")) == (0.0, "given")
     assert resolve_options(FitOptions(regions="materials", edge_power=0.5)).edge_gain_sd == 0.0
     with pytest.raises(ValueError, match="--edge-gain-sd.*--edge-power"):
         resolve_options(FitOptions(regions="materials", edge_gain_sd=0.1))
+    with pytest.raises(ValueError, match="--edge-gain-sd.*--edge-power"):
+        resolve_options(FitOptions(preset="measured", regions="materials", edge_power="0", edge_gain_sd="auto"))
     with pytest.raises(ValueError, match="--edge-gain-sd"):
         FitOptions(regions="materials", edge_gain_sd="-0.1")
     with pytest.raises(ValueError, match="--edge-gain-sd"):
@@ -112,14 +117,14 @@ def test_the_edge_terms_local_gain_is_given_with_a_term_and_refused_without_one(
 
 
 def test_a_given_local_gain_and_component_moves_reach_the_fit(paper_sphere_small, tmp_path):
-    """--edge-gain-sd auto under the preset: measured once and recorded (a render's shading is exact bar its
-    footprint: under 0.05); component moves given through the options land in the sampler's schedule."""
+    """A given --edge-gain-sd under the preset is the fit's and is recorded (the preset's 'auto' is measured: the
+    preset's test below); component moves given through the options land in the sampler's schedule."""
     from rjfit.pipeline.regions.materials import MaterialFit
 
     summary = fit_dataset(paper_sphere_small, tmp_path / "fit", FitOptions(
-        preset="measured", regions="materials", edge_gain_sd="auto", component_moves=1, n_chains=1, iterations=30,
+        preset="measured", regions="materials", edge_gain_sd="0.1", component_moves=1, n_chains=1, iterations=30,
         processes=1, progress=False, figures=False), allow_unvalidated=True)
-    assert summary["fit_options"]["edge_gain_sd"] == "auto" and 0 <= summary["edge_gain_sd"] < 0.05
+    assert summary["fit_options"]["edge_gain_sd"] == 0.1 and summary["edge_gain_sd"] == pytest.approx(0.1)
     assert summary["fit_options"]["component_moves"] == 1 and "component" in summary["acceptance_counts"]
     config = MaterialFit().sampler_config(resolve_options(FitOptions(regions="materials", component_moves=3)),
                                           burn=0)
@@ -161,7 +166,8 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
     if regions == "materials":
         assert options["potts_beta"] >= 2.0 and 0 < options["potts_rho"] < 1
         assert options["edge_power"] == "auto" and 0 < summary["edge_power"] <= 1      # as measured
-        assert options["edge_gain_sd"] == 0.0 and summary["edge_gain_sd"] == 0.0      # not the preset's
+        # the preset's local gain, measured: a render's shading is exact bar its footprint
+        assert options["edge_gain_sd"] == "auto" and 0 <= summary["edge_gain_sd"] < 0.05
         # the stated resolution counts the outline's earning, per channel in a colour fit
         assert summary["material_resolution"]["edge_evidence_per_pair"] > 0
         # each material placed by how steeply the object is seen there (the sphere's normals and view directions)

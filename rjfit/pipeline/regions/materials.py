@@ -374,11 +374,15 @@ class MaterialFit(RegionFit):
 
     @staticmethod
     def preset_values(values: dict, data) -> dict:
-        """The edge term's power 'auto' where it applies and is not given; the Potts rule on the data's mask
+        """The edge term's power and local gain 'auto' where it applies and they are not given (the gain only with a
+        term: not under a given ``--edge-power 0``); the Potts rule on the data's mask
         (:func:`ghost_material_prior`) unless ``potts_rho`` is given (its beta starts at the given one)."""
         out = {}
-        if MaterialFit.edge_term_applies(values) and "edge_power" not in values:
-            out["edge_power"] = "auto"
+        if MaterialFit.edge_term_applies(values):
+            if "edge_power" not in values:
+                out["edge_power"] = "auto"
+            if "edge_gain_sd" not in values and values.get("edge_power", "auto") != 0:
+                out["edge_gain_sd"] = "auto"
         if "potts_rho" not in values and data.object_mask is not None:
             mask = _fitted_mask(data.object_mask, values.get("calibrate", False))
             out["potts_beta"], out["potts_rho"] = ghost_material_prior(
