@@ -185,14 +185,14 @@ class FitOptions:
         "The edge term's local gain (with --edge-power): the sd of a factor on the shading that a pair's two ends "
         "share and that scales the step across them, integrated out of each pair, so that a boundary earns by the "
         "step's shape and size beyond that factor. A number >= 0, or 'auto' (measured on the data). Default 0 "
-        "(none); --preset measured sets auto with the edge term (docs/options.md).", "power",
+        "(none); --preset measured sets auto with the edge term in one channel (docs/options.md).", "power",
         show_default=False)
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: --noise normals, --likelihood-power "
         "auto, no annealed warm-up, --max-view-angle 72.5, --gamma-moves 8, --iterations 500, the Potts rule on the "
-        "mask (--regions materials), the edge term and its local gain (auto) where it applies, and calibration (small mask parts left "
-        "out; an unknown camera response and per-light gains estimated and applied), each where not given "
+        "mask (--regions materials), the edge term (auto) where it applies, with its local gain (auto) in one "
+        "channel, and calibration (small mask parts left out; an unknown camera response and per-light gains estimated and applied), each where not given "
         "(docs/options.md). Default: none for rendered data, measured for measured data.", "choice", choices=("none", "measured"), show_default=False)
     calibrate: bool = option(False)
     # half the material model's cluster seeds drawn per material (first under --preset measured, now every

@@ -91,12 +91,15 @@ def test_the_preset_sets_the_edge_term_where_it_applies_and_a_given_one_is_check
 
 
 def test_the_preset_measures_the_edge_terms_local_gain_with_its_term_and_a_gain_without_one_is_refused():
-    """The preset's local gain is 'auto' wherever it sets the edge term (one channel or colour) and 0 where there is
-    no term (change points, effects, a given --edge-power 0); a given gain ('auto' or a number) is kept, and one
-    without an edge term fails naming both flags."""
-    for channel in ("mean", "rgb"):
-        resolved = resolve_options(FitOptions(preset="measured", regions="materials", channel=channel))
-        assert (resolved.edge_gain_sd, resolved.source("edge_gain_sd")) == ("auto", "preset")
+    """The preset's local gain is 'auto' where it sets the edge term in one channel, and 0 in a joint colour fit
+    and where there is no term (change points, effects, a given --edge-power 0); a given gain ('auto' or a number)
+    is kept, also in colour, and one without an edge term fails naming both flags."""
+    resolved = resolve_options(FitOptions(preset="measured", regions="materials"))
+    assert (resolved.edge_gain_sd, resolved.source("edge_gain_sd")) == ("auto", "preset")
+    colour = resolve_options(FitOptions(preset="measured", regions="materials", channel="rgb"))
+    assert (colour.edge_power, colour.edge_gain_sd, colour.source("edge_gain_sd")) == ("auto", 0.0, "default")
+    assert resolve_options(FitOptions(preset="measured", regions="materials", channel="rgb",
+                                      edge_gain_sd="auto")).edge_gain_sd == "auto"
     for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "effects": "ambient"},
                       {"regions": "materials", "edge_power": "0"}):
         assert resolve_options(FitOptions(preset="measured", **elsewhere)).edge_gain_sd == 0.0, elsewhere
@@ -166,8 +169,11 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
     if regions == "materials":
         assert options["potts_beta"] >= 2.0 and 0 < options["potts_rho"] < 1
         assert options["edge_power"] == "auto" and 0 < summary["edge_power"] <= 1      # as measured
-        # the preset's local gain, measured: a render's shading is exact bar its footprint
-        assert options["edge_gain_sd"] == "auto" and 0 <= summary["edge_gain_sd"] < 0.05
+        # the preset's local gain in one channel, measured: a render's shading is exact bar its footprint
+        if channel == "mean":
+            assert options["edge_gain_sd"] == "auto" and 0 <= summary["edge_gain_sd"] < 0.05
+        else:
+            assert options["edge_gain_sd"] == 0.0 and summary["edge_gain_sd"] == 0.0
         # the stated resolution counts the outline's earning, per channel in a colour fit
         assert summary["material_resolution"]["edge_evidence_per_pair"] > 0
         # each material placed by how steeply the object is seen there (the sphere's normals and view directions)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.calibrate import small_components
-from rjfit.data.formats import COLOUR_CHANNELS
+from rjfit.data.formats import COLOUR, COLOUR_CHANNELS
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_chains import write_chains
 from rjfit.pipeline.fit_folder import save_chain_arrays
@@ -374,14 +374,16 @@ class MaterialFit(RegionFit):
 
     @staticmethod
     def preset_values(values: dict, data) -> dict:
-        """The edge term's power and local gain 'auto' where it applies and they are not given (the gain only with a
-        term: not under a given ``--edge-power 0``); the Potts rule on the data's mask
-        (:func:`ghost_material_prior`) unless ``potts_rho`` is given (its beta starts at the given one)."""
+        """The edge term's power 'auto' where it applies and is not given, and in one channel its local gain 'auto'
+        too (not under a given ``--edge-power 0``; a joint colour fit gains nothing from it on psm-cat:
+        docs/results/2026-11-29-gain-default.md); the Potts rule on the data's mask (:func:`ghost_material_prior`)
+        unless ``potts_rho`` is given (its beta starts at the given one)."""
         out = {}
         if MaterialFit.edge_term_applies(values):
             if "edge_power" not in values:
                 out["edge_power"] = "auto"
-            if "edge_gain_sd" not in values and values.get("edge_power", "auto") != 0:
+            if ("edge_gain_sd" not in values and values.get("edge_power", "auto") != 0
+                    and values.get("channel") != COLOUR):
                 out["edge_gain_sd"] = "auto"
         if "potts_rho" not in values and data.object_mask is not None:
             mask = _fitted_mask(data.object_mask, values.get("calibrate", False))
