@@ -46,9 +46,10 @@ class ClusterMove(Move):
 
 
 @dataclass(frozen=True)
-class ComponentMove(Move):
-    """A connected piece of a material moved whole to another material or a new one, or a whole material moved
-    (kinds 'component', 'component_birth', 'component_death')."""
+class _WholeSetMove(Move):
+    """A set of pixels that one material holds moved whole to another material or a new one: the settings the
+    component and segment moves share; a subclass names how the set is drawn (``propose_set``, the signature of
+    :func:`propose_component_move` and :func:`propose_segment_move`)."""
 
     new_prob: float
     proposals: RegionProposalSettings
@@ -57,24 +58,24 @@ class ComponentMove(Move):
     jumps: bool
 
     def propose(self, work, rng, problem, prior) -> Proposal:
-        return propose_component_move(work, rng, problem, prior, self.new_prob, self.proposals, self.potts,
-                                      self.max_materials, self.jumps)
+        return self.propose_set(work, rng, problem, prior, self.new_prob, self.proposals, self.potts,
+                                self.max_materials, self.jumps)
 
 
 @dataclass(frozen=True)
-class SegmentMove(Move):
+class ComponentMove(_WholeSetMove):
+    """A connected piece of a material moved whole to another material or a new one, or a whole material moved
+    (kinds 'component', 'component_birth', 'component_death')."""
+
+    propose_set = staticmethod(propose_component_move)
+
+
+@dataclass(frozen=True)
+class SegmentMove(_WholeSetMove):
     """A segment of the data-driven family, when one material holds all of it, moved to another material or a new
     one (kinds 'segment', 'segment_birth', 'segment_death')."""
 
-    new_prob: float
-    proposals: RegionProposalSettings
-    potts: PottsPrior
-    max_materials: int
-    jumps: bool
-
-    def propose(self, work, rng, problem, prior) -> Proposal:
-        return propose_segment_move(work, rng, problem, prior, self.new_prob, self.proposals, self.potts,
-                                    self.max_materials, self.jumps)
+    propose_set = staticmethod(propose_segment_move)
 
 
 @dataclass(frozen=True)
