@@ -345,6 +345,8 @@ def _echo_fit(folder, summary: dict) -> None:
     if summary.get("edge_power"):
         gain = summary.get("edge_gain_sd") or 0.0
         local = f", local gain sd {gain:.3g} integrated out of each pair (--edge-gain-sd)" if gain > 0 else ""
+        if summary.get("edge_noise"):
+            local += ", each pair on its own measured noise (--edge-noise)"
         click.echo(f"  edge term in the target (power {summary['edge_power']:.3g}{local}): a boundary earns where the "
                    f"data step as its materials do and costs where they do not (--edge-power)")
     if summary.get("edge_groups_posterior"):

@@ -73,9 +73,13 @@ VARIANTS = {
     # the preset on R, G and B jointly, with its edge term (docs/results/2026-11-28-colour.md)
     "measured-rgb": {"preset": "measured", "channel": "rgb"},
     "measured-mean": {"preset": "measured", "channel": "mean"},
-    # the preset with the edge term's local gain, with the component moves, and with both (neither is the
-    # preset's: docs/results/2026-11-28-local-gain.md)
+    # the preset with the edge term's local gain (the preset's since 2026-11-29), with the component moves, and with
+    # both (the component moves are not the preset's: docs/results/2026-11-28-local-gain.md)
     "measured-gain": {"preset": "measured", "edge_gain_sd": "auto"},
+    # the preset without the local gain (before 2026-11-29), and with the edge term's differences on one scale
+    # (before its measured noise: docs/results/2026-11-29-edge-noise.md)
+    "measured-nogain": {"preset": "measured", "edge_gain_sd": 0.0},
+    "measured-constant-noise": {"preset": "measured", "edge_noise": "constant"},
     "measured-components": {"preset": "measured", "component_moves": 2},
     "measured-gain-components": {"preset": "measured", "edge_gain_sd": "auto", "component_moves": 2},
 }

@@ -158,6 +158,9 @@ SUMMARY_FIELDS = {
     "potts_rho": (_NUMBER, "materials: prior factor per material (rho^K)"),
     "edge_power": (_NUMBER, "materials: power of the edge term in the target (0: none; docs/materials.md)"),
     "edge_gain_sd": (_NUMBER, "materials: sd of the local gain the edge term integrates out of each pair (0: none)"),
+    "edge_noise": ((dict, type(None)), "materials: the edge term's measured noise, each match's variance white + "
+                                       "shading g^2 + turn t^2 of the differences' spread squared, and whether white "
+                                       "sits at its floor (floored); null: one scale"),
     "boundaries": (list, "materials: per pair of adjacent MAP materials, whether the data step where they meet "
                          "(log_likelihood_ratio above log 100: an edge; below -log 100: none; "
                          "rjfit.posterior.boundaries)"),

@@ -1,7 +1,7 @@
 """A fit's noise scales and likelihood power, from its observations and options (``--noise``,
 ``--likelihood-power``): the known per-observation scales, the measured power suggestion (for
 a joint colour fit per channel, with the channels' design effect) and the power the fit uses;
-and the power and local gain of its edge term (``--edge-power``, ``--edge-gain-sd``)."""
+and the power, local gain and noise of its edge term (``--edge-power``, ``--edge-gain-sd``, ``--edge-noise``)."""
 from __future__ import annotations
 
 import dataclasses
@@ -21,21 +21,22 @@ __all__ = ["noise_and_power", "power_suggestion", "channel_normal_error_noise", 
            "MIN_NORMAL_SD_DEG"]
 
 
-def edge_settings(problem, options) -> tuple[float, float]:
-    """``(power, gain_sd)`` of the fit's edge term (:mod:`rjfit.sampler.regions.materials.edges`; power 0: none):
-    each as given, or 'auto' measured once on ``problem`` (one build of the term for both), so that every chain
-    takes those numbers and the summary records them."""
-    power, gain_sd = options.edge_power, options.edge_gain_sd
+def edge_settings(problem, options) -> tuple:
+    """``(power, gain_sd, noise)`` of the fit's edge term (:mod:`rjfit.sampler.regions.materials.edges`; power 0:
+    none): each as given, or 'auto' ('measured' for the noise: its coefficients) measured once on ``problem`` (one
+    build of the term for all), so that every chain takes those numbers and the summary records them."""
+    power, gain_sd, noise = options.edge_power, options.edge_gain_sd, options.edge_noise
     if power != "auto" and float(power) == 0:
-        return 0.0, 0.0
-    if power == "auto" or gain_sd == "auto":
-        measured = " and ".join(what for what, value in (("its power (--edge-power auto)", power),
-                                                         ("its local gain (--edge-gain-sd auto)", gain_sd))
-                                if value == "auto")
+        return 0.0, 0.0, "constant"
+    if power == "auto" or gain_sd == "auto" or noise == "measured":
+        parts = [what for what, value in (("its power (--edge-power auto)", power),
+                                          ("its local gain (--edge-gain-sd auto)", gain_sd),
+                                          ("its noise (--edge-noise measured)", noise)) if value in ("auto", "measured")]
+        measured = " and ".join([", ".join(parts[:-1]), parts[-1]] if len(parts) > 1 else parts)
         with phase(f"edge term: measuring {measured}", options.progress):
-            term = edge_term(problem, labelled_pixels(problem), power, gain_sd=gain_sd)
-        power, gain_sd = term.power, term.gain_sd
-    return float(power), float(gain_sd)
+            term = edge_term(problem, labelled_pixels(problem), power, gain_sd=gain_sd, noise=noise)
+        power, gain_sd, noise = term.power, term.gain_sd, term.noise or "constant"
+    return float(power), float(gain_sd), noise
 
 
 def noise_and_power(observations, options):

@@ -187,12 +187,18 @@ class FitOptions:
         "step's shape and size beyond that factor. A number >= 0, or 'auto' (measured on the data). Default 0 "
         "(none); --preset measured sets auto with the edge term in one channel (docs/options.md).", "power",
         show_default=False)
+    edge_noise: str = cli_option(
+        "constant", "--edge-noise",
+        "The noise of the edge term's differences (with --edge-power): constant (one scale for every pair) or "
+        "measured (each pair's variance growing with how much the shading changes and the geometry turns across "
+        "it, measured on the data). Default constant; --preset measured sets measured with the edge term in one "
+        "channel (docs/options.md).", "choice", choices=("constant", "measured"), show_default=False)
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: --noise normals, --likelihood-power "
         "auto, no annealed warm-up, --max-view-angle 72.5, --gamma-moves 8, --iterations 500, the Potts rule on the "
-        "mask (--regions materials), the edge term (auto) where it applies, with its local gain (auto) in one "
-        "channel, and calibration (small mask parts left out; an unknown camera response and per-light gains estimated and applied), each where not given "
+        "mask (--regions materials), the edge term (auto) where it applies, with its local gain (auto) and "
+        "measured noise in one channel, and calibration (small mask parts left out; an unknown camera response and per-light gains estimated and applied), each where not given "
         "(docs/options.md). Default: none for rendered data, measured for measured data.", "choice", choices=("none", "measured"), show_default=False)
     calibrate: bool = option(False)
     # half the material model's cluster seeds drawn per material (first under --preset measured, now every
@@ -305,7 +311,8 @@ class FitOptions:
         self._check_counts()
         for name, what in (("preset", "preset"), ("regions", "region model"), ("prior", "prior"), ("noise", "noise model"),
                            ("channel", "channel"), ("normals", "normals"),
-                           ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior")):
+                           ("sampler", "sampler"), ("split_map", "split map"), ("cp_prior", "change-point prior"),
+                           ("edge_noise", "edge noise")):
             spec = self.cli(name)
             if getattr(self, name) is not None and getattr(self, name) not in spec.choices:
                 raise ValueError(f"unknown {what} {getattr(self, name)!r} ({spec.flag}): choose one of "

@@ -200,6 +200,9 @@ def _check_combinations(options: FitOptions) -> None:
     elif options.edge_gain_sd == "auto" or options.edge_gain_sd > 0:
         raise ValueError(f"--edge-gain-sd is an option of the edge term, and there is none (--edge-power 0, "
                          f"{_chosen_by(options, 'edge_power')}): leave it out or give --edge-power")
+    elif options.edge_noise != "constant":
+        raise ValueError(f"--edge-noise is an option of the edge term, and there is none (--edge-power 0, "
+                         f"{_chosen_by(options, 'edge_power')}): leave it out or give --edge-power")
     if options.channel != COLOUR:
         return
     if options.effects or options.effects_from is not None:

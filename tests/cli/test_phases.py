@@ -75,7 +75,8 @@ def test_a_measured_fit_announces_its_loading_estimates_and_summary(paper_sphere
     for desc in (f"loading the data set {paper_sphere_small}",
                  "noise model normals: estimating the normals' error (5 x 5 pixel tile fits)",
                  "likelihood power: spatial correlation of per-pixel fits' residuals",
-                 "edge term: measuring its power (--edge-power auto) and its local gain (--edge-gain-sd auto)",
+                 "edge term: measuring its power (--edge-power auto), its local gain (--edge-gain-sd auto) and its "
+                 "noise (--edge-noise measured)",
                  "summarising the chains (MAP labels, posterior mean prediction, checks)",
                  "writing the results and figures"):
         assert _announced(err, desc), (desc, err)

@@ -77,7 +77,25 @@ def data_between(where, width, p, q):
     return all((pr + k * dr) * width + pc + k * dc in seen for k in range(1, n))
 
 
-def no_step_ss(problem, edges, gain=None):
+def match_sd(problem, spread, noise):
+    """``sd(matched)``: per matched (i, j) of one pair, its noise sd relative to the spread under the edge term's
+    measured ``noise`` (white, shading, turn) from its definition: the variance white + shading g^2 + turn t^2, g the
+    reference's difference over ``spread``, t the root mean square over the pair's matches of the change of <h.n>;
+    ones without ``noise``."""
+    y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
+    reference = y - fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
+
+    def sd(matched):
+        if noise is None or not matched:
+            return np.ones(len(matched))
+        white, shading, turn = noise
+        t2 = np.mean([(np.exp(lch[i]) - np.exp(lch[j])) ** 2 for i, j in matched])
+        g = np.array([(reference[i] - reference[j]) / spread for i, j in matched])
+        return np.sqrt(white + shading * g ** 2 + turn * t2)
+    return sd
+
+
+def no_step_ss(problem, edges, gain=None, noise=None):
     """``ss(p, q)``: the pair's misfit of no step from its definition, over the lights both saw (none where a pixel
     between them has no observation: :func:`data_between`; nor does a side p' or q' count then), with e the residuals
     under the reference (one material fitted by least squares to every observation) and p' and q' as far beyond p
@@ -86,7 +104,8 @@ def no_step_ss(problem, edges, gain=None):
     minus that side's difference; where neither, the spread s^2 (1.4826 MAD, squared, of the differences of e over
     every pair of ``edges`` and light both saw). With ``gain`` (tau^2, unit) the misfits with a trend, each under
     its weight, are taken with the pair's local gain on the reference's own difference integrated out
-    (:func:`gain_misfit`)."""
+    (:func:`gain_misfit`). With ``noise`` each misfit with a trend (and its reference difference) is divided by its
+    match's sd (:func:`match_sd`); one without keeps s^2 (its own variance over its weight)."""
     height, width = problem.image_shape
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
     e = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
@@ -103,14 +122,15 @@ def no_step_ss(problem, edges, gain=None):
         return [r * width + c if 0 <= r < height and 0 <= c < width else None for r, c in ends]
 
     reference = y - e
+    sd_of = match_sd(problem, spread, noise)
 
     def ss(p, q):
         untrended, (p_out, q_out) = 0.0, outer(p, q)
         weighted, deltas = [], []       # sqrt(weight) times the misfit and the reference's difference
-        for lt in lights:
-            if (p, lt) not in where or (q, lt) not in where or not data_between(where, width, p, q):
-                continue
-            i, j = where[p, lt], where[q, lt]
+        matched = [(where[p, lt], where[q, lt]) for lt in lights
+                   if (p, lt) in where and (q, lt) in where and data_between(where, width, p, q)]
+        for (i, j), sd in zip(matched, sd_of(matched)):
+            lt = int(problem.light[i])
             d = e[i] - e[j]
             a = where.get((p_out, lt)) if p_out is not None and data_between(where, width, p_out, p) else None
             b = where.get((q_out, lt)) if q_out is not None and data_between(where, width, q, q_out) else None
@@ -123,8 +143,8 @@ def no_step_ss(problem, edges, gain=None):
             else:
                 untrended += spread ** 2
                 continue
-            weighted.append(np.sqrt(weight) * misfit)
-            deltas.append(np.sqrt(weight) * (reference[i] - reference[j]))
+            weighted.append(np.sqrt(weight) * misfit / sd)
+            deltas.append(np.sqrt(weight) * (reference[i] - reference[j]) / sd)
         if not weighted:
             return untrended
         return untrended + float(gain_misfit(np.array(weighted), np.array(deltas), gain))
@@ -151,21 +171,25 @@ def boundary_share(step, alone, no_step):
     return np.minimum(alone, no_step) - step
 
 
-def direct_total(problem, edges, labels, theta, gap, gain=None):
+def direct_total(problem, edges, labels, theta, gap, gain=None, noise=None):
     """The edge term from its definition: every pair ``gap`` apart with data at every pixel between, every light both
-    pixels saw; with ``gain`` (tau^2, unit) each pair's local gain integrated out (:func:`gain_misfit`)."""
+    pixels saw; with ``gain`` (tau^2, unit) each pair's local gain integrated out (:func:`gain_misfit`); with
+    ``noise`` (white, shading, turn) each match's misfit and predicted difference divided by its sd
+    (:func:`match_sd`)."""
     height, width = problem.image_shape
     where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
-    reference = no_step_ss(problem, edges, gain)
+    reference = no_step_ss(problem, edges, gain, noise)
+    sd_of = match_sd(problem, np.sqrt(edges.power / (2 * edges.scale)), noise)
 
     def mu(i, k):
         I0, kd, g = theta[k, :3]
         return C[i] * (I0 * kd / np.pi + I0 * (1 - kd) * blinn_normalisation(g) * np.exp(g * lch[i]))
 
     def ss(matched, k, m):
-        delta = np.array([mu(i, k) - mu(j, m) for i, j in matched])
-        return gain_misfit(np.array([y[i] - y[j] for i, j in matched]) - delta, delta, gain)
+        sd = sd_of(matched)
+        delta = np.array([mu(i, k) - mu(j, m) for i, j in matched]) / sd
+        return gain_misfit(np.array([y[i] - y[j] for i, j in matched]) / sd - delta, delta, gain)
 
     sums = {}       # boundary {k, m} -> [SS of the step, SS with both ends in the lower, in the higher, the reference]
     for offset, ok in ((gap, lambda p: p % width < width - gap), (gap * width, lambda p: p < (height - gap) * width)):
@@ -203,6 +227,29 @@ def test_total_matches_the_definition(gain_sd):
     if gain_sd:
         assert edges.gain_sd == pytest.approx(gain_sd) and edges.gain[1] == pytest.approx(spread2)
         assert abs(expected - direct_total(problem, edges, labels, theta, 3)) > 1.0, "the gain should count"
+
+
+@pytest.mark.parametrize("gain_sd", [0.0, 0.1])
+def test_a_measured_noise_weighs_each_match_as_defined(gain_sd):
+    """Given coefficients (white, shading, turn): the term equals its heteroscedastic definition; measured ones are
+    what the term records, and build the same term when given back; 'constant' is the term of one scale."""
+    problem = patchy_problem()
+    labelled = labelled_pixels(problem)
+    noise = (0.7, 0.4, 5.0)
+    edges = edge_term(problem, labelled, power=1.0, gap=3, gain_sd=gain_sd, noise=noise)
+    labels = np.random.default_rng(0).integers(0, 3, problem.image_shape)
+    theta = np.vstack([TRUTH, [8.0, 0.5, 8.0, 0.3]])
+    spread2 = edges.power / (2 * edges.scale)
+    gain = (gain_sd ** 2, spread2) if gain_sd else None
+    expected = direct_total(problem, edges, labels, theta, 3, gain, noise)
+    assert edges.noise == noise
+    assert edges.total(labels, theta) == pytest.approx(expected, rel=1e-6)     # float32 columns, scaled once
+    plain = edge_term(problem, labelled, power=1.0, gap=3, gain_sd=gain_sd)
+    assert plain.noise is None and plain.typical_weight == 1.0
+    assert abs(expected - plain.total(labels, theta)) > 1.0, "the weights should count"
+    measured = edge_term(problem, labelled, power=1.0, gap=3, gain_sd=gain_sd, noise="measured")
+    again = edge_term(problem, labelled, power=1.0, gap=3, gain_sd=gain_sd, noise=measured.noise)
+    assert len(measured.noise) == 3 and again.total(labels, theta) == measured.total(labels, theta)
 
 
 @pytest.mark.parametrize("tau", [0.02, 0.1, 0.5])

@@ -39,6 +39,7 @@ from rjfit.posterior.boundaries import edge_verdict
 from rjfit.posterior.resolution import RESOLUTION_WARN_PIXELS, smallest_material
 from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.regions.materials.edge_baseline import NO_STEP_NOISE
+from rjfit.sampler.regions.materials.edge_noise import MIN_WHITE
 from rjfit.sampler.regions.materials.edges import EDGE_GAP, edge_term
 from rjfit.sampler.regions.materials.layout import labelled_pixels
 from rjfit.sampler.state import SamplerConfig
@@ -82,14 +83,19 @@ def summarise_materials(records, problem, options, burn: int, config):
         "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"], "diagnostics": diag,
         "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
         "edge_power": float(config.regions.edge_power), "edge_gain_sd": float(config.regions.edge_gain_sd),
-        "chain_materials_posterior": chain_posteriors,
+        "edge_noise": _noise_record(config.regions.edge_noise), "chain_materials_posterior": chain_posteriors,
     }
     summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
                                                     post.chain_log_posterior_means(records, burn))
     cap = mat.cap_warning(posterior, options.max_materials)
     if cap:
         summary["warnings"].append(cap)
-    resolution = material_resolution(problem, summaries, labels, options, float(config.regions.edge_power))
+    if summary["edge_noise"] is not None and summary["edge_noise"]["floored"]:
+        summary["warnings"].append(f"the edge term's measured noise left almost no white part: its white variance "
+                                   f"is held at its floor {MIN_WHITE} (of the differences' robust spread squared), "
+                                   f"so no pair weighs more than {1 / MIN_WHITE:.0f} times a typical one")
+    resolution = material_resolution(problem, summaries, labels, options, float(config.regions.edge_power),
+                                     config.regions.edge_noise)
     if resolution is not None:
         summary["material_resolution"] = resolution
         if RESOLUTION_WARN_PIXELS < resolution["pixels"] < np.inf:
@@ -98,20 +104,30 @@ def summarise_materials(records, problem, options, burn: int, config):
     return summary, labels, prediction, {"map_probability": probability, "draws": draws}
 
 
-def material_resolution(problem, materials, labels, options, term_power: float = 0.0) -> dict | None:
+def _noise_record(noise) -> dict | None:
+    """The summary's ``edge_noise``: the measured coefficients of the edge term's noise (None: one scale)."""
+    if isinstance(noise, str):
+        return None
+    white, shading, turn = (float(c) for c in noise)
+    return {"white": white, "shading": shading, "turn": turn, "floored": white <= MIN_WHITE}
+
+
+def material_resolution(problem, materials, labels, options, term_power: float = 0.0,
+                        term_noise="constant") -> dict | None:
     """The smallest region of half the albedo that the fit would give a material of its own inside its largest
     material (:func:`rjfit.posterior.resolution.smallest_material`, at that material's posterior means and on
     the plain forward model: effects are left out of the prediction), its outline's earning under the edge
-    term counted where the fit has one (``term_power``, its power, > 0). A joint colour fit: half the albedo in
-    every channel, each channel's observations on its own variance and edge scale."""
+    term counted where the fit has one (``term_power``, its power, > 0; ``term_noise``, its noise: a measured noise
+    counts the matches' typical weight). A joint colour fit: half the albedo in every channel, each channel's
+    observations on its own variance and edge scale."""
     if not materials:
         return None
     edge_scales = np.zeros(problem.n_channels)
     if term_power > 0:
         # the term's power / (2 s_c^2), s_c a constant of the data; an outline pair's step of S beats no step by about
         # NO_STEP_NOISE S^2 per light (edges.no_step_sums: the trend beside the pair leaves the step out)
-        edge_scales = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP).channel_scales() \
-            * NO_STEP_NOISE
+        edge_scales = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP,
+                                noise=term_noise).channel_scales() * NO_STEP_NOISE
     largest = max(materials, key=lambda m: m["pixels"])
     mine = np.asarray(labels).ravel()[problem.pixel] == largest["material"]
     cos_hn = np.exp(problem.log_cos_hn[mine].astype(float))
@@ -335,6 +351,11 @@ def _edge_words(summary: dict, options: dict) -> str:
     if finite(gain) and gain > 0:
         text += (f"; a local gain of sd {gain:.3g} on the shading, shared by a pair's two ends, is integrated out of "
                  f"each pair ({'measured on the data' if options.get('edge_gain_sd') == 'auto' else 'as given'})")
+    noise = summary.get("edge_noise")
+    if isinstance(noise, dict):
+        text += (f"; each pair's noise measured on the data (variance {noise['white']:.3g} + {noise['shading']:.3g} "
+                 f"g^2 + {noise['turn']:.3g} t^2 of the differences' spread squared: g the shading's change, t the "
+                 f"geometry's turn across the pair)")
     return text
 
 
@@ -360,7 +381,7 @@ class MaterialFit(RegionFit):
     """Free-form materials under a Potts prior (``--regions materials``)."""
 
     name = "materials"
-    reads = frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "edge_gain_sd",
+    reads = frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "edge_gain_sd", "edge_noise",
                        "cluster_material_seed", "segment_moves", "component_moves"})
     noun = "material"
     measured_default = True
@@ -382,9 +403,11 @@ class MaterialFit(RegionFit):
         if MaterialFit.edge_term_applies(values):
             if "edge_power" not in values:
                 out["edge_power"] = "auto"
-            if ("edge_gain_sd" not in values and values.get("edge_power", "auto") != 0
-                    and values.get("channel") != COLOUR):
+            one_channel_term = values.get("edge_power", "auto") != 0 and values.get("channel") != COLOUR
+            if "edge_gain_sd" not in values and one_channel_term:
                 out["edge_gain_sd"] = "auto"
+            if "edge_noise" not in values and one_channel_term:
+                out["edge_noise"] = "measured"
         if "potts_rho" not in values and data.object_mask is not None:
             mask = _fitted_mask(data.object_mask, values.get("calibrate", False))
             out["potts_beta"], out["potts_rho"] = ghost_material_prior(
@@ -430,13 +453,14 @@ class MaterialFit(RegionFit):
 
     def sampler_config(self, options, *, burn: int, fixed: bool = False, problem=None) -> SamplerConfig:
         model = MaterialRegions()
-        power, gain_sd = edge_settings(problem, options) if problem is not None else \
-            (options.edge_power, options.edge_gain_sd)
+        power, gain_sd, noise = edge_settings(problem, options) if problem is not None else \
+            (options.edge_power, options.edge_gain_sd, options.edge_noise)
         regions = replace(model, max_materials=options.max_materials,
                           potts=replace(model.potts, beta=options.potts_beta, rho=options.potts_rho),
                           cluster=replace(model.cluster, material_seed=options.cluster_material_seed),
                           segments=replace(model.segments, moves=options.segment_moves),
-                          edge_power=power, edge_gain_sd=gain_sd, component_moves=options.component_moves,
+                          edge_power=power, edge_gain_sd=gain_sd, edge_noise=noise,
+                          component_moves=options.component_moves,
                           update_labels=not fixed, jumps=not fixed)
         return assemble(options, regions, burn)
 

@@ -75,6 +75,19 @@ what is left to earn is the step's shape over the lights and its size beyond the
 no-step baseline is unchanged (its trend already follows what changes slowly). ``tau`` is measured once on the
 data (:func:`rjfit.sampler.regions.materials.edge_gain.shared_gain_sd`); 0 gives the term above.
 
+The differences' noise
+----------------------
+On measured stacks a difference's misfit grows with how much the shading changes across its pair and how fast the
+geometry turns there (the given normals' error, a lobe the model lacks, light from nearby surfaces), up to tens of
+times its variance on flat, evenly lit parts: on one scale, pairs beside folds and occluding contours weigh as much
+as a flat paint outline's, and a fold's step buys a material (psm-horse). With ``noise='measured'`` each match has
+its own variance ``s^2 v``, ``v = a + b g^2 + c t^2`` measured once on the data
+(:mod:`rjfit.sampler.regions.materials.edge_noise`: ``g`` the reference's predicted difference, ``t`` the pair's turn
+as its lights see it), and every sum above weighs each match by ``1 / v``: the Gaussian log-likelihood ratio of
+heteroscedastic differences. The matches' differences and columns are divided by ``sqrt(v)`` once, when the term is
+built, so that the compiled passes are unchanged (the local gain's integral with them is the heteroscedastic one);
+the no-step baseline weighs its matches alike. 'auto' power is measured on the differences' misfits as they are.
+
 The moves (each stays exact for the new target)
 -----------------------------------------------
 - the label sweep: each pixel's Gibbs draw without the term, then a delayed acceptance of a
@@ -103,6 +116,7 @@ from rjfit.sampler.colour import guide_rows, pixel_set_data
 from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.edge_baseline import no_step_sums, observation_lookup, seen_between
 from rjfit.sampler.regions.materials.edge_gain import shared_gain_sd
+from rjfit.sampler.regions.materials.edge_noise import difference_noise, match_variance, pair_turn, valid_noise
 from rjfit.sampler.regions.materials.passes.edges import boundary_sums, changed_delta, edge_value
 
 __all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "EDGE_GAP"]
@@ -125,7 +139,9 @@ class EdgeTerm(NamedTuple):
     ``d``, ``c_first``, ``c_second``, ``l_first``, ``l_second`` (M,): per match the difference and
     both ends' ``C`` and ``log <h.n>``; ``no_step`` (P,): each pair's SS of no step
     (:func:`~rjfit.sampler.regions.materials.edge_baseline.no_step_sums`); ``pair_of`` (H W, 4):
-    each pixel's pairs (-1: none); ``scale`` = power / (2 s^2).
+    each pixel's pairs (-1: none); ``scale`` = power / (2 s^2). Under a measured noise (``noise``: its fitted
+    record), ``d`` and both ``C`` are each divided by its match's noise sd relative to ``s``, and ``typical_weight`` is
+    the median of the matches' weights (1 / that sd squared; 1 under one scale).
     """
 
     power: float
@@ -144,6 +160,8 @@ class EdgeTerm(NamedTuple):
     weight: np.ndarray = np.zeros(0)
     n_channels: int = 1
     gain: np.ndarray = np.zeros(2)
+    noise: tuple | None = None
+    typical_weight: float = 1.0
 
     @property
     def gain_sd(self) -> float:
@@ -160,8 +178,10 @@ class EdgeTerm(NamedTuple):
         return float(edge_value(sums, self.scale))
 
     def channel_scales(self) -> np.ndarray:
-        """(C,) each channel's ``power / (2 s_c^2)``: what a squared misfit of that channel weighs in the term."""
-        return np.array([self.scale]) if self.n_channels == 1 else self.scale * self.weight
+        """(C,) each channel's ``power / (2 s_c^2)``: what a squared misfit of that channel weighs in the term; under a
+        measured noise, times the matches' typical weight."""
+        scales = np.array([self.scale]) if self.n_channels == 1 else self.scale * self.weight
+        return scales * self.typical_weight
 
     def rows_delta(self, pixels, theta, rows, new_rows) -> float:
         """The change of the term when the parameter ``rows`` of ``theta`` become ``new_rows`` (a colour material's
@@ -254,7 +274,7 @@ def _neighbour_correlation(first, light, residual, n_lights: int, width: int) ->
     return float(np.nanmean(rhos)) if np.any(np.isfinite(rhos)) else np.nan
 
 
-def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP, gain_sd=0.0) -> EdgeTerm:
+def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP, gain_sd=0.0, noise: str = "constant") -> EdgeTerm:
     """The edge term of ``problem`` over the ``labelled`` (H, W) pixels (module docstring).
 
     ``power``: a positive number, or 'auto' for ``((1 - rho) / (1 + rho))^2`` (rho the lag-1
@@ -272,13 +292,19 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP, gain_sd=0.0)
     a number >= 0 (0: none), or 'auto' for
     :func:`~rjfit.sampler.regions.materials.edge_gain.shared_gain_sd` on the reference's per-pixel gains.
 
+    ``noise``: 'constant', every match of a channel on one scale; 'measured', each match's variance growing with
+    the shading change and the geometry's turn across its pair as measured on the data (module docstring, "The
+    differences' noise"; :mod:`~rjfit.sampler.regions.materials.edge_noise`); or that model's coefficients
+    ``(white, shading, turn)`` as measured before (``EdgeTerm.noise``). 'auto' power is the same under either.
+
     Raises
     ------
     ValueError
-        If ``power`` is neither positive nor 'auto', ``gain_sd`` neither a number >= 0 nor 'auto', ``gap`` not
-        odd and positive, or the problem has no lights per observation or has effects.
+        If ``power`` is neither positive nor 'auto', ``gain_sd`` neither a number >= 0 nor 'auto', ``noise`` not
+        'constant', 'measured' or three coefficients >= 0 (white > 0), ``gap`` not odd and positive, or the problem
+        has no lights per observation or has effects.
     """
-    _check_arguments(problem, power, gap, gain_sd)
+    _check_arguments(problem, power, gap, gain_sd, noise)
     n_ch = problem.n_channels
     # a colour fit's matches pair (light, channel): one index for both, so each channel is matched in itself
     key_light = None if n_ch == 1 else (np.asarray(problem.light, np.int64) * n_ch
@@ -297,22 +323,31 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP, gain_sd=0.0)
     weight = np.zeros(0) if n_ch == 1 else 1.0 / np.maximum(spreads, 1e-300) ** 2
     n_pix = problem.height * problem.width
     prediction = y - reference_residual
+    match_spread = spreads[0] if n_ch == 1 else spreads[channel]
+    noise_fit, variance = _match_noise(noise, residual, prediction[i] - prediction[j], match_spread, lch[i], lch[j],
+                                       pair, first.size)
+    root = 1.0 / np.sqrt(variance)       # each match on its own noise scale: scaling its difference and its columns
     if gain_sd == "auto":
         gain_sd = shared_gain_sd(y, prediction, problem.pixel, first, second, n_pix,
                                  None if n_ch == 1 else weight[np.asarray(problem.channel, np.int64)])
     unit = max(s, 1e-300) ** 2 if n_ch == 1 else 1.0      # what the pairs' sums are measured in
     gain = np.array([float(gain_sd) ** 2, unit])
     if n_ch == 1:
-        pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual, s,
-                                    prediction=prediction, gain=gain)
+        pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual,
+                                    s if noise == "constant" else s * np.sqrt(variance),
+                                    weight=None if noise == "constant" else 1.0 / variance, prediction=prediction,
+                                    gain=gain)
     else:
         pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual,
-                                    spreads[channel], light=key_light, weight=weight[channel], prediction=prediction,
-                                    gain=gain)
+                                    spreads[channel] * np.sqrt(variance), light=key_light,
+                                    weight=weight[channel] / variance, prediction=prediction, gain=gain)
     pair_no_step[~np.isfinite(pair_no_step)] = np.inf     # no reference fit (tiny problems): no bound from it
     if power == "auto":
         every_light = np.asarray(problem.light, np.int64) if n_ch == 1 else key_light
         light, n_lights = every_light[i], int(every_light.max()) + 1
+        # the differences as they are, not over their measured sd: the power says how much of their evidence their
+        # shared misfit repeats (on psm-cat the standardised ones gave 0.042 against 0.027, and two chains of four
+        # split the head from the body along its shading: docs/results/2026-11-29-edge-noise.md)
         standardised = residual if n_ch == 1 else residual / np.maximum(spreads, 1e-300)[channel]
         rho = np.nanmean([_neighbour_correlation(first[pair[part]], light[part], standardised[part], n_lights,
                                                  problem.width) for part in (pair < n_right, pair >= n_right)])
@@ -321,14 +356,33 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP, gain_sd=0.0)
     pair_of = _pairs_of_pixels(first, second, n_right, n_pix)
     scale = float(power) / (2.0 * max(s, 1e-300) ** 2) if n_ch == 1 else float(power) / 2.0
     return EdgeTerm(power=float(power), scale=scale, first=first.astype(np.int64),
-                    second=second.astype(np.int64), start=start, d=d, c_first=C[i].astype(np.float32),
-                    c_second=C[j].astype(np.float32), l_first=lch[i].astype(np.float32),
+                    second=second.astype(np.int64), start=start, d=d * root, c_first=(C[i] * root).astype(np.float32),
+                    c_second=(C[j] * root).astype(np.float32), l_first=lch[i].astype(np.float32),
                     l_second=lch[j].astype(np.float32), no_step=pair_no_step, pair_of=pair_of, channel=channel,
-                    weight=weight, n_channels=n_ch, gain=gain)
+                    weight=weight, n_channels=n_ch, gain=gain, noise=noise_fit,
+                    typical_weight=float(np.median(root * root)) if root.size else 1.0)
 
 
-def _check_arguments(problem, power, gap: int, gain_sd) -> None:
+def _match_noise(noise: str, residual, shading_change, match_spread, l_first, l_second, pair, n_pairs: int):
+    """``(coefficients, variance)``: the noise model's ``(white, shading, turn)`` as given or fitted
+    (:func:`~rjfit.sampler.regions.materials.edge_noise.difference_noise`; None for 'constant') and each match's
+    variance relative to its channel's spread squared (ones for 'constant')."""
+    if isinstance(noise, str) and noise == "constant":
+        return None, np.ones(residual.size)
+    spread = np.maximum(match_spread, 1e-300)
+    turn = pair_turn(l_first, l_second, pair, n_pairs)[pair]
+    if isinstance(noise, str):
+        fitted = difference_noise(residual / spread, shading_change / spread, turn)
+        noise = (fitted["white"], fitted["shading"], fitted["turn"])
+    coefficients = tuple(float(c) for c in noise)
+    return coefficients, match_variance(coefficients, shading_change / spread, turn)
+
+
+def _check_arguments(problem, power, gap: int, gain_sd, noise) -> None:
     """:func:`edge_term`'s refusals (its Raises)."""
+    if not valid_noise(noise):
+        raise ValueError(f"the edge term's noise (--edge-noise) must be 'constant', 'measured' or three coefficients "
+                         f">= 0 (white > 0), got {noise!r}")
     if power != "auto" and not (isinstance(power, (int, float)) and power > 0):
         raise ValueError(f"edge power (--edge-power) must be positive or 'auto', got {power!r}")
     if gain_sd != "auto" and not (isinstance(gain_sd, (int, float)) and np.isfinite(gain_sd) and gain_sd >= 0):

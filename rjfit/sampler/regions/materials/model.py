@@ -80,6 +80,7 @@ from rjfit.sampler.moves.region_proposals import RegionProposalSettings
 from rjfit.sampler.regions.base import RegionModel
 from rjfit.sampler.regions.materials.cluster_swc import ClusterSettings
 from rjfit.sampler.regions.materials.edges import EDGE_GAP, edge_term, start_theta
+from rjfit.sampler.regions.materials.edge_noise import valid_noise
 from rjfit.sampler.regions.materials.layout import (
     MaterialLabels,
     PottsPrior,
@@ -136,6 +137,10 @@ class MaterialRegions(RegionModel):
         tau, the sd of the local gain the edge term integrates out of each pair (flat option ``edge_gain_sd``;
         :mod:`rjfit.sampler.regions.materials.edges`, "The local gain"); 'auto': measured on the data
         (:func:`~rjfit.sampler.regions.materials.edges.shared_gain_sd`); 0 (the default): none.
+    edge_noise : str or tuple
+        'constant' (the default): the edge term's differences on one scale per channel; 'measured': each match's
+        variance measured on the data, or its coefficients ``(white, shading, turn)`` as measured once for a fit
+        (flat option ``edge_noise``; :mod:`rjfit.sampler.regions.materials.edges`, "The differences' noise").
     """
 
     max_materials: int = 8
@@ -150,6 +155,7 @@ class MaterialRegions(RegionModel):
     edge_power: float | str = 0.0
     edge_gap: int = EDGE_GAP
     edge_gain_sd: float | str = 0.0
+    edge_noise: str | tuple = "constant"
     component_moves: int = 0
 
     key_names = ("n_materials",)
@@ -168,6 +174,9 @@ class MaterialRegions(RegionModel):
                                                 np.isfinite(self.edge_gain_sd) and self.edge_gain_sd >= 0):
             raise ValueError(f"the edge term's gain sd (--edge-gain-sd) must be a number >= 0 or 'auto', got "
                              f"{self.edge_gain_sd!r}")
+        if not valid_noise(self.edge_noise):
+            raise ValueError(f"the edge term's noise (--edge-noise) must be 'constant', 'measured' or three "
+                             f"coefficients >= 0 (white > 0), got {self.edge_noise!r}")
 
     @property
     def has_edge_term(self) -> bool:
@@ -192,7 +201,7 @@ class MaterialRegions(RegionModel):
                                                            self.segments.max_regions))
         if self.has_edge_term:
             bonds = bonds._replace(edges=edge_term(problem, labelled, self.edge_power, self.edge_gap,
-                                                   self.edge_gain_sd))
+                                                   self.edge_gain_sd, self.edge_noise))
         return bonds
 
     def initial_layout(self, problem, rng, *, n_materials=None, pixel_labels=None, bonds=None) -> MaterialLabels:
