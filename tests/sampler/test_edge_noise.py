@@ -79,3 +79,21 @@ def test_refusals():
     assert valid_noise("measured") and valid_noise("constant") and valid_noise((1.0, 0.0, 2.0))
     for bad in ("auto", (0.0, 1.0, 1.0), (1.0, -1.0, 0.0), (1.0, 2.0), (1.0, np.nan, 0.0), None):
         assert not valid_noise(bad), bad
+
+
+def test_a_large_problem_measures_its_noise_on_evenly_spaced_matches(monkeypatch):
+    """Above NOISE_FIT_MATCHES the model is fitted on that many evenly spaced matches (memory on a 2048 x 2048 stack)
+    and every match gets its variance: the coefficients stay within the tolerances above."""
+    from rjfit.sampler.regions.materials import edges
+
+    z, g, t = simulated(seed=6, n=400_000)
+    pair = np.arange(z.size)            # one match per pair: each pair's turn is its match's change of <h.n>
+    cos_first = np.full(z.size, 0.5)
+    monkeypatch.setattr(edges, "NOISE_FIT_MATCHES", 150_000)
+    spread = 2.0
+    coefficients, variance = edges._match_noise("measured", z * spread, g * spread, spread, np.log(cos_first + t),
+                                                np.log(cos_first), pair, z.size)
+    for value, truth, name in zip(coefficients, TRUE, ("white", "shading", "turn")):
+        assert value == pytest.approx(truth, rel=TOLERANCE[name]), name
+    assert variance.shape == z.shape
+    assert variance == pytest.approx(match_variance(coefficients, g, t), rel=1e-6)

@@ -75,15 +75,17 @@ def colour_patchy(seed=3, shape=(6, 7), n_lights=5, hue_only=False):
     return per_channel, Problem.from_observations(stack_channels(per_channel))
 
 
-def channel_sums(problem, labels, rows, gap):
+def channel_sums(problem, labels, rows, gap, white=1.0):
     """{boundary: [SS of the step, SS both in the lower, both in the higher, no step]} of one channel's own
     ``problem`` (a single channel) under the materials' ``rows`` (K, 4), pairs ``gap`` apart, from the definition;
-    and that channel's spread s (1.4826 MAD of the reference's difference residuals over the pairs' matches)."""
+    and that channel's spread s (1.4826 MAD of the reference's difference residuals over the pairs' matches).
+    ``white``: a measured noise of that white variance alone (every match's misfit over it, as one channel's
+    definition has it)."""
     height, width = problem.image_shape
     where = {(int(p), int(lt)): i for i, (p, lt) in enumerate(zip(problem.pixel, problem.light))}
     y, C, lch = (np.asarray(a, float) for a in (problem.y, problem.C, problem.log_cos_hn))
     edges = edge_term(problem, labelled_pixels(problem), power=1.0, gap=gap)      # its pairs only
-    reference = no_step_ss(problem, edges)
+    reference = no_step_ss(problem, edges, noise=None if white == 1.0 else (white, 0.0, 0.0))
     e = fit_groups(y, C, lch, np.zeros(y.size, np.int64), 1)["residuals"]
     lights = range(int(problem.light.max()) + 1)
     spread = 1.4826 * np.median(np.abs([e[where[p, lt]] - e[where[q, lt]] for p, q in zip(edges.first, edges.second)
@@ -102,18 +104,18 @@ def channel_sums(problem, labels, rows, gap):
         lo, hi = min(k, m), max(k, m)
         entry = sums.setdefault((lo, hi), [0.0, 0.0, 0.0, 0.0])
         for n, (a, b) in enumerate(((k, m), (lo, lo), (hi, hi))):
-            entry[n] += sum((y[i] - y[j] - mu(i, a) + mu(j, b)) ** 2 for i, j in matched)
+            entry[n] += sum((y[i] - y[j] - mu(i, a) + mu(j, b)) ** 2 for i, j in matched) / white
         entry[3] += reference(p, q)
     return sums, spread
 
 
-def direct_colour_total(per_channel, power, labels, theta, gap):
+def direct_colour_total(per_channel, power, labels, theta, gap, white=1.0):
     """The colour edge term from its definition: each channel's sums on its own problem, weighted by 1 / s_c^2,
-    summed over the channels, then each boundary's share, times power / 2."""
+    summed over the channels, then each boundary's share, times power / 2 (``white``: :func:`channel_sums`)."""
     n_ch = len(per_channel)
     total = {}
     for c, obs in enumerate(per_channel):
-        sums, spread = channel_sums(Problem.from_observations(obs), labels, theta[c::n_ch], gap)
+        sums, spread = channel_sums(Problem.from_observations(obs), labels, theta[c::n_ch], gap, white)
         for key, entry in sums.items():
             total.setdefault(key, np.zeros(4))
             total[key] += np.asarray(entry) / spread ** 2
@@ -134,6 +136,21 @@ def test_colour_total_matches_the_definition_summed_over_channels():
     expected = direct_colour_total(per_channel, 1.5, labels, theta, 3)
     assert expected < -10.0, "the labels should cross many pairs"
     assert edges.total(labels, theta) == pytest.approx(expected, rel=1e-9)
+
+
+def test_a_measured_white_noise_in_colour_matches_the_definition():
+    """Given noise coefficients (2, 0, 0): every match's variance twice its channel's spread squared; the colour term
+    against the definition summed over channels, each as one channel's with that noise (a match without a trend
+    beside its pair keeps its own variance: tests/sampler/test_edge_term.py, no_step_ss)."""
+    per_channel, problem = colour_patchy()
+    labels = np.random.default_rng(0).integers(0, 3, problem.image_shape)
+    theta = colour_theta([(12.0, 8.0, 5.0), (6.0, 7.0, 9.0), (9.0, 9.0, 9.0)], 0.7, [6.0, 5.0, 9.0])
+    edges = edge_term(problem, labelled_pixels(problem), power=1.5, gap=3, noise=(2.0, 0.0, 0.0))
+    assert edges.noise == (2.0, 0.0, 0.0) and edges.typical_weight == pytest.approx(0.5)
+    expected = direct_colour_total(per_channel, 1.5, labels, theta, 3, white=2.0)
+    assert edges.total(labels, theta) == pytest.approx(expected, rel=1e-6)      # float32 columns, scaled once
+    plain = edge_term(problem, labelled_pixels(problem), power=1.5, gap=3)
+    assert abs(plain.total(labels, theta) - expected) > 1.0, "the noise should count"
 
 
 def test_a_paint_that_changes_hue_only_earns_in_colour():

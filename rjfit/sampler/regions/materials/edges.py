@@ -126,6 +126,9 @@ __all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_light
 #: boundary straddle part of the step only, while a smooth misfit changes little over 3 px
 EDGE_GAP = 3
 
+#: the most matches the differences' noise is measured on (:func:`_match_noise`)
+NOISE_FIT_MATCHES = 1 << 22
+
 #: gamma of a colour material's start where its Laplace fit fails (the middle of the dispersed starts' 2 .. 30)
 START_GAMMA = 8.0
 #: how far inside (0, 1) a colour material's start kd is kept
@@ -254,6 +257,16 @@ def matched_lights(pixel, light, first, second, gap: int, chunk: int = 65536):
     return np.concatenate(i_parts), np.concatenate(j_parts), start
 
 
+def _coarsening_power(first, pair, n_right: int, light, n_lights: int, residual, width: int) -> float:
+    """``((1 - rho) / (1 + rho))^2``, rho the lag-1 correlation of the matches' ``residual`` between neighbouring
+    pairs under one light (:func:`_neighbour_correlation`), the mean of the row pairs' and the column pairs', floored
+    at 0 (0 where not finite: power 1)."""
+    rho = np.nanmean([_neighbour_correlation(first[pair[part]], light[part], residual[part], n_lights, width)
+                      for part in (pair < n_right, pair >= n_right)])
+    rho = max(0.0, float(rho)) if np.isfinite(rho) else 0.0
+    return ((1.0 - rho) / (1.0 + rho)) ** 2
+
+
 def _neighbour_correlation(first, light, residual, n_lights: int, width: int) -> float:
     """The lag-1 correlation of ``residual`` between pairs whose first pixels are neighbours along a row or a
     column, under one light (pairs of one direction); NaN with fewer than 3 such neighbours."""
@@ -332,27 +345,20 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP, gain_sd=0.0,
                                  None if n_ch == 1 else weight[np.asarray(problem.channel, np.int64)])
     unit = max(s, 1e-300) ** 2 if n_ch == 1 else 1.0      # what the pairs' sums are measured in
     gain = np.array([float(gain_sd) ** 2, unit])
-    if n_ch == 1:
-        pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual,
-                                    s if noise == "constant" else s * np.sqrt(variance),
-                                    weight=None if noise == "constant" else 1.0 / variance, prediction=prediction,
-                                    gain=gain)
-    else:
-        pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual,
-                                    spreads[channel] * np.sqrt(variance), light=key_light,
-                                    weight=weight[channel] / variance, prediction=prediction, gain=gain)
+    # each match's spread and weight (a colour fit's: its channel's), under its measured noise
+    pair_no_step = no_step_sums(problem, first, second, n_right, gap, i, j, start, reference_residual,
+                                match_spread * np.sqrt(variance), light=key_light,
+                                weight=(1.0 if n_ch == 1 else weight[channel]) / variance, prediction=prediction,
+                                gain=gain)
     pair_no_step[~np.isfinite(pair_no_step)] = np.inf     # no reference fit (tiny problems): no bound from it
     if power == "auto":
         every_light = np.asarray(problem.light, np.int64) if n_ch == 1 else key_light
-        light, n_lights = every_light[i], int(every_light.max()) + 1
         # the differences as they are, not over their measured sd: the power says how much of their evidence their
         # shared misfit repeats (on psm-cat the standardised ones gave 0.042 against 0.027, and two chains of four
         # split the head from the body along its shading: docs/results/2026-11-29-edge-noise.md)
         standardised = residual if n_ch == 1 else residual / np.maximum(spreads, 1e-300)[channel]
-        rho = np.nanmean([_neighbour_correlation(first[pair[part]], light[part], standardised[part], n_lights,
-                                                 problem.width) for part in (pair < n_right, pair >= n_right)])
-        rho = max(0.0, float(rho)) if np.isfinite(rho) else 0.0
-        power = ((1.0 - rho) / (1.0 + rho)) ** 2
+        power = _coarsening_power(first, pair, n_right, every_light[i], int(every_light.max()) + 1, standardised,
+                                  problem.width)
     pair_of = _pairs_of_pixels(first, second, n_right, n_pix)
     scale = float(power) / (2.0 * max(s, 1e-300) ** 2) if n_ch == 1 else float(power) / 2.0
     return EdgeTerm(power=float(power), scale=scale, first=first.astype(np.int64),
@@ -372,7 +378,11 @@ def _match_noise(noise: str, residual, shading_change, match_spread, l_first, l_
     spread = np.maximum(match_spread, 1e-300)
     turn = pair_turn(l_first, l_second, pair, n_pairs)[pair]
     if isinstance(noise, str):
-        fitted = difference_noise(residual / spread, shading_change / spread, turn)
+        # at most NOISE_FIT_MATCHES evenly spaced matches measure it (a 2048 x 2048 stack has about 10^8; 10^4 per
+        # cell measure its variance to about 1.5 %), so that it adds little memory beside the term's own arrays
+        fit = np.unique(np.linspace(0, residual.size - 1, min(residual.size, NOISE_FIT_MATCHES)).astype(np.int64))
+        spread_fit = spread if np.ndim(spread) == 0 else spread[fit]
+        fitted = difference_noise(residual[fit] / spread_fit, shading_change[fit] / spread_fit, turn[fit])
         noise = (fitted["white"], fitted["shading"], fitted["turn"])
     coefficients = tuple(float(c) for c in noise)
     return coefficients, match_variance(coefficients, shading_change / spread, turn)
