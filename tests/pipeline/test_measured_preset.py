@@ -141,6 +141,19 @@ def test_the_preset_measures_the_edge_terms_noise_with_its_term_and_a_noise_with
         FitOptions(regions="materials", edge_noise="loud")
 
 
+def test_a_floored_edge_noise_is_recorded_and_warned():
+    from rjfit.pipeline.regions.materials import edge_noise_record, edge_noise_warnings
+    from rjfit.sampler.regions.materials.edge_noise import MIN_WHITE
+
+    assert edge_noise_record("constant") is None and edge_noise_warnings(None) == []
+    fine = edge_noise_record((0.8, 0.3, 50.0))
+    assert fine == {"white": 0.8, "shading": 0.3, "turn": 50.0, "floored": False} and edge_noise_warnings(fine) == []
+    floored = edge_noise_record((MIN_WHITE, 1.0, 2.0))
+    assert floored["floored"]
+    (warning,) = edge_noise_warnings(floored)
+    assert f"floor {MIN_WHITE}" in warning and "--edge-noise" in warning
+
+
 def test_a_given_local_gain_and_component_moves_reach_the_fit(paper_sphere_small, tmp_path):
     """A given --edge-gain-sd under the preset is the fit's and is recorded (the preset's 'auto' is measured: the
     preset's test below); component moves given through the options land in the sampler's schedule."""

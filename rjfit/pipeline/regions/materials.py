@@ -42,7 +42,7 @@ from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.regions.materials.edge_noise import MIN_WHITE
 from rjfit.sampler.state import SamplerConfig
 
-__all__ = ["MaterialFit", "summarise_materials", "material_resolution", "material_boundaries", "add_boundary_check",
+__all__ = ["MaterialFit", "summarise_materials", "edge_noise_record", "edge_noise_warnings", "material_resolution", "material_boundaries", "add_boundary_check",
            "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files",
            "EMPTY_MATERIALS_NOTE", "resolution_size", "resolution_sentence", "ghost_material_prior", "GHOST_PIXELS",
            "GHOST_ODDS"]
@@ -81,17 +81,14 @@ def summarise_materials(records, problem, options, burn: int, config):
         "ess_bulk_min": diag["ess_bulk_min"], "ess_tail_min": diag["ess_tail_min"], "diagnostics": diag,
         "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
         "edge_power": float(config.regions.edge_power), "edge_gain_sd": float(config.regions.edge_gain_sd),
-        "edge_noise": _noise_record(config.regions.edge_noise), "chain_materials_posterior": chain_posteriors,
+        "edge_noise": edge_noise_record(config.regions.edge_noise), "chain_materials_posterior": chain_posteriors,
     }
     summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
                                                     post.chain_log_posterior_means(records, burn))
     cap = mat.cap_warning(posterior, options.max_materials)
     if cap:
         summary["warnings"].append(cap)
-    if summary["edge_noise"] is not None and summary["edge_noise"]["floored"]:
-        summary["warnings"].append(f"the edge term's measured noise left almost no white part: its white variance "
-                                   f"is held at its floor {MIN_WHITE} (of the differences' robust spread squared), "
-                                   f"so no pair weighs more than {1 / MIN_WHITE:.0f} times a typical one")
+    summary["warnings"] += edge_noise_warnings(summary["edge_noise"])
     resolution = material_resolution(problem, summaries, labels, options, float(config.regions.edge_power),
                                      config.regions.edge_noise)
     if resolution is not None:
@@ -102,12 +99,22 @@ def summarise_materials(records, problem, options, burn: int, config):
     return summary, labels, prediction, {"map_probability": probability, "draws": draws}
 
 
-def _noise_record(noise) -> dict | None:
-    """The summary's ``edge_noise``: the measured coefficients of the edge term's noise (None: one scale)."""
+def edge_noise_record(noise) -> dict | None:
+    """The summary's ``edge_noise``: the measured coefficients of the edge term's noise (``noise``: the sampler's
+    setting, coefficients or a word; None: one scale)."""
     if isinstance(noise, str):
         return None
     white, shading, turn = (float(c) for c in noise)
     return {"white": white, "shading": shading, "turn": turn, "floored": white <= MIN_WHITE}
+
+
+def edge_noise_warnings(record) -> list:
+    """The caveat of a measured noise whose white part sits at its floor (``record``: :func:`edge_noise_record`)."""
+    if record is None or not record["floored"]:
+        return []
+    return [f"the edge term's measured noise left almost no white part: its white variance is held at its floor "
+            f"{MIN_WHITE} (of the differences' robust spread squared), so no pair weighs more than "
+            f"{1 / MIN_WHITE:.0f} times a typical one (--edge-noise)"]
 
 
 def material_boundaries(problem, observations, materials, labels) -> tuple[dict, list]:
