@@ -31,7 +31,8 @@ def edge_settings(problem, options) -> tuple:
     if power == "auto" or gain_sd == "auto" or noise == "measured":
         parts = [what for what, value in (("its power (--edge-power auto)", power),
                                           ("its local gain (--edge-gain-sd auto)", gain_sd),
-                                          ("its noise (--edge-noise measured)", noise)) if value in ("auto", "measured")]
+                                          ("its noise (--edge-noise measured)", noise))
+                 if value in ("auto", "measured")]
         measured = " and ".join([", ".join(parts[:-1]), parts[-1]] if len(parts) > 1 else parts)
         with phase(f"edge term: measuring {measured}", options.progress):
             term = edge_term(problem, labelled_pixels(problem), power, gain_sd=gain_sd, noise=noise)

@@ -198,7 +198,8 @@ class FitOptions:
         "Defaults for a kind of data: none (the options as given); measured: --noise normals, --likelihood-power "
         "auto, no annealed warm-up, --max-view-angle 72.5, --gamma-moves 8, --iterations 500, the Potts rule on the "
         "mask (--regions materials), the edge term (auto) where it applies, with its local gain (auto) and "
-        "measured noise in one channel, and calibration (small mask parts left out; an unknown camera response and per-light gains estimated and applied), each where not given "
+        "measured noise in one channel, and calibration (small mask parts left out; an unknown camera response and "
+        "per-light gains estimated and applied), each where not given "
         "(docs/options.md). Default: none for rendered data, measured for measured data.", "choice", choices=("none", "measured"), show_default=False)
     calibrate: bool = option(False)
     # half the material model's cluster seeds drawn per material (first under --preset measured, now every

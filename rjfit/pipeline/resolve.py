@@ -28,7 +28,8 @@ MEASURED_DEFAULTS = {"regions": next(name for name, fit in REGION_FITS.items() i
                      "preset": "measured"}
 #: What ``--preset measured`` sets where an option is not given (docs/options.md); beyond these, what the
 #: region model's ``RegionFit.preset_values`` sets (the material model: its edge term where it applies, with its
-#: local gain in one channel, the Potts beta and rho by :func:`rjfit.pipeline.regions.materials.ghost_material_prior`).
+#: local gain and measured noise in one channel, the Potts beta and rho by
+#: :func:`rjfit.pipeline.regions.materials.ghost_material_prior`).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
                    "max_view_angle": RIM_VIEW_ANGLE, "gamma_moves": 8, "iterations": 500}
 #: the fraction of each chain discarded, by the data's kind (the paper's choices)

@@ -42,7 +42,8 @@ from rjfit.sampler.regions.materials import MaterialRegions
 from rjfit.sampler.regions.materials.edge_noise import MIN_WHITE
 from rjfit.sampler.state import SamplerConfig
 
-__all__ = ["MaterialFit", "summarise_materials", "edge_noise_record", "edge_noise_warnings", "material_resolution", "material_boundaries", "add_boundary_check",
+__all__ = ["MaterialFit", "summarise_materials", "edge_noise_record", "edge_noise_warnings", "material_resolution",
+           "material_boundaries", "add_boundary_check",
            "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files",
            "EMPTY_MATERIALS_NOTE", "resolution_size", "resolution_sentence", "ghost_material_prior", "GHOST_PIXELS",
            "GHOST_ODDS"]
@@ -333,8 +334,9 @@ class MaterialFit(RegionFit):
     @staticmethod
     def preset_values(values: dict, data) -> dict:
         """The edge term's power 'auto' where it applies and is not given, and in one channel its local gain 'auto'
-        too (not under a given ``--edge-power 0``; a joint colour fit gains nothing from it on psm-cat:
-        docs/results/2026-11-29-gain-default.md); the Potts rule on the data's mask (:func:`ghost_material_prior`)
+        and its noise 'measured' too (not under a given ``--edge-power 0``; a joint colour fit gained nothing from the
+        gain on psm-cat, and its noise is not measured in colour: docs/results/2026-11-29-gain-default.md,
+        2026-11-29-edge-noise.md); the Potts rule on the data's mask (:func:`ghost_material_prior`)
         unless ``potts_rho`` is given (its beta starts at the given one)."""
         out = {}
         if MaterialFit.edge_term_applies(values):

@@ -8,11 +8,16 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["shared_gain_sd", "GAIN_CLIP", "GAIN_CLIP_ROUNDS"]
+__all__ = ["shared_gain_sd", "robust_sd", "GAIN_CLIP", "GAIN_CLIP_ROUNDS"]
 
 #: the estimate leaves out pairs whose gain lies this many robust sd from the median (a paint's), at most this many
 #: rounds (:func:`shared_gain_sd`)
 GAIN_CLIP, GAIN_CLIP_ROUNDS = 3.0, 20
+
+
+def robust_sd(x) -> float:
+    """1.4826 times the median absolute deviation from the median: the sd of a Gaussian, robust to a few outliers."""
+    return 1.4826 * float(np.median(np.abs(x - np.median(x))))
 
 
 def shared_gain_sd(y, prediction, pixel, first, second, n_pixels: int, weight=None) -> float:
@@ -43,10 +48,6 @@ def shared_gain_sd(y, prediction, pixel, first, second, n_pixels: int, weight=No
     both = np.isfinite(a) & np.isfinite(b)
     if np.count_nonzero(both) < 10:
         return 0.0
-
-    def robust_sd(x):
-        return 1.4826 * float(np.median(np.abs(x - np.median(x))))
-
     mean, half = 0.5 * (a[both] + b[both]), 0.5 * (a[both] - b[both])
     kept = np.ones(mean.size, bool)
     for _ in range(GAIN_CLIP_ROUNDS):     # a paint's pairs lie far from the surface's own: left out, as they show

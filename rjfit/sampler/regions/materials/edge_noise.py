@@ -5,9 +5,9 @@ Why
 ---
 The term compares each pair's data difference with the materials' predicted step on one noise scale. On measured
 stacks the differences' misfit under one material is far from homoscedastic: in the tenth of matches where the
-shading changes most across the pair, its robust variance is 11 (psm-horse), 27 (psm-cat) and 3 (psm-rock) times
+shading changes most across the pair, its robust variance is 11 (psm-horse), 33 (psm-cat) and 2.6 (psm-rock) times
 that of the tenth where it changes least, and where the geometry turns fast across the pair (the given normals'
-error, a lobe shape the model lacks and light from nearby surfaces all change fastest there) 2 to 3 times more
+error, a lobe shape the model lacks and light from nearby surfaces all change fastest there) 1.2 to 10 times more
 again. On one scale, the pairs beside occluding contours and folds weigh as much as a flat paint outline's, and
 psm-horse's folds became materials of their own (docs/results/2026-11-29-edge-noise.md).
 
@@ -25,13 +25,15 @@ correlation of 0.73 to 0.77 on the shared stacks, and needs no normals beyond th
 ``b``, ``c`` >= 0 are fitted by non-negative least squares to the robust variances (1.4826 MAD, squared) of ``z`` in
 :data:`CELLS` x :data:`CELLS` cells of the quantiles of ``|g|`` and ``t``: robust, so a paint's outline (a small
 share of any cell) does not widen them; then again, up to :data:`FIT_ROUNDS` times, on ``z`` over the last fit's sd
-(times that variance's mean in the cell), which is unbiased where the model holds. A surface whose misfit is white gives ``b = c = 0`` and ``a`` near 1:
-the term of one scale.
+(times that variance's mean in the cell), which is unbiased where the model holds. A surface whose misfit is white
+gives ``b = c = 0`` and ``a`` near 1: the term of one scale.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import nnls
+
+from rjfit.sampler.regions.materials.edge_gain import robust_sd
 
 __all__ = ["difference_noise", "match_variance", "pair_turn", "valid_noise", "CELLS", "MIN_CELL_MATCHES",
            "MIN_WHITE", "FIT_ROUNDS"]
@@ -54,10 +56,6 @@ def pair_turn(log_cos_hn_first, log_cos_hn_second, pair, n_pairs: int) -> np.nda
     total = np.bincount(pair, change * change, minlength=n_pairs)
     count = np.bincount(pair, minlength=n_pairs)
     return np.sqrt(total / np.maximum(count, 1))
-
-
-def _robust_variance(x) -> float:
-    return (1.4826 * float(np.median(np.abs(x - np.median(x))))) ** 2
 
 
 def difference_noise(z, shading_change, turn) -> dict:
@@ -92,7 +90,7 @@ def difference_noise(z, shading_change, turn) -> dict:
         # a cell's robust variance of z itself understates its mean variance where that varies inside the cell (a
         # scale mixture has heavier tails than its mean's Gaussian: 7 to 13 % on the coefficients of a simulated
         # model); of z over the model's sd it is 1 where the model holds, so the fit is repeated on those
-        cell_variance = [_robust_variance(z[m] / np.sqrt(variance[m])) * np.mean(variance[m]) for m in cells]
+        cell_variance = [robust_sd(z[m] / np.sqrt(variance[m])) ** 2 * np.mean(variance[m]) for m in cells]
         new = nnls(rows, np.array(cell_variance))[0]
         done = np.allclose(new, coefficients, rtol=1e-3, atol=1e-9)
         coefficients = new
