@@ -26,6 +26,19 @@ intervals are conditional on them.
    regular lattice (:func:`rjfit.data.pixelfit.tile_lattice`): their cost no longer grows with the stack.
    Uncertainty: the spread of the last step's ratio over a bootstrap of the tiles
    (``n_bootstrap``, seeded), the tile fits held fixed: it leaves out the fits' own spread.
+   With ``field_degree`` d >= 1 (``--light-field``), each light's gain is instead a field over
+   the image, the exponential of a degree-d polynomial (:mod:`rjfit.data.light_field`), its
+   coefficients moved by unrelaxed Gauss-Newton steps on the same ratio; the fields' geometric
+   mean over the lights is 1 at every pixel.
+
+3b. **The lights' common field** (with ``field_degree`` >= 1): what the per-light fields cannot
+   see, a change of every light's irradiance alike over the image (lights above the object
+   light its bottom less), is read from the pixels' Lambertian albedo: a robust (biweight)
+   fit of the log albedo on the same polynomial, its mean over the object 0, divided out. This
+   assumes the object's most common material is one albedo; other materials are the fit's
+   outliers. On the three psm stacks the albedo fell by 20 to 30 % from the top of each object
+   to its bottom, and psm-cat's head and body differed by 12 % before it and 1 % after
+   (docs/results/2026-11-29-light-field.md).
 
 4. **The silhouette and cast shadows** (:mod:`rjfit.data.shadows`): the mask's outline pixels
    (partly background) lose every observation; an observation under a third of its pixel's own
@@ -51,14 +64,16 @@ import numpy as np
 from scipy import ndimage
 
 from rjfit.data.formats import COLOUR
+from rjfit.data.light_field import field_basis, field_image, monomials, robust_polynomial
 from rjfit.data.pixelfit import group_fit, patch_index, tile_lattice
-from rjfit.data.shadows import flag_cast_shadows, flag_silhouette
+from rjfit.data.shadows import SHADOW_FRACTION, flag_cast_shadows, flag_silhouette, lambertian_albedo
 from rjfit.data.response import estimate_power_response
 from rjfit.progress import phase, tracked
 from rjfit.progress import progress as progress_bar
 
 __all__ = ["calibrate_measured", "drop_small_components", "small_components", "estimate_light_gains",
-           "replay_calibration", "MIN_COMPONENT", "CALIBRATION_OBSERVATIONS"]
+           "estimate_common_field", "replay_calibration", "calibration_warnings", "MIN_COMPONENT",
+           "CALIBRATION_OBSERVATIONS", "LIGHT_FIELD_DEGREE"]
 
 MIN_COMPONENT = 5
 # Alternating tile fits and gains converges slowly where a tile's lobe can take up part of a
@@ -76,6 +91,8 @@ _OVER_RELAXATION = 1.8
 # Their bootstrap intervals are those of the lattice's observations.
 CALIBRATION_OBSERVATIONS = 500_000
 _TILE = 5
+#: the light field's degree under --preset measured (rjfit.pipeline.resolve)
+LIGHT_FIELD_DEGREE = 2
 
 
 def small_components(object_mask, min_component: int = MIN_COMPONENT) -> np.ndarray:
@@ -108,54 +125,96 @@ def drop_small_components(dataset, min_component: int = MIN_COMPONENT):
 
 
 def estimate_light_gains(dataset, channel: str = "mean", seed: int = 0, n_bootstrap: int = 50,
-                         max_observations: int | None = None, progress: bool = False) -> dict:
-    """Per-light gains ``G_l`` from 5 x 5 pixel tile fits (module docstring, step 3).
+                         max_observations: int | None = None, progress: bool = False, field_degree: int = 0) -> dict:
+    """Per-light gains ``G_l`` from 5 x 5 pixel tile fits (module docstring, step 3), or each light's gain field.
 
     ``max_observations``: estimate from a regular lattice of whole tiles holding at most about this many
     observations (:func:`rjfit.data.pixelfit.tile_lattice`; None: every observation). ``progress``: a line per
-    round of tile fits (at most every few seconds) and the bootstrap counted on stderr.
+    round of tile fits (at most every few seconds) and the bootstrap counted on stderr. ``field_degree``: each
+    light's gain is the exponential of a polynomial of this degree over the image (:mod:`rjfit.data.light_field`);
+    0: one gain per light. Each round is a Gauss-Newton step on the log gains' (or fields') coefficients.
 
     Returns
     -------
     dict
-        ``gains`` (L,), ``gains_std`` (L,; block bootstrap over tiles), ``rounds``, ``bootstrap``.
+        ``gains`` (L,; with a field, its geometric mean over the object's pixels), ``gains_std`` (L,; block
+        bootstrap over tiles), ``rounds``, ``last_step`` (the largest change of a log gain in the last round, over
+        the object), ``bootstrap``; with a field (degree >= 1) also ``field``: ``degree``, ``terms``,
+        ``coefficients`` (L lists), ``coefficients_std``, and ``range`` (each light's smallest and largest gain over
+        the object, relative to its geometric mean there).
     """
     observations, lattice = tile_lattice(dataset.observations(channel), _TILE, max_observations)
     tile, n_tiles = patch_index(observations, _TILE)
     light = np.asarray(observations.light, np.int64)
     y0 = np.asarray(observations.y, float)
+    basis = field_basis(observations.pixel, observations.image_shape, field_degree)
+    object_basis = field_basis(np.flatnonzero(dataset.object_mask), observations.image_shape, field_degree)
+    n_lights, n_terms = dataset.n_lights, basis.shape[1]
 
-    def ratio(y, prediction, weights):
-        keep = np.isfinite(prediction)
-        m, w = prediction[keep], weights[tile[keep]]
-        return (np.bincount(light[keep], weights=w * y[keep] * m, minlength=dataset.n_lights)
-                / np.bincount(light[keep], weights=w * m * m, minlength=dataset.n_lights))
+    def step(y, prediction, weights):
+        # a cast shadow (step 4's rule) would pull its place's field down: left out of a field's steps
+        keep = np.isfinite(prediction) & ((y > SHADOW_FRACTION * prediction) if field_degree else True)
+        return _gauss_newton_step(y[keep], prediction[keep], weights[tile[keep]], light[keep], basis[keep], n_lights)
 
-    total, rounds, step = np.ones(dataset.n_lights), 0, np.inf
+    # one gain per light converges slowly without over-relaxation (module constants); a field's Gauss-Newton steps
+    # converge unrelaxed (psm-horse: to 1e-4 in about 20 rounds) and over-relaxed overshoot (not in 60)
+    relaxation = _OVER_RELAXATION if field_degree == 0 else 1.0
+    coefficients, rounds, largest = np.zeros((n_lights, n_terms)), 0, np.inf
     # the rounds stop at a tolerance, so their count is a bound: the bar counts up to it and closes early
     bar = progress_bar(_GAIN_ROUNDS, "light gains: tile fits", "round") if progress else None
-    while rounds < _GAIN_ROUNDS and step > _GAIN_TOLERANCE:
-        y = y0 / total[light]
+    while rounds < _GAIN_ROUNDS and largest > _GAIN_TOLERANCE:
+        y = y0 / np.exp(np.sum(coefficients[light] * basis, axis=1))
         prediction = y - group_fit(dataclasses.replace(observations, y=y), tile, n_tiles)["residuals"]
-        change = ratio(y, prediction, np.ones(n_tiles)) ** _OVER_RELAXATION
-        total = total * change / np.exp(np.mean(np.log(total * change)))
-        step, rounds = float(np.max(np.abs(np.log(change)))), rounds + 1
+        # a change common to every light is the albedo's (the shadows left out raise every light's ratio alike)
+        change = _normalised(relaxation * step(y, prediction, np.ones(n_tiles)))
+        coefficients = _normalised(coefficients + change)
+        largest, rounds = float(np.max(np.abs(change @ object_basis.T))), rounds + 1
         if bar is not None:
-            bar.update(1, detail=f"largest step {step:.2g} (stops below {_GAIN_TOLERANCE:g})")
+            bar.update(1, detail=f"largest step {largest:.2g} (stops below {_GAIN_TOLERANCE:g})")
     if bar is not None:
         bar.close()
-    y = y0 / total[light]
+    y = y0 / np.exp(np.sum(coefficients[light] * basis, axis=1))
     prediction = y - group_fit(dataclasses.replace(observations, y=y), tile, n_tiles)["residuals"]
     rng = np.random.default_rng(seed)
     draws = []
     for _ in tracked(range(n_bootstrap), "light gains: bootstrap", "replicate", enabled=progress):
-        resampled = total * ratio(y, prediction, rng.multinomial(n_tiles, np.full(n_tiles, 1.0 / n_tiles)).astype(float))
-        draws.append(resampled / np.exp(np.mean(np.log(resampled))))
+        weights = rng.multinomial(n_tiles, np.full(n_tiles, 1.0 / n_tiles)).astype(float)
+        draws.append(_normalised(coefficients + step(y, prediction, weights)))
     draws = np.asarray(draws)
-    return {"gains": total.tolist(), "gains_std": draws.std(axis=0, ddof=1).tolist() if n_bootstrap > 1 else None,
-            "rounds": rounds, "last_step": step, "tile_px": _TILE, "subset": lattice,
-            "bootstrap": {"replicates": n_bootstrap, "over": f"{_TILE} x {_TILE} pixel tiles, the tile fits held fixed "
-                                                             "(the spread of the last ratio step only)", "seed": seed}}
+    centre = object_basis.mean(axis=0)            # a light's mean log gain over the object's pixels
+    record = {"gains": np.exp(coefficients @ centre).tolist(),
+              "gains_std": np.exp(draws @ centre).std(axis=0, ddof=1).tolist() if n_bootstrap > 1 else None,
+              "rounds": rounds, "last_step": largest, "tile_px": _TILE, "subset": lattice,
+              "bootstrap": {"replicates": n_bootstrap, "seed": seed,
+                            "over": f"{_TILE} x {_TILE} pixel tiles, the tile fits held fixed (the spread of the last "
+                                    "step only)"}}
+    if field_degree:
+        relative = coefficients @ (object_basis - centre).T
+        record["field"] = {"degree": int(field_degree), "terms": [f"u^{a} v^{b}" for a, b in monomials(field_degree)],
+                           "image_shape": list(observations.image_shape),
+                           "coefficients": coefficients.tolist(),
+                           "coefficients_std": draws.std(axis=0, ddof=1).tolist() if n_bootstrap > 1 else None,
+                           "range": np.exp(np.stack([relative.min(axis=1), relative.max(axis=1)], axis=1)).tolist()}
+    return record
+
+
+def _gauss_newton_step(y, prediction, weights, light, basis, n_lights: int) -> np.ndarray:
+    """Per light, the Gauss-Newton step of a log field's coefficients (L, n_terms): ``y ~ prediction exp(step . phi)``
+    in weighted least squares, ``basis`` the observations' phi."""
+    n_terms = basis.shape[1]
+    normal = np.empty((n_lights, n_terms, n_terms))
+    for i in range(n_terms):
+        for j in range(i + 1):
+            products = weights * prediction ** 2 * basis[:, i] * basis[:, j]
+            normal[:, i, j] = normal[:, j, i] = np.bincount(light, products, n_lights)
+    gradient = np.stack([np.bincount(light, weights * prediction * (y - prediction) * basis[:, i], n_lights)
+                         for i in range(n_terms)], axis=1)
+    return np.linalg.solve(normal, gradient[..., None])[..., 0]
+
+
+def _normalised(coefficients):
+    """Coefficients whose sum over the lights is 0: a field common to every light is the albedo's (or I0's)."""
+    return coefficients - coefficients.mean(axis=0)
 
 
 def _flag_saturated(dataset):
@@ -169,7 +228,7 @@ def _flag_saturated(dataset):
 
 
 def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: bool | None = None,
-                       min_component: int = MIN_COMPONENT, progress: bool = False):
+                       min_component: int = MIN_COMPONENT, progress: bool = False, field_degree: int = 0):
     """The transforms of the module docstring, in order; the transformed data set and their record.
 
     Parameters
@@ -184,6 +243,9 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
         Estimate per-light gains; None: only when the response is unknown (uncalibrated stacks).
     min_component : int
         Smallest connected part of the object mask kept, in pixels.
+    field_degree : int
+        With the gains, each light's gain a field over the image, the exponential of a polynomial of this
+        degree (:mod:`rjfit.data.light_field`); 0: one gain per light.
     progress : bool
         Announce each step on stderr and count its passes (:mod:`rjfit.progress`): on a large
         8-bit stack the calibration takes minutes. The result is the same either way.
@@ -218,14 +280,58 @@ def calibrate_measured(dataset, channel: str = "mean", seed: int = 0, *, gains: 
         dataset = _flag_saturated(dataset)
         with phase("calibration: per-light gains", progress):
             estimate = estimate_light_gains(dataset, estimated_on, seed, max_observations=CALIBRATION_OBSERVATIONS,
-                                            progress=progress)
-        dataset = _divide_by_gains(dataset, estimate["gains"])
+                                            progress=progress, field_degree=field_degree)
+        dataset = _divide_by_gains(dataset, estimate)
         record["light_gains"] = estimate
+        if field_degree:
+            with phase("calibration: the lights' common field", progress):
+                record["common_field"] = estimate_common_field(dataset, estimated_on, field_degree)
+            dataset = _divide_by_common_field(dataset, record["common_field"])
     dataset, record["silhouette"] = flag_silhouette(dataset)
     with phase("calibration: cast shadows", progress):
         dataset, shadows = flag_cast_shadows(dataset, channel)
     record["cast_shadows"] = {**shadows, "channel": channel}
     return dataset, record
+
+
+def estimate_common_field(dataset, channel: str = "mean", degree: int = LIGHT_FIELD_DEGREE) -> dict:
+    """The lights' common field (module docstring, step 3b): the exponential of a polynomial of ``degree`` over the
+    image, fitted robustly to the pixels' Lambertian albedo (:func:`rjfit.data.shadows.lambertian_albedo`), its
+    mean log over the object's pixels 0.
+
+    Returns
+    -------
+    dict
+        ``degree``, ``terms``, ``coefficients`` (n_terms), ``image_shape``, ``range`` (smallest and largest over the
+        object), ``inlier_share`` (the pixels with a non-zero weight), ``scale`` (the log albedo's robust sd about
+        the field), ``rule``, ``caveat``.
+    """
+    pixels, albedo = lambertian_albedo(dataset, channel)
+    judged = np.isfinite(albedo) & (albedo > 0)
+    coefficients, weights, scale = robust_polynomial(np.log(albedo[judged]),
+                                                     field_basis(pixels[judged], dataset.image_shape, degree))
+    inside = field_basis(np.flatnonzero(dataset.object_mask), dataset.image_shape, degree)
+    coefficients[0] -= float(np.mean(inside @ coefficients))
+    log_field = inside @ coefficients
+    return {"degree": int(degree), "terms": [f"u^{a} v^{b}" for a, b in monomials(degree)],
+            "coefficients": coefficients.tolist(), "image_shape": list(dataset.image_shape),
+            "range": [float(np.exp(log_field.min())), float(np.exp(log_field.max()))],
+            "inlier_share": float(np.mean(weights > 0)), "scale": scale,
+            "rule": "Tukey's biweight fit of the pixels' log Lambertian albedo (the median of y / (E <l.n>) over "
+                    "lights with <l.n> > 0.3) on the polynomial",
+            "caveat": "reads a smooth change of the object's most common albedo over the image as illumination"}
+
+
+def calibration_warnings(record: dict | None) -> tuple[str, ...]:
+    """What a calibration record (:func:`calibrate_measured`) must say beside the fit's figures: gains or a light
+    field whose alternating rounds stopped at their limit before their steps fell below the tolerance."""
+    gains = (record or {}).get("light_gains")
+    if not gains or gains.get("last_step", 0.0) <= _GAIN_TOLERANCE:
+        return ()
+    what = "light field" if gains.get("field") else "per-light gains"
+    return (f"the {what} estimate had not settled after {gains['rounds']} rounds of tile fits: the last changed a "
+            f"light's gain by up to {100 * gains['last_step']:.2g} % (the tile fits' lobes trade with the gains); "
+            f"the fit is conditional on these values",)
 
 
 def replay_calibration(dataset, record: dict, source="the fit's summary.json"):
@@ -269,7 +375,14 @@ def replay_calibration(dataset, record: dict, source="the fit's summary.json"):
         if len(gains) != dataset.n_lights:
             raise ValueError(f"{source}: its calibration has gains for {len(gains)} lights, this data set has "
                              f"{dataset.n_lights}: not the data set the fit was made from")
-        dataset = _divide_by_gains(_flag_saturated(dataset), gains)
+        field = record["light_gains"].get("field")
+        if field and tuple(field["image_shape"]) != tuple(dataset.images.shape[1:3]):
+            raise ValueError(f"{source}: its light field was estimated on {field['image_shape'][1]} x "
+                             f"{field['image_shape'][0]} images, this data set's are {dataset.images.shape[2]} x "
+                             f"{dataset.images.shape[1]}: not the data set the fit was made from")
+        dataset = _divide_by_gains(_flag_saturated(dataset), record["light_gains"])
+    if record.get("common_field"):
+        dataset = _divide_by_common_field(dataset, record["common_field"])
     if record.get("silhouette"):
         dataset, _ = flag_silhouette(dataset)
     if record.get("cast_shadows"):
@@ -288,7 +401,17 @@ def _linearise(dataset, kappa: float):
                                meta={**dataset.meta, "response_estimated": float(kappa)})
 
 
-def _divide_by_gains(dataset, gains):
-    """Each light's image divided by its gain (step 3)."""
-    scale = np.asarray(gains, float)[:, None, None, None]
+def _divide_by_gains(dataset, estimate: dict):
+    """Each light's image divided by its gain, or by its gain field where ``estimate`` holds one (step 3)."""
+    field = estimate.get("field")
+    if field:
+        scale = field_image(field["coefficients"], dataset.images.shape[1:3], field["degree"])[..., None]
+    else:
+        scale = np.asarray(estimate["gains"], float)[:, None, None, None]
+    return dataclasses.replace(dataset, images=np.asarray(dataset.images, float) / scale)
+
+
+def _divide_by_common_field(dataset, field: dict):
+    """Every image divided by the lights' common field (step 3b)."""
+    scale = field_image([field["coefficients"]], dataset.images.shape[1:3], field["degree"])[0][None, :, :, None]
     return dataclasses.replace(dataset, images=np.asarray(dataset.images, float) / scale)

@@ -42,7 +42,7 @@ import dataclasses
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["flag_cast_shadows", "flag_silhouette", "SHADOW_FRACTION", "WELL_LIT_COS"]
+__all__ = ["flag_cast_shadows", "flag_silhouette", "lambertian_albedo", "SHADOW_FRACTION", "WELL_LIT_COS"]
 
 #: an observation darker than this share of its pixel's Lambertian prediction is a cast shadow
 SHADOW_FRACTION = 0.3
@@ -72,12 +72,8 @@ def flag_cast_shadows(dataset, channel: str = "mean"):
     pixel, light = np.asarray(obs.pixel, np.int64), np.asarray(obs.light, np.int64)
     y, shading = np.asarray(obs.y, float), np.asarray(obs.irradiance, float) * np.asarray(obs.cos_ln, float)
     well_lit = (np.asarray(obs.cos_ln) > WELL_LIT_COS) & (shading > 0)
-    pixels, compact = np.unique(pixel, return_inverse=True)       # a column per observed pixel, not per frame pixel
-    ratio = np.full((dataset.n_lights, pixels.size), np.nan, np.float32)
-    ratio[light[well_lit], compact[well_lit]] = y[well_lit] / shading[well_lit]
-    judged = np.sum(np.isfinite(ratio), axis=0) >= 3
-    albedo = np.full(pixels.size, np.nan)
-    albedo[judged] = np.nanmedian(ratio[:, judged], axis=0)
+    _, compact, albedo = _median_albedo(obs, dataset.n_lights)
+    judged = np.isfinite(albedo)
     with np.errstate(invalid="ignore"):      # unjudged pixels (NaN albedo) are never shadows
         shadow = well_lit & judged[compact] & (y < SHADOW_FRACTION * albedo[compact] * shading)
     visibility = np.ones((dataset.n_lights,) + dataset.image_shape, bool) if dataset.visibility is None \
@@ -90,6 +86,32 @@ def flag_cast_shadows(dataset, channel: str = "mean"):
               "fraction": SHADOW_FRACTION, "observations_flagged": flagged,
               "share": flagged / max(y.size, 1), "pixels_judged": int(judged.sum())}
     return dataclasses.replace(dataset, visibility=visibility), record
+
+
+def lambertian_albedo(dataset, channel: str = "mean") -> tuple[np.ndarray, np.ndarray]:
+    """Each observed pixel's Lambertian albedo: the median of ``y / (E <l.n>)`` over its lights with ``<l.n> >``
+    :data:`WELL_LIT_COS` (the shadow rule's), where it has 3 or more.
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        The flat pixel indices and their albedos (NaN where fewer than 3 lights face the pixel well).
+    """
+    pixels, _, albedo = _median_albedo(dataset.observations(channel), dataset.n_lights)
+    return pixels, albedo
+
+
+def _median_albedo(obs, n_lights: int):
+    pixel, light = np.asarray(obs.pixel, np.int64), np.asarray(obs.light, np.int64)
+    y, shading = np.asarray(obs.y, float), np.asarray(obs.irradiance, float) * np.asarray(obs.cos_ln, float)
+    well_lit = (np.asarray(obs.cos_ln) > WELL_LIT_COS) & (shading > 0)
+    pixels, compact = np.unique(pixel, return_inverse=True)       # a column per observed pixel, not per frame pixel
+    ratio = np.full((n_lights, pixels.size), np.nan, np.float32)
+    ratio[light[well_lit], compact[well_lit]] = y[well_lit] / shading[well_lit]
+    judged = np.sum(np.isfinite(ratio), axis=0) >= 3
+    albedo = np.full(pixels.size, np.nan)
+    albedo[judged] = np.nanmedian(ratio[:, judged], axis=0)
+    return pixels, compact, albedo
 
 
 def flag_silhouette(dataset):

@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 
 
-from rjfit.data.calibrate import calibrate_measured
+from rjfit.data.calibrate import calibrate_measured, calibration_warnings
 from rjfit.data.dataset import read_validation_result
 from rjfit.data.fingerprint import dataset_fingerprint
 from rjfit.data.loading import dataset_kind
@@ -100,6 +100,7 @@ def fit_dataset(dataset_dir, out_dir, options: FitOptions | None = None, *, vali
     warnings = () if record.get("passed") else (
         f"the forward model {record['note']}: the fit was forced (--allow-unvalidated), so its regions and parameters "
         f"are not trustworthy",)
+    warnings += calibration_warnings(calibration)
     source = FitSource(entries=entries, warnings=warnings, exclusion_counts=dataset.exclusion_counts(
                             "mean" if options.channel == COLOUR else options.channel),
                        object_mask=dataset.object_mask, n_lights=dataset.n_lights, view_angle=dataset.view_angles())
@@ -129,7 +130,8 @@ def _prepared(dataset, options: FitOptions):
     under ``options.calibrate`` the calibrated images; the rim limit (``--max-view-angle``)."""
     calibration = None
     if options.calibrate:
-        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed, progress=options.progress)
+        dataset, calibration = calibrate_measured(dataset, options.channel, options.seed, progress=options.progress,
+                                                   field_degree=options.light_field)
     if options.max_view_angle is not None and options.max_view_angle < 90.0:
         dataset = dataclasses.replace(dataset, max_view_angle=options.max_view_angle)
     return dataset, calibration

@@ -271,6 +271,12 @@ class FitOptions:
         "Degrees: observations of pixels seen further than this from their normal (the rim) are left out; their "
         "labels follow their neighbours'. Default 90 (every view kept); --preset measured sets 72.5 (give 90 to "
         "keep every view under it; docs/options.md).", "float", show_default=False)
+    light_field: int = cli_option(
+        0, "--light-field",
+        "Degree of each light's gain field: with the per-light gains of a data set whose response is unknown, each "
+        "light's gain is the exponential of a polynomial of this degree over the image (a light that lights the "
+        "object unevenly), estimated and divided out of its images. 0: one gain per light. Default 0; --preset "
+        "measured sets 2 (docs/options.md).", "int", low=0, show_default=False)
     noise_floor: float = cli_option(
         DEFAULT_FLOOR, "--noise-floor",
         "c / ybar of the shot and relative noise models (--noise shot or relative): the floor (read noise) added to "
@@ -351,6 +357,9 @@ class FitOptions:
         if self.max_view_angle is not None and not (math.isfinite(self.max_view_angle)
                                                     and 0.0 < self.max_view_angle <= 90.0):
             raise ValueError(f"--max-view-angle is in degrees, in (0, 90], got {self.max_view_angle}")
+        if self.light_field is not None and not 0 <= self.light_field <= 4:
+            raise ValueError(f"--light-field is a polynomial's degree, 0 (one gain per light) to 4, got "
+                             f"{self.light_field}")
         if self.noise_floor is not None and not (math.isfinite(self.noise_floor) and self.noise_floor > 0):
             raise ValueError(f"noise floor (--noise-floor) must be a positive number, got {self.noise_floor}")
         if self.potts_beta is not None and not (math.isfinite(self.potts_beta) and self.potts_beta >= 0):

@@ -74,9 +74,12 @@ def _calibration(summary: dict) -> str:
     else:
         parts.append("camera response: the data set's own (linear), not estimated")
     gains = (record.get("light_gains") or {}).get("gains") if isinstance(record.get("light_gains"), dict) else None
+    field = record["light_gains"].get("field") if isinstance(gains, list) else None
     if isinstance(gains, list) and gains:
         parts.append(f"per-light gains estimated for {len(gains)} lights ({min(gains):.3g} to {max(gains):.3g}) and "
-                     f"divided out")
+                     f"divided out" + (f", each a degree-{field['degree']} field over the image ("
+                                       f"{min(r[0] for r in field['range']):.2f} to {max(r[1] for r in field['range']):.2f}"
+                                       f" of its mean)" if isinstance(field, dict) else ""))
     else:
         parts.append("light gains: not estimated (the intensities as declared)")
     isolated = (record.get("isolated_pixels") or {}).get("pixels_dropped")

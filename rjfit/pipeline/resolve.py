@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rjfit.data.formats import COLOUR
+from rjfit.data.calibrate import LIGHT_FIELD_DEGREE
 from rjfit.pipeline.options import CHOICE_OPTIONS, EFFECT_OPTIONS, GIVEN, RIM_VIEW_ANGLE, FitOptions
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.regions.materials import GHOST_ODDS, GHOST_PIXELS, ghost_material_prior
@@ -31,7 +32,7 @@ MEASURED_DEFAULTS = {"regions": next(name for name, fit in REGION_FITS.items() i
 #: local gain and measured noise in one channel, the Potts beta and rho by
 #: :func:`rjfit.pipeline.regions.materials.ghost_material_prior`).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
-                   "max_view_angle": RIM_VIEW_ANGLE, "gamma_moves": 8, "iterations": 500}
+                   "max_view_angle": RIM_VIEW_ANGLE, "gamma_moves": 8, "iterations": 500, "light_field": LIGHT_FIELD_DEGREE}
 #: the fraction of each chain discarded, by the data's kind (the paper's choices)
 BURN_IN = {"measured": 0.2, "rendered": 0.5}
 PRESET, DATA, DEFAULT = "preset", "data", "default"
@@ -48,15 +49,15 @@ class DataFacts:
         How the folder is laid out, for the printed line ('diligent', 'mesh-stack', ...).
     object_mask : ndarray or None
         The object's pixels (the Potts rule's); None: no rule.
-    response_unknown : bool
+    response_unknown : bool or None
         The data set declares an unknown camera response (``{"response": "unknown"}``): the fit
-        must calibrate it.
+        must calibrate it. None: not read yet (:func:`refuse_early`).
     """
 
     kind: str = "rendered"
     layout: str = ""
     object_mask: np.ndarray | None = None
-    response_unknown: bool = False
+    response_unknown: bool | None = False
 
     @classmethod
     def of(cls, dataset) -> "DataFacts":
@@ -106,6 +107,8 @@ def resolve_options(options: FitOptions, data: DataFacts | None = None) -> FitOp
         fill(name, FitOptions.default(name), DEFAULT)
     if values["preset"] == "measured":
         for name, value in MEASURED_PRESET.items():
+            if name == "light_field" and data.response_unknown is False:
+                continue            # estimated with the per-light gains, which a declared response does not get
             fill(name, value, PRESET)
         for name, value in REGION_FITS[values["regions"]].preset_values(values, data).items():
             values[name] = value           # the model's rule (the Potts prior on the mask) starts from a given value
@@ -133,13 +136,16 @@ def refuse_early(options: FitOptions, kind: str) -> None:
     ValueError
         As :func:`resolve_options`.
     """
-    resolve_options(options, DataFacts(kind=kind))
+    resolve_options(options, DataFacts(kind=kind, response_unknown=None))
 
 
 def _check_calibration(values: dict, data: DataFacts) -> None:
     if data.response_unknown and values.get("calibrate") is False:
         raise ValueError("the data set declares an unknown camera response ({\"response\": \"unknown\"}): its raw "
                          "codes are not radiances; the fit must calibrate it (calibrate=True, what every preset does)")
+    if values.get("light_field") and (data.response_unknown is False or values.get("calibrate") is False):
+        raise ValueError("--light-field is estimated with the per-light gains, which only a data set declaring an "
+                         "unknown response ({\"response\": \"unknown\"}) gets: leave it out")
 
 
 def _edge_term_applies(values: dict) -> bool:

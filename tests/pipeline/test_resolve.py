@@ -114,3 +114,35 @@ def test_a_fit_of_a_measured_folder_prints_the_default_it_used(tmp_path):
     assert summary["region_model"] == "materials" and summary["fit_options"]["sources"]["regions"] == "data"
     assert summary["data_defaults"] == [line.strip() for line in result.output.splitlines()
                                         if line.strip().startswith("measured data")]
+
+
+def test_the_light_field_is_estimated_where_the_gains_are():
+    """--light-field shapes the per-light gains, which only a declared unknown response gets: the measured preset
+    sets degree 2 there and 0 on a calibrated stack (the DiLiGenT ball); given where no gains are estimated, or
+    out of range, it is refused in one line."""
+    unknown, known = DataFacts(kind="measured", response_unknown=True), DataFacts(kind="measured")
+    preset = resolve_options(FitOptions(), unknown)
+    assert preset.light_field == 2 and preset.source("light_field") == "preset"
+    assert resolve_options(FitOptions(), known).light_field == 0
+    assert resolve_options(FitOptions(preset="none"), unknown).light_field == 0
+    assert resolve_options(FitOptions(light_field=1), unknown).light_field == 1
+    with pytest.raises(ValueError, match="--light-field is estimated with the per-light gains"):
+        resolve_options(FitOptions(light_field=2), known)
+    with pytest.raises(ValueError, match="--light-field is a polynomial's degree"):
+        FitOptions(light_field=7)
+
+
+def test_a_fit_of_an_uncalibrated_folder_divides_out_its_light_field(tmp_path):
+    """A photometric-stereo folder declaring an unknown response, fitted with the measured default: the fit says
+    it estimated the lights' fields, and its summary holds them (each light's and the common one)."""
+    folder = make_ps_folder(tmp_path / "ps")
+    (folder / "rjfit.json").write_text('{"response": "unknown"}')
+    (folder / "light_intensities.txt").write_text("1 1 1\n" * 4)     # uncalibrated: declared equal
+    out = tmp_path / "fit"
+    result = CliRunner().invoke(main, ["fit", str(folder), "--out", str(out), "--allow-unvalidated", "--chains", "1",
+                                       "--iterations", "20"])
+    assert result.exit_code == 0, result.output
+    assert "light field: each light's gain a degree-2 field over the image" in result.output
+    calibration = json.loads((out / "summary.json").read_text())["calibration"]
+    assert calibration["light_gains"]["field"]["degree"] == 2
+    assert calibration["common_field"]["degree"] == 2 and len(calibration["common_field"]["coefficients"]) == 6
