@@ -324,13 +324,15 @@ def _echo_fit(folder, summary: dict) -> None:
         spread = f" (95 % {interval[0]:.3g} to {interval[1]:.3g})" if interval else ""
         click.echo(f"  camera response estimated: raw = k linear^(1/kappa), kappa {response['kappa']:.3g}{spread}; "
                    f"the images were linearised with it before the fit")
+    from rjfit.data.light_field import field_extent
+
     calibration = summary.get("calibration") or {}
     field, common = (calibration.get("light_gains") or {}).get("field"), calibration.get("common_field")
     if field:
-        low, high = min(r[0] for r in field["range"]), max(r[1] for r in field["range"])
+        low, high = field_extent(field)
         click.echo(f"  light field: each light's gain a degree-{field['degree']} field over the image, {low:.2f} to "
                    f"{high:.2f} of its mean over the object"
-                   + (f", and the lights' common field {common['range'][0]:.2f} to {common['range'][1]:.2f} (read "
+                   + (f", and the lights' common field {field_extent(common)[0]:.2f} to {field_extent(common)[1]:.2f} (read "
                       f"from the albedo of {100 * common['inlier_share']:.0f} % of the pixels, as one material's)"
                       if common else "") + "; divided out before the fit (--light-field)")
     noise_model = summary.get("noise", {}).get("model", "constant")

@@ -317,7 +317,7 @@ def estimate_common_field(dataset, channel: str = "mean", degree: int = LIGHT_FI
             "coefficients": coefficients.tolist(), "image_shape": list(dataset.image_shape),
             "range": [float(np.exp(log_field.min())), float(np.exp(log_field.max()))],
             "inlier_share": float(np.mean(weights > 0)), "scale": scale,
-            "rule": "Tukey's biweight fit of the pixels' log Lambertian albedo (the median of y / (E <l.n>) over "
+            "rule": "Tukey's biweight fit, started from Huber's, of the pixels' log Lambertian albedo (the median of y / (E <l.n>) over "
                     "lights with <l.n> > 0.3) on the polynomial",
             "caveat": "reads a smooth change of the object's most common albedo over the image as illumination"}
 

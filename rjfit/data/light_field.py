@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["monomials", "field_basis", "field_image", "robust_polynomial", "BIWEIGHT_C"]
+__all__ = ["monomials", "field_basis", "field_image", "field_extent", "robust_polynomial", "BIWEIGHT_C"]
 
 #: Tukey's biweight tuning constant (95 % efficiency under Gaussian errors)
 BIWEIGHT_C = 4.685
@@ -51,6 +51,13 @@ def field_image(coefficients, image_shape, degree: int) -> np.ndarray:
     height, width = image_shape
     basis = field_basis(np.arange(height * width), image_shape, degree)
     return np.exp(coefficients @ basis.T).reshape(len(coefficients), height, width)
+
+
+def field_extent(record: dict) -> tuple[float, float]:
+    """The smallest and largest gain over the object of a recorded field (``range``: one pair per light, or one
+    pair for the common field)."""
+    pairs = np.asarray(record["range"], float).reshape(-1, 2)
+    return float(pairs[:, 0].min()), float(pairs[:, 1].max())
 
 
 def robust_polynomial(values, basis) -> tuple[np.ndarray, np.ndarray, float]:

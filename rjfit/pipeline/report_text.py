@@ -10,6 +10,7 @@ and a row whose entry is missing is left out.
 """
 from __future__ import annotations
 
+from rjfit.data.light_field import field_extent
 from rjfit.pipeline.regions import region_fit_of
 from rjfit.pipeline.report_numbers import finite as _finite
 from rjfit.pipeline.report_numbers import number as _number
@@ -78,7 +79,7 @@ def _calibration(summary: dict) -> str:
     if isinstance(gains, list) and gains:
         parts.append(f"per-light gains estimated for {len(gains)} lights ({min(gains):.3g} to {max(gains):.3g}) and "
                      f"divided out" + (f", each a degree-{field['degree']} field over the image ("
-                                       f"{min(r[0] for r in field['range']):.2f} to {max(r[1] for r in field['range']):.2f}"
+                                       f"{field_extent(field)[0]:.2f} to {field_extent(field)[1]:.2f}"
                                        f" of its mean)" if isinstance(field, dict) else ""))
     else:
         parts.append("light gains: not estimated (the intensities as declared)")

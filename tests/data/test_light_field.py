@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rjfit.data.calibrate import calibrate_measured, estimate_common_field, estimate_light_gains, replay_calibration
-from rjfit.data.light_field import field_basis, field_image, monomials, robust_polynomial
+from rjfit.data.light_field import field_basis, field_extent, field_image, monomials, robust_polynomial
 from rjfit.render.datasets import load_dataset
 
 
@@ -75,6 +75,8 @@ def test_a_field_calibration_replays_and_refuses_another_image_size(dented_plast
     field = record["light_gains"]["field"]
     assert field["degree"] == 1 and len(field["coefficients"]) == dataset.n_lights
     assert all(low <= 1.0 <= high for low, high in field["range"])
+    assert field_extent(field) == (min(low for low, _ in field["range"]), max(high for _, high in field["range"]))
+    assert field_extent(record["common_field"]) == tuple(record["common_field"]["range"])
     assert record["common_field"]["degree"] == 1 and 0.5 < record["common_field"]["inlier_share"] <= 1.0
     replayed = replay_calibration(dataset, record)
     np.testing.assert_allclose(replayed.images, calibrated.images, rtol=1e-12)
