@@ -14,7 +14,9 @@ agreement over models); the checks here look at the numbers themselves:
 - a pooled mean outside its own 95 % interval (:func:`pooled_interval_warnings`);
 - proposals rejected because their acceptance ratio was NaN (:func:`nan_rejection_warnings`);
 - a material that lies mostly where the object is seen most steeply (:func:`steep_view_shares`,
-  :func:`steep_view_warnings`).
+  :func:`steep_view_warnings`);
+- a material of the segmentation that the draws summarised for it mostly do not hold
+  (:func:`label_agreements`, :func:`label_agreement_warnings`).
 """
 from __future__ import annotations
 
@@ -26,7 +28,8 @@ from rjfit.sampler.priors import PARAM_NAMES
 __all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "BOUND_SHARE", "prior_range_warnings", "support_bound_warnings",
            "empty_region_warnings", "model_cap_warnings", "pooled_interval_warnings", "nan_rejection_warnings",
            "acceptance_counts", "STEEP_TAIL", "STEEP_SHARE", "steep_view_shares", "steep_view_warnings",
-           "chain_steep_warnings", "steep_view_caveats"]
+           "chain_steep_warnings", "steep_view_caveats", "AGREEMENT_MIN", "label_agreements",
+           "label_agreement_warnings"]
 
 #: a prior's plausible range: its central 99.9 % interval (a posterior mean outside it lies
 #: where the prior puts 1 in 2000 of its mass on either side)
@@ -36,6 +39,9 @@ PLAUSIBLE_MASS = 0.999
 BOUND_SHARE = 0.01
 #: a model cap binds when more than this share of the kept draws sits on it
 CAP_MASS_MAX = 0.05
+#: a material's parameters are its own when the draws summarised for it give its pixels its label in at least this
+#: share of them on average (a majority)
+AGREEMENT_MIN = 0.5
 #: the share of the object's labelled pixels seen most steeply (furthest from their normal) that a material's
 #: pixels are compared against
 STEEP_TAIL = 0.1
@@ -290,3 +296,45 @@ def steep_view_caveats(regions, labels, view_angle, records, burn_in: int) -> tu
                           and np.isfinite(chain_shares[k])])
     entries = {"steep_view_angle": float(angle) if np.isfinite(angle) else None, "chain_steep_materials": per_chain}
     return entries, steep_view_warnings(regions, shares, angle) + chain_steep_warnings(per_chain, angle)
+
+
+def label_agreements(labels, agreement, n_materials: int) -> np.ndarray:
+    """Per material of ``labels`` (H, W; -1 unlabelled), the mean over its pixels of ``agreement`` (H, W: per pixel
+    the share of the relabelled draws giving it its label, :meth:`rjfit.posterior.materials.RelabelledDraws
+    .agreement`); NaN for a material without a pixel of finite agreement.
+
+    Raises
+    ------
+    ValueError
+        If ``labels`` and ``agreement`` differ in shape.
+    """
+    labels, agreement = np.asarray(labels), np.asarray(agreement, float)
+    if labels.shape != agreement.shape:
+        raise ValueError(f"agreement must have the labels' shape {labels.shape}, got {agreement.shape}")
+    known = (labels >= 0) & np.isfinite(agreement)
+    held = np.bincount(labels[known], minlength=n_materials)[:n_materials].astype(float)
+    total = np.bincount(labels[known], weights=agreement[known], minlength=n_materials)[:n_materials]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(held > 0, total / held, np.nan)
+
+
+def label_agreement_warnings(regions, agreements, n_materials: int, least: float = AGREEMENT_MIN) -> list:
+    """A warning per material (``regions`` entries with ``material`` and ``pixels``) whose pixels the draws at the
+    segmentation's K give its label in less than ``least`` of them on average (:func:`label_agreements`).
+
+    Why: the segmentation may take a material from one chain's draws (:func:`rjfit.posterior.materials
+    .segmentation_estimate` sets apart what a chain's last labels hold) while its parameters are summarised over
+    every kept draw with that K, relabelled to it by overlap; where the chains disagree, those draws' matching
+    material lies mostly elsewhere, and its numbers are not this material's (psm-rock at seed 1: a 9,282-px material
+    whose pixels those draws gave its label in 0.1 % of them, its I0 below the body's though its pixels are brighter:
+    docs/results/2026-11-29-compact-starts.md).
+    """
+    out = []
+    for region, share in zip(regions, agreements):
+        if not np.isfinite(share) or share >= least:
+            continue
+        out.append(f"material {region['material']} ({region.get('pixels', 0)} px): the draws with K = {n_materials} "
+                   f"give its pixels this material in {share:.1%} of them on average, so in most draws the parameters "
+                   "reported for it belong to other pixels: the chains disagree on it; read its parameters as unknown "
+                   "and its outline as one chain's")
+    return out

@@ -224,9 +224,12 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
         assert angles[sphere.object_mask] == pytest.approx(np.degrees(np.arccos(np.clip(np.sum(
             sphere.normals * sphere.view_dirs, axis=-1), -1, 1)))[sphere.object_mask])
         assert summary["steep_view_angle"] == pytest.approx(np.quantile(angles[labels >= 0], 0.9))
+        agreement = read_exr(tmp_path / "fit" / "maps.exr")["map_probability"]
         for region in summary["regions"]:
             mine = labels == region["material"]
             assert region["steep_view_share"] == pytest.approx(np.mean(angles[mine] >= summary["steep_view_angle"]))
+            # how often the draws whose parameters it reports give its pixels its label (the map's mean there)
+            assert region["label_agreement"] == pytest.approx(np.nanmean(agreement[mine]), rel=1e-5)
         assert len(summary["chain_steep_materials"]) == 1       # one chain: its materials but its largest
         assert all(0.0 <= m["steep_view_share"] <= 1.0 for m in summary["chain_steep_materials"][0])
     else:       # change points have no Potts prior: the rule must not be recorded as if it applied

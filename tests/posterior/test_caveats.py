@@ -9,6 +9,8 @@ from rjfit.posterior.caveats import (
     acceptance_counts,
     chain_steep_warnings,
     empty_region_warnings,
+    label_agreement_warnings,
+    label_agreements,
     model_cap_warnings,
     nan_rejection_warnings,
     pooled_interval_warnings,
@@ -225,3 +227,18 @@ def test_rhat_and_ess_of_varying_parameters_are_arviz_s_own():
     diag = diagnostics(chains)
     assert diag["rhat"] == az.rhat(data)["theta"].values.tolist()
     assert diag["ess_bulk"] == az.ess(data, method="bulk")["theta"].values.tolist()
+
+
+def test_a_material_the_draws_do_not_hold_is_named_and_the_agreements_are_the_pixels_means():
+    """label_agreements is each material's mean of the agreement map over its pixels with a finite value (NaN
+    without one); a material below half is warned of with its share, one at half is not."""
+    labels = np.array([[0, 0, 1, 1], [0, 2, 2, -1], [3, 3, 3, -1]])
+    agreement = np.array([[1.0, 0.8, 0.1, 0.3], [0.9, 0.5, 0.5, 0.0], [np.nan, np.nan, np.nan, 1.0]])
+    shares = label_agreements(labels, agreement, 4)
+    assert shares[:3] == pytest.approx([0.9, 0.2, 0.5]) and np.isnan(shares[3])
+    regions = [{"material": k, "pixels": int(np.sum(labels == k))} for k in range(4)]
+    warnings = label_agreement_warnings(regions, shares, 4)
+    assert len(warnings) == 1 and warnings[0].startswith("material 1 (2 px): the draws with K = 4 give its pixels "
+                                                         "this material in 20.0% of them")
+    with pytest.raises(ValueError, match="labels' shape"):
+        label_agreements(labels, agreement[:, :-1], 4)

@@ -70,6 +70,9 @@ def summarise_materials(records, problem, options, burn: int, config):
     draws = mat.relabelled_draws(records, burn, k, problem.n_channels, reference=labels)
     probability = draws.agreement(labels)
     summaries, diag = mat.material_summaries(draws, labels)
+    agreements = caveats.label_agreements(labels, probability, k)
+    for entry, share in zip(summaries, agreements):
+        entry["label_agreement"] = float(share) if np.isfinite(share) else None
     chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
     summary = {
         "materials_posterior": posterior, "map_materials": int(next(iter(posterior))), "regions": summaries,
@@ -86,6 +89,7 @@ def summarise_materials(records, problem, options, burn: int, config):
     }
     summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
                                                     post.chain_log_posterior_means(records, burn))
+    summary["warnings"] += caveats.label_agreement_warnings(summaries, agreements, k)
     cap = mat.cap_warning(posterior, options.max_materials)
     if cap:
         summary["warnings"].append(cap)
