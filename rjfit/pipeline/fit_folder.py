@@ -133,7 +133,9 @@ SUMMARY_FIELDS = {
     "model_number_convention": (str, "how m is computed from (n_u, n_v)"),
     "regions": (list, "per region of the MAP model: posterior mean, sd, 95 % interval of I0, kd, gamma, sigma2, "
                       "with its pixel count (materials: label_agreement, the mean over its pixels of the share of "
-                      "the draws at its K giving them its label, its parameters' draws; fitted from a data set: "
+                      "the draws at its K giving them its label, its parameters' draws; parameters_from, where that "
+                      "is under one half: its parameters summarised instead over the draws of any K that hold its "
+                      "pixels, with their number, chains and R-hat; fitted from a data set: "
                       "steep_view_share, the share of its pixels seen beyond steep_view_angle)"),
     "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),
     "chain_model_posterior": (list, "model posterior of each chain"),

@@ -70,6 +70,18 @@ def _fmt(value, digits=4):
     return html.escape(str(value))
 
 
+def _draws_note(region: dict) -> str:
+    """Under a material's name: where its parameters are not summarised over the draws at the segmentation's K
+    (``parameters_from``: the draws that hold it; none: unknown), else nothing."""
+    if "parameters_from" not in region:
+        return ""
+    own = region["parameters_from"]
+    if not own:
+        return "<br><small>no draw holds it: parameters unknown</small>"
+    chains = ", ".join(str(c) for c in own.get("chains", []))
+    return f"<br><small>from the {_fmt(own.get('draws'))} draws that hold it (chain {chains})</small>"
+
+
 def _region_table(summary: dict) -> str:
     """The paper's Table 2 / 4 layout: one row per region, mean &plusmn; sd and 95 % interval."""
     regions = summary.get("regions") or []
@@ -96,8 +108,8 @@ def _region_table(summary: dict) -> str:
             if true_value is not None:
                 text += f"<br><small>truth {_number(true_value)}</small>"
             cells.append(f"<td>{text}</td>")
-        rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small></td>"
-                    + "".join(cells) + "</tr>")
+        rows.append(f"<tr><td>{html.escape(str(name))}<br><small>{_fmt(region.get('pixels'))} px</small>"
+                    f"{_draws_note(region)}</td>" + "".join(cells) + "</tr>")
     return f"<table><tr><th>{model.noun}</th>{head}</tr>{''.join(rows)}</table>"
 
 

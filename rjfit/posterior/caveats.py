@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from rjfit.posterior.materials import last_labels
+from rjfit.posterior.summary import RHAT_MAX
 from rjfit.sampler.priors import PARAM_NAMES
 
 __all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "BOUND_SHARE", "prior_range_warnings", "support_bound_warnings",
@@ -327,14 +328,26 @@ def label_agreement_warnings(regions, agreements, n_materials: int, least: float
     every kept draw with that K, relabelled to it by overlap; where the chains disagree, those draws' matching
     material lies mostly elsewhere, and its numbers are not this material's (psm-rock at seed 1: a 9,282-px material
     whose pixels those draws gave its label in 0.1 % of them, its I0 below the body's though its pixels are brighter:
-    docs/results/2026-11-29-compact-starts.md).
+    docs/results/2026-11-29-compact-starts.md). Where ``regions`` carries ``parameters_from``
+    (:func:`rjfit.pipeline.regions.materials.summarise_from_own_draws`: its parameters summarised afresh over the draws
+    that hold it), the warning says so instead.
     """
     out = []
     for region, share in zip(regions, agreements):
         if not np.isfinite(share) or share >= least:
             continue
-        out.append(f"material {region['material']} ({region.get('pixels', 0)} px): the draws with K = {n_materials} "
-                   f"give its pixels this material in {share:.1%} of them on average, so in most draws the parameters "
-                   "reported for it belong to other pixels: the chains disagree on it; read its parameters as unknown "
-                   "and its outline as one chain's")
+        head = (f"material {region['material']} ({region.get('pixels', 0)} px): the draws with K = {n_materials} give "
+                f"its pixels this material in {share:.1%} of them on average, so the chains disagree on it")
+        own = region.get("parameters_from")
+        if own:
+            chains = ", ".join(str(c) for c in own["chains"])
+            rhat = own.get("rhat_max")
+            mixed = (f" (R-hat {rhat:.2f} over them: those chains hold different versions of it)"
+                     if rhat is not None and np.isfinite(rhat) and rhat > RHAT_MAX else "")
+            out.append(f"{head}; its parameters are summarised over the {own['draws']} kept draws (of any K; chain "
+                       f"{chains}) whose material matches its pixels (Jaccard index above {own['match_min']:g}), not "
+                       f"over the draws at that K{mixed}; read its outline as those chains'")
+        else:
+            out.append(f"{head}, and in most of those draws the parameters reported for it belong to other pixels: "
+                       "read its parameters as unknown and its outline as one chain's")
     return out

@@ -37,12 +37,14 @@ from rjfit.posterior.summary import diagnostics, region_summaries
 
 __all__ = ["materials_posterior", "count_shares", "map_materials", "RelabelledDraws", "relabelled_draws",
            "central_snapshot", "segmentation_estimate", "snapshot_labels", "last_labels", "material_summaries",
-           "cap_warning", "RELABELLING", "SEGMENTATION", "CENTRAL_SNAPSHOTS", "CENTRAL_PIXELS"]
+           "cap_warning", "matched_draws", "MATCH_MIN", "RELABELLING", "SEGMENTATION", "CENTRAL_SNAPSHOTS",
+           "CENTRAL_PIXELS"]
 
 #: How the segmentation is chosen (written into the summary).
 SEGMENTATION = ("the kept label snapshot (any chain, any K) whose expected number of pixel pairs grouped differently "
                 "from the other kept snapshots is least (Binder's loss, Dahl's least-squares clustering among the "
-                "sampled partitions), then whole materials joined or set apart while that number falls")
+                "sampled partitions), then whole materials joined or set apart while that number falls, and a "
+                "material that no kept draw holds joined to another")
 #: How draws are matched to the segmentation (written into the summary).
 RELABELLING = ("kept draws with K = the segmentation's K, each label snapshot relabelled to the segmentation by the "
                "optimal one-to-one matching of pixel overlaps (Hungarian assignment), and the draws after a snapshot "
@@ -53,6 +55,10 @@ CENTRAL_SNAPSHOTS = 200
 #: labelled pixels on which two snapshots' disagreement is counted, at most (every n-th beyond: a share of the pairs
 #: estimates the loss as well for choosing among snapshots)
 CENTRAL_PIXELS = 2 ** 17
+#: a snapshot holds a material of the segmentation when one of its own materials matches that material's pixels more
+#: closely than this (Jaccard index: the pixels both hold over the pixels either holds); above one half, at most one of
+#: the snapshot's materials can match
+MATCH_MIN = 0.5
 
 
 def materials_posterior(records, burn_in: int) -> dict:
@@ -157,7 +163,9 @@ def segmentation_estimate(records, burn_in: int, max_snapshots: int = CENTRAL_SN
     materials): a material joined to another (a speck that the chosen snapshot happens to hold), or a material of
     a chain's last kept snapshot set apart (a detail that most draws hold and the chosen one does not). A change
     is made only where some kept snapshot has the number of materials it gives, so that the parameters can be
-    summarised. ``origin``: the snapshot's chain and iteration and the changes made.
+    summarised. Last, a material that no kept snapshot holds (a remnant of one that a set-apart material cut:
+    :func:`_without_unheld`) is joined to another. ``origin``: the snapshot's chain and iteration and the changes
+    made.
     """
     kept, pixels, parts = _kept_partitions(records, burn_in, max_snapshots, max_pixels)
     (chain, index), loss = _central(kept, parts)
@@ -181,7 +189,51 @@ def segmentation_estimate(records, burn_in: int, max_snapshots: int = CENTRAL_SN
             break
         loss, what, labels = best
         changes.append(what)
+    labels = _without_unheld(records, kept, labels, counts, pixels, parts, changes)
     return labels, {"chain": chain, "iteration": iteration, "changes": changes}
+
+
+def _without_unheld(records, kept, labels, counts, pixels, parts, changes: list) -> np.ndarray:
+    """``labels`` with each material that no kept snapshot holds (:func:`_held`) joined, the smallest first, to the
+    material that gives the least expected pair disagreements, while a kept snapshot has the K that leaves; each join
+    appended to ``changes``.
+
+    Why: setting a chain's material apart can leave the remnant of another that no draw holds (psm-rock at seed 2:
+    11 px of a 400-px material; docs/results/2026-11-29-own-draws.md). Binder's loss may keep such a remnant apart,
+    but the fit reports a material with parameters for every material of the segmentation, and a material that no
+    draw holds has none.
+    """
+    while True:
+        k = int(labels.max()) + 1
+        if k - 1 not in counts:
+            return labels
+        sizes = np.bincount(labels[labels >= 0], minlength=k)
+        unheld = [m for m in np.argsort(sizes, kind="stable") if not _held(records, kept, labels == m)]
+        if not unheld:
+            return labels
+        m = int(unheld[0])
+        joined = [(_expected_pairs(_compact(np.where(labels == m, b, labels)).ravel()[pixels] + 1, parts), b)
+                  for b in range(k) if b != m]
+        _, b = min(joined)
+        labels = _compact(np.where(labels == m, b, labels))
+        changes.append(f"material {m} ({int(sizes[m])} px, which no kept draw holds) joined to {b}")
+
+
+def _held(records, kept, mask, least: float = MATCH_MIN) -> bool:
+    """Whether a kept snapshot ``(chain, index)`` has a material matching the pixels ``mask`` with a Jaccard index
+    above ``least`` (:func:`matched_draws`' rule)."""
+    return any(_best_match(snapshot_labels(records[chain], index), mask)[1] > least for chain, index in kept)
+
+
+def _best_match(labels, mask) -> tuple[int, float]:
+    """``(material, Jaccard index)`` of the material of ``labels`` (-1 unlabelled) whose pixels best match ``mask``:
+    the pixels both hold over the pixels either holds."""
+    held = labels >= 0
+    shared = np.bincount(labels[mask & held], minlength=1)
+    sizes = np.bincount(labels[held], minlength=shared.size)[:shared.size]
+    jaccard = shared / np.maximum(int(mask.sum()) + sizes - shared, 1)
+    best = int(np.argmax(jaccard))
+    return best, float(jaccard[best])
 
 
 def _material_changes(labels, k: int, groups):
@@ -291,6 +343,52 @@ def relabelled_draws(records, burn_in: int, k: int, n_channels: int = 1, referen
         all_labels.append(np.array(labels_c).reshape(-1, *reference.shape))
         all_iterations.append(np.array(iterations_c, np.int64))
     return RelabelledDraws(thetas, all_labels, reference, all_iterations)
+
+
+def matched_draws(records, burn_in: int, mask, n_channels: int = 1, least: float = MATCH_MIN) -> RelabelledDraws:
+    """The kept draws of any K that hold the material whose pixels are ``mask`` (H, W, bool), as one material.
+
+    At each label snapshot after burn-in, the snapshot's material whose pixels best match ``mask`` (Jaccard index)
+    is taken when the match is above ``least``, with the draws that number the materials as the snapshot does.
+    Why: a material of the segmentation that few draws at its K hold (one chain's detail, set apart by
+    :func:`segmentation_estimate`) gets, by the Hungarian matching of :func:`relabelled_draws`, some other
+    material's parameters from every draw that lacks it; the draws that hold it, at whatever K, are its own.
+
+    Returns
+    -------
+    RelabelledDraws
+        One material: per chain ``theta`` (D_c, 1, 4) ((D_c, 1, C, 4) for a joint colour fit) and the iterations;
+        ``labels`` per chain (S_c, H, W), 0 where the matched material lies, -1 elsewhere; ``reference``
+        ``mask`` as labels (0, -1). A chain that never holds it has no draws.
+
+    Raises
+    ------
+    ValueError
+        If ``mask`` holds no pixel or ``least`` is not in [0.5, 1) (below one half, two of a snapshot's materials
+        could match).
+    """
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        raise ValueError("mask holds no pixel: give the pixels of a material of the segmentation")
+    if not 0.5 <= least < 1.0:
+        raise ValueError(f"least must be in [0.5, 1), got {least}")
+    thetas, all_labels, all_iterations = [], [], []
+    for rec in records:
+        theta_c, labels_c, iterations_c = [], [], []
+        for s in np.flatnonzero(np.asarray(rec.cp_iteration) >= burn_in):
+            t, labels = int(rec.cp_iteration[s]), snapshot_labels(rec, s)
+            best, jaccard = _best_match(labels, mask)
+            if jaccard <= least:
+                continue
+            same_numbering = _numbered_as_at(rec, t)
+            rows = rec.theta[same_numbering, best * n_channels:(best + 1) * n_channels]
+            theta_c.extend(rows.reshape(-1, 1, n_channels, 4) if n_channels > 1 else rows.reshape(-1, 1, 4))
+            iterations_c.extend(same_numbering)
+            labels_c.append(np.where(labels == best, 0, -1).astype(np.int8))     # int8: at 2048^2, 4 MB each
+        thetas.append(np.array(theta_c).reshape(-1, 1, *((n_channels,) if n_channels > 1 else ()), 4))
+        all_labels.append(np.array(labels_c, np.int8).reshape(-1, *mask.shape))
+        all_iterations.append(np.array(iterations_c, np.int64))
+    return RelabelledDraws(thetas, all_labels, np.where(mask, 0, -1), all_iterations)
 
 
 def material_summaries(draws: RelabelledDraws, map_labels) -> tuple[list, dict]:

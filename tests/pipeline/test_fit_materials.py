@@ -97,6 +97,26 @@ def test_the_report_states_the_boundaries_and_the_edge_groups(fitted, tmp_path):
             "3: 1.00.") in text
 
 
+def test_the_report_says_where_a_materials_parameters_come_from(fitted, tmp_path):
+    """A material summarised over the draws that hold it (``parameters_from``) and one that no draw holds (null) are
+    marked under their names in the report's table; the others are not."""
+    import shutil
+
+    from rjfit.pipeline.report import build_report
+
+    out, _, _ = fitted
+    folder = tmp_path / "fit"
+    shutil.copytree(out, folder)
+    summary = json.loads((folder / "summary.json").read_text())
+    summary["regions"][1]["parameters_from"] = {"draws": 37, "chains": [0, 2], "match_min": 0.5, "rhat_max": 1.2,
+                                                "ess_bulk_min": 9.0}
+    summary["regions"][2]["parameters_from"] = None
+    (folder / "summary.json").write_text(json.dumps(summary))
+    text = build_report(folder, tmp_path / "report.html").read_text()
+    assert text.count("from the 37 draws that hold it (chain 0, 2)") == 1
+    assert text.count("no draw holds it: parameters unknown") == 1
+
+
 def test_map_materials_keep_the_two_patches_together(fitted):
     out, summary, truth = fitted
     labels = np.rint(read_exr(out / "labels.exr")["labels"]).astype(int)
@@ -180,6 +200,44 @@ def test_relabelled_draws_carry_a_snapshots_matching_to_the_draws_after_it_up_to
                                 n_materials=np.full(4, k), material_labels=snapshots[:1].astype(np.float32),
                                 jumped=np.zeros(4, np.int8), iterations_done=4)
     assert len(relabelled_draws([short], 0, k).theta[0]) == 4
+
+
+def test_a_material_few_draws_at_its_k_hold_is_summarised_over_the_draws_that_hold_it():
+    """summarise_from_own_draws: a disc held by one chain (I0 about 3) that the other chain, at the same K, lacks (its
+    second material a strip, I0 about 7). The entry's parameters become the disc's own draws', its pixels and label
+    agreement stay, and ``parameters_from`` names the chain; a mask no draw holds leaves the entry and records None."""
+    from rjfit.pipeline.regions.materials import summarise_from_own_draws
+    from rjfit.posterior.materials import material_summaries, relabelled_draws
+    from rjfit.sampler.runner import ChainRecord
+
+    rng = np.random.default_rng(0)
+    disc, strip = np.zeros((6, 6), bool), np.zeros((6, 6), bool)
+    disc[1:3, 1:3], strip[5] = True, True
+
+    def chain(part, i0):
+        theta = np.tile([1.0, 0.5, 10.0, 0.01], (40, 2, 1))
+        theta[:, 1, 0] = i0 + 0.1 * rng.standard_normal(40)
+        labels = np.tile(part.astype(np.float32), (8, 1, 1))
+        return ChainRecord(theta=theta, log_lik=np.zeros(40), log_post=np.zeros(40),
+                           exact_truth=np.full(40, -1, np.int8), true_regions=np.full(40, -1, np.int8),
+                           object_regions=np.full(40, 2, np.int16), cp_iteration=np.arange(0, 40, 5), accepted={},
+                           proposed={}, seconds=0.0, iterations_done=40, n_materials=np.full(40, 2),
+                           material_labels=labels, jumped=np.zeros(40, np.int8))
+
+    records = [chain(disc, 3.0), chain(strip, 7.0)]
+    reference = disc.astype(np.int64)
+    summaries, _ = material_summaries(relabelled_draws(records, 0, 2, reference=reference), reference)
+    entry = {**summaries[1], "label_agreement": 0.5}
+    assert entry["I0"]["mean"] == pytest.approx(5.0, abs=0.1)            # the mixture of the disc and the strip
+    summarise_from_own_draws(entry, records, 0, disc, 1)
+    assert entry["I0"]["mean"] == pytest.approx(np.mean(records[0].theta[:, 1, 0]), rel=1e-12)
+    assert entry["pixels"] == 4 and entry["label_agreement"] == 0.5 and entry["material"] == 1
+    assert entry["parameters_from"]["draws"] == 40 and entry["parameters_from"]["chains"] == [0]
+    nowhere = np.zeros((6, 6), bool)
+    nowhere[0, 5] = nowhere[4, 0] = True
+    unheld = dict(summaries[1])
+    summarise_from_own_draws(unheld, records, 0, nowhere, 1)
+    assert unheld["parameters_from"] is None and unheld["I0"] == summaries[1]["I0"]
 
 
 def ramp_stack():

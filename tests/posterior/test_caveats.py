@@ -242,3 +242,10 @@ def test_a_material_the_draws_do_not_hold_is_named_and_the_agreements_are_the_pi
                                                          "this material in 20.0% of them")
     with pytest.raises(ValueError, match="labels' shape"):
         label_agreements(labels, agreement[:, :-1], 4)
+    # summarised afresh over the draws that hold it: the warning says over which, and R-hat above RHAT_MAX among them
+    regions[1]["parameters_from"] = {"draws": 120, "chains": [0, 2], "match_min": 0.5, "rhat_max": 1.8}
+    (own,) = label_agreement_warnings(regions, shares, 4)
+    assert "summarised over the 120 kept draws (of any K; chain 0, 2)" in own and "R-hat 1.80 over them" in own
+    assert "belong to other pixels" not in own
+    regions[1]["parameters_from"]["rhat_max"] = float("nan")
+    assert "R-hat" not in label_agreement_warnings(regions, shares, 4)[0]

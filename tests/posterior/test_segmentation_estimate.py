@@ -9,7 +9,7 @@ apart from the body are set apart. The loss is checked against a direct count ov
 import numpy as np
 import pytest
 
-from rjfit.posterior.materials import central_snapshot, relabelled_draws, segmentation_estimate
+from rjfit.posterior.materials import central_snapshot, matched_draws, relabelled_draws, segmentation_estimate
 from rjfit.sampler.runner import ChainRecord
 
 SIZE = 12
@@ -127,3 +127,67 @@ def test_a_disc_most_draws_hold_is_set_apart_though_no_snapshot_has_it_with_the_
     assert not _same_partition(central, _labels(DISC_A, DISC_B))
     assert _same_partition(labels, _labels(DISC_A, DISC_B)), origin
     assert _loss(labels, records) < _loss(central, records)
+
+
+def _chain(snapshots, theta):
+    """A chain whose every iteration is a kept snapshot, with its own parameters ``theta`` (S, rows, 4)."""
+    n = len(snapshots)
+    k = np.array([int(s.max()) + 1 for s in snapshots])
+    return ChainRecord(theta=np.asarray(theta, float), log_lik=np.zeros(n), log_post=np.zeros(n),
+                       exact_truth=np.full(n, -1, np.int8), true_regions=np.full(n, -1, np.int8),
+                       object_regions=k.astype(np.int16), cp_iteration=np.arange(n), accepted={}, proposed={},
+                       seconds=0.0, iterations_done=n, n_materials=k,
+                       material_labels=np.asarray(snapshots, np.float32), jumped=np.zeros(n, np.int8))
+
+
+def test_a_materials_own_draws_are_those_of_any_k_whose_material_matches_its_pixels_more_than_half():
+    """Disc A is held by chain 0 at K = 2 (material 1) and by chain 2 at K = 3 (material 2, after the strip); chain 1
+    holds the strip alone, and chain 3 a patch of A plus as many other pixels (Jaccard index exactly 1/2: not a
+    match). The own draws are chains 0's and 2's rows of disc A, each draw's own numbers; relabelling at K = 2
+    (the Hungarian matching) would give chain 1's strip to it."""
+    body, disc, strip, other = [1.0, 0.5, 10.0, 0.01], [3.0, 0.9, 20.0, 0.01], [7.0, 0.2, 5.0, 0.01], [9.0] * 4
+    half = DISC_A | _patch(slice(5, 8), slice(5, 8))                        # 9 + 9 px: Jaccard 9 / 18 with A
+    records = [_chain([_labels(DISC_A)] * 4, [[body, disc, other]] * 4),
+               _chain([_labels(STRIP)] * 3, [[body, strip, other]] * 3),
+               _chain([_labels(STRIP, DISC_A)] * 5, [[body, strip, disc]] * 5),
+               _chain([_labels(half)] * 2, [[body, other, other]] * 2)]
+    own = matched_draws(records, 0, DISC_A)
+    assert [len(theta) for theta in own.theta] == [4, 0, 5, 0]
+    for chain in (0, 2):
+        np.testing.assert_array_equal(own.theta[chain][:, 0], np.tile(disc, (len(own.theta[chain]), 1)))
+        np.testing.assert_array_equal(own.labels[chain][0] == 0, DISC_A)
+    np.testing.assert_array_equal(own.reference, np.where(DISC_A, 0, -1))
+    at_two = relabelled_draws(records, 0, 2, reference=_labels(DISC_A).astype(int))
+    assert np.any(at_two.theta[1][:, 1] == strip[0])                       # what the K = 2 summary would mix in
+    # one pixel fewer on the other side of the half patch: 9 / 17, a match
+    closer = _labels(DISC_A | _patch(slice(5, 8), slice(5, 8)) & ~_patch(7, 7))
+    assert len(matched_draws([_chain([closer], [[body, other, other]])], 0, DISC_A).theta[0]) == 1
+    # a joint colour fit: each material's C rows, numbered material-major
+    colour = np.array([[body, body, disc, strip, other, other]] * 4)        # material 1's channels: disc, strip
+    own_colour = matched_draws([_chain([_labels(DISC_A)] * 4, colour)], 0, DISC_A, n_channels=2)
+    assert own_colour.theta[0].shape == (4, 1, 2, 4)
+    np.testing.assert_array_equal(own_colour.theta[0][0, 0], [disc, strip])
+    with pytest.raises(ValueError, match="holds no pixel"):
+        matched_draws(records, 0, np.zeros((SIZE, SIZE), bool))
+    with pytest.raises(ValueError, match=r"least must be in \[0.5, 1\)"):
+        matched_draws(records, 0, DISC_A, least=0.4)
+
+
+def test_a_remnant_that_no_draw_holds_is_joined_though_the_loss_would_keep_it():
+    """Chain 0 holds F (12 px); chains 1 and 2 hold G (12 px, 4 of them F's), chain 2 also a patch S; chain 3 holds
+    F's other 8 px with S. Setting chain 3's material apart from the central snapshot (F's) leaves F's 4 px inside G
+    as a material that no snapshot holds (Jaccard index 4/12 with F and with G); Binder's loss would keep it, the
+    estimate joins it to the material of least loss instead, so that every material has draws to summarise."""
+    f, g, s = _patch(slice(5, 7), slice(1, 7)), _patch(slice(5, 7), slice(5, 11)), _patch(slice(8, 10), slice(1, 3))
+    records = [_record([_labels(f)] * 6, np.zeros(6)), _record([_labels(g)] * 4, np.zeros(4)),
+               _record([_labels(g, s)] * 4, np.zeros(4)), _record([_labels((f & ~g) | s)] * 6, np.zeros(6))]
+    labels, origin = segmentation_estimate(records, 0)
+    assert origin["changes"][-1].startswith("material 1 (4 px, which no kept draw holds) joined to")
+    remnant_kept = _labels((f & ~g) | s, f & g)                  # the estimate before the join
+    assert _loss(remnant_kept, records) < _loss(labels, records)
+    assert _same_partition(labels, _labels((f & ~g) | s | (f & g)))
+    every = [snapshot.astype(int) for r in records for snapshot in r.material_labels]
+    for m in range(int(labels.max()) + 1):
+        mask = labels == m
+        assert max(np.sum(mask & (snap == k)) / np.sum(mask | (snap == k)) for snap in every
+                   for k in range(int(snap.max()) + 1)) > 0.5

@@ -71,8 +71,10 @@ def summarise_materials(records, problem, options, burn: int, config):
     probability = draws.agreement(labels)
     summaries, diag = mat.material_summaries(draws, labels)
     agreements = caveats.label_agreements(labels, probability, k)
-    for entry, share in zip(summaries, agreements):
+    for material, (entry, share) in enumerate(zip(summaries, agreements)):
         entry["label_agreement"] = float(share) if np.isfinite(share) else None
+        if np.isfinite(share) and share < caveats.AGREEMENT_MIN:
+            summarise_from_own_draws(entry, records, burn, labels == material, problem.n_channels)
     chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
     summary = {
         "materials_posterior": posterior, "map_materials": int(next(iter(posterior))), "regions": summaries,
@@ -102,6 +104,31 @@ def summarise_materials(records, problem, options, burn: int, config):
             summary["warnings"].append(resolution_warning(resolution))
     prediction = post.posterior_mean_prediction(records, burn, problem)
     return summary, labels, prediction, {"map_probability": probability, "draws": draws}
+
+
+def summarise_from_own_draws(entry: dict, records, burn: int, mask, n_channels: int) -> None:
+    """Summarise a material's parameters (``entry``, from :func:`rjfit.posterior.materials.material_summaries`)
+    afresh over the kept draws of any K that hold its pixels ``mask``
+    (:func:`rjfit.posterior.materials.matched_draws`), and record them in ``entry["parameters_from"]`` (None, the
+    entry unchanged, where no draw holds it).
+
+    Why: a material that few draws at the segmentation's K hold gets other pixels' parameters from the draws that
+    lack it (psm-rock at seed 1: a lighter patch reported with I0 below the matrix's; docs/results/
+    2026-11-29-compact-starts.md); the draws that hold it are its own.
+    """
+    own = mat.matched_draws(records, burn, mask, n_channels)
+    chains = [c for c, theta in enumerate(own.theta) if len(theta)]
+    if not chains:
+        entry["parameters_from"] = None
+        return
+    holding = mat.RelabelledDraws([own.theta[c] for c in chains], [own.labels[c] for c in chains], own.reference)
+    (fresh,), diag = mat.material_summaries(holding, own.reference)
+    kept = {key: entry[key] for key in ("region", "material", "pixels", "label_agreement")}
+    entry.clear()
+    entry.update({**fresh, **kept})
+    entry["parameters_from"] = {"draws": int(sum(len(own.theta[c]) for c in chains)), "chains": chains,
+                                "match_min": mat.MATCH_MIN, "rhat_max": diag["rhat_max"],
+                                "ess_bulk_min": diag["ess_bulk_min"]}
 
 
 def edge_noise_record(noise) -> dict | None:
@@ -223,7 +250,8 @@ def write_material_files(staging: Path, result, records, options, attributes: di
     write_chains(staging / "chains.nc", records, result, (draws.theta, draws.iterations), options, attributes,
                  region_dim="material", key_names=("n_materials",),
                  about=f"the kept draws with K = {summary['segmentation_materials']} (the segmentation's K), relabelled: "
-                       f"{mat.RELABELLING}; every kept draw's K is in sample_stats (n_materials)")
+                       f"{mat.RELABELLING}; every kept draw's K is in sample_stats (n_materials); a material whose "
+                       "summary records parameters_from is summarised over other draws (summary.json)")
     save_chain_arrays(staging / "materials.npz", records, ("cp_iteration", "material_labels", "n_materials"),
                       attributes)
     if options.figures:
