@@ -452,7 +452,10 @@ def refine(fit_dir, out_dir, max_rounds, max_steps, seed, no_simulate):
     """Close the loop: diagnose FIT_DIR, fit its data set again with the named effects sampled
     jointly with the segmentation (the fit's own options plus --effects-from), diagnose that
     fit, and repeat until nothing more is named and a feature rendered from the fitted regions
-    (interreflection's) was rendered on labels the fit keeps (agreeing on 99 % of the pixels)."""
+    (interreflection's) was rendered on labels the fit keeps (agreeing on 99 % of the pixels).
+    Where a diagnosis names nothing but offers a trial (an effect or pair short of the naming
+    rule's gap share only), fit once more with it and keep it only if the gap halves with no
+    more regions."""
     _check_output(out_dir)
     from rjfit.pipeline.refine import refine as refine_fit
 

@@ -59,7 +59,8 @@ def run_case(case, kind, out, args) -> dict:
     fit_dataset(dataset, fit_dir, allow_unvalidated=True, n_chains=args.chains, iterations=args.iterations,
                 seed=args.seed, progress=False, figures=False, regions=args.regions)
     refined = refine(fit_dir, out / kind / "refine", max_rounds=args.max_rounds, max_steps=2, say=print)
-    first, last = refined["rounds"][0], refined["rounds"][-1]
+    # the loop's result: the last round, or the one before a trial that was not kept
+    first, last = refined["rounds"][0], next(r for r in refined["rounds"] if r["fit"] == refined["final_fit"])
     last_diagnosis = json.loads((Path(last["diagnosis"]) / "diagnosis.json").read_text())
     meta = json.loads((dataset / "dataset.json").read_text())
     return {"case": case, "kind": kind, "regions_model": args.regions, "seed": args.seed,
@@ -71,6 +72,8 @@ def run_case(case, kind, out, args) -> dict:
             "revisions": [_revision(index, r) for index, record in enumerate(refined["rounds"])
                           for r in record.get("revisions") or []],
             "unexplained_misfit": (last_diagnosis.get("unexplained_misfit") or {}).get("text"),
+            "trials": [f"{' + '.join(t['effects'])} in round {t['round']}: {'kept' if t['kept'] else 'not kept'}, gap "
+                       f"{t['gap_before']:.3g} -> {t['gap_after']:.3g}" for t in refined.get("trials", [])],
             "warnings": refined["warnings"], "seconds": time.perf_counter() - started}
 
 
@@ -104,7 +107,7 @@ def main():
     print("| case | named | rounds | regions (true) | label accuracy | gap | simulated gap | seconds |")
     print("|---|---|---|---|---|---|---|---|")
     for row in rows:
-        revised = f" ({'; '.join(row['revisions'])})" if row["revisions"] else ""
+        revised = f" ({'; '.join(row['revisions'] + row['trials'])})" if row["revisions"] or row["trials"] else ""
         print(f"| {row['case']} | {', '.join(row['named']) or 'none'}{revised} | {row['rounds']} | "
               f"{_pair(row['regions'], 'd')} ({row['true_regions']}) | {_pair(row['label_accuracy'], '.3f')} | {_pair(row['gap'], '.3g')} | "
               f"{_pair(row['gap_simulated'], '.3g')} | {row['seconds']:.0f} |")

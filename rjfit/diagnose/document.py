@@ -105,7 +105,8 @@ def gap_lines(result: dict) -> list[str]:
 
 def markdown(result: dict) -> str:
     """``diagnosis.md`` of the diagnosis ``result`` (the contents of ``diagnosis.json``)."""
-    lines = _head_lines(result) + _step_lines(result) + _candidate_lines(result) + _warning_lines(result)
+    lines = _head_lines(result) + _step_lines(result) + _candidate_lines(result) + _pair_lines(result)
+    lines += _warning_lines(result)
     lines += _signature_lines(result) + _simulation_lines(result)
     lines += ["", "## Where the disagreement concentrates (closed form, before -> after)", ""]
     lines.append("| region | gap plain | gap final |")
@@ -192,6 +193,26 @@ def _candidate_lines(result: dict) -> list[str]:
                      f"{'yes' if row.get('decisive') else ('failed: ' + row['error'] if 'error' in row else 'no')} |")
     if not result["candidates"]:
         lines.append(f"| - | {result.get('search', {}).get('stopped', 'none tried')} | | | | | | | | |")
+    return lines
+
+
+def _pair_lines(result: dict) -> list[str]:
+    """The pairs of decisive candidates tried where none qualified alone, and the trial offered to ``rjfit refine``."""
+    lines = []
+    if result.get("pairs"):
+        lines += ["", "## Pairs tried (no single candidate qualified)", "",
+                  "| step | effects | log BF | dLOO (SE) | gap share | decisive | not named because |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {row['step'] + 1} | {row['effect']} | {_fmt(row['log_bayes_factor'], '.1f')} | "
+                  f"{_fmt(row.get('delta_elpd_loo'), '.1f')} ({_fmt(row.get('delta_elpd_loo_se'), '.1f')}) | "
+                  f"{_percent(row.get('gap_share'))} | {'yes' if row['decisive'] else 'no'} | "
+                  f"{row.get('why_not', '-' if not row['decisive'] else 'qualifies')} |" for row in result["pairs"]]
+    if result.get("trial"):
+        trial = result["trial"]
+        lines += ["", f"**To try with the regions:** {' + '.join(trial['effects'])} (log BF "
+                  f"{trial['log_bayes_factor']:.1f}) is decisive and physical but closes only "
+                  f"{_percent(trial['gap_share'])} of the gap on this segmentation, whose regions may have split to "
+                  f"absorb what it explains; `rjfit refine` fits again with it and keeps it only where the gap on the "
+                  f"new segmentation is at most half of this one."]
     return lines
 
 

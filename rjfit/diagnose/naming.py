@@ -54,8 +54,9 @@ NAMING_RULE = (f"named when the current model's gap is above {UNEXPLAINED_GAP:g}
 def judge_candidates(ctx, rows, fits, candidate_residuals, current, residuals, sigma2, *, simulate, n_sim_draws,
                      seed) -> list:
     """Apply the rule to the decisive ``rows`` of one step (in place: ``gap_share``,
-    ``physical``, the simulated gaps where rendered, ``qualifies`` and ``why_not``); returns
-    the rows that qualify.
+    ``physical``, the simulated gaps where rendered, ``qualifies``, ``why_not`` and ``short_of``: the rules
+    it fails, of 'misfit' (5), 'gap_share' (2), 'physical' (3), 'simulation' (4)); returns the rows that
+    qualify.
 
     ``fits`` and ``candidate_residuals`` map an effect name to its refit and standardised
     residuals; ``residuals`` are the current model's; ``sigma2`` the search's noise estimate.
@@ -71,14 +72,17 @@ def judge_candidates(ctx, rows, fits, candidate_residuals, current, residuals, s
         gap_with = gap(candidate_residuals[row["effect"]], sigma2)
         row["gap_share"] = (gap_current - gap_with) / gap_current if gap_current > 0 else 0.0
         row["physical"] = not row.get("prior_conflict")
-        why = []
+        why, short_of = [], []
         if gap_current <= UNEXPLAINED_GAP:
             why.append(f"the current model's gap {gap_current:.3g} is within {UNEXPLAINED_GAP:g}: no misfit left to "
                        "explain")
+            short_of.append("misfit")
         elif row["gap_share"] < GAP_SHARE:
             why.append(f"closes {row['gap_share']:.0%} of the excess gap (< {GAP_SHARE:.0%})")
+            short_of.append("gap_share")
         if not row["physical"]:
             why.append("a parameter in prior-data conflict")
+            short_of.append("physical")
         if not why and simulate:
             if simulated_current is None:
                 simulated_current = simulate_fit(ctx, current, sigma2, n_draws=n_sim_draws, seed=seed)["gap"]
@@ -89,7 +93,9 @@ def judge_candidates(ctx, rows, fits, candidate_residuals, current, residuals, s
                     row["simulation_carries_effect"] = True
                 else:
                     why.append(f"the Mitsuba-simulated gap does not fall ({simulated_current:.3g} -> {simulated:.3g})")
+                    short_of.append("simulation")
         row["qualifies"] = not why
+        row["short_of"] = short_of
         if why:
             row["why_not"] = "; ".join(why)
         else:

@@ -31,6 +31,7 @@ from rjfit.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
 from rjfit.diagnose.naming import NAMING_RULE, judge_candidates
+from rjfit.diagnose.pairs import score_pairs, trial_candidate
 from rjfit.diagnose.refit import moved_parameters, refit, standardised_residuals
 from rjfit.diagnose.revisit import REVISION_RULE, revisit
 from rjfit.diagnose.simulate import simulation_record
@@ -102,6 +103,8 @@ class _SearchTrace:
     signatures: dict = field(default_factory=dict)        # (step, effect name) -> (signature score, map)
     candidate_residuals: dict = field(default_factory=dict)   # (step, effect name) -> the candidate's residuals
     revisions: list = field(default_factory=list)         # each earlier effect swapped or dropped (rjfit.diagnose.revisit)
+    pairs: list = field(default_factory=list)             # a row per pair of candidates tried (rjfit.diagnose.pairs)
+    trial: dict | None = None                             # what a refit of the regions should try, if anything
 
 
 def _candidate_bar(show, total, step):
@@ -351,6 +354,11 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
     if not qualified:
         trace.stopped = (f"no candidate effect qualified at step {step + 1}: "
                          + "; ".join(f"{row['effect']} {row['why_not']}" for row in decisive))
+        pairs = score_pairs(ctx, step, trace.current, decisive, tried["fits"], residuals, sigma2_plain, settings)
+        trace.pairs += pairs
+        trace.trial = trial_candidate(decisive + pairs)
+        if trace.trial is not None:
+            settings.say(f"  to try with the regions (rjfit refine): {' + '.join(trace.trial['effects'])}")
         return None
     best = max(qualified, key=lambda row: row["log_bayes_factor"])
     # a runner-up within the threshold is not told apart from the winner by the evidence: say so
@@ -451,6 +459,8 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
         "named_effects": [e.name for e in current.effects if e.name not in {b.name for b in settings.base_effects}],
         "revisions": trace.revisions,
         "revision_rule": REVISION_RULE,
+        "pairs": trace.pairs,
+        "trial": trace.trial,
         "steps": trace.steps,
         "candidates": trace.rows,
         "skipped": skipped,

@@ -37,6 +37,7 @@ from rjfit.pipeline.fit_effects import fit_effects
 from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, trial_to_fit
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
@@ -130,6 +131,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
            first_diagnosis_dir=None, **diagnose_options) -> dict:
     """Diagnose, refit with what was named (or revised), diagnose again, until nothing changes.
 
+    A diagnosis that names nothing but offers a trial is fitted once more with it (:mod:`rjfit.pipeline.refine_trial`).
+
     Parameters
     ----------
     fit_dir : path
@@ -151,7 +154,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``, ``effects`` sampled, ``map_model``,
         ``n_regions``, ``label_accuracy``, ``gap``, ``gap_simulated`` (null without truth, a mesh), ``named``,
         ``revisions`` (swaps, drops), ``feature_change`` (per feature rendered from the fitted regions:
-        :func:`feature_change`), ``seconds``), ``named_effects`` (the last final model's, in the order named),
+        :func:`feature_change`), ``trial`` (what the next fit tried), ``seconds``), ``named_effects`` (the last
+        final model's, in the order named), ``trials`` (verdicts, :mod:`rjfit.pipeline.refine_trial`),
         ``final_fit``, ``stopped`` and ``warnings``.
 
     Raises
@@ -172,40 +176,86 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     dataset_dir = _dataset_of(summary, fit_dir)
     gate = _validation_options(summary)
     result = {"source_fit": str(fit_dir.resolve()), "fit_options": options.to_json(), "rounds": [],
-              "named_effects": [], "final_fit": str(fit_dir), "stopped": "", "warnings": []}
+              "named_effects": [], "final_fit": str(fit_dir), "stopped": "", "warnings": [], "trials": []}
     current, fit_seconds = fit_dir, summary.get("seconds")
+    trying, final_round, tried = None, 0, []    # the effects this fit tries with the regions; the result's round
     for index in range(max_rounds):
-        diagnosis_dir = out_dir / f"round{index + 1}" / "diagnosis"
-        if index == 0 and first_diagnosis_dir is not None:
-            diagnosis_dir = Path(first_diagnosis_dir)
+        diagnosis_dir = Path(first_diagnosis_dir) if index == 0 and first_diagnosis_dir is not None else (
+            out_dir / f"round{index + 1}" / "diagnosis")
         diagnosis = diagnose_fit(current, diagnosis_dir, seed=seed, max_steps=max_steps, progress=progress,
                                  **diagnose_options)
         record = _round_record(current, read_summary(current), diagnosis, diagnosis_dir, fit_seconds)
         result["rounds"].append(record)
-        result["final_fit"] = str(current)
         say(_round_line(index, record))
         final, new = _final_model(diagnosis, record)
+        if trying is not None and not _trial_kept(result, trying, final_round, index, final, say):
+            break
+        trying, final_round, result["final_fit"] = None, index, str(current)
         result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
         record["feature_change"] = [] if new or record["dropped"] else feature_change(dataset_dir, current, diagnosis_dir)
         result["stopped"], warning = _why_stop(index, max_rounds, options, record, new, current)
+        trying = _trial_instead(result, diagnosis, record, tried, max_rounds - index - 1, options)
         if result["stopped"]:
-            if warning:
-                result["warnings"].append(warning)
-                say(f"warning: {warning}")
+            _warn(result, warning, say)
             break
         write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
         next_fit = out_dir / f"round{index + 2}" / "fit"
-        effects = tuple(final)
+        effects = tuple(final) + tuple(trying or ())
         for line in _next_round_lines(index, record, effects):
             say(line)
         fit_started = time.perf_counter()
         fit_dataset(dataset_dir, next_fit, options.replace(effects=effects, effects_from=diagnosis_dir), **gate)
         current, fit_seconds = next_fit, time.perf_counter() - fit_started
+    return _finish(result, out_dir, dataset_dir, final_round, started)
+
+
+def _finish(result: dict, out_dir: Path, dataset_dir: Path, final_round: int, started: float) -> dict:
+    """``refine.json`` with the segmentations' figure and the seconds, and the report of the result's fit (round
+    ``final_round + 1``'s, with its diagnosis)."""
     result["segmentations"] = _segmentation_figure(out_dir, result["rounds"], dataset_dir)
     result["seconds"] = time.perf_counter() - started
     write_json_atomic(out_dir / "refine.json", result)
-    build_report(current, out_dir / "report.html", diagnosis_dir=result["rounds"][-1]["diagnosis"], refine_dir=out_dir)
+    build_report(Path(result["final_fit"]), out_dir / "report.html",
+                 diagnosis_dir=result["rounds"][final_round]["diagnosis"], refine_dir=out_dir)
     return result
+
+
+def _warn(result: dict, warning: str | None, say) -> None:
+    """Record and say the loop's ``warning`` (none: nothing)."""
+    if warning:
+        result["warnings"].append(warning)
+        say(f"warning: {warning}")
+
+
+def _trial_instead(result: dict, diagnosis: dict, record: dict, tried: list, rounds_left: int, options) -> list | None:
+    """Where the loop would stop (``result["stopped"]``) and the diagnosis offers a trial to fit
+    (:func:`rjfit.pipeline.refine_trial.trial_to_fit`): its effects, the stop undone and the trial recorded in the
+    round's ``record`` and in ``tried``; else None."""
+    if not result["stopped"]:
+        return None
+    trying = trial_to_fit(diagnosis, record, tried, rounds_left, options.channel != COLOUR)
+    if trying is not None:
+        result["stopped"], record["trial"] = "", trying
+        tried.append(sorted(trying))
+    return trying
+
+
+def _trial_kept(result: dict, effects: list, before: int, index: int, final: list, say) -> bool:
+    """Judge the trial of ``effects`` that round ``index + 1``'s fit sampled against round ``before + 1``'s fit
+    (:func:`rjfit.pipeline.refine_trial.judge_trial`), record it in ``result["trials"]``; where it is not kept, the
+    loop stops with round ``before + 1``'s fit as its result."""
+    rounds = result["rounds"]
+    verdict = judge_trial(effects, rounds[before], rounds[index], final)
+    verdict["round"] = index + 1
+    result["trials"].append(verdict)
+    say(f"round {index + 1}: the trial of {' + '.join(effects)} with the regions is "
+        f"{'kept' if verdict['kept'] else 'not kept'}: {verdict['why']}")
+    if verdict["kept"]:
+        result["named_effects"] = _named_after(result["named_effects"], [], effects)
+        return True
+    result["stopped"] = (f"round {index + 1}'s trial of {' + '.join(effects)} was not kept ({verdict['why']}): "
+                         f"round {before + 1}'s fit is the result")
+    return False
 
 
 def _final_model(diagnosis: dict, record: dict) -> tuple:
@@ -284,6 +334,11 @@ def _moved_text(record: dict) -> str:
 
 def _next_round_lines(index: int, record: dict, effects: tuple) -> list:
     """The lines that announce round ``index + 2``'s fit (and why, where nothing was named)."""
+    if record.get("trial"):
+        return [f"round {index + 2}: round {index + 1}'s diagnosis named nothing but offers "
+                f"{' + '.join(record['trial'])}, short of the naming rule's gap share on round {index + 1}'s "
+                f"segmentation only; fitting again with {', '.join(effects)} sampled with the regions (kept if the "
+                f"gap on the new segmentation is at most {TRIAL_GAP_SHARE:.0%} of {record['gap']:.3g})"]
     why = [] if record["named"] or record["dropped"] else [
         f"round {index + 2}: round {index + 1}'s fit: {_moved_text(record)}; fitting again with it rendered on "
         f"round {index + 1}'s labels"]

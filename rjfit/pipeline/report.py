@@ -450,6 +450,9 @@ def _refine_section(folder: Path) -> list[str]:
              f"ground truth.</p>"]
     for warning in refined.get("warnings") or []:
         parts.append(f'<p class="fail">{html.escape(str(warning))}</p>')
+    parts += [f"<p>Round {t['round']} tried {html.escape(' + '.join(t['effects']))} with the regions: "
+              f"{'kept' if t['kept'] else 'not kept'}, {html.escape(t['why'])}.</p>"
+              for t in refined.get("trials") or []]
     header = "".join(f"<th>{_ROUND_HEADERS.get(name, name)}</th>" for name in ("round",) + _ROUND_COLUMNS)
     rows = []
     for index, record in enumerate(refined["rounds"]):

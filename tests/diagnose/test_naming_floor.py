@@ -33,3 +33,12 @@ def test_just_above_the_floor_the_share_decides():
     assert qualified == [row] and row["gap_share"] > 0.5
     row, qualified = judge(1.5 * UNEXPLAINED_GAP, 1.2 * UNEXPLAINED_GAP)     # closes 20 %: the share rule says no
     assert qualified == [] and "closes" in row["why_not"]
+
+
+def test_each_failed_rule_is_listed_in_short_of():
+    row, _ = judge(0.001, -0.0103)
+    assert row["short_of"] == ["misfit"]
+    row, _ = judge(1.5 * UNEXPLAINED_GAP, 1.2 * UNEXPLAINED_GAP)
+    assert row["short_of"] == ["gap_share"]
+    row, _ = judge(1.5 * UNEXPLAINED_GAP, 0.2 * UNEXPLAINED_GAP)
+    assert row["short_of"] == []

@@ -1,0 +1,93 @@
+"""Pairs of effects, and the effect a refit of the regions should try (issue 45).
+
+The search names one effect at a time on a fixed segmentation. Where the data miss two effects
+together, each alone can fail the naming rule (:mod:`rjfit.diagnose.naming`): on Mitsuba's GGX
+lobe under a dielectric coating, fitted under the material model, the GGX lobe alone closed 20 %
+of the gap and the coating alone pulled its index to the prior's floor (a conflict), while the
+two together had physical parameters (w 0.97 and 0.97, index 1.64 for 1, 1, 1.5) and a log BF of
+2,330 (docs/results/2026-11-29-trials.md). So where no single candidate qualifies, the pairs of
+the decisive ones (of different kinds, the :data:`PAIR_FROM` with the largest log BF) are refitted
+and judged by the same rule.
+
+A fixed segmentation can also hide what an effect explains: a plain fit splits materials to
+absorb a misfit, and with the right effects those split-off regions no longer fit (the same
+stack: the pair brought 86 % of the observations to the noise level, yet the split-off 14 %
+took the whole gap up, a share of -82 %). Such a candidate, decisive and physical and short of
+the naming rule's gap share only, is the diagnosis' ``trial``: ``rjfit refine`` fits again with it
+sampled with the regions and keeps it only when the gap on the new segmentation is at most half
+the old one (:mod:`rjfit.pipeline.refine_trial`). The diagnosis itself names single effects only.
+"""
+from __future__ import annotations
+
+from itertools import combinations
+
+from rjfit.diagnose.candidates import fit_prior_conflicts
+from rjfit.diagnose.loo import loo_difference
+from rjfit.diagnose.naming import judge_candidates
+from rjfit.diagnose.refit import refit, standardised_residuals
+from rjfit.effects import get_effect
+
+__all__ = ["PAIR_FROM", "score_pairs", "trial_candidate"]
+
+#: the decisive single candidates (largest log BF first) whose pairs are refitted: at most 3 pairs
+PAIR_FROM = 3
+#: the rules a trial candidate may fail: the gap share on the fixed segmentation (rule 2), which a
+#: refit of the regions measures again
+TRIAL_MAY_FAIL = {"gap_share"}
+
+
+def _pair_row(step, names, candidate, current, threshold, loo_se_factor) -> dict:
+    """A pair's row, with the fields of a single candidate's (:func:`rjfit.diagnose.candidates.candidate_row`)."""
+    row = {"step": step, "effect": "+".join(names), "effects": list(names), "kind": "pair",
+           "log_evidence": candidate.log_evidence, "log_bayes_factor": candidate.log_evidence - current.log_evidence,
+           "n_params_added": candidate.n_params - current.n_params,
+           "effect_params": {k: v for k, v in candidate.summary().items() if k.split(".")[0] in names},
+           "hessian": candidate.hessian_kind, "seconds": candidate.seconds}
+    conflicts = [c for name in names for c in fit_prior_conflicts(candidate, name)]
+    if conflicts:
+        row["prior_conflict"] = conflicts
+    if row["log_bayes_factor"] > threshold:
+        elpd, se, khat, unreliable = loo_difference(candidate, current)
+        row.update(delta_elpd_loo=elpd, delta_elpd_loo_se=se, max_khat=khat, khat_unreliable_fraction=unreliable)
+    row["decisive"] = bool(row["log_bayes_factor"] > threshold
+                           and row.get("delta_elpd_loo", -float("inf")) > loo_se_factor * row.get("delta_elpd_loo_se",
+                                                                                              float("inf")))
+    return row
+
+
+def score_pairs(ctx, step, current, decisive_rows, fits, residuals, sigma2, settings) -> list:
+    """Refit ``current`` plus each pair of the decisive single candidates ``decisive_rows`` (their refits
+    ``fits`` by name) and judge it as a single one is judged; returns the pairs' rows (empty for fewer than two
+    decisive candidates of different kinds). ``settings``: the search's
+    (:class:`rjfit.diagnose.workflow.SearchSettings`)."""
+    ranked = sorted(decisive_rows, key=lambda row: row["log_bayes_factor"], reverse=True)[:PAIR_FROM]
+    rows, pair_fits, pair_residuals = [], {}, {}
+    for first, second in combinations(ranked, 2):
+        if first["kind"] == second["kind"]:        # same kind: both explain one part (revisit.py)
+            continue
+        names = (first["effect"], second["effect"])
+        effects = tuple(current.effects) + tuple(get_effect(name) for name in names)
+        candidate = refit(ctx, effects, start=fits[first["effect"]], seed=settings.seed)
+        row = _pair_row(step, names, candidate, current, settings.threshold, settings.loo_se_factor)
+        pair_fits[row["effect"]], pair_residuals[row["effect"]] = candidate, standardised_residuals(ctx, candidate)
+        rows.append(row)
+        settings.say(f"  pair {row['effect']:25s} log BF {row['log_bayes_factor']:10.1f}"
+                     + ("  decisive" if row["decisive"] else ""))
+    decisive = [row for row in rows if row["decisive"]]
+    judge_candidates(ctx, decisive, pair_fits, pair_residuals, current, residuals, sigma2,
+                     simulate=bool(ctx.has_mesh and settings.simulate is not False),
+                     n_sim_draws=settings.n_sim_draws, seed=settings.seed)
+    return rows
+
+
+def trial_candidate(rows) -> dict | None:
+    """The candidate (single or pair) a refit of the regions should try: among ``rows`` (one step's, judged),
+    the decisive one with the largest log BF that fails no rule but the gap share on the fixed segmentation
+    (:data:`TRIAL_MAY_FAIL`); ``{"effects", "log_bayes_factor", "gap_share", "step"}``, or None."""
+    eligible = [row for row in rows if row.get("decisive") and "short_of" in row
+                and set(row["short_of"]) <= TRIAL_MAY_FAIL]
+    if not eligible:
+        return None
+    best = max(eligible, key=lambda row: row["log_bayes_factor"])
+    return {"effects": list(best.get("effects") or [best["effect"]]), "log_bayes_factor": best["log_bayes_factor"],
+            "gap_share": best["gap_share"], "step": best["step"]}

@@ -1,0 +1,73 @@
+"""The trial a diagnosis offers and how rjfit refine judges it (rjfit.diagnose.pairs, rjfit.pipeline.refine_trial):
+the rules on rows and round records as the workflow and the loop write them, without fits (the loop itself is
+run on a rendered stack in tests/pipeline/test_refine_trial.py)."""
+import pytest
+
+from rjfit.diagnose.misfit import UNEXPLAINED_GAP
+from rjfit.diagnose.pairs import trial_candidate
+from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, trial_to_fit
+
+
+def row(effect, log_bf, short_of, decisive=True, effects=None):
+    out = {"step": 0, "effect": effect, "log_bayes_factor": log_bf, "decisive": decisive, "short_of": short_of,
+           "gap_share": 0.2}
+    if effects:
+        out["effects"] = effects
+    return out
+
+
+def test_the_trial_is_the_decisive_candidate_short_of_the_gap_share_only_with_the_largest_log_bf():
+    rows = [row("ggx", 1265.0, ["gap_share"]),
+            row("coating", 1221.0, ["gap_share", "physical"]),            # a conflict: never tried
+            row("ggx+coating", 2330.0, ["gap_share"], effects=["ggx", "coating"]),
+            row("ambient", 5000.0, ["gap_share"], decisive=False)]        # not decisive: never tried
+    assert trial_candidate(rows)["effects"] == ["ggx", "coating"]
+    assert trial_candidate(rows[:2])["effects"] == ["ggx"]
+    assert trial_candidate(rows[1:2]) is None
+    assert trial_candidate([row("ggx", 10.0, ["misfit"])]) is None        # no misfit left: nothing to try
+    assert trial_candidate([row("ggx", 10.0, ["simulation"])]) is None    # the physics did not agree
+
+
+def record(gap, effects=(), named=(), dropped=(), follows=True, n_regions=4):
+    return {"gap": gap, "effects": list(effects), "named": list(named), "dropped": list(dropped),
+            "feature_change": [{"follows": follows}], "n_regions": n_regions}
+
+
+def test_a_trial_is_fitted_only_where_the_round_changed_nothing_and_a_round_is_left():
+    diagnosis = {"trial": {"effects": ["ggx", "coating"]}}
+    assert trial_to_fit(diagnosis, record(3.6), [], 1, True) == ["ggx", "coating"]
+    assert trial_to_fit(diagnosis, record(3.6), [], 0, True) is None                    # no round to judge it
+    assert trial_to_fit(diagnosis, record(3.6), [], 1, False) is None                   # a joint colour fit
+    assert trial_to_fit(diagnosis, record(3.6, named=["ambient"]), [], 1, True) is None  # the loop refits anyway
+    assert trial_to_fit(diagnosis, record(3.6, dropped=["ambient"]), [], 1, True) is None
+    assert trial_to_fit(diagnosis, record(3.6, follows=False), [], 1, True) is None
+    assert trial_to_fit(diagnosis, record(3.6), [["coating", "ggx"]], 1, True) is None   # tried before
+    assert trial_to_fit(diagnosis, record(3.6, effects=["ggx"]), [], 1, True) == ["coating"]
+    assert trial_to_fit({"trial": None}, record(3.6), [], 1, True) is None
+
+
+@pytest.mark.parametrize("gap_after, dropped, kept", [
+    (TRIAL_GAP_SHARE * 3.58 * 0.99, False, True),       # at most half: kept
+    (TRIAL_GAP_SHARE * 3.58 * 1.01, False, False),      # just above half: not kept
+    (0.5, True, False),                                 # the diagnosis of the trial fit dropped one of its effects
+])
+def test_a_trial_is_kept_when_the_gap_on_its_own_segmentation_halves_and_its_effects_stay(gap_after, dropped, kept):
+    final = ["ggx"] if dropped else ["ggx", "coating"]
+    verdict = judge_trial(["ggx", "coating"], record(3.58), record(gap_after), final)
+    assert verdict["kept"] is kept
+    assert verdict["gap_before"] == 3.58 and verdict["gap_after"] == gap_after
+    assert ("dropped coating" in verdict["why"]) is dropped
+
+
+def test_a_gap_falling_into_the_floor_without_halving_does_not_keep_a_trial():
+    # the GGX roughplastic stack under the material model: coating + light_calibration took 0.105 to 0.069
+    both = ["coating", "light_calibration"]
+    verdict = judge_trial(both, record(0.105), record(0.069), both)
+    assert not verdict["kept"] and 0.069 < UNEXPLAINED_GAP
+
+
+def test_a_trial_fit_with_more_regions_is_not_kept_however_far_its_gap_falls():
+    # Mitsuba's Beckmann roughplastic under change points: fresnel took 1.51 to 0.0117 with 9 regions for 6
+    verdict = judge_trial(["fresnel"], record(1.51, n_regions=6), record(0.0117, n_regions=9), ["fresnel"])
+    assert not verdict["kept"] and "more regions (9 against 6)" in verdict["why"]
+    assert judge_trial(["fresnel"], record(1.51, n_regions=6), record(0.0117, n_regions=6), ["fresnel"])["kept"]
