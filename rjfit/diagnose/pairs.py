@@ -61,13 +61,10 @@ def score_pairs(ctx, step, current, decisive_rows, fits, residuals, sigma2, sett
     decisive candidates of different kinds). ``settings``: the search's
     (:class:`rjfit.diagnose.workflow.SearchSettings`)."""
     ranked = sorted(decisive_rows, key=lambda row: row["log_bayes_factor"], reverse=True)[:PAIR_FROM]
+    # same kind: both explain one part (revisit.py)
+    pairs = [(a["effect"], b["effect"]) for a, b in combinations(ranked, 2) if a["kind"] != b["kind"]]
     rows, pair_fits, pair_residuals = [], {}, {}
-    for first, second in combinations(ranked, 2):
-        if first["kind"] == second["kind"]:        # same kind: both explain one part (revisit.py)
-            continue
-        names = (first["effect"], second["effect"])
-        effects = tuple(current.effects) + tuple(get_effect(name) for name in names)
-        candidate = refit(ctx, effects, start=fits[first["effect"]], seed=settings.seed)
+    for names, candidate in zip(pairs, _refit_pairs(ctx, current, pairs, fits, settings)):
         row = _pair_row(step, names, candidate, current, settings.threshold, settings.loo_se_factor)
         pair_fits[row["effect"]], pair_residuals[row["effect"]] = candidate, standardised_residuals(ctx, candidate)
         rows.append(row)
@@ -78,6 +75,25 @@ def score_pairs(ctx, step, current, decisive_rows, fits, residuals, sigma2, sett
                      simulate=bool(ctx.has_mesh and settings.simulate is not False),
                      n_sim_draws=settings.n_sim_draws, seed=settings.seed)
     return rows
+
+
+def _refit_pairs(ctx, current, pairs, fits, settings) -> list:
+    """``current`` refitted plus each pair of effect names, ``settings.jobs`` at a time on threads (as the single
+    candidates are, :func:`rjfit.diagnose.candidates.try_candidates`: BLAS on one thread, so the refits do not
+    depend on the number of jobs), each from the first effect's refit; in the pairs' order. Their Mitsuba features
+    are in ``ctx`` already (the single candidates rendered them)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from threadpoolctl import threadpool_limits
+
+    def one(names):
+        effects = tuple(current.effects) + tuple(get_effect(name) for name in names)
+        return refit(ctx, effects, start=fits[names[0]], seed=settings.seed)
+
+    if not pairs:
+        return []
+    with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(1, min(settings.jobs, len(pairs)))) as pool:
+        return list(pool.map(one, pairs))
 
 
 def trial_candidate(rows) -> dict | None:
