@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import os
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -24,7 +25,8 @@ from rjfit.diagnose.loo import loo_difference
 from rjfit.diagnose.refit import refit, standardised_residuals, template_columns
 
 __all__ = ["LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "PRIOR_CONFLICT_SD", "DECISION_RULE", "BASE_TOLERANCE",
-           "try_candidates", "converge_base", "candidate_row", "prior_conflicts", "fit_prior_conflicts"]
+           "try_candidates", "refit_threads", "converge_base", "candidate_row", "judged_fields", "prior_conflicts",
+           "fit_prior_conflicts"]
 
 LOG_BF_THRESHOLD = math.log(100.0)
 LOO_SE_FACTOR = 4.0
@@ -40,6 +42,18 @@ PRIOR_CONFLICT_SD = 3.0
 BASE_TOLERANCE = 0.5
 DECISION_RULE = (f"decisive when log Bayes factor (Laplace evidence) > ln 100 = {LOG_BF_THRESHOLD:.2f} and "
                  f"delta ELPD (PSIS-LOO) > {LOO_SE_FACTOR:g} SE; the decisive candidate with the largest log BF is named")
+
+
+@contextmanager
+def refit_threads(jobs, n_tasks):
+    """A pool of ``min(jobs, n_tasks)`` threads (at least one) for refits, with BLAS on one thread meanwhile, so
+    that the refits do not depend on ``jobs`` (:func:`try_candidates` says why threads)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(1, min(jobs, n_tasks))) as pool:
+        yield pool
 
 
 def _try_candidate(ctx, current, effect, residuals, sigma2_hat, seed, threshold):
@@ -72,9 +86,7 @@ def try_candidates(ctx, current, effects, residuals, sigma2_hat, *, seed, thresh
     a render uses every core itself and drjit's state is per thread. ``report(effect, outcome)``
     is called on this thread as each candidate finishes.
     """
-    from concurrent.futures import ThreadPoolExecutor, as_completed
-
-    from threadpoolctl import threadpool_limits
+    from concurrent.futures import as_completed
 
     debug = bool(os.environ.get("RJFIT_DEBUG"))     # a programming error then shows its traceback
     outcomes = {}
@@ -99,7 +111,7 @@ def try_candidates(ctx, current, effects, residuals, sigma2_hat, *, seed, thresh
             report(effect, error)
     if not ready:
         return outcomes
-    with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(1, min(jobs, len(ready)))) as pool:
+    with refit_threads(jobs, len(ready)) as pool:
         futures = {pool.submit(_try_candidate, ctx, current, effect, residuals, sigma2_hat, seed, threshold): effect
                    for effect in ready}
         for future in as_completed(futures):
@@ -189,18 +201,28 @@ def candidate_row(step, effect, outcome, current, threshold, loo_se_factor):
         row["error"] = f"{type(outcome).__name__}: {outcome}"
         return row
     candidate, _, (score, _), loo = outcome
-    row.update(log_evidence=candidate.log_evidence, log_bayes_factor=candidate.log_evidence - current.log_evidence,
-               n_params_added=candidate.n_params - current.n_params, signature_score=score,
-               effect_params={k: v for k, v in candidate.summary().items() if k.startswith(effect.name + ".")},
-               hessian=candidate.hessian_kind, seconds=candidate.seconds)
-    conflicts = fit_prior_conflicts(candidate, effect.name)
+    row["signature_score"] = score
+    row.update(judged_fields(candidate, current, (effect.name,), loo, threshold, loo_se_factor))
+    return row
+
+
+def judged_fields(candidate, current, names, loo, threshold, loo_se_factor) -> dict:
+    """The fields of a row of ``diagnosis.json`` that the decision rule (module docstring) judges, for the refit
+    ``candidate`` of ``current`` plus the effects ``names`` (one, or a pair's two): evidence, the added effects'
+    parameters and prior-data conflicts, LOO (``loo`` as :func:`loo_difference` gives it, None where the log BF
+    is at most ``threshold``) and ``decisive``."""
+    fields = {"log_evidence": candidate.log_evidence, "log_bayes_factor": candidate.log_evidence - current.log_evidence,
+              "n_params_added": candidate.n_params - current.n_params,
+              "effect_params": {k: v for k, v in candidate.summary().items() if k.split(".")[0] in names},
+              "hessian": candidate.hessian_kind, "seconds": candidate.seconds}
+    conflicts = [conflict for name in names for conflict in fit_prior_conflicts(candidate, name)]
     if conflicts:
-        row["prior_conflict"] = conflicts
+        fields["prior_conflict"] = conflicts
     if loo is not None:
-        row.update(delta_elpd_loo=loo[0], delta_elpd_loo_se=loo[1], max_khat=loo[2], khat_unreliable_fraction=loo[3])
+        fields.update(delta_elpd_loo=loo[0], delta_elpd_loo_se=loo[1], max_khat=loo[2], khat_unreliable_fraction=loo[3])
     else:
         bound = "ln 100" if math.isclose(threshold, LOG_BF_THRESHOLD) else f"{threshold:.4g}"
-        row["loo_skipped"] = f"log BF <= {bound}, cannot be decisive"
-    row["decisive"] = bool(row["log_bayes_factor"] > threshold and row.get("delta_elpd_loo", -np.inf)
-                           > loo_se_factor * row.get("delta_elpd_loo_se", np.inf))
-    return row
+        fields["loo_skipped"] = f"log BF <= {bound}, cannot be decisive"
+    fields["decisive"] = bool(fields["log_bayes_factor"] > threshold and fields.get("delta_elpd_loo", -np.inf)
+                              > loo_se_factor * fields.get("delta_elpd_loo_se", np.inf))
+    return fields

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from itertools import combinations
 
-from rjfit.diagnose.candidates import fit_prior_conflicts
+from rjfit.diagnose.candidates import judged_fields, refit_threads
 from rjfit.diagnose.loo import loo_difference
 from rjfit.diagnose.naming import judge_candidates
 from rjfit.diagnose.refit import refit, standardised_residuals
@@ -36,25 +36,6 @@ PAIR_FROM = 3
 TRIAL_MAY_FAIL = {"gap_share"}
 
 
-def _pair_row(step, names, candidate, current, threshold, loo_se_factor) -> dict:
-    """A pair's row, with the fields of a single candidate's (:func:`rjfit.diagnose.candidates.candidate_row`)."""
-    row = {"step": step, "effect": "+".join(names), "effects": list(names), "kind": "pair",
-           "log_evidence": candidate.log_evidence, "log_bayes_factor": candidate.log_evidence - current.log_evidence,
-           "n_params_added": candidate.n_params - current.n_params,
-           "effect_params": {k: v for k, v in candidate.summary().items() if k.split(".")[0] in names},
-           "hessian": candidate.hessian_kind, "seconds": candidate.seconds}
-    conflicts = [c for name in names for c in fit_prior_conflicts(candidate, name)]
-    if conflicts:
-        row["prior_conflict"] = conflicts
-    if row["log_bayes_factor"] > threshold:
-        elpd, se, khat, unreliable = loo_difference(candidate, current)
-        row.update(delta_elpd_loo=elpd, delta_elpd_loo_se=se, max_khat=khat, khat_unreliable_fraction=unreliable)
-    row["decisive"] = bool(row["log_bayes_factor"] > threshold
-                           and row.get("delta_elpd_loo", -float("inf")) > loo_se_factor * row.get("delta_elpd_loo_se",
-                                                                                              float("inf")))
-    return row
-
-
 def score_pairs(ctx, step, current, decisive_rows, fits, residuals, sigma2, settings) -> list:
     """Refit ``current`` plus each pair of the decisive single candidates ``decisive_rows`` (their refits
     ``fits`` by name) and judge it as a single one is judged; returns the pairs' rows (empty for fewer than two
@@ -65,34 +46,32 @@ def score_pairs(ctx, step, current, decisive_rows, fits, residuals, sigma2, sett
     pairs = [(a["effect"], b["effect"]) for a, b in combinations(ranked, 2) if a["kind"] != b["kind"]]
     rows, pair_fits, pair_residuals = [], {}, {}
     for names, candidate in zip(pairs, _refit_pairs(ctx, current, pairs, fits, settings)):
-        row = _pair_row(step, names, candidate, current, settings.threshold, settings.loo_se_factor)
+        loo = (loo_difference(candidate, current)
+               if candidate.log_evidence - current.log_evidence > settings.threshold else None)
+        row = {"step": step, "effect": "+".join(names), "effects": list(names), "kind": "pair"}
+        row.update(judged_fields(candidate, current, names, loo, settings.threshold, settings.loo_se_factor))
         pair_fits[row["effect"]], pair_residuals[row["effect"]] = candidate, standardised_residuals(ctx, candidate)
         rows.append(row)
         settings.say(f"  pair {row['effect']:25s} log BF {row['log_bayes_factor']:10.1f}"
                      + ("  decisive" if row["decisive"] else ""))
     decisive = [row for row in rows if row["decisive"]]
     judge_candidates(ctx, decisive, pair_fits, pair_residuals, current, residuals, sigma2,
-                     simulate=bool(ctx.has_mesh and settings.simulate is not False),
+                     simulate=settings.simulates(ctx),
                      n_sim_draws=settings.n_sim_draws, seed=settings.seed)
     return rows
 
 
 def _refit_pairs(ctx, current, pairs, fits, settings) -> list:
     """``current`` refitted plus each pair of effect names, ``settings.jobs`` at a time on threads (as the single
-    candidates are, :func:`rjfit.diagnose.candidates.try_candidates`: BLAS on one thread, so the refits do not
-    depend on the number of jobs), each from the first effect's refit; in the pairs' order. Their Mitsuba features
-    are in ``ctx`` already (the single candidates rendered them)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from threadpoolctl import threadpool_limits
-
+    candidates are: :func:`rjfit.diagnose.candidates.refit_threads`), each from the first effect's refit; in the
+    pairs' order. Their Mitsuba features are in ``ctx`` already (the single candidates rendered them)."""
     def one(names):
         effects = tuple(current.effects) + tuple(get_effect(name) for name in names)
         return refit(ctx, effects, start=fits[names[0]], seed=settings.seed)
 
     if not pairs:
         return []
-    with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(1, min(settings.jobs, len(pairs)))) as pool:
+    with refit_threads(settings.jobs, len(pairs)) as pool:
         return list(pool.map(one, pairs))
 
 

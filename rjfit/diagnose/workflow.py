@@ -82,6 +82,10 @@ class SearchSettings:
         _check_count(self.jobs, "jobs (candidates refitted at once)", 1, "")
         object.__setattr__(self, "jobs", int(self.jobs))
 
+    def simulates(self, ctx) -> bool:
+        """Whether Mitsuba simulates on this search of ``ctx`` (``simulate`` None: when the data set has a mesh)."""
+        return bool(ctx.has_mesh and (self.simulate is None or self.simulate))
+
     def say(self, *args, **kwargs):
         """Print a line when ``progress`` is on (flushed: a long search is followed as it goes)."""
         if self.progress:
@@ -346,7 +350,7 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
         return None
     by_name = {name: value for (_, name), value in tried["candidate_residuals"].items()}
     qualified = judge_candidates(ctx, decisive, tried["fits"], by_name, trace.current, residuals, sigma2_plain,
-                                 simulate=_simulating(ctx, settings), n_sim_draws=settings.n_sim_draws,
+                                 simulate=settings.simulates(ctx), n_sim_draws=settings.n_sim_draws,
                                  seed=settings.seed)
     for row in decisive:
         if not row["qualifies"]:
@@ -366,11 +370,6 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
                               for row in qualified if row is not best
                               and best["log_bayes_factor"] - row["log_bayes_factor"] <= settings.threshold]
     return best, tried["fits"][best["effect"]], residuals
-
-
-def _simulating(ctx, settings) -> bool:
-    """Whether Mitsuba simulates on this search (default: when the data set has a mesh)."""
-    return bool(ctx.has_mesh and (settings.simulate is None or settings.simulate))
 
 
 def _try_step(ctx, step, current, to_try, sigma2_plain, settings) -> dict:
