@@ -77,6 +77,7 @@ from rjfit.data.diligent_files import (
     require_file,
     size_text,
 )
+from rjfit.data.folder_camera import CAMERA_KINDS, camera_meta, check_camera, is_finite_number, view_directions
 from rjfit.data.lights import Light
 from rjfit.errors import DatasetError, DatasetFileNotFoundError
 from rjfit.io import read_json
@@ -92,7 +93,6 @@ MASK = "mask.png"
 LAYOUT_FILES = (FILENAMES, DIRECTIONS, INTENSITIES, MASK)
 OPTIONS_FILE = "rjfit.json"
 _OPTIONS = ("saturation", "dark", "encoded", "response", "bits", "mask", "normals", "crop", "camera")
-CAMERA_KINDS = ("orthographic", "perspective")
 
 
 def is_diligent_folder(path) -> bool:
@@ -121,8 +121,8 @@ def folder_options(folder) -> dict:
     if unknown is None or unknown:
         raise DatasetError(f"{path}: must be a JSON object with keys among {', '.join(_OPTIONS)}"
                            + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
-    rules = {"saturation": (lambda v: v is None or (_is_number(v) and v > 0), "a raw value > 0, or null"),
-             "dark": (lambda v: v is None or (_is_number(v) and v >= 0), "a raw value >= 0, or null"),
+    rules = {"saturation": (lambda v: v is None or (is_finite_number(v) and v > 0), "a raw value > 0, or null"),
+             "dark": (lambda v: v is None or (is_finite_number(v) and v >= 0), "a raw value >= 0, or null"),
              "encoded": (lambda v: v is None or v in ENCODINGS,
                          "null (linear 16-bit or float data), \"linear\" (integer codes linear in radiance, 8-bit "
                          "allowed) or \"sRGB\" (sRGB-encoded integer codes, decoded)"),
@@ -151,69 +151,6 @@ def folder_options(folder) -> dict:
 def _is_plain_name(value) -> bool:
     """A file name without a folder part: a mask elsewhere would escape the gate's fingerprint of the folder."""
     return isinstance(value, str) and value not in ("", ".", "..") and "/" not in value and "\\" not in value
-
-
-def check_camera(camera, where: str) -> dict:
-    """A photometric-stereo folder's camera declaration, checked; returns it with its defaults filled in.
-
-    Parameters
-    ----------
-    camera : dict or None
-        ``{"kind": "orthographic"}`` (the default, None) or ``{"kind": "perspective",
-        "focal_px": f, "principal_point": [cx, cy]}`` (principal point optional).
-    where : str
-        Names the declaration in messages (the file and key).
-
-    Raises
-    ------
-    DatasetError
-        If the kind is unknown, a key is unknown, the focal length is not a positive number or
-        the principal point is not two finite numbers.
-    """
-    if camera is None:
-        return {"kind": "orthographic"}
-    if not isinstance(camera, dict):
-        raise DatasetError(f"{where} is {camera!r}; it must be an object such as {{\"kind\": \"orthographic\"}}")
-    kind = camera.get("kind")
-    if kind not in CAMERA_KINDS:
-        raise DatasetError(f"{where}: kind is {kind!r}; it must be one of {', '.join(CAMERA_KINDS)}")
-    allowed = {"orthographic": {"kind"}, "perspective": {"kind", "focal_px", "principal_point"}}[kind]
-    unknown = sorted(set(camera) - allowed)
-    if unknown:
-        raise DatasetError(f"{where}: unknown key(s) {', '.join(unknown)} for a {kind} camera; allowed: "
-                           f"{', '.join(sorted(allowed))}")
-    if kind == "orthographic":
-        return {"kind": "orthographic"}
-    focal = camera.get("focal_px")
-    if not (_is_number(focal) and focal > 0):
-        raise DatasetError(f"{where}: focal_px is {focal!r}; a perspective camera needs its focal length in pixels, "
-                           f"a number > 0")
-    principal = camera.get("principal_point")
-    if principal is not None and not (isinstance(principal, (list, tuple)) and len(principal) == 2
-                                      and all(_is_number(v) for v in principal)):
-        raise DatasetError(f"{where}: principal_point is {principal!r}; it must be [cx, cy] in pixels (or left out "
-                           f"for the frame's centre)")
-    return {"kind": "perspective", "focal_px": float(focal),
-            "principal_point": None if principal is None else [float(v) for v in principal]}
-
-
-def view_directions(camera: dict, height: int, width: int) -> np.ndarray:
-    """Unit directions towards the camera at every pixel centre, (H, W, 3), for a checked ``camera``.
-
-    Orthographic: (0, 0, 1) everywhere. Perspective: minus the pixel-centre ray's direction
-    (module docstring), with the principal point defaulting to the frame's centre.
-    """
-    if camera["kind"] == "orthographic":
-        return np.broadcast_to(np.array([0.0, 0.0, 1.0]), (height, width, 3)).copy()
-    cx, cy = camera["principal_point"] or (width / 2.0, height / 2.0)
-    focal = camera["focal_px"]
-    cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
-    towards = np.stack([-(cols - cx) / focal, (rows - cy) / focal, np.ones_like(cols)], axis=-1)
-    return towards / np.linalg.norm(towards, axis=-1, keepdims=True)
-
-
-def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
 
 
 _UNSET = object()
@@ -292,6 +229,19 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, respo
     camera = check_camera(camera, f"{folder}: camera")
     check_reading(folder, encoded, response, bits)
     lights = _read_lights(folder, response)
+    geometry = _read_geometry(folder, mask_name, normals, camera, lights)
+    reading = read_images(lights.image_files, geometry[1], geometry[0], lights.intensities, encoded, response, bits,
+                          saturation, dark)
+    dataset = _measured_dataset(folder, camera, lights, geometry, reading, response_of(encoded, response), encoded,
+                                dark)
+    return dataset if crop is False or crop is None else crop_to_mask(dataset, margin=2 if crop is True else int(crop))
+
+
+def _read_geometry(folder: Path, mask_name, normals, camera, lights):
+    """``(mask file, mask, normal map file, normal map, view directions)`` of :func:`load_diligent`'s folder,
+    checked: the mask ``mask_name`` (None: ``mask.png``) and the normal map ``normals`` (None: the first of
+    ``NORMAL_MAP_NAMES``) of one size, unit normals inside the mask (zero outside it) and every light in front of
+    part of the object as ``camera`` sees it. Raises as :func:`load_diligent` does."""
     mask_file = folder / (mask_name or MASK)
     if mask_name is not None and not mask_file.is_file():
         raise DatasetFileNotFoundError(f"{mask_file}: no such file (the object mask that mask={mask_name!r} names, "
@@ -308,15 +258,21 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, respo
     normal_map = np.where(mask[..., None], normal_map, 0.0)
     view_dirs = view_directions(camera, *mask.shape)
     check_lights_face_object(lights.lights, normal_map, None, view_dirs, mask, lights.describe)
-    images, saturated, too_dark, threshold_used, pixel_type, max_code = read_images(
-        lights.image_files, mask, mask_file, lights.intensities, encoded, response, bits, saturation, dark)
-    dataset_response = response_of(encoded, response)
+    return mask_file, mask, normals_file, normal_map, view_dirs
+
+
+def _measured_dataset(folder: Path, camera, lights, geometry, reading, dataset_response, encoded, dark) -> Dataset:
+    """:func:`load_diligent`'s Dataset before any crop, from ``geometry`` (:func:`_read_geometry`'s) and ``reading``
+    (:func:`rjfit.data.diligent_io.read_images`'): its arrays, and a ``meta`` that says where it came from, its
+    camera, units, codes, lights and the saturation and dark rules with their counts inside the mask."""
+    mask_file, mask, normals_file, normal_map, view_dirs = geometry
+    images, saturated, too_dark, threshold_used, pixel_type, max_code = reading
     quantised = max_code is not None and dataset_response != "sRGB"
     meta = {
         "name": folder.resolve().name, "kind": "measured", "layout": "diligent",
         "source": "photometric-stereo folder, DiLiGenT layout (Shi et al., CVPR 2016)",
         "description": _first_heading(folder / "README.md"), "path": str(folder),
-        "camera": {**_camera_meta(camera, *mask.shape),
+        "camera": {**camera_meta(camera, *mask.shape),
                    "axes": "x right, y up, z towards the camera; image rows top to bottom"},
         "resolution": list(mask.shape), "units": _units(dataset_response, encoded, max_code),
         "pixel_type": pixel_type, "encoded": encoded, "response": dataset_response,
@@ -337,13 +293,10 @@ def load_diligent(path, *, saturation=_UNSET, dark=_UNSET, encoded=_UNSET, respo
                  "dark_observations_in_mask": None if too_dark is None else int(too_dark[:, mask].sum())},
         "reference_intensity": 1.0,
     }
-    dataset = Dataset(path=folder, meta=meta, images=images, normals=normal_map, view_dirs=view_dirs,
-                      positions=None, visibility=None, object_mask=mask, lights=lights.lights, saturation=None,
-                      saturated=saturated, too_dark=too_dark, response=dataset_response,
-                      quantisation_variance=QUANTISATION_VARIANCE_CODES / lights.intensities ** 2 if quantised else None)
-    if crop is not False and crop is not None:
-        dataset = crop_to_mask(dataset, margin=2 if crop is True else int(crop))
-    return dataset
+    return Dataset(path=folder, meta=meta, images=images, normals=normal_map, view_dirs=view_dirs,
+                   positions=None, visibility=None, object_mask=mask, lights=lights.lights, saturation=None,
+                   saturated=saturated, too_dark=too_dark, response=dataset_response,
+                   quantisation_variance=QUANTISATION_VARIANCE_CODES / lights.intensities ** 2 if quantised else None)
 
 
 def _units(response: str, encoded, max_code) -> str:
@@ -444,15 +397,6 @@ def _intensities(intensities, intensities_file, intensity_lines, response) -> np
                            f"unknown: an intensity cannot be divided out of codes that are not linear in it (give "
                            f"equal intensities, or declare the response)")
     return intensities
-
-
-def _camera_meta(camera, height, width) -> dict:
-    """The camera as ``meta["camera"]`` records it: ``kind`` (as in ``rjfit.json`` and scenes) and, for a
-    pinhole, its intrinsics in pixels."""
-    if camera["kind"] == "orthographic":
-        return {"kind": "orthographic", "view_direction": [0.0, 0.0, 1.0]}
-    return {"kind": "perspective", "focal_px": camera["focal_px"],
-            "principal_point": camera["principal_point"] or [width / 2.0, height / 2.0]}
 
 
 def crop_to_mask(dataset, margin=2):

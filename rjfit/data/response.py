@@ -45,6 +45,15 @@ __all__ = ["estimate_power_response", "KAPPA_GRID", "ERROR_MODELS"]
 
 KAPPA_GRID = np.round(np.arange(0.4, 3.0 + 1e-9, 0.05), 4)
 ERROR_MODELS = ("linear", "codes")
+# what every estimate's record says of its model, method and caveat (estimate_power_response)
+_ESTIMATE_TEXT = {
+    "model": "raw = k * linear^(1/kappa); linear = raw^kappa up to scale",
+    "method": "profile likelihood over kappa of per-pixel least-squares fits (Lambert + one Blinn lobe, "
+              "rjfit.data.pixelfit.per_pixel_residuals)",
+    "caveat": "the interval is the sampling spread over the surface (block bootstrap); a misfit of the "
+              "Lambert + Blinn-Phong family, the normals' error and cast shadows bias kappa by more on "
+              "measured data, and the error model and dark threshold move it",
+}
 # Fewer pixels with a per-pixel fit than this leave too few bootstrap tiles to say anything.
 _MIN_PIXELS = 20
 
@@ -146,6 +155,46 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
     DatasetError
         If fewer than 20 pixels have the four positive observations a per-pixel fit needs.
     """
+    kappas = _checked_settings(errors, kappas, n_bootstrap, tile)
+    observations = dataset.observations(channel, dark)
+    observations, lattice = tile_lattice(observations.subset(np.asarray(observations.y) > 0), tile, max_observations)
+    ssr, count, log_u = _per_pixel_sums(observations, kappas, errors, progress)
+    used = _used_pixels(count, dataset.path)
+
+    def estimate(weights):
+        profile = _negative_log_likelihood(ssr @ weights, count @ weights, log_u @ weights, kappas, errors)
+        return profile, _minimum(kappas, profile)
+
+    profile, (kappa, at_edge) = estimate(np.ones(ssr.shape[1]))
+    draws, n_tiles = _tile_bootstrap(lambda weights: estimate(weights)[1][0], used, observations.image_shape[1],
+                                     tile, n_bootstrap, seed, progress)
+    return {
+        "kappa": kappa,
+        "exponent": 1.0 / kappa,
+        "kappa_std": float(draws.std(ddof=1)) if draws.size > 1 else None,
+        "kappa_interval": [float(v) for v in np.percentile(draws, [2.5, 97.5])] if draws.size > 1 else None,
+        "at_grid_edge": at_edge,
+        **_ESTIMATE_TEXT,
+        "errors": errors, "channel": channel, "dark": dark, "dataset_response": getattr(dataset, "response", None),
+        "n_observations": int(count.sum()),
+        "n_pixels": int(used.sum()),
+        "bootstrap": {"replicates": n_bootstrap, "tile_px": tile, "tiles": n_tiles, "seed": seed},
+        "subset": lattice,
+        "profile": {"kappas": kappas.tolist(), "negative_log_likelihood": (profile - profile.min()).tolist()},
+    }
+
+
+def _used_pixels(count, path):
+    """The pixels with observations (``count`` > 0). Raises DatasetError, naming ``path``, for too few of them."""
+    used = count > 0
+    if int(used.sum()) < _MIN_PIXELS:
+        raise DatasetError(f"{path}: only {int(used.sum())} pixels have the 4 positive observations a "
+                           f"per-pixel fit needs (at least {_MIN_PIXELS}): cannot estimate the camera response")
+    return used
+
+
+def _checked_settings(errors, kappas, n_bootstrap: int, tile: int) -> np.ndarray:
+    """``kappas`` as a float array once the settings of :func:`estimate_power_response` are checked (its Raises)."""
     if errors not in ERROR_MODELS:
         raise ValueError(f"errors must be one of {ERROR_MODELS}, got {errors!r}")
     kappas = np.asarray(kappas, dtype=float)
@@ -154,21 +203,13 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
         raise ValueError("kappas must be at least three positive, evenly spaced, increasing values")
     if n_bootstrap < 0 or tile < 1:
         raise ValueError(f"n_bootstrap must be >= 0 and tile >= 1, got {n_bootstrap} and {tile}")
-    observations = dataset.observations(channel, dark)
-    observations = observations.subset(np.asarray(observations.y) > 0)
-    observations, lattice = tile_lattice(observations, tile, max_observations)
-    ssr, count, log_u = _per_pixel_sums(observations, kappas, errors, progress)
-    used = count > 0
-    if int(used.sum()) < _MIN_PIXELS:
-        raise DatasetError(f"{dataset.path}: only {int(used.sum())} pixels have the 4 positive observations a "
-                           f"per-pixel fit needs (at least {_MIN_PIXELS}): cannot estimate the camera response")
+    return kappas
 
-    def estimate(weights):
-        profile = _negative_log_likelihood(ssr @ weights, count @ weights, log_u @ weights, kappas, errors)
-        return profile, _minimum(kappas, profile)
 
-    profile, (kappa, at_edge) = estimate(np.ones(ssr.shape[1]))
-    width = observations.image_shape[1]
+def _tile_bootstrap(estimate, used, width: int, tile: int, n_bootstrap: int, seed: int, progress: bool):
+    """``(estimates, tiles)``: ``estimate(weights)`` (a weight per pixel, by the image's flat index) over
+    ``n_bootstrap`` block-bootstrap replicates that draw the ``tile`` x ``tile`` tiles holding the ``used``
+    pixels with replacement, each pixel weighted by its tile's count; and the number of those tiles."""
     pixels = np.nonzero(used)[0]
     tiles = (pixels // width // tile) * (width // tile + 1) + (pixels % width) // tile
     _, tile_of = np.unique(tiles, return_inverse=True)
@@ -177,29 +218,7 @@ def estimate_power_response(dataset, channel: str = "mean", seed: int = 0, *, er
     draws = []
     for _ in tracked(range(n_bootstrap), "camera response: bootstrap", "replicate", enabled=progress):
         tile_weights = rng.multinomial(n_tiles, np.full(n_tiles, 1.0 / n_tiles))
-        weights = np.zeros(ssr.shape[1])
+        weights = np.zeros(used.shape[0])
         weights[pixels] = tile_weights[tile_of]
-        draws.append(estimate(weights)[1][0])
-    draws = np.asarray(draws)
-    return {
-        "kappa": kappa,
-        "exponent": 1.0 / kappa,
-        "kappa_std": float(draws.std(ddof=1)) if draws.size > 1 else None,
-        "kappa_interval": [float(v) for v in np.percentile(draws, [2.5, 97.5])] if draws.size > 1 else None,
-        "at_grid_edge": at_edge,
-        "model": "raw = k * linear^(1/kappa); linear = raw^kappa up to scale",
-        "method": "profile likelihood over kappa of per-pixel least-squares fits (Lambert + one Blinn lobe, "
-                  "rjfit.data.pixelfit.per_pixel_residuals)",
-        "errors": errors,
-        "channel": channel,
-        "dark": dark,
-        "dataset_response": getattr(dataset, "response", None),
-        "n_observations": int(count.sum()),
-        "n_pixels": int(used.sum()),
-        "bootstrap": {"replicates": n_bootstrap, "tile_px": tile, "tiles": n_tiles, "seed": seed},
-        "subset": lattice,
-        "profile": {"kappas": kappas.tolist(), "negative_log_likelihood": (profile - profile.min()).tolist()},
-        "caveat": "the interval is the sampling spread over the surface (block bootstrap); a misfit of the "
-                  "Lambert + Blinn-Phong family, the normals' error and cast shadows bias kappa by more on "
-                  "measured data, and the error model and dark threshold move it",
-    }
+        draws.append(estimate(weights))
+    return np.asarray(draws), n_tiles
