@@ -93,18 +93,12 @@ def _make_bsdf_class(m):
     diffuse_flags = BSDFFlags.DiffuseReflection | BSDFFlags.FrontSide
     glossy_flags = BSDFFlags.GlossyReflection | BSDFFlags.FrontSide
 
-    def _to_float(props, name, default):
-        return float(props.get(name, default))
-
     class RjfitBlinnBSDF(m.BSDF):
         """Lambert + Giesen-normalised Blinn-Phong (see the module docstring)."""
 
         def __init__(self, props):
             m.BSDF.__init__(self, props)
-            kd = _to_float(props, "kd", 0.5)
-            gamma = _to_float(props, "gamma", 10.0)
-            scale = _to_float(props, "scale", 1.0)
-            _check(kd, gamma, scale)
+            kd, gamma, scale = _checked_properties(props)
             self.kd = m.Float(kd)
             self.gamma = m.Float(gamma)
             self.scale = m.Float(scale)
@@ -123,43 +117,11 @@ def _make_bsdf_class(m):
 
         # -- helpers ----------------------------------------------------------------------
         def _lobe_probabilities(self, ctx):
-            has_diffuse = ctx.is_enabled(BSDFFlags.DiffuseReflection, 0)
-            has_glossy = ctx.is_enabled(BSDFFlags.GlossyReflection, 1)
-            if has_diffuse and has_glossy:
-                prob_d = m.Float(self.kd)
-            elif has_diffuse:
-                prob_d = m.Float(1.0)
-            else:
-                prob_d = m.Float(0.0)
-            return has_diffuse, has_glossy, prob_d
+            return _lobe_probabilities(m, ctx, self.kd)
 
         def _eval_pdf(self, ctx, si, wo, active):
             """(f * cos theta_o as a Float, mixture pdf) for local directions."""
-            has_diffuse, has_glossy, prob_d = self._lobe_probabilities(ctx)
-            cos_i = m.Frame3f.cos_theta(si.wi)
-            cos_o = m.Frame3f.cos_theta(wo)
-            active = active & (cos_i > 0.0) & (cos_o > 0.0)
-
-            h = dr.normalize(si.wi + wo)
-            cos_h = dr.maximum(m.Frame3f.cos_theta(h), 0.0)
-            g = self.gamma
-            cos_h_pow_g = dr.power(cos_h, g)
-
-            value = m.Float(0.0)
-            pdf = m.Float(0.0)
-            if has_diffuse:
-                value += self.kd * _INV_PI
-                pdf += prob_d * cos_o * _INV_PI
-            if has_glossy:
-                norm = (g + 2.0) * (g + 4.0) / ((8.0 * math.pi) * (dr.exp2(-0.5 * g) + g))
-                value += (1.0 - self.kd) * norm * cos_h_pow_g
-                pdf_h = (g + 1.0) * _INV_TWO_PI * cos_h_pow_g
-                wo_dot_h = dr.dot(wo, h)
-                pdf += (1.0 - prob_d) * dr.select(
-                    wo_dot_h > 0.0, pdf_h / (4.0 * wo_dot_h), 0.0
-                )
-            value = self.scale * value * cos_o
-            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
+            return _value_and_pdf(m, self._lobe_probabilities(ctx), self.kd, self.gamma, self.scale, si.wi, wo, active)
 
         # -- the BSDF interface -----------------------------------------------------------
         def eval(self, ctx, si, wo, active=True):
@@ -179,29 +141,15 @@ def _make_bsdf_class(m):
             bs = dr.zeros(m.BSDFSample3f)
             if not (has_diffuse or has_glossy):
                 return bs, m.Spectrum(0.0)
-            cos_i = m.Frame3f.cos_theta(si.wi)
-            active = active & (cos_i > 0.0)
-
+            active = active & (m.Frame3f.cos_theta(si.wi) > 0.0)
             choose_diffuse = sample1 < prob_d
-
-            # diffuse lobe: cosine-weighted hemisphere
-            wo_d = m.warp.square_to_cosine_hemisphere(sample2)
-            # specular lobe: h with density (g+1)/(2 pi) cos^g theta_h, wo = reflect(wi, h)
-            cos_th = dr.power(sample2.x, 1.0 / (self.gamma + 1.0))
-            sin_th = dr.safe_sqrt(1.0 - cos_th * cos_th)
-            sin_phi, cos_phi = dr.sincos((2.0 * math.pi) * sample2.y)
-            h = m.Vector3f(sin_th * cos_phi, sin_th * sin_phi, cos_th)
-            wo_s = 2.0 * dr.dot(si.wi, h) * h - si.wi
-
-            wo = dr.select(choose_diffuse, wo_d, wo_s)
+            wo = dr.select(choose_diffuse, m.warp.square_to_cosine_hemisphere(sample2),
+                           _reflected_about_sampled_half_vector(m, si.wi, sample2, self.gamma))
             bs.wo = wo
             bs.eta = 1.0
             bs.sampled_component = dr.select(choose_diffuse, m.UInt32(0), m.UInt32(1))
-            bs.sampled_type = dr.select(
-                choose_diffuse,
-                m.UInt32(int(BSDFFlags.DiffuseReflection)),
-                m.UInt32(int(BSDFFlags.GlossyReflection)),
-            )
+            bs.sampled_type = dr.select(choose_diffuse, m.UInt32(int(BSDFFlags.DiffuseReflection)),
+                                        m.UInt32(int(BSDFFlags.GlossyReflection)))
             value, pdf = self._eval_pdf(ctx, si, wo, active)
             active = active & (pdf > 0.0)
             bs.pdf = dr.select(active, pdf, 0.0)
@@ -209,12 +157,68 @@ def _make_bsdf_class(m):
             return bs, m.Spectrum(weight)
 
         def to_string(self):
-            return (
-                f"RjfitBlinnBSDF[kd={self.kd}, gamma={self.gamma}, scale={self.scale}]"
-            )
+            return f"RjfitBlinnBSDF[kd={self.kd}, gamma={self.gamma}, scale={self.scale}]"
 
     RjfitBlinnBSDF.__name__ = f"RjfitBlinnBSDF_{m.__name__.rsplit('.', 1)[-1]}"
     return RjfitBlinnBSDF
+
+
+def _lobe_probabilities(m, ctx, kd):
+    """``(diffuse enabled, glossy enabled, probability of sampling the diffuse lobe)`` under the BSDF context
+    ``ctx`` (component 0 diffuse, 1 glossy): ``kd`` when both are, else the enabled one's."""
+    from mitsuba.mitsuba_ext import BSDFFlags
+
+    has_diffuse = ctx.is_enabled(BSDFFlags.DiffuseReflection, 0)
+    has_glossy = ctx.is_enabled(BSDFFlags.GlossyReflection, 1)
+    if has_diffuse and has_glossy:
+        return has_diffuse, has_glossy, m.Float(kd)
+    return has_diffuse, has_glossy, m.Float(1.0 if has_diffuse else 0.0)
+
+
+def _value_and_pdf(m, lobes, kd, g, scale, wi, wo, active):
+    """``(f * cos theta_o, mixture pdf)`` for local directions ``wi``, ``wo`` (the module docstring's BSDF and
+    sampling densities), zero unless both lie above the surface; ``lobes`` as :func:`_lobe_probabilities` gives
+    them."""
+    import drjit as dr
+
+    has_diffuse, has_glossy, prob_d = lobes
+    cos_o = m.Frame3f.cos_theta(wo)
+    active = active & (m.Frame3f.cos_theta(wi) > 0.0) & (cos_o > 0.0)
+    h = dr.normalize(wi + wo)
+    cos_h_pow_g = dr.power(dr.maximum(m.Frame3f.cos_theta(h), 0.0), g)
+    value = m.Float(0.0)
+    pdf = m.Float(0.0)
+    if has_diffuse:
+        value += kd * _INV_PI
+        pdf += prob_d * cos_o * _INV_PI
+    if has_glossy:
+        norm = (g + 2.0) * (g + 4.0) / ((8.0 * math.pi) * (dr.exp2(-0.5 * g) + g))
+        value += (1.0 - kd) * norm * cos_h_pow_g
+        pdf_h = (g + 1.0) * _INV_TWO_PI * cos_h_pow_g
+        wo_dot_h = dr.dot(wo, h)
+        pdf += (1.0 - prob_d) * dr.select(wo_dot_h > 0.0, pdf_h / (4.0 * wo_dot_h), 0.0)
+    value = scale * value * cos_o
+    return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
+
+
+def _reflected_about_sampled_half_vector(m, wi, sample2, gamma):
+    """The specular lobe's sample: ``wi`` reflected about a half vector h of density (g+1)/(2 pi) cos^g theta_h
+    (``cos theta_h = u^(1/(g+1))``)."""
+    import drjit as dr
+
+    cos_th = dr.power(sample2.x, 1.0 / (gamma + 1.0))
+    sin_th = dr.safe_sqrt(1.0 - cos_th * cos_th)
+    sin_phi, cos_phi = dr.sincos((2.0 * math.pi) * sample2.y)
+    h = m.Vector3f(sin_th * cos_phi, sin_th * sin_phi, cos_th)
+    return 2.0 * dr.dot(wi, h) * h - wi
+
+
+def _checked_properties(props) -> tuple:
+    """``(kd, gamma, scale)`` of a scene's properties (defaults 0.5, 10, 1), checked by :func:`_check`."""
+    kd, gamma, scale = (float(props.get(name, default)) for name, default in (("kd", 0.5), ("gamma", 10.0),
+                                                                               ("scale", 1.0)))
+    _check(kd, gamma, scale)
+    return kd, gamma, scale
 
 
 def _check(kd: float, gamma: float, scale: float) -> None:
