@@ -31,12 +31,13 @@ from rjfit.data.formats import COLOUR
 from rjfit.diagnose.document import revision_text
 from rjfit.effects import get_effect
 from rjfit.errors import DatasetError
-from rjfit.io import write_json_atomic
+from rjfit.io import read_json, write_json_atomic
 from rjfit.pipeline.diagnose import diagnose_fit
 from rjfit.pipeline.fit_effects import fit_effects
 from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
+from rjfit.pipeline.refine_resume import diagnosis_request, fit_request, forget, is_kept, remember
 from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, trial_to_fit
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.report import build_report
@@ -182,8 +183,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     for index in range(max_rounds):
         diagnosis_dir = Path(first_diagnosis_dir) if index == 0 and first_diagnosis_dir is not None else (
             out_dir / f"round{index + 1}" / "diagnosis")
-        diagnosis = diagnose_fit(current, diagnosis_dir, seed=seed, max_steps=max_steps, progress=progress,
-                                 **diagnose_options)
+        diagnosis = _diagnosis(current, diagnosis_dir, index, say, seed=seed, max_steps=max_steps, progress=progress,
+                               **diagnose_options)
         record = _round_record(current, read_summary(current), diagnosis, diagnosis_dir, fit_seconds)
         result["rounds"].append(record)
         say(_round_line(index, record))
@@ -203,10 +204,37 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         effects = tuple(final) + tuple(trying or ())
         for line in _next_round_lines(index, record, effects):
             say(line)
-        fit_started = time.perf_counter()
-        fit_dataset(dataset_dir, next_fit, options.replace(effects=effects, effects_from=diagnosis_dir), **gate)
-        current, fit_seconds = next_fit, time.perf_counter() - fit_started
+        current, fit_seconds = next_fit, _fit_round(dataset_dir, next_fit, options.replace(
+            effects=effects, effects_from=diagnosis_dir), gate, index, say)
     return _finish(result, out_dir, dataset_dir, final_round, started)
+
+
+def _diagnosis(fit_dir: Path, diagnosis_dir: Path, index: int, say, *, seed, max_steps, **options) -> dict:
+    """Round ``index + 1``'s diagnosis of ``fit_dir`` into ``diagnosis_dir``; kept, not redone, where an earlier
+    run finished it for the same fit and options (:mod:`rjfit.pipeline.refine_resume`)."""
+    request = diagnosis_request(read_summary(fit_dir), seed, max_steps, options)
+    if is_kept(diagnosis_dir, "diagnosis.json", request):
+        say(f"round {index + 1}: the diagnosis an earlier run finished for this fit and these options is kept "
+            f"({diagnosis_dir})")
+        return read_json(diagnosis_dir / "diagnosis.json")
+    forget(diagnosis_dir)
+    diagnosis = diagnose_fit(fit_dir, diagnosis_dir, seed=seed, max_steps=max_steps, **options)
+    remember(diagnosis_dir, request)
+    return diagnosis
+
+
+def _fit_round(dataset_dir: Path, fit_dir: Path, options: FitOptions, gate: dict, index: int, say) -> float:
+    """Round ``index + 2``'s fit with ``options`` into ``fit_dir`` (kept where an earlier run finished it for the
+    same request, :mod:`rjfit.pipeline.refine_resume`); its seconds."""
+    request = fit_request(dataset_dir, options.to_json(), Path(options.effects_from) / "diagnosis.json", gate)
+    if is_kept(fit_dir, "summary.json", request):
+        say(f"round {index + 2}: the fit an earlier run finished for these options is kept ({fit_dir})")
+        return read_summary(fit_dir).get("seconds")
+    forget(fit_dir)
+    started = time.perf_counter()
+    fit_dataset(dataset_dir, fit_dir, options, **gate)
+    remember(fit_dir, request)
+    return time.perf_counter() - started
 
 
 def _finish(result: dict, out_dir: Path, dataset_dir: Path, final_round: int, started: float) -> dict:

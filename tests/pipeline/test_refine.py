@@ -64,6 +64,35 @@ def test_refine_names_ambient_and_fits_it_with_the_regions(ambient_fit, tmp_path
     assert any(line.startswith("round 1:") for line in lines)
 
 
+def _without_seconds(rounds):
+    return [{key: value for key, value in record.items() if "seconds" not in key} for record in rounds]
+
+
+def test_refine_run_again_keeps_what_an_earlier_run_finished_for_the_same_request(ambient_fit, tmp_path):
+    """Run again into the same folder, refine keeps each diagnosis and fit finished for the same request (the files
+    are not rewritten; the rounds are the same), and redoes a step whose request is missing, as an interruption
+    between its result and its request leaves it."""
+    out = tmp_path / "refine"
+    first = refine(ambient_fit, out, max_rounds=2, max_steps=1, say=lambda line: None, candidates=CANDIDATES)
+    assert len(first["rounds"]) == 2
+    files = [out / "round1" / "diagnosis" / "diagnosis.json", out / "round2" / "fit" / "summary.json",
+             out / "round2" / "diagnosis" / "diagnosis.json"]
+    written = [path.stat().st_mtime_ns for path in files]
+    lines = []
+    again = refine(ambient_fit, out, max_rounds=2, max_steps=1, say=lines.append, candidates=CANDIDATES)
+    assert [path.stat().st_mtime_ns for path in files] == written
+    assert sum("is kept" in line for line in lines) == 3
+    assert _without_seconds(again["rounds"]) == _without_seconds(first["rounds"])
+    assert again["named_effects"] == first["named_effects"] and again["final_fit"] == first["final_fit"]
+    (out / "round2" / "diagnosis" / "request.json").unlink()
+    lines = []
+    redone = refine(ambient_fit, out, max_rounds=2, max_steps=1, say=lines.append, candidates=CANDIDATES)
+    assert [path.stat().st_mtime_ns for path in files[:2]] == written[:2]
+    assert files[2].stat().st_mtime_ns != written[2]
+    assert sum("is kept" in line for line in lines) == 2
+    assert redone["rounds"][1]["named"] == first["rounds"][1]["named"]
+
+
 def test_refine_refuses_a_fit_without_recorded_options_in_one_line(tmp_path):
     """A fit made before summary.json recorded its options cannot be fitted again as it was."""
     from rjfit.errors import DatasetError
