@@ -7,7 +7,7 @@ regions misfitting, and it closes less of the gap on that segmentation than it w
 effect or a pair that is decisive and physical and falls short of the naming rule's gap share only.
 
 The loop fits again with the trial's effects sampled with the regions, diagnoses that fit, and
-KEEPS the trial only when both hold:
+KEEPS the trial only when all three hold:
 
 1. the gap of the trial fit on its own segmentation is at most :data:`TRIAL_GAP_SHARE` of the
    fit before it (the naming rule's rule 2, measured after the regions have followed the effect;
