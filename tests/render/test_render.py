@@ -88,31 +88,6 @@ def test_concave_object_has_cast_shadows_and_two_materials(dented_plaster_small)
     assert not (valid & ~dataset.visibility).any()
 
 
-def test_scenes_sharing_the_loaded_mesh_parts_render_what_scenes_reading_the_files_render(dented_plaster_small):
-    """A stack's per-light scenes share the mesh parts loaded once (``dataset_shapes``). On the
-    two-material concave object (a part given the other material, or a shadow-casting part missing
-    from a scene, would change the radiance), with indirect light (path depth 4), two lights in turn
-    on the same loaded parts: the radiance of the scene that read the files again."""
-    from rjfit.data.lights import Light
-    from rjfit.render.effect_scenes import trace_centre_rays
-    from rjfit.render.mitsuba_scene import activate
-    from rjfit.render.render import dataset_shapes, scene_from_dataset_meta
-
-    activate()
-    meta = load_dataset(dented_plaster_small).meta
-    shapes = dataset_shapes(meta, dented_plaster_small)
-    for index, entry in enumerate(meta["lights"][:2]):
-        light = [Light.from_json(entry)]
-        read_again = scene_from_dataset_meta(meta, dented_plaster_small, lights=light, max_depth=4)
-        shared = scene_from_dataset_meta(meta, dented_plaster_small, lights=light, max_depth=4, shapes=shapes)
-        expected = trace_centre_rays(read_again, spp=8, seed=(1, index))
-        assert expected.max() > 0
-        # the same rays, samples and geometry through the same kernels; 1e-6 of the brightest value allows
-        # for float32 rounding that may differ between two kernel compilations
-        np.testing.assert_allclose(trace_centre_rays(shared, spp=8, seed=(1, index)), expected, rtol=0,
-                                   atol=1e-6 * expected.max())
-
-
 def test_unknown_scene_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="no built-in scene"):
         render_dataset("no_such_scene", tmp_path / "x")
