@@ -24,7 +24,7 @@ from rjfit.data.lights import Light
 from rjfit.data.meshes import split_by_face_label
 from rjfit.render.ext_plugin import EXT_PLUGIN_NAME, register_ext
 from rjfit.render.mitsuba_scene import activate, mitsuba_seed, shadow_visibility, trace_pixels
-from rjfit.render.render import dataset_shapes, scene_from_dataset_meta
+from rjfit.render.render import scene_from_dataset_meta
 from rjfit.render.scene_change import MitsubaChange
 
 __all__ = ["trace_centre_rays", "materials_for_parts", "region_parts", "region_materials", "render_model",
@@ -164,13 +164,11 @@ def render_model(dataset, materials, change, *, spp=1, seed=0, max_depth=None, b
     light_batches = batches if depth > 2 else 1
     stacks = []
     keys = tuple(int(k) for k in np.atleast_1d(seed))     # one stream per (seed, light, batch) and environment batch
-    # the mesh files read once: the lights' scenes differ only in their light
-    shapes = dataset_shapes(meta, dataset.path, materials=materials, bsdf_override=override)
     for index, light in enumerate(lights):
         scaled = Light(kind=light.kind, intensity=light.intensity * scales[index], position=light.position,
                        direction=light.direction)
         scene = scene_from_dataset_meta(meta, dataset.path, materials=materials, lights=[scaled], max_depth=depth,
-                                        bsdf_override=override, shapes=shapes)
+                                        bsdf_override=override)
         stacks.append(np.stack([trace_centre_rays(scene, spp=light_spp, seed=(*keys, MODEL_STREAM, index, b))
                                 for b in range(light_batches)]))
     stacks = np.stack(stacks, axis=1)          # (batches, L, H, W)
@@ -178,7 +176,7 @@ def render_model(dataset, materials, change, *, spp=1, seed=0, max_depth=None, b
     var = stacks.var(axis=0, ddof=1) / light_batches if light_batches > 1 else np.zeros_like(mean)
     if change.extra:
         scene = scene_from_dataset_meta(meta, dataset.path, materials=materials, lights=[], max_depth=max(depth, 2),
-                                        bsdf_override=override, extra=change.extra, shapes=shapes)
+                                        bsdf_override=override, extra=change.extra)
         env = np.stack([trace_centre_rays(scene, spp=spp * env_spp_factor, seed=(*keys, ENVIRONMENT_STREAM, b))
                         for b in range(batches)])
         mean = mean + env.mean(axis=0)[None]

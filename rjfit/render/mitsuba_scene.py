@@ -19,9 +19,8 @@ import numpy as np
 
 from rjfit.data.lights import Light
 
-__all__ = ["activate", "resolve_variant", "supported_variant", "is_scalar_variant", "UnsupportedVariantError",
-           "camera_dict", "light_dict", "material_dict", "shape_entries", "load_shapes", "build_scene", "trace_pixels",
-           "path_trace", "shadow_visibility", "shape_materials", "DEFAULT_VARIANT"]
+__all__ = ["activate", "resolve_variant", "supported_variant", "is_scalar_variant", "UnsupportedVariantError", "camera_dict", "light_dict", "material_dict", "build_scene", "trace_pixels", "path_trace",
+           "shadow_visibility", "shape_materials", "DEFAULT_VARIANT"]
 
 DEFAULT_VARIANT = "llvm_ad_rgb"
 
@@ -211,34 +210,8 @@ def material_dict(material: dict, reference_intensity: float) -> dict:
     return {"type": PLUGIN_NAME, **values}
 
 
-def shape_entries(mesh_parts, materials, *, reference_intensity=1.0, bsdf_override=None) -> dict:
-    """The scene entries of the mesh parts, ``{"part_000": {type, filename, bsdf}, ...}`` (see :func:`build_scene`)."""
-    entries = {}
-    for part_index, (mesh_path, material_index) in enumerate(mesh_parts):
-        bsdf = (bsdf_override(material_index) if bsdf_override is not None
-                else material_dict(materials[material_index], reference_intensity))
-        kind = "obj" if Path(mesh_path).suffix.lower() == ".obj" else "ply"     # a mesh stack's mesh may be OBJ
-        entries[f"part_{part_index:03d}"] = {"type": kind, "filename": str(mesh_path), "bsdf": bsdf}
-    return entries
-
-
-def load_shapes(mesh_parts, materials, *, reference_intensity=1.0, bsdf_override=None) -> dict:
-    """The mesh parts loaded once, as :func:`build_scene` takes them (``shapes``).
-
-    Why: a stack is rendered one light at a time, one scene per light, and reading and
-    parsing the mesh files was most of each scene's loading (about 40 ms per part of a
-    48 x 48 sphere against under 1 ms for the rest). Scenes that differ only in their
-    lights share the loaded shapes and give the same images.
-    """
-    import mitsuba as mi
-
-    return {name: mi.load_dict(entry) for name, entry in
-            shape_entries(mesh_parts, materials, reference_intensity=reference_intensity,
-                          bsdf_override=bsdf_override).items()}
-
-
 def build_scene(camera: dict, resolution, mesh_parts, materials, lights=(), *, reference_intensity=1.0,
-                max_depth=8, light_format="rgb", bsdf_override=None, extra=None, shapes=None):
+                max_depth=8, light_format="rgb", bsdf_override=None, extra=None):
     """Load a Mitsuba scene.
 
     Parameters
@@ -257,18 +230,16 @@ def build_scene(camera: dict, resolution, mesh_parts, materials, lights=(), *, r
         ``material_index -> Mitsuba BSDF dict`` replacing the plugin (used to hide effects).
     extra : dict or None
         More scene entries (e.g. an ``envmap`` or ``constant`` emitter).
-    shapes : dict or None
-        The parts already loaded by :func:`load_shapes` from the same ``mesh_parts``,
-        ``materials``, ``reference_intensity`` and ``bsdf_override``: used instead of
-        loading the files again.
     """
     import mitsuba as mi
 
     scene = {"type": "scene", "integrator": {"type": "path", "max_depth": int(max_depth)},
              "sensor": camera_dict(camera, resolution)}
-    scene.update(shapes if shapes is not None else
-                 shape_entries(mesh_parts, materials, reference_intensity=reference_intensity,
-                               bsdf_override=bsdf_override))
+    for part_index, (mesh_path, material_index) in enumerate(mesh_parts):
+        bsdf = (bsdf_override(material_index) if bsdf_override is not None
+                else material_dict(materials[material_index], reference_intensity))
+        kind = "obj" if Path(mesh_path).suffix.lower() == ".obj" else "ply"     # a mesh stack's mesh may be OBJ
+        scene[f"part_{part_index:03d}"] = {"type": kind, "filename": str(mesh_path), "bsdf": bsdf}
     for light_index, light in enumerate(lights):
         scene[f"light_{light_index:03d}"] = light_dict(light, light_format)
     scene.update(extra or {})

@@ -5,7 +5,6 @@ import json
 import shutil
 import tempfile
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,7 @@ from rjfit.io import read_json, write_json_atomic
 from rjfit.progress import tracked
 
 __all__ = ["SCENES_DIR", "load_scene_definition", "available_scenes", "render_dataset", "write_mesh_parts",
-           "scene_from_dataset_meta", "dataset_shapes", "GEOMETRY_MATERIAL"]
+           "scene_from_dataset_meta", "GEOMETRY_MATERIAL"]
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 # purpose tag of the rendering's path-tracing streams (rjfit.render.mitsuba_scene.mitsuba_seed):
@@ -74,16 +73,14 @@ GEOMETRY_MATERIAL = {"I0": 1.0, "kd": 1.0, "gamma": 1.0}
 
 
 def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, lights=None, max_depth=None,
-                            light_format="rgb", bsdf_override=None, extra=None, shapes=None):
+                            light_format="rgb", bsdf_override=None, extra=None):
     """Rebuild the Mitsuba scene of a data set with a mesh (the active variant is used).
 
     ``meta`` is ``Dataset.meta``: a rendered data set's ``dataset.json``, or a measured mesh
     stack's ``stack.json`` as :func:`rjfit.render.mesh_stack.load_mesh_stack` completes it (its
     mesh as the one entry of ``meshes``, material 0). Mesh files are relative to
     ``dataset_dir``. Without ``materials`` the data set's own are used, or, when it has none
-    (a measured stack), :data:`GEOMETRY_MATERIAL` for every part. ``shapes``: the parts as
-    :func:`dataset_shapes` loaded them with the same ``materials`` and ``bsdf_override``, so
-    that scenes that differ only in their lights do not read the mesh files again.
+    (a measured stack), :data:`GEOMETRY_MATERIAL` for every part.
 
     Raises
     ------
@@ -93,46 +90,16 @@ def scene_from_dataset_meta(meta: dict, dataset_dir: Path, *, materials=None, li
     """
     from rjfit.render.mitsuba_scene import build_scene
 
-    parts, materials = _parts_and_materials(meta, dataset_dir, materials)
-    with _named_load_errors(meta, dataset_dir, parts):
+    parts = [(Path(dataset_dir) / entry["file"], entry["material"]) for entry in meta["meshes"]]
+    if materials is None:
+        materials = meta.get("materials") or [GEOMETRY_MATERIAL] * (max(m for _, m in parts) + 1)
+    try:
         return build_scene(meta["camera"], meta["resolution"], parts, materials,
                            lights if lights is not None else [Light.from_json(e) for e in meta["lights"]],
                            reference_intensity=meta["reference_intensity"],
                            max_depth=max_depth if max_depth is not None else meta.get("max_depth", 8),
-                           light_format=light_format, bsdf_override=bsdf_override, extra=extra, shapes=shapes)
-
-
-def dataset_shapes(meta: dict, dataset_dir: Path, *, materials=None, bsdf_override=None) -> dict:
-    """The data set's mesh parts loaded once (:func:`rjfit.render.mitsuba_scene.load_shapes`), for the
-    ``shapes`` of :func:`scene_from_dataset_meta`.
-
-    Raises
-    ------
-    DatasetError
-        As :func:`scene_from_dataset_meta`.
-    """
-    from rjfit.render.mitsuba_scene import load_shapes
-
-    parts, materials = _parts_and_materials(meta, dataset_dir, materials)
-    with _named_load_errors(meta, dataset_dir, parts):
-        return load_shapes(parts, materials, reference_intensity=meta["reference_intensity"],
-                           bsdf_override=bsdf_override)
-
-
-def _parts_and_materials(meta: dict, dataset_dir: Path, materials):
-    """``[(mesh path, material index)]`` of the data set's parts, and ``materials`` or the data set's own."""
-    parts = [(Path(dataset_dir) / entry["file"], entry["material"]) for entry in meta["meshes"]]
-    if materials is None:
-        materials = meta.get("materials") or [GEOMETRY_MATERIAL] * (max(m for _, m in parts) + 1)
-    return parts, materials
-
-
-@contextmanager
-def _named_load_errors(meta: dict, dataset_dir: Path, parts):
-    """Mitsuba's loader error (a damaged file: a ``RuntimeError``) as one line naming the data set and its files."""
-    try:
-        yield
-    except RuntimeError as error:
+                           light_format=light_format, bsdf_override=bsdf_override, extra=extra)
+    except RuntimeError as error:      # Mitsuba's loader reports a damaged file as a RuntimeError
         reason = " ".join(str(error).split())
         files = ", ".join(str(path) for path, _ in parts)
         fix = "export the stack's mesh again" if meta.get("layout") == "mesh-stack" else "render the data set again"
@@ -210,10 +177,8 @@ def _render_lights(meta, staging, lights, scene_args, shape, *, seed, spp, noise
     iterator = range(len(lights))
     if progress:        # a bar on a terminal, plain lines in a log
         iterator = tracked(iterator, f"render {meta['name']}", "light")
-    # the mesh files read once: the scenes differ only in their light
-    shapes = dataset_shapes(meta, staging, bsdf_override=scene_args.get("bsdf_override"))
     for light_index in iterator:
-        light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], shapes=shapes, **scene_args)
+        light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], **scene_args)
         radiance = path_trace(light_scene, spp=spp, seed=(seed, RENDER_STREAM, light_index))
         if radiance.shape[-1] == 1:
             radiance = np.repeat(radiance, 3, axis=-1)
