@@ -23,7 +23,7 @@ import numpy as np
 from rjfit.data.lights import Light
 from rjfit.data.meshes import split_by_face_label
 from rjfit.render.ext_plugin import EXT_PLUGIN_NAME, register_ext
-from rjfit.render.mitsuba_scene import activate, mitsuba_seed, shadow_visibility, trace_pixels
+from rjfit.render.mitsuba_scene import activate, light_scenes, mitsuba_seed, shadow_visibility, trace_pixels
 from rjfit.render.render import scene_from_dataset_meta
 from rjfit.render.scene_change import MitsubaChange
 
@@ -164,11 +164,11 @@ def render_model(dataset, materials, change, *, spp=1, seed=0, max_depth=None, b
     light_batches = batches if depth > 2 else 1
     stacks = []
     keys = tuple(int(k) for k in np.atleast_1d(seed))     # one stream per (seed, light, batch) and environment batch
-    for index, light in enumerate(lights):
-        scaled = Light(kind=light.kind, intensity=light.intensity * scales[index], position=light.position,
-                       direction=light.direction)
-        scene = scene_from_dataset_meta(meta, dataset.path, materials=materials, lights=[scaled], max_depth=depth,
-                                        bsdf_override=override)
+    scaled = [Light(kind=light.kind, intensity=light.intensity * scale, position=light.position,
+                    direction=light.direction) for light, scale in zip(lights, scales)]
+    scenes = light_scenes(lambda one: scene_from_dataset_meta(meta, dataset.path, materials=materials, lights=one,
+                                                              max_depth=depth, bsdf_override=override), scaled)
+    for index, scene in enumerate(scenes):
         stacks.append(np.stack([trace_centre_rays(scene, spp=light_spp, seed=(*keys, MODEL_STREAM, index, b))
                                 for b in range(light_batches)]))
     stacks = np.stack(stacks, axis=1)          # (batches, L, H, W)

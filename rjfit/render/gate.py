@@ -161,14 +161,14 @@ def _trace_and_compare(dataset, make_scene, geometry_scene, traced, hit, materia
                        spp, seed, light_format, progress):
     """Per light: the path-traced radiance, its worst colour channel and the closed form (0 off
     ``hit``; the closed form also 0 where the shadow ray is blocked), each stacked (L, H, W)."""
-    from rjfit.render.mitsuba_scene import path_trace, shadow_visibility
+    from rjfit.render.mitsuba_scene import light_scenes, path_trace, shadow_visibility
 
     positions = dataset.positions if dataset.positions is not None else np.zeros_like(dataset.normals)
     path_stack, closed_stack, worst_stack = [], [], []
     # a bar on a terminal, plain lines in a log
     iterator = tracked(list(enumerate(dataset.lights)), "validate: path tracing", "light", enabled=progress)
-    for light_index, light in iterator:
-        scene = make_scene([light], max_depth, light_format)
+    scenes = light_scenes(lambda one: make_scene(one, max_depth, light_format), dataset.lights, light_format)
+    for (light_index, light), scene in zip(iterator, scenes):
         path_colour = path_trace(scene, spp=spp, seed=(seed, VALIDATE_STREAM, light_index))
         path_radiance = path_colour.mean(axis=-1)
         # The materials are grey, so every channel must match the closed form on its own; the

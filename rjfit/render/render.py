@@ -169,16 +169,17 @@ def _write_geometry(staging, geometry_scene, traced, lights):
 def _render_lights(meta, staging, lights, scene_args, shape, *, seed, spp, noise_variance, progress):
     """The noisy (L, H, W, 3) stack: each light path-traced alone, plus achromatic Gaussian noise
     drawn from ``seed``'s noise stream."""
-    from rjfit.render.mitsuba_scene import path_trace
+    from rjfit.render.mitsuba_scene import light_scenes, path_trace
 
     height, width = shape
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EED]))
     images = []
+    scenes = light_scenes(lambda one: scene_from_dataset_meta(meta, staging, lights=one, **scene_args), lights,
+                          scene_args.get("light_format", "rgb"))
     iterator = range(len(lights))
     if progress:        # a bar on a terminal, plain lines in a log
         iterator = tracked(iterator, f"render {meta['name']}", "light")
-    for light_index in iterator:
-        light_scene = scene_from_dataset_meta(meta, staging, lights=[lights[light_index]], **scene_args)
+    for light_index, light_scene in zip(iterator, scenes):
         radiance = path_trace(light_scene, spp=spp, seed=(seed, RENDER_STREAM, light_index))
         if radiance.shape[-1] == 1:
             radiance = np.repeat(radiance, 3, axis=-1)
