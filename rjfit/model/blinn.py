@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["blinn_normalisation", "brdf", "radiance", "log_cos_power"]
+__all__ = ["blinn_normalisation", "brdf", "radiance", "radiance_of_rows", "log_cos_power"]
 
 
 def blinn_normalisation(gamma):
@@ -88,3 +88,32 @@ def radiance(I0, kd, gamma, cos_ln, cos_hn, irradiance):
     """
     cos_ln = np.asarray(cos_ln, dtype=float)
     return I0 * np.asarray(irradiance, dtype=float) * brdf(kd, gamma, cos_hn) * np.maximum(cos_ln, 0.0)
+
+
+def radiance_of_rows(theta, rows, C, log_cos_hn):
+    """Eq. 2 for observations each under its row of ``theta``: ``C (I0 kd / pi + I0 (1 - kd) N(g) <h.n>^g)``.
+
+    The factors are taken per row and gathered per observation, so an observation costs one
+    exponential: the form for the many draws a fit's summaries evaluate (:func:`radiance` is the
+    term-by-term form, the tests' oracle).
+
+    Parameters
+    ----------
+    theta : array_like, shape (R, >= 3)
+        ``I0, kd, gamma`` (then anything) per row.
+    rows : array_like of int, shape (N,)
+        Each observation's row.
+    C : ndarray, shape (N,)
+        ``E <l.n>`` per observation (clipped at 0 by the caller where it may be negative).
+    log_cos_hn : ndarray, shape (N,)
+        ``log <h.n>`` per observation.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``mu`` (N,). No input is checked.
+    """
+    theta = np.asarray(theta, dtype=float)
+    I0, kd, gamma = theta[:, 0], theta[:, 1], theta[:, 2]
+    diffuse, lobe = I0 * kd / np.pi, I0 * (1.0 - kd) * blinn_normalisation(gamma)
+    return C * (diffuse[rows] + lobe[rows] * np.exp(gamma[rows] * log_cos_hn))

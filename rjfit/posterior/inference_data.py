@@ -35,7 +35,7 @@ import numpy as np
 
 from rjfit.posterior.materials import snapshot_labels
 from rjfit.posterior.summary import _arviz, map_model_draws
-from rjfit.model.blinn import blinn_normalisation
+from rjfit.model.blinn import radiance_of_rows
 from rjfit.sampler.likelihood import LOG_2PI
 from rjfit.sampler.priors import PARAM_NAMES
 from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
@@ -114,9 +114,10 @@ class _BlockLikelihood:
     :func:`rjfit.sampler.likelihood.observation_log_likelihood` (noise scales included) summed per block.
 
     A fit writes it at a few hundred draws of one problem, so what does not depend on the draw is converted
-    once here, and the model's factors ``I0 kd / pi``, ``I0 (1 - kd) N(g)`` and ``log sigma^2`` are taken per
-    row of theta: a draw costs one exponential per observation (the oracle, which evaluates eq. 1-2 term by
-    term, five; on the DiLiGenT ball's 1.5 million observations that was 0.2 s a draw).
+    once here, and the model's factors and ``log sigma^2`` are taken per row of theta
+    (:func:`rjfit.model.blinn.radiance_of_rows`): a draw costs one exponential per observation (the oracle,
+    which evaluates eq. 1-2 term by term, five; on the DiLiGenT ball's 1.5 million observations that was
+    0.2 s a draw).
     """
 
     def __init__(self, problem, block_of_obs, n_blocks: int):
@@ -133,9 +134,9 @@ class _BlockLikelihood:
 
     def __call__(self, rows, theta) -> np.ndarray:
         """The blocks' log likelihood when observation i is in row ``rows[i]`` of ``theta`` (R, 4)."""
-        I0, kd, gamma, s2 = np.asarray(theta, float).T
-        diffuse, lobe = (I0 * kd / np.pi)[rows], (I0 * (1.0 - kd) * blinn_normalisation(gamma))[rows]
-        resid = self.y - self.C * (diffuse + lobe * np.exp(gamma[rows] * self.log_cos_hn))
+        theta = np.asarray(theta, float)
+        resid = self.y - radiance_of_rows(theta, rows, self.C, self.log_cos_hn)
+        s2 = theta[:, 3]
         log_var, inverse_var = np.log(s2)[rows], (1.0 / s2)[rows]
         if self.log_s2 is not None:
             log_var += self.log_s2

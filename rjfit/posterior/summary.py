@@ -324,7 +324,7 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
     ValueError
         If no change-point snapshot lies after ``burn_in``.
     """
-    from rjfit.model.blinn import blinn_normalisation
+    from rjfit.model.blinn import radiance_of_rows
 
     labels_of = draw_labels if labels_of is None else labels_of
 
@@ -345,12 +345,10 @@ def posterior_mean_prediction(records, burn_in: int, problem, max_draws: int = 1
     for index in picks:
         rec, s = kept[index]
         n_regions, labels = labels_of(rec, s, problem)
-        I0, kd, gamma, sigma2 = (rec.theta[rec.cp_iteration[s], :n_regions, k] for k in range(4))
-        # eq. 2 per region, gathered per observation: mu = C (I0 kd / pi + I0 (1 - kd) N(g) <h.n>^g), with
-        # C = E <l.n>; the Problem's y and C are divided by the known noise scales s, so mu here is mu / s too
-        diffuse, lobe = I0 * kd / np.pi, I0 * (1.0 - kd) * blinn_normalisation(gamma)
-        mu_sum += C * (diffuse[labels] + lobe[labels] * np.exp(gamma[labels] * log_cos_hn))
-        sigma2_sum += sigma2[labels]
+        theta = rec.theta[rec.cp_iteration[s], :n_regions]
+        # the Problem's y and C are divided by the known noise scales s, so mu here is mu / s too
+        mu_sum += radiance_of_rows(theta, labels, C, log_cos_hn)
+        sigma2_sum += theta[:, 3][labels]
     mu, sigma2 = mu_sum / len(picks), sigma2_sum / len(picks)
     scale = 1.0 if problem.noise_scale is None else problem.noise_scale.astype(np.float64)
     y = problem.y.astype(np.float64)
