@@ -219,7 +219,8 @@ def render_dataset(scene, out_dir, *, resolution=None, seed=None, spp=None, nois
                    post_process=None, hidden_effects=()):
     """Render a scene definition into a data set folder (written atomically, as a whole).
 
-    Each light is rendered alone (a scene with that one emitter): the path integrator picks
+    Each light is rendered alone (a scene with that one emitter, built once and its emitter moved
+    from light to light: :func:`rjfit.render.mitsuba_scene.light_scenes`): the path integrator picks
     one emitter per sample, so lights switched off in a shared scene would add variance.
 
     Parameters
