@@ -23,8 +23,6 @@ __all__ = ["activate", "resolve_variant", "supported_variant", "is_scalar_varian
            "path_trace", "shadow_visibility", "shape_materials", "DEFAULT_VARIANT"]
 
 DEFAULT_VARIANT = "llvm_ad_rgb"
-#: the id of a scene's first light (:func:`build_scene`), which :func:`light_scenes` moves from light to light
-LIGHT_ID = "light_000"
 
 #: Why the last ``resolve_variant("auto")`` fell back from ``cuda_ad_rgb`` to
 #: :data:`DEFAULT_VARIANT` (``"ImportError: ..."``), or None when it did not fall back. On a
@@ -243,9 +241,14 @@ def build_scene(camera: dict, resolution, mesh_parts, materials, lights=(), *, r
         kind = "obj" if Path(mesh_path).suffix.lower() == ".obj" else "ply"     # a mesh stack's mesh may be OBJ
         scene[f"part_{part_index:03d}"] = {"type": kind, "filename": str(mesh_path), "bsdf": bsdf}
     for light_index, light in enumerate(lights):
-        scene[LIGHT_ID if light_index == 0 else f"light_{light_index:03d}"] = light_dict(light, light_format)
+        scene[light_id(light_index)] = light_dict(light, light_format)
     scene.update(extra or {})
     return mi.load_dict(scene)
+
+
+def light_id(index: int) -> str:
+    """The id :func:`build_scene` gives its light ``index`` (``light_000``: the one :func:`light_scenes` moves)."""
+    return f"light_{index:03d}"
 
 
 def light_scenes(make_scene, lights, value_format: str = "rgb"):
@@ -265,7 +268,7 @@ def light_scenes(make_scene, lights, value_format: str = "rgb"):
     params = keys = None
     for light in lights:
         emitter = mi.traverse(mi.load_dict(light_dict(light, value_format)))
-        values = {f"{LIGHT_ID}.{key}": emitter[key] for key in emitter.keys()}
+        values = {f"{light_id(0)}.{key}": emitter[key] for key in emitter.keys()}
         if params is not None and set(values) <= keys:
             for key, value in values.items():
                 params[key] = value

@@ -175,7 +175,7 @@ def _render_lights(meta, staging, lights, scene_args, shape, *, seed, spp, noise
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EED]))
     images = []
     scenes = light_scenes(lambda one: scene_from_dataset_meta(meta, staging, lights=one, **scene_args), lights,
-                          scene_args.get("light_format", "rgb"))
+                          scene_args["light_format"])
     iterator = range(len(lights))
     if progress:        # a bar on a terminal, plain lines in a log
         iterator = tracked(iterator, f"render {meta['name']}", "light")
