@@ -62,3 +62,25 @@ def test_an_effect_transforms_the_columns_the_statistics_read(observations):
         LambertBlinnPhong([_Gain(), _Gain()])
     with pytest.raises(TypeError):
         ForwardModel()          # the contract is abstract
+
+
+def test_the_compiled_rows_give_the_array_form_s_log_likelihood():
+    """log_likelihood_from_stats of (R, 7) statistics (the moves' case: one compiled call) against its array
+    form (the same call on a leading axis of 1): random rows, an empty region (0) and a row whose b exceeds
+    AB_PLAIN_MAX (the general path's overflow-free sum takes it). 1e-13 relative: exp2 and log differ by an ulp
+    between NumPy's kernels and the compiled ones."""
+    rng = np.random.default_rng(3)
+    R = 6
+    stats = np.abs(rng.normal(size=(R, 7))) * [100.0, 50.0, 10.0, 5.0, 10.0, 3.0, 4.0]
+    stats[:, 0] = np.round(stats[:, 0])
+    stats[2] = 0.0
+    theta = np.column_stack([rng.uniform(1, 50, R), rng.uniform(0.05, 0.95, R), rng.uniform(0.5, 80, R),
+                             rng.uniform(0.01, 2, R)])
+    compiled = log_likelihood_from_stats(stats, theta)
+    np.testing.assert_allclose(compiled, log_likelihood_from_stats(stats[None], theta[None])[0], rtol=1e-13)
+    assert compiled[2] == 0.0
+    huge = theta.copy()
+    huge[4, 0] = 1e120                      # I0 (1 - kd) N(g) far beyond AB_PLAIN_MAX
+    mixed = log_likelihood_from_stats(stats, huge)
+    np.testing.assert_allclose(mixed, log_likelihood_from_stats(stats[None], huge[None])[0], rtol=1e-13)
+    np.testing.assert_allclose(np.delete(mixed, 4), np.delete(compiled, 4), rtol=1e-13)

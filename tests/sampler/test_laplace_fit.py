@@ -193,3 +193,25 @@ def test_kinked_moments_match_numerical_integration(slope, curv_below, curv_abov
     sd = math.sqrt(float(np.sum(density * (t - mean) ** 2)))
     got = region_proposals._kinked_moments(0.0, slope, curv_below, curv_above)
     assert got[0] == pytest.approx(mean, rel=1e-6, abs=1e-9 * sd) and got[1] == pytest.approx(sd, rel=1e-6)
+
+
+@pytest.mark.parametrize("kd", [0.5, -0.03, 1.05])
+def test_ssr_min_rows_is_ssr_min_of_each_row(kd):
+    """The compiled grid form (a Laplace fit's nine coarse points) against the scalar one, row by row: the interior
+    and both faces (kd outside [0, 1] puts the optimum on one), and rows ssr_min refuses (singular, not finite,
+    SSR <= 0) as NaN. Same operations in the same order; the tolerance (1e-14 relative) allows a compiler's rounding."""
+    data = _region(kd, 5.0)
+    stats = data.stats_at_many(np.exp(LAPLACE_GRID))
+    refused = np.array([[10.0, 5.0, 1.0, 0.0, 1.0, 0.0, 1.0],            # SAA 0: singular
+                        [10.0, 5.0, 1.0, 2.0, 1.0, 2.0, 2.0],            # det 0
+                        [10.0, 0.0, 1.0, 1.0, 1.0, 0.0, 1.0],            # SSR below 0
+                        [10.0, 5.0, np.nan, 2.0, 1.0, 1.0, 3.0]])
+    rows = np.vstack([stats, refused])
+    ssr, det = region_proposals.ssr_min_rows(rows)
+    for row, s, d in zip(rows, ssr, det):
+        expected = ssr_min(row)
+        if expected is None:
+            assert np.isnan(s) and np.isnan(d), row
+        else:
+            assert s == pytest.approx(expected[0], rel=1e-14) and d == pytest.approx(expected[1], rel=1e-14), row
+    assert np.isfinite(ssr[:len(stats)]).all() and np.isnan(ssr[len(stats):]).all()

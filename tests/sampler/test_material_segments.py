@@ -148,3 +148,20 @@ def test_a_large_mask_gets_grid_seeded_superpixels_that_partition_it_and_still_f
     truth = (blob & mask).ravel()
     best = max(np.count_nonzero(m & truth) / np.count_nonzero(m | truth) for m in sets_of(family, mask.size))
     assert best >= 0.7, best
+
+
+def test_edges_to_labels_count_every_label_s_edges_as_a_double_loop_does():
+    """Each label's count against a plain loop over the set's pixels and their four neighbours (unlabelled
+    pixels and the set's own pixels not counted), on random labellings with unlabelled pixels."""
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        pixels = rng.integers(-1, 4, (6, 8))
+        members = np.flatnonzero(rng.random(48) < 0.3)
+        expected = np.zeros(4, int)
+        inside = set(members.tolist())
+        for p in members:
+            r, c = divmod(int(p), 8)
+            for rr, cc in ((r, c + 1), (r, c - 1), (r + 1, c), (r - 1, c)):
+                if 0 <= rr < 6 and 0 <= cc < 8 and rr * 8 + cc not in inside and pixels[rr, cc] >= 0:
+                    expected[pixels[rr, cc]] += 1
+        np.testing.assert_array_equal(edges_to_labels(pixels, members, 4), expected)

@@ -31,6 +31,7 @@ import numpy as np
 
 from rjfit.sampler.moves.proposal import Proposal
 from rjfit.sampler.regions.materials.cluster_swc import propose_set_move
+from rjfit.sampler.regions.materials.passes.labels import edges_to_labels as count_edges_to_labels
 
 __all__ = ["SegmentSettings", "SEGMENT_KINDS", "edges_to_labels", "propose_segment_move"]
 
@@ -68,18 +69,8 @@ def edges_to_labels(pixels, members, n_labels: int) -> np.ndarray:
     """Per label, the number of 4-neighbour edges from the pixels ``members`` to labelled pixels of
     that label outside them (``pixels`` (H, W), -1 unlabelled)."""
     height, width = pixels.shape
-    flat = pixels.ravel()
-    inside = np.zeros(flat.size, bool)
-    inside[members] = True
-    row, col = np.divmod(members, width)
-    counts = np.zeros(n_labels, np.int64)
-    for d_row, d_col in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        r, c = row + d_row, col + d_col
-        on_image = (r >= 0) & (r < height) & (c >= 0) & (c < width)
-        neighbour = r[on_image] * width + c[on_image]
-        neighbour = neighbour[~inside[neighbour] & (flat[neighbour] >= 0)]
-        counts += np.bincount(flat[neighbour], minlength=n_labels)
-    return counts
+    return count_edges_to_labels(np.ascontiguousarray(pixels).ravel(), np.asarray(members, np.int64), int(n_labels),
+                                 height, width)
 
 
 def _no_seed_term(new, n_after) -> float:

@@ -275,6 +275,22 @@ def grow_cluster(pixel_labels, labelled, bond_q, key, seed, height, width, n_lab
 
 
 @njit(cache=True, nogil=True)
+def edges_to_labels(pixel_labels, members, n_labels, height, width):
+    """Per label, the number of 4-neighbour edges from the pixels ``members`` to labelled pixels (label >= 0) of
+    that label outside them (``pixel_labels`` flat, -1 unlabelled): ``grow_cluster``'s ``n_to`` for a given set."""
+    inside = np.zeros(height * width, np.bool_)
+    for p in members:
+        inside[p] = True
+    counts = np.zeros(n_labels, np.int64)
+    for p in members:
+        for direction in range(4):
+            q, _ = _neighbour(p, direction, height, width)
+            if q >= 0 and not inside[q] and pixel_labels[q] >= 0:
+                counts[pixel_labels[q]] += 1
+    return counts
+
+
+@njit(cache=True, nogil=True)
 def allocate_split(members, guide_log_lik, power, beta, height, width, uniforms, forced):
     """Sequential allocation of the pixels ``members`` to parts 0 and 1: ``(parts, log probability)``.
 
