@@ -10,7 +10,7 @@ from rjfit.data.noise import noise_scale, reference_signal, weighted_observation
 from rjfit.data.synthetic import sphere_stack
 from rjfit.model.blinn import radiance
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.likelihood import RegionData, log_likelihood_from_stats, oracle_log_likelihood, region_stats
 from rjfit.sampler.priors import make_prior
 from rjfit.sampler.regions.changepoints.grid import obs_region_labels
@@ -121,10 +121,11 @@ def _posterior(problem, seed, iterations=1200, burn=400):
     config = SamplerConfig.from_flat(max_u=1, max_v=1, burn_in=burn, update_changepoints=False, jumps=False)
     rng = np.random.default_rng(seed)
     state = initial_state(problem, prior, config, rng, changepoints=_quadrant_changepoints(height, width))
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     draws = []
     with threadpool_limits(1):
         for t in range(iterations):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             if t >= burn:
                 draws.append(state.theta.copy())
     return state, np.array(draws)

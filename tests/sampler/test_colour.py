@@ -21,7 +21,7 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.sampler import reference
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import initial_state, refresh, step
+from rjfit.sampler.kernel import ChainContext, initial_state, refresh, step
 from rjfit.sampler.likelihood import oracle_log_likelihood, region_stats
 from rjfit.sampler.regions.materials.passes.labels import pixel_log_lik_colour, relabel_pixels_colour
 from rjfit.sampler.state import SamplerConfig
@@ -89,10 +89,11 @@ def test_colour_partitions_k_and_gamma_match_enumeration(colour_square):
                                      potts_rho=rho, max_materials=4, merge_split_moves=1)
     rng = np.random.default_rng(3)
     state = initial_state(problem, prior, config, rng)
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     parts, gamma0 = [], []
     with threadpool_limits(1):
         for _ in range(3000):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             z = state.layout.pixels.ravel()
             parts.append(canonical(z))
             gamma0.append(state.theta[3 * z[0], 2])
@@ -126,9 +127,10 @@ def test_colour_incremental_statistics_match_full_recompute():
                                      max_materials=5, merge_split_moves=2, refresh_every=0)
     rng = np.random.default_rng(11)
     state = initial_state(problem, prior, config, rng)
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     seen_k = set()
     for _ in range(300):
-        state, _ = step(state, rng, problem, prior, config)
+        state, _ = step(state, rng, problem, prior, config, context)
         seen_k.add(state.layout.n_materials)
         assert state.theta.shape[0] == 3 * state.layout.n_materials
         rows = state.theta.reshape(-1, 3, 4)
@@ -184,10 +186,11 @@ def test_colour_within_moves_match_quadrature_on_one_material(colour_square):
                                      jumps=False)
     rng = np.random.default_rng(21)
     state = initial_state(problem, prior, config, rng, n_materials=1)
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     gamma = np.empty(12000)
     with threadpool_limits(1):
         for t in range(gamma.size):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             gamma[t] = state.theta[0, 2]
     gamma = gamma[500:]
     ess = float(az.ess(gamma[None], method="bulk"))

@@ -32,7 +32,7 @@ from rjfit.sampler.regions.materials.edge_baseline import no_step_sums
 from rjfit.sampler.regions.materials.edges import edge_term, matched_lights, pixel_pairs
 from rjfit.sampler.regions.materials.passes.edges import pair_misfit
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.moves import ab_conditional, phi_walk
 from rjfit.sampler.moves import base as move_protocol
 from rjfit.sampler.regions.materials import moves as material_moves
@@ -480,10 +480,11 @@ def exact_with_edges(quad, problem, edges, beta, rho, rng, n_blocks=None, gain=N
 def run_chain(problem, prior, config, seed, **start):
     rng = np.random.default_rng(seed)
     state = initial_state(problem, prior, config, rng, **start)
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     parts, i0 = [], []
     with threadpool_limits(1):
         for _ in range(ITERATIONS):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             z = state.layout.pixels.ravel()
             parts.append(canonical(z))
             i0.append(state.theta[z[0], 0])
@@ -621,10 +622,11 @@ def test_parameter_moves_hold_the_edge_term(square, monkeypatch, left_out):
             monkeypatch.setattr(module, "edge_delta", lambda work, r, theta_r: 0.0)
     rng = np.random.default_rng(3)
     state = initial_state(problem, prior, config, rng, pixel_labels=labels)
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     draws = []
     with threadpool_limits(1):
         for _ in range(ITERATIONS):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             draws.append(state.theta[state.layout.pixels.ravel()[0], :3].copy())
     draws = np.array(draws[BURN:])
     p_values = []

@@ -35,7 +35,7 @@ from rjfit.data.observations import Observations, stack_channels
 from rjfit.data.pixelfit import fit_groups
 from rjfit.model.blinn import blinn_normalisation, radiance
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.moves import ab_conditional, colour_within
 from rjfit.sampler.regions.materials.edges import edge_term, start_theta
 from rjfit.sampler.regions.materials.layout import labelled_pixels
@@ -287,10 +287,11 @@ def colour_edge_config(power):
 def run_colour_chain(problem, prior, config, seed):
     rng = np.random.default_rng(seed)
     state = initial_state(problem, prior, config, rng)
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     parts, gamma0 = [], []
     with threadpool_limits(1):
         for _ in range(ITERATIONS):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             z = state.layout.pixels.ravel()
             parts.append(canonical(z))
             gamma0.append(state.theta[3 * z[0], 2])
@@ -371,10 +372,11 @@ def test_colour_parameter_moves_hold_the_edge_term(colour_square, monkeypatch, l
         monkeypatch.setattr(ab_conditional, "edge_delta", lambda work, r, theta_r: 0.0)
     rng = np.random.default_rng(3)
     state = initial_state(problem, prior, config, rng, pixel_labels=FIXED_LABELS)
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     draws = []
     with threadpool_limits(1):
         for _ in range(ITERATIONS):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             rows = state.theta.reshape(2, 3, 4)
             draws.append(np.concatenate([[rows[:, 0, 2]], rows[:, :, 0].T, rows[:, :, 1].T]).T)
     draws = np.array(draws[BURN:])        # (draws, material, 7)

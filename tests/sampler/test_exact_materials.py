@@ -31,7 +31,7 @@ from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.regions.materials import cluster_swc, component_move, merge_split, segment_move
 from rjfit.sampler.regions.materials.passes.labels import allocate_split
 from rjfit.sampler.regions.materials.layout import boundary_count
@@ -48,10 +48,11 @@ STUCK_ITERATIONS = 600       # the coin control's wrong chain reaches K = 4 with
 def run(problem, prior, config, iterations, seed, **start):
     rng = np.random.default_rng(seed)
     state = initial_state(problem, prior, config, rng, **start)
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     parts, theta0 = [], np.zeros((iterations, 4))
     with threadpool_limits(1):
         for t in range(iterations):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             z = state.layout.pixels.ravel()
             parts.append(canonical(z))
             theta0[t] = state.theta[z[0]]
@@ -267,9 +268,10 @@ def test_sbc_ranks_of_the_material_model_are_uniform():
             problem = Problem.from_observations(dataclasses.replace(base, y=y))
             truth = np.array([part.max() + 1, theta[0, 0], theta[0, 2]], float)
             state = initial_state(problem, prior, config, rng)
+            context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
             kept = []
             for t in range(SBC_BURN + SBC_DRAWS * SBC_THIN):
-                state, _ = step(state, rng, problem, prior, config)
+                state, _ = step(state, rng, problem, prior, config, context)
                 if t >= SBC_BURN and (t - SBC_BURN) % SBC_THIN == SBC_THIN - 1:
                     z0 = state.layout.pixels.ravel()[0]
                     kept.append([state.layout.n_materials, state.theta[z0, 0], state.theta[z0, 2]])

@@ -24,7 +24,7 @@ from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.regions.changepoints.grid import pixel_region_labels
 from rjfit.sampler.state import SamplerConfig
 
@@ -36,12 +36,13 @@ LEVEL = 1e-3
 def run(problem, prior, config, iterations, seed):
     rng = np.random.default_rng(seed)
     state = initial_state(problem, prior, config, rng, model=(0, 0))
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     models = np.zeros((iterations, 2), int)
     u0 = np.full(iterations, -1)
     theta = np.zeros((iterations, 4))
     with threadpool_limits(1):
         for t in range(iterations):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             models[t] = state.layout.model_key
             if state.layout.n_u:
                 x = state.layout.u[0, 0]
@@ -180,13 +181,14 @@ def test_free_rank_birth_death_match_exact_changepoint_posterior(setup, free_jum
                            cp_uniform_prob=0.3, burn_in=0, cp_prior="paper")
     rng = np.random.default_rng(7)
     state = initial_state(problem, prior, config, rng, model=(0, 0))
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     iterations = 12000
     n_u = np.zeros(iterations, int)
     pair = np.full(iterations, -1)
     pairs = [(a, b) for a in range(3) for b in range(a, 3)]
     with threadpool_limits(1):
         for t in range(iterations):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             n_u[t] = state.layout.n_u
             if state.layout.n_u == 2:
                 cells = tuple(int(np.searchsorted([0.5, 1.5], x, side="right")) for x in state.layout.u[0])

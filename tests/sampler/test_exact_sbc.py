@@ -19,7 +19,7 @@ from threadpoolctl import threadpool_limits
 from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.likelihood import RegionData
 from rjfit.sampler.moves import gamma as gamma_moves
 from rjfit.sampler.moves import sigma2 as sigma2_moves
@@ -50,9 +50,10 @@ def test_sbc_ranks_are_uniform_for_a_fixed_segmentation():
 def _rank_of_truth(theta, problem, prior, config, rng, burn, draws, thin):
     """Run a chain from a prior draw; the rank of ``theta`` among its thinned kept draws, and the final state."""
     state = initial_state(problem, prior, config, rng, theta=prior.sample(rng)[None])
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     kept = []
     for t in range(burn + draws * thin):
-        state, _ = step(state, rng, problem, prior, config)
+        state, _ = step(state, rng, problem, prior, config, context)
         if t >= burn and (t - burn) % thin == thin - 1:
             kept.append(state.theta[0].copy())
     return (np.array(kept) < theta).sum(axis=0), state

@@ -16,7 +16,7 @@ from rjfit.data.observations import Observations
 from rjfit.model.blinn import radiance
 from rjfit.sampler import reference
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import initial_state, step
+from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.regions.materials.kmeans import lloyd, lloyd_numpy, standardised, two_means_labels
 from rjfit.sampler.likelihood import log_likelihood_from_stats, oracle_log_likelihood, region_stats
 from rjfit.sampler.regions.materials import merge_split
@@ -180,9 +180,10 @@ def test_incremental_statistics_match_full_recompute(power):
                                          **{"burn_in": 0, "cluster_moves": 6, **flat})
         rng = np.random.default_rng(11)
         state = initial_state(problem, prior, config, rng, n_materials=start)
+        context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
         with threadpool_limits(1):
             for _ in range(300):
-                state, info = step(state, rng, problem, prior, config)
+                state, info = step(state, rng, problem, prior, config, context)
                 kinds |= {k for k, v in info.accepted.items() if v}
         labels = state.layout.labels(problem)
         np.testing.assert_array_equal(labels, state.labels)

@@ -6,7 +6,7 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.data.synthetic import sphere_stack
 from rjfit.sampler.forward import Problem
-from rjfit.sampler.kernel import anneal_power, initial_state, make_state, step
+from rjfit.sampler.kernel import ChainContext, anneal_power, initial_state, make_state, step
 from rjfit.sampler.likelihood import RegionData, oracle_log_likelihood, region_stats
 from rjfit.sampler.regions.changepoints.birth_death import birth_probability, propose_birth, propose_death
 from rjfit.sampler.regions.changepoints.birth_death_free import propose_birth_free, propose_death_free
@@ -49,10 +49,11 @@ def test_incremental_log_likelihood_equals_oracle_after_long_random_sequences(sm
                            refresh_every=0, split_scale=0.5)
     rng = np.random.default_rng(11)
     state = initial_state(problem, prior, config, rng, model=(1, 1))
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     models = set()
     with threadpool_limits(1):
         for t in range(600):
-            state, info = step(state, rng, problem, prior, config)
+            state, info = step(state, rng, problem, prior, config, context)
             if t % 25 == 12:
                 # Force a birth or death (accepted whatever its ratio) so that the incremental
                 # bookkeeping is exercised across changes of dimension.
@@ -147,10 +148,11 @@ def test_annealed_warm_up_tempers_then_hands_over_the_plain_likelihood(small):
     config = SamplerConfig.from_flat(max_u=2, max_v=2, burn_in=40, anneal=30, jump_prob=0.5, refresh_every=0)
     rng = np.random.default_rng(5)
     state = initial_state(problem, prior, config, rng, model=(1, 1))
+    context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
     assert anneal_power(config.kernel, 0) == pytest.approx(1e-3) and anneal_power(config.kernel, 30) == 1.0
     with threadpool_limits(1):
         for t in range(45):
-            state, _ = step(state, rng, problem, prior, config)
+            state, _ = step(state, rng, problem, prior, config, context)
             power = anneal_power(config.kernel, t)
             fresh = region_stats(problem, state.labels, state.theta[:, 2], state.n_regions)
             np.testing.assert_allclose(state.stats, power * fresh, rtol=1e-9, atol=1e-8 * power)
