@@ -16,6 +16,7 @@ from rjfit.model.blinn import radiance
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.likelihood import RegionData
 from rjfit.sampler.moves import region_proposals
+from rjfit.sampler.moves.ab_conditional import ab_conditional
 from rjfit.sampler.moves.gamma import ls_profile, ls_profile_nonnegative
 from rjfit.sampler.moves.region_proposals import (
     LAPLACE_COARSE_OBS,
@@ -197,9 +198,20 @@ def test_kinked_moments_match_numerical_integration(slope, curv_below, curv_abov
 
 @pytest.mark.parametrize("kd", [0.5, -0.03, 1.05])
 def test_ssr_min_rows_is_ssr_min_of_each_row(kd):
-    """The compiled grid form (a Laplace fit's nine coarse points) against the scalar one, row by row: the interior
-    and both faces (kd outside [0, 1] puts the optimum on one), and rows ssr_min refuses (singular, not finite,
-    SSR <= 0) as NaN. Same operations in the same order; the tolerance (1e-14 relative) allows a compiler's rounding."""
+    """The compiled rows (a Laplace fit's nine coarse points; ssr_min is their one-row case) against the SSR at the
+    centre of ab_conditional's (a, b) conditional, row by row: the interior and both faces (kd outside [0, 1] puts
+    the optimum on one), and rows it refuses (singular, not finite, SSR <= 0) as NaN. Same operations in the same
+    order; the tolerance (1e-14 relative) allows a compiler's rounding."""
+
+    def reference(row):      # from the conditional's Python floats
+        cond = ab_conditional(row, 1.0)
+        if cond is None:
+            return None
+        ma, mb = cond.ma, cond.mb
+        ssr = (row[1] - 2.0 * (ma * row[2] + mb * row[4]) + ma * ma * cond.saa + 2.0 * ma * mb * cond.sab
+               + mb * mb * cond.sbb)
+        return (ssr, cond.det) if ssr > 0 else None
+
     data = _region(kd, 5.0)
     stats = data.stats_at_many(np.exp(LAPLACE_GRID))
     refused = np.array([[10.0, 5.0, 1.0, 0.0, 1.0, 0.0, 1.0],            # SAA 0: singular
@@ -209,7 +221,7 @@ def test_ssr_min_rows_is_ssr_min_of_each_row(kd):
     rows = np.vstack([stats, refused])
     ssr, det = region_proposals.ssr_min_rows(rows)
     for row, s, d in zip(rows, ssr, det):
-        expected = ssr_min(row)
+        expected = reference(row)
         if expected is None:
             assert np.isnan(s) and np.isnan(d), row
         else:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from rjfit.sampler.likelihood import LOG_2PI, STAT_N, STAT_YA, STAT_YB, STAT_YY, RegionData, memoised
+from rjfit.sampler.likelihood import LOG_2PI, STAT_N, RegionData, memoised
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab
 from rjfit.sampler.moves.gamma import ls_point_slopes, ls_profile_nonnegative
 from rjfit.sampler.moves.region_terms import giesen_norm
@@ -48,25 +48,22 @@ class RegionProposalSettings:
 
 
 def ssr_min(stats_r):
-    """``(SSR, det P)`` at the centre of the (a, b) conditional at this gamma, or None (singular, or SSR <= 0)."""
-    cond = ab_conditional(stats_r, 1.0)
-    if cond is None:
-        return None
-    ma, mb, saa, sab, sbb = cond.ma, cond.mb, cond.saa, cond.sab, cond.sbb
-    # at the unconstrained least-squares point this is Syy - ma SyA - mb SyB; written out
-    # in full because the centre may be the non-negative one
-    ssr = (stats_r[STAT_YY] - 2.0 * (ma * stats_r[STAT_YA] + mb * stats_r[STAT_YB])
-           + ma * ma * saa + 2.0 * ma * mb * sab + mb * mb * sbb)
-    return (ssr, cond.det) if ssr > 0 else None
+    """``(SSR, det P)`` at the centre of the (a, b) conditional at this gamma, or None (singular, or SSR <= 0).
+
+    :func:`ssr_min_rows`' one-row case (one compiled call: cheaper than the conditional's Python floats).
+    """
+    ssr, det = ssr_min_rows(np.asarray(stats_r, np.float64).reshape(1, 7))
+    return None if ssr[0] != ssr[0] else (float(ssr[0]), float(det[0]))
 
 
 @njit(cache=True, nogil=True)
 def ssr_min_rows(stats):
-    """:func:`ssr_min` of each row of ``stats`` (G, 7): ``(ssr, det)``, two (G,) arrays, NaN in both where it is None.
+    """``(SSR, det P)`` of each row of ``stats`` (G, 7) at the centre of its (a, b) conditional: two (G,) arrays, NaN
+    in both where the system is singular or SSR <= 0 (:func:`ssr_min` of one row).
 
-    The same operations in the same order as :func:`ssr_min` and
-    :func:`~rjfit.sampler.moves.ab_conditional.ab_conditional` (at sigma^2 = 1), so the same floats: compiled
-    because a Laplace fit's coarse grid asks for nine at once, where the scalar form's calls cost more than the sums.
+    The centre and the refusals are :func:`~rjfit.sampler.moves.ab_conditional.ab_conditional`'s at sigma^2 = 1,
+    the same operations in the same order (so the same floats); the SSR is written out in full because the centre
+    may be the non-negative one. Compiled: a Laplace fit's coarse grid asks for nine rows at once.
     """
     G = stats.shape[0]
     ssr_out = np.full(G, np.nan)
