@@ -40,6 +40,7 @@ from rjfit.sampler.moves.within import adapt_log_g_scale, within_moves
 from rjfit.sampler.normals import initial_normal_state, move_normals, normal_log_prior, normal_problem
 from rjfit.sampler.pixel_sets import PixelSets
 from rjfit.sampler.priors import PARAM_NAMES
+from rjfit.sampler.regions.materials.edge_memo import BoundaryMemo
 from rjfit.sampler.state import ChainState, KernelSettings, SamplerConfig, StepInfo, Work
 
 __all__ = ["ChainContext", "make_state", "refresh", "step", "initial_state", "log_posterior", "anneal_power",
@@ -57,7 +58,8 @@ class ChainContext:
     object, keyed by the labels array's identity (a state's arrays are never written to, so
     the same array means the same labels). For a problem with effects it also keeps the
     problem transformed at the state's effect parameters, keyed by their array's identity,
-    and the label moves' pixel sets (:class:`~rjfit.sampler.pixel_sets.PixelSets`).
+    and the label moves' pixel sets (:class:`~rjfit.sampler.pixel_sets.PixelSets`), and the edge term's last
+    boundary sums (:class:`~rjfit.sampler.regions.materials.edge_memo.BoundaryMemo`).
     A fresh context gives the same draws.
     """
 
@@ -69,6 +71,7 @@ class ChainContext:
     effect_z: np.ndarray | None = None
     effect_problem: Problem | None = None
     pixel_sets: PixelSets = field(default_factory=PixelSets)
+    edge_memo: BoundaryMemo = field(default_factory=BoundaryMemo)
     normal_d: np.ndarray | None = None
     normal_problem: Problem | None = None
 
@@ -256,7 +259,8 @@ def step(state: ChainState, rng: np.random.Generator, problem: Problem, prior, c
     log_lik = state.log_lik if factor == previous else log_likelihood_from_stats(stats, state.theta)
     work = Work(layout=state.layout, theta=state.theta.copy(), stats=stats.copy(), log_lik=np.array(log_lik, float),
                 labels=state.labels, region_index=context.region_index_for(problem, state.labels),
-                pixel_sets=context.pixel_sets.valid_for(problem), edges=config.regions.edge_term(state.layout))
+                pixel_sets=context.pixel_sets.valid_for(problem), edges=config.regions.edge_term(state.layout),
+                edge_memo=context.edge_memo)
 
     # 1. within-region moves for every region
     g_acc = within_moves(config.within, problem.n_channels).run(work, rng, problem, prior, info,

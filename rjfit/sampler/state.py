@@ -93,7 +93,8 @@ class Work:
     before an in-place change). ``pixel_sets`` is the chain's memo of pixel sets'
     observations (:class:`~rjfit.sampler.pixel_sets.PixelSets`; None: none kept). ``edges``:
     the region model's edge term in the target (:meth:`RegionModel.edge_term`), which the
-    parameter moves' ratios hold (:func:`rjfit.sampler.moves.region_terms.edge_delta`).
+    parameter moves' ratios hold (:func:`rjfit.sampler.moves.region_terms.edge_delta`), with the chain's memo of its
+    sums (``edge_memo``: :class:`~rjfit.sampler.regions.materials.edge_memo.BoundaryMemo`; the same values without).
     """
 
     layout: object
@@ -105,6 +106,7 @@ class Work:
     region_index: dict | None = None  # region -> RegionData, valid for ``labels``
     pixel_sets: object = None
     edges: object = None    # the material model's EdgeTerm (rjfit.sampler.regions.materials.edges); None: no edge term
+    edge_memo: object = None  # the chain's BoundaryMemo of the edge term's sums (edge_memo.py); None: summed afresh
 
     def region_data(self, r: int, problem):
         """:class:`RegionData` of region r; every region's runs come from one read of the labels, once per labelling."""

@@ -27,7 +27,9 @@ from threadpoolctl import threadpool_limits
 from rjfit.data.observations import Observations
 from rjfit.data.pixelfit import fit_groups, group_params
 from rjfit.model.blinn import blinn_normalisation
+from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.edge_gain import shared_gain_sd
+from rjfit.sampler.regions.materials.edge_memo import BoundaryMemo
 from rjfit.sampler.regions.materials.edge_baseline import no_step_sums
 from rjfit.sampler.regions.materials.edges import edge_term, matched_lights, pixel_pairs
 from rjfit.sampler.regions.materials.passes.edges import pair_misfit
@@ -394,6 +396,36 @@ def test_a_parameter_change_matches_the_definition():
     expected = direct_total(problem, edges, labels, moved, 3) - direct_total(problem, edges, labels, TRUTH, 3)
     assert abs(expected) > 1.0
     assert edges.region_delta(labels, TRUTH, 1, moved[1]) == pytest.approx(expected, rel=1e-9)
+
+
+def test_the_chains_memo_of_boundary_sums_gives_the_terms_own_values():
+    """A chain's memo (BoundaryMemo) against the term summed afresh, over a run of parameter changes of every
+    material of a three-material labelling, some kept (as an accepted move) and some not, the labels changed once
+    in place: each change's value, each total and the memo's sums of the state reached. The two paths add the same
+    numbers in the same order; 1e-12 relative leaves room for nothing but rounding."""
+    problem = patchy_problem()
+    edges = edge_term(problem, labelled_pixels(problem), power=2.0, gap=3, gain_sd=0.05)
+    rng = np.random.default_rng(11)
+    labels = rng.integers(0, 3, (problem.height, problem.width)).astype(np.int8)
+    theta = np.array([[10.0, 0.75, 4.0, 0.3], [6.0, 0.3, 15.0, 0.3], [8.0, 0.5, 8.0, 0.2]])
+    memo = BoundaryMemo()
+    for turn in range(24):
+        if turn == 12:
+            labels[rng.integers(problem.height), :] = 2          # in place: the memo must see new labels
+        r = int(rng.integers(3))
+        moved = theta[r] * rng.uniform(0.9, 1.1, 4)
+        with_memo = edges.region_delta(labels, theta, r, moved, memo)
+        fresh = edges.region_delta(labels, theta, r, moved)
+        assert with_memo == pytest.approx(fresh, rel=1e-12, abs=1e-12)
+        new_theta = theta.copy()
+        new_theta[r] = moved
+        assert fresh == pytest.approx(edges.total(labels, new_theta) - edges.total(labels, theta), rel=1e-9, abs=1e-9)
+        if rng.random() < 0.5:
+            theta = new_theta                                    # accepted
+        assert edges.total(labels, theta, memo) == pytest.approx(edges.total(labels, theta), rel=1e-12, abs=1e-12)
+    np.testing.assert_allclose(edges.sums(labels, theta, memo), edges.sums(labels, theta), rtol=1e-12, atol=1e-12)
+    assert memo.find(edges, labels, coefficients(theta)[:, :3]) is not None
+    assert memo.find(edges, np.roll(labels, 1), coefficients(theta)[:, :3]) is None
 
 
 def test_the_term_refuses_what_it_cannot_read():

@@ -42,8 +42,8 @@ def decide(work, rng, proposal: Proposal, info) -> bool:
         return False
     log_ratio = proposal.log_ratio
     if work.edges is not None and log_ratio > -np.inf:      # the target's edge term (materials)
-        log_ratio += (work.edges.total(proposal.layout.pixels, proposal.theta)
-                      - work.edges.total(work.layout.pixels, work.theta))
+        log_ratio += (work.edges.total(proposal.layout.pixels, proposal.theta, work.edge_memo)
+                      - work.edges.total(work.layout.pixels, work.theta, work.edge_memo))
     accepted = accept(np.log(rng.random()), log_ratio, info, proposal.kind)
     info.count(proposal.kind, accepted)
     return accepted

@@ -46,14 +46,14 @@ def edge_delta(work, r, theta_r) -> float:
     ``theta_r``; 0 without an edge term. A parameter move adds it to its log ratio."""
     if work.edges is None:
         return 0.0
-    return work.edges.region_delta(work.layout.pixels, work.theta, r, theta_r)
+    return work.edges.region_delta(work.layout.pixels, work.theta, r, theta_r, work.edge_memo)
 
 
 def edge_rows_delta(work, rows, theta_rows) -> float:
     """:func:`edge_delta` of several rows at once (a colour material's rows at a new gamma)."""
     if work.edges is None:
         return 0.0
-    return work.edges.rows_delta(work.layout.pixels, work.theta, rows, theta_rows)
+    return work.edges.rows_delta(work.layout.pixels, work.theta, rows, theta_rows, work.edge_memo)
 
 
 def set_region(work, r, theta_r, stats_r=None, log_lik_r=None):

@@ -117,7 +117,8 @@ from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.edge_baseline import no_step_sums, observation_lookup, seen_between
 from rjfit.sampler.regions.materials.edge_gain import shared_gain_sd
 from rjfit.sampler.regions.materials.edge_noise import difference_noise, match_variance, pair_turn, valid_noise
-from rjfit.sampler.regions.materials.passes.edges import boundary_sums, changed_delta, edge_value
+from rjfit.sampler.regions.materials.passes.edges import (boundary_sums, changed_delta, changed_sums, changed_value,
+                                                          edge_value, with_changed)
 
 __all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "EDGE_GAP"]
 
@@ -171,14 +172,28 @@ class EdgeTerm(NamedTuple):
         """tau, the sd of the local gain integrated out of each pair (module docstring; 0: none)."""
         return float(np.sqrt(max(float(self.gain[0]), 0.0)))
 
-    def total(self, pixels, theta) -> float:
+    def total(self, pixels, theta, memo=None) -> float:
         """The edge term of the labels ``pixels`` (H, W; -1 unlabelled) with materials' ``theta`` (K C, 4: C rows
-        per material)."""
+        per material); ``memo``: the chain's :class:`~rjfit.sampler.regions.materials.edge_memo.BoundaryMemo`
+        (None: summed afresh; the same value either way)."""
+        return float(edge_value(self.sums(pixels, theta, memo), self.scale))
+
+    def sums(self, pixels, theta, memo=None) -> np.ndarray:
+        """(K, K, 4) the boundaries' sums of the labels ``pixels`` with ``theta``
+        (:func:`~rjfit.sampler.regions.materials.passes.edges.boundary_sums`), from ``memo`` where it has them."""
         theta = np.asarray(theta, float)
-        sums = boundary_sums(_flat(pixels), theta.shape[0] // self.n_channels, coefficients(theta), self.first,
-                             self.second, self.start, self.d, self.c_first, self.c_second, self.l_first, self.l_second,
-                             self.no_step, self.channel, self.weight, self.n_channels, self.gain)
-        return float(edge_value(sums, self.scale))
+        coef = coefficients(theta)
+        key = coef[:, :3]       # a / pi, b, gamma: all the term reads of a material
+        sums = None if memo is None else memo.find(self, pixels, key)
+        if sums is None:
+            sums = boundary_sums(_flat(pixels), theta.shape[0] // self.n_channels, coef, *self._pair_arrays())
+            if memo is not None:
+                memo.keep(self, pixels, key, sums)
+        return sums
+
+    def _pair_arrays(self) -> tuple:
+        return (self.first, self.second, self.start, self.d, self.c_first, self.c_second, self.l_first,
+                self.l_second, self.no_step, self.channel, self.weight, self.n_channels, self.gain)
 
     def channel_scales(self) -> np.ndarray:
         """(C,) each channel's ``power / (2 s_c^2)``: what a squared misfit of that channel weighs in the term; under a
@@ -186,23 +201,29 @@ class EdgeTerm(NamedTuple):
         scales = np.array([self.scale]) if self.n_channels == 1 else self.scale * self.weight
         return scales * self.typical_weight
 
-    def rows_delta(self, pixels, theta, rows, new_rows) -> float:
+    def rows_delta(self, pixels, theta, rows, new_rows, memo=None) -> float:
         """The change of the term when the parameter ``rows`` of ``theta`` become ``new_rows`` (a colour material's
-        rows at a new gamma): :meth:`total`'s difference, summed over the changed materials' boundaries only."""
+        rows at a new gamma): :meth:`total`'s difference, summed over the changed materials' boundaries only.
+        With ``memo`` (:meth:`total`'s) the current sums come from it and only the new ones are summed; the new
+        state's sums are kept in it (the next question's current ones, if the move is accepted)."""
         theta = np.asarray(theta, float)
         new = theta.copy()
         new[list(rows)] = new_rows
         changed = np.zeros(theta.shape[0] // self.n_channels, np.bool_)
         changed[np.asarray(list(rows), np.int64) // self.n_channels] = True
-        return float(changed_delta(_flat(pixels), changed, coefficients(theta), coefficients(new), self.first,
-                                   self.second, self.start, self.d, self.c_first, self.c_second, self.l_first,
-                                   self.l_second, self.no_step, self.channel, self.weight, self.n_channels, self.gain,
-                                   self.scale))
+        new_coef = coefficients(new)
+        if memo is None:
+            return float(changed_delta(_flat(pixels), changed, coefficients(theta), new_coef, *self._pair_arrays(),
+                                       self.scale))
+        before = self.sums(pixels, theta, memo)
+        after = with_changed(before, changed_sums(_flat(pixels), changed, new_coef, *self._pair_arrays()), changed)
+        memo.keep(self, pixels, new_coef[:, :3], after)
+        return float(changed_value(after, changed, self.scale) - changed_value(before, changed, self.scale))
 
-    def region_delta(self, pixels, theta, r: int, theta_r) -> float:
+    def region_delta(self, pixels, theta, r: int, theta_r, memo=None) -> float:
         """The change of the term when row ``r`` of ``theta`` (a material's; a joint colour fit's channel row)
-        becomes ``theta_r``."""
-        return self.rows_delta(pixels, theta, [r], [theta_r])
+        becomes ``theta_r`` (``memo``: :meth:`rows_delta`'s)."""
+        return self.rows_delta(pixels, theta, [r], [theta_r], memo)
 
     def sweep_arrays(self, theta):
         """The ``edge`` argument of :func:`~rjfit.sampler.regions.materials.passes.labels.gibbs_sweep`."""

@@ -41,7 +41,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["boundary_value", "pair_misfit", "pairs_misfit", "pair_sums", "pair_sums_colour", "boundary_sums",
-           "changed_delta", "edge_value", "edge_sums", "keep_new_label"]
+           "changed_sums", "changed_value", "with_changed", "changed_delta", "edge_value", "edge_sums",
+           "keep_new_label"]
 
 
 @njit(cache=True, nogil=True)
@@ -157,25 +158,57 @@ def boundary_sums(labels, n_materials, coef, first, second, start, d, c_first, c
 
 
 @njit(cache=True, nogil=True)
+def changed_sums(labels, changed, coef, first, second, start, d, c_first, c_second, l_first, l_second, no_step,
+                 channel, weight, n_channels, gain):
+    """:func:`boundary_sums` of the boundaries of the materials marked in ``changed`` (K,) only (the others' sums
+    0): their pairs in the same order, so each such boundary's sums equal :func:`boundary_sums`' to the bit."""
+    n_materials = changed.shape[0]
+    sums = np.zeros((n_materials, n_materials, 4))
+    for j in range(first.shape[0]):
+        k, m = labels[first[j]], labels[second[j]]
+        if k >= 0 and m >= 0 and k != m and (changed[k] or changed[m]):
+            _add_pair(sums, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
+                      weight, n_channels, gain)
+    return sums
+
+
+@njit(cache=True, nogil=True)
+def changed_value(sums, changed, scale):
+    """:func:`edge_value` of the boundaries of the materials marked in ``changed`` alone (in the same order)."""
+    total = 0.0
+    for k in range(sums.shape[0]):
+        for m in range(k + 1, sums.shape[0]):
+            if changed[k] or changed[m]:
+                total += scale * boundary_value(sums[k, m, 0], min(sums[k, m, 1], sums[k, m, 2]), sums[k, m, 3])
+    return total
+
+
+@njit(cache=True, nogil=True)
+def with_changed(before, after, changed):
+    """``before`` with the boundaries of the materials marked in ``changed`` taken from ``after``: the whole
+    term's sums once only those materials' parameters changed (the other boundaries' sums do not read them)."""
+    out = before.copy()
+    for k in range(before.shape[0]):
+        for m in range(k + 1, before.shape[0]):
+            if changed[k] or changed[m]:
+                out[k, m, :] = after[k, m, :]
+    return out
+
+
 def changed_delta(labels, changed, coef, new_coef, first, second, start, d, c_first, c_second, l_first, l_second,
                   no_step, channel, weight, n_channels, gain, scale):
     """The change of the term when the materials marked in ``changed`` (K,) take ``new_coef`` instead of ``coef``.
 
     Only the boundaries of a changed material move, so only their pairs are summed, at both
-    coefficients in one pass (the others' shares cancel: a boundary with no pairs adds 0). A
-    material's parameter move asks this of one material.
+    coefficients (the others' shares cancel: a boundary with no pairs adds 0). A material's
+    parameter move asks this of one material; with the current sums at hand (a chain's
+    :class:`~rjfit.sampler.regions.materials.edge_memo.BoundaryMemo`) only the new ones are summed.
     """
-    n_materials = changed.shape[0]
-    before = np.zeros((n_materials, n_materials, 4))
-    after = np.zeros((n_materials, n_materials, 4))
-    for j in range(first.shape[0]):
-        k, m = labels[first[j]], labels[second[j]]
-        if k >= 0 and m >= 0 and k != m and (changed[k] or changed[m]):
-            _add_pair(before, 1.0, j, k, m, coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
-                      weight, n_channels, gain)
-            _add_pair(after, 1.0, j, k, m, new_coef, start, d, c_first, c_second, l_first, l_second, no_step, channel,
-                      weight, n_channels, gain)
-    return edge_value(after, scale) - edge_value(before, scale)
+    arrays = (first, second, start, d, c_first, c_second, l_first, l_second, no_step, channel, weight, n_channels,
+              gain)
+    after = changed_sums(labels, changed, new_coef, *arrays)
+    before = changed_sums(labels, changed, coef, *arrays)
+    return changed_value(after, changed, scale) - changed_value(before, changed, scale)
 
 
 @njit(cache=True, nogil=True)
