@@ -136,18 +136,19 @@ def refresh(problem: Problem, state: ChainState) -> ChainState:
     return replace(state, stats=stats, log_lik=log_likelihood_from_stats(stats, state.theta))
 
 
-def log_posterior(problem: Problem, prior, state: ChainState, config: SamplerConfig) -> float:
+def log_posterior(problem: Problem, prior, state: ChainState, config: SamplerConfig, edge_memo=None) -> float:
     """Log joint density (up to the constant model prior): likelihood, phi-space prior, layout prior, the region
     model's edge term (if any), effects' prior.
 
     For a problem with effects, ``state.log_lik`` is on the transformed problem; the
-    log-Jacobian is left out here (:func:`effect_log_likelihood`).
+    log-Jacobian is left out here (:func:`effect_log_likelihood`). ``edge_memo``: the chain's memo of the edge
+    term's sums (:attr:`ChainContext.edge_memo`; the same value without).
     """
     total = float(np.sum(state.log_lik) + log_prior_phi(prior, state.theta, problem.n_channels)
                   + config.regions.log_prior(problem, state.layout))
     edges = config.regions.edge_term(state.layout)
     if edges is not None:
-        total += edges.total(state.layout.pixels, state.theta)
+        total += edges.total(state.layout.pixels, state.theta, edge_memo)
     if state.effects is not None:
         total += problem.effects.log_prior(state.effects.z)
     if state.normals is not None:

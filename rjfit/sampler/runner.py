@@ -425,7 +425,8 @@ def run_chain(spec: ChainSpec, threads: int = 1) -> ChainRecord:
             constant = problem.log_likelihood_constant
             if state.effects is not None:      # the raw data's log-likelihood: with the effects' log-Jacobian
                 constant += effect_log_likelihood(problem, state)
-            recorder.record(t, state, log_posterior(problem, prior, state, config), constant, bool(info.jump))
+            recorder.record(t, state, log_posterior(problem, prior, state, config, context.edge_memo), constant,
+                            bool(info.jump))
             if bar is not None:
                 bar.update(1, functools.partial(_model_text, spec.config.regions, state))
             done = t + 1

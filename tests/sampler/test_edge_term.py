@@ -32,7 +32,7 @@ from rjfit.sampler.regions.materials.edge_gain import shared_gain_sd
 from rjfit.sampler.regions.materials.edge_memo import BoundaryMemo
 from rjfit.sampler.regions.materials.edge_baseline import no_step_sums
 from rjfit.sampler.regions.materials.edges import edge_term, matched_lights, pixel_pairs
-from rjfit.sampler.regions.materials.passes.edges import pair_misfit
+from rjfit.sampler.regions.materials.passes.edges import changed_sums_from, pair_misfit
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import ChainContext, initial_state, step
 from rjfit.sampler.moves import ab_conditional, phi_walk
@@ -401,8 +401,9 @@ def test_a_parameter_change_matches_the_definition():
 def test_the_chains_memo_of_boundary_sums_gives_the_terms_own_values():
     """A chain's memo (BoundaryMemo) against the term summed afresh, over a run of parameter changes of every
     material of a three-material labelling, some kept (as an accepted move) and some not, the labels changed once
-    in place: each change's value, each total and the memo's sums of the state reached. The two paths add the same
-    numbers in the same order; 1e-12 relative leaves room for nothing but rounding."""
+    in place: each change's value, each total and the memo's sums of the state reached; and the sums after two
+    materials changed at once, from the sums before, against the sums summed afresh. The paths add the same numbers
+    in the same order; 1e-12 relative leaves room for nothing but rounding."""
     problem = patchy_problem()
     edges = edge_term(problem, labelled_pixels(problem), power=2.0, gap=3, gain_sd=0.05)
     rng = np.random.default_rng(11)
@@ -426,6 +427,14 @@ def test_the_chains_memo_of_boundary_sums_gives_the_terms_own_values():
     np.testing.assert_allclose(edges.sums(labels, theta, memo), edges.sums(labels, theta), rtol=1e-12, atol=1e-12)
     assert memo.find(edges, labels, coefficients(theta)[:, :3]) is not None
     assert memo.find(edges, np.roll(labels, 1), coefficients(theta)[:, :3]) is None
+    # two materials changed at once (their shared boundary summed whole, not from the sums before)
+    changed = np.array([True, True, False])
+    moved = theta * np.array([[1.05], [0.95], [1.0]])
+    flat = np.ascontiguousarray(labels.ravel(), dtype=np.int64)
+    arrays = (edges.first, edges.second, edges.start, edges.d, edges.c_first, edges.c_second, edges.l_first,
+              edges.l_second, edges.no_step)
+    from_before = changed_sums_from(edges.sums(labels, theta), flat, changed, coefficients(moved), *arrays, edges.gain)
+    np.testing.assert_allclose(from_before, edges.sums(labels, moved), rtol=1e-12, atol=1e-12)
 
 
 def test_the_term_refuses_what_it_cannot_read():

@@ -117,8 +117,8 @@ from rjfit.sampler.passes.densities import coefficients
 from rjfit.sampler.regions.materials.edge_baseline import no_step_sums, observation_lookup, seen_between
 from rjfit.sampler.regions.materials.edge_gain import shared_gain_sd
 from rjfit.sampler.regions.materials.edge_noise import difference_noise, match_variance, pair_turn, valid_noise
-from rjfit.sampler.regions.materials.passes.edges import (boundary_sums, changed_delta, changed_sums, changed_value,
-                                                          edge_value, with_changed)
+from rjfit.sampler.regions.materials.passes.edges import (boundary_sums, changed_delta, changed_sums, changed_sums_from,
+                                                          changed_value, edge_value, with_changed)
 
 __all__ = ["EdgeTerm", "edge_term", "start_theta", "pixel_pairs", "matched_lights", "EDGE_GAP"]
 
@@ -216,7 +216,12 @@ class EdgeTerm(NamedTuple):
             return float(changed_delta(_flat(pixels), changed, coefficients(theta), new_coef, *self._pair_arrays(),
                                        self.scale))
         before = self.sums(pixels, theta, memo)
-        after = with_changed(before, changed_sums(_flat(pixels), changed, new_coef, *self._pair_arrays()), changed)
+        if self.n_channels == 1:      # the unchanged material alone across a boundary not summed again
+            after = changed_sums_from(before, _flat(pixels), changed, new_coef, self.first, self.second, self.start,
+                                      self.d, self.c_first, self.c_second, self.l_first, self.l_second, self.no_step,
+                                      self.gain)
+        else:
+            after = with_changed(before, changed_sums(_flat(pixels), changed, new_coef, *self._pair_arrays()), changed)
         memo.keep(self, pixels, new_coef[:, :3], after)
         return float(changed_value(after, changed, self.scale) - changed_value(before, changed, self.scale))
 
