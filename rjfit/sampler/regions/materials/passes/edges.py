@@ -65,6 +65,12 @@ def pairs_misfit(ss, rd, dd, gain):
     return out
 
 
+@njit(inline="always")
+def _predict(c, a, b, g, log_cos_hn):
+    """One end's predicted value ``C (coef0 + coef1 <h.n>^coef2)`` (module docstring), float64."""
+    return c * (a + b * math.exp(g * log_cos_hn))
+
+
 @njit(cache=True, nogil=True)
 def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, gain):
     """(SS(k, m), SS(k, k), SS(m, m)) of pair ``j``: its first pixel in material k and its second in m, and both
@@ -77,8 +83,8 @@ def pair_sums(j, k, m, coef, start, d, c_first, c_second, l_first, l_second, gai
     for i in range(start[j], start[j + 1]):
         cf, cs = np.float64(c_first[i]), np.float64(c_second[i])
         lf, ls = np.float64(l_first[i]), np.float64(l_second[i])
-        k_first, k_second = cf * (a_k + b_k * math.exp(g_k * lf)), cs * (a_k + b_k * math.exp(g_k * ls))
-        m_first, m_second = cf * (a_m + b_m * math.exp(g_m * lf)), cs * (a_m + b_m * math.exp(g_m * ls))
+        k_first, k_second = _predict(cf, a_k, b_k, g_k, lf), _predict(cs, a_k, b_k, g_k, ls)
+        m_first, m_second = _predict(cf, a_m, b_m, g_m, lf), _predict(cs, a_m, b_m, g_m, ls)
         r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
         two += r_two * r_two
         one_k += r_k * r_k
@@ -105,12 +111,12 @@ def pair_sums_changed(j, k, m, k_changed, coef, start, d, c_first, c_second, l_f
         cf, cs = np.float64(c_first[i]), np.float64(c_second[i])
         lf, ls = np.float64(l_first[i]), np.float64(l_second[i])
         if k_changed:
-            k_first, k_second = cf * (a_k + b_k * math.exp(g_k * lf)), cs * (a_k + b_k * math.exp(g_k * ls))
-            m_second = cs * (a_m + b_m * math.exp(g_m * ls))
+            k_first, k_second = _predict(cf, a_k, b_k, g_k, lf), _predict(cs, a_k, b_k, g_k, ls)
+            m_second = _predict(cs, a_m, b_m, g_m, ls)
             r, delta = d[i] - k_first + k_second, k_first - k_second
         else:
-            k_first = cf * (a_k + b_k * math.exp(g_k * lf))
-            m_first, m_second = cf * (a_m + b_m * math.exp(g_m * lf)), cs * (a_m + b_m * math.exp(g_m * ls))
+            k_first = _predict(cf, a_k, b_k, g_k, lf)
+            m_first, m_second = _predict(cf, a_m, b_m, g_m, lf), _predict(cs, a_m, b_m, g_m, ls)
             r, delta = d[i] - m_first + m_second, m_first - m_second
         r_two = d[i] - k_first + m_second
         two += r_two * r_two
@@ -140,10 +146,10 @@ def pair_sums_colour(j, k, m, coef, start, d, c_first, c_second, l_first, l_seco
         rk, rm = k * n_channels + c, m * n_channels + c
         cf, cs = np.float64(c_first[i]), np.float64(c_second[i])
         lf, ls = np.float64(l_first[i]), np.float64(l_second[i])
-        k_first = cf * (coef[rk, 0] + coef[rk, 1] * math.exp(coef[rk, 2] * lf))
-        k_second = cs * (coef[rk, 0] + coef[rk, 1] * math.exp(coef[rk, 2] * ls))
-        m_first = cf * (coef[rm, 0] + coef[rm, 1] * math.exp(coef[rm, 2] * lf))
-        m_second = cs * (coef[rm, 0] + coef[rm, 1] * math.exp(coef[rm, 2] * ls))
+        k_first = _predict(cf, coef[rk, 0], coef[rk, 1], coef[rk, 2], lf)
+        k_second = _predict(cs, coef[rk, 0], coef[rk, 1], coef[rk, 2], ls)
+        m_first = _predict(cf, coef[rm, 0], coef[rm, 1], coef[rm, 2], lf)
+        m_second = _predict(cs, coef[rm, 0], coef[rm, 1], coef[rm, 2], ls)
         r_two, r_k, r_m = d[i] - k_first + m_second, d[i] - k_first + k_second, d[i] - m_first + m_second
         w = weight[c]
         two += w * r_two * r_two
