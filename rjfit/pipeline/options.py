@@ -191,14 +191,14 @@ class FitOptions:
         "constant", "--edge-noise",
         "The noise of the edge term's differences (with --edge-power): constant (one scale for every pair) or "
         "measured (each pair's variance growing with how much the shading changes and the geometry turns across "
-        "it, measured on the data). Default constant; --preset measured sets measured with the edge term in one "
-        "channel (docs/options.md).", "choice", choices=("constant", "measured"), show_default=False)
+        "it, measured on the data). Default constant; --preset measured sets measured with the edge term "
+        "(docs/options.md).", "choice", choices=("constant", "measured"), show_default=False)
     preset: str = cli_option(
         "none", "--preset",
         "Defaults for a kind of data: none (the options as given); measured: --noise normals, --likelihood-power "
         "auto, no annealed warm-up, --max-view-angle 72.5, --gamma-moves 8, --iterations 500, the Potts rule on the "
-        "mask (--regions materials), the edge term (auto) where it applies, with its local gain (auto) and "
-        "measured noise in one channel, and calibration (small mask parts left out; an unknown camera response and "
+        "mask (--regions materials), the edge term (auto) where it applies, with its measured noise and, in one "
+        "channel, its local gain (auto), and calibration (small mask parts left out; an unknown camera response and "
         "per-light gains estimated and applied), each where not given "
         "(docs/options.md). Default: none for rendered data, measured for measured data.", "choice", choices=("none", "measured"), show_default=False)
     calibrate: bool = option(False)

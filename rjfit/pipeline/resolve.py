@@ -29,7 +29,7 @@ MEASURED_DEFAULTS = {"regions": next(name for name, fit in REGION_FITS.items() i
                      "preset": "measured"}
 #: What ``--preset measured`` sets where an option is not given (docs/options.md); beyond these, what the
 #: region model's ``RegionFit.preset_values`` sets (the material model: its edge term where it applies, with its
-#: local gain and measured noise in one channel, the Potts beta and rho by
+#: measured noise and, in one channel, its local gain; the Potts beta and rho by
 #: :func:`rjfit.pipeline.regions.materials.ghost_material_prior`).
 MEASURED_PRESET = {"noise": "normals", "likelihood_power": "auto", "anneal": 0.0, "calibrate": True,
                    "max_view_angle": RIM_VIEW_ANGLE, "gamma_moves": 8, "iterations": 500, "light_field": LIGHT_FIELD_DEGREE}

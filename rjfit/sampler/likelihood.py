@@ -273,6 +273,13 @@ def log_likelihood_from_stats(stats, theta):
 
     Regions with no observation contribute 0. Regions whose |a| or |b| exceeds
     :data:`AB_PLAIN_MAX` take :func:`log_lik_large_ab` (their quadratic form would overflow).
+
+    The SSR is floored at 0, here and in every sum of it from statistics: a sum of squares is
+    never negative, but its expansion ``Syy - 2 a SyA - ... + b^2 SBB`` cancels, and where the fit
+    is exact (a colour material's channel with two observations of a rim pixel) rounding leaves it
+    slightly below 0; the likelihood then grew without bound as sigma^2 fell, and a chain's
+    sigma^2 walk followed it (a joint colour fit of psm-horse reached a log posterior of 1.7e156,
+    docs/results/2026-11-30-colour-noise.md). Where the sum is >= 0 the floor changes nothing.
     """
     stats = np.asarray(stats, float)
     theta = np.asarray(theta, float)
@@ -288,6 +295,7 @@ def log_likelihood_from_stats(stats, theta):
     s2 = theta[..., 3]
     ssr = (stats[..., STAT_YY] - 2.0 * a * stats[..., STAT_YA] - 2.0 * b * stats[..., STAT_YB]
            + a * a * stats[..., STAT_AA] + 2.0 * a * b * stats[..., STAT_AB] + b * b * stats[..., STAT_BB])
+    ssr = np.maximum(ssr, 0.0)      # a sum of squares: rounding's negative sums floored (NaN stays NaN)
     n = stats[..., STAT_N]
     out = -0.5 * n * (LOG_2PI + np.log(s2)) - 0.5 * ssr / s2
     if np.any(large):
@@ -312,6 +320,8 @@ def _log_lik_rows(stats, theta, out) -> bool:
             return False
         ssr = (stats[r, STAT_YY] - 2.0 * a * stats[r, STAT_YA] - 2.0 * b * stats[r, STAT_YB]
                + a * a * stats[r, STAT_AA] + 2.0 * a * b * stats[r, STAT_AB] + b * b * stats[r, STAT_BB])
+        if ssr < 0.0:       # floored as in log_likelihood_from_stats
+            ssr = 0.0
         out[r] = -0.5 * stats[r, STAT_N] * (LOG_2PI + np.log(s2)) - 0.5 * ssr / s2
     return True
 
@@ -340,6 +350,8 @@ def log_lik_large_ab(stats_r, a, b, s2) -> float:
     yb = syb / sb if sb > 0 else 0.0
     r = sab / (sa * sb) if sa * sb > 0 else 0.0
     ssr = syy - 2.0 * p * ya - 2.0 * q * yb + p * p + 2.0 * p * q * r + q * q
+    if ssr < 0.0:       # floored as in log_likelihood_from_stats
+        ssr = 0.0
     log_lik = -0.5 * n * (LOG_2PI + math.log(s2)) - 0.5 * ssr / s2
     return log_lik if math.isfinite(log_lik) else -math.inf
 

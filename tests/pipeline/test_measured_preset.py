@@ -120,15 +120,15 @@ def test_the_preset_measures_the_edge_terms_local_gain_with_its_term_and_a_gain_
 
 
 def test_the_preset_measures_the_edge_terms_noise_with_its_term_and_a_noise_without_one_is_refused():
-    """The preset's edge noise is 'measured' where it sets the edge term in one channel, and 'constant' in a joint
-    colour fit and where there is no term; a given noise is kept, also in colour; one without a term fails naming
+    """The preset's edge noise is 'measured' where it sets the edge term, in one channel or a joint colour fit, and
+    'constant' where there is no term; a given noise is kept, also in colour; one without a term fails naming
     both flags, and an unknown one names its choices."""
     resolved = resolve_options(FitOptions(preset="measured", regions="materials"))
     assert (resolved.edge_noise, resolved.source("edge_noise")) == ("measured", "preset")
     colour = resolve_options(FitOptions(preset="measured", regions="materials", channel="rgb"))
-    assert (colour.edge_noise, colour.source("edge_noise")) == ("constant", "default")
+    assert (colour.edge_noise, colour.source("edge_noise")) == ("measured", "preset")
     assert resolve_options(FitOptions(preset="measured", regions="materials", channel="rgb",
-                                      edge_noise="measured")).edge_noise == "measured"
+                                      edge_noise="constant")).edge_noise == "constant"
     for elsewhere in ({"regions": "changepoints"}, {"regions": "materials", "effects": "ambient"},
                       {"regions": "materials", "edge_power": "0"}):
         assert resolve_options(FitOptions(preset="measured", **elsewhere)).edge_noise == "constant", elsewhere
@@ -209,13 +209,10 @@ def test_a_fit_under_the_preset_records_what_it_estimated(paper_sphere_small, tm
             assert options["edge_gain_sd"] == "auto" and 0 <= summary["edge_gain_sd"] < 0.05
         else:
             assert options["edge_gain_sd"] == 0.0 and summary["edge_gain_sd"] == 0.0
-        # the preset's measured noise in one channel, recorded; one scale in colour
-        if channel == "mean":
-            noise = summary["edge_noise"]
-            assert options["edge_noise"] == "measured" and noise["white"] > 0 and noise["shading"] >= 0
-            assert noise["turn"] >= 0 and isinstance(noise["floored"], bool)
-        else:
-            assert options["edge_noise"] == "constant" and summary["edge_noise"] is None
+        # the preset's measured noise, in one channel and in colour, recorded
+        noise = summary["edge_noise"]
+        assert options["edge_noise"] == "measured" and noise["white"] > 0 and noise["shading"] >= 0
+        assert noise["turn"] >= 0 and isinstance(noise["floored"], bool)
         # the stated resolution counts the outline's earning, per channel in a colour fit
         assert summary["material_resolution"]["edge_evidence_per_pair"] > 0
         # each material placed by how steeply the object is seen there (the sphere's normals and view directions)

@@ -86,3 +86,27 @@ def test_a_backward_draw_at_a_dead_end_marks_the_line():
     log_kernel = np.zeros(3)                               # steps -1, 0, 1
     path = paths.cell_backward_sample(alpha, log_kernel, np.full(3, 0.5))
     assert path[2] == 3 and path[1] == -1
+
+
+# The statistics of two observations that (I0, kd, gamma) = (3000, 0.7, 5) fits exactly (a colour material's channel
+# with two observations of a rim pixel): their SSR expansion rounds to about -1e-9, below the true 0
+EXACT_FIT_STATS = np.array([2.0, 6651516.658547751, 2847.2113478222345, 1.2337752756956057, 1542.859528361211,
+                            0.5880801049433155, 0.7065024319087959])
+
+
+def test_an_exact_fit_gives_a_likelihood_bounded_as_sigma2_falls():
+    """A sum of squares is never negative; its expansion's rounding can be, and the likelihood then grew without bound
+    as sigma^2 fell (a colour fit of psm-horse reached a log posterior of 1.7e156). Every form of the region
+    likelihood from statistics stays at or below its supremum, the density at SSR = 0 (to 1e-12 relative)."""
+    I0, kd, g = 3000.0, 0.7, 5.0
+    a, b = I0 * kd, I0 * (1.0 - kd) * giesen_norm(g)
+    n, syy, sya, saa, syb, sab, sbb = (float(x) for x in EXACT_FIT_STATS)
+    assert syy - 2.0 * a * sya - 2.0 * b * syb + a * a * saa + 2.0 * a * b * sab + b * b * sbb < 0.0   # the case
+    for s2 in (1.0, 1e-12, 1e-200):
+        supremum = -0.5 * n * (math.log(2.0 * math.pi) + math.log(s2))
+        forms = {"scalar": region_log_lik(EXACT_FIT_STATS, I0, kd, g, s2),
+                 "compiled rows": float(log_likelihood_from_stats(EXACT_FIT_STATS[None], np.array([[I0, kd, g, s2]]))[0]),
+                 "array": float(log_likelihood_from_stats(EXACT_FIT_STATS, np.array([I0, kd, g, s2]))),
+                 "large amplitudes": log_lik_large_ab(EXACT_FIT_STATS, a, b, s2)}
+        for form, value in forms.items():
+            assert value <= supremum + 1e-12 * abs(supremum), (form, s2, value, supremum)

@@ -365,19 +365,20 @@ class MaterialFit(RegionFit):
 
     @staticmethod
     def preset_values(values: dict, data) -> dict:
-        """The edge term's power 'auto' where it applies and is not given, and in one channel its local gain 'auto'
-        and its noise 'measured' too (not under a given ``--edge-power 0``; a joint colour fit gained nothing from the
-        gain on psm-cat, and its noise is not measured in colour: docs/results/2026-11-29-gain-default.md,
-        2026-11-29-edge-noise.md); the Potts rule on the data's mask (:func:`ghost_material_prior`)
+        """The edge term's power 'auto' where it applies and is not given, its noise 'measured' (one channel or a
+        joint colour fit), and in one channel its local gain 'auto' too (none of them under a given ``--edge-power
+        0``; a joint colour fit gained nothing from the gain on psm-cat, docs/results/2026-11-29-gain-default.md;
+        without the measured noise a colour fit of the DiLiGenT ball kept highlight specks in one chain of four,
+        docs/results/2026-11-30-colour-noise.md); the Potts rule on the data's mask (:func:`ghost_material_prior`)
         unless ``potts_rho`` is given (its beta starts at the given one)."""
         out = {}
         if MaterialFit.edge_term_applies(values):
             if "edge_power" not in values:
                 out["edge_power"] = "auto"
-            one_channel_term = values.get("edge_power", "auto") != 0 and values.get("channel") != COLOUR
-            if "edge_gain_sd" not in values and one_channel_term:
+            with_term = values.get("edge_power", "auto") != 0
+            if "edge_gain_sd" not in values and with_term and values.get("channel") != COLOUR:
                 out["edge_gain_sd"] = "auto"
-            if "edge_noise" not in values and one_channel_term:
+            if "edge_noise" not in values and with_term:
                 out["edge_noise"] = "measured"
         if "potts_rho" not in values and data.object_mask is not None:
             mask = _fitted_mask(data.object_mask, values.get("calibrate", False))

@@ -31,6 +31,8 @@ def region_log_lik(stats_r, I0, kd, g, s2) -> float:
     if abs(a) > AB_PLAIN_MAX or abs(b) > AB_PLAIN_MAX:      # the plain sum would overflow
         return log_lik_large_ab(stats_r, a, b, s2)
     ssr = syy - 2.0 * a * sya - 2.0 * b * syb + a * a * saa + 2.0 * a * b * sab + b * b * sbb
+    if ssr < 0.0:       # floored as in likelihood.log_likelihood_from_stats
+        ssr = 0.0
     return -0.5 * n * (LOG_2PI + math.log(s2)) - 0.5 * ssr / s2
 
 
