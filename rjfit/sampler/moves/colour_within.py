@@ -17,11 +17,11 @@ import math
 
 import numpy as np
 
-from rjfit.sampler.likelihood import STAT_N
+from rjfit.sampler.likelihood import STAT_AA, STAT_N, STAT_YA
 from rjfit.sampler.moves.ab_conditional import ab_conditional, draw_ab, log_q_ab, log_target_ab
 from rjfit.sampler.moves.accept import accept
 from rjfit.sampler.moves.base import decide_row
-from rjfit.sampler.moves.gamma import log_q_log_gamma, ls_profile
+from rjfit.sampler.moves.gamma import log_q_log_gamma, ls_profile_nonnegative
 from rjfit.sampler.moves.proposal import RowProposal
 from rjfit.sampler.moves.region_terms import (
     edge_delta,
@@ -75,12 +75,16 @@ def update_materials_colour(work, rng, prior, problem, settings, g_step, info) -
 def newton_log_gamma_colour(stats_rows, sums_rows, g, s2_rows, scale):
     """Newton proposal (mean, sd) of log gamma from the profile log-likelihood summed over rows, or None.
 
-    ``h(l) = sum_c (f_c - Syy_c) / (2 sigma2_c)``; the same rule as the single channel's
-    :func:`~rjfit.sampler.moves.gamma.newton_log_gamma` (concave, step within 5, sd within 2).
+    ``h(l) = sum_c (f_c - Syy_c) / (2 sigma2_c)``, each ``f_c`` the least squares over ``a, b >= 0``
+    (:func:`~rjfit.sampler.moves.gamma.ls_profile_nonnegative`); the same rule as the single channel's
+    :func:`~rjfit.sampler.moves.gamma.newton_log_gamma` (concave, step within 5, sd within 2). The bounded
+    profile matters where a channel's unbounded least-squares point has ``a < 0`` (kd near 0, as the DiLiGenT
+    ball's red channel): the unbounded profile's mode lies off the posterior's there, and its proposals were
+    accepted 0.1 % of the time on the ball (docs/results/2026-11-30-colour-noise.md).
     """
     h1 = h2 = 0.0
     for stats_r, sums, s2 in zip(stats_rows, sums_rows, s2_rows):
-        profile = ls_profile(stats_r[2], stats_r[3], sums, g)
+        profile = ls_profile_nonnegative(stats_r[STAT_YA], stats_r[STAT_AA], sums, g)
         if profile is None:
             return None
         h1 += 0.5 * profile[1] / s2
