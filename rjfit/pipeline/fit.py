@@ -42,7 +42,7 @@ from rjfit.data.noise import describe_noise, noise_scale
 from rjfit.io import check_writable, staging_dir
 from rjfit.model.blinn import radiance
 from rjfit.pipeline.fit_folder import kept_chains, publish_results, relative_paths, remove_checkpoints, stamp, write_summary
-from rjfit.pipeline.fit_power import noise_and_power, normal_prior_sd
+from rjfit.pipeline.fit_power import misfit_tile_warnings, noise_and_power, normal_prior_sd
 from rjfit.pipeline.fit_settings import burn_in_iterations
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.regions import FitResult, RegionFit, region_fit
@@ -223,7 +223,7 @@ def chain_specs(problem, prior, config, options: FitOptions, out_dir: Path, trut
     shared = None
     if not all(path.exists() for path in paths):     # a resumed chain's state holds them already
         with phase("chains: what every chain starts from, built once", options.progress):
-            shared = config.regions.shared_start(problem)
+            shared = region.shared_start(config, problem)
     specs = []
     for c in range(options.n_chains):
         chain_start = region.chain_start(options, c, dict(start[c]) if start is not None else {},
@@ -275,7 +275,8 @@ def summarise(records, problem, prior, config, options: FitOptions, suggestion, 
     """The chains' kept draws summarised by the region model, with the settings every model records."""
     region = region_fit(options) if region is None else region
     run = run_entries(records, problem, prior, options, config.kernel.burn_in, suggestion, noise_record)
-    result = region.summarise(records, problem, prior, config, options, run, fit_warnings(problem, prior, suggestion),
+    result = region.summarise(records, problem, prior, config, options, run,
+                              fit_warnings(problem, prior, suggestion) + misfit_tile_warnings(noise_record),
                               truth_labels, observations)
     if result.prediction is not None and result.prediction.get("residual_correlation") is not None:
         # the misfit the fitted model itself leaves (the power above was measured on per-pixel fits, before it)

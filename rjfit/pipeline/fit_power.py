@@ -18,16 +18,19 @@ from rjfit.sampler.regions.materials.edges import edge_term
 from rjfit.sampler.regions.materials.layout import labelled_pixels
 
 __all__ = ["noise_and_power", "power_suggestion", "channel_normal_error_noise", "edge_settings", "normal_prior_sd",
+           "misfit_tile_warnings", "MISFIT_TILE_SHARE_WARN",
            "MIN_NORMAL_SD_DEG"]
 
 
 def edge_settings(problem, options) -> tuple:
-    """``(power, gain_sd, noise)`` of the fit's edge term (:mod:`rjfit.sampler.regions.materials.edges`; power 0:
-    none): each as given, or 'auto' ('measured' for the noise: its coefficients) measured once on ``problem`` (one
-    build of the term for all), so that every chain takes those numbers and the summary records them."""
+    """``(power, gain_sd, noise, term)`` of the fit's edge term (:mod:`rjfit.sampler.regions.materials.edges`;
+    power 0: none): each as given, or 'auto' ('measured' for the noise: its coefficients) measured once on
+    ``problem`` (one build of the term for all), so that every chain takes those numbers and the summary records
+    them; ``term`` the term that measured them (the one the chains take: built again from the three settings it is
+    the same), or None where nothing was measured."""
     power, gain_sd, noise = options.edge_power, options.edge_gain_sd, options.edge_noise
     if power != "auto" and float(power) == 0:
-        return 0.0, 0.0, "constant"
+        return 0.0, 0.0, "constant", None
     if power == "auto" or gain_sd == "auto" or noise == "measured":
         parts = [what for what, value in (("its power (--edge-power auto)", power),
                                           ("its local gain (--edge-gain-sd auto)", gain_sd),
@@ -36,8 +39,8 @@ def edge_settings(problem, options) -> tuple:
         measured = " and ".join([", ".join(parts[:-1]), parts[-1]] if len(parts) > 1 else parts)
         with phase(f"edge term: measuring {measured}", options.progress):
             term = edge_term(problem, labelled_pixels(problem), power, gain_sd=gain_sd, noise=noise)
-        power, gain_sd, noise = term.power, term.gain_sd, term.noise or "constant"
-    return float(power), float(gain_sd), noise
+        return term.power, term.gain_sd, term.noise or "constant", term
+    return float(power), float(gain_sd), noise, None
 
 
 def noise_and_power(observations, options):
@@ -99,6 +102,28 @@ def _one_channel(observations, c):
     """Channel ``c`` of a joint colour stack as a single-channel one, and the mask of its observations."""
     mine = observations.channel == c
     return dataclasses.replace(observations.subset(mine), channel=None, n_channels=1), mine
+
+
+#: the share of the normals' noise estimate held by tiles the model does not describe above which the fit warns
+MISFIT_TILE_SHARE_WARN = 0.5
+
+
+def misfit_tile_warnings(noise_record) -> list:
+    """The caveat of a normals' noise model set mostly by a few tiles across an outline (``noise_record``: the fit's
+    ``noise``; its ``normal_error``'s ``misfit_tiles``, per channel in a colour fit): over
+    :data:`MISFIT_TILE_SHARE_WARN` of its squared residual in them (:func:`~rjfit.data.normal_error.misfit_tiles`)."""
+    error = (noise_record or {}).get("normal_error")
+    if not isinstance(error, dict):
+        return []
+    records = error.get("channels") or [error]
+    worst = max((r.get("misfit_tiles") or {"share": 0.0} for r in records), key=lambda m: m["share"])
+    if worst["share"] <= MISFIT_TILE_SHARE_WARN:
+        return []
+    return [f"the normals' noise model is set by a few tiles: {worst['tiles']} of its {error['patch_px']} x "
+            f"{error['patch_px']} px tiles (over {worst['factor']:g} times the median tile's misfit) hold "
+            f"{100 * worst['share']:.0f} % of its squared residual, as tiles across a paint's outline do; its noise "
+            f"scale and the edge term's settings are then the paints' as much as the surface's, and a body may split "
+            f"along its shading (docs/measured-data.md)"]
 
 
 def channel_normal_error_noise(observations, footprint: bool = False):

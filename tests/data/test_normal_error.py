@@ -64,6 +64,30 @@ def test_a_known_normal_error_is_recovered(paper_sphere_small):
         assert np.sqrt(estimate ** 2 - clean ** 2) == pytest.approx(degrees, rel=0.10)
 
 
+def test_the_tiles_across_a_paints_outline_are_counted_and_warned_of():
+    """One material (the closed-form sphere, exact normals, white noise) and the same with a disc painted at a
+    fifth of its albedo: the plain sphere has no tile over 10 times the median tile's misfit and no warning; the
+    painted one has the disc outline's tiles there, holding most of the squared residual (sigma_r^2 measured over
+    every tile: several times the plain sphere's), and the fit's warning says so."""
+    from rjfit.pipeline.fit_power import misfit_tile_warnings
+
+    uniform = ({"I0": 100.0, "kd": 0.7, "gamma": 10.0, "sigma2": 0.1},) * 4
+    plain, _, _ = sphere_stack(64, n_lights=10, truth=uniform, seed=2)
+    rows, cols = plain.pixel // 64, plain.pixel % 64
+    disc = (rows - 24) ** 2 + (cols - 40) ** 2 <= 6 ** 2
+    painted = dataclasses.replace(plain, y=np.where(disc, 0.2 * plain.y, plain.y))
+    surface = normal_error_noise(plain)[1]
+    assert surface["misfit_tiles"]["tiles"] == 0 and surface["misfit_tiles"]["share"] == 0.0
+    assert misfit_tile_warnings({"normal_error": surface}) == []
+    record = normal_error_noise(painted)[1]
+    assert record["sigma_r2"] > 2.0 * surface["sigma_r2"]
+    assert 0 < record["misfit_tiles"]["tiles"] <= 12 and record["misfit_tiles"]["share"] > 0.5
+    warning, = misfit_tile_warnings({"normal_error": record})
+    assert f"{record['misfit_tiles']['tiles']} of its 5 x 5 px tiles" in warning
+    # a colour fit's record: the worst channel's
+    assert misfit_tile_warnings({"normal_error": {**surface, "channels": [surface, record]}}) == [warning]
+
+
 def test_white_noise_keeps_the_area_power_at_one(paper_sphere_small):
     """Rendered white noise: the summed autocorrelation of tile-fit residuals is about 1, so zeta = 1.
 

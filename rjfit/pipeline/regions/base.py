@@ -130,6 +130,11 @@ class RegionFit(ABC):
         """The :class:`~rjfit.sampler.state.SamplerConfig` of the chains (``burn`` iterations of burn-in;
         ``fixed``: the segmentation held fixed; ``problem``: None where only the settings are wanted)."""
 
+    def shared_start(self, config, problem) -> dict:
+        """What every chain of the fit starts from, built once (:meth:`~rjfit.sampler.regions.base.RegionModel
+        .shared_start` of ``config.regions``)."""
+        return config.regions.shared_start(problem)
+
     def chain_start(self, options, chain: int, start: dict, fixed_segmentation=None) -> dict:
         """Chain ``chain``'s start (keywords of :func:`rjfit.sampler.kernel.initial_state`): the caller's ``start``
         with what the model adds (``fixed_segmentation``: the model's layout to hold fixed, or None)."""

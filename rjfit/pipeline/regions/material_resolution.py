@@ -17,12 +17,13 @@ __all__ = ["material_resolution", "resolution_warning", "resolution_size", "reso
 
 
 def material_resolution(problem, materials, labels, options, term_power: float = 0.0,
-                        term_noise="constant") -> dict | None:
+                        term_noise="constant", channel_scales=None) -> dict | None:
     """The smallest region of half the albedo that the fit would give a material of its own inside its largest
     material (:func:`rjfit.posterior.resolution.smallest_material`, at that material's posterior means and on
     the plain forward model: effects are left out of the prediction), its outline's earning under the edge
     term counted where the fit has one (``term_power``, its power, > 0; ``term_noise``, its noise: a measured noise
-    counts the matches' typical weight). A joint colour fit: half the albedo in every channel, each channel's
+    counts the matches' typical weight; ``channel_scales``: the term's :meth:`~rjfit.sampler.regions.materials.edges
+    .EdgeTerm.channel_scales` where the caller has the term, else it is built here). A joint colour fit: half the albedo in every channel, each channel's
     observations on its own variance and edge scale."""
     if not materials:
         return None
@@ -30,8 +31,10 @@ def material_resolution(problem, materials, labels, options, term_power: float =
     if term_power > 0:
         # the term's power / (2 s_c^2), s_c a constant of the data; an outline pair's step of S beats no step by about
         # NO_STEP_NOISE S^2 per light (edges.no_step_sums: the trend beside the pair leaves the step out)
-        edge_scales = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP,
-                                noise=term_noise).channel_scales() * NO_STEP_NOISE
+        if channel_scales is None:
+            channel_scales = edge_term(problem, labelled_pixels(problem), term_power, EDGE_GAP,
+                                       noise=term_noise).channel_scales()
+        edge_scales = np.asarray(channel_scales, float) * NO_STEP_NOISE
     largest = max(materials, key=lambda m: m["pixels"])
     mine = np.asarray(labels).ravel()[problem.pixel] == largest["material"]
     cos_hn = np.exp(problem.log_cos_hn[mine].astype(float))

@@ -28,11 +28,11 @@ from rjfit.pipeline.fit_folder import save_chain_arrays
 from rjfit.posterior import caveats
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
-from rjfit.posterior.boundaries import boundary_support, edge_group_count, edge_groups, unsupported_boundary_warnings
 from rjfit.pipeline.fit_power import edge_settings
 from rjfit.pipeline.fit_settings import assemble
 from rjfit.pipeline.options import FURTHER_MATERIAL_ODDS, FitOptions
 from rjfit.pipeline.regions.base import FitResult, RegionFit, truth_summary
+from rjfit.pipeline.regions.material_boundaries import add_boundary_check, edge_groups_posterior, material_boundaries
 from rjfit.pipeline.regions.material_resolution import (material_resolution, resolution_sentence, resolution_size,
                                                         resolution_warning)
 from rjfit.pipeline.report_numbers import finite, number, probability
@@ -48,18 +48,14 @@ __all__ = ["MaterialFit", "summarise_materials", "edge_noise_record", "edge_nois
            "EMPTY_MATERIALS_NOTE", "resolution_size", "resolution_sentence", "ghost_material_prior", "GHOST_PIXELS",
            "GHOST_ODDS"]
 
-#: label snapshots per chain whose edge groups are counted (evenly spaced over the kept ones): each costs a
-#: least-squares fit per material and the boundary check, 0.2 to 0.6 s on the DiLiGenT ball's 1.3 million
-#: observations
-EDGE_GROUP_SNAPSHOTS = 10
-
 EMPTY_MATERIALS_NOTE = ("no material is ever empty: every state's K materials each hold at least one pixel (the label "
                         "sweep keeps a material's last pixel, a cluster move that empties a material removes it)")
 
 
-def summarise_materials(records, problem, options, burn: int, config):
+def summarise_materials(records, problem, options, burn: int, config, edges=None):
     """The material model's summary entries and results: ``(summary, MAP labels, prediction, extra)``; ``config``:
-    the chains' sampler settings (the edge term's power as they took it).
+    the chains' sampler settings (the edge term's power as they took it); ``edges``: the chains' edge term where the
+    caller has it (else the resolution builds its own).
 
     ``extra`` holds ``map_probability`` (H, W) and the relabelled ``draws``
     (:class:`rjfit.posterior.materials.RelabelledDraws`).
@@ -97,7 +93,7 @@ def summarise_materials(records, problem, options, burn: int, config):
         summary["warnings"].append(cap)
     summary["warnings"] += edge_noise_warnings(summary["edge_noise"])
     resolution = material_resolution(problem, summaries, labels, options, float(config.regions.edge_power),
-                                     config.regions.edge_noise)
+                                     config.regions.edge_noise, None if edges is None else edges.channel_scales())
     if resolution is not None:
         summary["material_resolution"] = resolution
         if RESOLUTION_WARN_PIXELS < resolution["pixels"] < np.inf:
@@ -147,77 +143,6 @@ def edge_noise_warnings(record) -> list:
     return [f"the edge term's measured noise left almost no white part: its white variance is held at its floor "
             f"{MIN_WHITE} (of the differences' robust spread squared), so no pair weighs more than "
             f"{1 / MIN_WHITE:.0f} times a typical one (--edge-noise)"]
-
-
-def material_boundaries(problem, observations, materials, labels) -> tuple[dict, list]:
-    """Whether the data step where the MAP materials meet (:func:`rjfit.posterior.boundaries.boundary_support`).
-
-    Returns the summary entries ``boundaries`` (a row per pair of adjacent materials),
-    ``material_groups`` (the materials joined where they meet without an edge; each group's
-    materials in order, the groups by their first) and ``edge_supported_materials`` (their
-    number), and a warning per boundary without an edge; nothing for one material, a joint
-    colour fit or a fit with effects (whose plain prediction the check would compare with the
-    data in place of the fit's own).
-    """
-    if not _checkable(problem) or len(materials) < 2:
-        return {}, []
-    rows = boundary_support(labels, None, problem.y, problem.C, problem.log_cos_hn, problem.pixel,
-                            problem.light, int(observations.n_lights))
-    groups = edge_groups(rows, len(materials))
-    return ({"boundaries": rows, "edge_supported_materials": len(groups), "material_groups": groups},
-            unsupported_boundary_warnings(rows))
-
-
-def _checkable(problem) -> bool:
-    """Whether the boundary check applies: one channel and no effects (whose plain prediction the check would
-    compare with the data in place of the fit's own)."""
-    return problem.n_channels == 1 and problem.effects is None
-
-
-def edge_groups_posterior(records, burn: int, problem, observations) -> tuple[dict, list]:
-    """The posterior over the number of edge-supported material groups, and a warning when the chains disagree.
-
-    Over :data:`EDGE_GROUP_SNAPSHOTS` kept label snapshots per chain (evenly spaced), the share
-    whose materials form n groups once those that meet where the data show no edge are joined
-    (:func:`rjfit.posterior.boundaries.edge_group_count`): a summary of the same draws as
-    ``materials_posterior`` that counts a split along the model's smooth misfit as one material.
-    Nothing for a joint colour fit or a fit with effects (as :func:`material_boundaries`).
-    """
-    if not _checkable(problem):
-        return {}, []
-    light, per_chain = problem.light, []
-    for record in records:
-        kept = np.flatnonzero(record.cp_iteration >= burn)
-        chosen = kept[np.unique(np.linspace(0, kept.size - 1, min(EDGE_GROUP_SNAPSHOTS, kept.size)).round()
-                                .astype(np.int64))] if kept.size else kept
-        per_chain.append([edge_group_count(record.material_labels[s], problem.y, problem.C, problem.log_cos_hn,
-                                           problem.pixel, light, int(observations.n_lights)) for s in chosen])
-    pooled = [n for counts in per_chain for n in counts]
-    if not pooled:
-        return {}, []
-    chain_posteriors = [mat.count_shares(counts) if counts else {} for counts in per_chain]
-    modes = {next(iter(shares)) for shares in chain_posteriors if shares}
-    warnings = [] if len(modes) < 2 else [
-        f"the chains disagree on the number of edge-supported material groups (most frequent per chain: "
-        f"{', '.join(next(iter(p)) if p else '-' for p in chain_posteriors)}): read edge_groups_posterior as a rough "
-        f"guide and run longer or more chains"]
-    return ({"edge_groups_posterior": mat.count_shares(pooled), "chain_edge_groups_posterior": chain_posteriors,
-             "edge_groups_snapshots": len(pooled)}, warnings)
-
-
-def add_boundary_check(result, observations, records) -> None:
-    """:func:`material_boundaries` and :func:`edge_groups_posterior` into ``result``: their summary entries and
-    warnings, and ``edge_group`` (the MAP labels with the joined materials' group per pixel, for ``maps.exr``)."""
-    entries, warnings = material_boundaries(result.problem, observations, result.summary["regions"], result.labels)
-    posterior, disagreement = edge_groups_posterior(records, result.burn, result.problem, observations)
-    result.summary.update(entries)
-    result.summary.update(posterior)
-    result.summary["warnings"] += warnings + disagreement
-    if "material_groups" in entries:
-        group_of = np.empty(len(result.summary["regions"]))
-        for index, members in enumerate(entries["material_groups"]):
-            group_of[members] = index
-        result.extra["edge_group"] = np.where(result.labels >= 0, group_of[np.maximum(result.labels, 0)], np.nan)
 
 
 def material_number_warnings(materials, prior) -> list:
@@ -357,6 +282,19 @@ class MaterialFit(RegionFit):
     measured_default = True
     joint_colour = True
 
+    def __init__(self):
+        # (problem, the edge term that measured its settings on it in sampler_config): the chains' shared start and
+        # the summary's resolution take it instead of building it again (minutes and gigabytes at 2048 x 2048)
+        self._measured_edges = None
+
+    def measured_edges(self, problem, regions):
+        """The edge term this fit measured on ``problem`` where the sampler settings ``regions`` are its (else
+        None: the caller builds its own)."""
+        if self._measured_edges is None or self._measured_edges[0] is not problem:
+            return None
+        edges = self._measured_edges[1]
+        return edges if regions.has_edge_term and regions.built_with(edges) else None
+
     @staticmethod
     def edge_term_applies(values: dict) -> bool:
         # the edge term reads the plain prediction (one channel, or each channel of a joint colour fit) under the
@@ -425,8 +363,9 @@ class MaterialFit(RegionFit):
 
     def sampler_config(self, options, *, burn: int, fixed: bool = False, problem=None) -> SamplerConfig:
         model = MaterialRegions()
-        power, gain_sd, noise = edge_settings(problem, options) if problem is not None else \
-            (options.edge_power, options.edge_gain_sd, options.edge_noise)
+        power, gain_sd, noise, edges = edge_settings(problem, options) if problem is not None else \
+            (options.edge_power, options.edge_gain_sd, options.edge_noise, None)
+        self._measured_edges = None if edges is None else (problem, edges)
         regions = replace(model, max_materials=options.max_materials,
                           potts=replace(model.potts, beta=options.potts_beta, rho=options.potts_rho),
                           cluster=replace(model.cluster, material_seed=options.cluster_material_seed),
@@ -435,6 +374,9 @@ class MaterialFit(RegionFit):
                           component_moves=options.component_moves,
                           update_labels=not fixed, jumps=not fixed)
         return assemble(options, regions, burn)
+
+    def shared_start(self, config, problem) -> dict:
+        return config.regions.shared_start(problem, edges=self.measured_edges(problem, config.regions))
 
     def chain_start(self, options, chain: int, start: dict, fixed_segmentation=None) -> dict:
         if fixed_segmentation is not None:      # (H, W) material labels
@@ -452,7 +394,8 @@ class MaterialFit(RegionFit):
     def summarise(self, records, problem, prior, config, options, run: dict, warnings: list, truth_labels,
                   observations) -> FitResult:
         burn = config.kernel.burn_in
-        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn, config)
+        summary, labels, prediction, extra = summarise_materials(records, problem, options, burn, config,
+                                                                 self.measured_edges(problem, config.regions))
         summary.update(run)
         summary["warnings"] += material_number_warnings(summary["regions"], prior) + warnings
         if truth_labels is not None:

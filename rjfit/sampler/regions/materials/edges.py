@@ -143,9 +143,10 @@ class EdgeTerm(NamedTuple):
     ``d``, ``c_first``, ``c_second``, ``l_first``, ``l_second`` (M,): per match the difference and
     both ends' ``C`` and ``log <h.n>``; ``no_step`` (P,): each pair's SS of no step
     (:func:`~rjfit.sampler.regions.materials.edge_baseline.no_step_sums`); ``pair_of`` (H W, 4):
-    each pixel's pairs (-1: none); ``scale`` = power / (2 s^2). Under a measured noise (``noise``: its fitted
-    record), ``d`` and both ``C`` are each divided by its match's noise sd relative to ``s``, and ``typical_weight`` is
-    the median of the matches' weights (1 / that sd squared; 1 under one scale).
+    each pixel's pairs (-1: none); ``scale`` = power / (2 s^2); ``gap``: the pairs' pixels this far apart. Under a
+    measured noise (``noise``: its fitted record), ``d`` and both ``C`` are each divided by its match's noise sd
+    relative to ``s``, and ``typical_weight`` is the median of the matches' weights (1 / that sd squared; 1 under
+    one scale).
     """
 
     power: float
@@ -166,10 +167,12 @@ class EdgeTerm(NamedTuple):
     gain: np.ndarray = np.zeros(2)
     noise: tuple | None = None
     typical_weight: float = 1.0
+    gap: int = EDGE_GAP
 
     @property
     def gain_sd(self) -> float:
-        """tau, the sd of the local gain integrated out of each pair (module docstring; 0: none)."""
+        """tau, the sd of the local gain integrated out of each pair (module docstring; 0: none): the given one
+        (``sqrt(fl(tau^2)) = tau`` in binary floating point, so a term built again from it is this term)."""
         return float(np.sqrt(max(float(self.gain[0]), 0.0)))
 
     def total(self, pixels, theta, memo=None) -> float:
@@ -392,7 +395,7 @@ def edge_term(problem, labelled, power="auto", gap: int = EDGE_GAP, gain_sd=0.0,
                     c_second=(C[j] * root).astype(np.float32), l_first=lch[i].astype(np.float32),
                     l_second=lch[j].astype(np.float32), no_step=pair_no_step, pair_of=pair_of, channel=channel,
                     weight=weight, n_channels=n_ch, gain=gain, noise=noise_fit,
-                    typical_weight=float(np.median(root * root)) if root.size else 1.0)
+                    typical_weight=float(np.median(root * root)) if root.size else 1.0, gap=int(gap))
 
 
 def _match_noise(noise: str, residual, shading_change, match_spread, l_first, l_second, pair, n_pairs: int):

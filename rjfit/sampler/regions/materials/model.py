@@ -186,23 +186,47 @@ class MaterialRegions(RegionModel):
     def max_regions(self) -> int:
         return self.max_materials
 
-    def shared_start(self, problem) -> dict:
+    def shared_start(self, problem, edges=None) -> dict:
         """``{"bonds": ...}``: the bonds, the segment family and the edge term, which depend on the data and the
         settings only. A fit builds them once for all its chains (on a 1024 x 1024 stack they took minutes and
-        gigabytes per chain, 2026-11-28)."""
-        return {"bonds": self.data_bonds(problem)}
+        gigabytes per chain, 2026-11-28). ``edges``: :meth:`data_bonds`'."""
+        return {"bonds": self.data_bonds(problem, edges)}
 
-    def data_bonds(self, problem):
-        """The bonds of ``problem`` with the segment family and the edge term where this model samples them."""
+    def data_bonds(self, problem, edges=None):
+        """The bonds of ``problem`` with the segment family and the edge term where this model samples them;
+        ``edges``: the edge term of ``problem`` already built with this model's settings (the fit's measurement of
+        them: :func:`rjfit.pipeline.fit_power.edge_settings`), taken instead of building it again.
+
+        Raises
+        ------
+        ValueError
+            If ``edges`` was built with other settings than this model's.
+        """
         bonds = bond_probabilities(problem, self.cluster.q_max(self.potts.beta), self.cluster.bond_tau)
         labelled = labelled_pixels(problem)
         if self.segments.moves and self.update_labels:
             bonds = bonds._replace(segments=segment_family(bonds.features, labelled, self.segments.superpixel_size,
                                                            self.segments.max_regions))
-        if self.has_edge_term:
+        if self.has_edge_term and edges is not None:
+            if not self.built_with(edges):
+                raise ValueError(f"the edge term given was built with power {edges.power}, gain sd {edges.gain_sd} "
+                                 f"and noise {edges.noise}, not the model's {self.edge_power}, "
+                                 f"{self.edge_gain_sd} and {self.edge_noise}")
+            bonds = bonds._replace(edges=edges)
+        elif self.has_edge_term:
             bonds = bonds._replace(edges=edge_term(problem, labelled, self.edge_power, self.edge_gap,
                                                    self.edge_gain_sd, self.edge_noise))
         return bonds
+
+    def built_with(self, edges) -> bool:
+        """Whether the edge term ``edges`` has this model's settings (gap, and power, gain and noise as numbers:
+        measured)."""
+        noise = None if isinstance(self.edge_noise, str) and self.edge_noise == "constant" else self.edge_noise
+        return (edges.gap == self.edge_gap and not isinstance(self.edge_power, str)
+                and edges.power == float(self.edge_power)
+                and not isinstance(self.edge_gain_sd, str) and edges.gain_sd == float(self.edge_gain_sd)
+                and (edges.noise is None if noise is None else
+                     not isinstance(noise, str) and edges.noise == tuple(float(c) for c in noise)))
 
     def initial_layout(self, problem, rng, *, n_materials=None, pixel_labels=None, bonds=None) -> MaterialLabels:
         """A dispersed start: ``pixel_labels`` (H, W) if given, else a k-means of ``n_materials`` clusters.
