@@ -17,13 +17,14 @@ from rjfit.effects.ggx import GGX
 from rjfit.effects.interreflection import Interreflection
 from rjfit.effects.light_calibration import LightCalibration
 from rjfit.effects.masking import Masking
+from rjfit.effects.rough_coating import RoughCoating
 from rjfit.effects.second_lobe import SecondLobe
 
 __all__ = ["Effect", "CameraResponse", "FitForm", "Columns", "Param", "STAGES", "ALL_EFFECTS", "EFFECTS", "get_effect",
-           "effects_help", "Fresnel", "Masking", "GGX", "SecondLobe", "Coating", "Interreflection", "Ambient", "CastShadows",
+           "effects_help", "Fresnel", "Masking", "GGX", "SecondLobe", "Coating", "RoughCoating", "Interreflection", "Ambient", "CastShadows",
            "CameraGamma", "CameraSRGB", "LightCalibration"]
 
-ALL_EFFECTS = (Fresnel(), Masking(), GGX(), SecondLobe(), Coating(), Interreflection(), Ambient(), CastShadows(), CameraGamma(),
+ALL_EFFECTS = (Fresnel(), Masking(), GGX(), SecondLobe(), Coating(), RoughCoating(), Interreflection(), Ambient(), CastShadows(), CameraGamma(),
                CameraSRGB(), LightCalibration())
 EFFECTS = {effect.name: effect for effect in ALL_EFFECTS}
 

@@ -61,7 +61,7 @@ from rjfit.model.priors import LogitNormal
 from rjfit.render.scene_change import MitsubaChange
 
 __all__ = ["Coating", "CoatingFactors", "dielectric_fresnel", "diffuse_fresnel_reflectance", "coating_factors",
-           "ETA_MIN", "ETA_MAX"]
+           "coating_lobe_factor", "ETA_MIN", "ETA_MAX"]
 
 #: the coating's index of refraction: from below water's (1.33) to dense glass (1.8) and beyond
 ETA_MIN, ETA_MAX = 1.2, 2.0
@@ -85,13 +85,17 @@ def diffuse_fresnel_reflectance(eta):
     return float(np.sum(_WEIGHTS * dielectric_fresnel(mu, eta) * mu))
 
 
+def coating_lobe_factor(cos_hv, w, eta):
+    """The factor on the lobe per observation, ``(1 - w) + w F(<h.v>) / F(1)`` (module docstring)."""
+    f_normal = ((eta - 1.0) / (eta + 1.0)) ** 2
+    return (1.0 - w) + w * (dielectric_fresnel(cos_hv, eta) / f_normal)
+
+
 def coating_factors(cos_l, cos_v, cos_hv, w, eta):
     """The factors on the diffuse part and on the lobe per observation (module docstring): weight w, index eta."""
     transmitted = (1.0 - dielectric_fresnel(cos_l, eta)) * (1.0 - dielectric_fresnel(cos_v, eta))
     diffuse = (1.0 - w) + w * (transmitted / (1.0 - diffuse_fresnel_reflectance(eta)))
-    f_normal = ((eta - 1.0) / (eta + 1.0)) ** 2
-    lobe = (1.0 - w) + w * (dielectric_fresnel(cos_hv, eta) / f_normal)
-    return diffuse, lobe
+    return diffuse, coating_lobe_factor(cos_hv, w, eta)
 
 
 def _eta_prior():
@@ -118,9 +122,14 @@ class Coating(Effect):
         irradiance_cos = np.asarray(ctx.irradiance, dtype=float) * np.maximum(ctx.cos_ln, 0.0)
         return ctx.cos_ln, ctx.cos_vn, ctx.cos_hv, irradiance_cos
 
+    def factors(self, theta, features):
+        """The factors on the diffuse part and on the lobe of the observations (``features``: :meth:`prepare`'s)."""
+        cos_l, cos_v, cos_hv = features[:3]
+        return coating_factors(cos_l, cos_v, cos_hv, theta[0], theta[1])
+
     def apply(self, terms, theta, features, ctx):
-        cos_l, cos_v, cos_hv, irradiance_cos = features
-        diffuse, lobe = coating_factors(cos_l, cos_v, cos_hv, theta[0], theta[1])
+        diffuse, lobe = self.factors(theta, features)
+        irradiance_cos = features[3]
         kd = terms["kd"]
         change = kd / np.pi * (diffuse - 1.0) + (1.0 - kd) * terms["spec"] * (lobe - 1.0)
         terms["direct"] = terms["direct"] + terms["I0"] * irradiance_cos * change
@@ -147,8 +156,12 @@ class CoatingFactors(FitForm):
     stage: str = "direct"
     order_in_stage = -0.5
 
+    def factors(self, theta):
+        """The factors on the diffuse column and on the lobe column of the observations."""
+        return coating_factors(self.cos_l, self.cos_v, self.cos_hv, theta[0], theta[1])
+
     def apply(self, columns: Columns, theta) -> None:
-        diffuse, lobe = coating_factors(self.cos_l, self.cos_v, self.cos_hv, theta[0], theta[1])
+        diffuse, lobe = self.factors(theta)
         if columns.second_lobe is None:
             columns.C = columns.C * diffuse
         else:

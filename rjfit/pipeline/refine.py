@@ -38,7 +38,7 @@ from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.refine_resume import diagnosis_request, fit_request, forget, is_kept, remember
-from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, trial_to_fit
+from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, revised_trial, trial_to_fit
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
@@ -132,7 +132,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
            first_diagnosis_dir=None, **diagnose_options) -> dict:
     """Diagnose, refit with what was named (or revised), diagnose again, until nothing changes.
 
-    A diagnosis that names nothing but offers a trial is fitted once more with it (:mod:`rjfit.pipeline.refine_trial`).
+    A diagnosis that names nothing but offers a trial is fitted once more with it, and a trial not kept whose diagnosis
+    swapped one of its effects once more with the swap (:mod:`rjfit.pipeline.refine_trial`).
 
     Parameters
     ----------
@@ -155,9 +156,9 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         ``refine.json``: ``rounds`` (per round: ``fit``, ``diagnosis``, ``effects`` sampled, ``map_model``,
         ``n_regions``, ``label_accuracy``, ``gap``, ``gap_simulated`` (null without truth, a mesh), ``named``,
         ``revisions`` (swaps, drops), ``feature_change`` (per feature rendered from the fitted regions:
-        :func:`feature_change`), ``trial`` (what the next fit tried), ``seconds``), ``named_effects`` (the last
-        final model's, in the order named), ``trials`` (verdicts, :mod:`rjfit.pipeline.refine_trial`),
-        ``final_fit``, ``stopped`` and ``warnings``.
+        :func:`feature_change`), ``trial`` (what the next fit tried), ``seconds``), ``named_effects`` (the last final
+        model's, in the order named), ``trials`` (verdicts, :mod:`rjfit.pipeline.refine_trial`), ``final_fit``,
+        ``stopped`` and ``warnings``.
 
     Raises
     ------
@@ -169,8 +170,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     """
     if isinstance(max_rounds, bool) or not isinstance(max_rounds, (int, np.integer)) or max_rounds < 1:
         raise ValueError(f"max_rounds must be an integer >= 1, got {max_rounds!r}")
-    started = time.perf_counter()
-    fit_dir, out_dir = Path(fit_dir), Path(out_dir)
+    started, fit_dir, out_dir = time.perf_counter(), Path(fit_dir), Path(out_dir)
     summary = read_summary(fit_dir)
     options = fit_options_of(summary, fit_dir)
     _refuse_sampled_normals(options, fit_dir)
@@ -179,19 +179,21 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     result = {"source_fit": str(fit_dir.resolve()), "fit_options": options.to_json(), "rounds": [],
               "named_effects": [], "final_fit": str(fit_dir), "stopped": "", "warnings": [], "trials": []}
     current, fit_seconds = fit_dir, summary.get("seconds")
-    trying, final_round, tried = None, 0, []    # the effects this fit tries with the regions; the result's round
+    # the effects this fit tries with the regions; the result's round and its final model's effects; the sets tried
+    trying, final_round, kept_final, tried = None, 0, [], []
     for index in range(max_rounds):
         diagnosis_dir = Path(first_diagnosis_dir) if index == 0 and first_diagnosis_dir is not None else (
             out_dir / f"round{index + 1}" / "diagnosis")
-        diagnosis = _diagnosis(current, diagnosis_dir, index, say, seed=seed, max_steps=max_steps, progress=progress,
-                               **diagnose_options)
-        record = _round_record(current, read_summary(current), diagnosis, diagnosis_dir, fit_seconds)
-        result["rounds"].append(record)
-        say(_round_line(index, record))
-        final, new = _final_model(diagnosis, record)
+        diagnosis, record, final, new = _round(current, diagnosis_dir, index, fit_seconds, result, say, seed=seed,
+                                               max_steps=max_steps, progress=progress, **diagnose_options)
         if trying is not None and not _trial_kept(result, trying, final_round, index, final, say):
-            break
-        trying, final_round, result["final_fit"] = None, index, str(current)
+            trying = _revised_instead(result, trying, record, tried, max_rounds - index - 1, final_round, index, say)
+            if trying is None:
+                break
+            effects = tuple(kept_final) + tuple(name for name in trying if name not in kept_final)
+            current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, diagnosis_dir, options, gate, say)
+            continue
+        trying, final_round, kept_final, result["final_fit"] = None, index, list(final), str(current)
         result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
         record["feature_change"] = [] if new or record["dropped"] else feature_change(dataset_dir, current, diagnosis_dir)
         result["stopped"], warning = _why_stop(index, max_rounds, options, record, new, current)
@@ -200,13 +202,21 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
             _warn(result, warning, say)
             break
         write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
-        next_fit = out_dir / f"round{index + 2}" / "fit"
         effects = tuple(final) + tuple(trying or ())
         for line in _next_round_lines(index, record, effects):
             say(line)
-        current, fit_seconds = next_fit, _fit_round(dataset_dir, next_fit, options.replace(
-            effects=effects, effects_from=diagnosis_dir), gate, index, say)
+        current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, diagnosis_dir, options, gate, say)
     return _finish(result, out_dir, dataset_dir, final_round, started)
+
+
+def _round(current: Path, diagnosis_dir: Path, index: int, fit_seconds, result: dict, say, **options) -> tuple:
+    """Round ``index + 1``'s diagnosis of ``current`` and its record (appended to ``result["rounds"]`` and said):
+    ``(diagnosis, record, the final model's effects, those the fit did not sample)``."""
+    diagnosis = _diagnosis(current, diagnosis_dir, index, say, **options)
+    record = _round_record(current, read_summary(current), diagnosis, diagnosis_dir, fit_seconds)
+    result["rounds"].append(record)
+    say(_round_line(index, record))
+    return (diagnosis, record) + _final_model(diagnosis, record)
 
 
 def _diagnosis(fit_dir: Path, diagnosis_dir: Path, index: int, say, *, seed, max_steps, **options) -> dict:
@@ -284,6 +294,29 @@ def _trial_kept(result: dict, effects: list, before: int, index: int, final: lis
     result["stopped"] = (f"round {index + 1}'s trial of {' + '.join(effects)} was not kept ({verdict['why']}): "
                          f"round {before + 1}'s fit is the result")
     return False
+
+
+def _revised_instead(result: dict, trying: list, record: dict, tried: list, rounds_left: int, before: int,
+                     index: int, say) -> list | None:
+    """Where the trial just judged (not kept) was revised by its diagnosis' swaps
+    (:func:`rjfit.pipeline.refine_trial.revised_trial`): the revised trial, the stop undone and the trial recorded in
+    the round's ``record``; else None."""
+    revised = revised_trial(trying, record.get("revisions") or [], tried, rounds_left)
+    if revised is not None:
+        result["stopped"], record["trial"] = "", revised
+        say(f"round {index + 2}: round {index + 1}'s diagnosis swapped an effect of the trial for one of its kind; "
+            f"fitting again with {' + '.join(revised)} sampled with the regions, judged against round {before + 1}'s "
+            f"fit")
+    return revised
+
+
+def _fit_next(dataset_dir: Path, out_dir: Path, index: int, effects: tuple, diagnosis_dir: Path, options, gate: dict,
+              say) -> tuple:
+    """Round ``index + 2``'s fit, sampling ``effects`` with the regions from ``diagnosis_dir``'s estimates: its folder
+    and seconds."""
+    next_fit = out_dir / f"round{index + 2}" / "fit"
+    return next_fit, _fit_round(dataset_dir, next_fit, options.replace(effects=effects, effects_from=diagnosis_dir),
+                                gate, index, say)
 
 
 def _final_model(diagnosis: dict, record: dict) -> tuple:

@@ -23,12 +23,17 @@ KEEPS the trial only when all three hold:
 
 Otherwise the fit before the trial stays the loop's result, and ``refine.json`` says what was
 tried and why it was not kept. Each effect set is tried once.
+
+A trial not kept whose diagnosis SWAPPED one of its effects for another of the same kind (the smooth
+coating for the rough one, :mod:`rjfit.diagnose.revisit`) says the trial fitted the wrong member of that
+kind: the set with the swap made is then a trial of its own (:func:`revised_trial`), fitted once more
+and judged against the same fit before the first, while rounds are left.
 """
 from __future__ import annotations
 
 from rjfit.diagnose.naming import GAP_SHARE
 
-__all__ = ["TRIAL_GAP_SHARE", "trial_to_fit", "judge_trial"]
+__all__ = ["TRIAL_GAP_SHARE", "trial_to_fit", "judge_trial", "revised_trial"]
 
 #: the share of the gap before it that a trial fit's gap may keep: the naming rule's, 1 - GAP_SHARE
 TRIAL_GAP_SHARE = 1.0 - GAP_SHARE
@@ -74,3 +79,17 @@ def judge_trial(effects: list, before: dict, after: dict, final_effects: list) -
     return {"effects": list(effects), "gap_before": gap_before, "gap_after": gap_after, "kept": not why,
             "why": "; ".join(why) if why else (f"the gap fell from {gap_before:.3g} to {gap_after:.3g} on the new "
                                                f"segmentation")}
+
+
+def revised_trial(effects: list, revisions: list, tried: list, rounds_left: int) -> list | None:
+    """The trial of ``effects`` with the swaps of the trial fit's diagnosis made (``revisions``: its round record's,
+    each ``{"action", "effect", "replacement"}``), where one of them swapped an effect of the trial, the revised set
+    was not tried (``tried``: sorted sets, to which it is added) and a round is left to judge it; else None."""
+    swaps = {entry["effect"]: entry["replacement"] for entry in revisions if entry.get("action") == "swapped"}
+    if rounds_left < 1 or not any(name in swaps for name in effects):
+        return None
+    revised = [swaps.get(name, name) for name in effects]
+    if sorted(revised) in tried:
+        return None
+    tried.append(sorted(revised))
+    return revised

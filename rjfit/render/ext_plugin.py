@@ -14,7 +14,14 @@ no Beckmann masking), ``ggx_w`` (u, default 0: no GGX in the lobe), ``lobe2_v`` 
 0: no second lobe), ``lobe2_alpha`` (alpha2, default 0.2), ``coat_w`` (c, default 0: no coating) and
 ``coat_eta`` (eta, default 1.5): a dielectric coating (:mod:`rjfit.effects.coating`), ``F_eta`` the exact
 unpolarised Fresnel reflectance written here in drjit and ``R(eta) = 2 int F_eta(mu) mu dmu`` summed
-by the midpoint rule (2048 nodes) when the parameters change. Sampling is the plugin's (the
+by the midpoint rule (2048 nodes) when the parameters change. ``coat_alpha`` (default 0: a smooth
+interface) gives the coating's interface a GGX roughness (:mod:`rjfit.effects.rough_coating`): ``K_d``'s
+transmission is then ``roughplastic``'s, ``T(<l.n>) T(<v.n>) / (eta^2 (1 - R_int))``, its table over 64
+cosines computed when the parameters change with Mitsuba's own visible-normal sampling, ``fresnel`` and
+``refract`` and Smith G1 (Gauss-Legendre 32 x 32 over the sample space, as ``roughplastic``) and read by
+linear interpolation as ``roughplastic`` reads its own; ``1 - R_int`` is the smooth series of
+:mod:`rjfit.model.rough_interface` (``roughplastic``'s 128 x 128 estimate is jagged in the parameters, and
+differs from it by a constant factor, under 2e-3). Sampling is the plugin's (the
 Blinn importance sampling stays valid: its density is positive wherever the lobes are; only
 its efficiency changes). ``N(g)`` is Giesen's normalisation written in drjit, the twin of
 :func:`rjfit.model.blinn.blinn_normalisation` (drjit cannot call NumPy inside a kernel); the
@@ -76,17 +83,66 @@ def _diffuse_reflectance(dr, m, eta):
     return m.Float(dr.sum(_dielectric_fresnel(dr, mu, eta) * mu)) * (2.0 / COAT_NODES)
 
 
+#: the rough interface's table: its cosines (roughplastic's 64) and the Gauss-Legendre order per axis (roughplastic's)
+ROUGH_TABLE_SIZE, ROUGH_ORDER = 64, 32
+
+
+def _over_visible_normals(dr, m, alpha: float, order: int, quantity):
+    """``E[quantity(wi, m, distribution)]`` over the visible normals of GGX (roughness alpha) of each table cosine, by
+    Mitsuba's sampling of them on a Gauss-Legendre product rule over its sample space: an array of the table's size."""
+    import mitsuba as mi
+    import numpy as np
+
+    nodes, weights = (np.asarray(values, dtype=float) for values in m.quad.gauss_legendre(order))
+    cosines = np.maximum(1e-6, np.arange(ROUGH_TABLE_SIZE) / (ROUGH_TABLE_SIZE - 1.0))
+    mu, u1, u2 = (grid.ravel() for grid in np.meshgrid(cosines, 0.5 * nodes + 0.5, 0.5 * nodes + 0.5, indexing="ij"))
+    weight = 0.25 * np.outer(weights, weights).ravel()
+    distribution = m.MicrofacetDistribution(mi.MicrofacetType.GGX, alpha, True)
+    wi = m.Vector3f(m.Float(np.sqrt(1.0 - mu * mu)), m.Float(np.zeros_like(mu)), m.Float(mu))
+    normal = distribution.sample(wi, m.Point2f(m.Float(u1), m.Float(u2)))[0]
+    values = np.asarray(quantity(wi, normal, distribution), dtype=float).reshape(ROUGH_TABLE_SIZE, -1)
+    return values @ weight
+
+
+def _rough_interface_table(dr, m, alpha: float, eta: float):
+    """``roughplastic``'s transmittance table of a GGX interface (roughness alpha, index eta), with Mitsuba's
+    microfacet sampling, Fresnel and Smith terms, and ``eta^2 (1 - R_int)`` (module docstring): ``(table, scale)``."""
+    from rjfit.model.rough_interface import internal_transmission
+
+    def transmitted(wi, normal, distribution):
+        fresnel, cos_t, _, eta_ti = m.fresnel(dr.dot(wi, normal), m.Float(eta))
+        through = m.refract(wi, normal, cos_t, eta_ti)
+        return dr.select(through.z < 0.0, distribution.smith_g1(through, normal) * (1.0 - fresnel), 0.0)
+
+    table = _over_visible_normals(dr, m, alpha, ROUGH_ORDER, transmitted)
+    return table, eta * eta * internal_transmission(alpha, eta)
+
+
 def _derive_constants(dr, m, bsdf) -> None:
-    """A plugin's coating constants, 1 / (1 - R(eta)) and 1 / F(1), from its parameters; every one made
-    opaque (a kernel reads them, they are not baked into it)."""
+    """A plugin's coating constants, 1 / (1 - R(eta)) and 1 / F(1), and with a rough interface its table and
+    1 / (eta^2 (1 - R_int)), from its parameters; every one made opaque (a kernel reads them, they are not baked
+    into it)."""
     bsdf.coat_inv_transmitted = 1.0 / (1.0 - _diffuse_reflectance(dr, m, bsdf.coat_eta))
     bsdf.coat_inv_f_normal = 1.0 / _dielectric_fresnel(dr, m.Float(1.0), bsdf.coat_eta)
-    dr.make_opaque(*(getattr(bsdf, key) for key in LOBE_DEFAULTS), bsdf.coat_inv_transmitted, bsdf.coat_inv_f_normal)
+    alpha, eta = float(bsdf.coat_alpha[0]), float(bsdf.coat_eta[0])
+    bsdf.coat_rough = alpha > 0.0      # a Python switch: the kernel traced with or without the table
+    table, scale = _rough_interface_table(dr, m, alpha, eta) if bsdf.coat_rough else ([1.0, 1.0], 1.0)
+    bsdf.coat_table, bsdf.coat_inv_scale = m.Float(table), m.Float(1.0 / scale)
+    dr.make_opaque(*(getattr(bsdf, key) for key in LOBE_DEFAULTS), bsdf.coat_inv_transmitted, bsdf.coat_inv_f_normal,
+                   bsdf.coat_table, bsdf.coat_inv_scale)
+
+
+def _table_lookup(dr, m, table, cos_theta):
+    """``table`` at ``cos_theta``, linear between its entries (``roughplastic``'s ``lerp_gather``)."""
+    x = dr.clip(cos_theta, 0.0, 1.0) * (ROUGH_TABLE_SIZE - 1.0)
+    index = dr.minimum(m.UInt32(x), ROUGH_TABLE_SIZE - 2)
+    weight = x - m.Float(index)
+    return (1.0 - weight) * dr.gather(m.Float, table, index) + weight * dr.gather(m.Float, table, index + 1)
 
 
 #: the plugin's lobe parameters and their defaults (each one's null: no such term)
 LOBE_DEFAULTS = {"f0": 1.0, "mask_w": 0.0, "ggx_w": 0.0, "lobe2_v": 0.0, "lobe2_alpha": 0.2, "coat_w": 0.0,
-                 "coat_eta": 1.5}
+                 "coat_eta": 1.5, "coat_alpha": 0.0}
 
 
 def _lobe_parameters(props) -> dict:
@@ -98,7 +154,7 @@ def _lobe_parameters(props) -> dict:
         For a value out of its range, naming the parameter.
     """
     values = {key: float(props.get(key, default)) for key, default in LOBE_DEFAULTS.items()}
-    f0, mask_w, ggx_w, lobe2_v, lobe2_alpha, coat_w, coat_eta = values.values()
+    f0, mask_w, ggx_w, lobe2_v, lobe2_alpha, coat_w, coat_eta, coat_alpha = values.values()
     if not (0.0 < f0 <= 1.0) or not (0.0 <= mask_w <= 1.0) or not (0.0 <= ggx_w <= 1.0):
         raise ValueError(f"{EXT_PLUGIN_NAME}: need 0 < f0 <= 1, 0 <= mask_w <= 1 and 0 <= ggx_w <= 1, "
                          f"got {f0}, {mask_w}, {ggx_w}")
@@ -106,6 +162,9 @@ def _lobe_parameters(props) -> dict:
         raise ValueError(f"{EXT_PLUGIN_NAME}: need lobe2_v >= 0 and 0 < lobe2_alpha <= 1, got {lobe2_v}, {lobe2_alpha}")
     if not (0.0 <= coat_w <= 1.0) or not (coat_eta > 1.0):
         raise ValueError(f"{EXT_PLUGIN_NAME}: need 0 <= coat_w <= 1 and coat_eta > 1, got {coat_w}, {coat_eta}")
+    if coat_alpha != 0.0 and not (0.02 <= coat_alpha <= 1.0 and 1.2 <= coat_eta <= 2.0):
+        raise ValueError(f"{EXT_PLUGIN_NAME}: need coat_alpha 0 (a smooth interface) or in [0.02, 1] with coat_eta in "
+                         f"[1.2, 2] (the rough interface's domain), got {coat_alpha}, {coat_eta}")
     return values
 
 
@@ -158,8 +217,13 @@ def register_ext():
             coat = self.coat_w
             if has_diffuse:
                 # with coat_w = 0 the factor is (1 - 0) + 0 = 1 exactly: the values it had before
-                transmitted = (1.0 - fresnel(cos_i, self.coat_eta)) * (1.0 - fresnel(cos_o, self.coat_eta))
-                value += self.kd * inv_pi * ((1.0 - coat) + coat * transmitted * self.coat_inv_transmitted)
+                if self.coat_rough:
+                    transmitted = (_table_lookup(dr, m, self.coat_table, cos_i) * _table_lookup(dr, m, self.coat_table, cos_o)
+                                   * self.coat_inv_scale)
+                else:
+                    transmitted = ((1.0 - fresnel(cos_i, self.coat_eta)) * (1.0 - fresnel(cos_o, self.coat_eta))
+                                   * self.coat_inv_transmitted)
+                value += self.kd * inv_pi * ((1.0 - coat) + coat * transmitted)
                 pdf += prob_d * cos_o * inv_pi
             if has_glossy:
                 norm = (g + 2.0) * (g + 4.0) / ((8.0 * math.pi) * (dr.exp2(-0.5 * g) + g))

@@ -36,6 +36,9 @@ ggx_plugin         the back-lit sphere with ``rjfit_blinn_ext`` (ggx_w = 1: a GG
 ggx_plastic        the ``fresnel`` scene with Mitsuba's ``roughplastic`` of distribution "ggx" (the same
                    alpha = sqrt(2/(gamma+2)), IOR 1.5): a GGX dielectric, its lobe GGX with Smith-GGX
                    shadowing under the coating's Fresnel.
+rough_plastic      the ``ggx_plastic`` scene with ONE roughness for every material (alpha ``ROUGH_PLASTIC_ALPHA``):
+                   Mitsuba's own ``roughplastic``, exactly the library's ``ggx`` + ``rough_coating`` (the
+                   regions' fitted gamma giving the lobe's alpha, ``alpha_coat`` the interface's).
 coated_plugin      the back-lit sphere with ``rjfit_blinn_ext`` (ggx_w = 1, coat_w = 1, coat_eta = 1.5: a GGX lobe
                    under a dielectric coating, its diffuse part through the smooth interface; the
                    library's ``ggx`` + ``coating``, exactly).
@@ -94,11 +97,12 @@ def backlit_sphere_definition():
     return scene
 
 
-def _roughplastic(materials, reference_intensity, distribution="beckmann"):
+def _roughplastic(materials, reference_intensity, distribution="beckmann", alpha=None):
     def override(index):
         m = materials[index]
         scale = m["I0"] / reference_intensity
-        return {"type": "roughplastic", "distribution": distribution, "alpha": math.sqrt(2.0 / (m["gamma"] + 2.0)),
+        roughness = math.sqrt(2.0 / (m["gamma"] + 2.0)) if alpha is None else alpha
+        return {"type": "roughplastic", "distribution": distribution, "alpha": roughness,
                 "int_ior": 1.5, "ext_ior": 1.0,
                 "diffuse_reflectance": {"type": "rgb", "value": [scale * m["kd"]] * 3},
                 "specular_reflectance": {"type": "rgb", "value": [1.0] * 3}}
@@ -297,7 +301,7 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
         (Path(path) / "visibility.exr").unlink()
         _edit_meta(path, lambda meta: meta.update(visibility=None))
         return path
-    backlit = {"fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic", "coated_plugin"}
+    backlit = {"fresnel", "fresnel_plugin", "masking", "ggx_plugin", "ggx_plastic", "coated_plugin", "rough_plastic"}
     if kinds & backlit and len(kinds) == 1:
         scene = backlit_sphere_definition()
         materials, reference = scene["materials"], scene["reference_intensity"]
@@ -305,6 +309,8 @@ def render_hidden(kind, out_dir, *, resolution=32, seed=None, noise_variance=0.1
             override = _roughplastic(materials, reference)
         elif kinds == {"ggx_plastic"}:
             override = _roughplastic(materials, reference, distribution="ggx")
+        elif kinds == {"rough_plastic"}:
+            override = _roughplastic(materials, reference, distribution="ggx", alpha=ROUGH_PLASTIC_ALPHA)
         elif kinds == {"fresnel_plugin"}:
             override = _ext_plugin(materials, reference, f0=FRESNEL_F0)
         elif kinds == {"ggx_plugin"}:
@@ -332,3 +338,6 @@ HIDDEN = HIDDEN + ("camera_gamma_sensor",)
 HIDDEN = HIDDEN + ("coated_plugin",)
 #: a lobe no effect of the library models (issue 44: the case that must name nothing)
 HIDDEN = HIDDEN + ("anisotropic_lobe",)
+#: Mitsuba's roughplastic with one roughness for every material: exactly in the library (``ggx`` + ``rough_coating``)
+HIDDEN = HIDDEN + ("rough_plastic",)
+ROUGH_PLASTIC_ALPHA = 0.4

@@ -299,13 +299,15 @@ def run_fingerprint(spec: ChainSpec) -> dict:
 
     The data (every array the likelihood reads), the prior, the kernel's configuration,
     the chain's seed and place among the chains, its length and start, and the sampler's
-    code (the source of ``rjfit.sampler`` and of the effects' fit forms, ``rjfit.effects``):
+    code (the source of ``rjfit.sampler``, of the effects' fit forms, ``rjfit.effects``, and of the physics they
+    call, ``rjfit.model``):
     a checkpoint written by other settings, other data or an older kernel would silently mix
     two different chains.
     """
     problem = spec.problem
     sampler_dir = Path(__file__).resolve().parent
-    code_files = sorted(sampler_dir.rglob("*.py")) + sorted((sampler_dir.parent / "effects").rglob("*.py"))
+    code_files = sorted(sampler_dir.rglob("*.py")) + sorted((sampler_dir.parent / "effects").rglob("*.py")) + sorted(
+        (sampler_dir.parent / "model").rglob("*.py"))
     code = [path.read_bytes() for path in code_files]
     data = [getattr(problem, name) for name in ("y", "C", "log_cos_hn", "pixel")]
     if problem.effects is not None:     # the effects and their features are part of the model fitted

@@ -36,6 +36,8 @@ def scenes(tmp_path_factory):
     ("backlit", ["ggx", "fresnel", "masking"], [[1.0], [0.1], [0.5]], ["fresnel", "masking"], {}),
     ("backlit", ["coating"], [[0.9, 1.5]], [], {}),
     ("backlit", ["ggx", "coating", "masking"], [[1.0], [1.0, 1.33], [0.5]], ["masking"], {}),
+    ("backlit", ["rough_coating"], [[0.9, 1.5, 0.3]], [], {}),
+    ("backlit", ["ggx", "rough_coating"], [[1.0], [1.0, 1.5, 0.6]], ["ggx"], {}),
     ("sphere", ["second_lobe"], [[0.4, 0.15]], [], {}),
     ("dented_direct", ["second_lobe", "coating", "cast_shadows"], [[0.6, 0.3], [0.7, 1.8], [1.0]], ["second_lobe",
                                                                                                   "cast_shadows"], {}),

@@ -23,7 +23,7 @@ from rjfit.effects.interreflection import INDIRECT_SPP, feature_key
 from rjfit.diagnose.model import fit_prediction, predict
 
 THETAS = {"fresnel": [0.1], "masking": [0.8], "ggx": [0.7], "second_lobe": [0.4, 0.15], "coating": [0.8, 1.6],
-          "cast_shadows": [0.7], "interreflection": [1.3], "ambient": [0.03],
+          "rough_coating": [0.8, 1.6, 0.35], "cast_shadows": [0.7], "interreflection": [1.3], "ambient": [0.03],
           "camera_gamma": [2.2], "camera_srgb": [1.3]}
 
 
@@ -63,6 +63,8 @@ ALL_BUT_GAMMA = ["fresnel", "masking", "cast_shadows", "interreflection", "light
                             (["second_lobe", "cast_shadows", "ambient"], "constant"),
                             (["cast_shadows", "coating", "second_lobe", "ggx"], "relative"),   # coating after the lobe
                             (ALL_BUT_GAMMA + ["coating", "ggx"], "relative"),
+                            (["cast_shadows", "rough_coating", "second_lobe", "ggx"], "relative"),
+                            (ALL_BUT_GAMMA + ["rough_coating", "ggx"], "relative"),
                             (["ambient", "camera_gamma"], "relative")])
 def test_the_fit_s_mean_is_the_criticism_s_closed_form(dataset, names, noise):
     ctx, params = _context(dataset, noise)

@@ -58,3 +58,26 @@ def test_a_trial_not_kept_leaves_the_fit_before_it_as_the_result():
     assert result["final_fit"] == "round1" and result["named_effects"] == []
     assert "round 1's fit is the result" in result["stopped"] and not result["trials"][0]["kept"]
     assert "not kept" in lines[0]
+
+
+def test_a_trial_whose_diagnosis_swaps_one_of_its_effects_is_fitted_again_with_the_swap():
+    """A trial not kept whose diagnosis swapped one of its effects for one of that effect's kind (the smooth
+    coating for the rough one): the set with the swap is the next trial, once, while a round is left."""
+    from rjfit.pipeline.refine import _revised_instead
+    from rjfit.pipeline.refine_trial import revised_trial
+
+    swap = [{"action": "swapped", "effect": "coating", "replacement": "rough_coating"}]
+    tried = [["coating", "light_calibration"]]
+    assert revised_trial(["coating", "light_calibration"], swap, tried, 1) == ["rough_coating", "light_calibration"]
+    assert tried[-1] == ["light_calibration", "rough_coating"]
+    assert revised_trial(["coating", "light_calibration"], swap, tried, 1) is None            # tried once
+    assert revised_trial(["coating"], swap, [], 0) is None                                    # no round left
+    assert revised_trial(["ggx"], swap, [], 2) is None                                        # not the trial's
+    dropped = [{"action": "dropped", "effect": "coating"}]
+    assert revised_trial(["coating"], dropped, [], 2) is None                                 # a drop is no swap
+
+    result = {"stopped": "round 2's trial of coating + light_calibration was not kept (...)", "trials": []}
+    record, lines = {"revisions": swap}, []
+    revised = _revised_instead(result, ["coating", "light_calibration"], record, [], 2, 0, 1, lines.append)
+    assert revised == ["rough_coating", "light_calibration"] and result["stopped"] == ""
+    assert record["trial"] == revised and "judged against round 1's fit" in lines[0]

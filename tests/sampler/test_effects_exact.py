@@ -20,7 +20,7 @@
   data simulated from the extended model (noise on the linearised scale, as the fit's
   likelihood has it): the ranks of all seven true parameters among 19 thinned draws must be
   uniform (chi-square of 5 bins, level 0.001); the same with a dielectric coating alone (its share and
-  index with the region's four parameters).
+  index with the region's four parameters), and with a rough coating alone (share, index and roughness).
 
 A control shows the tests bite: leaving the camera's log-Jacobian out of the effect move's
 ratio moves the white level's marginal far from the exact one (p < 1e-6).
@@ -41,6 +41,7 @@ from rjfit.effects.base import Param
 from rjfit.effects.camera_gamma import GammaCurve
 from rjfit.effects.camera_srgb import SRGBCurve, srgb_decode, srgb_decode_log_slope
 from rjfit.effects.coating import CoatingFactors
+from rjfit.effects.rough_coating import RoughCoatingFactors
 from rjfit.effects.light_calibration import LightGains
 from rjfit.model.priors import LogitNormal, LogNormal, Normal
 from rjfit.sampler.forward import LambertBlinnPhong, transformed
@@ -458,15 +459,28 @@ def test_sbc_ranks_are_uniform_with_three_effects():
     assert ranks.shape[1] == 7 and min(p_values) > LEVEL, (p_values, ranks)
 
 
+def _coating_ranks(form, extra_params, seed):
+    """SBC ranks with a coating's fit form ``form`` alone: its share and index, with ``extra_params`` after them."""
+    rng = np.random.default_rng(seed)
+    base = _sbc_base(rng)
+    coating = form(params=(Param("w_coat", LogitNormal(0.0, 2.0), 0.5),
+                           Param("eta", LogitNormal(-0.5, 1.5, low=1.2, high=2.0), 1.5)) + extra_params,
+                   cos_l=base.cos_ln, cos_v=rng.uniform(0.2, 1.0, base.n_obs), cos_hv=rng.uniform(0.4, 1.0, base.n_obs))
+    return _sbc_ranks(base, [coating], rng)
+
+
 def test_sbc_ranks_are_uniform_with_a_coating():
     """The coating's two parameters (share w, index eta) with the region's four: its factors on both columns
     are sampled exactly (same design and level as the test above)."""
-    rng = np.random.default_rng(2027)
-    base = _sbc_base(rng)
-    coating = CoatingFactors(params=(Param("w_coat", LogitNormal(0.0, 2.0), 0.5),
-                                     Param("eta", LogitNormal(-0.5, 1.5, low=1.2, high=2.0), 1.5)),
-                             cos_l=base.cos_ln, cos_v=rng.uniform(0.2, 1.0, base.n_obs),
-                             cos_hv=rng.uniform(0.4, 1.0, base.n_obs))
-    ranks = _sbc_ranks(base, [coating], rng)
+    ranks = _coating_ranks(CoatingFactors, (), 2027)
     p_values = _uniform_rank_p_values(ranks)
     assert ranks.shape[1] == 6 and min(p_values) > LEVEL, (p_values, ranks)
+
+
+def test_sbc_ranks_are_uniform_with_a_rough_coating():
+    """The rough coating's three parameters (share w, index eta, the interface's roughness) with the region's four:
+    its factors, a table per (alpha, eta), are sampled exactly (same design and level as the tests above)."""
+    ranks = _coating_ranks(RoughCoatingFactors, (Param("alpha_coat", LogitNormal(-0.9, 1.5, low=0.02, high=1.0), 0.3),),
+                           2028)
+    p_values = _uniform_rank_p_values(ranks)
+    assert ranks.shape[1] == 7 and min(p_values) > LEVEL, (p_values, ranks)
