@@ -3,7 +3,8 @@
 For each case, renders the hidden-effect data set of :mod:`rjfit.render.hidden` (Mitsuba
 built-ins: a ``constant`` emitter, colour-science's sRGB curve (its read noise after the curve, or
 before it as a sensor adds it: ``camera_sensor``), a ``blendbsdf`` with a
-``roughconductor`` second lobe (isotropic, or anisotropic: outside the library), ``roughplastic`` of Beckmann and of GGX distribution, the path
+``roughconductor`` second lobe (isotropic, or anisotropic: outside the library), ``roughplastic`` of Beckmann and of GGX distribution
+(a roughness per material, or one for all: exactly ``ggx`` + ``rough_coating``), the path
 integrator's interreflection at ``CASE_SPP``), fits it plainly (:func:`rjfit.pipeline.fit_dataset.fit_dataset`,
 ``--allow-unvalidated``: a hidden effect fails the cross-check by design) and refines the fit
 (:func:`rjfit.pipeline.refine.refine`). Prints and writes (``OUT/refine_table.json``) per case:
@@ -39,7 +40,8 @@ CASES = {"clean": "clean", "ambient": "ambient", "sRGB": "camera_response",
          "ambient + sRGB (noise before the curve)": "ambient+camera_sensor",
          "gamma (noise before the curve)": "camera_gamma_sensor",
          "cast shadows": "cast_shadows", "dielectric lobe": "fresnel", "GGX lobe (plugin)": "ggx_plugin",
-         "GGX dielectric lobe": "ggx_plastic", "anisotropic lobe": "anisotropic_lobe",
+         "GGX dielectric lobe": "ggx_plastic", "GGX dielectric lobe (one roughness)": "rough_plastic",
+         "anisotropic lobe": "anisotropic_lobe",
          "GGX lobe under a coating (plugin)": "coated_plugin",
          "interreflection": "interreflection"}
 #: case -> samples per pixel where not render_hidden's default. Interreflection at 512 spp, the
