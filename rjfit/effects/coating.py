@@ -99,8 +99,7 @@ def coating_factors(cos_l, cos_v, cos_hv, w, eta):
 
 
 def _eta_prior():
-    centre = (1.5 - ETA_MIN) / (ETA_MAX - ETA_MIN)
-    return LogitNormal(loc=float(math.log(centre / (1.0 - centre))), scale=1.5, low=ETA_MIN, high=ETA_MAX)
+    return LogitNormal.centred_on(1.5, scale=1.5, low=ETA_MIN, high=ETA_MAX)
 
 
 class Coating(Effect):

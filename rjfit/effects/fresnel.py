@@ -51,9 +51,7 @@ class Fresnel(Effect):
         # metals ~0.9). The floor is physical: without it, a fit could take F0 -> 0, where the
         # factor (1/F0 - 1) (1 - <h.v>)^5 stops being Fresnel and becomes a free per-light gain
         # of the lobe (on the measured ball F0 went to 0.0000 and was named on that ground).
-        centre = (0.2 - F0_MIN) / (1.0 - F0_MIN)
-        return [Param("F0", LogitNormal(loc=float(np.log(centre / (1.0 - centre))), scale=2.0, low=F0_MIN, high=1.0),
-                      init=0.5, null=1.0)]
+        return [Param("F0", LogitNormal.centred_on(0.2, scale=2.0, low=F0_MIN, high=1.0), init=0.5, null=1.0)]
 
     def prepare(self, ctx):
         return fresnel_term(ctx.cos_hv)

@@ -30,7 +30,6 @@ on (0.02, 1) centred on 0.3, GGX roughnesses from polished to matte.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,8 +55,7 @@ def rough_coating_factors(cos_l, cos_v, cos_hv, w, eta, alpha, table=None):
 
 
 def _alpha_prior():
-    centre = (0.3 - ALPHA_MIN) / (ALPHA_MAX - ALPHA_MIN)
-    return LogitNormal(loc=float(math.log(centre / (1.0 - centre))), scale=1.5, low=ALPHA_MIN, high=ALPHA_MAX)
+    return LogitNormal.centred_on(0.3, scale=1.5, low=ALPHA_MIN, high=ALPHA_MAX)
 
 
 class _TableMemo:

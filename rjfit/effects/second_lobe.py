@@ -48,8 +48,7 @@ ALPHA2_MIN = 0.02
 
 
 def _alpha2_prior():
-    centre = (0.2 - ALPHA2_MIN) / (1.0 - ALPHA2_MIN)
-    return LogitNormal(loc=float(np.log(centre / (1.0 - centre))), scale=1.5, low=ALPHA2_MIN, high=1.0)
+    return LogitNormal.centred_on(0.2, scale=1.5, low=ALPHA2_MIN, high=1.0)
 
 
 class SecondLobe(Effect):

@@ -94,6 +94,13 @@ class LogitNormal(Prior):
         z = np.asarray(z, dtype=float)
         return math.log(self.high - self.low) - np.logaddexp(0.0, z) - np.logaddexp(0.0, -z)
 
+    @classmethod
+    def centred_on(cls, value: float, scale: float, low: float = 0.0, high: float = 1.0) -> "LogitNormal":
+        """The prior on (low, high) whose unconstrained centre is ``value``'s: ``loc = logit((value - low) / (high -
+        low))``."""
+        centre = (value - low) / (high - low)
+        return cls(loc=float(math.log(centre / (1.0 - centre))), scale=scale, low=low, high=high)
+
     def describe(self) -> str:
         bounds = "" if (self.low, self.high) == (0.0, 1.0) else f" on ({self.low:g}, {self.high:g})"
         return f"LogitNormal(loc={self.loc:.4g}, scale={self.scale:.4g}){bounds} on the unconstrained value"

@@ -83,8 +83,9 @@ def _diffuse_reflectance(dr, m, eta):
     return m.Float(dr.sum(_dielectric_fresnel(dr, mu, eta) * mu)) * (2.0 / COAT_NODES)
 
 
-#: the rough interface's table: its cosines (roughplastic's 64) and the Gauss-Legendre order per axis (roughplastic's)
-ROUGH_TABLE_SIZE, ROUGH_ORDER = 64, 32
+#: the Gauss-Legendre order per axis of the rough interface's table (roughplastic's; its cosines are
+#: rjfit.model.rough_interface.TABLE_COSINES, roughplastic's 64)
+ROUGH_ORDER = 32
 
 
 def _over_visible_normals(dr, m, alpha: float, order: int, quantity):
@@ -93,14 +94,16 @@ def _over_visible_normals(dr, m, alpha: float, order: int, quantity):
     import mitsuba as mi
     import numpy as np
 
+    from rjfit.model.rough_interface import TABLE_COSINES
+
     nodes, weights = (np.asarray(values, dtype=float) for values in m.quad.gauss_legendre(order))
-    cosines = np.maximum(1e-6, np.arange(ROUGH_TABLE_SIZE) / (ROUGH_TABLE_SIZE - 1.0))
-    mu, u1, u2 = (grid.ravel() for grid in np.meshgrid(cosines, 0.5 * nodes + 0.5, 0.5 * nodes + 0.5, indexing="ij"))
+    mu, u1, u2 = (grid.ravel() for grid in np.meshgrid(TABLE_COSINES, 0.5 * nodes + 0.5, 0.5 * nodes + 0.5,
+                                                           indexing="ij"))
     weight = 0.25 * np.outer(weights, weights).ravel()
     distribution = m.MicrofacetDistribution(mi.MicrofacetType.GGX, alpha, True)
     wi = m.Vector3f(m.Float(np.sqrt(1.0 - mu * mu)), m.Float(np.zeros_like(mu)), m.Float(mu))
     normal = distribution.sample(wi, m.Point2f(m.Float(u1), m.Float(u2)))[0]
-    values = np.asarray(quantity(wi, normal, distribution), dtype=float).reshape(ROUGH_TABLE_SIZE, -1)
+    values = np.asarray(quantity(wi, normal, distribution), dtype=float).reshape(TABLE_COSINES.size, -1)
     return values @ weight
 
 
@@ -134,8 +137,9 @@ def _derive_constants(dr, m, bsdf) -> None:
 
 def _table_lookup(dr, m, table, cos_theta):
     """``table`` at ``cos_theta``, linear between its entries (``roughplastic``'s ``lerp_gather``)."""
-    x = dr.clip(cos_theta, 0.0, 1.0) * (ROUGH_TABLE_SIZE - 1.0)
-    index = dr.minimum(m.UInt32(x), ROUGH_TABLE_SIZE - 2)
+    size = dr.width(table)
+    x = dr.clip(cos_theta, 0.0, 1.0) * (size - 1.0)
+    index = dr.minimum(m.UInt32(x), size - 2)
     weight = x - m.Float(index)
     return (1.0 - weight) * dr.gather(m.Float, table, index) + weight * dr.gather(m.Float, table, index + 1)
 
