@@ -21,7 +21,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from rjfit.diagnose.loo import loo_difference
+from rjfit.diagnose.loo import draws_pareto_k, loo_difference
 from rjfit.diagnose.refit import refit, standardised_residuals, template_columns
 
 __all__ = ["LOG_BF_THRESHOLD", "LOO_SE_FACTOR", "PRIOR_CONFLICT_SD", "DECISION_RULE", "BASE_TOLERANCE",
@@ -214,12 +214,14 @@ def judged_fields(candidate, current, names, loo, threshold, loo_se_factor) -> d
     fields = {"log_evidence": candidate.log_evidence, "log_bayes_factor": candidate.log_evidence - current.log_evidence,
               "n_params_added": candidate.n_params - current.n_params,
               "effect_params": {k: v for k, v in candidate.summary().items() if k.split(".")[0] in names},
-              "hessian": candidate.hessian_kind, "seconds": candidate.seconds}
+              "hessian": candidate.hessian_kind, "seconds": candidate.seconds,
+              "posterior_draws": {"proposal": candidate.draws_proposal}}
     conflicts = [conflict for name in names for conflict in fit_prior_conflicts(candidate, name)]
     if conflicts:
         fields["prior_conflict"] = conflicts
     if loo is not None:
         fields.update(delta_elpd_loo=loo[0], delta_elpd_loo_se=loo[1], max_khat=loo[2], khat_unreliable_fraction=loo[3])
+        fields["posterior_draws"]["weights_khat"] = draws_pareto_k(candidate)
     else:
         bound = "ln 100" if math.isclose(threshold, LOG_BF_THRESHOLD) else f"{threshold:.4g}"
         fields["loo_skipped"] = f"log BF <= {bound}, cannot be decisive"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+from rjfit.diagnose.proposal import POOR_DRAWS_KHAT
+
 __all__ = ["markdown", "gap_text", "candidate_line", "gap_lines", "named_text", "prior_conflict_text",
            "not_told_apart_text", "revision_text", "NORMALS"]
 
@@ -234,6 +236,27 @@ def _warning_lines(result: dict) -> list[str]:
                   f"the refits' draws (min(1 - 1/log10 S, 0.7), Vehtari et al. 2024), for up to "
                   f"{_percent(worst['khat_unreliable_fraction'])} of them (step {worst['step'] + 1}, {worst['effect']}). "
                   f"There dLOO and its SE are rough; the log Bayes factor (Laplace evidence) is the primary evidence."]
+    return lines + _draws_lines(result)
+
+
+def _draws_lines(result: dict) -> list[str]:
+    """Refits with a LOO whose draws came from a split normal, and those whose draws cover their posterior poorly."""
+    rows = [row for row in result["candidates"] if "weights_khat" in (row.get("posterior_draws") or {})]
+    split = [row for row in rows if row["posterior_draws"]["proposal"] != "Laplace"]
+    poor = [row for row in rows if row["posterior_draws"]["weights_khat"] > POOR_DRAWS_KHAT]
+    lines = []
+    if split:
+        steps = sorted({row["step"] for row in split})
+        lines += ["", "Where a refit's log posterior is not Gaussian along an axis of its Laplace approximation, its "
+                  "LOO draws came from a split normal with the scales the log posterior shows (Geweke 1989): "
+                  + "; ".join(f"step {step + 1}: " + ", ".join(row["effect"] for row in split if row["step"] == step)
+                              for step in steps) + "."]
+    if poor:
+        worst = max(poor, key=lambda row: row["posterior_draws"]["weights_khat"])
+        lines += ["", f"The draws of {len(poor)} refit(s) still represent their posterior poorly: the Pareto k-hat of "
+                  f"their importance weights exceeds {POOR_DRAWS_KHAT} (up to "
+                  f"{worst['posterior_draws']['weights_khat']:.2f}, step {worst['step'] + 1}, {worst['effect']}). "
+                  f"Their dLOO is rough."]
     return lines
 
 

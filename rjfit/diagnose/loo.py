@@ -6,9 +6,10 @@ import math
 
 import numpy as np
 
+from rjfit.diagnose.proposal import importance_log_weights, weight_pareto_k
 from rjfit.diagnose.psis import good_k_threshold, psis_loo
 
-__all__ = ["pointwise_log_lik", "refit_loo", "loo_difference"]
+__all__ = ["pointwise_log_lik", "refit_loo", "draws_pareto_k", "loo_difference"]
 
 
 def pointwise_log_lik(fit):
@@ -27,7 +28,22 @@ def refit_loo(fit):
     is kept: the (S, N) pointwise log-likelihood it is computed from is dropped at once, so a
     diagnosis holds one such array per candidate refitting at that moment, not one per fit.
     """
-    return fit.cached("loo", lambda fit: psis_loo(pointwise_log_lik(fit), likelihood_power=fit.objective.zeta))
+    return fit.cached("loo", _loo_and_draws_check)[0]
+
+
+def draws_pareto_k(fit) -> float:
+    """The Pareto k-hat of ``fit``'s draws' importance weights (above
+    :data:`rjfit.diagnose.proposal.POOR_DRAWS_KHAT` they cover the posterior too poorly for the
+    LOO taken from them), from the same pointwise log-likelihood as its LOO."""
+    return fit.cached("loo", _loo_and_draws_check)[1]
+
+
+def _loo_and_draws_check(fit):
+    log_lik = pointwise_log_lik(fit)
+    objective = fit.objective
+    log_joint = objective.zeta * log_lik.sum(axis=1) + np.array([objective.log_prior(d) for d in fit.draws])
+    khat = weight_pareto_k(importance_log_weights(log_joint, fit.draws_log_proposal))
+    return psis_loo(log_lik, likelihood_power=objective.zeta), khat
 
 
 def loo_difference(candidate, current):

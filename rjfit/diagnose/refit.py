@@ -6,9 +6,11 @@ alternating a Levenberg-Marquardt least-squares solve for the mean parameters wi
 closed-form update of each region's log sigma^2, then up to two Newton corrections with a
 finite-difference Hessian (:mod:`rjfit.diagnose.optimise`, :mod:`rjfit.diagnose.hessian`);
 the Laplace approximation at that MAP gives the log evidence, whose differences are the log
-Bayes factors, and seeded posterior draws (:mod:`rjfit.diagnose.evidence`). PSIS-LOO on those
-draws (:mod:`rjfit.diagnose.loo`) is the second opinion; its Pareto k-hat says where the draws
-are a poor proposal. The region priors are data-centred and shared by every model of a
+Bayes factors (:mod:`rjfit.diagnose.evidence`), and seeded posterior draws with their importance
+weights: the Laplace Gaussian's, or a split normal's where the posterior is not Gaussian along
+its axes (:mod:`rjfit.diagnose.proposal`). PSIS-LOO on those weighted draws
+(:mod:`rjfit.diagnose.loo`) is the second opinion; its Pareto k-hat says where the draws are a
+poor proposal. The parameters' sds and the predictions' mean are the draws' unweighted. The region priors are data-centred and shared by every model of a
 context, so they cancel in Bayes factors (:mod:`rjfit.diagnose.region_priors`).
 """
 from __future__ import annotations
@@ -19,10 +21,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rjfit.diagnose.evidence import laplace_draws, laplace_log_evidence
+from rjfit.diagnose.evidence import laplace_log_evidence
 from rjfit.diagnose.hessian import gauss_newton_hessian, hessian_steps
 from rjfit.diagnose.objective import RefitObjective
 from rjfit.diagnose.optimise import find_map, newton_corrections
+from rjfit.diagnose.proposal import posterior_draws
 from rjfit.diagnose.region_priors import initial_region_params, region_priors
 
 __all__ = ["FitResult", "refit", "predictions", "posterior_mean_prediction", "standardised_residuals",
@@ -43,6 +46,8 @@ class FitResult:
     log_lik: float
     log_prior: float
     draws: np.ndarray                # (S, P) unconstrained
+    draws_log_proposal: np.ndarray   # (S,) log density of the proposal of the draws (rjfit.diagnose.proposal)
+    draws_proposal: str              # "Laplace", or why and how a split normal replaced it
     n_regions: int
     seconds: float
     hessian_kind: str = "finite differences"
@@ -151,7 +156,8 @@ def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=
         Warm start: region parameters and shared effects' parameters from a previous fit;
         new effects start at their ``init`` values.
     n_draws : int
-        Posterior draws from the Laplace approximation (seeded by ``seed``).
+        Posterior draws (seeded by ``seed``): the Laplace approximation's, or a split normal's
+        (:func:`rjfit.diagnose.proposal.posterior_draws`).
     max_outer, tol
         At most ``max_outer`` rounds of least squares and sigma^2 updates, stopped when f
         changes by less than ``tol`` (:func:`rjfit.diagnose.optimise.find_map`).
@@ -168,9 +174,11 @@ def refit(ctx, effects=(), *, start=None, seed=0, n_draws=100, max_outer=6, tol=
                                     max_corrections=2 if ctx.dark is None else TRUNCATED_CORRECTIONS)
     hessian, hessian_kind, notes = _positive_definite(objective, hessian, gauss_newton)
     log_evidence, log_lik, log_prior = laplace_log_evidence(objective, z, hessian)
+    draws = posterior_draws(objective, z, hessian, n_draws, seed)
     result = FitResult(effects=objective.effects, names=objective.names, priors=objective.priors, z=z,
                        hessian=hessian, log_evidence=log_evidence, log_lik=log_lik, log_prior=log_prior,
-                       draws=laplace_draws(z, hessian, n_draws, seed), n_regions=ctx.n_regions,
+                       draws=draws.draws, draws_log_proposal=draws.log_proposal, draws_proposal=draws.note or "Laplace",
+                       n_regions=ctx.n_regions,
                        seconds=round(time.perf_counter() - started, 3), hessian_kind=hessian_kind, notes=notes)
     result._cache["objective"] = objective
     return result
