@@ -27,7 +27,7 @@ from rjfit.diagnose.naming import judge_candidates
 from rjfit.diagnose.refit import refit, standardised_residuals
 from rjfit.effects import get_effect
 
-__all__ = ["PAIR_FROM", "score_pairs", "trial_candidate"]
+__all__ = ["PAIR_FROM", "score_pairs", "trial_candidates"]
 
 #: the decisive single candidates (largest log BF first) whose pairs are refitted: at most 3 pairs
 PAIR_FROM = 3
@@ -75,14 +75,13 @@ def _refit_pairs(ctx, current, pairs, fits, settings) -> list:
         return list(pool.map(one, pairs))
 
 
-def trial_candidate(rows) -> dict | None:
-    """The candidate (single or pair) a refit of the regions should try: among ``rows`` (one step's, judged),
-    the decisive one with the largest log BF that fails no rule but the gap share on the fixed segmentation
-    (:data:`TRIAL_MAY_FAIL`); ``{"effects", "log_bayes_factor", "gap_share", "step"}``, or None."""
+def trial_candidates(rows) -> list:
+    """The candidates (single or pair) a refit of the regions may try, best first: among ``rows`` (one step's,
+    judged), the decisive ones that fail no rule but the gap share on the fixed segmentation
+    (:data:`TRIAL_MAY_FAIL`), by log BF; each ``{"effects", "log_bayes_factor", "gap_share", "step"}``. The first
+    is the diagnosis' ``trial``; ``rjfit refine`` fits the next where a trial is not kept."""
     eligible = [row for row in rows if row.get("decisive") and "short_of" in row
                 and set(row["short_of"]) <= TRIAL_MAY_FAIL]
-    if not eligible:
-        return None
-    best = max(eligible, key=lambda row: row["log_bayes_factor"])
-    return {"effects": list(best.get("effects") or [best["effect"]]), "log_bayes_factor": best["log_bayes_factor"],
-            "gap_share": best["gap_share"], "step": best["step"]}
+    return [{"effects": list(row.get("effects") or [row["effect"]]), "log_bayes_factor": row["log_bayes_factor"],
+             "gap_share": row["gap_share"], "step": row["step"]}
+            for row in sorted(eligible, key=lambda row: -row["log_bayes_factor"])]

@@ -31,7 +31,7 @@ from rjfit.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
 from rjfit.diagnose.naming import NAMING_RULE, judge_candidates
-from rjfit.diagnose.pairs import score_pairs, trial_candidate
+from rjfit.diagnose.pairs import score_pairs, trial_candidates
 from rjfit.diagnose.refit import moved_parameters, refit, standardised_residuals
 from rjfit.diagnose.revisit import REVISION_RULE, revisit
 from rjfit.diagnose.simulate import simulation_record
@@ -109,6 +109,7 @@ class _SearchTrace:
     revisions: list = field(default_factory=list)         # each earlier effect swapped or dropped (rjfit.diagnose.revisit)
     pairs: list = field(default_factory=list)             # a row per pair of candidates tried (rjfit.diagnose.pairs)
     trial: dict | None = None                             # what a refit of the regions should try, if anything
+    trials: list = field(default_factory=list)            # that and the others it may try next, best first
 
 
 def _candidate_bar(show, total, step):
@@ -360,7 +361,8 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
                          + "; ".join(f"{row['effect']} {row['why_not']}" for row in decisive))
         pairs = score_pairs(ctx, step, trace.current, decisive, tried["fits"], residuals, sigma2_plain, settings)
         trace.pairs += pairs
-        trace.trial = trial_candidate(decisive + pairs)
+        trace.trials = trial_candidates(decisive + pairs)
+        trace.trial = trace.trials[0] if trace.trials else None
         if trace.trial is not None:
             settings.say(f"  to try with the regions (rjfit refine): {' + '.join(trace.trial['effects'])}")
         return None
@@ -460,6 +462,7 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
         "revision_rule": REVISION_RULE,
         "pairs": trace.pairs,
         "trial": trace.trial,
+        "trials": trace.trials,
         "steps": trace.steps,
         "candidates": trace.rows,
         "skipped": skipped,
@@ -480,12 +483,14 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
         "per_region_gap": {"plain": gap_breakdown(ctx, plain_residuals, sigma2_hat)["per_region"],
                            "final": gap_breakdown(ctx, final_residuals, sigma2_hat)["per_region"]},
         "final_model": {"effects": [e.name for e in current.effects], "log_evidence": current.log_evidence,
-                        "parameters": current.summary(), "laplace_hessian": current.hessian_kind},
+                        "parameters": current.summary(), "laplace_hessian": current.hessian_kind,
+                        "posterior_draws": {"proposal": current.draws_proposal}},
         "plain_model": {"log_evidence": plain.log_evidence, "parameters": plain.summary()},
         "n_observations": ctx.n_obs, "n_regions": ctx.n_regions, "seed": settings.seed,
         "method": {"refit": "MAP (least squares + sigma^2 updates + Newton) and Laplace approximation with a "
                             "finite-difference Hessian in unconstrained coordinates",
                    "evidence": "Laplace log marginal likelihood; PSIS-LOO (ArviZ's estimator, vectorised) on 100 "
-                               "Laplace draws as second opinion",
+                               "draws as second opinion: the Laplace Gaussian's, or a split normal's along "
+                               "its axes where the posterior is not Gaussian",
                    "segmentation": "fixed (given labels)"},
     }

@@ -38,7 +38,7 @@ from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.refine_resume import diagnosis_request, fit_request, forget, is_kept, remember
-from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, revised_trial, trial_to_fit
+from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, next_trial, revised_trial, trial_to_fit
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
@@ -132,8 +132,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
            first_diagnosis_dir=None, **diagnose_options) -> dict:
     """Diagnose, refit with what was named (or revised), diagnose again, until nothing changes.
 
-    A diagnosis that names nothing but offers a trial is fitted once more with it, and a trial not kept whose diagnosis
-    swapped one of its effects once more with the swap (:mod:`rjfit.pipeline.refine_trial`).
+    A diagnosis that names nothing but offers a trial is fitted once more with it; a trial not kept, once more with
+    its diagnosis' swap, else with the next trial offered (:mod:`rjfit.pipeline.refine_trial`).
 
     Parameters
     ----------
@@ -187,11 +187,12 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         diagnosis, record, final, new = _round(current, diagnosis_dir, index, fit_seconds, result, say, seed=seed,
                                                max_steps=max_steps, progress=progress, **diagnose_options)
         if trying is not None and not _trial_kept(result, trying, final_round, index, final, say):
-            trying = _revised_instead(result, trying, record, tried, max_rounds - index - 1, final_round, index, say)
+            trying, source = _another_trial(result, trying, record, tried, max_rounds - index - 1,
+                                            (final_round, index, diagnosis_dir), say)
             if trying is None:
                 break
             effects = tuple(kept_final) + tuple(name for name in trying if name not in kept_final)
-            current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, diagnosis_dir, options, gate, say)
+            current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, source, options, gate, say)
             continue
         trying, final_round, kept_final, result["final_fit"] = None, index, list(final), str(current)
         result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
@@ -308,6 +309,27 @@ def _revised_instead(result: dict, trying: list, record: dict, tried: list, roun
             f"fitting again with {' + '.join(revised)} sampled with the regions, judged against round {before + 1}'s "
             f"fit")
     return revised
+
+
+def _another_trial(result: dict, trying: list, record: dict, tried: list, rounds_left: int, where: tuple,
+                   say) -> tuple:
+    """After the trial of ``trying`` was not kept: ``(the trial to fit next or None, the diagnosis folder its fit
+    starts from)``. The trial revised by its own diagnosis' swaps (:func:`_revised_instead`, from that diagnosis,
+    ``where[2]``), else the next one that the diagnosis of the fit it was judged against (round ``where[0] + 1``)
+    offered (:func:`rjfit.pipeline.refine_trial.next_trial`, from that diagnosis)."""
+    before, index, diagnosis_dir = where
+    revised = _revised_instead(result, trying, record, tried, rounds_left, before, index, say)
+    if revised is not None:
+        return revised, diagnosis_dir
+    source = Path(result["rounds"][before]["diagnosis"])
+    following = next_trial(json.loads((source / "diagnosis.json").read_text()), result["rounds"][before], tried,
+                           rounds_left)
+    if following is None:
+        return None, None
+    result["stopped"], record["trial"] = "", following
+    say(f"round {index + 2}: fitting again with {' + '.join(following)} sampled with the regions, the next trial "
+        f"round {before + 1}'s diagnosis offered, judged against round {before + 1}'s fit")
+    return following, source
 
 
 def _fit_next(dataset_dir: Path, out_dir: Path, index: int, effects: tuple, diagnosis_dir: Path, options, gate: dict,

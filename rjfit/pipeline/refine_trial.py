@@ -28,12 +28,18 @@ A trial not kept whose diagnosis SWAPPED one of its effects for another of the s
 coating for the rough one, :mod:`rjfit.diagnose.revisit`) says the trial fitted the wrong member of that
 kind: the set with the swap made is then a trial of its own (:func:`revised_trial`), fitted once more
 and judged against the same fit before the first, while rounds are left.
+
+A trial not kept and not revised leaves the loop where it was, with rounds it may still use: the next
+trial that the same diagnosis offered (its ``trials``, by log BF, :func:`rjfit.diagnose.pairs.trial_candidates`)
+is fitted and judged against the same fit (:func:`next_trial`). On Mitsuba's Beckmann roughplastic under the
+material model the rough coating had the larger log BF but its trial fit did not halve the gap; fresnel,
+offered second, did (``docs/results/2026-11-30-split-normal-draws.md``).
 """
 from __future__ import annotations
 
 from rjfit.diagnose.naming import GAP_SHARE
 
-__all__ = ["TRIAL_GAP_SHARE", "trial_to_fit", "judge_trial", "revised_trial"]
+__all__ = ["TRIAL_GAP_SHARE", "trial_to_fit", "judge_trial", "revised_trial", "next_trial"]
 
 #: the share of the gap before it that a trial fit's gap may keep: the naming rule's, 1 - GAP_SHARE
 TRIAL_GAP_SHARE = 1.0 - GAP_SHARE
@@ -93,3 +99,17 @@ def revised_trial(effects: list, revisions: list, tried: list, rounds_left: int)
         return None
     tried.append(sorted(revised))
     return revised
+
+
+def next_trial(diagnosis: dict, record: dict, tried: list, rounds_left: int) -> list | None:
+    """The next trial of ``diagnosis`` (the round whose fit a trial was judged against; its ``trials``, best first)
+    after one was not kept: the first whose effects not in that round's fit (``record["effects"]``) form a set not
+    tried (``tried``: sorted sets, to which it is added), where a round is left to judge it; else None."""
+    if rounds_left < 1:
+        return None
+    for trial in diagnosis.get("trials") or []:
+        effects = [name for name in trial["effects"] if name not in record["effects"]]
+        if effects and sorted(effects) not in tried:
+            tried.append(sorted(effects))
+            return effects
+    return None

@@ -4,8 +4,8 @@ run on a rendered stack in tests/pipeline/test_refine_trial.py)."""
 import pytest
 
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP
-from rjfit.diagnose.pairs import trial_candidate
-from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, trial_to_fit
+from rjfit.diagnose.pairs import trial_candidates
+from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, next_trial, trial_to_fit
 
 
 def row(effect, log_bf, short_of, decisive=True, effects=None):
@@ -21,11 +21,24 @@ def test_the_trial_is_the_decisive_candidate_short_of_the_gap_share_only_with_th
             row("coating", 1221.0, ["gap_share", "physical"]),            # a conflict: never tried
             row("ggx+coating", 2330.0, ["gap_share"], effects=["ggx", "coating"]),
             row("ambient", 5000.0, ["gap_share"], decisive=False)]        # not decisive: never tried
-    assert trial_candidate(rows)["effects"] == ["ggx", "coating"]
-    assert trial_candidate(rows[:2])["effects"] == ["ggx"]
-    assert trial_candidate(rows[1:2]) is None
-    assert trial_candidate([row("ggx", 10.0, ["misfit"])]) is None        # no misfit left: nothing to try
-    assert trial_candidate([row("ggx", 10.0, ["simulation"])]) is None    # the physics did not agree
+    assert [t["effects"] for t in trial_candidates(rows)] == [["ggx", "coating"], ["ggx"]]   # by log BF
+    assert [t["effects"] for t in trial_candidates(rows[:2])] == [["ggx"]]
+    assert trial_candidates(rows[1:2]) == []
+    assert trial_candidates([row("ggx", 10.0, ["misfit"])]) == []        # no misfit left: nothing to try
+    assert trial_candidates([row("ggx", 10.0, ["simulation"])]) == []    # the physics did not agree
+
+
+def test_after_a_trial_not_kept_the_next_is_the_best_one_not_tried_with_a_round_left():
+    diagnosis = {"trials": [{"effects": ["rough_coating"]}, {"effects": ["ambient", "fresnel"]},
+                            {"effects": ["fresnel"]}]}
+    tried = [["rough_coating"], ["fresnel"]]
+    # the fit's own effects are left out of a trial; a set tried before is not fitted again
+    assert next_trial(diagnosis, record(1.0, effects=["ambient"]), tried, rounds_left=1) is None
+    assert next_trial(diagnosis, record(1.0), tried, rounds_left=1) == ["ambient", "fresnel"]
+    assert tried[-1] == ["ambient", "fresnel"]
+    assert next_trial(diagnosis, record(1.0), tried, rounds_left=1) is None
+    assert next_trial(diagnosis, record(1.0), [["rough_coating"]], rounds_left=0) is None     # no round to judge it
+    assert next_trial({"trial": {"effects": ["fresnel"]}}, record(1.0), [], rounds_left=1) is None  # an older diagnosis
 
 
 def record(gap, effects=(), named=(), dropped=(), follows=True, n_regions=4):
