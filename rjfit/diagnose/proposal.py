@@ -11,10 +11,10 @@ that predicts better by 840 nats predicts worse by 2,600.
 So the draws here come from the split normal of Geweke (1989, "Bayesian inference in
 econometric models using Monte Carlo integration", Econometrica 57): along each eigenvector
 ``v_j`` of ``H``, on each side, the scale is the distance ``t`` at which ``f = -log p(y, z)``
-has risen by 1/2 over its minimum, the Gaussian's one-sd rise (Geweke takes the widest of several
-secants, for heavy tails; here the tails are light, and the widest is the Gaussian's). Where the Gaussian's own scale
-``lambda_j^-1/2`` gives a rise within a factor of 2 of that on both sides of every axis, the
-draws are the Laplace draws, unchanged.
+has risen by 1/2 over its minimum, the Gaussian's one-sd rise (Geweke takes the widest of
+several secants, for heavy tails; here the tails are light, and the widest is the Gaussian's).
+Where the Gaussian's own scale ``lambda_j^-1/2`` gives a rise within a factor of 2 of that on
+both sides of every axis, the draws are the Laplace draws, unchanged.
 
 PSIS-LOO (:mod:`rjfit.diagnose.loo`) takes the draws as the posterior's, as it took the
 Laplace draws. Each draw's importance log weight ``log p(y, z_s) - log q(z_s)`` is the check: the
@@ -153,8 +153,8 @@ def posterior_draws(objective, z, hessian, n_draws, seed) -> PosteriorDraws:
         draws = z + (normal * np.where(normal > 0, plus, minus)) @ vectors.T
         log_q = -0.5 * np.sum(normal ** 2, axis=1) - np.sum(np.log(0.5 * (plus + minus)))
         ratios = np.concatenate([plus, minus]) / np.concatenate([gaussian, gaussian])
-        note = (f"the log posterior is not Gaussian along {int(np.sum(~kept))} of the Laplace approximation's {z.size} axes: "
-                f"draws from a split normal (scales {ratios.min():.2g} to {ratios.max():.2g} of the Gaussian's)")
+        note = (f"the log posterior is not Gaussian along {int(np.sum(~kept))} of the Laplace approximation's "
+                f"{z.size} axes: draws from a split normal (scales {ratios.min():.2g} to {ratios.max():.2g} of the Gaussian's)")
     return PosteriorDraws(draws=draws, log_proposal=log_q - 0.5 * z.size * LOG_2PI, note=note)
 
 

@@ -6,12 +6,13 @@ alternating a Levenberg-Marquardt least-squares solve for the mean parameters wi
 closed-form update of each region's log sigma^2, then up to two Newton corrections with a
 finite-difference Hessian (:mod:`rjfit.diagnose.optimise`, :mod:`rjfit.diagnose.hessian`);
 the Laplace approximation at that MAP gives the log evidence, whose differences are the log
-Bayes factors (:mod:`rjfit.diagnose.evidence`), and seeded posterior draws with their importance
-weights: the Laplace Gaussian's, or a split normal's where the posterior is not Gaussian along
-its axes (:mod:`rjfit.diagnose.proposal`). PSIS-LOO on those weighted draws
-(:mod:`rjfit.diagnose.loo`) is the second opinion; its Pareto k-hat says where the draws are a
-poor proposal. The parameters' sds and the predictions' mean are the draws' unweighted. The region priors are data-centred and shared by every model of a
-context, so they cancel in Bayes factors (:mod:`rjfit.diagnose.region_priors`).
+Bayes factors (:mod:`rjfit.diagnose.evidence`), and seeded posterior draws: the Laplace
+Gaussian's, or a split normal's where the posterior is not Gaussian along its axes
+(:mod:`rjfit.diagnose.proposal`), with the density of the proposal they came from. PSIS-LOO on
+those draws (:mod:`rjfit.diagnose.loo`) is the second opinion; its Pareto k-hat, and that of the
+draws' importance weights, say where the draws are a poor proposal. The region priors are
+data-centred and shared by every model of a context, so they cancel in Bayes factors
+(:mod:`rjfit.diagnose.region_priors`).
 """
 from __future__ import annotations
 

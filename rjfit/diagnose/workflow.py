@@ -108,8 +108,7 @@ class _SearchTrace:
     candidate_residuals: dict = field(default_factory=dict)   # (step, effect name) -> the candidate's residuals
     revisions: list = field(default_factory=list)         # each earlier effect swapped or dropped (rjfit.diagnose.revisit)
     pairs: list = field(default_factory=list)             # a row per pair of candidates tried (rjfit.diagnose.pairs)
-    trial: dict | None = None                             # what a refit of the regions should try, if anything
-    trials: list = field(default_factory=list)            # that and the others it may try next, best first
+    trials: list = field(default_factory=list)            # what a refit of the regions may try, best first
 
 
 def _candidate_bar(show, total, step):
@@ -362,9 +361,8 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
         pairs = score_pairs(ctx, step, trace.current, decisive, tried["fits"], residuals, sigma2_plain, settings)
         trace.pairs += pairs
         trace.trials = trial_candidates(decisive + pairs)
-        trace.trial = trace.trials[0] if trace.trials else None
-        if trace.trial is not None:
-            settings.say(f"  to try with the regions (rjfit refine): {' + '.join(trace.trial['effects'])}")
+        if trace.trials:
+            settings.say(f"  to try with the regions (rjfit refine): {' + '.join(trace.trials[0]['effects'])}")
         return None
     best = max(qualified, key=lambda row: row["log_bayes_factor"])
     # a runner-up within the threshold is not told apart from the winner by the evidence: say so
@@ -461,7 +459,7 @@ def _result(ctx, dataset, settings, plain, trace, skipped, signature_figures, si
         "revisions": trace.revisions,
         "revision_rule": REVISION_RULE,
         "pairs": trace.pairs,
-        "trial": trace.trial,
+        "trial": trace.trials[0] if trace.trials else None,
         "trials": trace.trials,
         "steps": trace.steps,
         "candidates": trace.rows,
