@@ -132,8 +132,8 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
            first_diagnosis_dir=None, **diagnose_options) -> dict:
     """Diagnose, refit with what was named (or revised), diagnose again, until nothing changes.
 
-    A diagnosis that names nothing but offers a trial is fitted once more with it; a trial not kept, once more with
-    its diagnosis' swap, else with the next trial offered (:mod:`rjfit.pipeline.refine_trial`).
+    A diagnosis that names nothing but offers a trial is fitted once more with it; a trial not kept, with its
+    diagnosis' final model where that swapped an effect, else the next trial (:mod:`rjfit.pipeline.refine_trial`).
 
     Parameters
     ----------
@@ -179,26 +179,26 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     result = {"source_fit": str(fit_dir.resolve()), "fit_options": options.to_json(), "rounds": [],
               "named_effects": [], "final_fit": str(fit_dir), "stopped": "", "warnings": [], "trials": []}
     current, fit_seconds = fit_dir, summary.get("seconds")
-    # the effects this fit tries with the regions; the result's round and its final model's effects; the sets tried
-    trying, final_round, kept_final, tried = None, 0, [], []
+    # the trial's effects and those kept beside them; the result's round and its final model; the sets tried
+    trying, base, final_round, kept_final, tried = None, [], 0, [], []
     for index in range(max_rounds):
         diagnosis_dir = Path(first_diagnosis_dir) if index == 0 and first_diagnosis_dir is not None else (
             out_dir / f"round{index + 1}" / "diagnosis")
         diagnosis, record, final, new = _round(current, diagnosis_dir, index, fit_seconds, result, say, seed=seed,
                                                max_steps=max_steps, progress=progress, **diagnose_options)
         if trying is not None and not _trial_kept(result, trying, final_round, index, final, say):
-            trying, source = _another_trial(result, trying, record, tried, max_rounds - index - 1,
-                                            (final_round, index, diagnosis_dir), say)
+            trying, base, source = _another_trial(result, (base, trying, final, kept_final), record, tried,
+                                                  max_rounds - index - 1, (final_round, index, diagnosis_dir), say)
             if trying is None:
                 break
-            effects = tuple(kept_final) + tuple(name for name in trying if name not in kept_final)
+            effects = tuple(base) + tuple(name for name in trying if name not in base)
             current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, source, options, gate, say)
             continue
         trying, final_round, kept_final, result["final_fit"] = None, index, list(final), str(current)
         result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
         record["feature_change"] = [] if new or record["dropped"] else feature_change(dataset_dir, current, diagnosis_dir)
         result["stopped"], warning = _why_stop(index, max_rounds, options, record, new, current)
-        trying = _trial_instead(result, diagnosis, record, tried, max_rounds - index - 1, options)
+        trying, base = _trial_instead(result, diagnosis, record, tried, max_rounds - index - 1, options), list(final)
         if result["stopped"]:
             _warn(result, warning, say)
             break
@@ -290,46 +290,53 @@ def _trial_kept(result: dict, effects: list, before: int, index: int, final: lis
     say(f"round {index + 1}: the trial of {' + '.join(effects)} with the regions is "
         f"{'kept' if verdict['kept'] else 'not kept'}: {verdict['why']}")
     if verdict["kept"]:
-        result["named_effects"] = _named_after(result["named_effects"], [], effects)
+        # a revised trial may have swapped out an effect the loop named before (not sampled by this fit)
+        gone = [name for name in result["named_effects"] if name not in final]
+        result["named_effects"] = _named_after(result["named_effects"], gone, effects)
         return True
     result["stopped"] = (f"round {index + 1}'s trial of {' + '.join(effects)} was not kept ({verdict['why']}): "
                          f"round {before + 1}'s fit is the result")
     return False
 
 
-def _revised_instead(result: dict, trying: list, record: dict, tried: list, rounds_left: int, before: int,
-                     index: int, say) -> list | None:
+def _revised_instead(result: dict, fitted: tuple, record: dict, tried: list, rounds_left: int, before: int,
+                     index: int, say) -> tuple | None:
     """Where the trial just judged (not kept) was revised by its diagnosis' swaps
-    (:func:`rjfit.pipeline.refine_trial.revised_trial`): the revised trial, the stop undone and the trial recorded in
-    the round's ``record``; else None."""
-    revised = revised_trial(trying, record.get("revisions") or [], tried, rounds_left)
+    (:func:`rjfit.pipeline.refine_trial.revised_trial`; ``fitted``: the trial fit's base, the trial's effects and
+    the diagnosis' final model): ``(the base it keeps, the revised trial)``, the stop undone and the trial recorded
+    in the round's ``record``; else None."""
+    base, trying, final = fitted
+    revised = revised_trial(base, trying, final, record.get("revisions") or [], tried, rounds_left)
     if revised is not None:
-        result["stopped"], record["trial"] = "", revised
-        say(f"round {index + 2}: round {index + 1}'s diagnosis swapped an effect of the trial for one of its kind; "
-            f"fitting again with {' + '.join(revised)} sampled with the regions, judged against round {before + 1}'s "
-            f"fit")
+        result["stopped"], record["trial"] = "", revised[1]
+        say(f"round {index + 2}: round {index + 1}'s diagnosis swapped an effect the trial fit sampled for one of "
+            f"its kind; fitting its final model, {' + '.join(revised[0] + revised[1])}, with the regions, judged "
+            f"against round {before + 1}'s fit")
     return revised
 
 
-def _another_trial(result: dict, trying: list, record: dict, tried: list, rounds_left: int, where: tuple,
+def _another_trial(result: dict, fitted: tuple, record: dict, tried: list, rounds_left: int, where: tuple,
                    say) -> tuple:
-    """After the trial of ``trying`` was not kept: ``(the trial to fit next or None, the diagnosis folder its fit
-    starts from)``. The trial revised by its own diagnosis' swaps (:func:`_revised_instead`, from that diagnosis,
-    ``where[2]``), else the next one that the diagnosis of the fit it was judged against (round ``where[0] + 1``)
-    offered (:func:`rjfit.pipeline.refine_trial.next_trial`, from that diagnosis)."""
+    """After a trial was not kept: ``(the trial to fit next or None, the effects kept beside it, the diagnosis
+    folder its fit starts from)``. ``fitted`` is (the trial fit's base, the trial's effects, its diagnosis' final
+    model, the final model of the fit it was judged against). The trial fit's diagnosis' final model where that
+    diagnosis swapped an effect the fit sampled (:func:`_revised_instead`, from that diagnosis, ``where[2]``),
+    else the next trial that the diagnosis of the fit it was judged against (round ``where[0] + 1``) offered
+    (:func:`rjfit.pipeline.refine_trial.next_trial`, from that diagnosis)."""
     before, index, diagnosis_dir = where
-    revised = _revised_instead(result, trying, record, tried, rounds_left, before, index, say)
+    base, trying, final, kept_final = fitted
+    revised = _revised_instead(result, (base, trying, final), record, tried, rounds_left, before, index, say)
     if revised is not None:
-        return revised, diagnosis_dir
+        return revised[1], revised[0], diagnosis_dir
     source = Path(result["rounds"][before]["diagnosis"])
     following = next_trial(json.loads((source / "diagnosis.json").read_text()), result["rounds"][before], tried,
                            rounds_left)
     if following is None:
-        return None, None
+        return None, kept_final, None
     result["stopped"], record["trial"] = "", following
     say(f"round {index + 2}: fitting again with {' + '.join(following)} sampled with the regions, the next trial "
         f"round {before + 1}'s diagnosis offered, judged against round {before + 1}'s fit")
-    return following, source
+    return following, kept_final, source
 
 
 def _fit_next(dataset_dir: Path, out_dir: Path, index: int, effects: tuple, diagnosis_dir: Path, options, gate: dict,

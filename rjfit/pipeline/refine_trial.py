@@ -24,10 +24,14 @@ KEEPS the trial only when all three hold:
 Otherwise the fit before the trial stays the loop's result, and ``refine.json`` says what was
 tried and why it was not kept. Each effect set is tried once.
 
-A trial not kept whose diagnosis SWAPPED one of its effects for another of the same kind (the smooth
-coating for the rough one, :mod:`rjfit.diagnose.revisit`) says the trial fitted the wrong member of that
-kind: the set with the swap made is then a trial of its own (:func:`revised_trial`), fitted once more
-and judged against the same fit before the first, while rounds are left.
+A trial not kept whose diagnosis SWAPPED an effect the trial fit sampled for another of the same kind (the
+smooth coating for the rough one, :mod:`rjfit.diagnose.revisit`) says that fit held the wrong member of that
+kind: the diagnosis' final model (its swaps and drops made) is then a trial of its own (:func:`revised_trial`),
+fitted once more and judged against the same fit before the first, while rounds are left. The swapped effect
+may be the trial's or one the fit before it had already kept: on the GGX lobe under a smooth coating (the
+plugin, change points, seed 1) the trial of ggx + light_calibration on the kept fresnel made 12 regions, and its
+diagnosis swapped fresnel for the coating and dropped light_calibration, which is the stack's own model
+(``docs/results/2026-12-01-revised-trials.md``).
 
 A trial not kept and not revised leaves the loop where it was, with rounds it may still use: the next
 trial that the same diagnosis offered (its ``trials``, by log BF, :func:`rjfit.diagnose.pairs.trial_candidates`)
@@ -87,18 +91,27 @@ def judge_trial(effects: list, before: dict, after: dict, final_effects: list) -
                                                f"segmentation")}
 
 
-def revised_trial(effects: list, revisions: list, tried: list, rounds_left: int) -> list | None:
-    """The trial of ``effects`` with the swaps of the trial fit's diagnosis made (``revisions``: its round record's,
-    each ``{"action", "effect", "replacement"}``), where one of them swapped an effect of the trial, the revised set
-    was not tried (``tried``: sorted sets, to which it is added) and a round is left to judge it; else None."""
-    swaps = {entry["effect"]: entry["replacement"] for entry in revisions if entry.get("action") == "swapped"}
-    if rounds_left < 1 or not any(name in swaps for name in effects):
+def revised_trial(base: list, effects: list, final: list, revisions: list, tried: list,
+                  rounds_left: int) -> tuple | None:
+    """The trial fit's diagnosis' final model as a trial, where that diagnosis swapped an effect the fit sampled.
+
+    The trial fit sampled ``base`` (what the fit before it kept) and the trial's ``effects``; ``final`` is its
+    diagnosis' final model, ``revisions`` its round record's (each ``{"action", "effect", "replacement"}``),
+    ``tried`` the trials' sorted sets (the revised trial's is added) and ``rounds_left`` the diagnoses the loop
+    may still make. Returns ``(the base it keeps, the trial's effects)``: ``base`` less what the diagnosis swapped
+    or dropped, and the rest of ``final``; None where no swap touched the fit's effects, the revised trial is
+    empty or was tried, or no round is left to judge it.
+    """
+    fitted = set(base) | set(effects)
+    swapped = {entry["effect"] for entry in revisions if entry.get("action") == "swapped"}
+    if rounds_left < 1 or not swapped & fitted:
         return None
-    revised = [swaps.get(name, name) for name in effects]
-    if sorted(revised) in tried:
+    kept = [name for name in base if name in final]
+    trial = [name for name in final if name not in kept]
+    if not trial or sorted(trial) in tried:
         return None
-    tried.append(sorted(revised))
-    return revised
+    tried.append(sorted(trial))
+    return kept, trial
 
 
 def next_trial(diagnosis: dict, record: dict, tried: list, rounds_left: int) -> list | None:

@@ -62,22 +62,45 @@ def test_a_trial_not_kept_leaves_the_fit_before_it_as_the_result():
 
 def test_a_trial_whose_diagnosis_swaps_one_of_its_effects_is_fitted_again_with_the_swap():
     """A trial not kept whose diagnosis swapped one of its effects for one of that effect's kind (the smooth
-    coating for the rough one): the set with the swap is the next trial, once, while a round is left."""
+    coating for the rough one): the diagnosis' final model is the next trial, once, while a round is left."""
     from rjfit.pipeline.refine import _revised_instead
     from rjfit.pipeline.refine_trial import revised_trial
 
     swap = [{"action": "swapped", "effect": "coating", "replacement": "rough_coating"}]
+    final = ["rough_coating", "light_calibration"]
     tried = [["coating", "light_calibration"]]
-    assert revised_trial(["coating", "light_calibration"], swap, tried, 1) == ["rough_coating", "light_calibration"]
+    assert revised_trial([], ["coating", "light_calibration"], final, swap, tried, 1) == ([], final)
     assert tried[-1] == ["light_calibration", "rough_coating"]
-    assert revised_trial(["coating", "light_calibration"], swap, tried, 1) is None            # tried once
-    assert revised_trial(["coating"], swap, [], 0) is None                                    # no round left
-    assert revised_trial(["ggx"], swap, [], 2) is None                                        # not the trial's
+    assert revised_trial([], ["coating", "light_calibration"], final, swap, tried, 1) is None     # tried once
+    assert revised_trial([], ["coating"], ["rough_coating"], swap, [], 0) is None                 # no round left
+    assert revised_trial([], ["ggx"], ["ggx"], swap, [], 2) is None                               # not the fit's
     dropped = [{"action": "dropped", "effect": "coating"}]
-    assert revised_trial(["coating"], dropped, [], 2) is None                                 # a drop is no swap
+    assert revised_trial([], ["coating"], [], dropped, [], 2) is None                             # a drop is no swap
 
     result = {"stopped": "round 2's trial of coating + light_calibration was not kept (...)", "trials": []}
     record, lines = {"revisions": swap}, []
-    revised = _revised_instead(result, ["coating", "light_calibration"], record, [], 2, 0, 1, lines.append)
-    assert revised == ["rough_coating", "light_calibration"] and result["stopped"] == ""
-    assert record["trial"] == revised and "judged against round 1's fit" in lines[0]
+    revised = _revised_instead(result, ([], ["coating", "light_calibration"], final), record, [], 2, 0, 1,
+                               lines.append)
+    assert revised == ([], final) and result["stopped"] == ""
+    assert record["trial"] == final and "judged against round 1's fit" in lines[0]
+
+
+def test_a_swap_of_an_effect_kept_before_the_trial_revises_the_whole_model():
+    """The GGX lobe under a smooth coating (change points, seed 1): the trial of ggx + light_calibration on the kept
+    fresnel was not kept, and its diagnosis swapped fresnel for the coating and dropped light_calibration. Its final
+    model, ggx + coating, is the next trial, without fresnel; and once kept, the loop's named effects lose fresnel."""
+    from rjfit.pipeline.refine_trial import revised_trial
+
+    revisions = [{"action": "swapped", "effect": "fresnel", "replacement": "coating"},
+                 {"action": "dropped", "effect": "light_calibration"}]
+    tried = [["ggx", "light_calibration"]]
+    assert revised_trial(["fresnel"], ["light_calibration", "ggx"], ["ggx", "coating"], revisions, tried, 1) == (
+        [], ["ggx", "coating"])
+    assert revised_trial(["ambient", "fresnel"], ["ggx"], ["ambient", "ggx", "coating"], revisions, [], 1) == (
+        ["ambient"], ["ggx", "coating"])                                     # the base keeps what the model keeps
+    assert revised_trial(["fresnel"], ["ggx"], ["fresnel", "ggx"], revisions[1:], [], 1) is None   # drops only
+
+    result = {"rounds": [{"gap": 2.4, "n_regions": 8}, {"gap": 0.3, "n_regions": 12}, {"gap": 0.05, "n_regions": 4}],
+              "trials": [], "named_effects": ["fresnel"], "stopped": ""}
+    assert _trial_kept(result, ["ggx", "coating"], 0, 2, ["ggx", "coating"], [].append)
+    assert result["named_effects"] == ["ggx", "coating"]
