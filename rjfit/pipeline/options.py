@@ -212,6 +212,10 @@ class FitOptions:
     # rjfit/sampler/regions/materials/component_move.py): not in the default, since the target prefers shading
     # parts of psm-cat that these moves propose and the others do not (docs/results/2026-11-28-local-gain.md)
     component_moves: int = option(0)
+    # the material model's spatial splits per iteration (a material split into the halves of its pixels' positions,
+    # and their reverse; rjfit/sampler/regions/materials/merge_split.py): 0 under --preset measured, where psm-cat's
+    # chains kept more small materials with them (docs/results/2026-12-01-spatial-splits.md)
+    spatial_split_moves: int = option(1)
     max_u: int = cli_option(3, "--max-u", "Most u change-point vectors (--regions changepoints).", "int", low=0)
     max_v: int = cli_option(3, "--max-v", "Most v change-point vectors (--regions changepoints).", "int", low=0)
     sampler: str = cli_option("adaptive", "--sampler",

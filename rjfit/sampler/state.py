@@ -214,6 +214,7 @@ FLAT_OPTIONS = {
     "label_sweeps": ["regions.sweeps"], "cluster_moves": ["regions.cluster.moves"],
     "cluster_new_prob": ["regions.cluster.new_prob"], "cluster_material_seed": ["regions.cluster.material_seed"],
     "segment_moves": ["regions.segments.moves"], "merge_split_moves": ["regions.merge_split.moves"],
+    "spatial_split_moves": ["regions.merge_split.spatial_moves"],
     "edge_power": ["regions.edge_power"], "edge_gap": ["regions.edge_gap"],
     "edge_gain_sd": ["regions.edge_gain_sd"], "edge_noise": ["regions.edge_noise"],
     "component_moves": ["regions.component_moves"],

@@ -156,7 +156,8 @@ def test_a_floored_edge_noise_is_recorded_and_warned():
 
 def test_a_given_local_gain_and_component_moves_reach_the_fit(paper_sphere_small, tmp_path):
     """A given --edge-gain-sd under the preset is the fit's and is recorded (the preset's 'auto' is measured: the
-    preset's test below); component moves given through the options land in the sampler's schedule."""
+    preset's test below); component moves given through the options land in the sampler's schedule; the preset
+    leaves out the spatial splits, which a plain material fit makes and a given value sets."""
     from rjfit.pipeline.regions.materials import MaterialFit
 
     summary = fit_dataset(paper_sphere_small, tmp_path / "fit", FitOptions(
@@ -166,7 +167,11 @@ def test_a_given_local_gain_and_component_moves_reach_the_fit(paper_sphere_small
     assert summary["fit_options"]["component_moves"] == 1 and "component" in summary["acceptance_counts"]
     config = MaterialFit().sampler_config(resolve_options(FitOptions(regions="materials", component_moves=3)),
                                           burn=0)
-    assert config.regions.component_moves == 3
+    assert config.regions.component_moves == 3 and config.regions.merge_split.spatial_moves == 1
+    assert summary["fit_options"]["spatial_split_moves"] == 0 and "spatial_split" not in summary["acceptance_counts"]
+    config = MaterialFit().sampler_config(resolve_options(FitOptions(regions="materials", spatial_split_moves=2)),
+                                          burn=0)
+    assert config.regions.merge_split.spatial_moves == 2
 
 
 def test_the_ghost_rule_bounds_a_twin_materials_prior_pixels_and_odds():

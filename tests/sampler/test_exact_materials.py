@@ -24,6 +24,7 @@ bonds near q_max, and the merge/split moves with the split probability q(X, Y) m
 coin's second half.
 """
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -114,18 +115,19 @@ def materials_config(**options):
 # K moved by every jump move, by the cluster moves' births and deaths alone, by merges and splits alone,
 # by the segment moves' births and deaths alone (and by the cluster moves alone with half their seeds
 # drawn as a material, then a pixel of it), by the component moves' alone (beta 1 and 2: bonds 0.63 and 0.86, so
-# a piece is cut and moved whole in turn)
+# a piece is cut and moved whole in turn), by the spatial splits and merges alone
 JUMP_MOVES = {"all": {"merge_split_moves": 1}, "cluster": {"merge_split_moves": 0, "segment_moves": 0},
               "merge_split": {"cluster_moves": 0, "segment_moves": 0, "merge_split_moves": 1},
               "segment": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 2},
               "cluster_material_seeds": {"merge_split_moves": 0, "segment_moves": 0, "cluster_material_seed": 0.5},
-              "component": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "component_moves": 2}}
+              "component": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "component_moves": 2},
+              "spatial": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "spatial_split_moves": 2}}
 
 
 @pytest.mark.parametrize("jumps,beta,rho,seed", [("all", 1.0, 1.0, 1), ("cluster", 0.5, 0.1, 2),
                                                  ("merge_split", 2.0, 0.5, 4), ("segment", 1.0, 0.5, 3),
                                                  ("cluster_material_seeds", 0.5, 0.1, 2), ("component", 1.0, 0.5, 6),
-                                                 ("component", 2.0, 0.3, 7)])
+                                                 ("component", 2.0, 0.3, 7), ("spatial", 1.0, 0.5, 8)])
 def test_partitions_k_and_parameters_match_enumeration(square, jumps, beta, rho, seed):
     """All 15 partitions of the 2 x 2 image, K_max 4: Gibbs sweeps and the jump moves ``jumps``."""
     prior, problem, quad = square
@@ -283,3 +285,17 @@ def test_sbc_ranks_of_the_material_model_are_uniform():
         p_value = stats.chisquare(counts).pvalue
         print("SBC", k, counts, p_value)
         assert p_value > LEVEL, (k, counts, p_value)
+
+
+def test_spatial_merges_of_pairs_that_are_not_halves_are_detected(square, monkeypatch):
+    """Negative control: the spatial splits and merges alone, with every pair's merge taken as the reverse of a
+    spatial split (q(X, Y) = 1/2 whether or not X and Y are the halves of their union). The right chain of this
+    setting is the enumeration test's ``spatial`` case (same beta, rho and moves), which passes."""
+    prior, problem, quad = square
+    exact = exact_partition_posterior(quad, (2, 2), 1.0, 0.5)
+    config = materials_config(max_materials=4, potts_beta=1.0, potts_rho=0.5, **JUMP_MOVES["spatial"])
+    monkeypatch.setattr(merge_split, "_halves_log_prob", lambda members, in_first, width: -math.log(2.0))
+    wrong, _ = run(problem, prior, config, CONTROL_ITERATIONS, 8)
+    p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
+    print(p_wrong, details_wrong)
+    assert p_wrong < 1e-6, details_wrong

@@ -159,14 +159,16 @@ def test_start_checks():
 
 @pytest.mark.parametrize("power", [1.0, 0.3])
 def test_incremental_statistics_match_full_recompute(power):
-    """Four chains of 300 iterations (no refresh), every move accepted in one or another: stats and log-likelihood
+    """Five chains of 300 iterations (no refresh), every move accepted in one or another: stats and log-likelihood
     equal a full recompute to 1e-9 relative at the end.
 
     One starts with 5 materials for 3 (twins: cluster moves between them, and without
     merges and splits, so that cluster moves kill them); two under an annealed warm-up
     (likelihood power rising from 1e-3 over 200 iterations, statistics rescaled at every
     step; beta 2: compact materials), one from 4 materials with every move, one from 6, the
-    cap, with merges and splits the only jumps; one from 1 with segment moves the only jumps.
+    cap, with merges and splits the only jumps; one from 1 with segment moves the only jumps; one from 1 with the
+    spatial splits the only jumps (beta 1, so that they are accepted at both powers; the others without them; a
+    spatial merge makes its state as a merge does).
     """
     problem, truth = material_problem(likelihood_power=power)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
@@ -174,10 +176,12 @@ def test_incremental_statistics_match_full_recompute(power):
     annealed = {"burn_in": 200, "anneal": 200, "potts_beta": 2.0}
     # the last: one material at the start, segment moves the only jumps (so that they are accepted)
     chains = ((5, {"merge_split_moves": 0, "potts_beta": 1.0}), (4, annealed), (6, {**annealed, "cluster_moves": 0}),
-              (1, {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 4}))
+              (1, {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 4}),
+              (1, {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "spatial_split_moves": 2,
+                   "potts_beta": 1.0}))
     for start, flat in chains:
         config = SamplerConfig.from_flat(region_model="materials", max_materials=6, refresh_every=0,
-                                         **{"burn_in": 0, "cluster_moves": 6, **flat})
+                                         **{"burn_in": 0, "cluster_moves": 6, "spatial_split_moves": 0, **flat})
         rng = np.random.default_rng(11)
         state = initial_state(problem, prior, config, rng, n_materials=start)
         context = ChainContext()       # the chain's reusable work, as a fit's runner keeps it
@@ -194,6 +198,7 @@ def test_incremental_statistics_match_full_recompute(power):
         assert state.total_log_lik == pytest.approx(oracle_log_likelihood(problem, labels, state.theta), rel=1e-9)
     assert {"label_gibbs", "cluster", "cluster_birth", "cluster_death", "split", "merge"} <= kinds, kinds
     assert {"segment", "segment_birth", "segment_death"} & kinds, kinds
+    assert "spatial_split" in kinds, kinds
 
 
 def test_allocate_split_matches_reference_and_evaluates_its_own_draws():

@@ -277,7 +277,7 @@ class MaterialFit(RegionFit):
 
     name = "materials"
     reads = frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "edge_gain_sd", "edge_noise",
-                       "cluster_material_seed", "segment_moves", "component_moves"})
+                       "cluster_material_seed", "segment_moves", "component_moves", "spatial_split_moves"})
     noun = "material"
     measured_default = True
     joint_colour = True
@@ -308,8 +308,9 @@ class MaterialFit(RegionFit):
         0``; a joint colour fit gained nothing from the gain on psm-cat, docs/results/2026-11-29-gain-default.md;
         without the measured noise a colour fit of the DiLiGenT ball kept highlight specks in one chain of four,
         docs/results/2026-11-30-colour-noise.md); the Potts rule on the data's mask (:func:`ghost_material_prior`)
-        unless ``potts_rho`` is given (its beta starts at the given one)."""
-        out = {}
+        unless ``potts_rho`` is given (its beta starts at the given one); no spatial splits unless given
+        (docs/results/2026-12-01-spatial-splits.md)."""
+        out = {} if "spatial_split_moves" in values else {"spatial_split_moves": 0}
         if MaterialFit.edge_term_applies(values):
             if "edge_power" not in values:
                 out["edge_power"] = "auto"
@@ -370,6 +371,7 @@ class MaterialFit(RegionFit):
                           potts=replace(model.potts, beta=options.potts_beta, rho=options.potts_rho),
                           cluster=replace(model.cluster, material_seed=options.cluster_material_seed),
                           segments=replace(model.segments, moves=options.segment_moves),
+                          merge_split=replace(model.merge_split, spatial_moves=options.spatial_split_moves),
                           edge_power=power, edge_gain_sd=gain_sd, edge_noise=noise,
                           component_moves=options.component_moves,
                           update_labels=not fixed, jumps=not fixed)

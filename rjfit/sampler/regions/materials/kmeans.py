@@ -1,4 +1,5 @@
-"""k-means of per-pixel features: the material model's random start and its split proposals' deterministic guide.
+"""k-means of per-pixel features: the material model's random start and its split proposals' deterministic guide;
+the 2-means of a material's pixel positions, its spatial splits' halves.
 
 Plain Lloyd iterations on standardised rows (:func:`lloyd`): :func:`kmeans_labels` starts
 from rows drawn from the chain's generator, :func:`two_means_labels` from a split of the
@@ -10,7 +11,7 @@ import numpy as np
 
 from rjfit.sampler.regions.materials.passes.lloyd import MAX_FEATURES, MIN_FEATURES, lloyd_iterations
 
-__all__ = ["standardised", "lloyd", "lloyd_numpy", "kmeans_labels", "two_means_labels"]
+__all__ = ["standardised", "lloyd", "lloyd_numpy", "kmeans_labels", "two_means_labels", "spatial_halves"]
 
 
 def standardised(features) -> np.ndarray:
@@ -81,7 +82,12 @@ def two_means_labels(features, iterations: int = 20) -> np.ndarray | None:
     alone (no random draw), as the guide of a split proposal must be. None when fewer than
     two rows differ along that axis.
     """
-    x = standardised(features)
+    return _principal_two_means(standardised(features), iterations)
+
+
+def _principal_two_means(x, iterations: int) -> np.ndarray | None:
+    """Lloyd's 2-means of the centred rows ``x`` from the halves of their first principal axis (split at the
+    median), or None for fewer than two rows or none apart along that axis."""
     if x.shape[0] < 2:
         return None
     # the first principal axis: the top eigenvector of the (d, d) scatter matrix (d is 2
@@ -93,3 +99,16 @@ def two_means_labels(features, iterations: int = 20) -> np.ndarray | None:
         return None
     centres = np.stack([x[~upper].mean(axis=0), x[upper].mean(axis=0)])
     return lloyd(x, centres, iterations)
+
+
+def spatial_halves(members, width: int, iterations: int = 20) -> np.ndarray | None:
+    """A deterministic 2-means of the image positions (row, column) of the pixels ``members`` (flat indices):
+    labels 0 / 1, or None for fewer than two pixels or none apart along the first principal axis.
+
+    As :func:`two_means_labels` but on positions centred and NOT standardised, so both axes keep one scale (a
+    distance in pixels): the split of a material's pixels into its two spatial halves, a function of the set
+    alone, as a spatial split proposal's must be (:mod:`rjfit.sampler.regions.materials.merge_split`).
+    """
+    members = np.asarray(members, np.int64)
+    x = np.stack([members // width, members % width], axis=1).astype(np.float64)
+    return _principal_two_means(x - x.mean(axis=0) if members.size else x, iterations)

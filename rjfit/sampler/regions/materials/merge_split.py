@@ -49,6 +49,17 @@ have a row per channel sharing gamma, and every likelihood sums the channels.
 
 ``log(K + 1)`` is the labelled state's 1 / K! (``K! / (K + 1)!``); ``term`` is
 :func:`region_term`'s log prior in the proposal's coordinates minus log proposal density.
+
+**Spatial splits** (kinds 'spatial_split', 'spatial_merge'; ``MergeSplitSettings.spatial_moves`` per
+iteration). Every allocation above reads the per-pixel data, and where a material's pixels carry one or two
+observations each (the back-lit sphere's upper left quadrant, kd 0.5, beside the upper right, kd 0.6) no guide
+tells two paints apart, though the whole of each differs by hundreds of nats
+(docs/results/2026-12-01-revised-trials.md). A spatial split reads positions only: m's pixels go to their two
+halves by a deterministic 2-means of their image positions
+(:func:`~rjfit.sampler.regions.materials.kmeans.spatial_halves`), the coin as above, so
+``q(X, Y) = 1/2`` where X and Y are the halves of their union and 0 otherwise; its reverse, the spatial merge of a
+pair, is proposed only where the pair are the halves of their union (else rejected). The rest of the ratio is the
+split's above.
 """
 from __future__ import annotations
 
@@ -58,7 +69,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rjfit.sampler.colour import PixelSetData, guide_rows, material_log_lik, material_rows, material_term
-from rjfit.sampler.regions.materials.kmeans import two_means_labels
+from rjfit.sampler.regions.materials.kmeans import spatial_halves, two_means_labels
 from rjfit.sampler.likelihood import log_likelihood_from_stats, memoised
 from rjfit.sampler.regions.materials.cluster_swc import cluster_data, stats_rows, with_rows
 from rjfit.sampler.moves.proposal import Proposal
@@ -78,16 +89,19 @@ class MergeSplitSettings:
     ----------
     moves : int
         Merge/split moves per iteration.
+    spatial_moves : int
+        Spatial merge/split moves per iteration (the module docstring).
     split_prob : float
         Probability of proposing a split (else a merge) when 1 < K < K_max.
     """
 
     moves: int = 1
     split_prob: float = 0.5
+    spatial_moves: int = 1
 
     def __post_init__(self):
-        if self.moves < 0:
-            raise ValueError(f"merge/split moves per iteration must be >= 0, got {self.moves}")
+        if self.moves < 0 or self.spatial_moves < 0:
+            raise ValueError(f"merge/split moves per iteration must be >= 0, got {self.moves}, {self.spatial_moves}")
         if not 0.0 < self.split_prob < 1.0:
             raise ValueError(f"split_prob must lie in (0, 1), got {self.split_prob}")
 
@@ -180,22 +194,34 @@ def _proposal(work, problem, pixels, n_materials, theta, stats, log_ratio) -> Pr
 
 
 def propose_merge_split(work, rng, problem, prior, settings: MergeSplitSettings, proposals, potts,
-                        max_materials: int, jumps: bool = True):
-    """One merge/split proposal, of kind 'split' or 'merge' (both jumps; untested when there is no move to test).
+                        max_materials: int, jumps: bool = True, spatial: bool = False):
+    """One merge/split proposal, of kind 'split' or 'merge' (with ``spatial``: 'spatial_split' or 'spatial_merge',
+    the module docstring); both jumps, untested when there is no move to test.
 
     Draws, in order: the kind's uniform; for a split the material, the slot, the coin, one
-    uniform per pixel of the material, the two parts' parameters; for a merge the pair and
-    the merged parameters.
+    uniform per pixel of the material (not for a spatial split), the two parts' parameters; for
+    a merge the pair and the merged parameters.
     """
+    prefix = "spatial_" if spatial else ""
     n_mat = work.layout.n_materials
     p_split = split_probability(n_mat, max_materials, settings.split_prob, jumps)
     if p_split == 0.0 and n_mat == 1:
-        return Proposal.untested("merge")
+        return Proposal.untested(prefix + "merge")
     if rng.random() < p_split:
-        proposal = _split(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split)
-        return Proposal.untested("split") if proposal is None else proposal.named("split", jump=True)
-    return _merge(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split).named("merge",
-                                                                                                     jump=True)
+        proposal = _split(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split, spatial)
+        return Proposal.untested(prefix + "split") if proposal is None else proposal.named(prefix + "split", jump=True)
+    return _merge(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split,
+                  spatial).named(prefix + "merge", jump=True)
+
+
+def _halves_log_prob(members, in_first, width) -> float:
+    """log q(X, Y) of a spatial split: log 1/2 where ``members[in_first]`` and the rest are the two spatial halves of
+    ``members``, else -inf."""
+    halves = spatial_halves(members, width)
+    if halves is None:
+        return -math.inf
+    first = halves == 1
+    return -math.log(2.0) if np.array_equal(first, in_first) or np.array_equal(~first, in_first) else -math.inf
 
 
 def _ratio_choices(n_mat, m, max_materials, settings, p_split):
@@ -205,7 +231,7 @@ def _ratio_choices(n_mat, m, max_materials, settings, p_split):
             - math.log(p_split) + math.log(n_mat) + math.log(n_mat - m))
 
 
-def _split(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split):
+def _split(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split, spatial=False):
     n_mat = work.layout.n_materials
     flat = work.layout.pixels.ravel()
     m = int(rng.integers(n_mat))
@@ -214,10 +240,15 @@ def _split(work, rng, problem, prior, settings, proposals, potts, max_materials,
         return None
     k = int(rng.integers(m + 1, n_mat + 1))
     swap = rng.random() < 0.5
-    guide = split_guide(problem, prior, members, work.layout.bonds.features, work.pixel_sets)
-    parts, _ = allocate_split(members, guide, float(problem.likelihood_power), float(potts.beta),
-                              problem.height, problem.width, rng.random(members.size),
-                              np.full(members.size, -1, np.int8))
+    if spatial:
+        parts = spatial_halves(members, problem.width)
+        if parts is None:
+            return None
+    else:
+        guide = split_guide(problem, prior, members, work.layout.bonds.features, work.pixel_sets)
+        parts, _ = allocate_split(members, guide, float(problem.likelihood_power), float(potts.beta),
+                                  problem.height, problem.width, rng.random(members.size),
+                                  np.full(members.size, -1, np.int8))
     stay = parts == (1 if swap else 0)
     pixels = flat.copy()
     pixels[pixels >= k] += 1
@@ -241,7 +272,8 @@ def _split(work, rng, problem, prior, settings, proposals, potts, max_materials,
                  - potts.beta * _edges_between(problem.image_shape, members[stay], members[~stay])
                  + term_x + term_y - term_m
                  + _ratio_choices(n_mat, m, max_materials, settings, p_split)
-                 - split_log_prob(members, guide, stay, problem, float(potts.beta)))
+                 - (_halves_log_prob(members, stay, problem.width) if spatial
+                    else split_log_prob(members, guide, stay, problem, float(potts.beta))))
     theta = with_rows(work.theta, k * n_ch, theta_y)
     theta[rows_m] = theta_x
     stats = with_rows(work.stats, k * n_ch, stats_y)
@@ -249,21 +281,25 @@ def _split(work, rng, problem, prior, settings, proposals, potts, max_materials,
     return _proposal(work, problem, pixels, n_mat + 1, theta, stats, log_ratio)
 
 
-def _merge(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split):
+def _merge(work, rng, problem, prior, settings, proposals, potts, max_materials, p_split, spatial=False):
     n_mat = work.layout.n_materials
     flat = work.layout.pixels.ravel()
     j, k = sorted(int(x) for x in rng.choice(n_mat, 2, replace=False))
     members = np.flatnonzero((flat == j) | (flat == k))
     n_ch = problem.n_channels
     rows_j, rows_k = material_rows(j, n_ch), material_rows(k, n_ch)
-    data = cluster_data(problem, members, work.pixel_sets)
-    theta_m, term_m = material_term(data, None, prior, proposals, draw_rng=rng)
     pixels = flat.copy()
     pixels[pixels == k] = j
     pixels[pixels > k] -= 1
+    in_j = flat[members] == j
+    # a spatial merge only of a pair that a spatial split proposes: the two halves of their union
+    log_q = _halves_log_prob(members, in_j, problem.width) if spatial else None
+    if log_q == -math.inf:
+        return Proposal.invalid(work.layout.with_pixels(pixels.reshape(work.layout.pixels.shape), n_mat - 1))
+    data = cluster_data(problem, members, work.pixel_sets)
+    theta_m, term_m = material_term(data, None, prior, proposals, draw_rng=rng)
     if theta_m is None:
         return Proposal.invalid(work.layout.with_pixels(pixels.reshape(work.layout.pixels.shape), n_mat - 1))
-    in_j = flat[members] == j
     _, term_j = material_term(cluster_data(problem, members[in_j], work.pixel_sets), work.theta[rows_j], prior,
                               proposals)
     _, term_k = material_term(cluster_data(problem, members[~in_j], work.pixel_sets), work.theta[rows_k], prior,
@@ -272,13 +308,15 @@ def _merge(work, rng, problem, prior, settings, proposals, potts, max_materials,
     log_lik_jk = (float(work.log_lik[j] + work.log_lik[k]) if n_ch == 1
                   else float(np.sum(work.log_lik[rows_j]) + np.sum(work.log_lik[rows_k])))
     delta_lik = material_log_lik(stats_m, theta_m) - log_lik_jk
-    guide = split_guide(problem, prior, members, work.layout.bonds.features, work.pixel_sets)
+    if not spatial:
+        guide = split_guide(problem, prior, members, work.layout.bonds.features, work.pixel_sets)
+        log_q = split_log_prob(members, guide, in_j, problem, float(potts.beta))
     p_split_back = split_probability(n_mat - 1, max_materials, settings.split_prob)
     log_ratio = (delta_lik - math.log(potts.rho) + math.log(n_mat)
                  + potts.beta * _edges_between(problem.image_shape, members[in_j], members[~in_j])
                  + term_m - term_j - term_k
                  - _ratio_choices(n_mat - 1, j, max_materials, settings, p_split_back)
-                 + split_log_prob(members, guide, in_j, problem, float(potts.beta)))
+                 + log_q)
     theta = np.delete(work.theta, np.arange(k * n_ch, (k + 1) * n_ch), axis=0)
     theta[rows_j] = theta_m
     stats = np.delete(work.stats, np.arange(k * n_ch, (k + 1) * n_ch), axis=0)

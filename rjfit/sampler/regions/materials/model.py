@@ -52,7 +52,10 @@ unchanged), in order:
 5. ``merge_split.moves`` merges of two whole materials and their reverse, splits of one by
    sequential allocation guided by a deterministic 2-means of its pixels (with ``jumps``;
    :mod:`rjfit.sampler.regions.materials.merge_split`): what removes twins (two materials of one paint)
-   and separates a second paint hidden in a material.
+   and separates a second paint hidden in a material;
+6. ``merge_split.spatial_moves`` spatial splits of one material into the two halves of its pixels' positions, and
+   their reverse (with ``jumps``; the same module): what separates two paints side by side that no per-pixel
+   feature tells apart (pixels of one or two observations).
 
 With ``edge_power`` > 0 the target also holds an edge term, a boundary's fit to the data's
 step (:mod:`rjfit.sampler.regions.materials.edges`), which every label move and parameter move holds.
@@ -90,7 +93,8 @@ from rjfit.sampler.regions.materials.layout import (
     majority_labels,
 )
 from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings
-from rjfit.sampler.regions.materials.moves import ClusterMove, ComponentMove, LabelSweep, MergeSplit, SegmentMove
+from rjfit.sampler.regions.materials.moves import (ClusterMove, ComponentMove, LabelSweep, MergeSplit, SegmentMove,
+                                                  SpatialMergeSplit)
 from rjfit.sampler.regions.materials.segment_move import SegmentSettings
 from rjfit.sampler.regions.materials.segments import segment_family
 
@@ -295,8 +299,8 @@ class MaterialRegions(RegionModel):
             else None
 
     def schedule(self) -> list:
-        """Label sweeps, cluster moves, component moves, segment moves, then (with jumps) merges and splits, each so
-        many times."""
+        """Label sweeps, cluster moves, component moves, segment moves, then (with jumps) merges and splits, and
+        spatial ones, each so many times."""
         if not self.update_labels:
             return []
         return [Scheduled(LabelSweep(self.potts), times=self.sweeps),
@@ -307,7 +311,9 @@ class MaterialRegions(RegionModel):
                 Scheduled(SegmentMove(self.cluster.new_prob, self.proposals, self.potts, self.max_materials,
                                       self.jumps), times=self.segments.moves),
                 Scheduled(MergeSplit(self.merge_split, self.proposals, self.potts, self.max_materials),
-                          times=self.merge_split.moves if self.jumps else 0)]
+                          times=self.merge_split.moves if self.jumps else 0),
+                Scheduled(SpatialMergeSplit(self.merge_split, self.proposals, self.potts, self.max_materials),
+                          times=self.merge_split.spatial_moves if self.jumps else 0)]
 
     def snapshot(self, layout) -> dict:
         return {"material_labels": np.where(layout.pixels >= 0, layout.pixels, np.nan).astype(np.float32)}

@@ -16,7 +16,7 @@ from rjfit.sampler.regions.materials.layout import PottsPrior
 from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings, propose_merge_split
 from rjfit.sampler.regions.materials.segment_move import propose_segment_move
 
-__all__ = ["LabelSweep", "ClusterMove", "ComponentMove", "SegmentMove", "MergeSplit"]
+__all__ = ["LabelSweep", "ClusterMove", "ComponentMove", "SegmentMove", "MergeSplit", "SpatialMergeSplit"]
 
 
 @dataclass(frozen=True)
@@ -90,3 +90,13 @@ class MergeSplit(Move):
     def propose(self, work, rng, problem, prior) -> Proposal:
         return propose_merge_split(work, rng, problem, prior, self.settings, self.proposals, self.potts,
                                    self.max_materials)
+
+
+@dataclass(frozen=True)
+class SpatialMergeSplit(MergeSplit):
+    """A split of one material into the two spatial halves of its pixels, or the merge of two that are the halves of
+    their union (kinds 'spatial_split', 'spatial_merge')."""
+
+    def propose(self, work, rng, problem, prior) -> Proposal:
+        return propose_merge_split(work, rng, problem, prior, self.settings, self.proposals, self.potts,
+                                   self.max_materials, spatial=True)
