@@ -79,6 +79,8 @@ __all__ = ["MergeSplitSettings", "GUIDE_FALLBACK_GAMMA", "split_probability", "s
            "propose_merge_split"]
 
 GUIDE_FALLBACK_GAMMA = 10.0
+#: log q(X, Y) of a spatial split into its halves: the coin for which half keeps the slot
+HALVES_LOG_PROB = -math.log(2.0)
 
 
 @dataclass(frozen=True)
@@ -221,7 +223,7 @@ def _halves_log_prob(members, in_first, width) -> float:
     if halves is None:
         return -math.inf
     first = halves == 1
-    return -math.log(2.0) if np.array_equal(first, in_first) or np.array_equal(~first, in_first) else -math.inf
+    return HALVES_LOG_PROB if np.array_equal(first, in_first) or np.array_equal(~first, in_first) else -math.inf
 
 
 def _ratio_choices(n_mat, m, max_materials, settings, p_split):
@@ -272,7 +274,7 @@ def _split(work, rng, problem, prior, settings, proposals, potts, max_materials,
                  - potts.beta * _edges_between(problem.image_shape, members[stay], members[~stay])
                  + term_x + term_y - term_m
                  + _ratio_choices(n_mat, m, max_materials, settings, p_split)
-                 - (_halves_log_prob(members, stay, problem.width) if spatial
+                 - (HALVES_LOG_PROB if spatial  # the parts are the halves, by construction
                     else split_log_prob(members, guide, stay, problem, float(potts.beta))))
     theta = with_rows(work.theta, k * n_ch, theta_y)
     theta[rows_m] = theta_x
