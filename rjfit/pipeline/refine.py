@@ -29,6 +29,7 @@ import numpy as np
 
 from rjfit.data.formats import COLOUR
 from rjfit.diagnose.document import revision_text
+from rjfit.diagnose.misfit import UNEXPLAINED_GAP
 from rjfit.effects import get_effect
 from rjfit.errors import DatasetError
 from rjfit.io import read_json, write_json_atomic
@@ -424,6 +425,11 @@ def _moved_text(record: dict) -> str:
 
 def _next_round_lines(index: int, record: dict, effects: tuple) -> list:
     """The lines that announce round ``index + 2``'s fit (and why, where nothing was named)."""
+    if record.get("trial") and record["gap"] <= UNEXPLAINED_GAP:
+        return [f"round {index + 2}: round {index + 1}'s diagnosis named nothing but offers "
+                f"{' + '.join(record['trial'])}, decisive where round {index + 1}'s regions left a gap within "
+                f"{UNEXPLAINED_GAP:g}; fitting again with {', '.join(effects)} sampled with the regions (kept if the "
+                f"new segmentation has fewer than {record['n_regions']} regions and a gap within {UNEXPLAINED_GAP:g})"]
     if record.get("trial"):
         return [f"round {index + 2}: round {index + 1}'s diagnosis named nothing but offers "
                 f"{' + '.join(record['trial'])}, short of the naming rule's gap share on round {index + 1}'s "

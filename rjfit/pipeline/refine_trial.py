@@ -21,6 +21,18 @@ KEEPS the trial only when all three hold:
 3. its diagnosis keeps every effect of the trial (the revisit drops an effect that the new
    segmentation no longer needs decisively, :mod:`rjfit.diagnose.revisit`).
 
+A trial offered where the fit before it had a gap within :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP`
+(its regions absorbed the misfit, so no effect could close a share of it: the naming rule's rule 5) is judged
+by what it can show there. Rule 1 is then a ratio of two numbers within the gap's own error, so it becomes:
+
+1'. the trial fit's gap stays within :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP`, and
+2'. the trial fit has FEWER regions than the fit before it: the effect let regions that absorbed the misfit
+    merge. A model the data already fit at its true regions cannot gain here, which keeps out the flexible
+    effects that are decisive on a tiny gap (light_calibration on a gap of 0.001,
+    :mod:`rjfit.diagnose.naming`);
+
+and rule 3 as above.
+
 Otherwise the fit before the trial stays the loop's result, and ``refine.json`` says what was
 tried and why it was not kept. Each effect set is tried once.
 
@@ -41,6 +53,7 @@ offered second, did (``docs/results/2026-11-30-split-normal-draws.md``).
 """
 from __future__ import annotations
 
+from rjfit.diagnose.misfit import UNEXPLAINED_GAP
 from rjfit.diagnose.naming import GAP_SHARE
 
 __all__ = ["TRIAL_GAP_SHARE", "trial_to_fit", "judge_trial", "revised_trial", "next_trial"]
@@ -79,16 +92,30 @@ def judge_trial(effects: list, before: dict, after: dict, final_effects: list) -
     gap_before, gap_after = float(before["gap"]), float(after["gap"])
     dropped = [name for name in effects if name not in final_effects]
     why = []
-    if not gap_after <= TRIAL_GAP_SHARE * gap_before:
-        why.append(f"the gap on the new segmentation, {gap_after:.3g}, is above {TRIAL_GAP_SHARE:.0%} of the "
-                   f"gap before it ({gap_before:.3g})")
-    if after["n_regions"] > before["n_regions"]:
-        why.append(f"the new segmentation has more regions ({after['n_regions']} against {before['n_regions']})")
+    if gap_before <= UNEXPLAINED_GAP:       # rules 1' and 2' (module docstring)
+        if not gap_after <= UNEXPLAINED_GAP:
+            why.append(f"the gap on the new segmentation, {gap_after:.3g}, is above {UNEXPLAINED_GAP:g}")
+        if not after["n_regions"] < before["n_regions"]:
+            why.append(f"the new segmentation has no fewer regions ({after['n_regions']} against "
+                       f"{before['n_regions']}) and the gap before it was within {UNEXPLAINED_GAP:g}")
+    else:
+        if not gap_after <= TRIAL_GAP_SHARE * gap_before:
+            why.append(f"the gap on the new segmentation, {gap_after:.3g}, is above {TRIAL_GAP_SHARE:.0%} of the "
+                       f"gap before it ({gap_before:.3g})")
+        if after["n_regions"] > before["n_regions"]:
+            why.append(f"the new segmentation has more regions ({after['n_regions']} against "
+                       f"{before['n_regions']})")
     if dropped:
         why.append(f"its diagnosis dropped {', '.join(dropped)} on the new segmentation")
+    if why:
+        reason = "; ".join(why)
+    elif gap_before <= UNEXPLAINED_GAP:
+        reason = (f"the new segmentation has {after['n_regions']} regions for {before['n_regions']}, its gap "
+                  f"{gap_after:.3g} (before {gap_before:.3g})")
+    else:
+        reason = f"the gap fell from {gap_before:.3g} to {gap_after:.3g} on the new segmentation"
     return {"effects": list(effects), "gap_before": gap_before, "gap_after": gap_after, "kept": not why,
-            "why": "; ".join(why) if why else (f"the gap fell from {gap_before:.3g} to {gap_after:.3g} on the new "
-                                               f"segmentation")}
+            "why": reason}
 
 
 def revised_trial(base: list, effects: list, final: list, revisions: list, tried: list,

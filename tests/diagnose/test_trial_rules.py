@@ -5,6 +5,8 @@ import pytest
 
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP
 from rjfit.diagnose.pairs import trial_candidates
+from rjfit.diagnose.document import _pair_lines
+from rjfit.pipeline.refine import _next_round_lines
 from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, next_trial, trial_to_fit
 
 
@@ -24,8 +26,15 @@ def test_the_trial_is_the_decisive_candidate_short_of_the_gap_share_only_with_th
     assert [t["effects"] for t in trial_candidates(rows)] == [["ggx", "coating"], ["ggx"]]   # by log BF
     assert [t["effects"] for t in trial_candidates(rows[:2])] == [["ggx"]]
     assert trial_candidates(rows[1:2]) == []
-    assert trial_candidates([row("ggx", 10.0, ["misfit"])]) == []        # no misfit left: nothing to try
     assert trial_candidates([row("ggx", 10.0, ["simulation"])]) == []    # the physics did not agree
+    assert [t["within_floor"] for t in trial_candidates(rows)] == [False, False]
+
+
+def test_a_decisive_candidate_on_a_gap_within_the_floor_is_a_trial_marked_so():
+    # ggx_plastic under the material model: 7 regions for 4 left a gap of 0.099, fresnel decisive (log BF 80)
+    rows = [row("fresnel", 80.4, ["misfit"]), row("masking", 37.9, ["misfit", "physical"]),
+            row("second_lobe", 15.6, ["misfit"], decisive=False)]
+    assert [(t["effects"], t["within_floor"]) for t in trial_candidates(rows)] == [(["fresnel"], True)]
 
 
 def test_after_a_trial_not_kept_the_next_is_the_best_one_not_tried_with_a_round_left():
@@ -84,3 +93,34 @@ def test_a_trial_fit_with_more_regions_is_not_kept_however_far_its_gap_falls():
     verdict = judge_trial(["fresnel"], record(1.51, n_regions=6), record(0.0117, n_regions=9), ["fresnel"])
     assert not verdict["kept"] and "more regions (9 against 6)" in verdict["why"]
     assert judge_trial(["fresnel"], record(1.51, n_regions=6), record(0.0117, n_regions=6), ["fresnel"])["kept"]
+
+
+@pytest.mark.parametrize("gap_after, regions_after, dropped, kept", [
+    (0.02, 4, False, True),                     # fewer regions, the gap still within the floor: kept
+    (0.02, 7, False, False),                    # as many regions: a tiny gap's share says nothing
+    (-0.05, 8, False, False),                   # more regions
+    (UNEXPLAINED_GAP * 1.01, 4, False, False),  # fewer regions, but a misfit the floor calls one
+    (0.02, 4, True, False),                     # its diagnosis dropped an effect of the trial
+])
+def test_a_trial_offered_within_the_floor_is_kept_only_where_its_fit_needs_fewer_regions(gap_after, regions_after,
+                                                                                        dropped, kept):
+    final = [] if dropped else ["fresnel"]
+    verdict = judge_trial(["fresnel"], record(0.099, n_regions=7), record(gap_after, n_regions=regions_after), final)
+    assert verdict["kept"] is kept
+    assert (f"{regions_after} regions for 7" in verdict["why"]) is kept
+
+
+def test_a_flexible_effect_decisive_on_a_tiny_gap_at_the_true_regions_is_not_kept():
+    # the GGX roughplastic stack after the coating: light_calibration was decisive on a gap of 0.001 at 4 regions
+    verdict = judge_trial(["light_calibration"], record(0.001), record(-0.03), ["light_calibration"])
+    assert not verdict["kept"] and "no fewer regions" in verdict["why"]
+
+
+def test_the_loop_and_the_diagnosis_state_the_rule_a_trial_within_the_floor_is_judged_by():
+    trial = {"effects": ["fresnel"], "log_bayes_factor": 80.4, "gap_share": 0.23, "step": 0}
+    within = _pair_lines({"trial": {**trial, "within_floor": True}})[-1]
+    above = _pair_lines({"trial": {**trial, "within_floor": False}})[-1]
+    assert "fewer regions" in within and "at most half" in above
+    floor, halving = ({"trial": ["fresnel"], "gap": gap, "n_regions": 7} for gap in (0.099, 0.4))
+    assert "fewer than 7 regions" in _next_round_lines(0, floor, ("fresnel",))[0]
+    assert "at most 50% of 0.4" in _next_round_lines(0, halving, ("fresnel",))[0]
