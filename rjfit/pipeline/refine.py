@@ -29,7 +29,6 @@ import numpy as np
 
 from rjfit.data.formats import COLOUR
 from rjfit.diagnose.document import revision_text
-from rjfit.diagnose.misfit import UNEXPLAINED_GAP
 from rjfit.effects import get_effect
 from rjfit.errors import DatasetError
 from rjfit.io import read_json, write_json_atomic
@@ -39,7 +38,7 @@ from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.refine_resume import diagnosis_request, fit_request, forget, is_kept, remember
-from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, next_trial, revised_trial, trial_to_fit
+from rjfit.pipeline.refine_trial import judge_trial, next_trial, revised_trial, trial_after, trial_line
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
@@ -199,12 +198,12 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
         result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
         record["feature_change"] = [] if new or record["dropped"] else feature_change(dataset_dir, current, diagnosis_dir)
         result["stopped"], warning = _why_stop(index, max_rounds, options, record, new, current)
-        trying, base = _trial_instead(result, diagnosis, record, tried, max_rounds - index - 1, options), list(final)
+        trying, base = _trial_instead(result, (diagnosis, record, final), tried, max_rounds - index - 1, options)
         if result["stopped"]:
             _warn(result, warning, say)
             break
         write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
-        effects = tuple(final) + tuple(trying or ())
+        effects = tuple(base) + tuple(name for name in trying or () if name not in base)
         for line in _next_round_lines(index, record, effects):
             say(line)
         current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, diagnosis_dir, options, gate, say)
@@ -267,17 +266,20 @@ def _warn(result: dict, warning: str | None, say) -> None:
         say(f"warning: {warning}")
 
 
-def _trial_instead(result: dict, diagnosis: dict, record: dict, tried: list, rounds_left: int, options) -> list | None:
-    """Where the loop would stop (``result["stopped"]``) and the diagnosis offers a trial to fit
-    (:func:`rjfit.pipeline.refine_trial.trial_to_fit`): its effects, the stop undone and the trial recorded in the
-    round's ``record`` and in ``tried``; else None."""
-    if not result["stopped"]:
-        return None
-    trying = trial_to_fit(diagnosis, record, tried, rounds_left, options.channel != COLOUR)
-    if trying is not None:
-        result["stopped"], record["trial"] = "", trying
-        tried.append(sorted(trying))
-    return trying
+def _trial_instead(result: dict, round_: tuple, tried: list, rounds_left: int, options) -> tuple:
+    """``(the trial to fit or None, the effects kept beside it)`` after a round (``round_``: its diagnosis, record
+    and the diagnosis' final model): where the loop would stop (``result["stopped"]``),
+    :func:`rjfit.pipeline.refine_trial.trial_after`'s, the stop undone and the trial recorded in the round's
+    ``record`` (``trial``; a drop's ``trial_drops`` too); else ``(None, the final model)``."""
+    diagnosis, record, final = round_
+    chosen = (trial_after(diagnosis, record, final, (result["trials"], tried), rounds_left, options.channel != COLOUR)
+              if result["stopped"] else None)
+    if chosen is None:
+        return None, list(final)
+    result["stopped"], record["trial"] = "", chosen[0]
+    if chosen[2]:
+        record["trial_drops"] = chosen[2]
+    return chosen[0], chosen[1]
 
 
 def _trial_kept(result: dict, effects: list, before: int, index: int, final: list, say) -> bool:
@@ -287,6 +289,8 @@ def _trial_kept(result: dict, effects: list, before: int, index: int, final: lis
     rounds = result["rounds"]
     verdict = judge_trial(effects, rounds[before], rounds[index], final)
     verdict["round"] = index + 1
+    if rounds[before].get("trial_drops"):
+        verdict["drops"] = rounds[before]["trial_drops"]
     result["trials"].append(verdict)
     say(f"round {index + 1}: the trial of {' + '.join(effects)} with the regions is "
         f"{'kept' if verdict['kept'] else 'not kept'}: {verdict['why']}")
@@ -425,16 +429,8 @@ def _moved_text(record: dict) -> str:
 
 def _next_round_lines(index: int, record: dict, effects: tuple) -> list:
     """The lines that announce round ``index + 2``'s fit (and why, where nothing was named)."""
-    if record.get("trial") and record["gap"] <= UNEXPLAINED_GAP:
-        return [f"round {index + 2}: round {index + 1}'s diagnosis named nothing but offers "
-                f"{' + '.join(record['trial'])}, decisive where round {index + 1}'s regions left a gap within "
-                f"{UNEXPLAINED_GAP:g}; fitting again with {', '.join(effects)} sampled with the regions (kept if the "
-                f"new segmentation has fewer than {record['n_regions']} regions and a gap within {UNEXPLAINED_GAP:g})"]
     if record.get("trial"):
-        return [f"round {index + 2}: round {index + 1}'s diagnosis named nothing but offers "
-                f"{' + '.join(record['trial'])}, short of the naming rule's gap share on round {index + 1}'s "
-                f"segmentation only; fitting again with {', '.join(effects)} sampled with the regions (kept if the "
-                f"gap on the new segmentation is at most {TRIAL_GAP_SHARE:.0%} of {record['gap']:.3g})"]
+        return [trial_line(index, record, effects)]
     why = [] if record["named"] or record["dropped"] else [
         f"round {index + 2}: round {index + 1}'s fit: {_moved_text(record)}; fitting again with it rendered on "
         f"round {index + 1}'s labels"]

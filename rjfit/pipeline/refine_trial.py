@@ -33,6 +33,14 @@ by what it can show there. Rule 1 is then a ratio of two numbers within the gap'
 
 and rule 3 as above.
 
+A pair kept by a trial can carry a passenger: on the GGX lobe under a smooth coating (the plugin, the material
+model, seed 1), coating + light_calibration was kept on a fit of 8 regions for 4, the coating alone being in
+prior-data conflict there; with both the fit stayed at 8 regions, and without light_calibration it has 4 at
+accuracy 1.000 (docs/results/2026-12-01-floor-trials.md). So where a round's fit has a gap within the floor and
+its diagnosis offers no trial, the final model less one effect that came in with a kept pair is a trial too
+(:func:`drop_trial`, the effect of most parameters first), judged by rules 1', 2' and 3 (every effect it keeps
+kept by its diagnosis).
+
 Otherwise the fit before the trial stays the loop's result, and ``refine.json`` says what was
 tried and why it was not kept. Each effect set is tried once.
 
@@ -56,7 +64,8 @@ from __future__ import annotations
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP
 from rjfit.diagnose.naming import GAP_SHARE
 
-__all__ = ["TRIAL_GAP_SHARE", "trial_to_fit", "judge_trial", "revised_trial", "next_trial"]
+__all__ = ["TRIAL_GAP_SHARE", "trial_to_fit", "drop_trial", "trial_after", "trial_line", "judge_trial",
+           "revised_trial", "next_trial"]
 
 #: the share of the gap before it that a trial fit's gap may keep: the naming rule's, 1 - GAP_SHARE
 TRIAL_GAP_SHARE = 1.0 - GAP_SHARE
@@ -80,6 +89,68 @@ def trial_to_fit(diagnosis: dict, record: dict, tried: list, rounds_left: int, c
     if not effects or sorted(effects) in tried:
         return None
     return effects
+
+
+def drop_trial(diagnosis: dict, record: dict, trials: list, tried: list, rounds_left: int) -> tuple | None:
+    """The diagnosis' final model less one effect that a kept pair brought in, as a trial, or None.
+
+    ``diagnosis`` and ``record`` are the round's (its fit's ``gap``, ``named``, ``dropped``, ``feature_change``),
+    ``trials`` the loop's verdicts so far (``refine.json``'s ``trials``), ``tried`` the sets tried (sorted; the
+    trial's is added) and ``rounds_left`` the diagnoses the loop may still make. Only where the round changed
+    nothing, its gap is within :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP` and a round is left to judge it.
+    Of the effects of the kept trials of two or more effects that the final model holds, the one with the most
+    parameters goes first (a flexible passenger absorbs most); a set tried before is skipped. Returns ``(the
+    effects kept, the effect dropped)``.
+    """
+    if rounds_left < 1 or record["named"] or record["dropped"] or record["gap"] is None:
+        return None
+    if record["gap"] > UNEXPLAINED_GAP or not all(entry["follows"] for entry in record["feature_change"]):
+        return None
+    model = diagnosis.get("final_model") or {}
+    final = list(model.get("effects") or [])
+    passengers = {name for verdict in trials if verdict["kept"] and len(verdict["effects"]) > 1
+                  and not verdict.get("drops") for name in verdict["effects"] if name in final}
+    n_params = {name: sum(key.startswith(f"{name}.") for key in model.get("parameters") or {}) for name in passengers}
+    for name in sorted(passengers, key=lambda effect: (-n_params[effect], effect)):
+        kept = [effect for effect in final if effect != name]
+        if kept and sorted(kept) not in tried:
+            tried.append(sorted(kept))
+            return kept, name
+    return None
+
+
+def trial_after(diagnosis: dict, record: dict, final: list, done: tuple, rounds_left: int,
+                can_sample: bool) -> tuple | None:
+    """The trial after a round that would end the loop: ``(its effects, the effects kept beside them, the effects
+    it drops)``, or None. The diagnosis' trial (:func:`trial_to_fit`) beside the final model ``final``, else the
+    final model less an effect a kept pair brought in (:func:`drop_trial`). ``done``: the loop's verdicts and the
+    sets tried (the chosen set is added)."""
+    verdicts, tried = done
+    trying = trial_to_fit(diagnosis, record, tried, rounds_left, can_sample)
+    if trying is not None:
+        tried.append(sorted(trying))
+        return trying, list(final), []
+    dropping = drop_trial(diagnosis, record, verdicts, tried, rounds_left) if can_sample else None
+    return None if dropping is None else (dropping[0], [], [dropping[1]])
+
+
+def trial_line(index: int, record: dict, effects: tuple) -> str:
+    """The line that announces round ``index + 2``'s fit of the trial round ``index + 1`` chose (``record``'s
+    ``trial``, and ``trial_drops`` for a drop), which samples ``effects``, and the rule it will be judged by."""
+    floor = (f"kept if the new segmentation has fewer than {record['n_regions']} regions and a gap within "
+             f"{UNEXPLAINED_GAP:g}")
+    head = f"round {index + 2}: round {index + 1}'s diagnosis named nothing"
+    if record.get("trial_drops"):
+        return (f"{head}, its gap within {UNEXPLAINED_GAP:g}; fitting again without "
+                f"{', '.join(record['trial_drops'])} (brought in by a kept trial of two or more effects), with "
+                f"{', '.join(effects)} sampled with the regions ({floor})")
+    if record["gap"] <= UNEXPLAINED_GAP:
+        return (f"{head} but offers {' + '.join(record['trial'])}, decisive where round {index + 1}'s regions left a "
+                f"gap within {UNEXPLAINED_GAP:g}; fitting again with {', '.join(effects)} sampled with the regions "
+                f"({floor})")
+    return (f"{head} but offers {' + '.join(record['trial'])}, short of the naming rule's gap share on round "
+            f"{index + 1}'s segmentation only; fitting again with {', '.join(effects)} sampled with the regions (kept "
+            f"if the gap on the new segmentation is at most {TRIAL_GAP_SHARE:.0%} of {record['gap']:.3g})")
 
 
 def judge_trial(effects: list, before: dict, after: dict, final_effects: list) -> dict:

@@ -7,7 +7,8 @@ from rjfit.diagnose.misfit import UNEXPLAINED_GAP
 from rjfit.diagnose.pairs import trial_candidates
 from rjfit.diagnose.document import _pair_lines
 from rjfit.pipeline.refine import _next_round_lines
-from rjfit.pipeline.refine_trial import TRIAL_GAP_SHARE, judge_trial, next_trial, trial_to_fit
+from rjfit.pipeline.refine_trial import (TRIAL_GAP_SHARE, drop_trial, judge_trial, next_trial, trial_after, trial_line,
+                                         trial_to_fit)
 
 
 def row(effect, log_bf, short_of, decisive=True, effects=None):
@@ -124,3 +125,43 @@ def test_the_loop_and_the_diagnosis_state_the_rule_a_trial_within_the_floor_is_j
     floor, halving = ({"trial": ["fresnel"], "gap": gap, "n_regions": 7} for gap in (0.099, 0.4))
     assert "fewer than 7 regions" in _next_round_lines(0, floor, ("fresnel",))[0]
     assert "at most 50% of 0.4" in _next_round_lines(0, halving, ("fresnel",))[0]
+
+
+def final_model(effects, counts):
+    return {"effects": effects,
+            "parameters": {f"{name}.p{k}": {} for name, n in zip(effects, counts) for k in range(n)} | {"I0[0]": {}}}
+
+
+def test_a_passenger_of_a_kept_pair_is_dropped_as_a_trial_the_effect_of_most_parameters_first():
+    # the GGX lobe under a coating (materials, seed 1): ggx kept alone, then coating + light_calibration kept on
+    # 8 regions for 4; round 3's gap -0.021 within the floor, nothing offered
+    diagnosis = {"final_model": final_model(["ggx", "coating", "light_calibration"], [1, 2, 9])}
+    verdicts = [{"effects": ["ggx"], "kept": True}, {"effects": ["coating", "light_calibration"], "kept": True}]
+    tried = [["ggx"], ["coating", "light_calibration"]]
+    assert drop_trial(diagnosis, record(-0.021, n_regions=8), verdicts, tried, 1) == (["ggx", "coating"],
+                                                                                     "light_calibration")
+    assert tried[-1] == ["coating", "ggx"]
+    assert drop_trial(diagnosis, record(-0.021), verdicts, tried, 1) == (["ggx", "light_calibration"], "coating")
+    assert drop_trial(diagnosis, record(-0.021), verdicts, tried, 1) is None          # both tried
+    for blocked in (record(0.2), record(-0.02, named=["ambient"]), record(-0.02, dropped=["ggx"]),
+                    record(-0.02, follows=False)):
+        assert drop_trial(diagnosis, blocked, verdicts, [], 1) is None
+    assert drop_trial(diagnosis, record(-0.02), verdicts, [], 0) is None               # no round to judge it
+    single = [{"effects": ["ggx"], "kept": True}, {"effects": ["coating", "light_calibration"], "kept": False}]
+    assert drop_trial(diagnosis, record(-0.02), single, [], 1) is None                 # no pair was kept
+    dropped_before = verdicts + [{"effects": ["ggx", "coating"], "kept": True, "drops": ["light_calibration"]}]
+    lone = {"final_model": final_model(["ggx", "coating"], [1, 2])}
+    assert drop_trial(lone, record(-0.02), dropped_before, [], 1) == (["ggx"], "coating")    # the pair's coating
+    assert drop_trial({"final_model": final_model(["coating"], [2])}, record(-0.02), verdicts, [], 1) is None
+
+
+def test_the_trial_after_a_round_is_the_diagnosis_trial_beside_the_model_else_a_drop_which_the_loop_announces():
+    diagnosis = {"trial": {"effects": ["ggx"]}, "final_model": final_model(["coating", "light_calibration"], [2, 9])}
+    verdicts = [{"effects": ["coating", "light_calibration"], "kept": True}]
+    assert trial_after(diagnosis, record(-0.02), ["coating", "light_calibration"], (verdicts, []), 1, True) == (
+        ["ggx"], ["coating", "light_calibration"], [])
+    chosen = trial_after(diagnosis, record(-0.02), ["coating", "light_calibration"], (verdicts, [["ggx"]]), 1, True)
+    assert chosen == (["coating"], [], ["light_calibration"])
+    assert trial_after(diagnosis, record(-0.02), ["coating"], (verdicts, [["ggx"]]), 1, False) is None   # colour
+    line = trial_line(2, {**record(-0.02, n_regions=8), "trial": chosen[0], "trial_drops": chosen[2]}, ("coating",))
+    assert "without light_calibration" in line and "fewer than 8 regions" in line
