@@ -208,20 +208,15 @@ def _pair_lines(result: dict) -> list[str]:
                   f"{_fmt(row.get('delta_elpd_loo'), '.1f')} ({_fmt(row.get('delta_elpd_loo_se'), '.1f')}) | "
                   f"{_percent(row.get('gap_share'))} | {'yes' if row['decisive'] else 'no'} | "
                   f"{row.get('why_not', '-' if not row['decisive'] else 'qualifies')} |" for row in result["pairs"]]
-    if result.get("trial") and result["trial"].get("within_floor"):
-        trial = result["trial"]
+    trial = result.get("trial")
+    if trial:
+        why = ("but this segmentation leaves little gap for it to close" if trial.get("within_floor") else
+               f"but closes only {_percent(trial['gap_share'])} of the gap on this segmentation")
+        keeps = ("the new segmentation has fewer regions and its gap stays within the naming rule's floor"
+                 if trial.get("within_floor") else "the gap on the new segmentation is at most half of this one")
         lines += ["", f"**To try with the regions:** {' + '.join(trial['effects'])} (log BF "
-                  f"{trial['log_bayes_factor']:.1f}) is decisive and physical, but this segmentation leaves little "
-                  f"gap for it to close: its regions may have split to absorb what it explains; `rjfit refine` fits "
-                  f"again with it and keeps it only where the new segmentation has fewer regions and its gap stays "
-                  f"within the naming rule's floor."]
-    elif result.get("trial"):
-        trial = result["trial"]
-        lines += ["", f"**To try with the regions:** {' + '.join(trial['effects'])} (log BF "
-                  f"{trial['log_bayes_factor']:.1f}) is decisive and physical but closes only "
-                  f"{_percent(trial['gap_share'])} of the gap on this segmentation, whose regions may have split to "
-                  f"absorb what it explains; `rjfit refine` fits again with it and keeps it only where the gap on the "
-                  f"new segmentation is at most half of this one."]
+                  f"{trial['log_bayes_factor']:.1f}) is decisive and physical {why}: its regions may have split to "
+                  f"absorb what it explains; `rjfit refine` fits again with it and keeps it only where {keeps}."]
     return lines
 
 

@@ -191,7 +191,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
                                                   max_rounds - index - 1, (final_round, index, diagnosis_dir), say)
             if trying is None:
                 break
-            effects = tuple(base) + tuple(name for name in trying if name not in base)
+            effects = _sampled(base, trying)
             current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, source, options, gate, say)
             continue
         trying, final_round, kept_final, result["final_fit"] = None, index, list(final), str(current)
@@ -203,7 +203,7 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
             _warn(result, warning, say)
             break
         write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
-        effects = tuple(base) + tuple(name for name in trying or () if name not in base)
+        effects = _sampled(base, trying)
         for line in _next_round_lines(index, record, effects):
             say(line)
         current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, diagnosis_dir, options, gate, say)
@@ -264,6 +264,11 @@ def _warn(result: dict, warning: str | None, say) -> None:
     if warning:
         result["warnings"].append(warning)
         say(f"warning: {warning}")
+
+
+def _sampled(base: list, trying: list | None) -> tuple:
+    """The effects the next fit samples: those kept beside the trial, then the trial's own not among them."""
+    return tuple(base) + tuple(name for name in trying or () if name not in base)
 
 
 def _trial_instead(result: dict, round_: tuple, tried: list, rounds_left: int, options) -> tuple:
