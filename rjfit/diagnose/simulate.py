@@ -1,10 +1,11 @@
 """Posterior predictive simulation with Mitsuba: render the fitted (extended) model.
 
-For ``n_draws`` posterior draws, the scene is rebuilt with the draw's per-region materials
-(rjfit's plugin, or its variant ``rjfit_blinn_ext`` when an effect of the model has BSDF
-parameters: scale = I0 / reference_intensity, kd, gamma and those) plus the Mitsuba-side changes of the
-model's effects (emitters, light scales, path depth, post-process), and every light is
-path-traced along the data set's own pixel-centre rays. The spread over draws is the
+For ``n_draws`` posterior draws, the scene is rebuilt with the draw's per-region materials on the
+mesh cut along the fit's regions (:func:`rjfit.effects.scenes.model_scene`; rjfit's plugin, or its
+variant ``rjfit_blinn_ext`` when an effect of the model has BSDF parameters: scale = I0 /
+reference_intensity, kd, gamma and those) plus the Mitsuba-side changes of the model's effects
+(emitters, light scales, path depth, post-process), and every light is path-traced along the data
+set's own pixel-centre rays. The spread over draws is the
 simulation's own uncertainty; replicated data add the draw's noise.
 
 Outputs (``simulate_fit``): standardised residuals z = (y - E[sim]) / sqrt(sigma^2 + Var[sim])

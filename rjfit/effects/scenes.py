@@ -9,7 +9,7 @@ beside the feature.
 """
 from __future__ import annotations
 
-from rjfit.render.effect_scenes import materials_for_parts, region_materials, region_parts, render_indirect
+from rjfit.render.effect_scenes import mesh_material_map, region_materials, region_parts, render_indirect
 
 __all__ = ["model_scene", "indirect_radiance"]
 
@@ -17,15 +17,19 @@ __all__ = ["model_scene", "indirect_radiance"]
 def model_scene(ctx, region_params):
     """The data set to render the fitted model on, and its materials (``{I0, kd, gamma}``).
 
-    A rendered data set's mesh parts are its materials:
-    :func:`rjfit.render.effect_scenes.materials_for_parts`. A data set without materials (a
-    measured mesh stack: one mesh) is cut into one part per fit region
-    (:func:`rjfit.render.effect_scenes.region_parts`, once per context), each region's
-    parameters its material.
+    The mesh is cut into one part per fit region (:func:`rjfit.render.effect_scenes.region_parts`,
+    once per context), each region's parameters its material, so Mitsuba renders the fitted model
+    and not the data's own materials: a rendered data set's mesh parts are cut along the fit's
+    regions inside each part (a part that one region covers stays whole), a measured mesh stack's
+    one mesh by the regions alone. (Giving each true part its majority region's parameters instead
+    would render a fit of 8 regions on 4 parts as a fit of 4, and its gap would measure the
+    segmentation, with the truth's outlines, not a missing effect.)
     """
-    if ctx.dataset.meta.get("materials") is not None:
-        return ctx.dataset, materials_for_parts(ctx.dataset, ctx.labels, region_params)
-    dataset, _ = ctx.feature("region_parts", lambda: region_parts(ctx.dataset, ctx.labels))
+    def cut():
+        rendered = ctx.dataset.meta.get("materials") is not None
+        return region_parts(ctx.dataset, ctx.labels, mesh_material_map(ctx.dataset) if rendered else None)
+
+    dataset, _ = ctx.feature("region_parts", cut)
     return dataset, region_materials(region_params)
 
 

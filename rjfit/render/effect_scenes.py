@@ -1,8 +1,8 @@
 """Rendering a fitted (extended) model with Mitsuba: the scenes the criticism's effects need.
 
 - :func:`trace_centre_rays`: many samples per pixel-centre ray in one wavefront;
-- :func:`materials_for_parts`, :func:`region_parts`, :func:`region_materials`: the materials
-  of a fit's regions on a rendered data set's mesh parts, or on a measured mesh cut by region;
+- :func:`region_parts`, :func:`region_materials`, :func:`mesh_material_map`: a data set's mesh cut by a fit's
+  regions and their materials (a rendered data set's parts cut along the fit's regions, a measured mesh by them);
 - :func:`render_model`: every light with those materials and a
   :class:`rjfit.render.scene_change.MitsubaChange` (the Mitsuba side of the effects);
 - :func:`render_indirect`: the indirect radiance (interreflection's feature);
@@ -23,11 +23,12 @@ import numpy as np
 from rjfit.data.lights import Light
 from rjfit.data.meshes import split_by_face_label
 from rjfit.render.ext_plugin import EXT_PLUGIN_NAME, register_ext
-from rjfit.render.mitsuba_scene import activate, light_scenes, mitsuba_seed, shadow_visibility, trace_pixels
+from rjfit.render.mitsuba_scene import (activate, light_scenes, mitsuba_seed, shadow_visibility, shape_materials,
+                                        trace_pixels)
 from rjfit.render.render import scene_from_dataset_meta
 from rjfit.render.scene_change import MitsubaChange
 
-__all__ = ["trace_centre_rays", "materials_for_parts", "region_parts", "region_materials", "render_model",
+__all__ = ["trace_centre_rays", "mesh_material_map", "region_parts", "region_materials", "render_model",
            "render_indirect", "mitsuba_visibility", "MODEL_STREAM", "ENVIRONMENT_STREAM", "INDIRECT_STREAM"]
 
 # purpose tags of the diagnosis' path-tracing streams (rjfit.render.mitsuba_scene.mitsuba_seed)
@@ -62,33 +63,12 @@ def trace_centre_rays(scene, spp=1, seed=0):
     return values.reshape(int(spp), int(height), int(width)).mean(axis=0)
 
 
-def _mesh_material_map(dataset):
-    """(H, W) mesh material index per pixel (truth labels of a rendered data set, else traced)."""
+def mesh_material_map(dataset):
+    """(H, W) mesh material index per pixel (truth labels of a rendered data set, else traced; -1: no surface)."""
     if dataset.truth_labels is not None:
         return dataset.truth_labels
     scene = scene_from_dataset_meta(dataset.meta, dataset.path, lights=[])
     return trace_pixels(scene, [e["material"] for e in dataset.meta["meshes"]])["material"]
-
-
-def materials_for_parts(dataset, labels, region_params):
-    """``{I0, kd, gamma}`` per mesh material index of ``dataset`` from a fit's regions.
-
-    A Mitsuba BSDF is constant per mesh part, the fit's regions are pixel sets (``labels``,
-    (H, W) region index, -1 off the object): each mesh material gets the parameters of the
-    region covering most of its pixels (exact when the segmentation follows the parts, e.g.
-    the truth labels or a good MAP segmentation). For a data set without materials (a
-    measured mesh stack) see :func:`region_parts` and :func:`region_materials`.
-    """
-    region_params = np.asarray(region_params, dtype=float)
-    parts = _mesh_material_map(dataset)
-    n_materials = max(e["material"] for e in dataset.meta["meshes"]) + 1
-    fallback = np.median(region_params[:, :3], axis=0)
-    out = []
-    for material in range(n_materials):
-        regions = labels[(parts == material) & (labels >= 0)]
-        params = region_params[np.bincount(regions).argmax(), :3] if regions.size else fallback
-        out.append({"I0": float(params[0]), "kd": float(params[1]), "gamma": float(params[2])})
-    return out
 
 
 def region_materials(region_params):
@@ -96,30 +76,40 @@ def region_materials(region_params):
     return [{"I0": float(p[0]), "kd": float(p[1]), "gamma": float(p[2])} for p in np.asarray(region_params)]
 
 
-def region_parts(dataset, labels):
-    """A measured data set's mesh cut into one part per fit region (``labels``, (H, W) region
-    index, -1 off the object): (data set, temporary folder).
+def region_parts(dataset, labels, parts=None):
+    """A data set's mesh cut into one part per fit region (``labels``, (H, W) region index, -1 off
+    the object): (data set, temporary folder).
 
     Each face of the mesh as Mitsuba loads it (positions, shading normals and faces taken from
     the loaded shape, so the geometry is unchanged) takes the region of the nearest traced
     pixel-centre point of the object; the parts are written as PLY files into a temporary
     folder that lives as long as the returned object, and the data set returned names them as
     its ``meshes`` (material = region index): keep the pair while the data set is rendered.
+
+    ``parts`` ((H, W) mesh material index per pixel, :func:`mesh_material_map`), for a data set
+    whose meshes are its materials (a rendered one): a face then takes the nearest pixel of its
+    own mesh material, so a mesh part that one region covers is rendered whole with that
+    region's parameters, and a boundary between regions inside a part falls where the fit puts
+    it. Without it, every face looks at every pixel of the object.
     """
     import mitsuba as mi
     from scipy.spatial import cKDTree
 
     activate()
     labelled = (labels >= 0) & dataset.object_mask
-    tree = cKDTree(dataset.positions[labelled])
+    mesh_materials = [e["material"] for e in dataset.meta["meshes"]]
+    scene = scene_from_dataset_meta(dataset.meta, dataset.path, lights=[])
+    shapes = scene.shapes()
     folder = tempfile.TemporaryDirectory(prefix="rjfit-regions-")
     meshes = []
-    for shape in scene_from_dataset_meta(dataset.meta, dataset.path, lights=[]).shapes():
+    for shape, material in zip(shapes, shape_materials([s.id() for s in shapes], mesh_materials)):
         params = mi.traverse(shape)
         vertices = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
         normals = np.array(params["vertex_normals"], dtype=np.float64).reshape(-1, 3)
         faces = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
-        face_region = labels[labelled][tree.query(vertices[faces].mean(axis=1))[1]]
+        own = labelled if parts is None else labelled & (parts == material)
+        seen = own if own.any() else labelled          # a part no pixel sees: the nearest of any
+        face_region = labels[seen][cKDTree(dataset.positions[seen]).query(vertices[faces].mean(axis=1))[1]]
         for mesh, region in split_by_face_label(vertices, faces, normals, face_region):
             meshes.append({"file": str(Path(folder.name) / f"part_{len(meshes):03d}.ply"), "material": region})
             mesh.export(meshes[-1]["file"], file_type="ply", vertex_normal=True)
@@ -191,7 +181,7 @@ def render_indirect(dataset, materials, *, seed, spp=32, max_depth=8, batches=8)
     """Mitsuba's indirect radiance of a model per light: path(max_depth) - path(2).
 
     ``dataset`` and ``materials`` as :func:`render_model` takes them (a fitted model: see
-    :func:`materials_for_parts`, :func:`region_parts`); ``seed`` the diagnosis' seed, which
+    :func:`region_parts`); ``seed`` the diagnosis' seed, which
     with :data:`INDIRECT_STREAM` keys the paths' streams. Returns the (L, H, W) mean and its
     Monte Carlo standard error (from ``batches`` independent batches).
     """
