@@ -9,7 +9,7 @@ beside the feature.
 """
 from __future__ import annotations
 
-from rjfit.render.effect_scenes import mesh_material_map, region_materials, region_parts, render_indirect
+from rjfit.render.effect_scenes import region_materials, region_parts, render_indirect
 
 __all__ = ["model_scene", "indirect_radiance"]
 
@@ -25,11 +25,7 @@ def model_scene(ctx, region_params):
     would render a fit of 8 regions on 4 parts as a fit of 4, and its gap would measure the
     segmentation, with the truth's outlines, not a missing effect.)
     """
-    def cut():
-        rendered = ctx.dataset.meta.get("materials") is not None
-        return region_parts(ctx.dataset, ctx.labels, mesh_material_map(ctx.dataset) if rendered else None)
-
-    dataset, _ = ctx.feature("region_parts", cut)
+    dataset, _ = ctx.feature("region_parts", lambda: region_parts(ctx.dataset, ctx.labels))
     return dataset, region_materials(region_params)
 
 

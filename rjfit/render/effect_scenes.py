@@ -1,7 +1,7 @@
 """Rendering a fitted (extended) model with Mitsuba: the scenes the criticism's effects need.
 
 - :func:`trace_centre_rays`: many samples per pixel-centre ray in one wavefront;
-- :func:`region_parts`, :func:`region_materials`, :func:`mesh_material_map`: a data set's mesh cut by a fit's
+- :func:`region_parts`, :func:`region_materials`: a data set's mesh cut by a fit's
   regions and their materials (a rendered data set's parts cut along the fit's regions, a measured mesh by them);
 - :func:`render_model`: every light with those materials and a
   :class:`rjfit.render.scene_change.MitsubaChange` (the Mitsuba side of the effects);
@@ -28,7 +28,7 @@ from rjfit.render.mitsuba_scene import (activate, light_scenes, mitsuba_seed, sh
 from rjfit.render.render import scene_from_dataset_meta
 from rjfit.render.scene_change import MitsubaChange
 
-__all__ = ["trace_centre_rays", "mesh_material_map", "region_parts", "region_materials", "render_model",
+__all__ = ["trace_centre_rays", "region_parts", "region_materials", "render_model",
            "render_indirect", "mitsuba_visibility", "MODEL_STREAM", "ENVIRONMENT_STREAM", "INDIRECT_STREAM"]
 
 # purpose tags of the diagnosis' path-tracing streams (rjfit.render.mitsuba_scene.mitsuba_seed)
@@ -63,7 +63,7 @@ def trace_centre_rays(scene, spp=1, seed=0):
     return values.reshape(int(spp), int(height), int(width)).mean(axis=0)
 
 
-def mesh_material_map(dataset):
+def _mesh_material_map(dataset):
     """(H, W) mesh material index per pixel (truth labels of a rendered data set, else traced; -1: no surface)."""
     if dataset.truth_labels is not None:
         return dataset.truth_labels
@@ -76,40 +76,42 @@ def region_materials(region_params):
     return [{"I0": float(p[0]), "kd": float(p[1]), "gamma": float(p[2])} for p in np.asarray(region_params)]
 
 
-def region_parts(dataset, labels, parts=None):
+def region_parts(dataset, labels):
     """A data set's mesh cut into one part per fit region (``labels``, (H, W) region index, -1 off
     the object): (data set, temporary folder).
 
     Each face of the mesh as Mitsuba loads it (positions, shading normals and faces taken from
     the loaded shape, so the geometry is unchanged) takes the region of the nearest traced
-    pixel-centre point of the object; the parts are written as PLY files into a temporary
-    folder that lives as long as the returned object, and the data set returned names them as
-    its ``meshes`` (material = region index): keep the pair while the data set is rendered.
-
-    ``parts`` ((H, W) mesh material index per pixel, :func:`mesh_material_map`), for a data set
-    whose meshes are its materials (a rendered one): a face then takes the nearest pixel of its
-    own mesh material, so a mesh part that one region covers is rendered whole with that
-    region's parameters, and a boundary between regions inside a part falls where the fit puts
-    it. Without it, every face looks at every pixel of the object.
+    pixel-centre point of its own mesh part (:func:`_mesh_material_map`; a measured mesh stack's
+    one mesh is one part), so a part that one region covers is rendered whole with that region's
+    parameters, the faces no pixel sees included, and a boundary between regions inside a part
+    falls where the fit puts it. The parts are written as PLY files into a temporary folder that
+    lives as long as the returned object, and the data set returned names them as its ``meshes``
+    (material = region index): keep the pair while the data set is rendered.
     """
     import mitsuba as mi
     from scipy.spatial import cKDTree
 
     activate()
     labelled = (labels >= 0) & dataset.object_mask
-    mesh_materials = [e["material"] for e in dataset.meta["meshes"]]
+    parts = _mesh_material_map(dataset)
     scene = scene_from_dataset_meta(dataset.meta, dataset.path, lights=[])
     shapes = scene.shapes()
+    nearest = {}        # per mesh material: its labelled pixels' tree and labels (Mitsuba may split a part)
     folder = tempfile.TemporaryDirectory(prefix="rjfit-regions-")
     meshes = []
-    for shape, material in zip(shapes, shape_materials([s.id() for s in shapes], mesh_materials)):
+    for shape, material in zip(shapes, shape_materials([s.id() for s in shapes],
+                                                       [e["material"] for e in dataset.meta["meshes"]])):
+        if material not in nearest:
+            own = labelled & (parts == material)
+            seen = own if own.any() else labelled          # a part no pixel sees: the nearest of any
+            nearest[material] = cKDTree(dataset.positions[seen]), labels[seen]
+        tree, seen_labels = nearest[material]
         params = mi.traverse(shape)
         vertices = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
         normals = np.array(params["vertex_normals"], dtype=np.float64).reshape(-1, 3)
         faces = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
-        own = labelled if parts is None else labelled & (parts == material)
-        seen = own if own.any() else labelled          # a part no pixel sees: the nearest of any
-        face_region = labels[seen][cKDTree(dataset.positions[seen]).query(vertices[faces].mean(axis=1))[1]]
+        face_region = seen_labels[tree.query(vertices[faces].mean(axis=1))[1]]
         for mesh, region in split_by_face_label(vertices, faces, normals, face_region):
             meshes.append({"file": str(Path(folder.name) / f"part_{len(meshes):03d}.ply"), "material": region})
             mesh.export(meshes[-1]["file"], file_type="ply", vertex_normal=True)

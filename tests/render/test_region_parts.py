@@ -2,9 +2,9 @@
 
 The criticism renders a fit (its posterior predictive simulation, interreflection's feature) on
 the data set's mesh. A rendered data set's mesh parts are its true materials; a fit's regions
-need not follow them. The cut (:func:`rjfit.render.effect_scenes.region_parts` with the parts'
-map) must render every pixel with the parameters of the region the fit gives it, and a part that
-one region covers whole exactly as the part itself. The reference is Mitsuba alone: the data
+need not follow them. The cut (:func:`rjfit.render.effect_scenes.region_parts`) must render every
+pixel with the parameters of the region the fit gives it, and a part that one region covers whole
+exactly as the part itself. The reference is Mitsuba alone: the data
 set's own scene rendered with every part given one region's parameters.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from rjfit.render.datasets import load_dataset
-from rjfit.render.effect_scenes import mesh_material_map, region_materials, region_parts, render_model
+from rjfit.render.effect_scenes import region_materials, region_parts, render_model
 from rjfit.render.scene_change import MitsubaChange
 
 # one (I0, kd, gamma) per region: distinct enough that a pixel rendered with a neighbour's shows
@@ -50,7 +50,7 @@ def test_cut_renders_each_pixel_with_its_regions_parameters(paper_sphere_small):
     truth = dataset.truth_labels
     labels = _halved(truth)
     assert len(np.unique(labels[labels >= 0])) == 8
-    cut, _folder = region_parts(dataset, labels, mesh_material_map(dataset))
+    cut, _folder = region_parts(dataset, labels)
     rendered = render_model(cut, region_materials(PARAMS), MitsubaChange())
     reference = _reference(dataset, labels, PARAMS)
     on = labels >= 0
@@ -70,7 +70,7 @@ def test_a_part_one_region_covers_is_rendered_whole(fixture, request):
     dataset = load_dataset(request.getfixturevalue(fixture))
     truth = dataset.truth_labels.astype(np.int64)
     params = PARAMS[1:2 * (int(truth.max()) + 1):2]
-    cut, _folder = region_parts(dataset, truth, mesh_material_map(dataset))
+    cut, _folder = region_parts(dataset, truth)
     rendered = render_model(cut, region_materials(params), MitsubaChange())
     reference = render_model(dataset, region_materials(params), MitsubaChange())
     np.testing.assert_allclose(rendered, reference, rtol=1e-5, atol=1e-5 * np.abs(reference).max())
@@ -85,7 +85,7 @@ def test_every_face_keeps_its_parts_region_at_the_truth(dented_plaster_small):
 
     dataset = load_dataset(dented_plaster_small)
     truth = dataset.truth_labels.astype(np.int64)
-    cut, _folder = region_parts(dataset, truth, mesh_material_map(dataset))
+    cut, _folder = region_parts(dataset, truth)
     sources = [(cKDTree(trimesh.load(dataset.path / entry["file"], process=False).triangles_center), entry["material"])
                for entry in dataset.meta["meshes"]]
     for entry in cut.meta["meshes"]:
