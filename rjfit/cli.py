@@ -454,7 +454,8 @@ def refine(fit_dir, out_dir, max_rounds, max_steps, seed, no_simulate):
     fit, and repeat until nothing more is named and a feature rendered from the fitted regions
     (interreflection's) was rendered on labels the fit keeps (agreeing on 99 % of the pixels).
     Where a diagnosis names nothing but offers a trial (an effect or pair short of the naming
-    rule's gap share only), fit once more with it and keep it only if the gap halves with no
+    rule's gap share only; after those, one whose evidence is decisive but whose LOO gain is
+    only positive where PSIS is reliable), fit once more with it and keep it only if the gap halves with no
     more regions; a trial offered on a gap within the naming floor (0.1), or the model less an
     effect a kept pair brought in, is kept only if its fit has fewer regions and a gap still
     within it. Run again into the same --out, it keeps each diagnosis and fit an earlier

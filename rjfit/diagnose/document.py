@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 
+from rjfit.diagnose.candidates import loo_support_text
 from rjfit.diagnose.proposal import POOR_DRAWS_KHAT
 
 __all__ = ["markdown", "gap_text", "candidate_line", "gap_lines", "named_text", "prior_conflict_text",
-           "not_told_apart_text", "revision_text", "NORMALS"]
+           "not_told_apart_text", "revision_text", "trial_offer_line", "NORMALS"]
 
 #: diagnosis.json "normals": which normals the refits use (by whether the fit's posterior mean ones were given)
 NORMALS = {False: "the data set's (given) normals",
@@ -77,6 +78,20 @@ def named_text(result: dict) -> str:
     return f"none: no missing effect was found ({stopped})" if stopped else "none: no missing effect was found"
 
 
+def trial_offer_line(trial: dict) -> str:
+    """The line that says a diagnosis' trial (:func:`rjfit.diagnose.pairs.trial_candidates`), with its LOO support
+    where it is not decisive."""
+    support = "" if trial.get("decisive", True) else f" (supported: its LOO gain {loo_support_text(trial)})"
+    return f"  to try with the regions (rjfit refine): {' + '.join(trial['effects'])}{support}"
+
+
+def _decisive_cell(row: dict) -> str:
+    """The "decisive" column of a candidate: yes, no, "no (supported)" (a possible trial), or its failure."""
+    if "error" in row:
+        return "failed: " + row["error"]
+    return "yes" if row.get("decisive") else ("no (supported)" if row.get("supported") else "no")
+
+
 def candidate_line(row: dict) -> str:
     """One candidate's evidence at one step, as the workflow prints it while it searches."""
     head = f"  step {row['step'] + 1} {row['effect']:18s}"
@@ -90,7 +105,7 @@ def candidate_line(row: dict) -> str:
     else:
         text += f"dLOO skipped: {row['loo_skipped']}" if "loo_skipped" in row else "dLOO not computed"
     text += "".join(f"  [{prior_conflict_text(c)}]" for c in row.get("prior_conflict", ()))
-    return text + ("  decisive" if row.get("decisive") else "")
+    return text + ("  decisive" if row.get("decisive") else ("  supported" if row.get("supported") else ""))
 
 
 def gap_lines(result: dict) -> list[str]:
@@ -192,7 +207,7 @@ def _candidate_lines(result: dict) -> list[str]:
                      f"{_fmt(row.get('max_khat'), '.2f')} | {_percent(row.get('khat_unreliable_fraction'))} | "
                      f"{_fmt(row.get('signature_score'), '.2f')} | "
                      f"{gap_text(row.get('gap_with_effect'))} | "
-                     f"{'yes' if row.get('decisive') else ('failed: ' + row['error'] if 'error' in row else 'no')} |")
+                     f"{_decisive_cell(row)} |")
     if not result["candidates"]:
         lines.append(f"| - | {result.get('search', {}).get('stopped', 'none tried')} | | | | | | | | |")
     return lines
@@ -214,8 +229,10 @@ def _pair_lines(result: dict) -> list[str]:
                f"but closes only {_percent(trial['gap_share'])} of the gap on this segmentation")
         keeps = ("the new segmentation has fewer regions and its gap stays within the naming rule's floor"
                  if trial.get("within_floor") else "the gap on the new segmentation is at most half of this one")
+        support = ("is decisive" if trial.get("decisive", True) else
+                   f"is supported (its LOO gain {loo_support_text(trial)}, short of the decision rule's bar)")
         lines += ["", f"**To try with the regions:** {' + '.join(trial['effects'])} (log BF "
-                  f"{trial['log_bayes_factor']:.1f}) is decisive and physical {why}: its regions may have split to "
+                  f"{trial['log_bayes_factor']:.1f}) {support} and physical {why}: its regions may have split to "
                   f"absorb what it explains; `rjfit refine` fits again with it and keeps it only where {keeps}."]
     return lines
 

@@ -37,6 +37,7 @@ unexplained misfit and where it sits (:mod:`rjfit.diagnose.misfit`).
 """
 from __future__ import annotations
 
+from rjfit.diagnose.candidates import loo_support_text
 from rjfit.diagnose.gap import gap
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP
 from rjfit.diagnose.simulate import simulate_fit
@@ -53,10 +54,11 @@ NAMING_RULE = (f"named when the current model's gap is above {UNEXPLAINED_GAP:g}
 
 def judge_candidates(ctx, rows, fits, candidate_residuals, current, residuals, sigma2, *, simulate, n_sim_draws,
                      seed) -> list:
-    """Apply the rule to the decisive ``rows`` of one step (in place: ``gap_share``,
+    """Apply the rule to the decisive and the supported ``rows`` of one step (in place: ``gap_share``,
     ``physical``, the simulated gaps where rendered, ``qualifies``, ``why_not`` and ``short_of``: the rules
-    it fails, of 'misfit' (5), 'gap_share' (2), 'physical' (3), 'simulation' (4)); returns the rows that
-    qualify.
+    it fails, of 'decisive' (1: a supported row, :mod:`rjfit.diagnose.candidates`), 'misfit' (5), 'gap_share' (2),
+    'physical' (3), 'simulation' (4)); returns the rows that qualify. A supported row never qualifies; it is
+    judged by the other rules so that it can be a trial (:mod:`rjfit.diagnose.pairs`).
 
     ``fits`` and ``candidate_residuals`` map an effect name to its refit and standardised
     residuals; ``residuals`` are the current model's; ``sigma2`` the search's noise estimate.
@@ -67,12 +69,15 @@ def judge_candidates(ctx, rows, fits, candidate_residuals, current, residuals, s
     simulated_current = None
     qualified = []
     for row in rows:
-        if not row.get("decisive"):
+        if not (row.get("decisive") or row.get("supported")):
             continue
         gap_with = gap(candidate_residuals[row["effect"]], sigma2)
         row["gap_share"] = (gap_current - gap_with) / gap_current if gap_current > 0 else 0.0
         row["physical"] = not row.get("prior_conflict")
         why, short_of = [], []
+        if not row.get("decisive"):
+            why.append(f"supported only (its LOO gain {loo_support_text(row)})")
+            short_of.append("decisive")
         if gap_current <= UNEXPLAINED_GAP:
             why.append(f"the current model's gap {gap_current:.3g} is within {UNEXPLAINED_GAP:g}: no misfit left to "
                        "explain")

@@ -18,8 +18,11 @@ sampled with the regions and keeps it only when the gap on the new segmentation 
 the old one (:mod:`rjfit.pipeline.refine_trial`). The extra regions can absorb so much that the gap left
 is within the naming rule's floor (rule 5): on Mitsuba's GGX roughplastic with a roughness per material, 7
 regions for 4 left 0.099 while fresnel was decisive (log BF 80). A decisive, physical candidate short of that
-rule is a trial too, which the loop keeps only where its fit needs fewer regions. The diagnosis itself names
-single effects only.
+rule is a trial too, which the loop keeps only where its fit needs fewer regions. A supported candidate (its
+log BF decisive and its LOO gain positive where PSIS is reliable: :mod:`rjfit.diagnose.candidates`) that fails no
+other rule but these is a trial after every decisive one: the regions that absorbed a misfit make the LOO's SE
+noise. The diagnosis itself
+names single effects only.
 """
 from __future__ import annotations
 
@@ -31,7 +34,7 @@ from rjfit.diagnose.naming import judge_candidates
 from rjfit.diagnose.refit import refit, standardised_residuals
 from rjfit.effects import get_effect
 
-__all__ = ["PAIR_FROM", "score_pairs", "trial_candidates"]
+__all__ = ["PAIR_FROM", "TRIAL_MAY_FAIL", "SUPPORTED_MAY_FAIL", "score_pairs", "step_trials", "trial_candidates"]
 
 #: the decisive single candidates (largest log BF first) whose pairs are refitted: at most 3 pairs
 PAIR_FROM = 3
@@ -40,6 +43,10 @@ PAIR_FROM = 3
 #: the misfit has little gap left for any effect to explain, and a refit that lets them merge shows it
 #: (:func:`rjfit.pipeline.refine_trial.judge_trial` judges such a trial by its regions)
 TRIAL_MAY_FAIL = {"gap_share", "misfit"}
+#: the LOO figures a supported trial carries
+LOO_FIELDS = ("delta_elpd_loo", "delta_elpd_loo_se", "delta_elpd_loo_reliable", "delta_elpd_loo_reliable_se")
+#: the rules a supported (not decisive) trial candidate may fail: those, and the decision rule's LOO bar
+SUPPORTED_MAY_FAIL = TRIAL_MAY_FAIL | {"decisive"}
 
 
 def score_pairs(ctx, step, current, decisive_rows, fits, residuals, sigma2, settings) -> list:
@@ -67,6 +74,21 @@ def score_pairs(ctx, step, current, decisive_rows, fits, residuals, sigma2, sett
     return rows
 
 
+def step_trials(ctx, step_of, refits, residuals, sigma2, settings) -> tuple:
+    """Where no candidate of a step qualified: ``(its pairs' rows (:func:`score_pairs`), its trials
+    (:func:`trial_candidates`))``, its supported rows judged on the way (:func:`rjfit.diagnose.naming.judge_candidates`,
+    in place). ``step_of``: (the step, the current model, the step's rows, its decisive ones judged already);
+    ``refits``: the candidates' refits and standardised residuals by name; ``residuals`` the current model's."""
+    step, current, rows = step_of
+    fits, candidate_residuals = refits
+    decisive = [row for row in rows if row.get("decisive")]
+    supported = [row for row in rows if row.get("supported") and not row.get("decisive")]
+    pairs = score_pairs(ctx, step, current, decisive, fits, residuals, sigma2, settings)
+    judge_candidates(ctx, supported, fits, candidate_residuals, current, residuals, sigma2,
+                     simulate=settings.simulates(ctx), n_sim_draws=settings.n_sim_draws, seed=settings.seed)
+    return pairs, trial_candidates(decisive + pairs + supported)
+
+
 def _refit_pairs(ctx, current, pairs, fits, settings) -> list:
     """``current`` refitted plus each pair of effect names, ``settings.jobs`` at a time on threads (as the single
     candidates are: :func:`rjfit.diagnose.candidates.refit_threads`), each from the first effect's refit; in the
@@ -84,12 +106,25 @@ def _refit_pairs(ctx, current, pairs, fits, settings) -> list:
 def trial_candidates(rows) -> list:
     """The candidates (single or pair) a refit of the regions may try, best first: among ``rows`` (one step's,
     judged), the decisive ones that fail no rule but the gap share on the fixed segmentation or the misfit left
-    (:data:`TRIAL_MAY_FAIL`), by log BF; each ``{"effects", "log_bayes_factor", "gap_share", "step",
-    "within_floor"}`` (``within_floor``: the current model's gap was within
-    :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP`). The first is the diagnosis' ``trial``; ``rjfit refine`` fits
-    the next where a trial is not kept."""
-    eligible = [row for row in rows if row.get("decisive") and "short_of" in row
-                and set(row["short_of"]) <= TRIAL_MAY_FAIL]
-    return [{"effects": list(row.get("effects") or [row["effect"]]), "log_bayes_factor": row["log_bayes_factor"],
-             "gap_share": row["gap_share"], "step": row["step"], "within_floor": "misfit" in row["short_of"]}
-            for row in sorted(eligible, key=lambda row: -row["log_bayes_factor"])]
+    (:data:`TRIAL_MAY_FAIL`), by log BF, then the supported ones that fail no rule but those and the decision rule's
+    LOO bar (:data:`SUPPORTED_MAY_FAIL`), by log BF; each ``{"effects", "log_bayes_factor", "gap_share", "step",
+    "within_floor", "decisive"}`` (``within_floor``: the current model's gap was within
+    :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP`), a supported one with its LOO figures
+    (:data:`LOO_FIELDS`). The first is the diagnosis' ``trial``; ``rjfit refine`` fits the next where a trial is
+    not kept."""
+    def eligible(row, decisive, may_fail):
+        # a row neither decisive nor supported was not judged for a trial, whatever it holds
+        judged = row.get("decisive") if decisive else row.get("supported") and not row.get("decisive")
+        return bool(judged) and "short_of" in row and set(row["short_of"]) <= may_fail
+
+    def trial(row):
+        entry = {"effects": list(row.get("effects") or [row["effect"]]), "log_bayes_factor": row["log_bayes_factor"],
+                 "gap_share": row["gap_share"], "step": row["step"], "within_floor": "misfit" in row["short_of"],
+                 "decisive": bool(row.get("decisive"))}
+        if not entry["decisive"]:
+            entry.update({key: row[key] for key in LOO_FIELDS})
+        return entry
+
+    by_evidence = sorted(rows, key=lambda row: -row["log_bayes_factor"])
+    return ([trial(row) for row in by_evidence if eligible(row, True, TRIAL_MAY_FAIL)]
+            + [trial(row) for row in by_evidence if eligible(row, False, SUPPORTED_MAY_FAIL)])

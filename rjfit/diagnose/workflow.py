@@ -31,7 +31,7 @@ from rjfit.effects import ALL_EFFECTS, get_effect
 from rjfit.diagnose.gap import gap, gap_breakdown, noise_variance
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP, describe_misfit
 from rjfit.diagnose.naming import NAMING_RULE, judge_candidates
-from rjfit.diagnose.pairs import score_pairs, trial_candidates
+from rjfit.diagnose.pairs import step_trials
 from rjfit.diagnose.refit import moved_parameters, refit, standardised_residuals
 from rjfit.diagnose.revisit import REVISION_RULE, revisit
 from rjfit.diagnose.simulate import simulation_record
@@ -344,10 +344,6 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
     trace.candidate_residuals.update(tried["candidate_residuals"])
     trace.rows += step_rows
     decisive = [row for row in step_rows if row.get("decisive")]
-    if not decisive:
-        trace.stopped = (f"no candidate effect was decisive at step {step + 1}" if step_rows
-                         else f"no candidate effect left to try at step {step + 1}")
-        return None
     by_name = {name: value for (_, name), value in tried["candidate_residuals"].items()}
     qualified = judge_candidates(ctx, decisive, tried["fits"], by_name, trace.current, residuals, sigma2_plain,
                                  simulate=settings.simulates(ctx), n_sim_draws=settings.n_sim_draws,
@@ -357,12 +353,14 @@ def _search_step(ctx, step, usable, sigma2_plain, settings, trace):
             settings.say(f"  {row['effect']:18s} decisive but not named: {row['why_not']}")
     if not qualified:
         trace.stopped = (f"no candidate effect qualified at step {step + 1}: "
-                         + "; ".join(f"{row['effect']} {row['why_not']}" for row in decisive))
-        pairs = score_pairs(ctx, step, trace.current, decisive, tried["fits"], residuals, sigma2_plain, settings)
+                         + "; ".join(f"{row['effect']} {row['why_not']}" for row in decisive) if decisive else
+                         f"no candidate effect was decisive at step {step + 1}" if step_rows
+                         else f"no candidate effect left to try at step {step + 1}")
+        pairs, trace.trials = step_trials(ctx, (step, trace.current, step_rows), (tried["fits"], by_name),
+                                          residuals, sigma2_plain, settings)
         trace.pairs += pairs
-        trace.trials = trial_candidates(decisive + pairs)
         if trace.trials:
-            settings.say(f"  to try with the regions (rjfit refine): {' + '.join(trace.trials[0]['effects'])}")
+            settings.say(document.trial_offer_line(trace.trials[0]))
         return None
     best = max(qualified, key=lambda row: row["log_bayes_factor"])
     # a runner-up within the threshold is not told apart from the winner by the evidence: say so

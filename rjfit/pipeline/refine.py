@@ -7,16 +7,14 @@ its segmentation: :mod:`rjfit.diagnose.revisit`), and repeat until a diagnosis n
 and drops nothing and every feature rendered from the fitted regions (interreflection's
 indirect light) follows the fit's segmentation, at most ``max_rounds`` diagnoses.
 
-A refit renders such a feature once, on the MAP labels of the fit its diagnosis was made of,
-at that diagnosis' final model. When the refit moves the labels (an over-segmented plain fit's
-8 regions become 2) or the materials, it was sampled with a feature of a model it no longer
-is. So after a diagnosis that names nothing, the loop renders the feature the next refit would
-sample (this fit's labels, this diagnosis' final model, the fit's seed and samples: the same
-Monte Carlo streams as the fit's own feature) and compares the two in predicted values. The
-stopping rule (:data:`FEATURE_CHANGE`): the root mean square of ``beta (F_next - F_fit)``
-over the fit's observations, beta the fit's posterior mean, is below 0.1 of the noise sd
-(the diagnosis' estimate), so the gap the old feature can leave is below 0.01. Otherwise the
-loop fits again with the new feature. ``refine.json`` records the change per round
+A refit renders such a feature once, on the MAP labels of the fit its diagnosis was made of, at that diagnosis'
+final model. When the refit moves the labels (an over-segmented plain fit's 8 regions become 2) or the materials, it
+was sampled with a feature of a model it no longer is. So after a diagnosis that names nothing, the loop renders the
+feature the next refit would sample (this fit's labels, this diagnosis' final model, the fit's seed and samples: the
+same Monte Carlo streams as the fit's own feature) and compares the two in predicted values. The stopping rule
+(:data:`FEATURE_CHANGE`): the root mean square of ``beta (F_next - F_fit)`` over the fit's observations, beta the
+fit's posterior mean, is below 0.1 of the noise sd (the diagnosis' estimate), so the gap the old feature can leave
+is below 0.01. Otherwise the loop fits again with the new feature. ``refine.json`` records the change per round
 (``feature_change``).
 """
 from __future__ import annotations
@@ -284,6 +282,7 @@ def _trial_instead(result: dict, round_: tuple, tried: list, rounds_left: int, o
     result["stopped"], record["trial"] = "", chosen[0]
     if chosen[2]:
         record["trial_drops"] = chosen[2]
+    record["trial_offer"] = None if chosen[2] else diagnosis["trial"]     # as the diagnosis offered it
     return chosen[0], chosen[1]
 
 

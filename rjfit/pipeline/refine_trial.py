@@ -58,9 +58,15 @@ trial that the same diagnosis offered (its ``trials``, by log BF, :func:`rjfit.d
 is fitted and judged against the same fit (:func:`next_trial`). On Mitsuba's Beckmann roughplastic under the
 material model the rough coating had the larger log BF but its trial fit did not halve the gap; fresnel,
 offered second, did (``docs/results/2026-11-30-split-normal-draws.md``).
+
+A trial need not be decisive: a supported candidate (its log BF decisive, its LOO gain over the observations where
+PSIS is reliable positive: :mod:`rjfit.diagnose.candidates`) is offered after every decisive one, by log BF, and
+judged by the same rules, which ask the regions, not the LOO's SE, whether the effect explains what they absorbed
+(``docs/results/2026-12-01-supported-trials.md``).
 """
 from __future__ import annotations
 
+from rjfit.diagnose.candidates import loo_support_text
 from rjfit.diagnose.misfit import UNEXPLAINED_GAP
 from rjfit.diagnose.naming import GAP_SHARE
 
@@ -144,12 +150,15 @@ def trial_line(index: int, record: dict, effects: tuple) -> str:
         return (f"{head}, its gap within {UNEXPLAINED_GAP:g}; fitting again without "
                 f"{', '.join(record['trial_drops'])} (brought in by a kept trial of two or more effects), with "
                 f"{', '.join(effects)} sampled with the regions ({floor})")
+    offer = record.get("trial_offer") or {}
+    support = ("decisive" if offer.get("decisive", True) else
+               f"supported (its LOO gain {loo_support_text(offer)}, short of the decision rule's)")
     if record["gap"] <= UNEXPLAINED_GAP:
-        return (f"{head} but offers {' + '.join(record['trial'])}, decisive where round {index + 1}'s regions left a "
+        return (f"{head} but offers {' + '.join(record['trial'])}, {support} where round {index + 1}'s regions left a "
                 f"gap within {UNEXPLAINED_GAP:g}; fitting again with {', '.join(effects)} sampled with the regions "
                 f"({floor})")
-    return (f"{head} but offers {' + '.join(record['trial'])}, short of the naming rule's gap share on round "
-            f"{index + 1}'s segmentation only; fitting again with {', '.join(effects)} sampled with the regions (kept "
+    return (f"{head} but offers {' + '.join(record['trial'])}, {support}, short of the naming rule's gap share "
+            f"on round {index + 1}'s segmentation; fitting again with {', '.join(effects)} sampled with the regions (kept "
             f"if the gap on the new segmentation is at most {TRIAL_GAP_SHARE:.0%} of {record['gap']:.3g})")
 
 

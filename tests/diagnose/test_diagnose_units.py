@@ -370,11 +370,26 @@ def test_loo_difference_reports_the_share_of_observations_with_an_unreliable_k_h
     ctx = build_context(dataset, dataset.truth_labels)
     plain = refit(ctx, ())
     fresnel = refit(ctx, (EFFECTS["fresnel"],), start=plain)
-    delta, se, max_khat, unreliable = loo_difference(fresnel, plain)
+    delta, se, max_khat, unreliable, delta_reliable, se_reliable = loo_difference(fresnel, plain)
     khat = np.maximum(refit_loo(fresnel).pareto_k, refit_loo(plain).pareto_k)
     assert max_khat == khat.max()
     assert unreliable == np.mean(khat > 0.5)
     assert np.isclose(delta, refit_loo(fresnel).elpd - refit_loo(plain).elpd)
+    # the same sum and SE over the observations where neither k-hat exceeds the threshold (a trial's support)
+    diff, reliable = refit_loo(fresnel).pointwise - refit_loo(plain).pointwise, khat <= 0.5
+    assert np.isclose(delta_reliable, diff[reliable].sum())
+    assert np.isclose(se_reliable, np.sqrt(reliable.sum()) * diff[reliable].std())
+
+    # decisive: 4 SE over all observations; supported (a possible trial): a positive gain over the reliable ones
+    from rjfit.diagnose.candidates import judged_fields
+
+    def judged(loo):
+        fields = judged_fields(fresnel, plain, ("fresnel",), loo, -np.inf, 4.0)     # every log BF passes the bar
+        return fields["decisive"], fields["supported"]
+
+    assert judged((21.0, 5.0, 3.0, 0.1, 21.0, 5.0)) == (True, True)
+    assert judged((10.0, 5.0, 3.0, 0.1, 1.0, 4.0)) == (False, True)
+    assert judged((11.0, 5.0, 3.0, 0.1, -1.0, 4.0)) == (False, False)     # 2.2 SE over all, negative where reliable
 
 
 def test_a_bounded_logit_normal_stays_within_its_bounds():

@@ -42,3 +42,19 @@ def test_each_failed_rule_is_listed_in_short_of():
     assert row["short_of"] == ["gap_share"]
     row, _ = judge(1.5 * UNEXPLAINED_GAP, 0.2 * UNEXPLAINED_GAP)
     assert row["short_of"] == []
+
+
+def test_a_supported_candidate_is_judged_for_a_trial_but_never_named():
+    # Mitsuba's GGX dielectric under change points, 6 regions for 4: ggx's LOO gain 26.3 +- 15.9 over all
+    # observations, 21.6 +- 7.7 where PSIS is reliable
+    row = {"effect": "ggx", "decisive": False, "supported": True, "delta_elpd_loo": 26.3, "delta_elpd_loo_se": 15.9,
+           "delta_elpd_loo_reliable": 21.6, "delta_elpd_loo_reliable_se": 7.7}
+    qualified = judge_candidates(None, [row], {}, {"ggx": residuals_with_gap(0.2)}, None, residuals_with_gap(1.0),
+                                 1.0, simulate=False, n_sim_draws=0, seed=0)
+    assert qualified == [] and not row["qualifies"]
+    assert row["short_of"] == ["decisive"]
+    assert "26.3 = 1.7 SE; 21.6 = 2.8 SE where PSIS is reliable" in row["why_not"]
+    unsupported = {"effect": "ambient", "decisive": False, "supported": False}
+    assert judge_candidates(None, [unsupported], {}, {}, None, residuals_with_gap(1.0), 1.0, simulate=False,
+                            n_sim_draws=0, seed=0) == []
+    assert "short_of" not in unsupported        # neither decisive nor supported: not judged at all

@@ -165,3 +165,48 @@ def test_the_trial_after_a_round_is_the_diagnosis_trial_beside_the_model_else_a_
     assert trial_after(diagnosis, record(-0.02), ["coating"], (verdicts, [["ggx"]]), 1, False) is None   # colour
     line = trial_line(2, {**record(-0.02, n_regions=8), "trial": chosen[0], "trial_drops": chosen[2]}, ("coating",))
     assert "without light_calibration" in line and "fewer than 8 regions" in line
+
+
+def test_a_supported_candidate_is_a_trial_after_every_decisive_one_and_says_so():
+    supported = {**row("ggx", 30.9, ["decisive", "gap_share"], decisive=False), "supported": True, **LOO}
+    rows = [supported, row("fresnel", 12.0, ["gap_share"]),
+            {**row("masking", 50.0, ["decisive", "physical"], decisive=False), "supported": True, **LOO}]  # a conflict
+    trials = trial_candidates(rows)
+    assert [(t["effects"], t["decisive"]) for t in trials] == [(["fresnel"], True), (["ggx"], False)]
+    assert {key: trials[1][key] for key in LOO} == LOO
+    # the diagnosis, the loop's choice and its announcement all say it is supported, not decisive
+    assert f"is supported (its LOO gain {SUPPORT}, short of" in _pair_lines({"trial": trials[1]})[-1]
+    assert "is decisive" in _pair_lines({"trial": trials[0]})[-1]
+    line = trial_line(0, {"trial": ["ggx"], "gap": 0.4, "n_regions": 6, "trial_offer": trials[1]}, ("ggx",))
+    assert f"supported (its LOO gain {SUPPORT}" in line and "decisive" not in line.replace("decision", "")
+    assert "decisive" in trial_line(0, {"trial": ["fresnel"], "gap": 0.4, "n_regions": 6, "trial_offer": trials[0]},
+                                     ("fresnel",))
+
+
+#: ggx on the GGX dielectric's 6 regions for 4 under change points (docs/results/2026-12-01-supported-trials.md)
+LOO = {"delta_elpd_loo": 26.3, "delta_elpd_loo_se": 15.9, "delta_elpd_loo_reliable": 21.6,
+       "delta_elpd_loo_reliable_se": 7.7}
+SUPPORT = "26.3 = 1.7 SE; 21.6 = 2.8 SE where PSIS is reliable"
+
+
+def test_a_step_where_nothing_is_decisive_offers_its_supported_candidates_as_trials():
+    import numpy as np
+    from types import SimpleNamespace
+
+    from rjfit.diagnose.document import trial_offer_line
+    from rjfit.diagnose.pairs import step_trials
+    from rjfit.diagnose.workflow import SearchSettings
+
+    def residuals_with_gap(gap, n=1000):      # mean square exactly 1 + gap: the gap at sigma2 = 1
+        return np.sqrt(1.0 + gap) * np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
+
+    ggx = {"step": 1, "effect": "ggx", "kind": "lobe", "log_bayes_factor": 30.9, "decisive": False, "supported": True,
+           **LOO}
+    ambient = {"step": 1, "effect": "ambient", "kind": "light", "log_bayes_factor": 2.0, "decisive": False,
+               "supported": False}
+    pairs, trials = step_trials(SimpleNamespace(has_mesh=False), (1, None, [ggx, ambient]),
+                                ({}, {"ggx": residuals_with_gap(0.2)}), residuals_with_gap(1.0), 1.0,
+                                SearchSettings(candidates=()))
+    assert pairs == [] and ggx["short_of"] == ["decisive"] and "short_of" not in ambient
+    assert [(t["effects"], t["decisive"], t["step"]) for t in trials] == [(["ggx"], False, 1)]
+    assert trial_offer_line(trials[0]).endswith(f"ggx (supported: its LOO gain {SUPPORT})")
