@@ -21,8 +21,7 @@ regions for 4 left 0.099 while fresnel was decisive (log BF 80). A decisive, phy
 rule is a trial too, which the loop keeps only where its fit needs fewer regions. A supported candidate (its
 log BF decisive and its LOO gain positive where PSIS is reliable: :mod:`rjfit.diagnose.candidates`) that fails no
 other rule but these is a trial after every decisive one: the regions that absorbed a misfit make the LOO's SE
-noise. The diagnosis itself
-names single effects only.
+noise. The diagnosis itself names single effects only.
 """
 from __future__ import annotations
 
@@ -77,7 +76,7 @@ def score_pairs(ctx, step, current, decisive_rows, fits, residuals, sigma2, sett
 def step_trials(ctx, step_of, refits, residuals, sigma2, settings) -> tuple:
     """Where no candidate of a step qualified: ``(its pairs' rows (:func:`score_pairs`), its trials
     (:func:`trial_candidates`))``, its supported rows judged on the way (:func:`rjfit.diagnose.naming.judge_candidates`,
-    in place). ``step_of``: (the step, the current model, the step's rows, its decisive ones judged already);
+    in place). ``step_of``: (the step, the current model, the step's rows; their decisive rows judged already);
     ``refits``: the candidates' refits and standardised residuals by name; ``residuals`` the current model's."""
     step, current, rows = step_of
     fits, candidate_residuals = refits
