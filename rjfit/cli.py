@@ -441,8 +441,9 @@ def diagnose(fit_dir, out_dir, max_steps, seed, effects, dataset_dir, no_simulat
 @click.argument("fit_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for each round's fit and diagnosis (round<k>/), refine.json and segmentations.png.")
-@click.option("--max-rounds", type=click.IntRange(min=1), default=4, show_default=True,
-              help="Most diagnoses (the first fit's and those of the refits); a warning says when the cap binds.")
+@click.option("--max-rounds", type=click.IntRange(min=1), default=6, show_default=True,
+              help="Most diagnoses (the first fit's and those of the refits, trials included); a warning says when "
+                   "the cap binds, and a run into the same --out with a larger cap goes on from there.")
 @click.option("--max-steps", type=click.IntRange(min=0), default=3, show_default=True,
               help="Most effects each diagnosis names.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,

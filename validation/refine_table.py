@@ -15,7 +15,7 @@ or dropped, and in which round), the unexplained misfit (where the last diagnosi
 and the seconds (fit + refine).
 
     .venv/bin/python validation/refine_table.py OUT_DIR [--only CASE,...] [--resolution 64]
-                     [--chains 2] [--iterations 600] [--max-rounds 4] [--regions materials] [--seed 1]
+                     [--chains 2] [--iterations 600] [--max-rounds 6] [--regions materials] [--seed 1]
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from rjfit.diagnose.document import revision_text  # noqa: E402
 from rjfit.io import write_json_atomic  # noqa: E402
 from rjfit.pipeline.fit_dataset import fit_dataset  # noqa: E402
-from rjfit.pipeline.refine import refine  # noqa: E402
+from rjfit.pipeline.refine import MAX_ROUNDS, refine  # noqa: E402
 from rjfit.render.hidden import render_hidden  # noqa: E402
 
 #: case -> hidden kind of rjfit.render.hidden
@@ -94,7 +94,7 @@ def main():
     parser.add_argument("--resolution", type=int, default=64)
     parser.add_argument("--chains", type=int, default=2)
     parser.add_argument("--iterations", type=int, default=600)
-    parser.add_argument("--max-rounds", type=int, default=4)
+    parser.add_argument("--max-rounds", type=int, default=MAX_ROUNDS)
     parser.add_argument("--seed", type=int, default=0, help="the first fit's seed (the refits inherit it)")
     parser.add_argument("--regions", choices=("changepoints", "materials"), default="changepoints",
                         help="the region model of every fit (the refits inherit it)")

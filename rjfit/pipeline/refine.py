@@ -36,15 +36,18 @@ from rjfit.pipeline.fit_dataset import fit_dataset
 from rjfit.pipeline.fit_folder import read_map_labels, read_summary
 from rjfit.pipeline.options import FitOptions
 from rjfit.pipeline.refine_resume import diagnosis_request, fit_request, forget, is_kept, remember
-from rjfit.pipeline.refine_trial import judge_trial, next_trial, revised_trial, trial_after, trial_line
+from rjfit.pipeline.refine_steps import another_trial, named_after, trial_instead, trial_kept, warn
+from rjfit.pipeline.refine_trial import trial_line
 from rjfit.pipeline.regions import REGION_FITS
 from rjfit.pipeline.report import build_report
 from rjfit.render.datasets import load_dataset
 
 __all__ = ["refine", "MAX_ROUNDS", "FEATURE_CHANGE", "fit_options_of"]
 
-#: most diagnoses of one refinement (the first fit's and those of up to MAX_ROUNDS - 1 refits)
-MAX_ROUNDS = 4
+#: most diagnoses of one refinement (the first fit's and those of up to MAX_ROUNDS - 1 refits). Each trial takes
+#: a round and a revised trial another: 4 left no round for the revision after two trials not kept on the GGX
+#: dielectric (docs/results/2026-12-02-trial-rounds.md); the cap is a budget, and a warning says when it binds
+MAX_ROUNDS = 6
 #: a feature rendered from the fitted regions no longer changes the fit when rendering it again
 #: (this fit's labels and final model) moves the predicted values by less than this share of the
 #: noise sd in root mean square: a change c raises the gap by at most c^2, here 0.01, a tenth of
@@ -180,25 +183,25 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
     # the trial's effects and those kept beside them; the result's round and its final model; the sets tried
     trying, base, final_round, kept_final, tried = None, [], 0, [], []
     for index in range(max_rounds):
-        diagnosis_dir = Path(first_diagnosis_dir) if index == 0 and first_diagnosis_dir is not None else (
-            out_dir / f"round{index + 1}" / "diagnosis")
+        diagnosis_dir, last = _diagnosis_dir(out_dir, index, first_diagnosis_dir), index + 1 == max_rounds
         diagnosis, record, final, new = _round(current, diagnosis_dir, index, fit_seconds, result, say, seed=seed,
                                                max_steps=max_steps, progress=progress, **diagnose_options)
-        if trying is not None and not _trial_kept(result, trying, final_round, index, final, say):
-            trying, base, source = _another_trial(result, (base, trying, final, kept_final), record, tried,
-                                                  max_rounds - index - 1, (final_round, index, diagnosis_dir), say)
+        if trying is not None and not trial_kept(result, trying, final_round, index, final, say):
+            trying, base, source = another_trial(result, (base, trying, final, kept_final), record, tried,
+                                                 (final_round, index, diagnosis_dir, last), say)
             if trying is None:
                 break
             effects = _sampled(base, trying)
             current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, source, options, gate, say)
             continue
         trying, final_round, kept_final, result["final_fit"] = None, index, list(final), str(current)
-        result["named_effects"] = _named_after(result["named_effects"], record["dropped"], new)
-        record["feature_change"] = [] if new or record["dropped"] else feature_change(dataset_dir, current, diagnosis_dir)
+        result["named_effects"] = named_after(result["named_effects"], record["dropped"], new)
+        record["feature_change"] = ([] if new or record["dropped"] else
+                                    feature_change(dataset_dir, current, diagnosis_dir))
         result["stopped"], warning = _why_stop(index, max_rounds, options, record, new, current)
-        trying, base = _trial_instead(result, (diagnosis, record, final), tried, max_rounds - index - 1, options)
+        trying, base, capped = trial_instead(result, (diagnosis, record, final), tried, options, last)
         if result["stopped"]:
-            _warn(result, warning, say)
+            warn(result, warning or capped, say)
             break
         write_json_atomic(out_dir / "refine.json", result)       # the rounds so far, should the next fit stop
         effects = _sampled(base, trying)
@@ -206,6 +209,13 @@ def refine(fit_dir, out_dir, *, max_rounds=MAX_ROUNDS, seed=0, max_steps=3, prog
             say(line)
         current, fit_seconds = _fit_next(dataset_dir, out_dir, index, effects, diagnosis_dir, options, gate, say)
     return _finish(result, out_dir, dataset_dir, final_round, started)
+
+
+def _diagnosis_dir(out_dir: Path, index: int, first_diagnosis_dir) -> Path:
+    """Round ``index + 1``'s diagnosis folder: ``out_dir/round<k>/diagnosis``, the first one given (`rjfit run`'s)."""
+    if index == 0 and first_diagnosis_dir is not None:
+        return Path(first_diagnosis_dir)
+    return out_dir / f"round{index + 1}" / "diagnosis"
 
 
 def _round(current: Path, diagnosis_dir: Path, index: int, fit_seconds, result: dict, say, **options) -> tuple:
@@ -257,95 +267,9 @@ def _finish(result: dict, out_dir: Path, dataset_dir: Path, final_round: int, st
     return result
 
 
-def _warn(result: dict, warning: str | None, say) -> None:
-    """Record and say the loop's ``warning`` (none: nothing)."""
-    if warning:
-        result["warnings"].append(warning)
-        say(f"warning: {warning}")
-
-
 def _sampled(base: list, trying: list | None) -> tuple:
     """The effects the next fit samples: those kept beside the trial, then the trial's own not among them."""
     return tuple(base) + tuple(name for name in trying or () if name not in base)
-
-
-def _trial_instead(result: dict, round_: tuple, tried: list, rounds_left: int, options) -> tuple:
-    """``(the trial to fit or None, the effects kept beside it)`` after a round (``round_``: its diagnosis, record
-    and the diagnosis' final model): where the loop would stop (``result["stopped"]``),
-    :func:`rjfit.pipeline.refine_trial.trial_after`'s, the stop undone and the trial recorded in the round's
-    ``record`` (``trial``; a drop's ``trial_drops`` too); else ``(None, the final model)``."""
-    diagnosis, record, final = round_
-    chosen = (trial_after(diagnosis, record, final, (result["trials"], tried), rounds_left, options.channel != COLOUR)
-              if result["stopped"] else None)
-    if chosen is None:
-        return None, list(final)
-    result["stopped"], record["trial"] = "", chosen[0]
-    if chosen[2]:
-        record["trial_drops"] = chosen[2]
-    record["trial_offer"] = None if chosen[2] else diagnosis["trial"]     # as the diagnosis offered it
-    return chosen[0], chosen[1]
-
-
-def _trial_kept(result: dict, effects: list, before: int, index: int, final: list, say) -> bool:
-    """Judge the trial of ``effects`` that round ``index + 1``'s fit sampled against round ``before + 1``'s fit
-    (:func:`rjfit.pipeline.refine_trial.judge_trial`), record it in ``result["trials"]``; where it is not kept, the
-    loop stops with round ``before + 1``'s fit as its result."""
-    rounds = result["rounds"]
-    verdict = judge_trial(effects, rounds[before], rounds[index], final)
-    verdict["round"] = index + 1
-    if rounds[before].get("trial_drops"):
-        verdict["drops"] = rounds[before]["trial_drops"]
-    result["trials"].append(verdict)
-    say(f"round {index + 1}: the trial of {' + '.join(effects)} with the regions is "
-        f"{'kept' if verdict['kept'] else 'not kept'}: {verdict['why']}")
-    if verdict["kept"]:
-        # a revised trial may have swapped out an effect the loop named before (not sampled by this fit)
-        gone = [name for name in result["named_effects"] if name not in final]
-        result["named_effects"] = _named_after(result["named_effects"], gone, effects)
-        return True
-    result["stopped"] = (f"round {index + 1}'s trial of {' + '.join(effects)} was not kept ({verdict['why']}): "
-                         f"round {before + 1}'s fit is the result")
-    return False
-
-
-def _revised_instead(result: dict, fitted: tuple, record: dict, tried: list, rounds_left: int, before: int,
-                     index: int, say) -> tuple | None:
-    """Where the trial just judged (not kept) was revised by its diagnosis' swaps
-    (:func:`rjfit.pipeline.refine_trial.revised_trial`; ``fitted``: the trial fit's base, the trial's effects and
-    the diagnosis' final model): ``(the base it keeps, the revised trial)``, the stop undone and the trial recorded
-    in the round's ``record``; else None."""
-    base, trying, final = fitted
-    revised = revised_trial(base, trying, final, record.get("revisions") or [], tried, rounds_left)
-    if revised is not None:
-        result["stopped"], record["trial"] = "", revised[1]
-        say(f"round {index + 2}: round {index + 1}'s diagnosis swapped an effect the trial fit sampled for one of "
-            f"its kind; fitting its final model, {' + '.join(revised[0] + revised[1])}, with the regions, judged "
-            f"against round {before + 1}'s fit")
-    return revised
-
-
-def _another_trial(result: dict, fitted: tuple, record: dict, tried: list, rounds_left: int, where: tuple,
-                   say) -> tuple:
-    """After a trial was not kept: ``(the trial to fit next or None, the effects kept beside it, the diagnosis
-    folder its fit starts from)``. ``fitted`` is (the trial fit's base, the trial's effects, its diagnosis' final
-    model, the final model of the fit it was judged against). The trial fit's diagnosis' final model where that
-    diagnosis swapped an effect the fit sampled (:func:`_revised_instead`, from that diagnosis, ``where[2]``),
-    else the next trial that the diagnosis of the fit it was judged against (round ``where[0] + 1``) offered
-    (:func:`rjfit.pipeline.refine_trial.next_trial`, from that diagnosis)."""
-    before, index, diagnosis_dir = where
-    base, trying, final, kept_final = fitted
-    revised = _revised_instead(result, (base, trying, final), record, tried, rounds_left, before, index, say)
-    if revised is not None:
-        return revised[1], revised[0], diagnosis_dir
-    source = Path(result["rounds"][before]["diagnosis"])
-    following = next_trial(json.loads((source / "diagnosis.json").read_text()), result["rounds"][before], tried,
-                           rounds_left)
-    if following is None:
-        return None, kept_final, None
-    result["stopped"], record["trial"] = "", following
-    say(f"round {index + 2}: fitting again with {' + '.join(following)} sampled with the regions, the next trial "
-        f"round {before + 1}'s diagnosis offered, judged against round {before + 1}'s fit")
-    return following, kept_final, source
 
 
 def _fit_next(dataset_dir: Path, out_dir: Path, index: int, effects: tuple, diagnosis_dir: Path, options, gate: dict,
@@ -363,13 +287,6 @@ def _final_model(diagnosis: dict, record: dict) -> tuple:
     final = list((diagnosis.get("final_model") or {}).get("effects") or record["effects"] + record["named"])
     record["dropped"] = [name for name in record["effects"] if name not in final]
     return final, [name for name in final if name not in record["effects"]]
-
-
-def _named_after(named: list, dropped: list, new: list) -> list:
-    """The effects named so far after a round that dropped or swapped out ``dropped`` and named
-    ``new``: a revised effect leaves the list (the round's ``revisions`` keep it)."""
-    kept = [name for name in named if name not in dropped]
-    return kept + [name for name in new if name not in kept]
 
 
 def _cannot_sample(index: int, diagnosis_dir: Path) -> tuple:

@@ -77,17 +77,17 @@ __all__ = ["TRIAL_GAP_SHARE", "trial_to_fit", "drop_trial", "trial_after", "tria
 TRIAL_GAP_SHARE = 1.0 - GAP_SHARE
 
 
-def trial_to_fit(diagnosis: dict, record: dict, tried: list, rounds_left: int, can_sample: bool) -> list | None:
+def trial_to_fit(diagnosis: dict, record: dict, tried: list, can_sample: bool) -> list | None:
     """The effects the next fit should try with the regions, or None.
 
     ``diagnosis`` is the round's (its ``trial``), ``record`` its round record (``named``, ``dropped``,
-    ``feature_change``), ``tried`` the effect sets tried so far (each a sorted list), ``rounds_left`` the
-    diagnoses the loop may still make, ``can_sample`` whether the fit can sample effects (not a joint colour fit).
-    A trial is fitted only where the round changed nothing (nothing named or dropped, every rendered feature
-    follows the fit) and one round is left to judge it.
+    ``feature_change``), ``tried`` the effect sets tried so far (each a sorted list), ``can_sample`` whether the fit
+    can sample effects (not a joint colour fit). A trial is fitted only where the round changed nothing (nothing
+    named or dropped, every rendered feature follows the fit); whether a round is left to fit it is the loop's
+    to say (:func:`rjfit.pipeline.refine.refine`).
     """
     trial = diagnosis.get("trial")
-    if trial is None or not can_sample or rounds_left < 1 or record["named"] or record["dropped"]:
+    if trial is None or not can_sample or record["named"] or record["dropped"]:
         return None
     if not all(entry["follows"] for entry in record["feature_change"]):
         return None
@@ -97,18 +97,18 @@ def trial_to_fit(diagnosis: dict, record: dict, tried: list, rounds_left: int, c
     return effects
 
 
-def drop_trial(diagnosis: dict, record: dict, trials: list, tried: list, rounds_left: int) -> tuple | None:
+def drop_trial(diagnosis: dict, record: dict, trials: list, tried: list) -> tuple | None:
     """The diagnosis' final model less one effect that a kept pair brought in, as a trial, or None.
 
     ``diagnosis`` and ``record`` are the round's (its fit's ``gap``, ``named``, ``dropped``, ``feature_change``),
     ``trials`` the loop's verdicts so far (``refine.json``'s ``trials``), ``tried`` the sets tried (sorted; the
-    trial's is added) and ``rounds_left`` the diagnoses the loop may still make. Only where the round changed
-    nothing, its gap is within :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP` and a round is left to judge it.
+    trial's is added). Only where the round changed nothing and its gap is within
+    :data:`rjfit.diagnose.misfit.UNEXPLAINED_GAP`.
     Of the effects of the kept trials of two or more effects that the final model holds, the one with the most
     parameters goes first (a flexible passenger absorbs most); a set tried before is skipped. Returns ``(the
     effects kept, the effect dropped)``.
     """
-    if rounds_left < 1 or record["named"] or record["dropped"] or record["gap"] is None:
+    if record["named"] or record["dropped"] or record["gap"] is None:
         return None
     if record["gap"] > UNEXPLAINED_GAP or not all(entry["follows"] for entry in record["feature_change"]):
         return None
@@ -125,18 +125,17 @@ def drop_trial(diagnosis: dict, record: dict, trials: list, tried: list, rounds_
     return None
 
 
-def trial_after(diagnosis: dict, record: dict, final: list, done: tuple, rounds_left: int,
-                can_sample: bool) -> tuple | None:
+def trial_after(diagnosis: dict, record: dict, final: list, done: tuple, can_sample: bool) -> tuple | None:
     """The trial after a round that would end the loop: ``(its effects, the effects kept beside them, the effects
     it drops)``, or None. The diagnosis' trial (:func:`trial_to_fit`) beside the final model ``final``, else the
     final model less an effect a kept pair brought in (:func:`drop_trial`). ``done``: the loop's verdicts and the
     sets tried (the chosen set is added)."""
     verdicts, tried = done
-    trying = trial_to_fit(diagnosis, record, tried, rounds_left, can_sample)
+    trying = trial_to_fit(diagnosis, record, tried, can_sample)
     if trying is not None:
         tried.append(sorted(trying))
         return trying, list(final), []
-    dropping = drop_trial(diagnosis, record, verdicts, tried, rounds_left) if can_sample else None
+    dropping = drop_trial(diagnosis, record, verdicts, tried) if can_sample else None
     return None if dropping is None else (dropping[0], [], [dropping[1]])
 
 
@@ -198,20 +197,18 @@ def judge_trial(effects: list, before: dict, after: dict, final_effects: list) -
             "why": reason}
 
 
-def revised_trial(base: list, effects: list, final: list, revisions: list, tried: list,
-                  rounds_left: int) -> tuple | None:
+def revised_trial(base: list, effects: list, final: list, revisions: list, tried: list) -> tuple | None:
     """The trial fit's diagnosis' final model as a trial, where that diagnosis swapped an effect the fit sampled.
 
     The trial fit sampled ``base`` (what the fit before it kept) and the trial's ``effects``; ``final`` is its
     diagnosis' final model, ``revisions`` its round record's (each ``{"action", "effect", "replacement"}``),
-    ``tried`` the trials' sorted sets (the revised trial's is added) and ``rounds_left`` the diagnoses the loop
-    may still make. Returns ``(the base it keeps, the trial's effects)``: ``base`` less what the diagnosis swapped
-    or dropped, and the rest of ``final``; None where no swap touched the fit's effects, the revised trial is
-    empty or was tried, or no round is left to judge it.
+    ``tried`` the trials' sorted sets (the revised trial's is added). Returns ``(the base it keeps, the trial's
+    effects)``: ``base`` less what the diagnosis swapped or dropped, and the rest of ``final``; None where no swap
+    touched the fit's effects or the revised trial is empty or was tried.
     """
     fitted = set(base) | set(effects)
     swapped = {entry["effect"] for entry in revisions if entry.get("action") == "swapped"}
-    if rounds_left < 1 or not swapped & fitted:
+    if not swapped & fitted:
         return None
     kept = [name for name in base if name in final]
     trial = [name for name in final if name not in kept]
@@ -221,12 +218,10 @@ def revised_trial(base: list, effects: list, final: list, revisions: list, tried
     return kept, trial
 
 
-def next_trial(diagnosis: dict, record: dict, tried: list, rounds_left: int) -> list | None:
+def next_trial(diagnosis: dict, record: dict, tried: list) -> list | None:
     """The next trial of ``diagnosis`` (the round whose fit a trial was judged against; its ``trials``, best first)
     after one was not kept: the first whose effects not in that round's fit (``record["effects"]``) form a set not
-    tried (``tried``: sorted sets, to which it is added), where a round is left to judge it; else None."""
-    if rounds_left < 1:
-        return None
+    tried (``tried``: sorted sets, to which it is added); else None."""
     for trial in diagnosis.get("trials") or []:
         effects = [name for name in trial["effects"] if name not in record["effects"]]
         if effects and sorted(effects) not in tried:

@@ -24,6 +24,14 @@ def test_every_command_has_help():
     assert "--seed" in runner.invoke(main, ["fit", "--help"]).output
 
 
+def test_refine_defaults_to_the_loops_own_cap():
+    # the command line states its defaults without importing the loop (--help stays light); they must agree
+    from rjfit.pipeline.refine import MAX_ROUNDS
+
+    (option,) = [param for param in main.commands["refine"].params if param.name == "max_rounds"]
+    assert option.default == MAX_ROUNDS
+
+
 def test_fit_help_states_the_noise_models_and_their_floor():
     text = " ".join(CliRunner().invoke(main, ["fit", "--help"], terminal_width=200).output.split())
     assert "--noise [constant|shot|relative|normals|footprint]" in text and "--noise-floor" in text

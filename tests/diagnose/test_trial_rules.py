@@ -38,17 +38,16 @@ def test_a_decisive_candidate_on_a_gap_within_the_floor_is_a_trial_marked_so():
     assert [(t["effects"], t["within_floor"]) for t in trial_candidates(rows)] == [(["fresnel"], True)]
 
 
-def test_after_a_trial_not_kept_the_next_is_the_best_one_not_tried_with_a_round_left():
+def test_after_a_trial_not_kept_the_next_is_the_best_one_not_tried():
     diagnosis = {"trials": [{"effects": ["rough_coating"]}, {"effects": ["ambient", "fresnel"]},
                             {"effects": ["fresnel"]}]}
     tried = [["rough_coating"], ["fresnel"]]
     # the fit's own effects are left out of a trial; a set tried before is not fitted again
-    assert next_trial(diagnosis, record(1.0, effects=["ambient"]), tried, rounds_left=1) is None
-    assert next_trial(diagnosis, record(1.0), tried, rounds_left=1) == ["ambient", "fresnel"]
+    assert next_trial(diagnosis, record(1.0, effects=["ambient"]), tried) is None
+    assert next_trial(diagnosis, record(1.0), tried) == ["ambient", "fresnel"]
     assert tried[-1] == ["ambient", "fresnel"]
-    assert next_trial(diagnosis, record(1.0), tried, rounds_left=1) is None
-    assert next_trial(diagnosis, record(1.0), [["rough_coating"]], rounds_left=0) is None     # no round to judge it
-    assert next_trial({"trial": {"effects": ["fresnel"]}}, record(1.0), [], rounds_left=1) is None  # an older diagnosis
+    assert next_trial(diagnosis, record(1.0), tried) is None
+    assert next_trial({"trial": {"effects": ["fresnel"]}}, record(1.0), []) is None  # an older diagnosis
 
 
 def record(gap, effects=(), named=(), dropped=(), follows=True, n_regions=4):
@@ -56,17 +55,16 @@ def record(gap, effects=(), named=(), dropped=(), follows=True, n_regions=4):
             "feature_change": [{"follows": follows}], "n_regions": n_regions}
 
 
-def test_a_trial_is_fitted_only_where_the_round_changed_nothing_and_a_round_is_left():
+def test_a_trial_is_fitted_only_where_the_round_changed_nothing():
     diagnosis = {"trial": {"effects": ["ggx", "coating"]}}
-    assert trial_to_fit(diagnosis, record(3.6), [], 1, True) == ["ggx", "coating"]
-    assert trial_to_fit(diagnosis, record(3.6), [], 0, True) is None                    # no round to judge it
-    assert trial_to_fit(diagnosis, record(3.6), [], 1, False) is None                   # a joint colour fit
-    assert trial_to_fit(diagnosis, record(3.6, named=["ambient"]), [], 1, True) is None  # the loop refits anyway
-    assert trial_to_fit(diagnosis, record(3.6, dropped=["ambient"]), [], 1, True) is None
-    assert trial_to_fit(diagnosis, record(3.6, follows=False), [], 1, True) is None
-    assert trial_to_fit(diagnosis, record(3.6), [["coating", "ggx"]], 1, True) is None   # tried before
-    assert trial_to_fit(diagnosis, record(3.6, effects=["ggx"]), [], 1, True) == ["coating"]
-    assert trial_to_fit({"trial": None}, record(3.6), [], 1, True) is None
+    assert trial_to_fit(diagnosis, record(3.6), [], True) == ["ggx", "coating"]
+    assert trial_to_fit(diagnosis, record(3.6), [], False) is None                   # a joint colour fit
+    assert trial_to_fit(diagnosis, record(3.6, named=["ambient"]), [], True) is None  # the loop refits anyway
+    assert trial_to_fit(diagnosis, record(3.6, dropped=["ambient"]), [], True) is None
+    assert trial_to_fit(diagnosis, record(3.6, follows=False), [], True) is None
+    assert trial_to_fit(diagnosis, record(3.6), [["coating", "ggx"]], True) is None   # tried before
+    assert trial_to_fit(diagnosis, record(3.6, effects=["ggx"]), [], True) == ["coating"]
+    assert trial_to_fit({"trial": None}, record(3.6), [], True) is None
 
 
 @pytest.mark.parametrize("gap_after, dropped, kept", [
@@ -138,31 +136,30 @@ def test_a_passenger_of_a_kept_pair_is_dropped_as_a_trial_the_effect_of_most_par
     diagnosis = {"final_model": final_model(["ggx", "coating", "light_calibration"], [1, 2, 9])}
     verdicts = [{"effects": ["ggx"], "kept": True}, {"effects": ["coating", "light_calibration"], "kept": True}]
     tried = [["ggx"], ["coating", "light_calibration"]]
-    assert drop_trial(diagnosis, record(-0.021, n_regions=8), verdicts, tried, 1) == (["ggx", "coating"],
+    assert drop_trial(diagnosis, record(-0.021, n_regions=8), verdicts, tried) == (["ggx", "coating"],
                                                                                      "light_calibration")
     assert tried[-1] == ["coating", "ggx"]
-    assert drop_trial(diagnosis, record(-0.021), verdicts, tried, 1) == (["ggx", "light_calibration"], "coating")
-    assert drop_trial(diagnosis, record(-0.021), verdicts, tried, 1) is None          # both tried
+    assert drop_trial(diagnosis, record(-0.021), verdicts, tried) == (["ggx", "light_calibration"], "coating")
+    assert drop_trial(diagnosis, record(-0.021), verdicts, tried) is None          # both tried
     for blocked in (record(0.2), record(-0.02, named=["ambient"]), record(-0.02, dropped=["ggx"]),
                     record(-0.02, follows=False)):
-        assert drop_trial(diagnosis, blocked, verdicts, [], 1) is None
-    assert drop_trial(diagnosis, record(-0.02), verdicts, [], 0) is None               # no round to judge it
+        assert drop_trial(diagnosis, blocked, verdicts, []) is None
     single = [{"effects": ["ggx"], "kept": True}, {"effects": ["coating", "light_calibration"], "kept": False}]
-    assert drop_trial(diagnosis, record(-0.02), single, [], 1) is None                 # no pair was kept
+    assert drop_trial(diagnosis, record(-0.02), single, []) is None                 # no pair was kept
     dropped_before = verdicts + [{"effects": ["ggx", "coating"], "kept": True, "drops": ["light_calibration"]}]
     lone = {"final_model": final_model(["ggx", "coating"], [1, 2])}
-    assert drop_trial(lone, record(-0.02), dropped_before, [], 1) == (["ggx"], "coating")    # the pair's coating
-    assert drop_trial({"final_model": final_model(["coating"], [2])}, record(-0.02), verdicts, [], 1) is None
+    assert drop_trial(lone, record(-0.02), dropped_before, []) == (["ggx"], "coating")    # the pair's coating
+    assert drop_trial({"final_model": final_model(["coating"], [2])}, record(-0.02), verdicts, []) is None
 
 
 def test_the_trial_after_a_round_is_the_diagnosis_trial_beside_the_model_else_a_drop_which_the_loop_announces():
     diagnosis = {"trial": {"effects": ["ggx"]}, "final_model": final_model(["coating", "light_calibration"], [2, 9])}
     verdicts = [{"effects": ["coating", "light_calibration"], "kept": True}]
-    assert trial_after(diagnosis, record(-0.02), ["coating", "light_calibration"], (verdicts, []), 1, True) == (
+    assert trial_after(diagnosis, record(-0.02), ["coating", "light_calibration"], (verdicts, []), True) == (
         ["ggx"], ["coating", "light_calibration"], [])
-    chosen = trial_after(diagnosis, record(-0.02), ["coating", "light_calibration"], (verdicts, [["ggx"]]), 1, True)
+    chosen = trial_after(diagnosis, record(-0.02), ["coating", "light_calibration"], (verdicts, [["ggx"]]), True)
     assert chosen == (["coating"], [], ["light_calibration"])
-    assert trial_after(diagnosis, record(-0.02), ["coating"], (verdicts, [["ggx"]]), 1, False) is None   # colour
+    assert trial_after(diagnosis, record(-0.02), ["coating"], (verdicts, [["ggx"]]), False) is None   # colour
     line = trial_line(2, {**record(-0.02, n_regions=8), "trial": chosen[0], "trial_drops": chosen[2]}, ("coating",))
     assert "without light_calibration" in line and "fewer than 8 regions" in line
 

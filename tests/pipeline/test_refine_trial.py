@@ -14,7 +14,8 @@ import json
 import pytest
 
 from rjfit.pipeline.fit_dataset import fit_dataset
-from rjfit.pipeline.refine import _trial_kept, refine
+from rjfit.pipeline.refine import refine
+from rjfit.pipeline.refine_steps import another_trial, trial_kept
 
 from builders import hidden_data_sets
 
@@ -30,9 +31,18 @@ def coated_fit(tmp_path_factory):
 
 
 def test_the_loop_keeps_a_pair_that_halves_the_gap_once_the_regions_follow_it(coated_fit, tmp_path):
+    # first with no round left for the trial: the cap's warning names it, and a run with a larger cap into the same
+    # folder keeps the finished diagnosis and goes on to fit it
+    capped = refine(coated_fit, tmp_path / "refine", max_rounds=1, max_steps=1, say=lambda line: None,
+                    candidates=("ggx", "coating"))
+    assert set(capped["rounds"][0]["trial_not_fitted"]) == {"ggx", "coating"} and "trial" not in capped["rounds"][0]
+    assert capped["stopped"].startswith("stopped after 1 rounds (max_rounds)") and capped["trials"] == []
+    (warning,) = capped["warnings"]
+    assert "the cap of 1 rounds bound" in warning and "larger --max-rounds" in warning
     lines = []
     result = refine(coated_fit, tmp_path / "refine", max_rounds=2, max_steps=1, say=lines.append,
                     candidates=("ggx", "coating"))
+    assert "round 1: the diagnosis an earlier run finished for this fit and these options is kept" in lines[0]
     first = json.loads((tmp_path / "refine" / "round1" / "diagnosis" / "diagnosis.json").read_text())
     assert first["named_effects"] == [], first["candidates"]
     pair = first["pairs"][0]
@@ -54,7 +64,7 @@ def test_a_trial_not_kept_leaves_the_fit_before_it_as_the_result():
                          {"gap": 2.5, "fit": "round2", "n_regions": 8}], "trials": [],
               "named_effects": [], "final_fit": "round1", "stopped": ""}
     lines = []
-    assert not _trial_kept(result, ["second_lobe"], 0, 1, ["second_lobe"], lines.append)
+    assert not trial_kept(result, ["second_lobe"], 0, 1, ["second_lobe"], lines.append)
     assert result["final_fit"] == "round1" and result["named_effects"] == []
     assert "round 1's fit is the result" in result["stopped"] and not result["trials"][0]["kept"]
     assert "not kept" in lines[0]
@@ -62,27 +72,39 @@ def test_a_trial_not_kept_leaves_the_fit_before_it_as_the_result():
 
 def test_a_trial_whose_diagnosis_swaps_one_of_its_effects_is_fitted_again_with_the_swap():
     """A trial not kept whose diagnosis swapped one of its effects for one of that effect's kind (the smooth
-    coating for the rough one): the diagnosis' final model is the next trial, once, while a round is left."""
-    from rjfit.pipeline.refine import _revised_instead
+    coating for the rough one): the diagnosis' final model is the next trial, once, while a round is left (else
+    the cap's warning)."""
     from rjfit.pipeline.refine_trial import revised_trial
 
     swap = [{"action": "swapped", "effect": "coating", "replacement": "rough_coating"}]
     final = ["rough_coating", "light_calibration"]
     tried = [["coating", "light_calibration"]]
-    assert revised_trial([], ["coating", "light_calibration"], final, swap, tried, 1) == ([], final)
+    assert revised_trial([], ["coating", "light_calibration"], final, swap, tried) == ([], final)
     assert tried[-1] == ["light_calibration", "rough_coating"]
-    assert revised_trial([], ["coating", "light_calibration"], final, swap, tried, 1) is None     # tried once
-    assert revised_trial([], ["coating"], ["rough_coating"], swap, [], 0) is None                 # no round left
-    assert revised_trial([], ["ggx"], ["ggx"], swap, [], 2) is None                               # not the fit's
+    assert revised_trial([], ["coating", "light_calibration"], final, swap, tried) is None     # tried once
+    assert revised_trial([], ["ggx"], ["ggx"], swap, []) is None                               # not the fit's
     dropped = [{"action": "dropped", "effect": "coating"}]
-    assert revised_trial([], ["coating"], [], dropped, [], 2) is None                             # a drop is no swap
+    assert revised_trial([], ["coating"], [], dropped, []) is None                             # a drop is no swap
 
-    result = {"stopped": "round 2's trial of coating + light_calibration was not kept (...)", "trials": []}
     record, lines = {"revisions": swap}, []
-    revised = _revised_instead(result, ([], ["coating", "light_calibration"], final), record, [], 2, 0, 1,
-                               lines.append)
-    assert revised == ([], final) and result["stopped"] == ""
+    result = {"stopped": "round 2's trial of coating + light_calibration was not kept (...)", "trials": [],
+              "rounds": [{"effects": []}, record], "warnings": []}
+    revised = another_trial(result, ([], ["coating", "light_calibration"], final, []), record, [],
+                            (0, 1, "round2/diagnosis", False), lines.append)
+    assert revised == (final, [], "round2/diagnosis") and result["stopped"] == ""
     assert record["trial"] == final and "judged against round 1's fit" in lines[0]
+
+    # where round 2 was the last, the revised trial is not fitted: the loop says the cap bound and how to go on
+    record, lines = {"revisions": swap}, []
+    result = {"stopped": "round 2's trial ... was not kept", "trials": [], "rounds": [{}, record], "warnings": []}
+    assert another_trial(result, ([], ["coating", "light_calibration"], final, ["ggx"]), record, [],
+                         (0, 1, "round2/diagnosis", True), lines.append) == (None, ["ggx"], None)
+    assert "trial" not in record and record["trial_not_fitted"] == final
+    assert result["stopped"].startswith("stopped after 2 rounds (max_rounds)") and "round 1's fit is the result" in (
+        result["stopped"])
+    (warning,) = result["warnings"]
+    assert lines == [f"warning: {warning}"] and "the cap of 2 rounds bound" in warning
+    assert "rough_coating + light_calibration" in warning and "same --out with a larger --max-rounds" in warning
 
 
 def test_a_swap_of_an_effect_kept_before_the_trial_revises_the_whole_model():
@@ -94,13 +116,13 @@ def test_a_swap_of_an_effect_kept_before_the_trial_revises_the_whole_model():
     revisions = [{"action": "swapped", "effect": "fresnel", "replacement": "coating"},
                  {"action": "dropped", "effect": "light_calibration"}]
     tried = [["ggx", "light_calibration"]]
-    assert revised_trial(["fresnel"], ["light_calibration", "ggx"], ["ggx", "coating"], revisions, tried, 1) == (
+    assert revised_trial(["fresnel"], ["light_calibration", "ggx"], ["ggx", "coating"], revisions, tried) == (
         [], ["ggx", "coating"])
-    assert revised_trial(["ambient", "fresnel"], ["ggx"], ["ambient", "ggx", "coating"], revisions, [], 1) == (
+    assert revised_trial(["ambient", "fresnel"], ["ggx"], ["ambient", "ggx", "coating"], revisions, []) == (
         ["ambient"], ["ggx", "coating"])                                     # the base keeps what the model keeps
-    assert revised_trial(["fresnel"], ["ggx"], ["fresnel", "ggx"], revisions[1:], [], 1) is None   # drops only
+    assert revised_trial(["fresnel"], ["ggx"], ["fresnel", "ggx"], revisions[1:], []) is None   # drops only
 
     result = {"rounds": [{"gap": 2.4, "n_regions": 8}, {"gap": 0.3, "n_regions": 12}, {"gap": 0.05, "n_regions": 4}],
               "trials": [], "named_effects": ["fresnel"], "stopped": ""}
-    assert _trial_kept(result, ["ggx", "coating"], 0, 2, ["ggx", "coating"], [].append)
+    assert trial_kept(result, ["ggx", "coating"], 0, 2, ["ggx", "coating"], [].append)
     assert result["named_effects"] == ["ggx", "coating"]
