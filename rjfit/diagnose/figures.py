@@ -94,7 +94,9 @@ def signature_figure(path, residual, panels, title):
     plt = _plt()
     finite = residual[np.isfinite(residual)]
     limit = max(float(np.percentile(np.abs(finite), 99)) if finite.size else 1.0, 1e-6)
-    figure, axes = plt.subplots(1, len(panels) + 1, figsize=(2.3 * (len(panels) + 1), 2.8), squeeze=False)
+    # constrained layout: tight_layout cannot place a colorbar shared by a row (it warns and may clip it)
+    figure, axes = plt.subplots(1, len(panels) + 1, figsize=(2.3 * (len(panels) + 1), 2.8), squeeze=False,
+                                layout="constrained")
     for axis, (label, image) in zip(axes[0], [("residual", residual)] + list(panels)):
         shown = axis.imshow(image, cmap="RdBu_r", vmin=-limit, vmax=limit)
         zoom_to_object(axis, np.isfinite(residual))
@@ -102,7 +104,6 @@ def signature_figure(path, residual, panels, title):
         pixel_axes(axis)
     figure.colorbar(shown, ax=axes[0], fraction=0.046, label="standardised residual (noise sd)")
     figure.suptitle(title, fontsize=8)
-    figure.tight_layout()
     return save_figure(figure, path)
 
 

@@ -120,5 +120,18 @@ def cap_on_trial(result: dict, rounds: tuple, base: list, trying: list) -> str:
     result["stopped"] = (f"stopped after {index + 1} rounds (max_rounds) with a trial left unfitted: round "
                          f"{result_round + 1}'s fit is the result")
     return (f"the cap of {index + 1} rounds bound: after round {index + 1} the loop would fit {effects} with the "
-            f"regions (a trial), which no round was left to fit and judge; run refine again into the same --out "
-            f"with a larger --max-rounds (it keeps the rounds finished here)")
+            f"regions (a trial), which no round was left to fit and judge{_trials_since(result, result_round)}; run "
+            f"refine again into the same --out with a larger --max-rounds (it keeps the rounds finished here)")
+
+
+def _trials_since(result: dict, result_round: int) -> str:
+    """What the trials not kept since round ``result_round + 1`` (each judged against its fit) did to its gap, as a
+    clause of the cap's warning ("" where there were none): where none moved it, more rounds are unlikely to pay,
+    the misfit being outside what the trials carry, and the user reading the warning should see that."""
+    gaps = [verdict["gap_after"] for verdict in result["trials"]
+            if not verdict["kept"] and verdict.get("round", 0) > result_round + 1]
+    if not gaps:
+        return ""
+    return (f"; the {len(gaps)} trial{'s' if len(gaps) > 1 else ''} not kept since round {result_round + 1} left its "
+            f"gap of {float(result['rounds'][result_round]['gap']):.3g} at {min(gaps):.3g}"
+            + (f" to {max(gaps):.3g}" if len(gaps) > 1 else ""))

@@ -126,3 +126,27 @@ def test_a_swap_of_an_effect_kept_before_the_trial_revises_the_whole_model():
               "trials": [], "named_effects": ["fresnel"], "stopped": ""}
     assert trial_kept(result, ["ggx", "coating"], 0, 2, ["ggx", "coating"], [].append)
     assert result["named_effects"] == ["ggx", "coating"]
+
+
+def test_the_caps_warning_says_what_the_trials_since_the_result_did_to_its_gap():
+    """sRGB with the noise after the curve (outside the library; change points, seed 1, 2 x 1000, 2026-12-02): four
+    supported trials after round 2's fit, none kept, each left its gap of 1.27 between 1.22 and 1.28. The cap's
+    warning says so, so that "run again with a larger --max-rounds" is read with what the trials did so far."""
+    from rjfit.pipeline.refine_steps import cap_on_trial
+
+    verdicts = [{"effects": [name], "gap_before": 1.27, "gap_after": gap, "kept": False, "why": "...", "round": k}
+                for k, (name, gap) in enumerate([("ambient", 1.22), ("second_lobe", 1.28), ("fresnel", 1.27),
+                                                 ("ggx", 1.275)], start=3)]
+    kept = {"effects": ["camera_srgb"], "gap_before": 112.0, "gap_after": 1.27, "kept": True, "why": "...", "round": 2}
+    result = {"rounds": [{"gap": 112.0}, {"gap": 1.27}] + [{"gap": v["gap_after"]} for v in verdicts],
+              "trials": [kept] + verdicts, "stopped": ""}
+    result["rounds"][-1]["trial"] = ["rough_coating"]
+    warning = cap_on_trial(result, (5, 1), ["camera_srgb"], ["rough_coating"])
+    assert "the 4 trials not kept since round 2 left its gap of 1.27 at 1.22 to 1.28;" in warning
+    assert "camera_srgb + rough_coating" in warning and "larger --max-rounds" in warning
+    assert result["rounds"][-1]["trial_not_fitted"] == ["rough_coating"]
+    assert result["stopped"] == ("stopped after 6 rounds (max_rounds) with a trial left unfitted: round 2's fit is "
+                                 "the result")
+    # no trial since the result's round: no clause
+    result = {"rounds": [{"gap": 3.0, "trial": ["ggx"]}], "trials": [], "stopped": ""}
+    assert "trials not kept" not in cap_on_trial(result, (0, 0), [], ["ggx"])
