@@ -129,7 +129,7 @@ def _trials_since(result: dict, result_round: int) -> str:
     clause of the cap's warning ("" where there were none): where none moved it, more rounds are unlikely to pay,
     the misfit being outside what the trials carry, and the user reading the warning should see that."""
     gaps = [verdict["gap_after"] for verdict in result["trials"]
-            if not verdict["kept"] and verdict.get("round", 0) > result_round + 1]
+            if not verdict["kept"] and verdict["round"] > result_round + 1]
     if not gaps:
         return ""
     return (f"; the {len(gaps)} trial{'s' if len(gaps) > 1 else ''} not kept since round {result_round + 1} left its "
