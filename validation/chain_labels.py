@@ -16,12 +16,17 @@ from pathlib import Path
 import numpy as np
 
 
-def chain_snapshots(fit: Path) -> list:
-    """Each chain's last label snapshot (H, W; -1 off the object), in chain order."""
+def chain_label_snapshots(fit: Path) -> list:
+    """Each chain's label snapshots (S, H, W; NaN off the object) from ``materials.npz``, in chain order."""
     with np.load(fit / "materials.npz") as files:
         names = sorted((name for name in files.files if name.endswith("_material_labels")),
                        key=lambda name: int(name[len("chain"):].split("_")[0]))
-        return [np.nan_to_num(np.asarray(files[name][-1], float), nan=-1.0) for name in names]
+        return [files[name] for name in names]
+
+
+def chain_snapshots(fit: Path) -> list:
+    """Each chain's last label snapshot (H, W; -1 off the object), in chain order."""
+    return [np.nan_to_num(np.asarray(snapshots[-1], float), nan=-1.0) for snapshots in chain_label_snapshots(fit)]
 
 
 def draw(fit: Path, out: Path) -> Path:

@@ -15,6 +15,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from chain_labels import chain_label_snapshots
 from scipy import ndimage
 
 from rjfit.data.exr import read_exr
@@ -35,20 +36,16 @@ def paint_mask(reference: Path) -> np.ndarray:
 def chain_shares(fit: Path, paint: np.ndarray, burn_in: float) -> list:
     """Per chain of ``fit``: the share of its kept snapshots whose paint pixels are one material, not the body's."""
     shares = []
-    with np.load(fit / "materials.npz") as files:
-        names = sorted((name for name in files.files if name.endswith("_material_labels")),
-                       key=lambda name: int(name[len("chain"):].split("_")[0]))
-        for name in names:
-            snapshots = files[name]
-            kept = snapshots[int(len(snapshots) * burn_in):]
-            held = 0
-            for snapshot in kept:
-                labels = np.nan_to_num(np.asarray(snapshot, float), nan=-1.0).astype(int)
-                body = np.bincount(labels[(labels >= 0) & ~paint]).argmax()
-                inside = labels[paint & (labels >= 0)]
-                top = np.bincount(inside).argmax()
-                held += bool(top != body and np.mean(inside == top) >= AGREEMENT)
-            shares.append(held / max(len(kept), 1))
+    for snapshots in chain_label_snapshots(fit):
+        kept = snapshots[int(len(snapshots) * burn_in):]
+        held = 0
+        for snapshot in kept:
+            labels = np.nan_to_num(np.asarray(snapshot, float), nan=-1.0).astype(int)
+            body = np.bincount(labels[(labels >= 0) & ~paint]).argmax()
+            inside = labels[paint & (labels >= 0)]
+            top = np.bincount(inside).argmax()
+            held += bool(top != body and np.mean(inside == top) >= AGREEMENT)
+        shares.append(held / max(len(kept), 1))
     return shares
 
 
