@@ -134,7 +134,7 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
 
     Exits with status 1 when the gate fails (median rel. error > 1e-4 or p99 > 1e-3)."""
     _check_output(out_dir or dataset / "validation")
-    from rjfit.render.gate import validate_dataset
+    from rjfit.render.gate import outlier_note, validate_dataset
 
     result = validate_dataset(dataset, out_dir, spp=spp, max_depth=max_depth, seed=seed, variant=variant,
                               progress=True)
@@ -142,6 +142,8 @@ def validate(dataset, out_dir, spp, max_depth, seed, variant):
     _echo_cuda_fallback(result["settings"]["variant"])
     _echo_json(result, ["median_rel_err", "p99_rel_err", "max_rel_err", "pixels_compared", "unexplained_fraction",
                         "max_normal_angle_deg", "max_view_angle_deg", "seconds"])
+    if outlier_note(result):
+        click.echo(f"  note: {outlier_note(result)}")
     out = Path(out_dir) if out_dir else Path(dataset) / "validation"
     click.echo(f"  report: {out / 'validation.json'}")
     if not result["passed"]:

@@ -20,7 +20,10 @@ _LABELS = {"I0": "I<sub>0</sub> (intensity &times; albedo, image units)", "kd": 
 #: the cross-check's numbers in words (validation.json's keys)
 _VALIDATION_LABELS = {"median_rel_err": "median relative error, closed form vs path tracer (good: <= 1e-4)",
                       "p99_rel_err": "99th percentile of the relative error (good: <= 1e-3)",
-                      "max_rel_err": "largest relative error", "pixels_compared": "pixel observations compared",
+                      "max_rel_err": "largest relative error",
+                      "observations_over_p99_tolerance": "observations over 1e-3 (the gate allows 1 % of them)",
+                      "observations_compared": "observations compared (a lit pixel under one light)",
+                      "pixels_compared": "pixels compared",
                       "unexplained_fraction": "share of the radiance the closed form does not explain"}
 
 _STYLE = """

@@ -318,3 +318,15 @@ def test_arviz_s_refactor_notice_never_reaches_the_output(tmp_path):
                             env=environment, check=False)
     assert result.returncode == 0, result.stderr
     assert "major refactor" not in result.stderr and "FutureWarning" not in result.stderr, result.stderr
+
+
+def test_validate_says_how_many_observations_are_over_the_tolerance(dented_plaster_small, tmp_path):
+    """The largest error alone hides how many observations differ: a line gives the count (here interreflection
+    in the dents, so the gate fails and the count is over 1 %)."""
+    result = CliRunner().invoke(main, ["validate", str(dented_plaster_small), "--out", str(tmp_path / "v"),
+                                       "--spp", "4"])
+    assert result.exit_code == 1 and "FAILED" in result.output
+    written = json.loads((tmp_path / "v" / "validation.json").read_text())
+    assert written["observations_over_p99_tolerance"] > 0.01 * written["observations_compared"]
+    assert (f"note: {written['observations_over_p99_tolerance']} of {written['observations_compared']} "
+            f"observations") in result.output
