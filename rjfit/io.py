@@ -25,7 +25,6 @@ naming the path.
 from __future__ import annotations
 
 import errno
-import functools
 import json
 import os
 import shutil
@@ -47,9 +46,16 @@ __all__ = ["write_json_atomic", "read_json", "atomic_path", "write_text_atomic",
 STAGING_PREFIX = ".staging."
 
 
-@functools.cache
 def _new_file_mode() -> int:
-    """The mode ``open()`` gives a new file under this process's umask (mkstemp gives 0600)."""
+    """The mode ``open()`` gives a new file under this process's umask now (mkstemp gives 0600).
+
+    Linux states the umask in ``/proc/self/status``; reading it there leaves it alone, where setting and
+    restoring it (the only way elsewhere) would give another thread's new files the interim mask.
+    """
+    with suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return 0o666 & ~int(line.split()[1], 8)
     mask = os.umask(0o022)
     os.umask(mask)
     return 0o666 & ~mask

@@ -34,6 +34,17 @@ def test_atomic_path_replaces_the_file_with_the_usual_mode(tmp_path):
     assert target.stat().st_mode & 0o777 == _umask_mode()
 
 
+def test_a_umask_changed_between_writes_gives_the_later_file_the_mode_open_gives(tmp_path):
+    write_text_atomic(tmp_path / "first.txt", "first")
+    old = os.umask(0o077)
+    try:
+        write_text_atomic(tmp_path / "second.txt", "second")
+        (tmp_path / "plain.txt").write_text("plain")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "second.txt").stat().st_mode & 0o777 == (tmp_path / "plain.txt").stat().st_mode & 0o777 == 0o600
+
+
 @pytest.mark.parametrize("error", [OSError("No space left on device"), KeyboardInterrupt()])
 def test_a_write_that_fails_midway_leaves_the_old_file_and_no_temporary(tmp_path, error):
     target = tmp_path / "result.json"
