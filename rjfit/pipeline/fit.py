@@ -161,16 +161,40 @@ def fit(observations, out_dir, options: FitOptions | None = None, *, truth_label
 
 
 def effect_warnings(effects) -> list:
-    """A warning per effect parameter whose chains disagree (R-hat > 1.1) or have few effective draws (< 100)."""
+    """A warning per effect whose parameters' chains disagree (R-hat > 1.1) or have few effective draws (< 100):
+    one line for the effect however many of its parameters are flagged (light_calibration has one per light)."""
     out = []
     for effect in effects:
-        for param in effect["parameters"]:
-            rhat, ess = param.get("rhat"), param.get("ess_bulk")
-            if (rhat is not None and rhat > 1.1) or (ess is not None and ess < 100):
-                out.append(f"effect {effect['name']}: its parameter {param['name']} has R-hat "
-                           f"{'n/a' if rhat is None else f'{rhat:.3f}'} and bulk ESS "
-                           f"{'n/a' if ess is None else f'{ess:.0f}'}: its posterior summary is uncertain; run longer")
+        flagged = [param for param in effect["parameters"] if _uncertain(param.get("rhat"), param.get("ess_bulk"))]
+        if len(flagged) == 1:
+            (param,) = flagged
+            out.append(f"effect {effect['name']}: its parameter {param['name']} has R-hat "
+                       f"{_figure(param.get('rhat'), '.3f')} and bulk ESS {_figure(param.get('ess_bulk'), '.0f')}: "
+                       f"its posterior summary is uncertain; run longer")
+        elif flagged:
+            names = ", ".join(param["name"] for param in flagged[:4]) + (", ..." if len(flagged) > 4 else "")
+            out.append(f"effect {effect['name']}: {len(flagged)} of its {len(effect['parameters'])} parameters "
+                       f"({names}) have R-hat {_span([p.get('rhat') for p in flagged], '.3f')} and bulk ESS "
+                       f"{_span([p.get('ess_bulk') for p in flagged], '.0f')}: their posterior summaries are "
+                       f"uncertain; run longer")
     return out
+
+
+def _uncertain(rhat, ess) -> bool:
+    return (rhat is not None and rhat > 1.1) or (ess is not None and ess < 100)
+
+
+def _figure(value, spec) -> str:
+    return "n/a" if value is None else format(value, spec)
+
+
+def _span(values, spec) -> str:
+    """``low to high`` of the known values (n/a where none is known; one figure where they agree at ``spec``)."""
+    known = [value for value in values if value is not None]
+    if not known:
+        return "n/a"
+    low, high = format(min(known), spec), format(max(known), spec)
+    return low if low == high else f"{low} to {high}"
 
 
 def prepare_problem(observations, options: FitOptions, effects=()):

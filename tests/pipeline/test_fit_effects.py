@@ -96,3 +96,21 @@ def test_the_command_line_takes_effects_as_a_comma_separated_list(monkeypatch, a
                                             "ambient, camera_srgb", "--effect-every", "2"])
     assert outcome.exit_code == 0, outcome.output
     assert seen["options"].effects == ("ambient", "camera_srgb") and seen["options"].effect_every == 2
+
+
+def test_an_effects_uncertain_parameters_make_one_warning():
+    """light_calibration has a parameter per light: 95 flagged parameters are one line that says how many and
+    their R-hat and ESS spans, not 95 lines; one flagged parameter keeps its own line; none, no line."""
+    from rjfit.pipeline.fit import effect_warnings
+
+    # h1 settled; h2 to h96 with R-hat 1.22 to 2.16 and bulk ESS 6.02 to 6.96
+    gains = {"name": "light_calibration", "parameters": [{"name": "h1", "rhat": 1.01, "ess_bulk": 399.0}] + [
+        {"name": f"h{k}", "rhat": 1.2 + k / 100, "ess_bulk": 6.0 + k / 100} for k in range(2, 97)]}
+    ambient_effect = {"name": "ambient", "parameters": [{"name": "L_amb", "rhat": 1.02, "ess_bulk": 42.0}]}
+    settled = {"name": "coating", "parameters": [{"name": "w_coat", "rhat": 1.01, "ess_bulk": 900.0}]}
+    warnings = effect_warnings([gains, ambient_effect, settled])
+    assert warnings == [
+        "effect light_calibration: 95 of its 96 parameters (h2, h3, h4, h5, ...) have R-hat 1.220 to 2.160 and bulk "
+        "ESS 6 to 7: their posterior summaries are uncertain; run longer",
+        "effect ambient: its parameter L_amb has R-hat 1.020 and bulk ESS 42: its posterior summary is uncertain; "
+        "run longer"]
