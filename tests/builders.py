@@ -5,9 +5,11 @@ that file. (pytest puts this folder on sys.path: ``pythonpath = ["tests"]`` in p
 """
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +28,21 @@ from rjfit.sampler.regions.materials.layout import boundary_count
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"     # ../shared beside the checkout (measured data)
+
+
+def validation_script(name: str):
+    """``validation/<name>.py`` as a module: validation/ on sys.path while it runs (a script imports the scripts
+    beside it) and the module in sys.modules under ``name`` (a dataclass looks its module up there)."""
+    folder = str(REPO_ROOT / "validation")
+    sys.path.insert(0, folder)
+    try:
+        spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "validation" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(folder)
+    return module
 
 # == data: tiny photometric-stereo folders (16-bit PNGs) and rjfit-layout folders ======================
 

@@ -71,16 +71,20 @@ def run_case(case, kind, out, args) -> dict:
             "stopped": refined["stopped"],
             "label_accuracy": [first["label_accuracy"], last["label_accuracy"]],
             "gap": [first["gap"], last["gap"]], "gap_simulated": [first["gap_simulated"], last["gap_simulated"]],
-            "revisions": [_revision(index, r) for index, record in enumerate(refined["rounds"])
-                          for r in record.get("revisions") or []],
+            "revisions": revisions(refined),
             "unexplained_misfit": (last_diagnosis.get("unexplained_misfit") or {}).get("text"),
             "trials": [f"{' + '.join(t['effects'])} in round {t['round']}: {'kept' if t['kept'] else 'not kept'}, gap "
                        f"{t['gap_before']:.3g} -> {t['gap_after']:.3g}" for t in refined.get("trials", [])],
             "warnings": refined["warnings"], "seconds": time.perf_counter() - started}
 
 
-def _revision(index, revision) -> str:
-    return f"{revision_text(revision, brief=True)} in round {index + 1}"
+def revisions(refined: dict) -> list:
+    """Each round's revisions (an effect swapped or dropped) as ``"<revision> in round k"``; a round whose fit was a
+    trial that was not kept says so, since the loop's result does not carry what its diagnosis revised."""
+    rejected = {trial["round"] for trial in refined.get("trials", []) if not trial["kept"]}
+    return [f"{revision_text(revision, brief=True)} in round {index + 1}"
+            + (" (a trial not kept)" if index + 1 in rejected else "")
+            for index, record in enumerate(refined["rounds"]) for revision in record.get("revisions") or []]
 
 
 def _pair(values, spec) -> str:

@@ -11,7 +11,8 @@ tabulated once by quadrature over the half vector (Gauss-Legendre in u = cos^(g+
 uniform in phi) and interpolated; exact for a convex object, where nothing occludes the sky.
 
 - physics: the lobe's directional albedo :func:`lobe_albedo_quadrature`, its table
-  (:func:`albedo_table`, :data:`ALBEDO_LOG_GAMMA`, :data:`ALBEDO_COS_V`) and the table's
+  (:func:`albedo_table`, shipped as ``ambient_albedo.npy`` and checked against
+  :func:`albedo_table_quadrature` by the tests; :data:`ALBEDO_LOG_GAMMA`, :data:`ALBEDO_COS_V`) and the table's
   bilinear interpolation (:func:`gamma_weights`, :func:`cos_v_weights`, :func:`albedo_rows`,
   :func:`lobe_albedo`);
 - criticism: :class:`Ambient` (the term added to the mean);
@@ -21,8 +22,8 @@ uniform in phi) and interpolated; exact for a convex object, where nothing occlu
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -31,12 +32,17 @@ from rjfit.model.blinn import blinn_normalisation
 from rjfit.model.priors import LogNormal
 from rjfit.render.scene_change import MitsubaChange
 
-__all__ = ["Ambient", "AmbientLight", "lobe_albedo_quadrature", "albedo_table", "gamma_weights", "cos_v_weights",
+__all__ = ["Ambient", "AmbientLight", "lobe_albedo_quadrature", "albedo_table", "albedo_table_quadrature", "gamma_weights", "cos_v_weights",
            "albedo_rows", "lobe_albedo", "ALBEDO_LOG_GAMMA", "ALBEDO_COS_V"]
 
 #: the table's rows: log gamma from log 0.05 to log 5000; its columns: cos theta_v from 0 to 1
 ALBEDO_LOG_GAMMA = np.linspace(np.log(0.05), np.log(5000.0), 48)
 ALBEDO_COS_V = np.linspace(0.0, 1.0, 41)
+#: the table of :func:`albedo_table_quadrature` as shipped with the package (a constant of the model: computing it
+#: takes 0.3 s, which every process that fits or criticises ambient light would pay)
+ALBEDO_TABLE_FILE = Path(__file__).with_name("ambient_albedo.npy")
+
+
 def lobe_albedo_quadrature(gamma, cos_v, n_u=64, n_phi=96):
     """``A_g(theta_v) = int N(g) <h.n>^g <l.n> dl`` at one gamma for an array of cos theta_v, by
     quadrature over the half vector (Gauss-Legendre in u = cos^(g+1) theta_h, uniform in phi)."""
@@ -56,16 +62,31 @@ def lobe_albedo_quadrature(gamma, cos_v, n_u=64, n_phi=96):
     return blinn_normalisation(gamma) / (gamma + 1.0) * total
 
 
-@functools.lru_cache(maxsize=1)
-def albedo_table() -> np.ndarray:
-    """``A_g(theta_v)`` on the grid (:data:`ALBEDO_LOG_GAMMA` x :data:`ALBEDO_COS_V`), by quadrature.
+def albedo_table_quadrature() -> np.ndarray:
+    """``A_g(theta_v)`` on the grid (:data:`ALBEDO_LOG_GAMMA` x :data:`ALBEDO_COS_V`), by quadrature (0.3 s).
 
-    A constant of the model, computed once per process (0.3 s) and never written to.
+    What :data:`ALBEDO_TABLE_FILE` holds; write it again with ``np.save`` where the grid or the quadrature changes.
     """
-    table = np.stack([lobe_albedo_quadrature(float(np.exp(lg)), ALBEDO_COS_V, n_u=48, n_phi=64)
-                      for lg in ALBEDO_LOG_GAMMA])
+    return np.stack([lobe_albedo_quadrature(float(np.exp(lg)), ALBEDO_COS_V, n_u=48, n_phi=64)
+                     for lg in ALBEDO_LOG_GAMMA])
+
+
+def _read_table(path: Path) -> np.ndarray:
+    table = np.load(path)
+    if table.shape != (ALBEDO_LOG_GAMMA.size, ALBEDO_COS_V.size):
+        raise ValueError(f"{path}: the ambient albedo table has shape {table.shape}, not "
+                         f"{(ALBEDO_LOG_GAMMA.size, ALBEDO_COS_V.size)}; write it again from albedo_table_quadrature()")
     table.setflags(write=False)
     return table
+
+
+#: the shipped table, read once at import (read-only)
+ALBEDO_TABLE = _read_table(ALBEDO_TABLE_FILE)
+
+
+def albedo_table() -> np.ndarray:
+    """``A_g(theta_v)`` on the grid (:data:`ALBEDO_LOG_GAMMA` x :data:`ALBEDO_COS_V`): :data:`ALBEDO_TABLE`."""
+    return ALBEDO_TABLE
 
 
 def gamma_weights(gamma):

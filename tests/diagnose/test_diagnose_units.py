@@ -29,6 +29,18 @@ def test_blinn_lobe_albedo_is_one_at_normal_view_and_table_matches_quadrature():
         assert np.allclose(lobe_albedo([gamma, gamma], [0.3, 0.7]), exact, rtol=5e-3)
 
 
+def test_the_shipped_albedo_table_is_the_quadratures_and_read_only():
+    """ambient_albedo.npy holds albedo_table_quadrature() on the grid. Tolerance 1e-12 relative: the same sums, so
+    only the libm's last bits (another machine's exp and cos) may differ; a changed grid or quadrature fails by far
+    more."""
+    from rjfit.effects.ambient import albedo_table, albedo_table_quadrature
+
+    table = albedo_table()
+    np.testing.assert_allclose(table, albedo_table_quadrature(), rtol=1e-12, atol=0.0,
+                               err_msg="write rjfit/effects/ambient_albedo.npy again from albedo_table_quadrature()")
+    assert not table.flags.writeable
+
+
 def test_the_ambient_effect_interpolates_as_lobe_albedo():
     """The effect interpolates per region's gamma, then per view angle (separable bilinear):
     the same values as the table's bilinear interpolation per observation."""

@@ -13,16 +13,11 @@ and posterior probability >= 0.9 that four regions hold the object's pixels.
 """
 from __future__ import annotations
 
-import importlib.util
-
-from builders import REPO_ROOT
+from builders import validation_script
 
 
 def _seeds_script():
-    spec = importlib.util.spec_from_file_location("default_fit_seeds", REPO_ROOT / "validation" / "default_fit_seeds.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return validation_script("default_fit_seeds")
 
 
 def test_the_default_fit_path_recovers_the_four_regions_from_dispersed_starts():

@@ -1,20 +1,15 @@
 """validation/derived_stacks.py: a derived folder loads as the same object, turned or at half the resolution."""
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
-from builders import REPO_ROOT, make_ps_folder
+from builders import make_ps_folder, validation_script
 from rjfit.data.diligent import load_diligent
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("derived_stacks", REPO_ROOT / "validation" / "derived_stacks.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return validation_script("derived_stacks")
 
 
 def _lambert(dataset):

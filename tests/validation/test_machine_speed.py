@@ -1,16 +1,13 @@
 """validation/machine_speed.py: the speed reference quoted beside wall times runs and prints both figures."""
 from __future__ import annotations
 
-import importlib.util
 import re
 
-from builders import REPO_ROOT
+from builders import validation_script
 
 
 def test_machine_speed_prints_a_positive_pass_and_scalar_time(capsys):
-    spec = importlib.util.spec_from_file_location("machine_speed", REPO_ROOT / "validation" / "machine_speed.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = validation_script("machine_speed")
     module.main(["--repeats", "1"])
     line = capsys.readouterr().out
     found = re.search(r"pass ([0-9.]+) ms \(([0-9.]+) ns an observation\); scalar ([0-9.]+) us a call", line)

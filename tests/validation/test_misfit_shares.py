@@ -6,25 +6,14 @@ The given normals are the true ones turned by planted tangential errors of sd 3 
 """
 from __future__ import annotations
 
-import importlib.util
-import sys
-
 import numpy as np
 import pytest
 
-from builders import REPO_ROOT
+from builders import validation_script
 from rjfit.model.blinn import radiance
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("misfit_shares", REPO_ROOT / "validation" / "misfit_shares.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module       # its dataclass looks its module up there
-    spec.loader.exec_module(module)
-    return module
-
-
-SCRIPT = _script()
+SCRIPT = validation_script("misfit_shares")
 PLANTED_DEG = 3.0
 NOISE = 0.002
 

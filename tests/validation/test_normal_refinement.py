@@ -4,25 +4,15 @@ residual field into its smooth and pixel-scale parts, on the sphere stack of tes
 """
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 
 import numpy as np
 
-from builders import REPO_ROOT
+from builders import validation_script
 from test_misfit_shares import NOISE, _angle_deg, _sphere_normals, _stack, _turned
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("normal_refinement", REPO_ROOT / "validation" / "normal_refinement.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-SCRIPT = _script()
+SCRIPT = validation_script("normal_refinement")
 
 
 def _refined(given, true, prior_deg, seed):

@@ -1,24 +1,14 @@
 """Validation scripts on arrays built here: painted_details' hue discs, paint_share's and rock_pebbles' shares."""
 from __future__ import annotations
 
-import importlib.util
-import sys
-
 import numpy as np
 import pytest
 
-from builders import REPO_ROOT
+from builders import validation_script
 
 
 def _script(name):
-    sys.path.insert(0, str(REPO_ROOT / "validation"))       # painted_details imports real_stacks beside it
-    try:
-        spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "validation" / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(REPO_ROOT / "validation"))
-    return module
+    return validation_script(name)        # painted_details imports real_stacks beside it
 
 
 def test_a_hue_disc_keeps_each_pixels_channel_sum_and_moves_red_and_green():
