@@ -19,7 +19,7 @@ from numba import njit
 from rjfit.sampler.passes.lobe import lobe_fill
 from rjfit.sampler.passes.special import INV_PI, LOG_2PI, fast_exp
 
-__all__ = ["coefficients", "log_density", "log_densities_into", "run_end"]
+__all__ = ["coefficients", "log_density", "log_densities_into", "run_end", "block_log_likelihood"]
 
 
 @njit(cache=True, nogil=True)
@@ -74,3 +74,22 @@ def log_densities_into(y, C, log_cos_hn, coef, r, out, ext=None, rows=None, offs
         c = np.float64(C[k])
         resid = np.float64(y[k]) - ca * c - cb * c * fast_exp(g * np.float64(log_cos_hn[k]))
         out[k] = c0 - c1 * resid * resid
+
+
+@njit(cache=True, nogil=True)
+def block_log_likelihood(y, C, log_cos_hn, rows, coef, log_s2, inverse_s2, block, out):
+    """``out[block[i]] +=`` the log density of observation i in region ``rows[i]`` (``coef`` from
+    :func:`coefficients`), with the exact exponential (what a fit writes to chains.nc, not a pass of the chain).
+
+    ``log_s2`` and ``inverse_s2`` are each observation's ``log s^2`` and ``1 / s^2`` of known noise scales s, or
+    empty arrays where there are none. Without the GIL, so draws run on threads side by side.
+    """
+    scaled = log_s2.shape[0] > 0
+    for i in range(y.shape[0]):
+        r = rows[i]
+        c = C[i]
+        resid = y[i] - coef[r, 0] * c - coef[r, 1] * c * math.exp(coef[r, 2] * log_cos_hn[i])
+        if scaled:
+            out[block[i]] += coef[r, 3] - 0.5 * log_s2[i] - coef[r, 4] * inverse_s2[i] * resid * resid
+        else:
+            out[block[i]] += coef[r, 3] - coef[r, 4] * resid * resid
