@@ -109,9 +109,17 @@ class RelabelledDraws:
     def agreement(self, labels) -> np.ndarray:
         """(H, W) per pixel the share of the relabelled snapshots that give it its material in ``labels`` (NaN
         unlabelled)."""
-        stacked = np.concatenate([lab for lab in self.labels if len(lab)])
         labels = np.asarray(labels)
-        return np.where(labels >= 0, np.mean(stacked == labels, axis=0), np.nan)
+        inside = labels >= 0          # compared there only: an object is a few % of a measured stack's image
+        held = np.zeros(int(inside.sum()))
+        count = 0
+        for snapshots in self.labels:
+            if len(snapshots):
+                held += np.sum(np.asarray(snapshots)[:, inside] == labels[inside], axis=0)
+                count += len(snapshots)
+        out = np.full(labels.shape, np.nan)
+        out[inside] = held / count
+        return out
 
 
 def _snapshots(rec, burn_in, k):

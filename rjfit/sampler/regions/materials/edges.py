@@ -409,7 +409,8 @@ def _match_noise(noise: str, residual, shading_change, match_spread, l_first, l_
     if isinstance(noise, str):
         # at most NOISE_FIT_MATCHES evenly spaced matches measure it (a 2048 x 2048 stack has about 10^8; 10^4 per
         # cell measure its variance to about 1.5 %), so that it adds little memory beside the term's own arrays
-        fit = np.unique(np.linspace(0, residual.size - 1, min(residual.size, NOISE_FIT_MATCHES)).astype(np.int64))
+        fit = np.linspace(0, residual.size - 1, min(residual.size, NOISE_FIT_MATCHES)).astype(np.int64)
+        fit = fit[np.diff(fit, prepend=-1) > 0]     # np.unique's, without its hash (2 s on the ball): fit is sorted
         spread_fit = spread if np.ndim(spread) == 0 else spread[fit]
         fitted = difference_noise(residual[fit] / spread_fit, shading_change[fit] / spread_fit, turn[fit])
         noise = (fitted["white"], fitted["shading"], fitted["turn"])
