@@ -32,8 +32,9 @@ from rjfit.model.blinn import blinn_normalisation
 from rjfit.model.priors import LogNormal
 from rjfit.render.scene_change import MitsubaChange
 
-__all__ = ["Ambient", "AmbientLight", "lobe_albedo_quadrature", "albedo_table", "albedo_table_quadrature", "gamma_weights", "cos_v_weights",
-           "albedo_rows", "lobe_albedo", "ALBEDO_LOG_GAMMA", "ALBEDO_COS_V"]
+__all__ = ["Ambient", "AmbientLight", "lobe_albedo_quadrature", "albedo_table", "albedo_table_quadrature",
+           "gamma_weights", "cos_v_weights", "albedo_rows", "lobe_albedo", "ALBEDO_LOG_GAMMA", "ALBEDO_COS_V",
+           "ALBEDO_TABLE", "ALBEDO_TABLE_FILE"]
 
 #: the table's rows: log gamma from log 0.05 to log 5000; its columns: cos theta_v from 0 to 1
 ALBEDO_LOG_GAMMA = np.linspace(np.log(0.05), np.log(5000.0), 48)

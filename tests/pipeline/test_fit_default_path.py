@@ -16,12 +16,8 @@ from __future__ import annotations
 from builders import validation_script
 
 
-def _seeds_script():
-    return validation_script("default_fit_seeds")
-
-
 def test_the_default_fit_path_recovers_the_four_regions_from_dispersed_starts():
-    script = _seeds_script()
+    script = validation_script("default_fit_seeds")
     summary = script.fit_once(seed=0)
     assert summary["anneal_iterations"] > 0          # the tempered warm-up ran
     assert summary["label_accuracy"] >= script.ACCURACY, summary["label_accuracy"]

@@ -8,10 +8,6 @@ from builders import make_ps_folder, validation_script
 from rjfit.data.diligent import load_diligent
 
 
-def _script():
-    return validation_script("derived_stacks")
-
-
 def _lambert(dataset):
     """n . l per light and pixel (L, H, W): what the geometry predicts, whatever the frame."""
     directions = np.array([light.direction for light in dataset.lights])
@@ -20,7 +16,7 @@ def _lambert(dataset):
 
 def test_a_turned_folder_is_the_same_object_upside_down(tmp_path):
     source = make_ps_folder(tmp_path / "ps")
-    pixels = _script().write_derived(source, tmp_path / "turned", "turn")
+    pixels = validation_script("derived_stacks").write_derived(source, tmp_path / "turned", "turn")
     original, turned = load_diligent(source), load_diligent(tmp_path / "turned")
     assert pixels == int(original.object_mask.sum())
     np.testing.assert_array_equal(turned.object_mask, original.object_mask[::-1, ::-1])
@@ -34,7 +30,7 @@ def test_a_turned_folder_is_the_same_object_upside_down(tmp_path):
 @pytest.mark.parametrize("offset", [0, 1])
 def test_a_subsampled_folder_keeps_every_second_recorded_pixel(tmp_path, offset):
     source = make_ps_folder(tmp_path / "ps")
-    _script().write_derived(source, tmp_path / "half", "sub", offset)
+    validation_script("derived_stacks").write_derived(source, tmp_path / "half", "sub", offset)
     original, half = load_diligent(source), load_diligent(tmp_path / "half")
     np.testing.assert_array_equal(half.images, original.images[:, offset::2, offset::2])
     np.testing.assert_array_equal(half.object_mask, original.object_mask[offset::2, offset::2])
@@ -44,4 +40,4 @@ def test_a_subsampled_folder_keeps_every_second_recorded_pixel(tmp_path, offset)
 
 def test_an_unknown_derivation_is_refused():
     with pytest.raises(ValueError, match="'sub' or 'turn'"):
-        _script().derive(np.zeros((4, 4)), "mirror")
+        validation_script("derived_stacks").derive(np.zeros((4, 4)), "mirror")

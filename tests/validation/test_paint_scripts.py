@@ -7,14 +7,10 @@ import pytest
 from builders import validation_script
 
 
-def _script(name):
-    return validation_script(name)        # painted_details imports real_stacks beside it
-
-
 def test_a_hue_disc_keeps_each_pixels_channel_sum_and_moves_red_and_green():
     """R gains hue x G (at most to 255), G loses as much: R + G + B is kept exactly, so the channel mean a
     one-channel fit reads does not change; B is untouched."""
-    hue_shift = _script("painted_details").hue_shift
+    hue_shift = validation_script("painted_details").hue_shift
     rgb = np.array([[100.0, 120.0, 90.0], [240.0, 200.0, 210.0], [0.0, 0.0, 0.0], [10.0, 255.0, 3.0]])
     out = hue_shift(rgb, 0.5)
     np.testing.assert_array_equal(out.sum(axis=1), rgb.sum(axis=1))
@@ -27,7 +23,7 @@ def test_paint_share_counts_snapshots_that_hold_the_paint_in_one_non_body_materi
     """A 6 x 6 body with a 2 x 2 paint; one chain's snapshots: paint held (counted), paint split 3:1 (under
     90 %: not counted), paint in the body's material (not counted), held again; the first snapshot is burn-in;
     a second chain holds them in reverse order."""
-    chain_shares = _script("paint_share").chain_shares
+    chain_shares = validation_script("paint_share").chain_shares
     paint = np.zeros((6, 6), bool)
     paint[2:4, 2:4] = True
     held = np.where(paint, 1.0, 0.0)
@@ -45,7 +41,7 @@ def test_rock_pebbles_counts_a_pebble_held_by_the_largest_pebbles_material(tmp_p
     material 1 (each held); pebble 2 split 2:2 between material 1 and material 2 (half: held); pebble 2 split 1:3
     (under half: not held); everything one material (the pebble material is the matrix's: neither held); the
     first is burn-in."""
-    chain_shares = _script("rock_pebbles").chain_shares
+    chain_shares = validation_script("rock_pebbles").chain_shares
     pebbles = np.zeros((8, 8), int)
     pebbles[1:4, 1:4] = 1
     pebbles[5:7, 5:7] = 2
@@ -61,7 +57,7 @@ def test_rock_pebbles_counts_a_pebble_held_by_the_largest_pebbles_material(tmp_p
 
 
 def test_rock_pebbles_refuses_snapshots_of_another_frame(tmp_path):
-    chain_shares = _script("rock_pebbles").chain_shares
+    chain_shares = validation_script("rock_pebbles").chain_shares
     np.savez(tmp_path / "materials.npz", chain0_material_labels=np.zeros((2, 4, 4)))
     with pytest.raises(ValueError, match=r"label snapshots of \(4, 4\) px, the stack's \(5, 5\)"):
         chain_shares(tmp_path, np.zeros((5, 5), int), burn_in=0.0)

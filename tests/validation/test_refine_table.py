@@ -4,10 +4,6 @@ from __future__ import annotations
 from builders import validation_script
 
 
-def _refine_table():
-    return validation_script("refine_table")
-
-
 def test_a_revision_in_a_trial_that_was_not_kept_says_so():
     """Round 2 (kept) swapped an effect; round 3 was a trial that was not kept and dropped one; round 4, a trial
     that was kept, swapped one: only round 3's revision is marked, since the loop's result does not carry it."""
@@ -15,6 +11,6 @@ def test_a_revision_in_a_trial_that_was_not_kept_says_so():
     drop = {"action": "dropped", "effect": "ambient", "after_step": 1}
     refined = {"rounds": [{"revisions": []}, {"revisions": [swap]}, {"revisions": [drop]}, {"revisions": [swap]}],
                "trials": [{"round": 3, "kept": False}, {"round": 4, "kept": True}]}
-    assert _refine_table().revisions(refined) == [
+    assert validation_script("refine_table").revisions(refined) == [
         "ggx swapped for coating in round 2", "ambient dropped in round 3 (a trial not kept)",
         "ggx swapped for coating in round 4"]
