@@ -3,7 +3,8 @@
 For each case, renders the hidden-effect data set of :mod:`rjfit.render.hidden` (Mitsuba
 built-ins: a ``constant`` emitter, colour-science's sRGB curve (its read noise after the curve, or
 before it as a sensor adds it: ``camera_sensor``), a ``blendbsdf`` with a
-``roughconductor`` second lobe (isotropic, or anisotropic: outside the library), ``roughplastic`` of Beckmann and of GGX distribution
+``roughconductor`` second lobe (isotropic, or anisotropic: outside the library), ``roughplastic`` of Beckmann and of
+GGX distribution
 (a roughness per material, or one for all: exactly ``ggx`` + ``rough_coating``), the path
 integrator's interreflection at ``CASE_SPP``), fits it plainly (:func:`rjfit.pipeline.fit_dataset.fit_dataset`,
 ``--allow-unvalidated``: a hidden effect fails the cross-check by design) and refines the fit
@@ -115,7 +116,8 @@ def main():
     for row in rows:
         revised = f" ({'; '.join(row['revisions'] + row['trials'])})" if row["revisions"] or row["trials"] else ""
         print(f"| {row['case']} | {', '.join(row['named']) or 'none'}{revised} | {row['rounds']} | "
-              f"{_pair(row['regions'], 'd')} ({row['true_regions']}) | {_pair(row['label_accuracy'], '.3f')} | {_pair(row['gap'], '.3g')} | "
+              f"{_pair(row['regions'], 'd')} ({row['true_regions']}) | {_pair(row['label_accuracy'], '.3f')} | "
+              f"{_pair(row['gap'], '.3g')} | "
               f"{_pair(row['gap_simulated'], '.3g')} | {row['seconds']:.0f} |")
 
 

@@ -91,7 +91,9 @@ def albedo_table() -> np.ndarray:
 
 
 def gamma_weights(gamma):
-    """The table row ``i`` below each gamma (linear in log gamma, clipped to the table) and the weight ``fx`` of row ``i + 1``."""
+    """The table row ``i`` below each gamma and the weight ``fx`` of row ``i + 1``.
+
+    Linear in log gamma, clipped to the table."""
     grid = ALBEDO_LOG_GAMMA
     x = (np.clip(np.log(np.asarray(gamma, dtype=float)), grid[0], grid[-1]) - grid[0]) / (grid[1] - grid[0])
     i = np.minimum(x.astype(int), grid.size - 2)
@@ -147,7 +149,8 @@ class Ambient(Effect):
 
     def mitsuba_change(self, theta, ctx):
         radiance = float(theta[0]) * ctx.reference_intensity
-        return MitsubaChange(extra={"ambient": {"type": "constant", "radiance": {"type": "rgb", "value": [radiance] * 3}}},
+        environment = {"type": "constant", "radiance": {"type": "rgb", "value": [radiance] * 3}}
+        return MitsubaChange(extra={"ambient": environment},
                              stochastic=True,
                              notes=["exact for a convex object: nothing occludes the environment"])
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from builders import validation_script
-from test_misfit_shares import NOISE, _angle_deg, _sphere_normals, _stack, _turned
+from test_misfit_shares import _angle_deg, _sphere_normals, _stack, _turned
 
 
 SCRIPT = validation_script("normal_refinement")

@@ -155,7 +155,7 @@ def _laplace_log_gamma(data, prior):
     # the grid's sums in one compiled call (nine calls from Python cost more than the sums)
     ssr, det = ssr_min_rows(coarse.stats_at_many(np.exp(grid)))
     values = [-k * math.log(0.5 * res + b0) - 0.5 * math.log(d) + g_prior.logpdf_scalar(math.exp(e)) + e
-              if res == res else -np.inf for res, d, e in zip(ssr.tolist(), det.tolist(), grid.tolist())]
+              if not math.isnan(res) else -np.inf for res, d, e in zip(ssr.tolist(), det.tolist(), grid.tolist())]
     best = int(np.argmax(values))
     if not np.isfinite(values[best]):
         return None
