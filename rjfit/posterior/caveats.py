@@ -16,13 +16,15 @@ agreement over models); the checks here look at the numbers themselves:
 - a material that lies mostly where the object is seen most steeply (:func:`steep_view_shares`,
   :func:`steep_view_warnings`);
 - a material of the segmentation that the draws summarised for it mostly do not hold
-  (:func:`label_agreements`, :func:`label_agreement_warnings`).
+  (:func:`label_agreements`, :func:`label_agreement_warnings`);
+- what the draws with more materials than the segmentation add to it: their extra materials' size
+  (:func:`extra_materials`, :func:`extra_materials_sentence`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from rjfit.posterior.materials import last_labels
+from rjfit.posterior.materials import last_labels, snapshot_labels
 from rjfit.posterior.summary import RHAT_MAX
 from rjfit.sampler.priors import PARAM_NAMES
 
@@ -30,7 +32,7 @@ __all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "BOUND_SHARE", "prior_range_warning
            "empty_region_warnings", "model_cap_warnings", "pooled_interval_warnings", "nan_rejection_warnings",
            "acceptance_counts", "STEEP_TAIL", "STEEP_SHARE", "steep_view_shares", "steep_view_warnings",
            "chain_steep_warnings", "steep_view_caveats", "AGREEMENT_MIN", "label_agreements",
-           "label_agreement_warnings"]
+           "label_agreement_warnings", "extra_materials", "extra_materials_sentence"]
 
 #: a prior's plausible range: its central 99.9 % interval (a posterior mean outside it lies
 #: where the prior puts 1 in 2000 of its mass on either side)
@@ -351,3 +353,54 @@ def label_agreement_warnings(regions, agreements, n_materials: int, least: float
             out.append(f"{head}, and in most of those draws the parameters reported for it belong to other pixels: "
                        "read its parameters as unknown and its outline as one chain's")
     return out
+
+
+def extra_materials(records, burn_in: int, n_materials: int) -> dict | None:
+    """What the kept label snapshots with more materials than the segmentation's ``n_materials`` add to it.
+
+    In such a snapshot its K - ``n_materials`` smallest materials are its extra ones; their pixels are counted
+    together. Why: a K posterior below 1 says that other draws hold more materials, not whether those are a second
+    paint of thousands of pixels or specks of a few, which a user reading "K = 1: 0.73" needs to know (psm-horse:
+    the chains at K = 2 hold 2 to 30 px; docs/results/2026-12-03-extra-materials.md).
+
+    Returns
+    -------
+    dict or None
+        ``snapshots``: the kept snapshots (every chain's after ``burn_in``); ``share``: the share of them with more
+        materials; ``chain_shares``: the same per chain (None for a chain without kept snapshots); ``pixels``: the
+        extra materials' pixels per such snapshot, ``min``, ``median`` and ``max`` (None where no snapshot has more).
+        None when no record holds material label snapshots.
+    """
+    extra, chain_shares, total = [], [], 0
+    for record in records:
+        if getattr(record, "material_labels", None) is None:
+            chain_shares.append(None)
+            continue
+        kept = np.flatnonzero(np.asarray(record.cp_iteration) >= burn_in)
+        more = 0
+        for index in kept:
+            labels = snapshot_labels(record, int(index))
+            counts = np.sort(np.bincount(labels[labels >= 0]))
+            counts = counts[counts > 0]
+            if counts.size > n_materials:
+                extra.append(int(counts[:counts.size - n_materials].sum()))
+                more += 1
+        chain_shares.append(more / kept.size if kept.size else None)
+        total += kept.size
+    if not total:
+        return None
+    pixels = None if not extra else {"min": int(min(extra)), "median": float(np.median(extra)),
+                                     "max": int(max(extra))}
+    return {"materials": int(n_materials), "snapshots": int(total), "share": len(extra) / total,
+            "chain_shares": chain_shares, "pixels": pixels}
+
+
+def extra_materials_sentence(entry: dict | None) -> str | None:
+    """:func:`extra_materials` in words; None where no kept snapshot has more materials than the segmentation."""
+    if not entry or not entry.get("pixels"):
+        return None
+    pixels = entry["pixels"]
+    size = (f"{pixels['min']:,} px" if pixels["min"] == pixels["max"] else
+            f"{pixels['min']:,} to {pixels['max']:,} px (median {pixels['median']:,.0f})")
+    return (f"{entry['share']:.0%} of the kept label snapshots hold more materials than the segmentation's "
+            f"{entry['materials']}, their extra materials {size} in all")

@@ -225,8 +225,9 @@ def convergence_warnings(diagnostics_result: dict, chain_model_posteriors, n_cha
         warnings.append(f"R-hat max {rhat:.4f} > {RHAT_MAX}: the chains have not mixed over the MAP model's parameters")
     ess = min(diagnostics_result.get("ess_bulk_min", np.nan), diagnostics_result.get("ess_tail_min", np.nan))
     if used >= 1 and np.isfinite(ess) and ess < ESS_PER_CHAIN_MIN * used:
-        warnings.append(f"ESS min {ess:.0f} < {ESS_PER_CHAIN_MIN} per chain ({ESS_PER_CHAIN_MIN * used} for {used}): "
-                        "too few effective draws for the quantiles; run longer")
+        chains = "the chain" if used == 1 else f"the {used} chains"
+        warnings.append(f"ESS min {ess:.0f} < {ESS_PER_CHAIN_MIN * used} ({ESS_PER_CHAIN_MIN} per chain, {chains} at "
+                        "the MAP model): too few effective draws for the quantiles; run longer")
     return warnings
 
 

@@ -58,6 +58,33 @@ def test_summary_has_the_material_entries(fitted):
     assert "no material is ever empty" in summary["empty_materials"] and summary["max_materials"] == 8
     assert 0.0 <= summary["materials_right_probability"] <= 1.0
     assert "map_model" not in summary and "changepoints.npz" not in {p.name for p in out.iterdir()}
+    extra = read_summary(out)["extra_materials"]      # over the kept snapshots of both chains, in the file
+    with np.load(out / "materials.npz") as files:
+        kept = sum(int((files[f"chain{c}_cp_iteration"] >= summary["burn_in"]).sum()) for c in range(2))
+    assert extra["snapshots"] == kept > 0 and extra["materials"] == summary["segmentation_materials"]
+    # the snapshots are kept draws: one with more materials than the segmentation is mass of the K posterior above it
+    above = sum(share for k, share in posterior.items() if int(k) > extra["materials"])
+    assert (extra["share"] > 0) <= (above > 0) and (extra["pixels"] is None) == (extra["share"] == 0)
+
+
+def test_the_terminal_and_the_report_say_how_large_the_extra_materials_of_other_draws_are():
+    """A K posterior of 0.72 at one material, the rest specks: the printed line and the report's notes carry the
+    caveat's sentence; a fit without such draws has none."""
+    from rjfit.pipeline.regions.materials import MaterialFit
+
+    extra = {"materials": 1, "snapshots": 200, "share": 0.28, "chain_shares": [1.0, 0.02, 0.04, 0.06],
+             "pixels": {"min": 1, "median": 24.0, "max": 34}}
+    summary = {"map_materials": 1, "materials_posterior": {"1": 0.72, "2": 0.28}, "map_probability_mean": 1.0,
+               "extra_materials": extra}
+    sentence = "28% of the kept label snapshots hold more materials than the segmentation's 1, their extra materials "
+    assert f"; {sentence}1 to 34 px (median 24) in all" in MaterialFit.printed_line(summary)
+    assert f"{sentence[0].upper()}{sentence[1:]}1 to 34 px (median 24) in all." in MaterialFit.report_notes(summary)
+    other_map = MaterialFit.printed_line({**summary, "map_materials": 2, "materials_posterior": {"2": 0.5, "1": 0.5},
+                                          "segmentation_materials": 1})
+    assert "least disagree with the others) holds 1 material; 28% of" in other_map
+    settled = {**summary, "extra_materials": {**extra, "share": 0.0, "pixels": None}}
+    assert "kept label snapshots" not in MaterialFit.printed_line(settled)
+    assert not any("kept label snapshots" in note for note in MaterialFit.report_notes(settled))
 
 
 def test_the_fitted_model_leaves_white_residuals_on_data_it_generated(fitted):

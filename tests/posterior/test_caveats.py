@@ -9,6 +9,8 @@ from rjfit.posterior.caveats import (
     acceptance_counts,
     chain_steep_warnings,
     empty_region_warnings,
+    extra_materials,
+    extra_materials_sentence,
     label_agreement_warnings,
     label_agreements,
     model_cap_warnings,
@@ -249,3 +251,36 @@ def test_a_material_the_draws_do_not_hold_is_named_and_the_agreements_are_the_pi
     assert "belong to other pixels" not in own
     regions[1]["parameters_from"]["rhat_max"] = float("nan")
     assert "R-hat" not in label_agreement_warnings(regions, shares, 4)[0]
+
+
+def _label_record(snapshots, iterations):
+    """A material chain's record as the summaries read it: label snapshots (NaN off the object) at ``iterations``."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(cp_iteration=np.asarray(iterations), material_labels=np.asarray(snapshots, np.float32))
+
+
+def test_the_extra_materials_of_snapshots_with_more_than_the_segmentation_are_counted_after_burn_in():
+    """Two chains on a 6 x 6 object with one unlabelled corner: chain 0 at one material; chain 1's snapshots after
+    burn-in hold a 3-px speck, then specks of 2 and 4 px (its third material the smaller two: 6 px in all), then one
+    material; its snapshot before burn-in (half the object apart) is not counted."""
+    one = np.zeros((6, 6))
+    one[0, 0] = np.nan
+    speck, two_specks, half = one.copy(), one.copy(), one.copy()
+    speck[2, 2:5] = 1
+    two_specks[1, 1:3], two_specks[4, 1:5] = 2, 1
+    half[3:] = 1
+    records = [_label_record([one, one, one, one], [0, 10, 20, 30]),
+               _label_record([half, speck, two_specks, one], [0, 10, 20, 30])]
+    entry = extra_materials(records, 10, 1)
+    assert entry["snapshots"] == 6 and entry["share"] == pytest.approx(2 / 6)
+    assert entry["chain_shares"] == [0.0, pytest.approx(2 / 3)]
+    assert entry["pixels"] == {"min": 3, "median": 4.5, "max": 6}
+    assert extra_materials_sentence(entry) == ("33% of the kept label snapshots hold more materials than the "
+                                               "segmentation's 1, their extra materials 3 to 6 px (median 4) in all")
+    # against a segmentation of two materials the speck's snapshot adds nothing, the two specks' its 2 px
+    two = extra_materials(records, 10, 2)
+    assert two["share"] == pytest.approx(1 / 6) and two["pixels"] == {"min": 2, "median": 2.0, "max": 2}
+    assert "their extra materials 2 px in all" in extra_materials_sentence(two)
+    assert extra_materials_sentence(extra_materials(records[:1], 0, 1)) is None      # never more: no sentence
+    assert extra_materials([_label_record(np.zeros((0, 6, 6)), [])], 0, 1) is None    # no kept snapshot

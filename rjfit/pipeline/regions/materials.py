@@ -84,6 +84,7 @@ def summarise_materials(records, problem, options, burn: int, config, edges=None
         "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
         "edge_power": float(config.regions.edge_power), "edge_gain_sd": float(config.regions.edge_gain_sd),
         "edge_noise": edge_noise_record(config.regions.edge_noise), "chain_materials_posterior": chain_posteriors,
+        "extra_materials": caveats.extra_materials(records, burn, k),
     }
     summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
                                                     post.chain_log_posterior_means(records, burn))
@@ -360,6 +361,9 @@ class MaterialFit(RegionFit):
         if isinstance(resolution, dict) and resolution.get("pixels") is not None:
             sentence = resolution_sentence(resolution, summary.get("edge_power"))
             notes.append(f"Resolution: {sentence}.")
+        extra = caveats.extra_materials_sentence(summary.get("extra_materials"))
+        if extra:
+            notes.append(f"{extra[0].upper()}{extra[1:]}.")
         return notes + _boundary_notes(summary)
 
     def sampler_config(self, options, *, burn: int, fixed: bool = False, problem=None) -> SamplerConfig:
@@ -429,7 +433,10 @@ class MaterialFit(RegionFit):
         segmentation = summary.get("segmentation_materials", k)
         if segmentation != k:
             line += (f"; the segmentation (the kept labels that least disagree with the others) holds {segmentation} "
-                     "materials")
+                     f"material{'' if segmentation == 1 else 's'}")
+        extra = caveats.extra_materials_sentence(summary.get("extra_materials"))
+        if extra:
+            line += f"; {extra}"
         resolution = summary.get("material_resolution")
         if isinstance(resolution, dict) and resolution.get("pixels") is not None:
             line += f"; resolution: {resolution_sentence(resolution, summary.get('edge_power'))}"
