@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rjfit.posterior.materials import last_labels, snapshot_labels
+from rjfit.posterior.materials import last_labels
 from rjfit.posterior.summary import RHAT_MAX
 from rjfit.sampler.priors import PARAM_NAMES
 
@@ -373,19 +373,24 @@ def extra_materials(records, burn_in: int, n_materials: int) -> dict | None:
     """
     extra, chain_shares, total = [], [], 0
     for record in records:
-        if getattr(record, "material_labels", None) is None:
+        kept = np.flatnonzero(np.asarray(record.cp_iteration) >= burn_in)
+        if getattr(record, "material_labels", None) is None or not kept.size:
             chain_shares.append(None)
             continue
-        kept = np.flatnonzero(np.asarray(record.cp_iteration) >= burn_in)
+        all_snapshots = np.asarray(record.material_labels)
+        # the labelled pixels (a chain labels the same ones in every snapshot; any other NaN counts as unlabelled):
+        # read once, not the whole image per snapshot
+        labelled = np.isfinite(all_snapshots[kept[0]])
+        flat = all_snapshots.reshape(len(all_snapshots), -1)
+        snapshots = np.nan_to_num(flat[np.ix_(kept, np.flatnonzero(labelled))], nan=-1.0).astype(np.int64)
         more = 0
-        for index in kept:
-            labels = snapshot_labels(record, int(index))
+        for labels in snapshots:
             counts = np.sort(np.bincount(labels[labels >= 0]))
             counts = counts[counts > 0]
             if counts.size > n_materials:
                 extra.append(int(counts[:counts.size - n_materials].sum()))
                 more += 1
-        chain_shares.append(more / kept.size if kept.size else None)
+        chain_shares.append(more / kept.size)
         total += kept.size
     if not total:
         return None
