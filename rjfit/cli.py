@@ -348,11 +348,13 @@ def _echo_fit(folder, summary: dict) -> None:
         click.echo(f"  the rim: {summary['rim_pixels']} object pixels seen more than {summary['max_view_angle']:g} "
                    f"deg from their normal gave no observation; their labels follow their neighbours' "
                    f"(--max-view-angle)")
-    from rjfit.pipeline.regions import printed_line
+    from rjfit.pipeline.regions import printed_line, printed_notes
 
     model = printed_line(summary)
     click.echo(f"  {model}; {_rhat_text(summary)}, {_ess_text(summary)}; "
                f"{summary['seconds']:.1f} s")
+    for note in printed_notes(summary):
+        click.echo(f"  {note}")
     if "label_accuracy" in summary:
         click.echo(f"  label accuracy {summary['label_accuracy']:.4f}")
     if summary.get("edge_power"):

@@ -192,7 +192,9 @@ def test_the_resolution_is_a_single_pixel_where_any_pixel_pays():
     assert "counting the edge term's earning along its outline" in resolution_sentence(tiny, 0.8)
     summary = {"map_materials": 1, "materials_posterior": {"1": 1.0}, "map_probability_mean": 1.0,
                "material_resolution": tiny, "edge_power": 0.8}
-    assert "resolution: a region of 0.5 times material 0's albedo gets a material of its own from a single pixel" \
-        in MaterialFit.printed_line(summary)
+    (printed,) = MaterialFit.printed_notes(summary)     # a line of its own, not at the end of the model's
+    assert printed.startswith("resolution: a region of 0.5 times material 0's albedo gets a material of its own from "
+                              "a single pixel") and "resolution" not in MaterialFit.printed_line(summary)
+    assert MaterialFit.printed_notes({**summary, "material_resolution": None}) == []
     notes = MaterialFit.report_notes(summary)
     assert notes[0].startswith("Resolution: ") and "single pixel" in notes[0] and "edge term's earning" in notes[0]

@@ -12,7 +12,8 @@ from rjfit.pipeline.regions.changepoints import ChangepointFit
 from rjfit.pipeline.regions.fixed import FixedFit
 from rjfit.pipeline.regions.materials import MaterialFit
 
-__all__ = ["REGION_FITS", "FitResult", "RegionFit", "region_fit", "region_fit_of", "printed_line"]
+__all__ = ["REGION_FITS", "FitResult", "RegionFit", "region_fit", "region_fit_of", "printed_line",
+           "printed_notes"]
 
 #: the region models by their ``--regions`` name
 REGION_FITS = {fit.name: fit for fit in (ChangepointFit, MaterialFit, FixedFit)}
@@ -42,3 +43,8 @@ def region_fit_of(summary: dict) -> type[RegionFit]:
 def printed_line(summary: dict) -> str:
     """The region model's part of a fit's printed summary (a summary without ``region_model``: change points)."""
     return REGION_FITS[summary.get("region_model", ChangepointFit.name)].printed_line(summary)
+
+
+def printed_notes(summary: dict) -> list:
+    """The region model's lines after :func:`printed_line` in a fit's printed summary."""
+    return REGION_FITS[summary.get("region_model", ChangepointFit.name)].printed_notes(summary)

@@ -160,3 +160,9 @@ class RegionFit(ABC):
     @abstractmethod
     def printed_line(summary: dict) -> str:
         """The model's part of the printed summary of a fit (its MAP model, from ``summary``)."""
+
+    @staticmethod
+    def printed_notes(summary: dict) -> list:
+        """Lines the printed summary adds after the model's (each a caveat too long for that line). None by
+        default."""
+        return []

@@ -437,7 +437,12 @@ class MaterialFit(RegionFit):
         extra = caveats.extra_materials_sentence(summary.get("extra_materials"))
         if extra:
             line += f"; {extra}"
+        return line
+
+    @staticmethod
+    def printed_notes(summary: dict) -> list:
+        """The resolution (a sentence of its own: on the model's line it hid R-hat and ESS at the line's end)."""
         resolution = summary.get("material_resolution")
         if isinstance(resolution, dict) and resolution.get("pixels") is not None:
-            line += f"; resolution: {resolution_sentence(resolution, summary.get('edge_power'))}"
-        return line
+            return [f"resolution: {resolution_sentence(resolution, summary.get('edge_power'))}"]
+        return []
