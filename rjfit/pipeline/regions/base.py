@@ -163,6 +163,6 @@ class RegionFit(ABC):
 
     @staticmethod
     def printed_notes(summary: dict) -> list:
-        """Lines the printed summary adds after the model's (each a caveat too long for that line). None by
+        """Lines the printed summary adds after the model's (each a caveat too long for that line); none by
         default."""
         return []
