@@ -81,6 +81,7 @@ VARIANTS = {
     "measured-nogain": {"preset": "measured", "edge_gain_sd": 0.0},
     "measured-constant-noise": {"preset": "measured", "edge_noise": "constant"},
     "measured-components": {"preset": "measured", "component_moves": 2},
+    "measured-scatter": {"preset": "measured", "scatter_moves": 1},
     "measured-gain-components": {"preset": "measured", "edge_gain_sd": "auto", "component_moves": 2},
 }
 

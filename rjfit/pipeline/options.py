@@ -212,6 +212,10 @@ class FitOptions:
     # rjfit/sampler/regions/materials/component_move.py): not in the default, since the target prefers shading
     # parts of psm-cat that these moves propose and the others do not (docs/results/2026-11-28-local-gain.md)
     component_moves: int = option(0)
+    # the material model's scatter moves per iteration (a whole material dissolved into the others pixel by pixel,
+    # and its reverse; rjfit/sampler/regions/materials/scatter_move.py): not in the default, since as many of
+    # psm-horse's chains keep a second material with them (docs/results/2026-12-03-scatter-moves.md)
+    scatter_moves: int = option(0)
     # the material model's spatial splits per iteration (a material split into the halves of its pixels' positions,
     # and their reverse; rjfit/sampler/regions/materials/merge_split.py): 0 under --preset measured, where psm-cat's
     # chains kept more small materials with them (docs/results/2026-12-01-spatial-splits.md)

@@ -217,7 +217,7 @@ FLAT_OPTIONS = {
     "spatial_split_moves": ["regions.merge_split.spatial_moves"],
     "edge_power": ["regions.edge_power"], "edge_gap": ["regions.edge_gap"],
     "edge_gain_sd": ["regions.edge_gain_sd"], "edge_noise": ["regions.edge_noise"],
-    "component_moves": ["regions.component_moves"],
+    "component_moves": ["regions.component_moves"], "scatter_moves": ["regions.scatter_moves"],
     "burn_in": ["kernel.burn_in"], "anneal": ["kernel.anneal"], "anneal_start": ["kernel.anneal_start"],
     "refresh_every": ["kernel.refresh_every"],
     "effect_every": ["effects.every"], "effect_target_accept": ["effects.target_accept"],

@@ -172,6 +172,9 @@ def test_a_given_local_gain_and_component_moves_reach_the_fit(paper_sphere_small
     config = MaterialFit().sampler_config(resolve_options(FitOptions(regions="materials", spatial_split_moves=2)),
                                           burn=0)
     assert config.regions.merge_split.spatial_moves == 2
+    config = MaterialFit().sampler_config(resolve_options(FitOptions(regions="materials", scatter_moves=2)), burn=0)
+    assert config.regions.scatter_moves == 2 and any(entry.times == 2 and type(entry.move).__name__ == "ScatterMove"
+                                                     for entry in config.regions.schedule())
 
 
 def test_the_ghost_rule_bounds_a_twin_materials_prior_pixels_and_odds():

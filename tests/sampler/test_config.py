@@ -16,7 +16,7 @@ VALUES = {"max_u": 5, "max_v": 4, "cp_prior": "paper", "cp_smooth_sd": 1.5, "upd
           "max_materials": 5, "potts_beta": 3.0, "potts_rho": 0.1, "update_labels": False, "label_sweeps": 2,
           "cluster_moves": 7, "cluster_new_prob": 0.2, "merge_split_moves": 3, "cluster_material_seed": 0.5,
           "segment_moves": 5, "edge_power": 0.5, "edge_gap": 5, "edge_gain_sd": 0.1, "edge_noise": "measured",
-          "component_moves": 3, "spatial_split_moves": 2}
+          "component_moves": 3, "spatial_split_moves": 2, "scatter_moves": 2}
 
 
 def _at(config, path):

@@ -545,8 +545,11 @@ def check(parts, scalar, exact, scalar_exact):
     return p_part, float(2 * stats.norm.sf(abs(z))), {"n_eff": n_eff, "z": z}
 
 
-#: every label move, or the label sweep alone with K fixed at 2 (its delayed acceptance on its own)
+#: every label move, the scatter moves as the only jumps, or the label sweep alone with K fixed at 2 (its delayed
+#: acceptance on its own)
 MOVES = {"all": {"cluster_moves": 2, "merge_split_moves": 1, "max_materials": 4},
+         "scatter": {"cluster_moves": 0, "segment_moves": 0, "merge_split_moves": 0, "scatter_moves": 2,
+                     "max_materials": 4},
          "sweeps": {"cluster_moves": 0, "segment_moves": 0, "merge_split_moves": 0, "jumps": False,
                     "max_materials": 2}}
 
@@ -563,11 +566,12 @@ GAIN_SD = 0.7
 
 
 @pytest.mark.parametrize("moves,power,seed,gain_sd", [("all", 4.0, 1, 0.0), ("all", 30.0, 2, 0.0),
-                                                      ("sweeps", 30.0, 3, 0.0), ("all", 4.0, 4, GAIN_SD)])
+                                                      ("sweeps", 30.0, 3, 0.0), ("all", 4.0, 4, GAIN_SD),
+                                                      ("scatter", 4.0, 5, 0.0)])
 def test_partitions_and_parameters_match_the_target_with_the_edge_term(square, moves, power, seed, gain_sd):
-    """All 15 partitions, K_max 4: Gibbs sweeps (delayed acceptance), cluster, segment and merge/split moves;
-    and the 7 two-block partitions under the sweeps alone; the last case with each pair's local gain
-    integrated out (every move reads it through the same compiled sums)."""
+    """All 15 partitions, K_max 4: Gibbs sweeps (delayed acceptance), cluster, segment and merge/split moves, or
+    the scatter moves as the only jumps; and the 7 two-block partitions under the sweeps alone; the last case with
+    each pair's local gain integrated out (every move reads it through the same compiled sums)."""
     prior, problem, quad = square
     config = edge_config(power, moves, gain_sd)
     n_blocks = 2 if moves == "sweeps" else None

@@ -17,11 +17,12 @@ quadrature marginals) by one-sample KS tests on draws thinned to about one per e
 sample, level 0.001. K changes by the cluster moves' births and deaths, by the segment
 moves' (:mod:`rjfit.sampler.regions.materials.segment_move`; on these images the family's superpixels
 are single pixels) and by the merge/split moves of whole materials
-(:mod:`rjfit.sampler.regions.materials.merge_split`), together and, in three tests, by one family alone.
+(:mod:`rjfit.sampler.regions.materials.merge_split`), together and, in several tests, by one family alone.
 The negative controls must be rejected with p < 1e-6: the segment moves without the Potts
 change, the cluster moves without their cut products (their ``log(1 - q)`` sums) with
-bonds near q_max, and the merge/split moves with the split probability q(X, Y) missing the
-coin's second half.
+bonds near q_max, the merge/split moves with the split probability q(X, Y) missing the
+coin's second half, and the scatter moves' dissolves without their reverse allocation
+(:mod:`rjfit.sampler.regions.materials.scatter_move`).
 """
 import dataclasses
 import math
@@ -33,7 +34,7 @@ from threadpoolctl import threadpool_limits
 
 from rjfit.sampler.forward import Problem
 from rjfit.sampler.kernel import ChainContext, initial_state, step
-from rjfit.sampler.regions.materials import cluster_swc, component_move, merge_split, segment_move
+from rjfit.sampler.regions.materials import cluster_swc, component_move, merge_split, scatter_move, segment_move
 from rjfit.sampler.regions.materials.passes.labels import allocate_split
 from rjfit.sampler.regions.materials.layout import boundary_count
 from rjfit.sampler.state import SamplerConfig
@@ -115,19 +116,22 @@ def materials_config(**options):
 # K moved by every jump move, by the cluster moves' births and deaths alone, by merges and splits alone,
 # by the segment moves' births and deaths alone (and by the cluster moves alone with half their seeds
 # drawn as a material, then a pixel of it), by the component moves' alone (beta 1 and 2: bonds 0.63 and 0.86, so
-# a piece is cut and moved whole in turn), by the spatial splits and merges alone
+# a piece is cut and moved whole in turn), by the spatial splits and merges alone, by the scatter moves' births and
+# dissolves alone (beta 1 and 0.3)
 JUMP_MOVES = {"all": {"merge_split_moves": 1}, "cluster": {"merge_split_moves": 0, "segment_moves": 0},
               "merge_split": {"cluster_moves": 0, "segment_moves": 0, "merge_split_moves": 1},
               "segment": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 2},
               "cluster_material_seeds": {"merge_split_moves": 0, "segment_moves": 0, "cluster_material_seed": 0.5},
               "component": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "component_moves": 2},
-              "spatial": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "spatial_split_moves": 2}}
+              "spatial": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "spatial_split_moves": 2},
+              "scatter": {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "scatter_moves": 2}}
 
 
 @pytest.mark.parametrize("jumps,beta,rho,seed", [("all", 1.0, 1.0, 1), ("cluster", 0.5, 0.1, 2),
                                                  ("merge_split", 2.0, 0.5, 4), ("segment", 1.0, 0.5, 3),
                                                  ("cluster_material_seeds", 0.5, 0.1, 2), ("component", 1.0, 0.5, 6),
-                                                 ("component", 2.0, 0.3, 7), ("spatial", 1.0, 0.5, 8)])
+                                                 ("component", 2.0, 0.3, 7), ("spatial", 1.0, 0.5, 8),
+                                                 ("scatter", 1.0, 0.5, 9), ("scatter", 0.3, 0.2, 10)])
 def test_partitions_k_and_parameters_match_enumeration(square, jumps, beta, rho, seed):
     """All 15 partitions of the 2 x 2 image, K_max 4: Gibbs sweeps and the jump moves ``jumps``."""
     prior, problem, quad = square
@@ -295,6 +299,26 @@ def test_spatial_merges_of_pairs_that_are_not_halves_are_detected(square, monkey
     exact = exact_partition_posterior(quad, (2, 2), 1.0, 0.5)
     config = materials_config(max_materials=4, potts_beta=1.0, potts_rho=0.5, **JUMP_MOVES["spatial"])
     monkeypatch.setattr(merge_split, "_halves_log_prob", lambda members, in_first, width: -math.log(2.0))
+    wrong, _ = run(problem, prior, config, CONTROL_ITERATIONS, 8)
+    p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
+    print(p_wrong, details_wrong)
+    assert p_wrong < 1e-6, details_wrong
+
+
+def test_dissolves_without_their_reverse_allocation_are_detected(square, monkeypatch):
+    """Negative control: the scatter moves alone, with the dissolve's reverse, the birth's allocation of the dying
+    material's pixels, taken as certain (its log probability 0). The right chain of this setting is the enumeration
+    test's first ``scatter`` case (same beta, rho and moves), which passes."""
+    prior, problem, quad = square
+    exact = exact_partition_posterior(quad, (2, 2), 1.0, 0.5)
+    config = materials_config(max_materials=4, potts_beta=1.0, potts_rho=0.5, **JUMP_MOVES["scatter"])
+    allocate = scatter_move.allocate_birth
+
+    def certain_when_given(labels, own, new, power, beta, height, width, new_label, uniforms, forced):
+        log_prob = allocate(labels, own, new, power, beta, height, width, new_label, uniforms, forced)
+        return 0.0 if forced.size else log_prob
+
+    monkeypatch.setattr(scatter_move, "allocate_birth", certain_when_given)
     wrong, _ = run(problem, prior, config, CONTROL_ITERATIONS, 8)
     p_wrong, details_wrong = partition_test(wrong[CONTROL_BURN:], exact)
     print(p_wrong, details_wrong)

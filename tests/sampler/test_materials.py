@@ -159,7 +159,7 @@ def test_start_checks():
 
 @pytest.mark.parametrize("power", [1.0, 0.3])
 def test_incremental_statistics_match_full_recompute(power):
-    """Five chains of 300 iterations (no refresh), every move accepted in one or another: stats and log-likelihood
+    """Six chains of 300 iterations (no refresh), every move accepted in one or another: stats and log-likelihood
     equal a full recompute to 1e-9 relative at the end.
 
     One starts with 5 materials for 3 (twins: cluster moves between them, and without
@@ -168,7 +168,8 @@ def test_incremental_statistics_match_full_recompute(power):
     step; beta 2: compact materials), one from 4 materials with every move, one from 6, the
     cap, with merges and splits the only jumps; one from 1 with segment moves the only jumps; one from 1 with the
     spatial splits the only jumps (beta 1, so that they are accepted at both powers; the others without them; a
-    spatial merge makes its state as a merge does).
+    spatial merge makes its state as a merge does); one from 5 with the scatter moves the only jumps (a dissolve
+    moves pixels to several materials at once).
     """
     problem, truth = material_problem(likelihood_power=power)
     prior = make_prior("default", y=problem.y, diffuse_scale=problem.A)
@@ -178,7 +179,8 @@ def test_incremental_statistics_match_full_recompute(power):
     chains = ((5, {"merge_split_moves": 0, "potts_beta": 1.0}), (4, annealed), (6, {**annealed, "cluster_moves": 0}),
               (1, {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 4}),
               (1, {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "spatial_split_moves": 2,
-                   "potts_beta": 1.0}))
+                   "potts_beta": 1.0}),
+              (5, {"cluster_moves": 0, "merge_split_moves": 0, "segment_moves": 0, "scatter_moves": 2}))
     for start, flat in chains:
         config = SamplerConfig.from_flat(region_model="materials", max_materials=6, refresh_every=0,
                                          **{"burn_in": 0, "cluster_moves": 6, "spatial_split_moves": 0, **flat})
@@ -199,6 +201,7 @@ def test_incremental_statistics_match_full_recompute(power):
     assert {"label_gibbs", "cluster", "cluster_birth", "cluster_death", "split", "merge"} <= kinds, kinds
     assert {"segment", "segment_birth", "segment_death"} & kinds, kinds
     assert "spatial_split" in kinds, kinds
+    assert "dissolve" in kinds, kinds
 
 
 def test_allocate_split_matches_reference_and_evaluates_its_own_draws():

@@ -278,7 +278,8 @@ class MaterialFit(RegionFit):
 
     name = "materials"
     reads = frozenset({"max_materials", "potts_beta", "potts_rho", "edge_power", "edge_gain_sd", "edge_noise",
-                       "cluster_material_seed", "segment_moves", "component_moves", "spatial_split_moves"})
+                       "cluster_material_seed", "segment_moves", "component_moves", "spatial_split_moves",
+                       "scatter_moves"})
     noun = "material"
     measured_default = True
     joint_colour = True
@@ -377,7 +378,7 @@ class MaterialFit(RegionFit):
                           segments=replace(model.segments, moves=options.segment_moves),
                           merge_split=replace(model.merge_split, spatial_moves=options.spatial_split_moves),
                           edge_power=power, edge_gain_sd=gain_sd, edge_noise=noise,
-                          component_moves=options.component_moves,
+                          component_moves=options.component_moves, scatter_moves=options.scatter_moves,
                           update_labels=not fixed, jumps=not fixed)
         return assemble(options, regions, burn)
 

@@ -55,7 +55,10 @@ unchanged), in order:
    and separates a second paint hidden in a material;
 6. ``merge_split.spatial_moves`` spatial splits of one material into the two halves of its pixels' positions, and
    their reverse (with ``jumps``; the same module): what separates two paints side by side that no per-pixel
-   feature tells apart (pixels of one or two observations).
+   feature tells apart (pixels of one or two observations);
+7. ``scatter_moves`` scatter moves (with ``jumps``): a whole material dissolved into the others pixel by pixel, and
+   its reverse, a material born of pixels anywhere (:mod:`rjfit.sampler.regions.materials.scatter_move`): what
+   removes a material of a few scattered pieces.
 
 With ``edge_power`` > 0 the target also holds an edge term, a boundary's fit to the data's
 step (:mod:`rjfit.sampler.regions.materials.edges`), which every label move and parameter move holds.
@@ -93,8 +96,8 @@ from rjfit.sampler.regions.materials.layout import (
     majority_labels,
 )
 from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings
-from rjfit.sampler.regions.materials.moves import (ClusterMove, ComponentMove, LabelSweep, MergeSplit, SegmentMove,
-                                                  SpatialMergeSplit)
+from rjfit.sampler.regions.materials.moves import (ClusterMove, ComponentMove, LabelSweep, MergeSplit, ScatterMove,
+                                                  SegmentMove, SpatialMergeSplit)
 from rjfit.sampler.regions.materials.segment_move import SegmentSettings
 from rjfit.sampler.regions.materials.segments import segment_family
 
@@ -137,6 +140,10 @@ class MaterialRegions(RegionModel):
     component_moves : int
         Component moves per iteration (:mod:`rjfit.sampler.regions.materials.component_move`: a connected piece
         of a material moved whole; flat option ``component_moves``; 0, the default: none).
+    scatter_moves : int
+        Scatter moves per iteration (with ``jumps``; :mod:`rjfit.sampler.regions.materials.scatter_move`: a whole
+        material dissolved into the others pixel by pixel, and its reverse; flat option ``scatter_moves``; 0, the
+        default: none).
     edge_gain_sd : float or 'auto'
         tau, the sd of the local gain the edge term integrates out of each pair (flat option ``edge_gain_sd``;
         :mod:`rjfit.sampler.regions.materials.edges`, "The local gain"); 'auto': measured on the data
@@ -161,6 +168,7 @@ class MaterialRegions(RegionModel):
     edge_gain_sd: float | str = 0.0
     edge_noise: str | tuple = "constant"
     component_moves: int = 0
+    scatter_moves: int = 0
 
     key_names = ("n_materials",)
 
@@ -169,8 +177,9 @@ class MaterialRegions(RegionModel):
             raise ValueError(f"max_materials (--max-materials) must lie in 1 .. 127, got {self.max_materials}")
         if not (self.potts.beta >= 0 and self.potts.rho > 0):
             raise ValueError(f"potts beta must be >= 0 and rho > 0, got {self.potts.beta}, {self.potts.rho}")
-        if self.sweeps < 0 or self.component_moves < 0:
-            raise ValueError(f"sweeps and component moves must be >= 0, got {self.sweeps}, {self.component_moves}")
+        if self.sweeps < 0 or self.component_moves < 0 or self.scatter_moves < 0:
+            raise ValueError(f"sweeps, component and scatter moves must be >= 0, got {self.sweeps}, "
+                             f"{self.component_moves}, {self.scatter_moves}")
         if self.edge_power != "auto" and not (isinstance(self.edge_power, (int, float)) and
                                               np.isfinite(self.edge_power) and self.edge_power >= 0):
             raise ValueError(f"edge power (--edge-power) must be a number >= 0 or 'auto', got {self.edge_power!r}")
@@ -313,7 +322,9 @@ class MaterialRegions(RegionModel):
                 Scheduled(MergeSplit(self.merge_split, self.proposals, self.potts, self.max_materials),
                           times=self.merge_split.moves if self.jumps else 0),
                 Scheduled(SpatialMergeSplit(self.merge_split, self.proposals, self.potts, self.max_materials),
-                          times=self.merge_split.spatial_moves if self.jumps else 0)]
+                          times=self.merge_split.spatial_moves if self.jumps else 0),
+                Scheduled(ScatterMove(self.proposals, self.potts, self.max_materials),
+                          times=self.scatter_moves if self.jumps else 0)]
 
     def snapshot(self, layout) -> dict:
         return {"material_labels": np.where(layout.pixels >= 0, layout.pixels, np.nan).astype(np.float32)}

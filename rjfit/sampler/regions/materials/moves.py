@@ -14,9 +14,11 @@ from rjfit.sampler.regions.materials.component_move import propose_component_mov
 from rjfit.sampler.regions.materials.label_gibbs import sweep_labels
 from rjfit.sampler.regions.materials.layout import PottsPrior
 from rjfit.sampler.regions.materials.merge_split import MergeSplitSettings, propose_merge_split
+from rjfit.sampler.regions.materials.scatter_move import propose_scatter_move
 from rjfit.sampler.regions.materials.segment_move import propose_segment_move
 
-__all__ = ["LabelSweep", "ClusterMove", "ComponentMove", "SegmentMove", "MergeSplit", "SpatialMergeSplit"]
+__all__ = ["LabelSweep", "ClusterMove", "ComponentMove", "SegmentMove", "MergeSplit", "SpatialMergeSplit",
+           "ScatterMove"]
 
 
 @dataclass(frozen=True)
@@ -100,3 +102,16 @@ class SpatialMergeSplit(MergeSplit):
     def propose(self, work, rng, problem, prior) -> Proposal:
         return propose_merge_split(work, rng, problem, prior, self.settings, self.proposals, self.potts,
                                    self.max_materials, spatial=True)
+
+
+@dataclass(frozen=True)
+class ScatterMove(Move):
+    """A whole material dissolved into the others pixel by pixel, or a material born of pixels anywhere (kinds
+    'dissolve', 'scatter_birth'; one channel)."""
+
+    proposals: RegionProposalSettings
+    potts: PottsPrior
+    max_materials: int
+
+    def propose(self, work, rng, problem, prior) -> Proposal | None:
+        return propose_scatter_move(work, rng, problem, prior, self.potts, self.proposals, self.max_materials)
