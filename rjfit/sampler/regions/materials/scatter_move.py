@@ -106,15 +106,14 @@ def propose_scatter_move(work, rng, problem, prior, potts, proposals, max_materi
     return None     # one material (or K_max = 1): half the time, no move
 
 
-def _pixel_log_lik(problem, theta, pixels=None) -> np.ndarray:
-    """(R, H W): each pixel's log-likelihood (untempered) under each row of ``theta``; with ``pixels`` (ascending)
-    only theirs (the other columns 0)."""
+def _pixel_log_lik(problem, theta, data=None) -> np.ndarray:
+    """(R, H W): each pixel's log-likelihood (untempered) under each row of ``theta``; with ``data`` (a pixel set's
+    observations, :func:`~rjfit.sampler.regions.materials.cluster_swc.cluster_data`) only its pixels' (the other
+    columns 0)."""
     n_pix = problem.height * problem.width
-    if pixels is None:
+    if data is None:
         return pixel_log_lik(problem.y, problem.C, problem.log_cos_hn, problem.pixel, theta, n_pix, problem.lobe)
-    starts, ends = problem.pixel_start[pixels], problem.pixel_start[pixels + 1]
-    lengths = ends - starts
-    idx = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(int(lengths.sum()))
+    idx = data.idx
     lobe = None if problem.lobe is None else problem.lobe.take(idx)
     return pixel_log_lik(problem.y[idx], problem.C[idx], problem.log_cos_hn[idx], problem.pixel[idx], theta, n_pix,
                          lobe)
@@ -129,26 +128,26 @@ def _own_log_lik(log_lik, labels) -> np.ndarray:
 
 
 def _redrawn(work, rng, problem, prior, proposals, theta, changed, before, after):
-    """``theta`` with the rows ``changed`` drawn afresh from the proposals built from their pixels in ``after``, and
-    the sum of their terms minus the old rows' terms under the proposals built from their pixels in ``before``; (None,
-    -inf) where a draw fails."""
-    theta, log_term = theta.copy(), 0.0
+    """``theta`` with the rows ``changed`` drawn afresh from the proposals built from their pixels in ``after``, the
+    sum of their terms minus the old rows' terms under the proposals built from their pixels in ``before``, and
+    ``{row: its pixels' data in after}``; (None, -inf, None) where a draw fails."""
+    theta, log_term, sets = theta.copy(), 0.0, {}
     for k in changed:
-        drawn, term_new = material_term(cluster_data(problem, np.flatnonzero(after == k), work.pixel_sets), None,
-                                        prior, proposals, draw_rng=rng)
+        sets[int(k)] = cluster_data(problem, np.flatnonzero(after == k), work.pixel_sets)
+        drawn, term_new = material_term(sets[int(k)], None, prior, proposals, draw_rng=rng)
         if drawn is None:
-            return None, -math.inf
+            return None, -math.inf, None
         _, term_old = material_term(cluster_data(problem, np.flatnonzero(before == k), work.pixel_sets),
                                     theta[k:k + 1], prior, proposals)
         theta[k] = drawn[0]
         log_term += term_new - term_old
-    return theta, log_term
+    return theta, log_term, sets
 
 
-def _proposal(work, problem, after, n_materials, theta, stats, changed, log_ratio) -> Proposal:
-    """The proposed state: the rows ``changed`` of ``stats`` summed afresh from their pixels in ``after``."""
-    for k in changed:
-        stats[k] = stats_rows(cluster_data(problem, np.flatnonzero(after == k), work.pixel_sets), theta[k, 2])[0]
+def _proposal(work, problem, after, n_materials, theta, stats, sets, log_ratio) -> Proposal:
+    """The proposed state: the rows of ``sets`` (``{row: its pixels' data}``) of ``stats`` summed afresh."""
+    for k, data in sets.items():
+        stats[k] = stats_rows(data, theta[k, 2])[0]
     layout = work.layout.with_pixels(after.reshape(work.layout.pixels.shape).astype(work.layout.pixels.dtype),
                                      n_materials)
     log_lik = log_likelihood_from_stats(stats, theta)
@@ -173,19 +172,20 @@ def _birth(work, rng, problem, prior, potts, proposals, max_materials, p_birth) 
     counts = np.bincount(after[after >= 0], minlength=n_mat + 1)
     if members.size == 0 or np.any(counts == 0):
         return invalid
-    losers = np.unique(before[members])
-    theta, log_term = _redrawn(work, rng, problem, prior, proposals, theta, losers, before, after)
+    theta, log_term, sets = _redrawn(work, rng, problem, prior, proposals, theta, np.unique(before[members]), before,
+                                     after)
     if theta is None:
         return invalid
-    log_q_back = allocate_dissolve(after.copy(), members, slot, _pixel_log_lik(problem, theta, members), power, beta,
-                                   height, width, _NONE_DRAWN, before[members])
+    sets[slot] = cluster_data(problem, members, work.pixel_sets)
+    log_q_back = allocate_dissolve(after.copy(), members, slot, _pixel_log_lik(problem, theta, sets[slot]), power,
+                                   beta, height, width, _NONE_DRAWN, before[members])
     log_ratio = (potts.log_density(after.reshape(work.layout.pixels.shape), n_mat + 1)
                  - potts.log_density(work.layout.pixels, n_mat) + log_term
                  + math.log(dissolve_probability(n_mat + 1, max_materials))
                  + math.log(dissolve_weights(counts)[slot]) + log_q_back
                  - math.log(p_birth) + math.log(n_mat + 1) - log_q)
     stats = with_rows(work.stats, slot, np.zeros((1, work.stats.shape[1])))
-    return _proposal(work, problem, after, n_mat + 1, theta, stats, np.append(losers, slot), log_ratio)
+    return _proposal(work, problem, after, n_mat + 1, theta, stats, sets, log_ratio)
 
 
 def _dissolve(work, rng, problem, prior, potts, proposals, max_materials, p_dissolve) -> Proposal:
@@ -196,10 +196,11 @@ def _dissolve(work, rng, problem, prior, potts, proposals, max_materials, p_diss
     dying = min(int(np.searchsorted(np.cumsum(weights), rng.random(), side="right")), n_mat - 1)
     members = np.flatnonzero(before == dying)
     after = before.copy()
-    log_q = allocate_dissolve(after, members, dying, _pixel_log_lik(problem, work.theta, members), power, beta,
-                              height, width, rng.random(members.size), _NONE_FORCED)
-    gainers = np.unique(after[members])
-    theta, log_term = _redrawn(work, rng, problem, prior, proposals, work.theta, gainers, before, after)
+    log_q = allocate_dissolve(after, members, dying,
+                              _pixel_log_lik(problem, work.theta, cluster_data(problem, members, work.pixel_sets)),
+                              power, beta, height, width, rng.random(members.size), _NONE_FORCED)
+    theta, log_term, sets = _redrawn(work, rng, problem, prior, proposals, work.theta, np.unique(after[members]),
+                                     before, after)
     if theta is None:
         return Proposal.invalid(work.layout.with_pixels(work.layout.pixels, n_mat - 1))
     # the reverse birth, from the state after the dissolve (numbered with the dying material's slot still empty)
@@ -215,5 +216,5 @@ def _dissolve(work, rng, problem, prior, potts, proposals, max_materials, p_diss
                  + math.log(birth_probability(n_mat - 1, max_materials)) - math.log(n_mat) + log_q_back
                  - math.log(p_dissolve) - math.log(weights[dying]) - log_q)
     keep = np.arange(n_mat) != dying
-    changed = gainers - (gainers > dying)
-    return _proposal(work, problem, shifted, n_mat - 1, theta[keep], work.stats[keep].copy(), changed, log_ratio)
+    sets = {k - (k > dying): data for k, data in sets.items()}       # numbered without the dying material
+    return _proposal(work, problem, shifted, n_mat - 1, theta[keep], work.stats[keep].copy(), sets, log_ratio)
