@@ -1,10 +1,11 @@
-"""Validation scripts on arrays built here: painted_details' hue discs, paint_share's and rock_pebbles' shares."""
+"""Validation scripts on arrays built here: painted_details' hue discs, paint_share's and rock_pebbles' shares,
+chain_labels' pieces and edge_pairs' boundary rows."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from builders import validation_script
+from builders import tiny_problem, validation_script
 
 
 def test_a_hue_disc_keeps_each_pixels_channel_sum_and_moves_red_and_green():
@@ -61,3 +62,55 @@ def test_rock_pebbles_refuses_snapshots_of_another_frame(tmp_path):
     np.savez(tmp_path / "materials.npz", chain0_material_labels=np.zeros((2, 4, 4)))
     with pytest.raises(ValueError, match=r"label snapshots of \(4, 4\) px, the stack's \(5, 5\)"):
         chain_shares(tmp_path, np.zeros((5, 5), int), burn_in=0.0)
+
+
+def test_chain_labels_reads_a_pieces_contrast_to_its_ring_per_light(tmp_path):
+    """A 40 x 40 object of one material with a 2 x 2 piece of a second: under light 1 the piece is twice as bright
+    as everything else, under light 2 as bright (a factor under one light only); a 1-px piece elsewhere is not read
+    (under 2 px), and a chain without a second material has no piece. Moved at random, the piece sees no contrast
+    but where its ring or itself overlaps the bright pixels (the median: none)."""
+    from PIL import Image
+
+    script = validation_script("chain_labels")
+    labels = np.zeros((40, 40))
+    labels[20:22, 20:22] = 1.0
+    labels[0, 39] = 1.0
+    np.savez(tmp_path / "materials.npz", chain0_material_labels=labels[None],
+             chain1_material_labels=np.zeros((1, 40, 40)))
+    stack = tmp_path / "stack"
+    stack.mkdir()
+    first = np.full((40, 40), 50, np.uint8)
+    first[20:22, 20:22] = 100
+    Image.fromarray(first).save(stack / "001.png")
+    Image.fromarray(np.full((40, 40), 80, np.uint8)).save(stack / "002.png")
+    (row,) = script.piece_contrasts(tmp_path, stack)
+    chain, pixels, centre, ratios = row
+    assert (chain, pixels, centre) == (0, 4, (20, 20))      # (20.5, 20.5) rounds half to even
+    np.testing.assert_allclose(ratios, [2.0, 1.0])
+    ((chain, count, held, moved),) = script.placement_control(tmp_path, stack, seed=1)
+    assert (chain, count) == (0, 1)
+    assert held == pytest.approx(np.log(2.0)) and moved == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ValueError, match="no numbered PNG"):
+        script.piece_contrasts(tmp_path, tmp_path)
+
+
+def test_edge_pairs_rows_add_up_to_the_edge_terms_total():
+    """On a 2 x 6 image of two materials under 3 lights, pairs 1 px apart: the boundaries' values from their pairs'
+    rows add up to the term's own total (a second labelling, three materials, too), and a cap above every pair's
+    earning changes nothing while a cap of 0 leaves no boundary earning."""
+    from rjfit.sampler.forward import Problem
+    from rjfit.sampler.regions.materials.edges import edge_term
+
+    script = validation_script("edge_pairs")
+    observations, prior = tiny_problem(seed=2, width=6)
+    problem = Problem.from_observations(observations)
+    edges = edge_term(problem, np.ones((2, 6), bool), power=1.0, gap=1)
+    two, three = np.array([[0, 0, 0, 1, 1, 1]] * 2), np.array([[0, 0, 1, 1, 2, 2], [0, 0, 1, 2, 2, 2]])
+    for labels in (two, three):
+        theta = script.least_squares_theta(problem, labels, int(labels.max()) + 1, prior)
+        rows = script.boundary_rows(edges, labels, theta)
+        values = [script.boundary_value(r, edges.scale) for r in rows.values()]
+        assert sum(values) == pytest.approx(edges.total(labels, theta), rel=1e-9, abs=1e-9)
+        largest = max(float(np.max(edges.scale * (r[:, 3] - r[:, 0]))) for r in rows.values())
+        assert [script.boundary_value(r, edges.scale, largest + 1.0) for r in rows.values()] == pytest.approx(values)
+        assert all(script.boundary_value(r, edges.scale, 0.0) <= 1e-9 for r in rows.values())
