@@ -332,8 +332,8 @@ def _stage_and_publish(out_dir: Path, result: FitResult, records, observations, 
         attributes = stamp(summary)         # fit_id, version and schema: in every file
         write_exr(staging / "labels.exr", {"labels": result.labels.astype(np.float32)}, attributes)
         region.write_files(staging, result, records, options, attributes)
-        extra = {name: result.extra[name] for name in ("map_probability", "edge_group", "normal_shift_deg",
-                                                       "normal_sd_deg", "normal_dx", "normal_dy")
+        extra = {name: result.extra[name] for name in ("map_probability", "edge_group", "extra_material_share",
+                                                       "normal_shift_deg", "normal_sd_deg", "normal_dx", "normal_dy")
                  if name in result.extra} or None
         summary["maps"] = write_parameter_maps(observations, summary, staging, result.prediction, extra, attributes)
         if source is not None:

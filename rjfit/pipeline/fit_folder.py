@@ -257,9 +257,10 @@ SUMMARY_FIELDS = {
     "chain_steep_materials": (list, "materials: per chain, the materials of its last label snapshot but its largest, "
                                     "each with its pixels and steep_view_share"),
     "extra_materials": ((dict, type(None)), "materials: the kept label snapshots with more materials than the "
-                                            "segmentation: their share (all chains and per chain) and their extra "
-                                            "materials' pixels in all, min, median and max "
-                                            "(rjfit.posterior.caveats.extra_materials)"),
+                                            "segmentation: their share (all chains and per chain), their extra "
+                                            "materials' pixels in all, min, median and max, and the pixel most often "
+                                            "in one (most_often: row, column of the maps, share; per pixel: maps.exr "
+                                            "channel extra_material_share) (rjfit.posterior.caveats.extra_materials)"),
     "validation": (dict, "the cross-check the fit was made under: passed, errors, path (relative to the fit folder; "
                          "schema 1: absolute), note"),
 }

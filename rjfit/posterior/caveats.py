@@ -32,7 +32,7 @@ __all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "BOUND_SHARE", "prior_range_warning
            "empty_region_warnings", "model_cap_warnings", "pooled_interval_warnings", "nan_rejection_warnings",
            "acceptance_counts", "STEEP_TAIL", "STEEP_SHARE", "steep_view_shares", "steep_view_warnings",
            "chain_steep_warnings", "steep_view_caveats", "AGREEMENT_MIN", "label_agreements",
-           "label_agreement_warnings", "extra_materials", "extra_materials_sentence"]
+           "label_agreement_warnings", "extra_materials", "extra_materials_and_share", "extra_materials_sentence"]
 
 #: a prior's plausible range: its central 99.9 % interval (a posterior mean outside it lies
 #: where the prior puts 1 in 2000 of its mass on either side)
@@ -361,43 +361,74 @@ def extra_materials(records, burn_in: int, n_materials: int) -> dict | None:
     In such a snapshot its K - ``n_materials`` smallest materials are its extra ones; their pixels are counted
     together. Why: a K posterior below 1 says that other draws hold more materials, not whether those are a second
     paint of thousands of pixels or specks of a few, which a user reading "K = 1: 0.73" needs to know (psm-horse:
-    the chains at K = 2 hold 2 to 30 px; docs/results/2026-12-03-extra-materials.md).
+    the chains at K = 2 hold 2 to 30 px; docs/results/2026-12-03-extra-materials.md), nor where they lie (a spot, a
+    shadow, a speck of dust: docs/results/2026-12-03-speck-places.md).
 
     Returns
     -------
     dict or None
         ``snapshots``: the kept snapshots (every chain's after ``burn_in``); ``share``: the share of them with more
         materials; ``chain_shares``: the same per chain (None for a chain without kept snapshots); ``pixels``: the
-        extra materials' pixels per such snapshot, ``min``, ``median`` and ``max`` (None where no snapshot has more).
-        None when no record holds material label snapshots.
+        extra materials' pixels per such snapshot, ``min``, ``median`` and ``max`` (None where no snapshot has more);
+        ``most_often``: the pixel most often in an extra material (the first in raster order where several are),
+        ``row``, ``column`` and ``share`` (the share of the kept snapshots in which it is; None where no snapshot
+        has more; the map of every pixel's share:
+        :func:`extra_materials_and_share`). None when no record holds material label snapshots.
     """
-    extra, chain_shares, total = [], [], 0
+    return extra_materials_and_share(records, burn_in, n_materials)[0]
+
+
+def extra_materials_and_share(records, burn_in: int, n_materials: int) -> tuple:
+    """``(entry, share)``: :func:`extra_materials`' entry and, (H, W), the share of its kept snapshots in which each
+    pixel is in an extra material (NaN where no snapshot labels it), from one pass over the snapshots; ``(None,
+    None)`` when no record holds material label snapshots."""
+    counted = _extra_material_counts(records, burn_in, n_materials)
+    if counted is None:
+        return None, None
+    extra, chain_shares, total, often, labelled = counted
+    pixels = most_often = None
+    if extra:
+        pixels = {"min": int(min(extra)), "median": float(np.median(extra)), "max": int(max(extra))}
+        row, column = np.unravel_index(int(np.argmax(often)), often.shape)
+        most_often = {"row": int(row), "column": int(column), "share": float(often[row, column]) / total}
+    entry = {"materials": int(n_materials), "snapshots": int(total), "share": len(extra) / total,
+             "chain_shares": chain_shares, "pixels": pixels, "most_often": most_often}
+    return entry, np.where(labelled, often / total, np.nan)
+
+
+def _extra_material_counts(records, burn_in: int, n_materials: int):
+    """``(extra, chain_shares, total, often, labelled)`` of :func:`extra_materials`: the extra materials' pixels per
+    snapshot with more, the per-chain shares, the kept snapshots, per pixel (H, W) the snapshots in which it is in an
+    extra material, and whether any chain labels it; None without any kept snapshot."""
+    extra, chain_shares, total, often, seen = [], [], 0, None, None
     for record in records:
         kept = np.flatnonzero(np.asarray(record.cp_iteration) >= burn_in)
         if getattr(record, "material_labels", None) is None or not kept.size:
             chain_shares.append(None)
             continue
+        shape = np.shape(record.material_labels)[1:]
         flat = np.asarray(record.material_labels).reshape(len(record.material_labels), -1)
+        often = np.zeros(shape) if often is None else often
+        seen = np.zeros(shape, bool) if seen is None else seen
         # the labelled pixels (a chain labels the same ones in every snapshot; any other NaN counts as unlabelled),
         # gathered one snapshot at a time: the whole image per snapshot took 1.2 s on psm-horse, and all snapshots at
         # once would hold gigabytes at 2048 x 2048
         labelled = np.flatnonzero(np.isfinite(flat[kept[0]]))
+        seen.ravel()[labelled] = True
         more = 0
         for index in kept:
             labels = np.nan_to_num(flat[index, labelled], nan=-1.0).astype(np.int64)
-            counts = np.sort(np.bincount(labels[labels >= 0]))
-            counts = counts[counts > 0]
-            if counts.size > n_materials:
-                extra.append(int(counts[:counts.size - n_materials].sum()))
+            counts = np.bincount(labels[labels >= 0])
+            used = np.flatnonzero(counts)
+            if used.size > n_materials:
+                # the snapshot's smallest materials beyond the segmentation's number (ties: the lower label first)
+                smallest = used[np.argsort(counts[used], kind="stable")[:used.size - n_materials]]
+                extra.append(int(counts[smallest].sum()))
+                often.ravel()[labelled[np.isin(labels, smallest)]] += 1
                 more += 1
         chain_shares.append(more / kept.size)
         total += kept.size
-    if not total:
-        return None
-    pixels = None if not extra else {"min": int(min(extra)), "median": float(np.median(extra)),
-                                     "max": int(max(extra))}
-    return {"materials": int(n_materials), "snapshots": int(total), "share": len(extra) / total,
-            "chain_shares": chain_shares, "pixels": pixels}
+    return None if not total else (extra, chain_shares, total, often, seen)
 
 
 def extra_materials_sentence(entry: dict | None) -> str | None:
@@ -407,5 +438,8 @@ def extra_materials_sentence(entry: dict | None) -> str | None:
     pixels = entry["pixels"]
     size = (f"{pixels['min']:,} px" if pixels["min"] == pixels["max"] else
             f"{pixels['min']:,} to {pixels['max']:,} px (median {pixels['median']:,.0f})")
+    where = entry.get("most_often")
+    place = ("" if not where else f", most often at row {where['row']}, column {where['column']} of the maps "
+             f"({where['share']:.0%} of the snapshots; maps.exr's extra_material_share shows where)")
     return (f"{entry['share']:.0%} of the kept label snapshots hold more materials than the segmentation's "
-            f"{entry['materials']}, their extra materials {size} in all")
+            f"{entry['materials']}, their extra materials {size} in all{place}")

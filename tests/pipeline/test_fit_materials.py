@@ -49,7 +49,7 @@ def fitted(tmp_path_factory):
 
 
 def test_summary_has_the_material_entries(fitted):
-    out, summary, _ = fitted
+    out, summary, truth = fitted
     assert read_summary(out)["region_model"] == "materials"
     posterior = summary["materials_posterior"]
     assert sum(posterior.values()) == pytest.approx(1.0)
@@ -65,6 +65,14 @@ def test_summary_has_the_material_entries(fitted):
     # the snapshots are kept draws: one with more materials than the segmentation is mass of the K posterior above it
     above = sum(share for k, share in posterior.items() if int(k) > extra["materials"])
     assert (extra["share"] > 0) <= (above > 0) and (extra["pixels"] is None) == (extra["share"] == 0)
+    # the map of where they lie: each pixel's share of the kept snapshots, its largest at the summary's place
+    share = read_exr(out / "maps.exr")["extra_material_share"]
+    assert share.shape == truth.shape and np.nanmin(share) >= 0.0 and np.nanmax(share) <= extra["share"] + 1e-6
+    where = extra["most_often"]
+    assert (where is None) == (extra["pixels"] is None)
+    if where is not None:
+        assert share[where["row"], where["column"]] == pytest.approx(np.nanmax(share)) == \
+            pytest.approx(where["share"], abs=1e-6)
 
 
 def test_the_terminal_and_the_report_say_how_large_the_extra_materials_of_other_draws_are():

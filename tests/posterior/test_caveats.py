@@ -10,6 +10,7 @@ from rjfit.posterior.caveats import (
     chain_steep_warnings,
     empty_region_warnings,
     extra_materials,
+    extra_materials_and_share,
     extra_materials_sentence,
     label_agreement_warnings,
     label_agreements,
@@ -262,12 +263,13 @@ def _label_record(snapshots, iterations):
 
 def test_the_extra_materials_of_snapshots_with_more_than_the_segmentation_are_counted_after_burn_in():
     """Two chains on a 6 x 6 object with one unlabelled corner: chain 0 at one material; chain 1's snapshots after
-    burn-in hold a 3-px speck, then specks of 2 and 4 px (its third material the smaller two: 6 px in all), then one
-    material; its snapshot before burn-in (half the object apart) is not counted."""
+    burn-in hold a 3-px speck, then specks of 2 and 4 px (its third material the smaller two: 6 px in all; pixel
+    (1, 2) in the speck both times), then one material; its snapshot before burn-in (half the object apart) is not
+    counted."""
     one = np.zeros((6, 6))
     one[0, 0] = np.nan
     speck, two_specks, half = one.copy(), one.copy(), one.copy()
-    speck[2, 2:5] = 1
+    speck[1, 2:5] = 1
     two_specks[1, 1:3], two_specks[4, 1:5] = 2, 1
     half[3:] = 1
     records = [_label_record([one, one, one, one], [0, 10, 20, 30]),
@@ -276,11 +278,22 @@ def test_the_extra_materials_of_snapshots_with_more_than_the_segmentation_are_co
     assert entry["snapshots"] == 6 and entry["share"] == pytest.approx(2 / 6)
     assert entry["chain_shares"] == [0.0, pytest.approx(2 / 3)]
     assert entry["pixels"] == {"min": 3, "median": 4.5, "max": 6}
-    assert extra_materials_sentence(entry) == ("33% of the kept label snapshots hold more materials than the "
-                                               "segmentation's 1, their extra materials 3 to 6 px (median 4) in all")
+    assert entry["most_often"] == {"row": 1, "column": 2, "share": pytest.approx(2 / 6)}
+    assert extra_materials_sentence(entry) == (
+        "33% of the kept label snapshots hold more materials than the segmentation's 1, their extra materials 3 to "
+        "6 px (median 4) in all, most often at row 1, column 2 of the maps (33% of the snapshots; maps.exr's "
+        "extra_material_share shows where)")
+    _, share = extra_materials_and_share(records, 10, 1)
+    expected = np.zeros((6, 6))
+    expected[1, 2:5] += 1
+    expected[1, 1:3] += 1
+    expected[4, 1:5] += 1
+    expected[0, 0] = np.nan
+    np.testing.assert_array_equal(share, expected / 6)
     # against a segmentation of two materials the speck's snapshot adds nothing, the two specks' its 2 px
     two = extra_materials(records, 10, 2)
     assert two["share"] == pytest.approx(1 / 6) and two["pixels"] == {"min": 2, "median": 2.0, "max": 2}
-    assert "their extra materials 2 px in all" in extra_materials_sentence(two)
+    assert two["most_often"] == {"row": 1, "column": 1, "share": pytest.approx(1 / 6)}       # the 2-px speck's first
+    assert "their extra materials 2 px in all, most often at row 1, column 1" in extra_materials_sentence(two)
     assert extra_materials_sentence(extra_materials(records[:1], 0, 1)) is None      # never more: no sentence
     assert extra_materials([_label_record(np.zeros((0, 6, 6)), [])], 0, 1) is None    # no kept snapshot

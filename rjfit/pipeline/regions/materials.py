@@ -57,8 +57,10 @@ def summarise_materials(records, problem, options, burn: int, config, edges=None
     the chains' sampler settings (the edge term's power as they took it); ``edges``: the chains' edge term where the
     caller has it (else the resolution builds its own).
 
-    ``extra`` holds ``map_probability`` (H, W) and the relabelled ``draws``
-    (:class:`rjfit.posterior.materials.RelabelledDraws`).
+    ``extra`` holds ``map_probability`` (H, W), the relabelled ``draws``
+    (:class:`rjfit.posterior.materials.RelabelledDraws`) and ``extra_material_share`` (H, W: the share of the kept
+    snapshots in which a pixel is in a material beyond the segmentation's number,
+    :func:`rjfit.posterior.caveats.extra_materials_and_share`).
     """
     posterior = mat.materials_posterior(records, burn)
     labels, origin = mat.segmentation_estimate(records, burn)
@@ -72,6 +74,7 @@ def summarise_materials(records, problem, options, burn: int, config, edges=None
         if np.isfinite(share) and share < caveats.AGREEMENT_MIN:
             summarise_from_own_draws(entry, records, burn, labels == material, problem.n_channels)
     chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
+    extra, extra_share = caveats.extra_materials_and_share(records, burn, k)
     summary = {
         "materials_posterior": posterior, "map_materials": int(next(iter(posterior))), "regions": summaries,
         "segmentation_materials": k, "segmentation": mat.SEGMENTATION,
@@ -84,7 +87,7 @@ def summarise_materials(records, problem, options, burn: int, config, edges=None
         "max_materials": options.max_materials, "potts_beta": options.potts_beta, "potts_rho": options.potts_rho,
         "edge_power": float(config.regions.edge_power), "edge_gain_sd": float(config.regions.edge_gain_sd),
         "edge_noise": edge_noise_record(config.regions.edge_noise), "chain_materials_posterior": chain_posteriors,
-        "extra_materials": caveats.extra_materials(records, burn, k),
+        "extra_materials": extra,
     }
     summary["warnings"] = post.convergence_warnings(diag, chain_posteriors, options.n_chains,
                                                     post.chain_log_posterior_means(records, burn))
@@ -100,7 +103,10 @@ def summarise_materials(records, problem, options, burn: int, config, edges=None
         if RESOLUTION_WARN_PIXELS < resolution["pixels"] < np.inf:
             summary["warnings"].append(resolution_warning(resolution))
     prediction = post.posterior_mean_prediction(records, burn, problem)
-    return summary, labels, prediction, {"map_probability": probability, "draws": draws}
+    maps = {"map_probability": probability, "draws": draws}
+    if extra_share is not None:
+        maps["extra_material_share"] = extra_share
+    return summary, labels, prediction, maps
 
 
 def summarise_from_own_draws(entry: dict, records, burn: int, mask, n_channels: int) -> None:
