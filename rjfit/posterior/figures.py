@@ -7,7 +7,8 @@
 - ``reflectance.png``: posterior mean radiance, observed radiance and absolute error maps,
   averaged over lights (Fig. 1b, 4b/c);
 - the material model's ``materials.png`` (the MAP material map, a distinct colour per
-  material however many) and ``materials_histogram.png`` (the posterior over K).
+  material however many), ``materials_histogram.png`` (the posterior over K) and
+  ``extra_materials.png`` (where the draws with more materials than the segmentation hold them).
 """
 from __future__ import annotations
 
@@ -25,7 +26,8 @@ PARAMETER_TITLES = {"I0": "I0: intensity x albedo (image units)", "kd": "kd: dif
 
 __all__ = ["write_all", "model_histogram_figure", "reflectance_figure", "material_map_figure",
            "materials_histogram_figure", "PARAMETER_TITLES", "model_histogram", "traces", "trace_figure",
-           "kept_draw_limits", "changepoints", "reflectance", "material_map", "materials_histogram"]
+           "kept_draw_limits", "changepoints", "reflectance", "material_map", "materials_histogram",
+           "extra_materials_map", "extra_materials_figure"]
 
 
 def _plt():
@@ -268,6 +270,32 @@ def materials_histogram_figure(posterior: dict):
     ax.set_xlim(min(ks) - 0.8, max(ks) + 0.8)       # one bar is a bar, not a plane
     ax.set_ylim(0, 1.05)
     ax.set_title("Posterior over the number of materials")
+    return fig
+
+
+def extra_materials_map(share, labels, path):
+    """:func:`extra_materials_figure`, saved to ``path``."""
+    return _save(extra_materials_figure(share, labels), path)
+
+
+def extra_materials_figure(share, labels):
+    """Each pixel's share of the kept label snapshots that hold it in a material beyond the segmentation's number
+    (``share``, H x W, NaN off the labelled pixels: :func:`rjfit.posterior.caveats.extra_materials_and_share`), over
+    the segmentation's outlines (``labels``), zoomed to the object."""
+    plt = _plt()
+    share = np.asarray(share, float)
+    labels = np.asarray(labels)
+    fig, ax = plt.subplots(figsize=(6, 5.4))
+    top = float(np.nanmax(share)) if np.any(np.isfinite(share)) else 0.0
+    image = ax.imshow(np.ma.masked_invalid(share), cmap="magma_r", vmin=0.0, vmax=max(top, 1e-12),
+                      interpolation="nearest")
+    if labels.max(initial=-1) > 0:          # the segmentation's outlines, where it holds more than one material
+        ax.contour(labels, levels=np.arange(labels.max()) + 0.5, colors="tab:cyan", linewidths=0.6)
+    ax.set_title("Where other draws hold extra materials", fontsize=10)
+    colour_bar = fig.colorbar(image, ax=ax, fraction=0.046, pad=0.04)
+    colour_bar.set_label("share of the kept snapshots")
+    zoom_to_object(ax, labels >= 0)
+    pixel_axes(ax)
     return fig
 
 

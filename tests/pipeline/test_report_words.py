@@ -198,3 +198,27 @@ def test_the_resolution_is_a_single_pixel_where_any_pixel_pays():
     assert MaterialFit.printed_notes({**summary, "material_resolution": None}) == []
     notes = MaterialFit.report_notes(summary)
     assert notes[0].startswith("Resolution: ") and "single pixel" in notes[0] and "edge term's earning" in notes[0]
+
+
+def test_the_extra_materials_figure_shows_each_pixels_share_over_the_segmentations_outlines():
+    """A 6 x 8 object of two materials (outline drawn) with a pixel held by extra materials in 30 % of the draws and
+    one off the object: the image holds the shares as given (the pixel off the object masked), its colour scale
+    runs from 0 to the largest share, and its axes and colour bar are labelled."""
+    import matplotlib.pyplot as plt
+
+    labels = np.zeros((6, 8), int)
+    labels[:, 4:] = 1
+    labels[0, 0] = -1
+    share = np.zeros((6, 8))
+    share[3, 2] = 0.3
+    share[0, 0] = np.nan
+    figure = figures.extra_materials_figure(share, labels)
+    image_axis = figure.axes[0]
+    (image,) = image_axis.get_images()
+    shown = image.get_array()
+    assert shown.mask[0, 0] and not shown.mask[3, 2] and shown[3, 2] == pytest.approx(0.3)
+    assert image.get_clim() == pytest.approx((0.0, 0.3))
+    assert (image_axis.get_xlabel(), image_axis.get_ylabel()) == ("column (px)", "row (px)")
+    assert figure.axes[1].get_ylabel() == "share of the kept snapshots"
+    assert image_axis.collections        # the segmentation's outline between its two materials
+    plt.close(figure)

@@ -10,9 +10,10 @@ their R-hat and ESS, the cap warning, and the truth comparison of synthetic data
 relabelled draws at the MAP K),
 ``materials.npz`` (every chain's label snapshots and K per iteration) and the figures
 (``materials.png``, the MAP material map, a distinct colour per material however many;
-``materials_histogram.png``; ``reflectance.png``). ``labels.exr`` holds the MAP material
-per pixel and ``maps.exr`` gains ``map_probability``, the posterior probability of that
-material (written by :func:`rjfit.pipeline.fit.write_results`).
+``materials_histogram.png``; ``reflectance.png``; ``extra_materials.png`` where some kept draw holds more
+materials than the segmentation). ``labels.exr`` holds the MAP material per pixel and ``maps.exr`` gains
+``map_probability``, the posterior probability of that material, and ``extra_material_share`` (written by
+:func:`rjfit.pipeline.fit.write_results`).
 """
 from __future__ import annotations
 
@@ -194,6 +195,10 @@ def write_material_files(staging: Path, result, records, options, attributes: di
                    "materials_histogram": figs.materials_histogram(summary["materials_posterior"],
                                                                    folder / "materials_histogram.png"),
                    "reflectance": figs.reflectance(result.labels, result.prediction, folder / "reflectance.png")}
+        share = result.extra.get("extra_material_share")
+        if share is not None and np.nanmax(share, initial=0.0) > 0:      # drawn only where some draw holds more
+            written["extra_materials"] = figs.extra_materials_map(share, result.labels,
+                                                                  folder / "extra_materials.png")
         summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
 
 
