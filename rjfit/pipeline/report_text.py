@@ -27,7 +27,7 @@ FIGURE_CAPTIONS = {
     "labels": "The label map held fixed (--regions fixed): one colour per label (white: no label).",
     "materials_histogram": "Posterior probability of each number of materials K (pooled over the chains, after "
                            "burn-in).",
-    "extra_materials": "Each pixel's share of the kept label snapshots that hold it in a material beyond the "
+    "materials_extra": "Each pixel's share of the kept label snapshots that hold it in a material beyond the "
                        "segmentation's number (cyan: the segmentation's outlines). Small, dark patches are the other "
                        "draws' specks: look at the images there (a spot, a shadow, a speck of dust).",
     "model_histogram": "Posterior probability of each change-point model (n_u, n_v) (pooled over the chains, after "

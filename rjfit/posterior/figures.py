@@ -8,7 +8,7 @@
   averaged over lights (Fig. 1b, 4b/c);
 - the material model's ``materials.png`` (the MAP material map, a distinct colour per
   material however many), ``materials_histogram.png`` (the posterior over K) and
-  ``extra_materials.png`` (where the draws with more materials than the segmentation hold them).
+  ``materials_extra.png`` (where the draws with more materials than the segmentation hold them).
 """
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ their R-hat and ESS, the cap warning, and the truth comparison of synthetic data
 relabelled draws at the MAP K),
 ``materials.npz`` (every chain's label snapshots and K per iteration) and the figures
 (``materials.png``, the MAP material map, a distinct colour per material however many;
-``materials_histogram.png``; ``reflectance.png``; ``extra_materials.png`` where some kept draw holds more
+``materials_histogram.png``; ``reflectance.png``; ``materials_extra.png`` where some kept draw holds more
 materials than the segmentation). ``labels.exr`` holds the MAP material per pixel and ``maps.exr`` gains
 ``map_probability``, the posterior probability of that material, and ``extra_material_share`` (written by
 :func:`rjfit.pipeline.fit.write_results`).
@@ -197,8 +197,8 @@ def write_material_files(staging: Path, result, records, options, attributes: di
                    "reflectance": figs.reflectance(result.labels, result.prediction, folder / "reflectance.png")}
         share = result.extra.get("extra_material_share")
         if share is not None and np.nanmax(share, initial=0.0) > 0:      # drawn only where some draw holds more
-            written["extra_materials"] = figs.extra_materials_map(share, result.labels,
-                                                                  folder / "extra_materials.png")
+            written["materials_extra"] = figs.extra_materials_map(share, result.labels,
+                                                                  folder / "materials_extra.png")
         summary["figures"] = {name: f"figures/{Path(path).name}" for name, path in written.items()}
 
 
