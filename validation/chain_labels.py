@@ -141,7 +141,8 @@ def pieces(labels) -> list:
     from scipy import ndimage
 
     parts, n = ndimage.label(extra_pixels(labels), structure=np.ones((3, 3)))
-    return [parts == part for part in range(1, n + 1) if np.sum(parts == part) >= 2]
+    sizes = np.bincount(parts.ravel(), minlength=n + 1)
+    return [parts == part for part in range(1, n + 1) if sizes[part] >= 2]
 
 
 def piece_contrasts(fit: Path, folder: Path) -> list:

@@ -32,7 +32,7 @@ __all__ = ["PLAUSIBLE_MASS", "CAP_MASS_MAX", "BOUND_SHARE", "prior_range_warning
            "empty_region_warnings", "model_cap_warnings", "pooled_interval_warnings", "nan_rejection_warnings",
            "acceptance_counts", "STEEP_TAIL", "STEEP_SHARE", "steep_view_shares", "steep_view_warnings",
            "chain_steep_warnings", "steep_view_caveats", "AGREEMENT_MIN", "label_agreements",
-           "label_agreement_warnings", "extra_materials", "extra_materials_and_share", "extra_materials_sentence"]
+           "label_agreement_warnings", "extra_materials", "extra_materials_sentence"]
 
 #: a prior's plausible range: its central 99.9 % interval (a posterior mean outside it lies
 #: where the prior puts 1 in 2000 of its mass on either side)
@@ -355,33 +355,27 @@ def label_agreement_warnings(regions, agreements, n_materials: int, least: float
     return out
 
 
-def extra_materials(records, burn_in: int, n_materials: int) -> dict | None:
-    """What the kept label snapshots with more materials than the segmentation's ``n_materials`` add to it.
+def extra_materials(records, burn_in: int, n_materials: int) -> tuple:
+    """What the kept label snapshots with more materials than the segmentation's ``n_materials`` add to it, and
+    where.
 
     In such a snapshot its K - ``n_materials`` smallest materials are its extra ones; their pixels are counted
     together. Why: a K posterior below 1 says that other draws hold more materials, not whether those are a second
     paint of thousands of pixels or specks of a few, which a user reading "K = 1: 0.73" needs to know (psm-horse:
     the chains at K = 2 hold 2 to 30 px; docs/results/2026-12-03-extra-materials.md), nor where they lie (a spot, a
-    shadow, a speck of dust: docs/results/2026-12-03-speck-places.md).
+    shadow, a speck of dust: docs/results/2026-12-03-speck-places.md). One pass over the snapshots gives both.
 
     Returns
     -------
-    dict or None
-        ``snapshots``: the kept snapshots (every chain's after ``burn_in``); ``share``: the share of them with more
-        materials; ``chain_shares``: the same per chain (None for a chain without kept snapshots); ``pixels``: the
-        extra materials' pixels per such snapshot, ``min``, ``median`` and ``max`` (None where no snapshot has more);
-        ``most_often``: the pixel most often in an extra material (the first in raster order where several are),
-        ``row``, ``column`` and ``share`` (the share of the kept snapshots in which it is; None where no snapshot
-        has more; the map of every pixel's share:
-        :func:`extra_materials_and_share`). None when no record holds material label snapshots.
+    (dict or None, ndarray or None)
+        The entry: ``snapshots``, the kept snapshots (every chain's after ``burn_in``); ``share``, the share of them
+        with more materials; ``chain_shares``, the same per chain (None for a chain without kept snapshots);
+        ``pixels``, the extra materials' pixels per such snapshot, ``min``, ``median`` and ``max`` (None where no
+        snapshot has more); ``most_often``, the pixel most often in an extra material (the first in raster order
+        where several are), ``row``, ``column`` and ``share`` (the share of the kept snapshots in which it is; None
+        where no snapshot has more). And (H, W) every pixel's share of the kept snapshots in which it is in an extra
+        material (NaN where no snapshot labels it). ``(None, None)`` when no record holds material label snapshots.
     """
-    return extra_materials_and_share(records, burn_in, n_materials)[0]
-
-
-def extra_materials_and_share(records, burn_in: int, n_materials: int) -> tuple:
-    """``(entry, share)``: :func:`extra_materials`' entry and, (H, W), the share of its kept snapshots in which each
-    pixel is in an extra material (NaN where no snapshot labels it), from one pass over the snapshots; ``(None,
-    None)`` when no record holds material label snapshots."""
     counted = _extra_material_counts(records, burn_in, n_materials)
     if counted is None:
         return None, None
@@ -432,7 +426,7 @@ def _extra_material_counts(records, burn_in: int, n_materials: int):
 
 
 def extra_materials_sentence(entry: dict | None) -> str | None:
-    """:func:`extra_materials` in words; None where no kept snapshot has more materials than the segmentation."""
+    """:func:`extra_materials`' entry in words; None where no kept snapshot has more materials than the segmentation."""
     if not entry or not entry.get("pixels"):
         return None
     pixels = entry["pixels"]

@@ -280,7 +280,7 @@ def extra_materials_map(share, labels, path):
 
 def extra_materials_figure(share, labels):
     """Each pixel's share of the kept label snapshots that hold it in a material beyond the segmentation's number
-    (``share``, H x W, NaN off the labelled pixels: :func:`rjfit.posterior.caveats.extra_materials_and_share`), over
+    (``share``, H x W, NaN off the labelled pixels: :func:`rjfit.posterior.caveats.extra_materials`), over
     the segmentation's outlines (``labels``), zoomed to the object."""
     plt = _plt()
     share = np.asarray(share, float)

@@ -10,7 +10,6 @@ from rjfit.posterior.caveats import (
     chain_steep_warnings,
     empty_region_warnings,
     extra_materials,
-    extra_materials_and_share,
     extra_materials_sentence,
     label_agreement_warnings,
     label_agreements,
@@ -274,7 +273,7 @@ def test_the_extra_materials_of_snapshots_with_more_than_the_segmentation_are_co
     half[3:] = 1
     records = [_label_record([one, one, one, one], [0, 10, 20, 30]),
                _label_record([half, speck, two_specks, one], [0, 10, 20, 30])]
-    entry = extra_materials(records, 10, 1)
+    entry, share = extra_materials(records, 10, 1)
     assert entry["snapshots"] == 6 and entry["share"] == pytest.approx(2 / 6)
     assert entry["chain_shares"] == [0.0, pytest.approx(2 / 3)]
     assert entry["pixels"] == {"min": 3, "median": 4.5, "max": 6}
@@ -283,7 +282,6 @@ def test_the_extra_materials_of_snapshots_with_more_than_the_segmentation_are_co
         "33% of the kept label snapshots hold more materials than the segmentation's 1, their extra materials 3 to "
         "6 px (median 4) in all, most often at row 1, column 2 of the maps (33% of the snapshots; maps.exr's "
         "extra_material_share shows where)")
-    _, share = extra_materials_and_share(records, 10, 1)
     expected = np.zeros((6, 6))
     expected[1, 2:5] += 1
     expected[1, 1:3] += 1
@@ -291,9 +289,9 @@ def test_the_extra_materials_of_snapshots_with_more_than_the_segmentation_are_co
     expected[0, 0] = np.nan
     np.testing.assert_array_equal(share, expected / 6)
     # against a segmentation of two materials the speck's snapshot adds nothing, the two specks' its 2 px
-    two = extra_materials(records, 10, 2)
+    two, _ = extra_materials(records, 10, 2)
     assert two["share"] == pytest.approx(1 / 6) and two["pixels"] == {"min": 2, "median": 2.0, "max": 2}
     assert two["most_often"] == {"row": 1, "column": 1, "share": pytest.approx(1 / 6)}       # the 2-px speck's first
     assert "their extra materials 2 px in all, most often at row 1, column 1" in extra_materials_sentence(two)
-    assert extra_materials_sentence(extra_materials(records[:1], 0, 1)) is None      # never more: no sentence
-    assert extra_materials([_label_record(np.zeros((0, 6, 6)), [])], 0, 1) is None    # no kept snapshot
+    assert extra_materials_sentence(extra_materials(records[:1], 0, 1)[0]) is None      # never more: no sentence
+    assert extra_materials([_label_record(np.zeros((0, 6, 6)), [])], 0, 1) == (None, None)    # no kept snapshot

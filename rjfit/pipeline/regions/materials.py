@@ -61,7 +61,7 @@ def summarise_materials(records, problem, options, burn: int, config, edges=None
     ``extra`` holds ``map_probability`` (H, W), the relabelled ``draws``
     (:class:`rjfit.posterior.materials.RelabelledDraws`) and ``extra_material_share`` (H, W: the share of the kept
     snapshots in which a pixel is in a material beyond the segmentation's number,
-    :func:`rjfit.posterior.caveats.extra_materials_and_share`).
+    :func:`rjfit.posterior.caveats.extra_materials`).
     """
     posterior = mat.materials_posterior(records, burn)
     labels, origin = mat.segmentation_estimate(records, burn)
@@ -75,7 +75,7 @@ def summarise_materials(records, problem, options, burn: int, config, edges=None
         if np.isfinite(share) and share < caveats.AGREEMENT_MIN:
             summarise_from_own_draws(entry, records, burn, labels == material, problem.n_channels)
     chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
-    extra, extra_share = caveats.extra_materials_and_share(records, burn, k)
+    extra, extra_share = caveats.extra_materials(records, burn, k)
     summary = {
         "materials_posterior": posterior, "map_materials": int(next(iter(posterior))), "regions": summaries,
         "segmentation_materials": k, "segmentation": mat.SEGMENTATION,
