@@ -511,3 +511,38 @@ def perturbed_normals(normals, mask, degrees, seed):
     turned = normals + error[..., :1] * first + error[..., 1:] * second
     turned /= np.maximum(np.linalg.norm(turned, axis=-1, keepdims=True), 1e-12)
     return np.where(mask[..., None], turned, normals)
+
+
+#: the paint's factor on the albedo and the shadow's per light in :func:`paint_and_shadow_observations`
+PAINT_FACTOR = 0.3
+SHADOW_FACTORS = np.array([1.0, 0.2, 0.5, 1.0, 0.35, 0.8])
+
+
+def paint_and_shadow_observations(shape=(20, 24), curved: bool = False):
+    """Observations of a Lambertian patch under 6 lights of different strengths, albedo 0.7, with a painted square
+    (rows 4-8, columns 4-8; PAINT_FACTOR x the albedo) and a shadowed one (rows 10-15, columns 14-19; SHADOW_FACTORS
+    per light, on the intensity, not on the shading ``E <l.n>``); one observation of the paint and one of its
+    surroundings left out, as a flagged cast shadow is. Flat (``cos_ln`` 1: every pixel sees each light alike), or
+    ``curved``: a cylinder along the columns whose ``cos_ln`` changes across them differently under each light.
+    Returns ``(observations, labels)``, ``labels`` 0 body, 1 paint, 2 shadow, -1 off the object (the last column)."""
+    lights = SHADOW_FACTORS.size
+    labels = np.zeros(shape, int)
+    labels[4:9, 4:9] = 1
+    labels[10:16, 14:20] = 2
+    labels[:, -1] = -1
+    strength = np.linspace(0.5, 2.0, lights)
+    pixel = np.repeat(np.flatnonzero(labels.ravel() >= 0), lights)
+    light = np.tile(np.arange(lights), pixel.size // lights)
+    column = pixel % shape[1]
+    cos_ln = (np.clip(np.cos(0.12 * (column - shape[1] / 2) - np.linspace(-0.9, 0.9, lights)[light]), 0.05, 1.0)
+              if curved else np.ones(pixel.size))
+    material = labels.ravel()[pixel]
+    y = (0.7 / np.pi * strength[light] * cos_ln * np.where(material == 1, PAINT_FACTOR, 1.0)
+         * np.where(material == 2, SHADOW_FACTORS[light], 1.0))
+    dropped = [np.flatnonzero((pixel == 6 * shape[1] + 6) & (light == 2))[0],
+               np.flatnonzero((pixel == 2 * shape[1] + 2) & (light == 3))[0]]
+    keep = np.setdiff1d(np.arange(pixel.size), dropped)
+    obs = Observations(image_shape=shape, n_lights=lights, pixel=pixel[keep].astype(np.int64),
+                       light=light[keep].astype(np.int32), y=y[keep], cos_ln=cos_ln[keep],
+                       cos_hn=np.full(keep.size, 0.5), irradiance=strength[light[keep]], object_mask=labels >= 0)
+    return obs, labels

@@ -126,11 +126,11 @@ def stack_images(folder: Path) -> np.ndarray:
 
 def contrast(images, piece, labels) -> np.ndarray:
     """(L,) the mean of ``images`` over ``piece`` (H, W bool) over their mean on its ring: the pixels 2 to 4 px
-    (8-neighbour steps) outside it on the object (``labels`` >= 0); NaN where the ring is empty."""
-    from scipy import ndimage
+    (8-neighbour steps) outside it on the object (``labels`` >= 0, :func:`rjfit.posterior.contrast.ring`); NaN where
+    the ring is empty."""
+    from rjfit.posterior.contrast import ring as piece_ring
 
-    ring = (ndimage.binary_dilation(piece, np.ones((3, 3)), iterations=4)
-            & ~ndimage.binary_dilation(piece, np.ones((3, 3))) & (labels >= 0))
+    ring = piece_ring(piece, labels >= 0)
     if not ring.any():
         return np.full(images.shape[0], np.nan)
     return images[:, piece].mean(axis=1) / np.maximum(images[:, ring].mean(axis=1), 1e-12)

@@ -135,7 +135,12 @@ SUMMARY_FIELDS = {
                       "with its pixel count (materials: label_agreement, the mean over its pixels of the share of "
                       "the draws at its K giving them its label, its parameters' draws; parameters_from, where that "
                       "is under one half: its parameters summarised instead over the draws of any K that hold its "
-                      "pixels, with their number, chains and R-hat; fitted from a data set: "
+                      "pixels, with their number, chains and R-hat; contrast_to_surroundings, with two or more "
+                      "materials, the Lambertian albedo (observations over their shading E <l.n>) of its pixels "
+                      "up to 3 px inside its outline over that of the pixels 2 to 4 px outside it, per light: lights, "
+                      "min, lower_quartile, median, upper_quartile, max, spread (max over min), middle_spread "
+                      "(upper over lower quartile), pixels, border_pixels, ring_pixels, ring "
+                      "(rjfit.posterior.contrast); fitted from a data set: "
                       "steep_view_share, the share of its pixels seen beyond steep_view_angle)"),
     "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),
     "chain_model_posterior": (list, "model posterior of each chain"),
@@ -260,7 +265,9 @@ SUMMARY_FIELDS = {
                                             "segmentation: their share (all chains and per chain), their extra "
                                             "materials' pixels in all, min, median and max, and the pixel most often "
                                             "in one (most_often: row, column of the maps, share; per pixel: maps.exr "
-                                            "channel extra_material_share) (rjfit.posterior.caveats.extra_materials)"),
+                                            "channel extra_material_share; its contrast: the same entry as a "
+                                            "region's contrast_to_surroundings, of the connected pixels there in at "
+                                            "least half as many snapshots) (rjfit.posterior.caveats.extra_materials)"),
     "validation": (dict, "the cross-check the fit was made under: passed, errors, path (relative to the fit folder; "
                          "schema 1: absolute), note"),
 }

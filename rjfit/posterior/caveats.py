@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rjfit.posterior.contrast import contrast_words
 from rjfit.posterior.materials import last_labels
 from rjfit.posterior.summary import RHAT_MAX
 from rjfit.sampler.priors import PARAM_NAMES
@@ -435,5 +436,10 @@ def extra_materials_sentence(entry: dict | None) -> str | None:
     where = entry.get("most_often")
     place = ("" if not where else f", most often at row {where['row']}, column {where['column']} of the maps "
              f"({where['share']:.0%} of the snapshots; maps.exr's extra_material_share shows where)")
+    words = contrast_words((where or {}).get("contrast"))
+    if words:
+        place += f", a place of {where['contrast']['pixels']:,} px: {words}"
+    elif where and "contrast" in where:         # read, but no light saw both it and its surroundings
+        place += ", a place whose observations cannot be compared with its surroundings' (none there, or none around)"
     return (f"{entry['share']:.0%} of the kept label snapshots hold more materials than the segmentation's "
             f"{entry['materials']}, their extra materials {size} in all{place}")

@@ -6,6 +6,7 @@ patches; 2 chains of 200 iterations (about 10 s). The checks are on what the fit
 (the data separate the three materials by far: noise sd 0.14 against differences of 4 in I0).
 """
 import dataclasses
+import html
 import json
 
 import numpy as np
@@ -75,10 +76,68 @@ def test_summary_has_the_material_entries(fitted):
             pytest.approx(where["share"], abs=1e-6)
 
 
+def test_each_material_states_how_bright_it_is_against_its_surroundings_under_each_light(fitted, tmp_path):
+    """The summary's ``contrast_to_surroundings`` of each material is the ratio of its brightness (its observations
+    over their Lambertian shading) to its ring's, light by light, as :mod:`rjfit.posterior.contrast` computes it from
+    the data and the written labels (the fit reads float32 copies of the observations: a relative tolerance of 1e-5);
+    the report and the terminal say it, with what it means."""
+    from rjfit.pipeline.regions.materials import MaterialFit
+    from rjfit.pipeline.report import build_report
+    from rjfit.posterior.contrast import MEANING, material_contrasts
+
+    out, summary, _ = fitted
+    obs, _ = stack()
+    labels = np.rint(read_exr(out / "labels.exr")["labels"]).astype(int)
+    expected = material_contrasts(obs.y, obs.light, obs.pixel, labels, obs.n_lights, obs.irradiance * obs.cos_ln)
+    regions = read_summary(out)["regions"]
+    assert len(regions) == len(expected) == 3
+    for region, want in zip(regions, expected):
+        got = region["contrast_to_surroundings"]
+        assert got["pixels"] == region["pixels"] == want["pixels"] and got["lights"] == obs.n_lights
+        assert got["ring_pixels"] == want["ring_pixels"] > 0
+        for key in ("min", "lower_quartile", "median", "upper_quartile", "max", "spread", "middle_spread"):
+            assert got[key] == pytest.approx(want[key], rel=1e-5)
+    text = build_report(out, tmp_path / "report.html").read_text()
+    first = regions[0]
+    assert f"Material 0 ({first['pixels']:,} px): its Lambertian albedo " in text
+    assert f"is {first['contrast_to_surroundings']['min']:.2f} to " in text
+    assert html.escape(MEANING) in text
+    printed = MaterialFit.printed_notes(summary)
+    assert sum(note.startswith("material ") for note in printed) == 3 and printed[-1][0].islower()
+
+
+@pytest.mark.parametrize("scaled", [False, True])
+def test_the_place_of_the_extra_materials_states_its_contrast_from_the_fitted_observations(scaled):
+    """On a one-material segmentation of the flat patch (:func:`builders.paint_and_shadow_observations`) whose extra
+    materials' share peaks on the shadowed square, the place's contrast is the shadow's per-light factors; a
+    material alone has none. With known noise scales (the problem stores ``y / s``) the same: they are undone."""
+    from builders import SHADOW_FACTORS, paint_and_shadow_observations
+
+    from rjfit.pipeline.regions.materials import add_contrasts
+    from rjfit.sampler.forward import Problem
+
+    obs, truth = paint_and_shadow_observations()
+    scale = np.linspace(0.5, 2.0, obs.y.size) if scaled else None
+    problem = Problem.from_observations(obs, noise_scale=scale)
+    labels = np.where(truth >= 0, 0, -1)
+    share = np.where(truth == 2, 0.3, 0.0)
+    share[12, 16] = 0.5                                     # the peak, inside the shadowed square
+    regions = [{"material": 0, "pixels": int((labels == 0).sum())}]
+    extra = {"most_often": {"row": 12, "column": 16, "share": 0.5}}
+    add_contrasts(problem, labels, regions, extra, share)
+    assert regions[0]["contrast_to_surroundings"] is None
+    place = extra["most_often"]["contrast"]
+    # the place: the square's 36 px (each at least half the peak); float32 storage: a relative tolerance of 1e-6
+    assert place["pixels"] == 36 and place["lights"] == SHADOW_FACTORS.size
+    assert place["min"] == pytest.approx(SHADOW_FACTORS.min(), rel=1e-6)
+    assert place["spread"] == pytest.approx(1 / SHADOW_FACTORS.min(), rel=1e-6)
+
+
 def test_the_terminal_and_the_report_say_how_large_the_extra_materials_of_other_draws_are():
     """A K posterior of 0.72 at one material, the rest specks: the printed line and the report's notes carry the
     caveat's sentence; a fit without such draws has none."""
     from rjfit.pipeline.regions.materials import MaterialFit
+    from rjfit.posterior.contrast import MEANING, contrast_entry
 
     extra = {"materials": 1, "snapshots": 200, "share": 0.28, "chain_shares": [1.0, 0.02, 0.04, 0.06],
              "pixels": {"min": 1, "median": 24.0, "max": 34}}
@@ -90,6 +149,13 @@ def test_the_terminal_and_the_report_say_how_large_the_extra_materials_of_other_
     other_map = MaterialFit.printed_line({**summary, "map_materials": 2, "materials_posterior": {"2": 0.5, "1": 0.5},
                                           "segmentation_materials": 1})
     assert "least disagree with the others) holds 1 material; 28% of" in other_map
+    # what a Lambertian albedo means goes with the place's contrast where no material states its own
+    assert not any("Lambertian albedo" in note for note in MaterialFit.report_notes(summary))
+    place = {"row": 3, "column": 4, "share": 0.2, "contrast": contrast_entry(np.array([0.9, 1.0, 1.2]), 3, 3, 20)}
+    placed = {**summary, "extra_materials": {**extra, "most_often": place}}
+    assert "a place of 3 px: its Lambertian albedo is 0.90 to 1.20 times" in MaterialFit.printed_line(placed)
+    assert MEANING in MaterialFit.report_notes(placed)
+    assert MaterialFit.printed_notes(placed) == [MEANING[0].lower() + MEANING[1:]]
     settled = {**summary, "extra_materials": {**extra, "share": 0.0, "pixels": None}}
     assert "kept label snapshots" not in MaterialFit.printed_line(settled)
     assert not any("kept label snapshots" in note for note in MaterialFit.report_notes(settled))

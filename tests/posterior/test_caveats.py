@@ -293,5 +293,15 @@ def test_the_extra_materials_of_snapshots_with_more_than_the_segmentation_are_co
     assert two["share"] == pytest.approx(1 / 6) and two["pixels"] == {"min": 2, "median": 2.0, "max": 2}
     assert two["most_often"] == {"row": 1, "column": 1, "share": pytest.approx(1 / 6)}       # the 2-px speck's first
     assert "their extra materials 2 px in all, most often at row 1, column 1" in extra_materials_sentence(two)
+    placed = {**entry, "most_often": {**entry["most_often"], "contrast": {
+        "lights": 12, "min": 1.18, "lower_quartile": 1.41, "median": 1.5, "upper_quartile": 1.8, "max": 2.63,
+        "spread": 2.63 / 1.18, "middle_spread": 1.8 / 1.41, "pixels": 3, "border_pixels": 3, "ring_pixels": 20,
+        "ring": [2, 4]}}}
+    assert extra_materials_sentence(placed).endswith(
+        "extra_material_share shows where), a place of 3 px: its Lambertian albedo is 1.18 to 2.63 times that of the "
+        "pixels 2 to 4 px outside it under its 12 lights, 1.41 to 1.80 under the middle half of them (1.28-fold)")
+    unseen = {**entry, "most_often": {**entry["most_often"], "contrast": None}}
+    assert extra_materials_sentence(unseen).endswith(", a place whose observations cannot be compared with its "
+                                                     "surroundings' (none there, or none around)")
     assert extra_materials_sentence(extra_materials(records[:1], 0, 1)[0]) is None      # never more: no sentence
     assert extra_materials([_label_record(np.zeros((0, 6, 6)), [])], 0, 1) == (None, None)    # no kept snapshot

@@ -26,7 +26,7 @@ from rjfit.data.calibrate import small_components
 from rjfit.data.formats import COLOUR
 from rjfit.pipeline.fit_chains import write_chains
 from rjfit.pipeline.fit_folder import save_chain_arrays
-from rjfit.posterior import caveats
+from rjfit.posterior import caveats, contrast
 from rjfit.posterior import materials as mat
 from rjfit.posterior import summary as post
 from rjfit.pipeline.fit_power import edge_settings
@@ -44,7 +44,7 @@ from rjfit.sampler.regions.materials.edge_noise import MIN_WHITE
 from rjfit.sampler.state import SamplerConfig
 
 __all__ = ["MaterialFit", "summarise_materials", "edge_noise_record", "edge_noise_warnings", "material_resolution",
-           "material_boundaries", "add_boundary_check",
+           "material_boundaries", "add_boundary_check", "add_contrasts", "contrast_notes",
            "edge_groups_posterior", "resolution_warning", "material_number_warnings", "write_material_files",
            "EMPTY_MATERIALS_NOTE", "resolution_size", "resolution_sentence", "ghost_material_prior", "GHOST_PIXELS",
            "GHOST_ODDS"]
@@ -76,6 +76,7 @@ def summarise_materials(records, problem, options, burn: int, config, edges=None
             summarise_from_own_draws(entry, records, burn, labels == material, problem.n_channels)
     chain_posteriors = [mat.materials_posterior([r], burn) for r in records]
     extra, extra_share = caveats.extra_materials(records, burn, k)
+    add_contrasts(problem, labels, summaries, extra, extra_share)
     summary = {
         "materials_posterior": posterior, "map_materials": int(next(iter(posterior))), "regions": summaries,
         "segmentation_materials": k, "segmentation": mat.SEGMENTATION,
@@ -133,6 +134,26 @@ def summarise_from_own_draws(entry: dict, records, burn: int, mask, n_channels: 
     entry["parameters_from"] = {"draws": int(sum(len(own.theta[c]) for c in chains)), "chains": chains,
                                 "match_min": mat.MATCH_MIN, "rhat_max": diag["rhat_max"],
                                 "ess_bulk_min": diag["ess_bulk_min"]}
+
+
+def add_contrasts(problem, labels, regions: list, extra: dict | None, extra_share) -> None:
+    """Each material's intensity against its surroundings, light by light (``regions[m]["contrast_to_surroundings"]``),
+    and that of the place where the extra materials lie most often (``extra["most_often"]["contrast"]``):
+    :mod:`rjfit.posterior.contrast`, from the fitted observations and their Lambertian shading at the given normals
+    (after calibration, the noise scales undone). Nothing is added where the problem does not record each
+    observation's light."""
+    if problem.light is None:
+        return
+    scale = 1.0 if problem.noise_scale is None else problem.noise_scale
+    y, shading = problem.y * scale, problem.C * scale
+    n_lights, inside = int(np.max(problem.light)) + 1, np.asarray(labels) >= 0
+    found = contrast.material_contrasts(y, problem.light, problem.pixel, labels, n_lights, shading)
+    for entry, reading in zip(regions, found):
+        entry["contrast_to_surroundings"] = reading
+    where = (extra or {}).get("most_often")
+    if where:
+        place = contrast.piece_around(extra_share, where["row"], where["column"], inside)
+        where["contrast"] = contrast.piece_contrast(y, problem.light, problem.pixel, place, inside, n_lights, shading)
 
 
 def edge_noise_record(noise) -> dict | None:
@@ -266,6 +287,16 @@ def _edge_words(summary: dict, options: dict) -> str:
     return text
 
 
+def contrast_notes(summary: dict) -> list:
+    """Each material's contrast to its surroundings in words (:func:`rjfit.posterior.contrast.contrast_words`), and
+    what it means where the summary states any (the extra materials' place has its own in their sentence)."""
+    notes = [f"Material {entry['material']} ({entry.get('pixels', 0):,} px): {words}."
+             for entry in summary.get("regions", [])
+             if (words := contrast.contrast_words(entry.get("contrast_to_surroundings")))]
+    place = ((summary.get("extra_materials") or {}).get("most_often") or {}).get("contrast")
+    return notes + [contrast.MEANING] if notes or place else []
+
+
 def _boundary_notes(summary: dict) -> list:
     """The boundary check and the edge-supported groups in words (their summary entries, where present)."""
     notes = []
@@ -376,7 +407,7 @@ class MaterialFit(RegionFit):
         extra = caveats.extra_materials_sentence(summary.get("extra_materials"))
         if extra:
             notes.append(f"{extra[0].upper()}{extra[1:]}.")
-        return notes + _boundary_notes(summary)
+        return notes + contrast_notes(summary) + _boundary_notes(summary)
 
     def sampler_config(self, options, *, burn: int, fixed: bool = False, problem=None) -> SamplerConfig:
         model = MaterialRegions()
@@ -453,8 +484,10 @@ class MaterialFit(RegionFit):
 
     @staticmethod
     def printed_notes(summary: dict) -> list:
-        """The resolution (a sentence of its own: on the model's line it hid R-hat and ESS at the line's end)."""
+        """The resolution (a sentence of its own: on the model's line it hid R-hat and ESS at the line's end) and the
+        materials' contrasts to their surroundings."""
         resolution = summary.get("material_resolution")
+        notes = []
         if isinstance(resolution, dict) and resolution.get("pixels") is not None:
-            return [f"resolution: {resolution_sentence(resolution, summary.get('edge_power'))}"]
-        return []
+            notes.append(f"resolution: {resolution_sentence(resolution, summary.get('edge_power'))}")
+        return notes + [note[0].lower() + note[1:] for note in contrast_notes(summary)]
