@@ -139,7 +139,8 @@ SUMMARY_FIELDS = {
                       "materials, the Lambertian albedo (observations over their shading E <l.n>) of its pixels "
                       "up to 3 px inside its outline over that of the pixels 2 to 4 px outside it, per light: lights, "
                       "min, lower_quartile, median, upper_quartile, max, spread (max over min), middle_spread "
-                      "(upper over lower quartile), pixels, border_pixels, ring_pixels, ring "
+                      "(upper over lower quartile), pixels, border_pixels, ring_pixels, ring; a colour fit's also per "
+                      "channel, channels: R, G, B "
                       "(rjfit.posterior.contrast); fitted from a data set: "
                       "steep_view_share, the share of its pixels seen beyond steep_view_angle)"),
     "chain_regions": (list, "the same per chain, each with its own MAP labels' pixel counts"),

@@ -63,7 +63,8 @@ def ring(piece, inside, inner: int = RING_INNER, outer: int = RING_OUTER) -> np.
 def border(piece, around, width: int = RING_OUTER) -> np.ndarray:
     """(H, W) bool: the pixels of ``piece`` (H, W bool) within ``width`` 8-neighbour steps of ``around`` (H, W bool,
     its :func:`ring`, which begins 2 px outside: with the default width, the pixels up to 3 px inside its outline, so
-    all of a piece up to 6 px across and a band along the outline of a larger one (not along the object's silhouette, where there is no ring).
+    all of a piece up to 6 px across and a band along the outline of a larger one (not along the object's
+    silhouette, where there is no ring).
 
     Raises
     ------
@@ -130,9 +131,12 @@ def contrast_words(entry: dict | None) -> str | None:
     lights = f"{entry['lights']} light{'' if entry['lights'] == 1 else 's'}"
     whole = entry.get("border_pixels", entry["pixels"]) == entry["pixels"]
     where = "" if whole else f" at its outline (its pixels up to {outer - 1} px inside it)"
-    return (f"its Lambertian albedo{where} is {_range(entry['min'], entry['max'])} times that of the pixels {inner} to "
-            f"{outer} px outside it under its {lights}, {_range(entry['lower_quartile'], entry['upper_quartile'])} "
-            f"under the middle half of them ({entry['middle_spread']:.2f}-fold)")
+    words = (f"its Lambertian albedo{where} is {_range(entry['min'], entry['max'])} times that of the pixels {inner} "
+             f"to {outer} px outside it under its {lights}, {_range(entry['lower_quartile'], entry['upper_quartile'])} "
+             f"under the middle half of them ({entry['middle_spread']:.2f}-fold)")
+    channels = [f"{name} {_range(one['lower_quartile'], one['upper_quartile'])} ({one['middle_spread']:.2f}-fold)"
+                for name, one in (entry.get("channels") or {}).items() if one]
+    return words + (f"; per channel, under the middle half: {', '.join(channels)}" if channels else "")
 
 
 def piece_around(share, row: int, column: int, inside) -> np.ndarray:
@@ -155,28 +159,47 @@ def piece_around(share, row: int, column: int, inside) -> np.ndarray:
     return parts == parts[row, column]
 
 
-def piece_contrast(y, light, pixel, piece, inside, n_lights: int, shading=None) -> dict | None:
+def piece_contrast(y, light, pixel, piece, inside, n_lights: int, shading=None, channel=None,
+                   channel_names=()) -> dict | None:
     """:func:`contrast_entry` of ``piece``'s :func:`border` (H, W bool) against its :func:`ring` on ``inside`` (H, W
-    bool), from the observations ``y``, ``light``, ``pixel`` (:func:`light_contrasts`); None where the ring is
-    empty."""
+    bool), from the observations ``y``, ``light``, ``pixel`` and ``shading`` (:func:`light_contrasts`); None where
+    the ring is empty or no light has a ratio.
+
+    With ``channel`` (per observation, 0 .. len(``channel_names``) - 1: a colour fit's) the entry, over all channels
+    together, gains ``channels``: each channel's own entry by name. Why: a paint that changes the hue but not the
+    grey level reads 1 over all channels, and its factor per channel is what sets it apart.
+    """
     piece = np.asarray(piece, bool)
     around = ring(piece, inside)
     if not around.any():
         return None
     near = border(piece, around)
-    ratios = light_contrasts(y, light, pixel, near, around, n_lights, shading)
-    return contrast_entry(ratios, int(piece.sum()), int(near.sum()), int(around.sum()))
+    sizes = (int(piece.sum()), int(near.sum()), int(around.sum()))
+    entry = contrast_entry(light_contrasts(y, light, pixel, near, around, n_lights, shading), *sizes)
+    if entry is None or channel is None:
+        return entry
+    channel, per_channel = np.asarray(channel), {}
+    for index, name in enumerate(channel_names):
+        mine = channel == index
+        weight = None if shading is None else np.asarray(shading)[mine]
+        per_channel[name] = contrast_entry(light_contrasts(np.asarray(y)[mine], np.asarray(light)[mine],
+                                                           np.asarray(pixel)[mine], near, around, n_lights, weight),
+                                           *sizes)
+    entry["channels"] = per_channel
+    return entry
 
 
-def material_contrasts(y, light, pixel, labels, n_lights: int, shading=None) -> list:
+def material_contrasts(y, light, pixel, labels, n_lights: int, shading=None, channel=None,
+                       channel_names=()) -> list:
     """Per material of ``labels`` (H, W int; below 0 off the object), its :func:`piece_contrast` against the
-    object's other pixels around it; None for each of a labelling with one material (it has no surroundings)."""
+    object's other pixels around it (per channel too, with ``channel``); None for each of a labelling with one
+    material (it has no surroundings)."""
     labels = np.asarray(labels)
     inside = labels >= 0
     n_materials = int(labels.max()) + 1 if inside.any() else 0
     if n_materials < 2:
         return [None] * n_materials
-    return [piece_contrast(y, light, pixel, labels == material, inside, n_lights, shading)
+    return [piece_contrast(y, light, pixel, labels == material, inside, n_lights, shading, channel, channel_names)
             for material in range(n_materials)]
 
 

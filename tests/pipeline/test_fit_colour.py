@@ -69,6 +69,25 @@ def test_colour_fit_writes_per_channel_parameters(fitted):
     assert (out / summary["figures"]["reflectance"]).is_file()       # the colour reflectance figure
 
 
+def test_each_paint_states_its_albedo_against_its_surroundings_channel_by_channel(fitted):
+    """The two paints' grey levels are equal and their hues differ: each channel's ratio (left paint over right) is
+    the hues' ratio times a factor of the geometry that the channels share (one ``cos_hn`` per observation), so the
+    ratios of the channels' median ratios are the hues' (R over B 4.29, G over B 2.29). Tolerance 10 %: each side's
+    sum under a light holds 30 to 60 observations of noise sd 0.1 against a signal near 1.5 (about 1.5 % each), and
+    four such sums and a median over 6 lights enter the figure."""
+    out, summary = fitted
+    labels = np.rint(read_exr(out / "labels.exr")["labels"]).astype(int)
+    left = int(np.bincount(labels[:, :3].ravel()).argmax())
+    reading = summary["regions"][left]["contrast_to_surroundings"]
+    assert set(reading["channels"]) == {"R", "G", "B"} and reading["lights"] == 6
+    median = {name: one["median"] for name, one in reading["channels"].items()}
+    hue = HUES[0] / HUES[1]
+    assert median["R"] / median["B"] == pytest.approx(hue[0] / hue[2], rel=0.1)
+    assert median["G"] / median["B"] == pytest.approx(hue[1] / hue[2], rel=0.1)
+    from rjfit.posterior.contrast import contrast_words
+    assert "; per channel, under the middle half: R " in contrast_words(reading)
+
+
 def test_colour_needs_the_material_model():
     with pytest.raises(ValueError, match="--channel rgb"):
         resolve_options(FitOptions(channel="rgb"))

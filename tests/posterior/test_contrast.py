@@ -7,8 +7,8 @@ from builders import PAINT_FACTOR as PAINT
 from builders import SHADOW_FACTORS as SHADOW
 from builders import paint_and_shadow_observations
 
-from rjfit.posterior.contrast import (MEANING, border, contrast_entry, contrast_words, light_contrasts, material_contrasts,
-                                      piece_around, piece_contrast, ring)
+from rjfit.posterior.contrast import (MEANING, border, contrast_entry, contrast_words, light_contrasts,
+                                      material_contrasts, piece_around, piece_contrast, ring)
 
 LIGHTS = SHADOW.size
 
@@ -47,7 +47,8 @@ def test_a_paint_keeps_one_factor_under_every_light_and_a_shadow_does_not():
     assert shadow["spread"] == pytest.approx(1 / SHADOW.min(), rel=1e-12)
     assert shadow["median"] == pytest.approx(np.median(SHADOW), rel=1e-12)
     # the body's ring lies inside the paint and the shadow: darker than the body, so the body is brighter
-    assert body["min"] > 1.0 and body["ring_pixels"] == 3 * 3 + 4 * 4     # the paint's 5 x 5 and the shadow's 6 x 6 cores
+    # the body's ring: the cores of the paint's 5 x 5 and the shadow's 6 x 6
+    assert body["min"] > 1.0 and body["ring_pixels"] == 3 * 3 + 4 * 4
     assert body["border_pixels"] < body["pixels"]                          # a band along its outline, not all of it
     per_light = light_contrasts(y, light, pixel, labels == 2, ring(labels == 2, labels >= 0), LIGHTS)
     np.testing.assert_allclose(per_light, SHADOW, rtol=1e-12)
@@ -68,8 +69,8 @@ def test_the_border_of_a_large_piece_is_a_band_along_its_outline_and_a_small_pie
     half[:, 23:] = False
     assert band[11:20, 20:23].all() and not border(big, ring(big, half))[11:20, 20:23].any()
     entry = contrast_entry(np.ones(3), 225, 144, 300)
-    assert contrast_words(entry).startswith("its Lambertian albedo at its outline (its pixels up to 3 px inside it) is 1.00 "
-                                            "times that of ")
+    assert contrast_words(entry).startswith("its Lambertian albedo at its outline (its pixels up to 3 px inside it) "
+                                            "is 1.00 times that of ")
     with pytest.raises(ValueError, match="a width of 1 or more"):
         border(big, everywhere, width=0)
 
@@ -92,6 +93,22 @@ def test_the_shading_of_the_normals_is_divided_out_and_the_paint_keeps_its_one_f
     assert raw_paint["spread"] > 1.05                                   # without the shading: the geometry leaks in
 
 
+def test_a_colour_fit_gets_each_channels_factor_beside_the_channels_together():
+    """Three channels of the flat patch, the paint's factor 0.3, 0.6 and 1.2 in them: each channel's ratio is its
+    factor, the channels together their mean (the body is alike in every channel, so the sums weigh them alike)."""
+    y, light, pixel, labels = flat_stack()
+    factors = np.array([0.3, 0.6, 1.2]) / PAINT            # the builder's paint already holds PAINT
+    painted = (labels.ravel()[pixel] == 1)
+    ys = np.concatenate([np.where(painted, y * factor, y) for factor in factors])
+    channel = np.repeat(np.arange(3), y.size)
+    args = (np.tile(light, 3), np.tile(pixel, 3))
+    _, paint, _ = material_contrasts(ys, *args, labels, LIGHTS, np.ones_like(ys), channel, ("R", "G", "B"))
+    assert [paint["channels"][name]["median"] for name in "RGB"] == pytest.approx([0.3, 0.6, 1.2], rel=1e-12)
+    assert paint["median"] == pytest.approx(0.7, rel=1e-12) and paint["middle_spread"] == pytest.approx(1.0)
+    assert contrast_words(paint).endswith("; per channel, under the middle half: R 0.30 (1.00-fold), G 0.60 "
+                                          "(1.00-fold), B 1.20 (1.00-fold)")
+
+
 def test_a_light_without_observations_and_a_single_material_give_no_ratio():
     y, light, pixel, labels = flat_stack()
     seen = light != 4
@@ -107,12 +124,12 @@ def test_a_light_without_observations_and_a_single_material_give_no_ratio():
 def test_the_words_give_the_range_and_how_much_it_varies():
     y, light, pixel, labels = flat_stack()
     _, paint, shadow = material_contrasts(y, light, pixel, labels, LIGHTS)
-    assert contrast_words(paint) == ("its Lambertian albedo is 0.30 times that of the pixels 2 to 4 px outside it under "
-                                     "its 6 lights, 0.30 under the middle half of them (1.00-fold)")
+    assert contrast_words(paint) == ("its Lambertian albedo is 0.30 times that of the pixels 2 to 4 px outside it "
+                                     "under its 6 lights, 0.30 under the middle half of them (1.00-fold)")
     q1, q3 = np.percentile(SHADOW, [25, 75])
-    assert contrast_words(shadow) == (f"its Lambertian albedo is 0.20 to 1.00 times that of the pixels 2 to 4 px outside "
-                                      f"it under its 6 lights, {q1:.2f} to {q3:.2f} under the middle half of them "
-                                      f"({q3 / q1:.2f}-fold)")
+    assert contrast_words(shadow) == (f"its Lambertian albedo is 0.20 to 1.00 times that of the pixels 2 to 4 px "
+                                      f"outside it under its 6 lights, {q1:.2f} to {q3:.2f} under the middle half of "
+                                      f"them ({q3 / q1:.2f}-fold)")
     assert contrast_words(None) is None and "one factor under every light" in MEANING
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rjfit.data.calibrate import small_components
-from rjfit.data.formats import COLOUR
+from rjfit.data.formats import COLOUR, COLOUR_CHANNELS
 from rjfit.pipeline.fit_chains import write_chains
 from rjfit.pipeline.fit_folder import save_chain_arrays
 from rjfit.posterior import caveats, contrast
@@ -140,20 +140,23 @@ def add_contrasts(problem, labels, regions: list, extra: dict | None, extra_shar
     """Each material's intensity against its surroundings, light by light (``regions[m]["contrast_to_surroundings"]``),
     and that of the place where the extra materials lie most often (``extra["most_often"]["contrast"]``):
     :mod:`rjfit.posterior.contrast`, from the fitted observations and their Lambertian shading at the given normals
-    (after calibration, the noise scales undone). Nothing is added where the problem does not record each
-    observation's light."""
+    (after calibration, the noise scales undone; a colour fit's per channel too). Nothing is added where the problem
+    does not record each observation's light."""
     if problem.light is None:
         return
     scale = 1.0 if problem.noise_scale is None else problem.noise_scale
     y, shading = problem.y * scale, problem.C * scale
     n_lights, inside = int(np.max(problem.light)) + 1, np.asarray(labels) >= 0
-    found = contrast.material_contrasts(y, problem.light, problem.pixel, labels, n_lights, shading)
+    colour = ({} if problem.channel is None else
+              {"channel": problem.channel, "channel_names": COLOUR_CHANNELS[:problem.n_channels]})
+    found = contrast.material_contrasts(y, problem.light, problem.pixel, labels, n_lights, shading, **colour)
     for entry, reading in zip(regions, found):
         entry["contrast_to_surroundings"] = reading
     where = (extra or {}).get("most_often")
     if where:
         place = contrast.piece_around(extra_share, where["row"], where["column"], inside)
-        where["contrast"] = contrast.piece_contrast(y, problem.light, problem.pixel, place, inside, n_lights, shading)
+        where["contrast"] = contrast.piece_contrast(y, problem.light, problem.pixel, place, inside, n_lights, shading,
+                                                    **colour)
 
 
 def edge_noise_record(noise) -> dict | None:
