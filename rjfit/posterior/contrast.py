@@ -78,10 +78,13 @@ def border(piece, around, width: int = RING_OUTER) -> np.ndarray:
     return ndimage.binary_dilation(around, np.ones((3, 3), bool), iterations=width) & piece
 
 
-def light_contrasts(y, light, pixel, piece, around, n_lights: int, shading=None) -> np.ndarray:
+def light_contrasts(y, light, pixel, piece, around, n_lights: int, shading=None, channel=None,
+                    n_channels: int = 1) -> np.ndarray:
     """(n_lights,) the brightness of ``piece`` under each light over that of ``around``: each side's observations
     ``y`` summed over the light, over the sum of their ``shading`` (the mean of ``y`` where ``shading`` is None); NaN
-    where either side holds no observation under that light or a sum is not positive.
+    where either side holds no observation under that light or a sum is not positive. With ``channel`` (per
+    observation, 0 .. ``n_channels`` - 1), (n_lights, 1 + n_channels): the channels together, then each alone, from
+    one pass over the observations.
 
     ``y``, ``light``, ``pixel``, ``shading``: per observation, its intensity, its light (0 .. ``n_lights`` - 1), its
     row-major flat pixel index and its Lambertian shading ``E <l.n>``; ``piece`` and ``around`` (H, W bool). Each
@@ -90,17 +93,23 @@ def light_contrasts(y, light, pixel, piece, around, n_lights: int, shading=None)
     0, would dominate a mean of ratios.
     """
     pixel = np.asarray(pixel)
-    light = np.asarray(light).astype(np.int64)
+    groups = n_lights * n_channels
+    key = np.asarray(light).astype(np.int64) * n_channels
+    if channel is not None:
+        key += np.asarray(channel)
     y = np.asarray(y, np.float64)
     weight = np.ones_like(y) if shading is None else np.asarray(shading, np.float64)
     sides = []
     for mask in (piece, around):
         chosen = np.asarray(mask, bool).ravel()[pixel]
-        total = np.bincount(light[chosen], weights=y[chosen], minlength=n_lights)
-        norm = np.bincount(light[chosen], weights=weight[chosen], minlength=n_lights)
+        total = np.bincount(key[chosen], weights=y[chosen], minlength=groups).reshape(n_lights, n_channels)
+        norm = np.bincount(key[chosen], weights=weight[chosen], minlength=groups).reshape(n_lights, n_channels)
+        if channel is not None:          # the channels together first, then each alone
+            total, norm = (np.column_stack([sums.sum(axis=1), sums]) for sums in (total, norm))
         with np.errstate(invalid="ignore", divide="ignore"):
             sides.append(np.where((norm > 0) & (total > 0), total / norm, np.nan))
-    return sides[0] / sides[1]
+    ratios = sides[0] / sides[1]
+    return ratios if channel is not None else ratios[:, 0]
 
 
 def contrast_entry(ratios, piece_pixels: int, border_pixels: int, ring_pixels: int) -> dict | None:
@@ -175,17 +184,13 @@ def piece_contrast(y, light, pixel, piece, inside, n_lights: int, shading=None, 
         return None
     near = border(piece, around)
     sizes = (int(piece.sum()), int(near.sum()), int(around.sum()))
-    entry = contrast_entry(light_contrasts(y, light, pixel, near, around, n_lights, shading), *sizes)
-    if entry is None or channel is None:
-        return entry
-    channel, per_channel = np.asarray(channel), {}
-    for index, name in enumerate(channel_names):
-        mine = channel == index
-        weight = None if shading is None else np.asarray(shading)[mine]
-        per_channel[name] = contrast_entry(light_contrasts(np.asarray(y)[mine], np.asarray(light)[mine],
-                                                           np.asarray(pixel)[mine], near, around, n_lights, weight),
-                                           *sizes)
-    entry["channels"] = per_channel
+    ratios = light_contrasts(y, light, pixel, near, around, n_lights, shading, channel, len(channel_names) or 1)
+    if channel is None:
+        return contrast_entry(ratios, *sizes)
+    entry = contrast_entry(ratios[:, 0], *sizes)
+    if entry is not None:
+        entry["channels"] = {name: contrast_entry(ratios[:, 1 + index], *sizes)
+                             for index, name in enumerate(channel_names)}
     return entry
 
 
